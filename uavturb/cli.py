@@ -1,0 +1,98 @@
+"""The ``uavturb`` command: parses arguments and calls library functions, nothing more."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from uavturb.errors import UavturbError
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="uavturb", description=__doc__.split("\n")[0] if __doc__ else None)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    s = sub.add_parser("identify", help="identify k_T, k_M and inertia from flights (the paper's least squares)")
+    s.add_argument("recordings", nargs="+", metavar="REC", help="recording folders (recordings.md layout)")
+    s.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    s.add_argument("--model", default="auto", choices=["auto", "general", "jx=jy"],
+                   help="inertia model: J_x != J_y, the paper's J_x = J_y, or chosen by the data (default)")
+    s.add_argument("--vehicle", help="vehicle.yaml or preset (quad, hex) for folders without one (raw EuRoC)")
+
+    s = sub.add_parser("residuals", help="ground-truth turbulence: residual force of the identified model")
+    s.add_argument("recording", metavar="REC")
+    s.add_argument("--out", required=True, help="output file: .csv or .parquet")
+    s.add_argument("--source", default="auto", choices=["auto", "imu", "mocap"],
+                   help="IMU specific force (default where present) or differentiated MoCap velocity")
+    s.add_argument("--derivative", default="savgol", choices=["savgol", "forward"],
+                   help="MoCap derivative: Savitzky-Golay or the paper's one-step forward difference")
+    s.add_argument("--params", default="identified", choices=["identified", "nominal"],
+                   help="model constants: identified on this flight (default) or vehicle.yaml's")
+    s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one")
+
+    s = sub.add_parser("generate", help="generate data")
+    gsub = s.add_subparsers(dest="what", required=True, metavar="WHAT")
+    g = gsub.add_parser("flight", help="a flight in the EuRoC layout with sensor noise and named effects")
+    g.add_argument("--vehicle", default="hex", help="preset (quad, hex) or vehicle.yaml")
+    g.add_argument("--effects", default="none", help="NAME:param=value,... from effects.md (default none)")
+    g.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
+    g.add_argument("--kind", default="mixed", choices=["excitation", "low_passes", "mixed"])
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--noise", default="realistic", choices=["realistic", "none"])
+    g.add_argument("--out", required=True, help="recording folder to create")
+
+    s = sub.add_parser("bench", help="benchmarks that print figures")
+    s.add_argument("what", choices=["scene", "physics"])
+
+    s = sub.add_parser("demo", help="the main job, end to end, on data the project generates")
+    s.add_argument("--out", default="demo_out")
+    s.add_argument("--seed", type=int, default=0)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    args = _parser().parse_args(argv)
+    try:
+        return _run(args)
+    except UavturbError as e:
+        print(f"uavturb {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"uavturb {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _run(args: argparse.Namespace) -> int:
+    from uavturb import workflows
+
+    if args.command == "identify":
+        ident = workflows.identify_recordings(args.recordings, model=args.model, vehicle=args.vehicle)
+        if args.json:
+            print(json.dumps(ident.to_dict()))
+        else:
+            print(workflows.format_identification(ident))
+    elif args.command == "residuals":
+        res, path = workflows.residuals_to_file(args.recording, args.out, source=args.source,
+                                                derivative=args.derivative, params=args.params,
+                                                vehicle=args.vehicle)
+        print(f"wrote {path}: {len(res.t)} samples, source {res.source}, residual RMS {res.rmse:.4f} N")
+    elif args.command == "generate":
+        if args.what == "flight":
+            rec = workflows.generate_flight(vehicle=args.vehicle, effects=args.effects, duration=args.duration,
+                                            kind=args.kind, seed=args.seed, noise=args.noise, out=args.out)
+            print(f"wrote {args.out}: {len(rec.ground_truth)} ground-truth rows, "
+                  f"{rec.ground_truth and (rec.ground_truth.t_ns[-1] - rec.ground_truth.t_ns[0]) * 1e-9:.1f} s")
+    elif args.command == "bench":
+        workflows.bench(args.what)
+    elif args.command == "demo":
+        workflows.demo(Path(args.out), seed=args.seed)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

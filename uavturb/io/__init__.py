@@ -1,0 +1,1 @@
+"""Flight recordings in the EuRoC-MAV layout of ``recordings.md``: read, write, align."""

@@ -1,0 +1,1 @@
+"""Physics core: vehicle, rigid-body dynamics (the paper's eq. 1), effects, identification."""

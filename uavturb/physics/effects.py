@@ -1,0 +1,297 @@
+"""The named physical effects of ``effects.md``: laws, parameters, and a parser.
+
+Every effect is a force [N] in the world frame W added to the nominal model of
+``recordings.md``; ``motor_lag`` instead changes the rotor speeds the model sees, and
+``battery_sag`` the thrust (written here as the equivalent world force, as ``effects.md``
+does). Names and parameter names are an interface: configs, reports and tests use them
+verbatim.
+
+Symbols (``effects.md``): ``T = k_T sum(w_i^2)`` thrust with the actual rotor speeds,
+``Wsum = sum(w_i)``, ``R = R(q)``, ``v`` world velocity, ``v_B = R^T v``, ``r`` rotor
+radius, ``d_down`` / ``d_up`` heights to the surfaces below / above, ``t`` seconds since
+the recording's start.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from uavturb.errors import InputError
+from uavturb.physics import ground_effect as ge
+from uavturb.physics import quaternion as quat
+
+
+@dataclass
+class EffectInputs:
+    """What the laws need, over ``K`` samples.
+
+    Attributes
+    ----------
+    q : (K, 4) quaternion w, x, y, z, body to world
+    v : (K, 3) m/s, world velocity
+    rotor_speeds : (K, N) rad/s, actual rotor speeds
+    k_T : float, N/(rad/s)^2
+    rotor_radius : float, m
+    d_down, d_up : (K,) m, ``inf`` where there is no surface
+    t : (K,) s since the recording's start
+    """
+
+    q: np.ndarray
+    v: np.ndarray
+    rotor_speeds: np.ndarray
+    k_T: float
+    rotor_radius: float
+    d_down: np.ndarray | None = None
+    d_up: np.ndarray | None = None
+    t: np.ndarray | None = None
+    _R: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def K(self) -> int:
+        return len(self.q)
+
+    @property
+    def R(self) -> np.ndarray:
+        """(K, 3, 3) body-to-world rotations (cached)."""
+        if self._R is None:
+            self._R = quat.to_rotation_matrix(self.q)
+        return self._R
+
+    @property
+    def thrust(self) -> np.ndarray:
+        """(K,) N, ``T = k_T sum(w_i^2)``."""
+        return self.k_T * np.sum(np.asarray(self.rotor_speeds, float) ** 2, axis=1)
+
+    @property
+    def z_body(self) -> np.ndarray:
+        """(K, 3) body ``+z`` axis in W, ``R e_z``."""
+        return self.R[:, :, 2]
+
+    def need(self, name: str, what: str) -> np.ndarray:
+        value = getattr(self, what)
+        if value is None:
+            raise InputError(name, f"this effect needs '{what}', which the recording does not provide")
+        return np.asarray(value, float)
+
+
+def _surface_force(d: np.ndarray, thrust: np.ndarray, coeff: float, r: float) -> np.ndarray:
+    """``e_z T rho/(1-rho)``, ``rho = coeff (r/(4 d))^2``, with the paper's clip (ground_effect.phi)."""
+    f = ge.phi(d, thrust, coeff, r)
+    out = np.zeros((len(f), 3))
+    out[:, 2] = f
+    return out
+
+
+def ground_effect_force(x: EffectInputs, mu: float) -> np.ndarray:
+    """Cheeseman-Bennett ground effect: ``F = e_z T rho/(1-rho)``, ``rho = mu (r/(4 d_down))^2``."""
+    return _surface_force(x.need("ground_effect", "d_down"), x.thrust, mu, x.rotor_radius)
+
+
+def ceiling_effect_force(x: EffectInputs, kappa: float) -> np.ndarray:
+    """Ceiling effect: ``F = e_z T rho/(1-rho)``, ``rho = kappa (r/(4 d_up))^2``. Clipped like the
+    ground effect (``effects.md`` gives no clip for it; the pole is the same)."""
+    return _surface_force(x.need("ceiling_effect", "d_up"), x.thrust, kappa, x.rotor_radius)
+
+
+def rotor_drag_force(x: EffectInputs, k_d: float) -> np.ndarray:
+    """Rotor drag (blade flapping, induced drag): ``F = -k_d Wsum R [v_B,x, v_B,y, 0]`` (RotorS)."""
+    vB = np.einsum("kji,kj->ki", x.R, np.asarray(x.v, float))
+    vB[:, 2] = 0.0
+    wsum = np.sum(np.asarray(x.rotor_speeds, float), axis=1)
+    return -k_d * wsum[:, None] * np.einsum("kij,kj->ki", x.R, vB)
+
+
+def body_drag_force(x: EffectInputs, c_d: float) -> np.ndarray:
+    """Quadratic parasitic drag: ``F = -c_d |v| v``."""
+    v = np.asarray(x.v, float)
+    return -c_d * np.linalg.norm(v, axis=1, keepdims=True) * v
+
+
+def wind_force(x: EffectInputs, f_x: float, f_y: float) -> np.ndarray:
+    """A steady horizontal push ``F = (f_x, f_y, 0)``."""
+    out = np.zeros((x.K, 3))
+    out[:, 0], out[:, 1] = f_x, f_y
+    return out
+
+
+def battery_sag_force(x: EffectInputs, s: float) -> np.ndarray:
+    """Thrust coefficient decaying as ``k_T (1 - s t)``: ``F = -s t T R e_z``."""
+    t = x.need("battery_sag", "t")
+    return -(s * t * x.thrust)[:, None] * x.z_body
+
+
+def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray:
+    """Actual rotor speeds under first-order lag ``tau dw/dt = w_cmd - w``.
+
+    Exact discretisation for commands held between samples (zero-order hold), started at
+    ``w(t_0) = w_cmd(t_0)``.
+
+    Parameters
+    ----------
+    t : (K,) s, increasing
+    w_cmd : (K, N) rad/s, the recorded (commanded) speeds
+    tau : s, time constant (0 returns the commands)
+    """
+    w_cmd = np.asarray(w_cmd, float)
+    if tau <= 0:
+        return w_cmd.copy()
+    dt = np.diff(np.asarray(t, float), prepend=t[0])
+    a = np.exp(-dt / tau)  # (K,)
+    out = np.empty_like(w_cmd)
+    out[0] = w_cmd[0]
+    # w_k = a_k w_{k-1} + (1 - a_k) w_cmd_{k-1}: a linear recurrence, run as a scipy filter
+    # when the step is uniform, else as a loop over time (vectorised over rotors).
+    if np.allclose(dt[1:], dt[1:].mean(), rtol=1e-6, atol=0):
+        from scipy.signal import lfilter
+
+        ak = float(a[1])
+        u = np.vstack([w_cmd[:1], w_cmd[:-1]])  # input delayed by one sample
+        zi = ak * w_cmd[0]
+        y, _ = lfilter([1 - ak], [1, -ak], u[1:], axis=0, zi=np.atleast_2d(zi))
+        out[1:] = y
+        return out
+    for k in range(1, len(w_cmd)):
+        out[k] = a[k] * out[k - 1] + (1 - a[k]) * w_cmd[k - 1]
+    return out
+
+
+def motor_lag_force(x: EffectInputs, tau: float) -> np.ndarray:
+    """The thrust change from lagging rotors, as a world force: ``R e_z k_T sum(w_lag^2 - w_cmd^2)``,
+    with ``x.rotor_speeds`` the recorded commands."""
+    t = x.need("motor_lag", "t")
+    w_cmd = np.asarray(x.rotor_speeds, float)
+    w_act = lag_rotor_speeds(t, w_cmd, tau)
+    dT = x.k_T * np.sum(w_act**2 - w_cmd**2, axis=1)
+    return dT[:, None] * x.z_body
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    """One entry of the ``effects.md`` vocabulary.
+
+    Attributes
+    ----------
+    name : str
+    params : tuple of str, parameter names (verbatim from ``effects.md``)
+    units : tuple of str, their units
+    typical : tuple of float, magnitudes seen on 1-2 kg multirotors (defaults)
+    force : callable ``(EffectInputs, **params) -> (K, 3)`` world force [N]
+    linear : bool, force linear in the parameters (a linear least-squares fit suffices)
+    """
+
+    name: str
+    params: tuple[str, ...]
+    units: tuple[str, ...]
+    typical: tuple[float, ...]
+    force: Callable[..., np.ndarray]
+    linear: bool
+    summary: str
+
+
+EFFECTS: dict[str, EffectSpec] = {
+    e.name: e
+    for e in [
+        EffectSpec("ground_effect", ("mu",), ("-",), (2.0,), ground_effect_force, False,
+                   "Cheeseman-Bennett ground effect: extra lift near the surface below"),
+        EffectSpec("ceiling_effect", ("kappa",), ("-",), (2.0,), ceiling_effect_force, False,
+                   "ceiling effect: suction towards the surface above"),
+        EffectSpec("rotor_drag", ("k_d",), ("N s^2/m",), (8.06e-5,), rotor_drag_force, True,
+                   "rotor drag (blade flapping, induced drag), linear in body-horizontal speed"),
+        EffectSpec("body_drag", ("c_d",), ("kg/m",), (0.05,), body_drag_force, True,
+                   "quadratic parasitic drag of the airframe"),
+        EffectSpec("wind", ("f_x", "f_y"), ("N", "N"), (0.3, 0.0), wind_force, True,
+                   "a steady horizontal push"),
+        EffectSpec("battery_sag", ("s",), ("1/s",), (1e-3,), battery_sag_force, True,
+                   "thrust coefficient decaying as the battery drains"),
+        EffectSpec("motor_lag", ("tau",), ("s",), (0.02,), motor_lag_force, False,
+                   "rotor speeds lagging their commands with a first-order time constant"),
+    ]
+}
+
+
+def effect_force(name: str, params: dict[str, float], inputs: EffectInputs) -> np.ndarray:
+    """World force [N], ``(K, 3)``, of one named effect."""
+    spec = get_spec(name)
+    check_params(name, params)
+    return spec.force(inputs, **{k: float(params[k]) for k in spec.params})
+
+
+def total_force(effects: dict[str, dict[str, float]], inputs: EffectInputs) -> np.ndarray:
+    """Sum of the world forces [N], ``(K, 3)``, of several named effects."""
+    total = np.zeros((inputs.K, 3))
+    for name, params in effects.items():
+        total += effect_force(name, params, inputs)
+    return total
+
+
+def get_spec(name: str) -> EffectSpec:
+    if name not in EFFECTS:
+        raise InputError("effects", f"unknown effect '{name}' (known: {', '.join(EFFECTS)})")
+    return EFFECTS[name]
+
+
+def check_params(name: str, params: dict[str, float]) -> None:
+    spec = get_spec(name)
+    unknown = sorted(set(params) - set(spec.params))
+    if unknown:
+        raise InputError(f"effects.{name}", f"unknown parameter(s) {', '.join(unknown)} (allowed: {', '.join(spec.params)})")
+    missing = [p for p in spec.params if p not in params]
+    if missing:
+        raise InputError(f"effects.{name}", f"missing parameter(s) {', '.join(missing)}")
+
+
+def defaults(name: str) -> dict[str, float]:
+    spec = get_spec(name)
+    return dict(zip(spec.params, spec.typical))
+
+
+def parse_effects(text: str | None) -> dict[str, dict[str, float]]:
+    """Parse ``NAME[:param=value[,param=value...]][,NAME...]``.
+
+    A token holding ``:`` or no ``=`` starts a new effect; a bare ``param=value`` token adds
+    to the current one. Parameters left out take the typical values of ``effects.md``.
+    ``none`` or an empty string gives no effect. Example:
+    ``"wind:f_x=0.3,f_y=-0.1,rotor_drag:k_d=8e-5,ground_effect"``.
+    """
+    out: dict[str, dict[str, float]] = {}
+    if text is None or text.strip() in ("", "none"):
+        return out
+    current: str | None = None
+    for raw in text.split(","):
+        tok = raw.strip()
+        if not tok:
+            continue
+        if ":" in tok or "=" not in tok:
+            name, _, rest = tok.partition(":")
+            name = name.strip()
+            get_spec(name)
+            if name in out:
+                raise InputError("effects", f"effect '{name}' given twice")
+            out[name] = {}
+            current = name
+            tok = rest.strip()
+            if not tok:
+                continue
+        if current is None:
+            raise InputError("effects", f"'{tok}' comes before any effect name")
+        key, _, val = tok.partition("=")
+        key = key.strip()
+        try:
+            out[current][key] = float(val)
+        except ValueError:
+            raise InputError(f"effects.{current}", f"parameter '{key}' must be a number, got '{val}'") from None
+    for name, params in out.items():
+        full = {**defaults(name), **params}
+        check_params(name, full)
+        out[name] = full
+    return out
+
+
+def format_effects(effects: dict[str, dict[str, float]]) -> str:
+    """Inverse of :func:`parse_effects`."""
+    if not effects:
+        return "none"
+    return ",".join(f"{n}:" + ",".join(f"{k}={v:.9g}" for k, v in p.items()) for n, p in effects.items())

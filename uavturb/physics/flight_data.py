@@ -1,0 +1,141 @@
+"""A recording's streams on one time base, with the derivatives dynamics work needs.
+
+The time base is the IMU's timestamps where there is an IMU (the accelerometer is then
+used as recorded, never interpolated), else the ground truth's; it is cut to the span that
+every stream covers. Derivatives are Savitzky-Golay (quadratic, window in seconds); the same
+filter smooths regressors, so that fits compare like with like.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from uavturb.errors import InputError
+from uavturb.io import align
+from uavturb.io.recording import Recording
+from uavturb.physics import quaternion as quat
+
+
+@dataclass
+class FlightData:
+    """Aligned samples of one flight, ``K`` rows.
+
+    Attributes
+    ----------
+    name : str, the recording's name
+    t_ns : (K,) int64 ns, the time base
+    t : (K,) s since the first ground-truth row
+    p : (K, 3) m, position in W
+    q : (K, 4) quaternion w, x, y, z, body to world
+    v : (K, 3) m/s, velocity in W
+    w : (K, 3) rad/s, body rates (gyro minus bias, or from the quaternions)
+    acc : (K, 3) m/s^2 or None, specific force in B, biases of the state file removed
+    rotor_speeds : (K, N) rad/s
+    dv : (K, 3) m/s^2, smoothed derivative of ``v``
+    dw : (K, 3) rad/s^2, smoothed derivative of ``w``
+    d_down, d_up : (K,) m or None, heights to the surfaces below and above (``inf``: none)
+    window : int, Savitzky-Golay window [samples]
+    """
+
+    name: str
+    t_ns: np.ndarray
+    t: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    w: np.ndarray
+    acc: np.ndarray | None
+    rotor_speeds: np.ndarray
+    dv: np.ndarray
+    dw: np.ndarray
+    d_down: np.ndarray | None
+    d_up: np.ndarray | None
+    window: int
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def dt(self) -> float:
+        """Median sampling step [s]."""
+        return float(np.median(np.diff(self.t)))
+
+    def smooth(self, x: np.ndarray) -> np.ndarray:
+        """The filter of the derivatives, without differentiating (axis 0)."""
+        return savgol_filter(np.asarray(x, float), self.window, 2, axis=0, mode="interp")
+
+    def subset(self, mask: np.ndarray) -> "FlightData":
+        """Rows where ``mask`` holds (derivatives already computed stay as they are)."""
+        def pick(a):
+            return None if a is None else a[mask]
+        return FlightData(self.name, self.t_ns[mask], self.t[mask], self.p[mask], self.q[mask], self.v[mask],
+                          self.w[mask], pick(self.acc), self.rotor_speeds[mask], self.dv[mask], self.dw[mask],
+                          pick(self.d_down), pick(self.d_up), self.window)
+
+
+def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
+                time_base: str = "auto") -> FlightData:
+    """Put a recording's streams on one time base.
+
+    Parameters
+    ----------
+    rec : Recording with ground truth and rotor speeds
+    window_s : Savitzky-Golay window [s] for derivatives and smoothing
+    heights : compute ``d_down``/``d_up`` from the point cloud when there is one
+    time_base : ``auto`` (IMU if present), ``imu`` or ``groundtruth``
+    """
+    where = rec.path or rec.name
+    gt = rec.ground_truth
+    if rec.rotors is None:
+        raise InputError(f"{where}/mav0/rotors0/data.csv", "rotor speeds are needed but the recording has none")
+    use_imu = rec.imu is not None and time_base in ("auto", "imu")
+    if time_base == "imu" and rec.imu is None:
+        raise InputError(f"{where}/mav0/imu0/data.csv", "file not found (time_base=imu)")
+    streams = [("mav0/state_groundtruth_estimate0/data.csv", gt.t_ns), ("mav0/rotors0/data.csv", rec.rotors.t_ns)]
+    if use_imu:
+        streams.append(("mav0/imu0/data.csv", rec.imu.t_ns))
+    start = max(int(s[1][0]) for s in streams)
+    end = min(int(s[1][-1]) for s in streams)
+    if end <= start:
+        raise InputError(f"{where}/{streams[-1][0]}", "does not overlap the other streams in time")
+    base = rec.imu.t_ns if use_imu else gt.t_ns
+    t_ns = base[(base >= start) & (base <= end)]
+    dt = float(np.median(np.diff(t_ns))) * 1e-9 if len(t_ns) > 1 else 0.0
+    window = max(5, int(round(window_s / dt)) | 1) if dt > 0 else 5
+    if len(t_ns) < window + 2:
+        raise InputError(str(where), f"only {len(t_ns)} samples where all streams overlap (need {window + 2})")
+
+    p = align.interpolate(gt.t_ns, gt.p, t_ns)
+    v = align.interpolate(gt.t_ns, gt.v, t_ns)
+    q = align.interpolate_quaternions(gt.t_ns, gt.q, t_ns)
+    b_w = align.interpolate(gt.t_ns, gt.b_w, t_ns)
+    b_a = align.interpolate(gt.t_ns, gt.b_a, t_ns)
+    rotor = align.interpolate(rec.rotors.t_ns, rec.rotors.speeds, t_ns)
+    t = (t_ns - rec.t0_ns) * 1e-9
+
+    if use_imu:
+        imu = rec.imu
+        sel = np.searchsorted(imu.t_ns, t_ns)
+        gyro, acc = imu.gyro[sel], imu.acc[sel]
+        if imu.T_BS is not None and not np.allclose(imu.T_BS[:3, :3], np.eye(3)):
+            R_BS = imu.T_BS[:3, :3]  # sensor to body; the lever arm is ignored (IMU near the CoM)
+            gyro, acc = gyro @ R_BS.T, acc @ R_BS.T
+        w = gyro - b_w
+        acc = acc - b_a
+    else:
+        w = quat.angular_velocity_body(t, q)
+        acc = None
+
+    dv = savgol_filter(v, window, 2, deriv=1, delta=dt, axis=0, mode="interp")
+    dw = savgol_filter(w, window, 2, deriv=1, delta=dt, axis=0, mode="interp")
+
+    d_down = d_up = None
+    if heights and rec.points is not None:
+        from uavturb.scene.heights import SurfaceIndex
+
+        index = SurfaceIndex(rec.points)
+        d_down, d_up = index.d_down(p), index.d_up(p)
+    return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window)

@@ -1,0 +1,161 @@
+"""Cheeseman-Bennett ground effect (Cheeseman & Bennett 1955; the paper's eq. "ground effect").
+
+Force on the vehicle, vertical, in newtons::
+
+    f_a = phi(d, Omega) = k_T sum(Omega_i^2) rho / (1 - rho),   rho = mu (r / (4 d))^2
+
+with ``d`` the height of the body origin over the surface below [m], ``r`` the rotor
+radius [m] and ``mu`` [-] a coefficient that depends on the rotor count. It equals
+``T rho / (1 - rho)`` with ``T = k_T sum(Omega^2)`` the rotor thrust (``effects.md``).
+
+The law is singular at ``d = r sqrt(mu) / 4`` (``rho = 1``). The paper clips ``f_a`` to
+0.1 mg (a weight of 0.1 milligram, 9.81e-7 N) when ``d`` falls under that value; we keep
+that clip exactly (:data:`CLIP_FORCE_N`), as ``effects.md`` asks, although it makes the
+law discontinuous there: just above the threshold the force grows without bound.
+
+Identification (paper, "Predicting turbulences")::
+
+    argmin_(alpha, beta) sum_t (f_a,t - alpha sum_i Omega_i,t^2 / (d_t^2 - beta))^2
+
+with ``beta = mu r^2 / 16`` and ``alpha = k_T beta``. The paper writes ``sum_i Omega_i``
+in its prediction formula and ``sum_i Omega_i^2`` in the identification: the law has
+``Omega^2`` (thrust is quadratic in rotor speed), so we use ``Omega^2`` everywhere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+
+from uavturb.errors import InputError
+
+CLIP_FORCE_N = 0.1e-6 * 9.81  # N: the paper's clip value, 0.1 mg, as a weight
+
+
+def rho(d: np.ndarray, mu: float, r: float) -> np.ndarray:
+    """``rho = mu (r / (4 d))^2`` [-]; 0 where ``d`` is infinite (no surface)."""
+    d = np.asarray(d, dtype=float)
+    with np.errstate(divide="ignore"):
+        return mu * (r / (4.0 * d)) ** 2
+
+
+def min_height(mu: float, r: float) -> float:
+    """Height [m] under which the law is clipped: ``r sqrt(mu) / 4``."""
+    return r * np.sqrt(max(mu, 0.0)) / 4.0
+
+
+def force_ratio(d: np.ndarray, mu: float, r: float) -> np.ndarray:
+    """``rho / (1 - rho)`` [-], the ground-effect force per unit thrust; ``nan`` where clipped."""
+    rh = rho(d, mu, r)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = rh / (1.0 - rh)
+    return np.where(np.asarray(d, float) <= min_height(mu, r), np.nan, out)
+
+
+def phi(d: np.ndarray, thrust: np.ndarray, mu: float, r: float) -> np.ndarray:
+    """Cheeseman-Bennett force [N] along world ``+z``.
+
+    Parameters
+    ----------
+    d : (K,) height over the surface below [m] (``inf`` where none)
+    thrust : (K,) rotor thrust ``T = k_T sum(Omega^2)`` [N]
+    mu : coefficient [-]
+    r : rotor radius [m]
+
+    Returns
+    -------
+    (K,) force [N]; :data:`CLIP_FORCE_N` where ``d <= r sqrt(mu) / 4`` (the paper's clip).
+    """
+    ratio = force_ratio(d, mu, r)
+    return np.where(np.isnan(ratio), CLIP_FORCE_N, np.asarray(thrust, float) * np.nan_to_num(ratio))
+
+
+def phi_alpha_beta(d: np.ndarray, sum_omega2: np.ndarray, alpha: float, beta: float) -> np.ndarray:
+    """The paper's identification form ``alpha sum(Omega^2) / (d^2 - beta)`` [N], clipped like :func:`phi`."""
+    d2 = np.asarray(d, float) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = alpha * np.asarray(sum_omega2, float) / (d2 - beta)
+    return np.where(d2 <= beta, CLIP_FORCE_N, np.where(np.isinf(d2), 0.0, f))
+
+
+@dataclass(frozen=True)
+class GroundEffectFit:
+    """Identified ``(alpha, beta)`` and what they mean for a known rotor.
+
+    Attributes
+    ----------
+    alpha : float
+        ``k_T beta`` [N m^2/(rad/s)^2]
+    beta : float
+        ``mu r^2 / 16`` [m^2]
+    rmse : float
+        N, root mean square of the fit residual
+    n : int
+        samples used
+    """
+
+    alpha: float
+    beta: float
+    rmse: float
+    n: int
+
+    def mu(self, r: float) -> float:
+        """``mu = 16 beta / r^2`` for rotor radius ``r`` [m]."""
+        return 16.0 * self.beta / r**2
+
+    def k_T(self) -> float:
+        """``k_T = alpha / beta`` [N/(rad/s)^2]."""
+        return self.alpha / self.beta
+
+    def predict(self, d: np.ndarray, sum_omega2: np.ndarray) -> np.ndarray:
+        return phi_alpha_beta(d, sum_omega2, self.alpha, self.beta)
+
+
+def identify_alpha_beta(f_a: np.ndarray, d: np.ndarray, sum_omega2: np.ndarray) -> GroundEffectFit:
+    """Fit ``(alpha, beta)`` by BFGS on the paper's least-squares objective.
+
+    The start comes from the linearised problem ``f_a d^2 = alpha S + beta f_a`` (linear
+    least squares); ``beta`` is kept inside ``(0, min d^2)`` by the change of variable
+    ``beta = min(d^2) sigmoid(z)``, so BFGS runs unconstrained and never meets the pole.
+
+    Parameters
+    ----------
+    f_a : (K,) measured vertical turbulence force [N]
+    d : (K,) true heights over the surface below [m]
+    sum_omega2 : (K,) ``sum_i Omega_i^2`` [rad^2/s^2]
+    """
+    f_a, d, S = (np.asarray(a, dtype=float).ravel() for a in (f_a, d, sum_omega2))
+    if not (len(f_a) == len(d) == len(S)):
+        raise InputError("ground effect fit", "f_a, d and sum_omega2 must have the same length")
+    ok = np.isfinite(f_a) & np.isfinite(d) & np.isfinite(S) & (d > 0)
+    if ok.sum() < 3:
+        raise InputError("ground effect fit", "fewer than 3 valid samples")
+    f_a, d, S = f_a[ok], d[ok], S[ok]
+    d2 = d**2
+    d2min = float(d2.min())
+
+    A = np.stack([S, f_a], axis=1)
+    (a0, b0), *_ = np.linalg.lstsq(A, f_a * d2, rcond=None)
+    b0 = float(np.clip(b0, 1e-6 * d2min, 0.95 * d2min))
+    a0 = float(a0) if a0 > 0 else float(np.mean(np.abs(f_a) * d2 / np.maximum(S, 1e-12)))
+    a0 = max(a0, 1e-30)
+
+    f_scale = max(float(np.sqrt(np.mean(f_a**2))), 1e-12)
+
+    def unpack(z: np.ndarray) -> tuple[float, float]:
+        alpha = a0 * np.exp(z[0])
+        beta = d2min / (1.0 + np.exp(-z[1]))
+        return alpha, beta
+
+    def loss(z: np.ndarray) -> float:
+        alpha, beta = unpack(z)
+        r = (f_a - alpha * S / (d2 - beta)) / f_scale
+        return float(np.mean(r**2))
+
+    z0 = np.array([0.0, np.log(b0 / (d2min - b0))])
+    res = minimize(loss, z0, method="BFGS", options={"gtol": 1e-12, "maxiter": 500})
+    alpha, beta = unpack(res.x)
+    rmse = float(np.sqrt(np.mean((f_a - alpha * S / (d2 - beta)) ** 2)))
+    return GroundEffectFit(alpha=float(alpha), beta=float(beta), rmse=rmse, n=int(ok.sum()))

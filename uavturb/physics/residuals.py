@@ -1,0 +1,150 @@
+"""Ground-truth turbulence: the residual force of the identified model (paper, "Estimating GT turbulences").
+
+The paper defines it as the external force that makes one explicit step of the model land
+on the next measured state::
+
+    f*_a,t = argmin_f || x_{t+1} - (x_t + dt f(x_t, Omega_t, f)) ||^2
+
+For the velocity rows that is ``F = m (v_{t+1} - v_t)/dt - R T e_z + m g e_z``
+(``derivative="forward"``). Smoother alternatives are offered:
+
+* ``source="imu"`` (the default where an IMU stream exists): an accelerometer at the centre
+  of mass reads ``a = R^T (F_thrust + F_ext)/m`` (``recordings.md``), so
+  ``F_ext = R (m a - T e_z)``: no differentiation, far less noise;
+* ``source="mocap"``: ``F_ext = m (v_dot + g e_z) - R T e_z`` with ``v_dot`` by
+  Savitzky-Golay (``derivative="savgol"``) or by the paper's forward difference.
+
+Torques: ``tau_ext = J w_dot + w x J w - tau(Omega)`` in B.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from uavturb.errors import InputError
+from uavturb.io.recording import Recording
+from uavturb.physics import quaternion as quat
+from uavturb.physics.dynamics import GRAVITY, dynamics_for, physical_params
+from uavturb.physics.flight_data import FlightData, flight_data
+from uavturb.physics.vehicle import Vehicle
+
+E_Z = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass
+class Residuals:
+    """Residual (unmodelled) force and torque over ``K`` samples.
+
+    Attributes
+    ----------
+    t : (K,) s since the first ground-truth row
+    force : (K, 3) N, in W
+    force_body : (K, 3) N, in B
+    torque : (K, 3) N m, in B
+    thrust : (K,) N, ``k_T sum(w^2)`` with the model's ``k_T``
+    sum_omega2 : (K,) rad^2/s^2
+    source : ``imu`` or ``mocap``
+    data : the aligned flight the residual was computed on
+    """
+
+    t: np.ndarray
+    force: np.ndarray
+    force_body: np.ndarray
+    torque: np.ndarray
+    thrust: np.ndarray
+    sum_omega2: np.ndarray
+    source: str
+    data: FlightData
+
+    @property
+    def rmse(self) -> float:
+        """Root mean square of the force norm [N]."""
+        return float(np.sqrt(np.mean(np.sum(self.force**2, axis=1))))
+
+
+def residual_forces(rec: Recording | FlightData, vehicle: Vehicle, *, source: str = "auto",
+                    derivative: str = "savgol", window_s: float = 0.05) -> Residuals:
+    """Residual force and torque of ``vehicle``'s model on a flight.
+
+    Parameters
+    ----------
+    rec : recording, or its aligned :class:`FlightData`
+    vehicle : vehicle with known (identified) ``k_T``, ``k_M`` and inertia
+    source : ``auto`` (IMU where present), ``imu`` or ``mocap``
+    derivative : ``savgol`` or ``forward`` (the paper's one-step arg-min), for MoCap
+    window_s : derivative filter window [s]
+    """
+    fd = rec if isinstance(rec, FlightData) else flight_data(rec, window_s=window_s)
+    if source == "auto":
+        source = "imu" if fd.acc is not None else "mocap"
+    if source not in ("imu", "mocap"):
+        raise InputError("residuals.source", f"unknown source '{source}' (allowed: auto, imu, mocap)")
+    if derivative not in ("savgol", "forward"):
+        raise InputError("residuals.derivative", f"unknown derivative '{derivative}' (allowed: savgol, forward)")
+    if source == "imu" and fd.acc is None:
+        raise InputError(f"{fd.name}/mav0/imu0/data.csv", "an IMU stream is needed for source=imu")
+    theta = physical_params(vehicle)
+    m, J = vehicle.mass, np.asarray(vehicle.inertia, float)
+    T, tau = dynamics_for(vehicle).thrust_torque(fd.rotor_speeds, theta)
+    R = quat.to_rotation_matrix(fd.q)
+    thrust_world = T[:, None] * R[:, :, 2]
+    if source == "imu":
+        f_body = m * fd.acc - T[:, None] * E_Z
+        force = np.einsum("kij,kj->ki", R, f_body)
+    else:
+        if derivative == "forward":
+            dv = np.empty_like(fd.v)
+            dv[:-1] = np.diff(fd.v, axis=0) / np.diff(fd.t)[:, None]
+            dv[-1] = dv[-2]
+        else:
+            dv = fd.dv
+        force = m * (dv + GRAVITY * E_Z) - thrust_world
+        f_body = np.einsum("kji,kj->ki", R, force)
+    w = fd.w
+    torque = J * fd.dw + np.cross(w, J * w) - tau
+    return Residuals(t=fd.t, force=force, force_body=f_body, torque=torque, thrust=T,
+                     sum_omega2=np.sum(fd.rotor_speeds**2, axis=1), source=source, data=fd)
+
+
+RESIDUAL_COLUMNS = [
+    "t [s]", "timestamp [ns]",
+    "F_x [N]", "F_y [N]", "F_z [N]",
+    "F_Bx [N]", "F_By [N]", "F_Bz [N]",
+    "tau_Bx [N m]", "tau_By [N m]", "tau_Bz [N m]",
+    "thrust [N]", "sum_omega2 [rad^2 s^-2]", "d_down [m]", "d_up [m]",
+]
+
+
+def residual_table(res: Residuals):
+    """The residual time series as a pandas DataFrame (columns :data:`RESIDUAL_COLUMNS`)."""
+    import pandas as pd
+
+    fd = res.data
+    nan = np.full(len(res.t), np.nan)
+    cols = [res.t, fd.t_ns, *res.force.T, *res.force_body.T, *res.torque.T, res.thrust, res.sum_omega2,
+            fd.d_down if fd.d_down is not None else nan, fd.d_up if fd.d_up is not None else nan]
+    return pd.DataFrame(dict(zip(RESIDUAL_COLUMNS, cols)))
+
+
+def write_residuals(res: Residuals, path: str | Path) -> Path:
+    """Write the residual series: Parquet if ``path`` ends in ``.parquet``, else CSV.
+
+    Written to a temporary file and renamed, so ``path`` is complete or absent.
+    """
+    path = Path(path)
+    df = residual_table(res)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        if path.suffix == ".parquet":
+            df.to_parquet(tmp, index=False)
+        else:
+            df.to_csv(tmp, index=False, float_format="%.9g")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path

@@ -1,0 +1,255 @@
+"""Multirotor description: geometry, known constants, presets, and ``vehicle.yaml``.
+
+The rotor geometry and the rotor-force model are those of ``recordings.md`` (the
+paper's eq. 1, after Furrer et al., RotorS): rotor ``i`` sits at angle ``a_i`` from body
+``+x`` (counter-clockwise about ``+z``), at distance ``l`` (``arm_length``) from the
+centre of mass, and spins in direction ``s_i`` (``+1`` = counter-clockwise seen from
+above). With rotor speeds ``w`` [rad/s]::
+
+    T     =  k_T       * sum(w_i^2)                  # N, along +z_B
+    tau_x =  k_T * l   * sum(sin(a_i) * w_i^2)       # N m
+    tau_y = -k_T * l   * sum(cos(a_i) * w_i^2)       # N m
+    tau_z = -k_M       * sum(s_i * w_i^2)            # N m, a CCW rotor pushes the body CW
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from uavturb.errors import InputError
+
+REQUIRED_KEYS = ("mass", "rotor_count", "arm_length", "rotor_angles_deg", "rotor_directions", "rotor_radius")
+OPTIONAL_KEYS = ("name", "thrust_coefficient", "moment_coefficient", "inertia", "rotor_speed_scale", "max_rotor_speed")
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    """A multirotor: geometry, mass and (where known) rotor and inertia constants.
+
+    Attributes
+    ----------
+    name : str
+    mass : float
+        kg.
+    arm_length : float
+        m, centre of mass to each rotor hub.
+    rotor_angles_deg : tuple of float, length N
+        deg, from body ``+x``, counter-clockwise about ``+z``.
+    rotor_directions : tuple of int, length N
+        ``+1`` counter-clockwise seen from above, ``-1`` clockwise.
+    rotor_radius : float
+        m, propeller radius ``r`` (ground and ceiling effect laws).
+    thrust_coefficient : float or None
+        ``k_T`` [N/(rad/s)^2]; ``None`` when it must be identified.
+    moment_coefficient : float or None
+        ``k_M`` [N m/(rad/s)^2].
+    inertia : tuple of 3 floats or None
+        kg m^2, diagonal of ``J`` in the body frame.
+    rotor_speed_scale : float
+        rad/s per unit of the ``rotors0`` values (raw EuRoC motor commands need one).
+    max_rotor_speed : float or None
+        rad/s, actuator bound used by controllers.
+    """
+
+    name: str
+    mass: float
+    arm_length: float
+    rotor_angles_deg: tuple[float, ...]
+    rotor_directions: tuple[int, ...]
+    rotor_radius: float
+    thrust_coefficient: float | None = None
+    moment_coefficient: float | None = None
+    inertia: tuple[float, float, float] | None = None
+    rotor_speed_scale: float = 1.0
+    max_rotor_speed: float | None = None
+    extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+
+    @property
+    def rotor_count(self) -> int:
+        return len(self.rotor_angles_deg)
+
+    @property
+    def rotor_angles(self) -> np.ndarray:
+        """Rotor angles [rad], shape ``(N,)``."""
+        return np.deg2rad(np.asarray(self.rotor_angles_deg, dtype=float))
+
+    def mixer(self) -> np.ndarray:
+        """The paper's geometry matrix ``M`` (4 x N), so that
+        ``[T, tau_x, tau_y, tau_z] = [k_T, l k_T, l k_T, k_M] ⊙ (M @ w**2)``."""
+        a = self.rotor_angles
+        s = np.asarray(self.rotor_directions, dtype=float)
+        return np.stack([np.ones_like(a), np.sin(a), -np.cos(a), -s])
+
+    def allocation(self, k_T: float | None = None, k_M: float | None = None) -> np.ndarray:
+        """Allocation matrix ``A`` (4 x N): ``[T, tau] = A @ w**2`` [N, N m]."""
+        k_T = self.thrust_coefficient if k_T is None else k_T
+        k_M = self.moment_coefficient if k_M is None else k_M
+        if k_T is None or k_M is None:
+            raise InputError(self.name, "thrust_coefficient and moment_coefficient are unknown (identify them first)")
+        return np.array([k_T, self.arm_length * k_T, self.arm_length * k_T, k_M])[:, None] * self.mixer()
+
+    def hover_speed(self) -> float:
+        """Rotor speed [rad/s] at which all rotors together carry the weight."""
+        if self.thrust_coefficient is None:
+            raise InputError(self.name, "thrust_coefficient is unknown")
+        return math.sqrt(self.mass * 9.81 / (self.rotor_count * self.thrust_coefficient))
+
+    @property
+    def J(self) -> np.ndarray:
+        """Inertia matrix [kg m^2], shape ``(3, 3)``."""
+        if self.inertia is None:
+            raise InputError(self.name, "inertia is unknown")
+        return np.diag(np.asarray(self.inertia, dtype=float))
+
+    def is_complete(self) -> bool:
+        return None not in (self.thrust_coefficient, self.moment_coefficient, self.inertia)
+
+    def with_params(self, **changes: Any) -> "Vehicle":
+        return replace(self, **changes)
+
+    # --- vehicle.yaml -------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d.pop("extra")
+        d["rotor_count"] = self.rotor_count
+        d["rotor_angles_deg"] = [float(a) for a in self.rotor_angles_deg]
+        d["rotor_directions"] = [int(s) for s in self.rotor_directions]
+        if self.inertia is not None:
+            d["inertia"] = [float(j) for j in self.inertia]
+        order = ["name", "mass", "rotor_count", "arm_length", "rotor_angles_deg", "rotor_directions",
+                 "rotor_radius", "thrust_coefficient", "moment_coefficient", "inertia",
+                 "rotor_speed_scale", "max_rotor_speed"]
+        return {k: d[k] for k in order if d.get(k) is not None}
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str | Path = "vehicle.yaml") -> "Vehicle":
+        """Validate a parsed ``vehicle.yaml``; any problem raises :class:`InputError` naming ``where``."""
+        if not isinstance(d, dict):
+            raise InputError(where, "expected a mapping of vehicle keys")
+        missing = [k for k in REQUIRED_KEYS if k not in d or d[k] is None]
+        if missing:
+            raise InputError(where, f"missing required key(s): {', '.join(missing)}")
+
+        def number(key: str, positive: bool = True) -> float:
+            v = d[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+                raise InputError(where, f"key '{key}' must be a finite number, got {v!r}")
+            if positive and float(v) <= 0:
+                raise InputError(where, f"key '{key}' must be positive, got {v!r}")
+            return float(v)
+
+        def number_list(key: str, length: int) -> list[float]:
+            v = d[key]
+            if not isinstance(v, (list, tuple)):
+                raise InputError(where, f"key '{key}' must be a list of {length} numbers, got {v!r}")
+            if len(v) != length:
+                raise InputError(where, f"key '{key}' has {len(v)} values, expected {length}")
+            out = []
+            for x in v:
+                if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(float(x)):
+                    raise InputError(where, f"key '{key}' holds a non-numeric value {x!r}")
+                out.append(float(x))
+            return out
+
+        rc = d["rotor_count"]
+        if isinstance(rc, bool) or not isinstance(rc, int) or rc < 3:
+            raise InputError(where, f"key 'rotor_count' must be an integer >= 3, got {rc!r}")
+        angles = number_list("rotor_angles_deg", rc)
+        dirs = number_list("rotor_directions", rc)
+        if any(s not in (1.0, -1.0) for s in dirs):
+            raise InputError(where, "key 'rotor_directions' must hold only +1 or -1")
+        unknown = sorted(set(d) - set(REQUIRED_KEYS) - set(OPTIONAL_KEYS))
+        kwargs: dict[str, Any] = {}
+        for key in ("thrust_coefficient", "moment_coefficient", "max_rotor_speed"):
+            if d.get(key) is not None:
+                kwargs[key] = number(key)
+        if d.get("rotor_speed_scale") is not None:
+            kwargs["rotor_speed_scale"] = number("rotor_speed_scale")
+        if d.get("inertia") is not None:
+            inertia = number_list("inertia", 3)
+            if any(j <= 0 for j in inertia):
+                raise InputError(where, "key 'inertia' must hold positive values")
+            kwargs["inertia"] = tuple(inertia)
+        name = d.get("name") or Path(str(where)).parent.name or "vehicle"
+        return cls(
+            name=str(name),
+            mass=number("mass"),
+            arm_length=number("arm_length"),
+            rotor_angles_deg=tuple(angles),
+            rotor_directions=tuple(int(s) for s in dirs),
+            rotor_radius=number("rotor_radius"),
+            extra={k: d[k] for k in unknown},
+            **kwargs,
+        )
+
+
+def load_vehicle(path: str | Path) -> Vehicle:
+    """Read and validate a ``vehicle.yaml``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "file not found")
+    try:
+        d = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as e:
+        raise InputError(path, f"not valid YAML ({type(e).__name__})") from None
+    return Vehicle.from_dict(d, where=path)
+
+
+def save_vehicle(vehicle: Vehicle, path: str | Path) -> None:
+    """Write ``vehicle.yaml`` atomically (temporary file, then rename)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(yaml.safe_dump(vehicle.to_dict(), sort_keys=False))
+    os.replace(tmp, path)
+
+
+# --- presets ------------------------------------------------------------------------
+
+#: The paper's simulated quadrotor: 50 g class, k_T = 5.45e-6 N/(rad/s)^2 and r = 0.01 m
+#: (paper, Fig. "ground effect": hover at 150 rad/s per rotor). The paper gives neither arm
+#: length, k_M nor inertia: we take Crazyflie-2-like values (arm 0.046 m, k_M/k_T = 0.006 m,
+#: J from Förster 2015 scaled to 50 g).
+QUADROTOR = Vehicle(
+    name="quad-paper",
+    mass=0.05,
+    arm_length=0.046,
+    rotor_angles_deg=(45.0, 135.0, -135.0, -45.0),
+    rotor_directions=(1, -1, 1, -1),
+    rotor_radius=0.01,
+    thrust_coefficient=5.45e-6,
+    moment_coefficient=0.006 * 5.45e-6,
+    inertia=(2.3e-5, 2.3e-5, 4.0e-5),
+    max_rotor_speed=300.0,
+)
+
+#: AscTec Firefly-like hexarotor (RotorS ``firefly.xacro``; the EuRoC-MAV vehicle).
+HEXAROTOR = Vehicle(
+    name="hex-firefly-like",
+    mass=1.5,
+    arm_length=0.215,
+    rotor_angles_deg=(30.0, 90.0, 150.0, -150.0, -90.0, -30.0),
+    rotor_directions=(1, -1, 1, -1, 1, -1),
+    rotor_radius=0.1,
+    thrust_coefficient=8.54858e-06,
+    moment_coefficient=0.016 * 8.54858e-06,
+    inertia=(0.0347563, 0.0458929, 0.0977),
+    max_rotor_speed=838.0,
+)
+
+PRESETS: dict[str, Vehicle] = {"quad": QUADROTOR, "hex": HEXAROTOR}
+
+
+def preset(name: str) -> Vehicle:
+    """A built-in vehicle by name (``quad`` or ``hex``), or a ``vehicle.yaml`` path."""
+    if name in PRESETS:
+        return PRESETS[name]
+    if Path(name).exists():
+        return load_vehicle(name)
+    raise InputError("vehicle", f"unknown vehicle '{name}' (built-in: {', '.join(PRESETS)}; or a vehicle.yaml path)")
