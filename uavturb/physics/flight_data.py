@@ -14,7 +14,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from uavturb.errors import InputError
-from uavturb.io import align
+
 from uavturb.io.recording import Recording
 from uavturb.physics import quaternion as quat
 
@@ -87,6 +87,8 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     heights : compute ``d_down``/``d_up`` from the point cloud when there is one
     time_base : ``auto`` (IMU if present), ``imu`` or ``groundtruth``
     """
+    from uavturb.io import align
+
     where = rec.path or rec.name
     gt = rec.ground_truth
     if rec.rotors is None:
