@@ -44,6 +44,18 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--noise", default="realistic", choices=["realistic", "none"])
     g.add_argument("--out", required=True, help="recording folder to create")
 
+    s = sub.add_parser("gap", help="sim-to-real gap finder: locate, name, fit and apply the physics left out")
+    s.add_argument("recordings", nargs="+", metavar="REC", help="recording folders (recordings.md layout)")
+    s.add_argument("--out", required=True, metavar="DIR", help="report folder (report.json, report.md, plots)")
+    s.add_argument("--sim-effects", default=None, metavar="NAMES",
+                   help="comma-separated effects the simulator already models, or 'none' "
+                        "(default: conf/physics/default.yaml's, i.e. ground_effect)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--apply", metavar="CONF", help="write a simulator physics config with the fitted effects")
+    s.add_argument("--physics-config", metavar="CONF", help="the simulator's physics config (effect parameters)")
+    s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one (raw EuRoC)")
+    s.add_argument("--no-mlflow", action="store_true", help="do not log the run to MLflow")
+
     s = sub.add_parser("bench", help="benchmarks that print figures")
     s.add_argument("what", choices=["scene", "physics"])
 
@@ -85,8 +97,18 @@ def _run(args: argparse.Namespace) -> int:
         if args.what == "flight":
             rec = workflows.generate_flight(vehicle=args.vehicle, effects=args.effects, duration=args.duration,
                                             kind=args.kind, seed=args.seed, noise=args.noise, out=args.out)
-            print(f"wrote {args.out}: {len(rec.ground_truth)} ground-truth rows, "
-                  f"{rec.ground_truth and (rec.ground_truth.t_ns[-1] - rec.ground_truth.t_ns[0]) * 1e-9:.1f} s")
+            gt = rec.ground_truth
+            print(f"wrote {args.out}: {len(gt)} ground-truth rows, {(gt.t_ns[-1] - gt.t_ns[0]) * 1e-9:.1f} s, "
+                  f"effects {args.effects}")
+    elif args.command == "gap":
+        from uavturb.gap.finder import gap
+
+        report = gap(args.recordings, args.out, sim_effects=args.sim_effects, seed=args.seed, apply=args.apply,
+                     vehicle=args.vehicle, log_mlflow=not args.no_mlflow, physics_config=args.physics_config)
+        named = ", ".join(f"{e['name']} {e['params']}" for e in report["effects"]) or "none"
+        print(f"effects named: {named}")
+        print(f"held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
+              f"{report['final']['heldout_rmse_N']:.4f} N ({report['protocol']}); report in {args.out}")
     elif args.command == "bench":
         workflows.bench(args.what)
     elif args.command == "demo":

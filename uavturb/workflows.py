@@ -83,8 +83,11 @@ def generate_flight(*, vehicle: str = "hex", effects: str = "none", duration: fl
     """``uavturb generate flight``: a simulated flight in the EuRoC layout."""
     from uavturb.sim import flight
 
+    if noise not in ("realistic", "none"):
+        raise InputError("--noise", f"unknown value '{noise}' (allowed: realistic, none)")
+    sensor_noise = flight.SensorNoise() if noise == "realistic" else flight.SensorNoise.none()
     return flight.generate_flight(vehicle=vehicle, effects=effects, duration=duration, kind=kind, seed=seed,
-                                  noise=noise, out=out)
+                                  noise=sensor_noise, out=out)
 
 
 def bench(what: str) -> None:

@@ -30,16 +30,17 @@ class EffectInputs:
 
     Attributes
     ----------
-    q : (K, 4) quaternion w, x, y, z, body to world
+    q : (K, 4) quaternion w, x, y, z, body to world (or None with ``R`` given)
     v : (K, 3) m/s, world velocity
     rotor_speeds : (K, N) rad/s, actual rotor speeds
     k_T : float, N/(rad/s)^2
     rotor_radius : float, m
     d_down, d_up : (K,) m, ``inf`` where there is no surface
     t : (K,) s since the recording's start
+    R : (K, 3, 3) body-to-world rotations; computed from ``q`` when not given
     """
 
-    q: np.ndarray
+    q: np.ndarray | None
     v: np.ndarray
     rotor_speeds: np.ndarray
     k_T: float
@@ -47,18 +48,17 @@ class EffectInputs:
     d_down: np.ndarray | None = None
     d_up: np.ndarray | None = None
     t: np.ndarray | None = None
-    _R: np.ndarray | None = field(default=None, repr=False)
+    R: np.ndarray | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.R is None:
+            if self.q is None:
+                raise InputError("effects", "EffectInputs needs q or R")
+            self.R = quat.to_rotation_matrix(self.q)
 
     @property
     def K(self) -> int:
-        return len(self.q)
-
-    @property
-    def R(self) -> np.ndarray:
-        """(K, 3, 3) body-to-world rotations (cached)."""
-        if self._R is None:
-            self._R = quat.to_rotation_matrix(self.q)
-        return self._R
+        return len(self.v)
 
     @property
     def thrust(self) -> np.ndarray:

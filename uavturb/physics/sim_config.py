@@ -1,0 +1,68 @@
+"""Simulator physics configuration: which effects of ``effects.md`` are on, with which parameters.
+
+File form (``conf/physics/*.yaml``, and what ``uavturb gap --apply`` writes)::
+
+    effects:
+      ground_effect: {mu: 2.0}
+      rotor_drag: {k_d: 8.06e-05}
+    vehicle:                       # optional overrides of vehicle constants
+      thrust_coefficient: 8.5e-06
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from uavturb.errors import InputError
+from uavturb.physics.effects import check_params, defaults
+
+#: the simulator's default physics; ``conf/physics/default.yaml`` holds the same (a test checks)
+DEFAULT_EFFECTS: dict[str, dict[str, float]] = {"ground_effect": {"mu": 2.0}}
+
+
+def load_physics_config(path: str | Path) -> dict[str, Any]:
+    """Read and validate a physics config; returns ``{"effects": {...}, "vehicle": {...}}``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "file not found")
+    try:
+        d = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError:
+        raise InputError(path, "not valid YAML") from None
+    if not isinstance(d, dict):
+        raise InputError(path, "expected a mapping with 'effects'")
+    unknown = sorted(set(d) - {"effects", "vehicle", "source"})
+    if unknown:
+        raise InputError(path, f"unknown key(s) {', '.join(unknown)} (allowed: effects, vehicle, source)")
+    effects = d.get("effects") or {}
+    if not isinstance(effects, dict):
+        raise InputError(f"{path}: effects", "expected a mapping of effect names to parameters")
+    out = {}
+    for name, params in effects.items():
+        full = {**defaults(name), **(params or {})}
+        try:
+            check_params(name, full)
+        except InputError as e:
+            raise InputError(path, str(e)) from None
+        out[name] = {k: float(v) for k, v in full.items()}
+    return {"effects": out, "vehicle": d.get("vehicle") or {}}
+
+
+def write_physics_config(path: str | Path, effects: dict[str, dict[str, float]],
+                         vehicle: dict[str, Any] | None = None, source: str | None = None) -> Path:
+    """Write a physics config atomically."""
+    path = Path(path)
+    body: dict[str, Any] = {}
+    if source:
+        body["source"] = source
+    body["effects"] = {n: {k: float(v) for k, v in p.items()} for n, p in effects.items()}
+    if vehicle:
+        body["vehicle"] = vehicle
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(yaml.safe_dump(body, sort_keys=False))
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,455 @@
+"""Synthetic flights: close the loop around the dynamics with the named effects of
+``effects.md`` switched on, and record what the sensors of ``recordings.md`` would see.
+
+Time stepping (all rates are multiples of ``physics_dt``):
+
+- physics, every ``physics_dt`` (1 ms): one RK4 step of :class:`~uavturb.physics.dynamics.Dynamics`
+  (its ``rk4`` CasADi function, called through a preallocated buffer) with the rotor
+  speeds and the effect force held over the step. The effect force is evaluated at the
+  start of every step by :func:`~uavturb.physics.effects.total_force` with the actual
+  rotor speeds, the heights ``d_down``, ``d_up`` and ``t``.
+- ``motor_lag``: the actual rotor speeds follow the held command with the exact
+  first-order update ``w <- w_cmd + (w - w_cmd) exp(-dt / tau)`` every physics step;
+  ``rotors0`` records the commands (``effects.md``).
+- control, every ``control_dt`` (5 ms): :class:`~uavturb.sim.controller.GeometricController`
+  on the true state; its rotor commands are held until the next update. The heights
+  over the surface below and to the surface above come from a
+  :class:`~uavturb.scene.heights.SurfaceIndex` on the scene cloud at this rate; between
+  updates they follow the vehicle's height change (exact over flat surfaces; a table edge
+  is resolved to one control period).
+- recording, every ``record_dt`` (5 ms, 200 Hz): ground truth, IMU and rotor speeds, with
+  the noise of :class:`SensorNoise`. The accelerometer reads the specific force
+  ``R^T (F_thrust + F_ext) / m`` of the same instant (from ``Dynamics.xdot``).
+
+Timestamps are ``int64`` nanoseconds from a EuRoC-like epoch (:data:`EUROC_T0_NS`), so that
+float-precision mistakes downstream show.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uavturb.errors import InputError
+from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
+from uavturb.physics import quaternion as quat
+from uavturb.physics.dynamics import GRAVITY, IDX_Q, IDX_V, IDX_W, N_STATE, dynamics_for, physical_params
+from uavturb.physics.effects import EFFECTS, EffectInputs, effect_force, parse_effects, total_force
+from uavturb.physics.vehicle import Vehicle, preset
+from uavturb.sim.controller import ControllerGains, GeometricController, RotationOf
+from uavturb.sim.references import Reference, Room, Setpoint, excitation, low_passes, mixed
+
+#: First timestamp [ns] of synthetic flights: the epoch of EuRoC's MH_01_easy (2014-06-24).
+EUROC_T0_NS = 1403636579758555392
+
+KINDS = ("excitation", "low_passes", "mixed")
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """Sensor noise and biases of a synthetic recording. Discrete white-noise standard
+    deviations follow from the densities as ``density * sqrt(1 / record_dt)``.
+
+    Attributes
+    ----------
+    gyro_noise_density : rad/s/sqrt(Hz) (ADIS16448 of EuRoC: 1.7e-4)
+    acc_noise_density : m/s^2/sqrt(Hz) (EuRoC: 2.0e-3)
+    gyro_bias : (3,) rad/s, initial gyroscope bias in B
+    acc_bias : (3,) m/s^2, initial accelerometer bias in B
+    gyro_random_walk : rad/s^2/sqrt(Hz), bias random walk (0: constant bias; EuRoC: 1.9393e-5)
+    acc_random_walk : m/s^3/sqrt(Hz) (0: constant bias; EuRoC: 3.0e-3)
+    position_std : m, motion-capture position noise
+    attitude_std : rad, motion-capture attitude noise (per axis, small rotation)
+    velocity_std : m/s, noise on the recorded velocity
+    rotor_quantum : rad/s, resolution of the recorded rotor speeds (0: none)
+    """
+
+    gyro_noise_density: float = 1.7e-4
+    acc_noise_density: float = 2.0e-3
+    gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    acc_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gyro_random_walk: float = 0.0
+    acc_random_walk: float = 0.0
+    position_std: float = 1e-3
+    attitude_std: float = 5e-4
+    velocity_std: float = 5e-3
+    rotor_quantum: float = 1.0
+
+    @classmethod
+    def none(cls, **biases: Any) -> "SensorNoise":
+        """No noise and no quantisation (biases may still be given: ``gyro_bias``, ``acc_bias``)."""
+        return cls(gyro_noise_density=0.0, acc_noise_density=0.0, position_std=0.0, attitude_std=0.0,
+                   velocity_std=0.0, rotor_quantum=0.0, **biases)
+
+
+@dataclass
+class Truth:
+    """What the simulator knows and the recording does not, at the ``K`` record times.
+
+    Attributes
+    ----------
+    t : (K,) s since the recording's start
+    x : (K, 13) true states ``p, q (w, x, y, z, body to world), v, w``
+    effect_force : (K, 3) N in W, the whole unmodelled force: what
+        ``m R a_imu - k_T sum(w_cmd^2) R e_z`` measures with noise-free sensors
+        (``force + lag_force``)
+    force : (K, 3) N in W, the effect force applied to the dynamics (all effects but ``motor_lag``)
+    lag_force : (K, 3) N in W, ``R e_z k_T sum(w_act^2 - w_cmd^2)``: the thrust lost or gained by
+        rotors lagging their commands (zero without ``motor_lag``)
+    forces : dict name -> (K, 3) N in W, each effect on its own (``motor_lag``: ``lag_force``)
+    rotor_speeds : (K, N) rad/s, actual rotor speeds
+    rotor_commands : (K, N) rad/s, commanded rotor speeds (exact; ``rotors0`` holds them quantised)
+    thrust : (K,) N, ``k_T sum(w_act^2)``
+    specific_force : (K, 3) m/s^2 in B, noise- and bias-free accelerometer reading
+    d_down, d_up : (K,) m, heights to the surfaces below and above used by the effects
+    reference : Setpoint, the reference at the record times
+    gyro_bias, acc_bias : (K, 3) true IMU biases in B (rad/s, m/s^2)
+    saturated : (K,) bool, whether the controller's allocation hit rotor limits in that period
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    effect_force: np.ndarray
+    force: np.ndarray
+    lag_force: np.ndarray
+    forces: dict[str, np.ndarray]
+    rotor_speeds: np.ndarray
+    rotor_commands: np.ndarray
+    thrust: np.ndarray
+    specific_force: np.ndarray
+    d_down: np.ndarray
+    d_up: np.ndarray
+    reference: Setpoint
+    gyro_bias: np.ndarray
+    acc_bias: np.ndarray
+    saturated: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+
+    def tracking_rms(self) -> float:
+        """RMS [m] of the 3-D position tracking error."""
+        e = self.x[:, 0:3] - self.reference.p
+        return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+
+
+# --- the scene ----------------------------------------------------------------------
+
+
+def room_mesh(room: Room = Room()):
+    """Triangle mesh (``trimesh.Trimesh``) of a :class:`Room`: floor, walls, ceiling, and the table
+    as a solid box standing on the floor."""
+    import trimesh
+
+    walls = trimesh.creation.box(extents=(room.size[0], room.size[1], room.ceiling))
+    walls.apply_translation((0.0, 0.0, room.ceiling / 2))
+    walls.invert()  # normals point into the room
+    (x0, x1, y0, y1), h = room.table_bounds, room.table_height
+    table = trimesh.creation.box(extents=(x1 - x0, y1 - y0, h))
+    table.apply_translation(((x0 + x1) / 2, (y0 + y1) / 2, h / 2))
+    return trimesh.util.concatenate([walls, table])
+
+
+@lru_cache(maxsize=4)
+def _room_cloud(room: Room, spacing: float, seed: int) -> np.ndarray:
+    from uavturb.scene.heights import sample_mesh_points
+
+    pts = np.asarray(sample_mesh_points(room_mesh(room), spacing, seed), float)
+    pts.setflags(write=False)
+    return pts
+
+
+def room_points(room: Room = Room(), spacing: float = 0.03, seed: int = 0) -> np.ndarray:
+    """The scene point cloud [m] in W, ``(P, 3)``: :func:`room_mesh` sampled every ``spacing`` [m]
+    (cached; read-only)."""
+    return _room_cloud(room, float(spacing), int(seed))
+
+
+@lru_cache(maxsize=4)
+def _room_index(room: Room, spacing: float, seed: int) -> Any:
+    from uavturb.scene.heights import SurfaceIndex
+
+    return SurfaceIndex(_room_cloud(room, spacing, seed))
+
+
+def surface_index(points: np.ndarray | None = None, room: Room = Room(), spacing: float = 0.03) -> Any:
+    """A :class:`~uavturb.scene.heights.SurfaceIndex` on ``points``, or on :func:`room_points` of
+    ``room`` when ``points`` is ``None`` (cached)."""
+    if points is None:
+        return _room_index(room, float(spacing), 0)
+    from uavturb.scene.heights import SurfaceIndex
+
+    return SurfaceIndex(np.asarray(points, float))
+
+
+# --- simulation ----------------------------------------------------------------------
+
+
+def _ratio(a: float, b: float, what: str) -> int:
+    n = int(round(a / b))
+    if n < 1 or abs(n * b - a) > 1e-9 * max(a, 1.0):
+        raise InputError("simulate_flight", f"{what} must be a whole multiple of physics_dt")
+    return n
+
+
+def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float | None = None,
+                    effects: dict[str, dict[str, float]] | None = None, points: np.ndarray | None = None,
+                    surfaces: Any = None, room: Room = Room(), physics_dt: float = 0.001, control_dt: float = 0.005,
+                    record_dt: float = 0.005, noise: SensorNoise = SensorNoise(), seed: int = 0,
+                    gains: ControllerGains = ControllerGains(), feedforward: bool = False, settle: bool = True,
+                    t0_ns: int = EUROC_T0_NS) -> tuple[Recording, Truth]:
+    """Fly ``vehicle`` along ``reference`` with ``effects`` switched on and record it.
+
+    Parameters
+    ----------
+    vehicle : Vehicle with known ``thrust_coefficient``, ``moment_coefficient``, ``inertia``
+    reference : Reference to track (it holds its last set-point after its end)
+    duration : s, flight length (default: the reference's)
+    effects : ``{name: {param: value}}`` as :func:`~uavturb.physics.effects.parse_effects` returns
+    points : (P, 3) m, scene cloud in W (default: :func:`room_points` of ``room``); it is the
+        recording's ``pointcloud0``
+    surfaces : object with ``d_down(pos (K, 3)) -> (K,)`` and ``d_up(pos) -> (K,)`` [m]
+        (default: a ``SurfaceIndex`` on ``points``)
+    room : Room, the default scene
+    physics_dt, control_dt, record_dt : s; the last two are whole multiples of ``physics_dt``
+    noise : SensorNoise (``SensorNoise.none()`` for perfect sensors)
+    seed : seed of the sensor noise
+    gains : ControllerGains
+    feedforward : give the controller the effect force of the last physics step as a known
+        external force (an ideal model-based controller); off by default
+    settle : start as if the vehicle had been resting in the initial effect force (the
+        controller's integral preloaded with it); otherwise the integral starts at zero
+    t0_ns : int, timestamp [ns] of the first sample
+
+    Returns
+    -------
+    recording : Recording with ground truth, IMU, ``rotors0`` (commands) and the point cloud
+    truth : Truth at the record times
+    """
+    effects = dict(effects or {})
+    for name in effects:
+        if name not in EFFECTS:
+            raise InputError("effects", f"unknown effect '{name}'")
+    duration = float(reference.duration if duration is None else duration)
+    if duration <= 0:
+        raise InputError("simulate_flight", "duration must be positive")
+    ctrl_every = _ratio(control_dt, physics_dt, "control_dt")
+    rec_every = _ratio(record_dt, physics_dt, "record_dt")
+    n_phys = int(round(duration / physics_dt))
+    K = n_phys // rec_every + 1
+    lag = effects.pop("motor_lag", None)
+    tau_lag = float(lag["tau"]) if lag is not None else 0.0
+    a_lag = float(np.exp(-physics_dt / tau_lag)) if tau_lag > 0 else 0.0
+    if surfaces is None:
+        surfaces = surface_index(points, room)
+    if points is None:
+        points = room_points(room)
+
+    dyn = dynamics_for(vehicle)
+    theta = physical_params(vehicle)
+    k_T, r = float(vehicle.thrust_coefficient), float(vehicle.rotor_radius)
+    N = vehicle.rotor_count
+    ctrl = GeometricController(vehicle, gains)
+    n_ctrl = n_phys // ctrl_every + 1
+    sp_all = reference(np.arange(n_ctrl) * control_dt)
+    rotation = RotationOf()
+
+    def heights(p: np.ndarray) -> tuple[float, float]:
+        pos = np.asarray(p, float)[None, :]
+        return float(np.asarray(surfaces.d_down(pos)).ravel()[0]), float(np.asarray(surfaces.d_up(pos)).ravel()[0])
+
+    def forces_at(x: np.ndarray, w: np.ndarray, t: float, dd: float, du: float) -> np.ndarray:
+        if not effects:
+            return np.zeros(3)
+        inp = EffectInputs(q=x[None, IDX_Q], v=x[None, IDX_V], rotor_speeds=w[None, :], k_T=k_T, rotor_radius=r,
+                           d_down=np.array([dd]), d_up=np.array([du]), t=np.array([t]), R=rotation(x[IDX_Q])[None])
+        return total_force(effects, inp)[0]
+
+    # initial state: at rest on the reference, level, with its heading
+    sp0 = sp_all[0]
+    x = np.zeros(N_STATE)
+    x[0:3], x[IDX_V] = sp0.p, sp0.v
+    x[IDX_Q] = quat.from_euler(0.0, 0.0, float(sp0.yaw))
+    dd, du = heights(x[0:3])
+    F = np.zeros(3)
+    if settle and effects and not feedforward:
+        for _ in range(4):  # fixed point: the force depends on the thrust that answers it
+            ctrl.reset(F)
+            w0 = ctrl.update(x, sp0, 0.0)
+            F = forces_at(x, w0, 0.0, dd, du)
+    ctrl.reset(F if (settle and not feedforward) else None)
+
+    # RK4 of Dynamics through a preallocated CasADi buffer (about 1 us a call)
+    buf, run_rk4 = dyn.rk4.buffer()
+    x_in, om_in, th_in = x.copy(), np.zeros(N), theta.astype(float).copy()
+    f_in, tau_in, dt_in, x_out = np.zeros(3), np.zeros(3), np.array([float(physics_dt)]), np.zeros(N_STATE)
+    for i, a in enumerate((x_in, om_in, th_in, f_in, tau_in, dt_in)):
+        buf.set_arg(i, memoryview(a))
+    buf.set_res(0, memoryview(x_out))
+
+    X = np.empty((K, N_STATE))
+    W_act, W_cmd = np.empty((K, N)), np.empty((K, N))
+    F_rec, DD, DU = np.empty((K, 3)), np.empty(K), np.empty(K)
+    SAT = np.zeros(K, bool)
+    w_act = np.zeros(N)
+    w_cmd = np.zeros(N)
+    z_c = x[2]
+    dd_c, du_c = dd, du
+    saturated = False
+    k = 0
+    for i in range(n_phys + 1):
+        t = i * physics_dt
+        if i % ctrl_every == 0:
+            dd_c, du_c = heights(x[0:3])  # held, following the height change, until the next update
+            z_c = x[2]
+            w_cmd = ctrl.update(x, sp_all[i // ctrl_every], control_dt, F if feedforward else None)
+            saturated = ctrl.last.saturated
+            if i == 0 or tau_lag <= 0:
+                w_act = w_cmd.copy()
+        dz = x[2] - z_c
+        dd, du = dd_c + dz, du_c - dz
+        F = forces_at(x, w_act, t, dd, du)
+        if i % rec_every == 0:
+            X[k], W_act[k], W_cmd[k], F_rec[k], DD[k], DU[k], SAT[k] = x, w_act, w_cmd, F, dd, du, saturated
+            k += 1
+        if i == n_phys:
+            break
+        x_in[:], om_in[:], f_in[:] = x, w_act, F
+        run_rk4()
+        x = x_out.copy()
+        if tau_lag > 0:
+            w_act = w_cmd + (w_act - w_cmd) * a_lag
+
+    # --- what the sensors see ---------------------------------------------------------
+    t_rec = np.arange(K) * (rec_every * physics_dt)
+    thrust, _ = dyn.thrust_torque(W_act, theta)
+    v_dot = dyn.xdot(X, W_act, theta, F_rec)[:, IDX_V]
+    spec_force = quat.rotate_inverse(X[:, IDX_Q], v_dot + GRAVITY * np.array([0.0, 0.0, 1.0]))
+    z_b = quat.to_rotation_matrix(X[:, IDX_Q])[:, :, 2]
+    thrust_cmd, _ = dyn.thrust_torque(W_cmd, theta)
+    lag_force = (thrust - thrust_cmd)[:, None] * z_b
+    inp = EffectInputs(q=X[:, IDX_Q], v=X[:, IDX_V], rotor_speeds=W_act, k_T=k_T, rotor_radius=r, d_down=DD, d_up=DU,
+                       t=t_rec)
+    per_effect = {name: effect_force(name, params, inp) for name, params in effects.items()}
+    if lag is not None:
+        per_effect["motor_lag"] = lag_force
+
+    rng = np.random.default_rng([int(seed), 7])
+    rate = 1.0 / (rec_every * physics_dt)
+    dt_rec = rec_every * physics_dt
+
+    def bias(b0: tuple[float, float, float], walk: float) -> np.ndarray:
+        b = np.broadcast_to(np.asarray(b0, float), (K, 3)).copy()
+        if walk > 0:
+            steps = rng.normal(0.0, walk * np.sqrt(dt_rec), size=(K, 3))
+            steps[0] = 0.0
+            b += np.cumsum(steps, axis=0)
+        return b
+
+    b_w = bias(noise.gyro_bias, noise.gyro_random_walk)
+    b_a = bias(noise.acc_bias, noise.acc_random_walk)
+    gyro = X[:, IDX_W] + b_w + rng.normal(0.0, noise.gyro_noise_density * np.sqrt(rate), size=(K, 3))
+    acc = spec_force + b_a + rng.normal(0.0, noise.acc_noise_density * np.sqrt(rate), size=(K, 3))
+    p_meas = X[:, 0:3] + rng.normal(0.0, noise.position_std, size=(K, 3))
+    q_meas = X[:, IDX_Q]
+    if noise.attitude_std > 0:
+        half = 0.5 * rng.normal(0.0, noise.attitude_std, size=(K, 3))
+        q_meas = quat.normalize(quat.multiply(q_meas, np.concatenate([np.ones((K, 1)), half], axis=1)))
+    v_meas = X[:, IDX_V] + rng.normal(0.0, noise.velocity_std, size=(K, 3))
+    rotors = W_cmd if noise.rotor_quantum <= 0 else np.round(W_cmd / noise.rotor_quantum) * noise.rotor_quantum
+
+    t_ns = np.int64(t0_ns) + np.arange(K, dtype=np.int64) * np.int64(round(dt_rec * 1e9))
+    rec = Recording(
+        vehicle=vehicle,
+        ground_truth=GroundTruth(t_ns=t_ns, p=p_meas, q=q_meas, v=v_meas, b_w=b_w, b_a=b_a),
+        imu=Imu(t_ns=t_ns.copy(), gyro=gyro, acc=acc, T_BS=np.eye(4), rate_hz=rate),
+        rotors=Rotors(t_ns=t_ns.copy(), speeds=rotors),
+        points=np.array(points, dtype=float),
+    )
+    truth = Truth(t=t_rec, x=X, effect_force=F_rec + lag_force, force=F_rec, lag_force=lag_force, forces=per_effect,
+                  rotor_speeds=W_act, rotor_commands=W_cmd, thrust=thrust, specific_force=spec_force, d_down=DD,
+                  d_up=DU, reference=reference(t_rec), gyro_bias=b_w, acc_bias=b_a, saturated=SAT)
+    return rec, truth
+
+
+# --- one call: a named flight ----------------------------------------------------------
+
+
+def yaw_acc_limit(vehicle: Vehicle, share: float = 0.3) -> float:
+    """Yaw acceleration [rad/s^2] the vehicle reaches at hover when each rotor's squared speed
+    may move by ``share`` of its hover value."""
+    A = vehicle.allocation()
+    w2 = vehicle.hover_speed() ** 2
+    return float(np.sum(np.abs(A[3])) * share * w2 / vehicle.inertia[2])
+
+
+def roll_acc_limit(vehicle: Vehicle, share: float = 0.3) -> float:
+    """Roll acceleration [rad/s^2] the vehicle reaches at hover when each rotor's squared speed
+    may move by ``share`` of its hover value."""
+    A = vehicle.allocation()
+    w2 = vehicle.hover_speed() ** 2
+    return float(np.sum(np.abs(A[1])) * share * w2 / vehicle.inertia[0])
+
+
+def make_reference(kind: str = "excitation", duration: float = 60.0, seed: int = 0, vehicle: Vehicle | None = None,
+                   room: Room = Room()) -> Reference:
+    """The reference of a named flight kind (``excitation``, ``low_passes``, ``mixed``) for a vehicle:
+    yaw acceleration within its authority (0.7 x :func:`yaw_acc_limit`, at most 1 rad/s^2), faster
+    and larger roll/pitch excitation for agile vehicles (:func:`roll_acc_limit`), low hovers from
+    one rotor radius up to 0.5 m, rest height 0.6 rotor radius (2 to 6 cm)."""
+    yaw_acc = 0.5 if vehicle is None else float(np.clip(0.7 * yaw_acc_limit(vehicle), 0.1, 1.0))
+    exc: dict[str, Any] = {}
+    if vehicle is not None:  # agile vehicles are shaken faster (1 for the hexarotor, 2.5 for the quadrotor)
+        agility = float(np.clip(np.sqrt(roll_acc_limit(vehicle) / 18.0), 1.0, 2.5))
+        exc = {"fast_omega": (3.0 * agility, 7.0 * agility), "tilt_excitation": 0.08 * min(agility, 1.5),
+               "max_yaw_rate": 0.8 * min(agility, 2.0)}
+    if kind == "excitation":
+        return excitation(duration, seed, max_yaw_acc=yaw_acc, **exc)
+    low: dict[str, Any] = {}
+    if vehicle is not None:  # heights in rotor radii: 1 r to 0.5 m; the body rests at 0.6 r (2-6 cm)
+        r = vehicle.rotor_radius
+        rest = float(np.clip(0.6 * r, 0.02, 0.06))
+        lo = max(r, 0.75 * rest)
+        low = {"rest_height": rest, "floor_heights": (lo, 0.5), "table_heights": (lo, 0.5)}
+    if kind == "low_passes":
+        return low_passes(duration, seed, room=room, max_yaw_acc=yaw_acc, **low)
+    if kind == "mixed":
+        return mixed(duration, seed, room=room, max_yaw_acc=yaw_acc, **low, **exc)
+    raise InputError("flight kind", f"unknown kind '{kind}' (known: {', '.join(KINDS)})")
+
+
+def generate_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dict[str, float]] = "",
+                    duration: float = 60.0, kind: str = "excitation", seed: int = 0, out: str | Path | None = None,
+                    noise: SensorNoise | None = None, overwrite: bool = False, room: Room = Room(),
+                    **simulate_kw: Any) -> Recording:
+    """Simulate a named flight and, when ``out`` is given, write it as a recording folder.
+
+    Parameters
+    ----------
+    vehicle : preset name (``hex``, ``quad``), ``vehicle.yaml`` path, or Vehicle
+    effects : ``"wind:f_x=0.5,ground_effect"`` (see ``parse_effects``) or the parsed dict
+    duration : s
+    kind : ``excitation``, ``low_passes`` or ``mixed`` (see :mod:`uavturb.sim.references`)
+    seed : seeds the reference and the sensor noise
+    out : recording folder to write (atomically, by ``write_recording``)
+    noise : SensorNoise (default: realistic)
+    overwrite : replace an existing ``out``
+    room : the scene
+    simulate_kw : passed on to :func:`simulate_flight`
+
+    Returns
+    -------
+    Recording (with ``path`` set when written).
+    """
+    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    eff = parse_effects(effects) if isinstance(effects, str) or effects is None else dict(effects)
+    ref = make_reference(kind, duration, seed, v, room)
+    rec, _ = simulate_flight(v, ref, duration=duration, effects=eff, room=room,
+                             noise=SensorNoise() if noise is None else noise, seed=seed, **simulate_kw)
+    if out is not None:
+        from uavturb.io.writer import write_recording
+
+        write_recording(rec, out, overwrite=overwrite)
+        rec = replace(rec, path=Path(out))
+    return rec

@@ -1,0 +1,730 @@
+"""Reference trajectories for synthetic flights: position, velocity, acceleration, jerk
+and yaw (with its rate and acceleration) as analytic functions of time.
+
+A :class:`Reference` holds four scalar :class:`Signal` channels (``x``, ``y``, ``z`` in
+the world frame W [m], ``yaw`` [rad], ZYX yaw of the body about world ``+z``). Every
+signal returns its value and its first three time derivatives, so a reference gives
+the controller velocity, acceleration and jerk feed-forward exactly. Signals are built
+from sums of sines, products with a smooth envelope, and piecewise "minimum-snap"
+septic segments between waypoints (continuous up to the jerk, so references can be
+concatenated without jumps in the body-rate feed-forward).
+
+Three flight plans, all deterministic given a seed:
+
+- :func:`excitation`: a rich flight for identification around a hover point;
+- :func:`low_passes`: take-off, low hovers over the floor and a table, passes over
+  the table edge, landing (where ground effect matters);
+- :func:`mixed`: heading changes, ceiling approach, excitation and low passes in one
+  flight (a steady wind turns with the heading in B, an accelerometer bias does not).
+
+The scene they are planned in is a :class:`Room` (floor at ``z = 0``, a ceiling, one
+table), the same one :mod:`uavturb.sim.flight` turns into a point cloud.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from uavturb.errors import InputError
+
+GRAVITY = 9.81  # m/s^2
+
+
+# --- the room ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Room:
+    """A rectangular room with one table, centred on the world origin.
+
+    Attributes
+    ----------
+    size : (2,) m, room extent along world x and y (the room spans ``±size/2``)
+    ceiling : float, m, height of the ceiling over the floor (floor at ``z = 0``)
+    table_center : (2,) m, table centre in world x, y
+    table_size : (2,) m, table extent along world x and y
+    table_height : float, m, height of the table top over the floor
+    """
+
+    size: tuple[float, float] = (8.0, 6.0)
+    ceiling: float = 2.6
+    table_center: tuple[float, float] = (1.8, 0.9)
+    table_size: tuple[float, float] = (1.2, 0.8)
+    table_height: float = 0.75
+
+    @property
+    def table_bounds(self) -> tuple[float, float, float, float]:
+        """``(x_min, x_max, y_min, y_max)`` [m] of the table top."""
+        cx, cy = self.table_center
+        hx, hy = self.table_size[0] / 2, self.table_size[1] / 2
+        return cx - hx, cx + hx, cy - hy, cy + hy
+
+    def over_table(self, x: np.ndarray, y: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Whether world points ``(x, y)`` [m] lie over the table top grown by ``margin`` [m]."""
+        x0, x1, y0, y1 = self.table_bounds
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        return (x >= x0 - margin) & (x <= x1 + margin) & (y >= y0 - margin) & (y <= y1 + margin)
+
+    def surface_below(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Height [m] of the surface under world points ``(x, y)``: the table top or the floor."""
+        return np.where(self.over_table(x, y), self.table_height, 0.0)
+
+
+# --- scalar signals with three derivatives ---------------------------------------------
+
+
+def _as_t(t: np.ndarray | float) -> np.ndarray:
+    return np.atleast_1d(np.asarray(t, dtype=float))
+
+
+class Signal:
+    """A scalar function of time [s] with its first three derivatives.
+
+    Subclasses implement :meth:`derivs`; ``+`` and ``*`` build sums and products.
+    """
+
+    def derivs(self, t: np.ndarray) -> np.ndarray:
+        """Value and derivatives at times ``t``.
+
+        Parameters
+        ----------
+        t : (K,) s
+
+        Returns
+        -------
+        (4, K): value, first, second and third time derivative.
+        """
+        raise NotImplementedError
+
+    def __add__(self, other: "Signal") -> "Signal":
+        return Sum((self, other))
+
+    def __mul__(self, other: "Signal") -> "Signal":
+        return Product(self, other)
+
+
+@dataclass(frozen=True)
+class Constant(Signal):
+    """``f(t) = value``."""
+
+    value: float
+
+    def derivs(self, t: np.ndarray) -> np.ndarray:
+        t = _as_t(t)
+        out = np.zeros((4, len(t)))
+        out[0] = self.value
+        return out
+
+
+@dataclass(frozen=True)
+class Sines(Signal):
+    """``f(t) = sum_k A_k sin(omega_k t + phi_k)``; amplitudes in the signal's unit, ``omega`` [rad/s]."""
+
+    amplitude: tuple[float, ...]
+    omega: tuple[float, ...]
+    phase: tuple[float, ...]
+
+    def derivs(self, t: np.ndarray) -> np.ndarray:
+        t = _as_t(t)
+        A, w, ph = (np.asarray(a, float)[:, None] for a in (self.amplitude, self.omega, self.phase))
+        arg = w * t[None, :] + ph
+        s, c = np.sin(arg), np.cos(arg)
+        return np.stack([(A * s).sum(0), (A * w * c).sum(0), -(A * w**2 * s).sum(0), -(A * w**3 * c).sum(0)])
+
+    def bounds(self) -> tuple[float, float, float]:
+        """Upper bounds of ``|f|``, ``|f'|``, ``|f''|``."""
+        A, w = np.abs(np.asarray(self.amplitude, float)), np.asarray(self.omega, float)
+        return float(A.sum()), float((A * w).sum()), float((A * w**2).sum())
+
+
+@dataclass(frozen=True)
+class Sum(Signal):
+    """Sum of signals."""
+
+    terms: tuple[Signal, ...]
+
+    def derivs(self, t: np.ndarray) -> np.ndarray:
+        t = _as_t(t)
+        out = np.zeros((4, len(t)))
+        for s in self.terms:
+            out += s.derivs(t)
+        return out
+
+
+@dataclass(frozen=True)
+class Product(Signal):
+    """Product ``f g`` (derivatives by Leibniz's rule)."""
+
+    f: Signal
+    g: Signal
+
+    def derivs(self, t: np.ndarray) -> np.ndarray:
+        t = _as_t(t)
+        a, b = self.f.derivs(t), self.g.derivs(t)
+        return np.stack([
+            a[0] * b[0],
+            a[1] * b[0] + a[0] * b[1],
+            a[2] * b[0] + 2 * a[1] * b[1] + a[0] * b[2],
+            a[3] * b[0] + 3 * a[2] * b[1] + 3 * a[1] * b[2] + a[0] * b[3],
+        ])
+
+
+def smoothstep(tau: np.ndarray) -> np.ndarray:
+    """Septic "minimum-snap" step ``s(tau) = 35 tau^4 - 84 tau^5 + 70 tau^6 - 20 tau^7`` on [0, 1],
+    0 before and 1 after; its first three derivatives vanish at both ends.
+
+    Returns
+    -------
+    (4, K): ``s``, ``ds/dtau``, ``d2s/dtau2``, ``d3s/dtau3``.
+    """
+    tau = np.clip(np.asarray(tau, float), 0.0, 1.0)
+    t2, t3 = tau * tau, tau**3
+    s = t2 * t2 * (35 - 84 * tau + 70 * t2 - 20 * t3)
+    s1 = t3 * (140 - 420 * tau + 420 * t2 - 140 * t3)
+    s2 = t2 * (420 - 1680 * tau + 2100 * t2 - 840 * t3)
+    s3 = tau * (840 - 5040 * tau + 8400 * t2 - 4200 * t3)
+    return np.stack([s, s1, s2, s3])
+
+
+_tau = np.linspace(0.0, 1.0, 2001)
+SMOOTHSTEP_MAX_RATE = float(np.max(np.abs(smoothstep(_tau)[1])))  # 2.1875 = 35/16
+SMOOTHSTEP_MAX_ACC = float(np.max(np.abs(smoothstep(_tau)[2])))  # about 7.51
+del _tau
+
+
+@dataclass(frozen=True)
+class Envelope(Signal):
+    """1 on ``[ramp, duration - ramp]``, rising smoothly from 0 at ``t = 0`` and falling back to
+    0 at ``t = duration`` (septic steps of length ``ramp`` [s]); 0 outside ``[0, duration]``."""
+
+    duration: float
+    ramp: float
+
+    def derivs(self, t: np.ndarray) -> np.ndarray:
+        t = _as_t(t)
+        r = self.ramp
+        up = smoothstep(t / r) * (1.0 / r) ** np.arange(4)[:, None]
+        down = smoothstep((self.duration - t) / r) * (-1.0 / r) ** np.arange(4)[:, None]
+        return Product(_Array(up), _Array(down)).derivs(t)
+
+
+@dataclass(frozen=True, eq=False)
+class _Array(Signal):
+    """Precomputed derivatives (internal: lets :class:`Envelope` reuse Leibniz's rule)."""
+
+    values: np.ndarray
+
+    def derivs(self, t: np.ndarray) -> np.ndarray:
+        return self.values
+
+
+@dataclass(frozen=True)
+class Waypoints(Signal):
+    """Piecewise septic steps between waypoint values ``values[i]`` at ``times[i]`` [s]:
+    at rest (zero derivatives) at every waypoint, constant before the first and after the last.
+    Equal consecutive values make a hold."""
+
+    times: tuple[float, ...]
+    values: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.times) != len(self.values) or len(self.times) == 0:
+            raise InputError("reference", "waypoint times and values must have the same non-zero length")
+        if np.any(np.diff(self.times) <= 0):
+            raise InputError("reference", "waypoint times must increase strictly")
+
+    def derivs(self, t: np.ndarray) -> np.ndarray:
+        t = _as_t(t)
+        T, V = np.asarray(self.times, float), np.asarray(self.values, float)
+        out = np.zeros((4, len(t)))
+        out[0] = V[0]
+        if len(T) == 1:
+            return out
+        i = np.clip(np.searchsorted(T, t, side="right") - 1, 0, len(T) - 2)
+        h = T[i + 1] - T[i]
+        s = smoothstep((t - T[i]) / h)
+        dv = V[i + 1] - V[i]
+        out[0] = V[i] + dv * s[0]
+        out[1] = dv * s[1] / h
+        out[2] = dv * s[2] / h**2
+        out[3] = dv * s[3] / h**3
+        return out
+
+
+@dataclass(frozen=True)
+class Piecewise(Signal):
+    """Signals one after another: piece ``k`` runs on ``[starts[k], starts[k+1])`` in its own time
+    ``t - starts[k]``; the last piece runs on for ever."""
+
+    pieces: tuple[Signal, ...]
+    starts: tuple[float, ...]
+
+    def derivs(self, t: np.ndarray) -> np.ndarray:
+        t = _as_t(t)
+        out = np.zeros((4, len(t)))
+        k = np.clip(np.searchsorted(np.asarray(self.starts, float), t, side="right") - 1, 0, len(self.pieces) - 1)
+        for j, piece in enumerate(self.pieces):
+            m = k == j
+            if m.any():
+                out[:, m] = piece.derivs(t[m] - self.starts[j])
+        return out
+
+
+# --- references ----------------------------------------------------------------------
+
+
+@dataclass
+class Setpoint:
+    """A reference sampled at one time (shapes as below) or at ``K`` times (a leading ``K`` axis).
+
+    Attributes
+    ----------
+    t : float or (K,) s
+    p, v, a, j : (3,) or (K, 3): position [m], velocity [m/s], acceleration [m/s^2], jerk [m/s^3] in W
+    yaw, yaw_rate, yaw_acc : float or (K,): rad, rad/s, rad/s^2 (ZYX yaw about world +z)
+    """
+
+    t: np.ndarray
+    p: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    j: np.ndarray
+    yaw: np.ndarray
+    yaw_rate: np.ndarray
+    yaw_acc: np.ndarray
+
+    def __getitem__(self, k: int) -> "Setpoint":
+        """The ``k``-th sample of a sampled reference."""
+        return Setpoint(*(getattr(self, f)[k] for f in ("t", "p", "v", "a", "j", "yaw", "yaw_rate", "yaw_acc")))
+
+    def __len__(self) -> int:
+        return len(np.atleast_1d(self.t))
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A flight plan: four channels of time.
+
+    Attributes
+    ----------
+    x, y, z : Signal, m, world position of the body origin
+    yaw : Signal, rad
+    duration : float, s, the plan's length (it holds its last set-point afterwards)
+    name : str
+    notes : dict, free-form description of the plan (phases and their times)
+    """
+
+    x: Signal
+    y: Signal
+    z: Signal
+    yaw: Signal
+    duration: float
+    name: str = "reference"
+    notes: dict = field(default_factory=dict, compare=False)
+
+    def __call__(self, t: np.ndarray | float) -> Setpoint:
+        """Sample the reference at time(s) ``t`` [s]: a scalar ``t`` gives a one-sample
+        :class:`Setpoint` (shapes ``(3,)`` and scalars), an array ``(K,)`` a ``K``-sample one."""
+        scalar = np.ndim(t) == 0
+        tt = _as_t(t)
+        d = np.stack([c.derivs(tt) for c in (self.x, self.y, self.z)], axis=-1)  # (4, K, 3)
+        yw = self.yaw.derivs(tt)
+        sp = Setpoint(tt, d[0], d[1], d[2], d[3], yw[0], yw[1], yw[2])
+        return sp[0] if scalar else sp
+
+    def then(self, other: "Reference", tol: float = 1e-6) -> "Reference":
+        """This plan followed by ``other`` (which must start where this one ends, at rest)."""
+        end, start = self(self.duration), other(0.0)
+        jump = max(np.max(np.abs(end.p - start.p)), abs(float(end.yaw - start.yaw)),
+                   np.max(np.abs(start.v)), np.max(np.abs(end.v)))
+        if jump > tol:
+            raise InputError("reference", f"cannot join '{self.name}' and '{other.name}': they do not meet at rest "
+                                          f"(mismatch {jump:.3g})")
+        chans = []
+        for c in ("x", "y", "z", "yaw"):
+            a, b = getattr(self, c), getattr(other, c)
+            pa = a.pieces if isinstance(a, Piecewise) else (a,)
+            sa = a.starts if isinstance(a, Piecewise) else (0.0,)
+            chans.append(Piecewise(pa + (b,), sa + (self.duration,)))
+        notes = dict(self.notes)
+        for k, v in other.notes.items():
+            notes[k] = [(t0 + self.duration, t1 + self.duration) for t0, t1 in v] if isinstance(v, list) else v
+        return Reference(*chans, duration=self.duration + other.duration, name=f"{self.name}+{other.name}",
+                         notes=notes)
+
+
+def hover(p: tuple[float, float, float], yaw: float = 0.0, duration: float = 10.0) -> Reference:
+    """Hold position ``p`` [m] and ``yaw`` [rad] for ``duration`` [s]."""
+    return Reference(Constant(p[0]), Constant(p[1]), Constant(p[2]), Constant(yaw), float(duration), "hover")
+
+
+def _scaled_sines(rng: np.random.Generator, n: int, omega_range: tuple[float, float], max_amp: float,
+                  max_rate: float, max_acc: float) -> Sines:
+    """``n`` sines with random frequencies and phases, scaled to stay under the given bounds."""
+    if n == 0 or max_amp <= 0:
+        return Sines((), (), ())
+    w = rng.uniform(*omega_range, size=n)
+    A = rng.uniform(0.5, 1.0, size=n)
+    A /= A.sum()
+    scale = min(max_amp, max_rate / float((A * w).sum()), max_acc / float((A * w**2).sum()))
+    ph = rng.uniform(0, 2 * np.pi, size=n)
+    return Sines(tuple(A * scale), tuple(w), tuple(ph))
+
+
+def excitation(duration: float = 60.0, seed: int = 0, *, center: tuple[float, float, float] = (0.0, 0.0, 1.25),
+               yaw0: float = 0.0, horizontal_amplitude: float = 1.4, vertical_amplitude: float = 0.25,
+               max_speed: float = 2.0, max_acc: float = 2.0, tilt_excitation: float = 0.08,
+               fast_omega: tuple[float, float] = (3.0, 7.0), max_yaw_rate: float = 0.8, max_yaw_acc: float = 0.5,
+               ramp: float | None = None) -> Reference:
+    """A rich flight for identification: sums of sines in x, y, z around ``center`` and a yaw
+    that sweeps through all headings, smoothly faded in and out.
+
+    Per horizontal axis: three slow sines (0.3-1.8 rad/s) carry the vehicle over up to
+    ``horizontal_amplitude`` with per-axis speed under ``max_speed`` (horizontal speeds up to
+    about 2 m/s), and two fast ones (``fast_omega``, 3-7 rad/s by default, a few cm) rock it
+    in roll and pitch by about ``tilt_excitation`` [rad] while the yaw turns, so that the gyroscopic products
+    ``w_y w_z``, ``w_x w_z`` are excited. The yaw is a slow sweep (amplitude up to several rad)
+    plus two faster sines, under ``max_yaw_rate`` and ``max_yaw_acc`` (a hexarotor's yaw
+    authority is small: about 0.7 rad/s^2 for the Firefly-like preset).
+
+    Parameters
+    ----------
+    duration : s
+    seed : random seed (frequencies, amplitudes, phases)
+    center : (3,) m, hover point in W; ``yaw0`` rad, the heading it starts and ends at
+    horizontal_amplitude, vertical_amplitude : m, bounds of the slow excursions per axis
+    max_speed : m/s per axis; max_acc : m/s^2 per axis (slow part)
+    tilt_excitation : rad, roll/pitch amplitude of the fast part
+    fast_omega : rad/s, frequency band of the fast part (higher for agile vehicles, whose
+        angular accelerations must stand out of rotor-speed quantisation)
+    max_yaw_rate : rad/s; max_yaw_acc : rad/s^2
+    ramp : s, fade-in and fade-out time (default ``min(5, duration / 6)``)
+
+    Returns
+    -------
+    Reference starting and ending at rest at ``center`` with yaw ``yaw0``.
+    """
+    if duration <= 0:
+        raise InputError("reference", "duration must be positive")
+    rng = np.random.default_rng([int(seed), 1])
+    ramp = min(5.0, duration / 6.0) if ramp is None else float(ramp)
+    # a short fade would make the faded sines' derivatives large: shrink them with it
+    shrink = min(1.0, (ramp / 3.0) ** 2)
+    horizontal_amplitude, vertical_amplitude, tilt_excitation = (shrink * horizontal_amplitude,
+                                                                 shrink * vertical_amplitude, shrink * tilt_excitation)
+    env = Envelope(float(duration), ramp)
+    chans: list[Signal] = []
+    for axis in range(2):
+        slow = _scaled_sines(rng, 3, (0.3, 1.8), horizontal_amplitude, max_speed, max_acc)
+        w_fast = rng.uniform(*fast_omega, size=2)
+        A_fast = tilt_excitation * GRAVITY / w_fast**2 * rng.uniform(0.35, 0.6, size=2)
+        fast = Sines(tuple(A_fast), tuple(w_fast), tuple(rng.uniform(0, 2 * np.pi, size=2)))
+        chans.append(Constant(center[axis]) + Sines(slow.amplitude + fast.amplitude, slow.omega + fast.omega,
+                                                    slow.phase + fast.phase) * env)
+    zs = _scaled_sines(rng, 2, (0.3, 1.5), vertical_amplitude, 0.5, 1.0)
+    zf = Sines((0.02 * shrink,), (float(rng.uniform(2.0, 4.0)),), (float(rng.uniform(0, 2 * np.pi)),))
+    z_sines = Sines(zs.amplitude + zf.amplitude, zs.omega + zf.omega, zs.phase + zf.phase)
+    chans.append(Constant(center[2]) + z_sines * env)
+    # yaw: a sweep A (1 - cos(w t)) with a whole number of periods in the flight (it starts and
+    # ends at rest, so the fade does not add to its rate), plus two faster sines
+    n_sweep = max(1, round(duration * float(rng.uniform(0.12, 0.25)) / (2 * np.pi)))
+    w_sweep = 2 * np.pi * n_sweep / duration
+    A_sweep = min(0.65 * max_yaw_rate / w_sweep, 0.65 * max_yaw_acc / w_sweep**2, 2.0 * np.pi)
+    fast = _scaled_sines(rng, 2, (0.6, 1.6), shrink, max_yaw_rate - A_sweep * w_sweep,
+                         max_yaw_acc - A_sweep * w_sweep**2)
+    sign = float(rng.choice([-1.0, 1.0]))
+    yaw = Constant(yaw0 + sign * A_sweep) + Sines((-sign * A_sweep,), (w_sweep,), (np.pi / 2,)) + fast * env  # cos
+    return Reference(chans[0], chans[1], chans[2], yaw, float(duration), "excitation",
+                     {"excitation": [(0.0, float(duration))]})
+
+
+# --- waypoint plans --------------------------------------------------------------------
+
+
+@dataclass
+class _Plan:
+    """Builds stop-and-go waypoint plans (each move starts and ends at rest)."""
+
+    p: np.ndarray
+    yaw: float
+    speed: float = 0.8  # m/s, peak speed of a move
+    acc: float = 1.0  # m/s^2, peak acceleration of a move
+    yaw_rate: float = 0.8  # rad/s
+    yaw_acc: float = 0.5  # rad/s^2
+    times: list = field(default_factory=list)
+    points: list = field(default_factory=list)
+    phases: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.p = np.asarray(self.p, float)
+        self.times.append(0.0)
+        self.points.append((*self.p, self.yaw))
+
+    @property
+    def t(self) -> float:
+        return self.times[-1]
+
+    def move_time(self, p: np.ndarray, yaw: float | None = None, speed: float | None = None) -> float:
+        dist = float(np.linalg.norm(np.asarray(p, float) - self.p))
+        dyaw = abs((self.yaw if yaw is None else yaw) - self.yaw)
+        v = self.speed if speed is None else speed
+        return max(0.5, SMOOTHSTEP_MAX_RATE * dist / v, math.sqrt(SMOOTHSTEP_MAX_ACC * dist / self.acc),
+                   SMOOTHSTEP_MAX_RATE * dyaw / self.yaw_rate, math.sqrt(SMOOTHSTEP_MAX_ACC * dyaw / self.yaw_acc))
+
+    def move(self, p: np.ndarray, yaw: float | None = None, speed: float | None = None,
+             phase: str | None = None) -> "_Plan":
+        T = self.move_time(p, yaw, speed)
+        t0 = self.t
+        self.p = np.asarray(p, float)
+        self.yaw = self.yaw if yaw is None else float(yaw)
+        self.times.append(t0 + T)
+        self.points.append((*self.p, self.yaw))
+        if phase:
+            self.phases.setdefault(phase, []).append((t0, t0 + T))
+        return self
+
+    def hold(self, seconds: float, phase: str | None = None) -> "_Plan":
+        t0 = self.t
+        self.times.append(t0 + float(seconds))
+        self.points.append((*self.p, self.yaw))
+        if phase:
+            self.phases.setdefault(phase, []).append((t0, t0 + float(seconds)))
+        return self
+
+    def reference(self, name: str, duration: float | None = None) -> Reference:
+        if duration is not None and duration > self.t + 1e-9:
+            self.hold(duration - self.t)
+        P = np.asarray(self.points)
+        T = tuple(float(t) for t in self.times)
+        ch = [Waypoints(T, tuple(float(v) for v in P[:, k])) for k in range(4)]
+        return Reference(*ch, duration=float(self.t), name=name, notes=dict(self.phases))
+
+
+class _Router:
+    """Moves a :class:`_Plan` between points of a :class:`Room` without flying through the table."""
+
+    def __init__(self, plan: _Plan, room: Room, clearance: float = 0.1, margin: float = 0.15):
+        self.plan, self.room, self.clearance, self.margin = plan, room, clearance, margin
+
+    def _crosses_table(self, a: np.ndarray, b: np.ndarray) -> bool:
+        s = np.linspace(0.0, 1.0, 41)[:, None]
+        pts = a[None, :2] * (1 - s) + b[None, :2] * s
+        return bool(np.any(self.room.over_table(pts[:, 0], pts[:, 1], self.margin)))
+
+    def go(self, p: np.ndarray, yaw: float | None = None, speed: float | None = None, phase: str | None = None) -> None:
+        p = np.asarray(p, float)
+        a = self.plan.p
+        safe = self.room.table_height + self.clearance
+        if self._crosses_table(a, p) and (a[2] < safe or p[2] < safe):
+            z = max(a[2], p[2], safe + 0.1)
+            if a[2] < z - 1e-9:
+                self.plan.move((a[0], a[1], z), yaw, speed, phase)
+                yaw = None
+            self.plan.move((p[0], p[1], z), yaw, speed, phase)
+            yaw = None
+        self.plan.move(p, yaw, speed, phase)
+
+
+def _height(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
+    """A hover height [m] drawn log-uniformly from ``bounds`` (ground effect varies as ``1/d^2``,
+    so low heights get their share)."""
+    lo, hi = bounds
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+
+def _floor_point(rng: np.random.Generator, room: Room, keep_out: float = 0.5, wall: float = 1.0) -> np.ndarray:
+    """A random floor point [m] (x, y) at least ``keep_out`` from the table and ``wall`` from the walls."""
+    hx, hy = room.size[0] / 2 - wall, room.size[1] / 2 - wall
+    for _ in range(1000):
+        xy = rng.uniform([-hx, -hy], [hx, hy])
+        if not room.over_table(xy[0], xy[1], keep_out):
+            return xy
+    raise InputError("reference", "the room has no free floor away from the table")
+
+
+def _table_point(rng: np.random.Generator, room: Room, inset: float = 0.2) -> np.ndarray:
+    """A random point (x, y) [m] over the table top, ``inset`` inside its edges."""
+    x0, x1, y0, y1 = room.table_bounds
+    return rng.uniform([x0 + inset, y0 + inset], [x1 - inset, y1 - inset])
+
+
+def _low_pass_maneuvers(router: _Router, rng: np.random.Generator, until: float, *, floor_heights: tuple[float, float],
+                        table_heights: tuple[float, float], pass_speed: float, hold: tuple[float, float]) -> None:
+    """Append random low hovers (floor, table top) and table-edge passes until ``until`` [s]."""
+    plan, room = router.plan, router.room
+    top = room.table_height
+    x0, x1, y0, y1 = room.table_bounds
+    cx, cy = room.table_center
+    kinds = ["floor", "table", "edge_x", "edge_y"]
+    queue = list(rng.permutation(kinds))
+    misses = 0
+    while misses < len(kinds):
+        if not queue:
+            queue = list(rng.permutation(kinds))
+        kind = queue.pop(0)
+        yaw = plan.yaw + float(rng.choice([-1, 1]) * rng.uniform(0.3, 1.6)) if rng.random() < 0.5 else None
+        steps: list[tuple] = []
+        if kind == "floor":
+            xy = _floor_point(rng, room)
+            for _ in range(int(rng.integers(1, 4))):
+                steps.append(((xy[0], xy[1], _height(rng, floor_heights)), "hover_floor"))
+        elif kind == "table":
+            xy = _table_point(rng, room)
+            for _ in range(int(rng.integers(1, 4))):
+                steps.append(((xy[0], xy[1], top + _height(rng, table_heights)), "hover_table"))
+        else:
+            z = top + _height(rng, table_heights)
+            if kind == "edge_x":
+                y = rng.uniform(y0 + 0.15, y1 - 0.15)
+                a, b = (x0 - 0.7, y, z), (x1 + 0.5 if rng.random() < 0.5 else x0 + 0.4, y, z)
+            else:
+                x = rng.uniform(x0 + 0.15, x1 - 0.15)
+                a, b = (x, y0 - 0.7, z), (x, y1 + 0.5 if rng.random() < 0.5 else y0 + 0.4, z)
+            if rng.random() < 0.5:
+                a, b = (2 * cx - a[0], 2 * cy - a[1], z), (2 * cx - b[0], 2 * cy - b[1], z)
+            steps = [(a, None), (b, "edge_pass"), (a, "edge_pass")]
+        # time check: a rough estimate of what this manoeuvre costs
+        est = sum(plan.move_time(s[0]) for s in steps) + len(steps) * hold[1] + 4.0
+        if plan.t + est > until:
+            misses += 1
+            continue
+        misses = 0
+        for i, (pt, phase) in enumerate(steps):
+            speed = pass_speed if phase == "edge_pass" else None
+            router.go(pt, yaw if i == 0 else None, speed, phase)
+            if phase != "edge_pass" or i == len(steps) - 1:
+                plan.hold(rng.uniform(*hold), phase if phase != "edge_pass" else None)
+
+
+def _takeoff(plan: _Plan, rng: np.random.Generator, floor_heights: tuple[float, float]) -> None:
+    plan.hold(1.0, "rest")
+    plan.move((*plan.p[:2], _height(rng, (floor_heights[0], 0.5 * sum(floor_heights)))), speed=0.3, phase="takeoff")
+    plan.hold(2.0, "hover_floor")
+
+
+def _landing_time(plan: _Plan, rest_height: float) -> float:
+    return plan.move_time((*plan.p[:2], 0.3)) + 2.0 + plan.move_time((*plan.p[:2], rest_height), speed=0.3) + 2.0
+
+
+def _land(router: _Router, rng: np.random.Generator, rest_height: float) -> None:
+    plan = router.plan
+    xy = plan.p[:2] if not router.room.over_table(*plan.p[:2], 0.3) else _floor_point(rng, router.room)
+    router.go((xy[0], xy[1], 0.3))
+    plan.hold(1.5, "hover_floor")
+    plan.move((xy[0], xy[1], rest_height), speed=0.3, phase="landing")
+    plan.hold(1.0, "rest")
+
+
+def low_passes(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_height: float = 0.06,
+               start: tuple[float, float] | None = None, yaw0: float | None = None,
+               floor_heights: tuple[float, float] = (0.1, 0.5), table_heights: tuple[float, float] = (0.1, 0.5),
+               pass_speed: float = 0.8, hold: tuple[float, float] = (1.5, 3.0), max_yaw_acc: float = 0.5) -> Reference:
+    """Take-off from the floor, low hovers over the floor and the table top, passes over
+    the table edges, landing: a flight where ground effect matters.
+
+    The vehicle starts at rest with its body origin ``rest_height`` over the floor (on its
+    legs; the dynamics have no contact model, so "at rest" is a hover there), and ends the
+    same way. Between take-off and landing it draws manoeuvres at random: hovers at
+    ``floor_heights`` over the floor or ``table_heights`` over the table top, straight
+    passes across one or two table edges at ``pass_speed`` [m/s] and a height of
+    ``table_heights`` over the top, with random heading changes; heights are drawn
+    log-uniformly (ground effect grows as ``1/d^2``). Moves are routed over the table,
+    never through it.
+
+    Parameters
+    ----------
+    duration : s; the plan ends with a rest at ``duration`` (longer if take-off and landing
+        alone need more time)
+    seed : random seed
+    room : the scene
+    rest_height : m, height of the body origin when landed
+    start : (2,) m, take-off point (default: random, away from the table)
+    yaw0 : rad, initial heading (default random)
+    floor_heights, table_heights : m, ranges of hover heights over floor and table top
+    pass_speed : m/s, peak speed of the table-edge passes
+    hold : s, range of hover durations
+    max_yaw_acc : rad/s^2
+
+    Returns
+    -------
+    Reference; ``notes`` lists the phases (``rest``, ``takeoff``, ``hover_floor``,
+    ``hover_table``, ``edge_pass``, ``landing``) as ``(t0, t1)`` intervals.
+    """
+    rng = np.random.default_rng([int(seed), 2])
+    xy = _floor_point(rng, room) if start is None else np.asarray(start, float)
+    yaw = float(rng.uniform(-np.pi, np.pi)) if yaw0 is None else float(yaw0)
+    plan = _Plan(np.array([xy[0], xy[1], rest_height]), yaw, yaw_acc=max_yaw_acc)
+    router = _Router(plan, room)
+    _takeoff(plan, rng, floor_heights)
+    _low_pass_maneuvers(router, rng, duration - _landing_time(plan, rest_height) - 1.0, floor_heights=floor_heights,
+                        table_heights=table_heights, pass_speed=pass_speed, hold=hold)
+    _land(router, rng, rest_height)
+    return plan.reference("low_passes", duration)
+
+
+def _heading_steps(plan: _Plan, rng: np.random.Generator, center: np.ndarray, n: int = 4, hold: float = 2.0,
+                   step: float = 0.5) -> None:
+    """Hover at ``n`` headings spread over a full turn, each followed by a short translation;
+    ends back at ``center``, one full turn from the initial heading."""
+    y0 = plan.yaw
+    direction = float(rng.choice([-1.0, 1.0]))
+    for k in range(n):
+        plan.move(center, y0 + direction * k * 2 * np.pi / n, phase="heading_hover")
+        plan.hold(hold, "heading_hover")
+        d = rng.normal(size=2)
+        d = step * d / np.linalg.norm(d)
+        plan.move(center + np.array([d[0], d[1], 0.0]), phase="heading_move")
+        plan.hold(0.5, "heading_hover")
+    plan.move(center, y0 + direction * 2 * np.pi, phase="heading_hover")
+
+
+def mixed(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_height: float = 0.06,
+          center: tuple[float, float, float] = (0.0, 0.0, 1.25), excitation_share: float = 0.4,
+          ceiling_gap: tuple[float, float] = (0.25, 0.45), floor_heights: tuple[float, float] = (0.1, 0.5),
+          table_heights: tuple[float, float] = (0.1, 0.5), max_yaw_acc: float = 0.5,
+          **excitation_kw: float) -> Reference:
+    """Piecewise flight: take-off, hovers at three (``duration`` < 90 s) or four headings
+    spread over a turn (a steady wind turns in B with the heading, an accelerometer bias does
+    not), an :func:`excitation` block, hovers close under the ceiling (``ceiling_gap`` [m]
+    below it), low passes over the floor and table, landing.
+
+    The fixed parts need about 60 s; a shorter ``duration`` gives a longer plan. From 100 s
+    on, the ceiling hovers and low passes fit as well.
+
+    Parameters
+    ----------
+    duration : s; seed : random seed; room : the scene
+    rest_height : m, body origin height when landed
+    center : (3,) m, hover point of the heading and excitation blocks
+    excitation_share : fraction of ``duration`` spent in the excitation block
+    ceiling_gap : m, range of distances to the ceiling during the ceiling hovers
+    floor_heights, table_heights : m, ranges of the low hovers (see :func:`low_passes`)
+    max_yaw_acc : rad/s^2; excitation_kw : passed on to :func:`excitation`
+    """
+    rng = np.random.default_rng([int(seed), 3])
+    c = np.asarray(center, float)
+    start = _floor_point(rng, room)
+    a = _Plan(np.array([start[0], start[1], rest_height]), float(rng.uniform(-np.pi, np.pi)), yaw_acc=max_yaw_acc)
+    _takeoff(a, rng, floor_heights)
+    _Router(a, room).go(c)
+    _heading_steps(a, rng, c, n=4 if duration >= 90 else 3)
+    first = a.reference("headings")
+    reserve = 35.0 if duration >= 100.0 else 15.0  # s kept for ceiling hovers, low passes, landing
+    t_exc = max(6.0, min(excitation_share * duration, duration - first.duration - reserve))
+    exc = excitation(t_exc, seed, center=tuple(c), yaw0=a.yaw, max_yaw_acc=max_yaw_acc, **excitation_kw)
+    b = _Plan(c.copy(), a.yaw, yaw_acc=max_yaw_acc)
+    router = _Router(b, room)
+    used = first.duration + exc.duration
+    for _ in range(2 if duration - used > 30.0 else 0):
+        xy = _floor_point(rng, room)
+        router.go((xy[0], xy[1], room.ceiling - rng.uniform(*ceiling_gap)), phase=None)
+        b.hold(rng.uniform(1.5, 3.0), "hover_ceiling")
+    left = duration - used
+    _low_pass_maneuvers(router, rng, left - _landing_time(b, rest_height) - 1.0, floor_heights=floor_heights,
+                        table_heights=table_heights, pass_speed=0.8, hold=(1.5, 3.0))
+    _land(router, rng, rest_height)
+    last = b.reference("passes", max(left, 0.0))
+    return first.then(exc).then(last)
