@@ -56,8 +56,16 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one (raw EuRoC)")
     s.add_argument("--no-mlflow", action="store_true", help="do not log the run to MLflow")
 
+    s = sub.add_parser("gap-proof", help="run the gap finder blind on flights with concealed effects; "
+                                         "print the confusion table against PySINDy")
+    s.add_argument("--out", default="gap_proof", help="folder for the flights and the table (default gap_proof)")
+    s.add_argument("--duration", type=float, default=90.0, help="seconds per flight (default 90)")
+    s.add_argument("--effects", default=None, help="comma-separated single-effect cases (default: all)")
+    s.add_argument("--no-pairs", action="store_true", help="leave out the pair cases")
+    s.add_argument("--seed", type=int, default=0)
+
     s = sub.add_parser("bench", help="benchmarks that print figures")
-    s.add_argument("what", choices=["scene", "physics"])
+    s.add_argument("what", choices=["scene", "physics", "gap"])
 
     s = sub.add_parser("demo", help="the main job, end to end, on data the project generates")
     s.add_argument("--out", default="demo_out")
@@ -109,6 +117,9 @@ def _run(args: argparse.Namespace) -> int:
         print(f"effects named: {named}")
         print(f"held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
               f"{report['final']['heldout_rmse_N']:.4f} N ({report['protocol']}); report in {args.out}")
+    elif args.command == "gap-proof":
+        workflows.gap_proof(Path(args.out), duration=args.duration, seed=args.seed,
+                            singles=args.effects.split(",") if args.effects else None, pairs=not args.no_pairs)
     elif args.command == "bench":
         workflows.bench(args.what)
     elif args.command == "demo":

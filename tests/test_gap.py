@@ -1,0 +1,94 @@
+"""The gap finder on flights with known, concealed effects (gap-report.md contract)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from uavturb.errors import InputError
+from uavturb.gap.finder import gap
+from uavturb.physics.sim_config import DEFAULT_EFFECTS, load_physics_config
+from uavturb.sim.flight import generate_flight
+
+REQUIRED = {"schema", "recordings", "sim_effects", "protocol", "baseline", "mismatch", "effects",
+            "sim_effect_params", "final", "unexplained"}
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    root = tmp_path_factory.mktemp("gapflights")
+    made = {}
+    for name, effects, seed in [("clean", "none", 11), ("drag", "rotor_drag:k_d=8.06e-5", 12),
+                                ("ground", "ground_effect:mu=2.0", 13)]:
+        path = root / name
+        generate_flight(vehicle="hex", effects=effects, duration=45.0, kind="mixed", seed=seed, out=path)
+        made[name] = path
+    return made
+
+
+def run(tmp_path, recs, **kw):
+    out = tmp_path / "report"
+    report = gap([str(r) for r in recs], out, log_mlflow=False, **kw)
+    on_disk = json.loads((out / "report.json").read_text())
+    assert REQUIRED <= set(on_disk)
+    assert (out / "report.md").exists()
+    return report
+
+
+def test_clean_flight_names_nothing(tmp_path, flights):
+    report = run(tmp_path, [flights["clean"]], sim_effects="none")
+    assert report["effects"] == []
+    assert report["protocol"] == "last-30%-of-each-recording"
+    assert report["schema"] == "uavturb.gap/1"
+
+
+def test_rotor_drag_is_named_and_fitted(tmp_path, flights):
+    report = run(tmp_path, [flights["drag"]], sim_effects="none")
+    assert [e["name"] for e in report["effects"]] == ["rotor_drag"]
+    e = report["effects"][0]
+    assert e["params"]["k_d"] == pytest.approx(8.06e-5, rel=0.15)
+    assert e["heldout_rmse_after_N"] < e["heldout_rmse_before_N"]
+    assert report["final"]["heldout_rmse_N"] < report["baseline"]["heldout_rmse_N"]
+    assert any(d["feature"] in ("v_Bx", "v_By", "v_x", "v_y", "speed") for d in report["mismatch"]["drivers"])
+
+
+def test_ground_effect_named_with_two_recordings_and_applied(tmp_path, flights):
+    conf = tmp_path / "physics.yaml"
+    report = run(tmp_path, [flights["ground"], flights["clean"]], sim_effects="none", apply=conf)
+    assert report["protocol"] == "leave-one-recording-out"
+    names = [e["name"] for e in report["effects"]]
+    assert "ground_effect" in names
+    mu = report["effects"][names.index("ground_effect")]["params"]["mu"]
+    assert mu == pytest.approx(2.0, rel=0.15)
+    assert report["mismatch"]["drivers"][0]["feature"] == "d_down"
+    cfg = load_physics_config(conf)
+    assert cfg["effects"]["ground_effect"]["mu"] == pytest.approx(mu)
+    assert report["open_loop"]["after_m"] <= report["open_loop"]["before_m"]
+
+
+def test_simulator_effects_are_refitted_not_named(tmp_path, flights):
+    report = run(tmp_path, [flights["ground"]], sim_effects="ground_effect")
+    assert "ground_effect" not in [e["name"] for e in report["effects"]]
+    p = report["sim_effect_params"]["ground_effect"]
+    assert p["sim"] == DEFAULT_EFFECTS["ground_effect"]
+    assert p["fitted"]["mu"] == pytest.approx(2.0, rel=0.15)
+
+
+def test_malformed_recording_writes_no_report(tmp_path, flights):
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(flights["clean"], bad)
+    csv = bad / "mav0" / "rotors0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join([lines[0]] + [",".join(l.split(",")[:-1]) for l in lines[1:]]) + "\n")
+    out = tmp_path / "report"
+    with pytest.raises(InputError, match="rotors0"):
+        gap([str(bad)], out, log_mlflow=False)
+    assert not out.exists()
+    assert not any(p.name.startswith(".report") for p in tmp_path.iterdir())
+
+
+def test_unknown_sim_effect_is_one_clear_error(tmp_path, flights):
+    with pytest.raises(InputError, match="--sim-effects.*unknown effect 'gust'"):
+        gap([str(flights["clean"])], tmp_path / "r", sim_effects="gust", log_mlflow=False)

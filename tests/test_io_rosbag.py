@@ -1,0 +1,135 @@
+"""Raw EuRoC ROS1 bags: a bag written here with ``rosbags`` reads back into a Recording."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rosbags.rosbag1 import Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from uavturb.errors import InputError
+from uavturb.io import rosbag
+from uavturb.io.reader import read_recording
+from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
+
+T0 = 1403636579_000_000_000
+MOTOR_MSG = "std_msgs/Header header\nint16[6] motor_speed\n"
+MOTOR_TYPE = "asctec_hl_comm/msg/MotorSpeed"
+
+
+def stamp_of(store, t_ns):
+    Time = store.types["builtin_interfaces/msg/Time"]
+    return store.types["std_msgs/msg/Header"](seq=0, stamp=Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9),
+                                               frame_id="")
+
+
+def truth(t_ns):
+    s = (np.asarray(t_ns) - T0) * 1e-9
+    p = np.stack([0.5 * s, -0.25 * s + 1.0, 0.1 * s**2], axis=-1)
+    half = 0.4 * s / 2
+    q = np.stack([np.cos(half), 0 * s, 0 * s, np.sin(half)], axis=-1)  # yaw at 0.4 rad/s
+    v = np.stack([0.5 + 0 * s, -0.25 + 0 * s, 0.2 * s], axis=-1)
+    return p, q, v
+
+
+def write_bag(path, *, n_motor=6, motors=True, vicon=True, motor_offset_ns=0):
+    store = get_typestore(Stores.ROS1_NOETIC)
+    store.register(get_types_from_msg(MOTOR_MSG.replace("[6]", f"[{n_motor}]"), MOTOR_TYPE))
+    Imu, Vec = store.types["sensor_msgs/msg/Imu"], store.types["geometry_msgs/msg/Vector3"]
+    Quat = store.types["geometry_msgs/msg/Quaternion"]
+    TS, Tf = store.types["geometry_msgs/msg/TransformStamped"], store.types["geometry_msgs/msg/Transform"]
+    Motor = store.types[MOTOR_TYPE]
+    t_vicon = T0 + np.arange(100) * 10_000_000  # 100 Hz, 1 s
+    t_imu = T0 + 2_500_000 + np.arange(200) * 5_000_000
+    t_motor = T0 + motor_offset_ns + 1_000_000 + np.arange(40) * 25_000_000
+    with Writer(path) as w:
+        c_imu = w.add_connection(rosbag.IMU_TOPIC, "sensor_msgs/msg/Imu", typestore=store)
+        c_vicon = w.add_connection(rosbag.VICON_TOPIC, "geometry_msgs/msg/TransformStamped", typestore=store)
+        c_motor = w.add_connection(rosbag.MOTOR_TOPIC, MOTOR_TYPE, typestore=store)
+        for k, t in enumerate(t_imu.tolist()):
+            msg = Imu(header=stamp_of(store, t), orientation=Quat(x=0.0, y=0.0, z=0.0, w=1.0),
+                      orientation_covariance=np.zeros(9), angular_velocity=Vec(x=0.01 * k, y=-0.02, z=0.4),
+                      angular_velocity_covariance=np.zeros(9),
+                      linear_acceleration=Vec(x=0.1, y=0.2, z=9.81 + 1e-3 * k),
+                      linear_acceleration_covariance=np.zeros(9))
+            w.write(c_imu, t + 777, store.serialize_ros1(msg, "sensor_msgs/msg/Imu"))  # record time != stamp
+        if vicon:
+            p, q, _ = truth(t_vicon)
+            for t, pk, qk in zip(t_vicon.tolist(), p.tolist(), q.tolist()):
+                tf = Tf(translation=Vec(x=pk[0], y=pk[1], z=pk[2]), rotation=Quat(x=qk[1], y=qk[2], z=qk[3], w=qk[0]))
+                msg = TS(header=stamp_of(store, t), child_frame_id="firefly_sbx", transform=tf)
+                w.write(c_vicon, t, store.serialize_ros1(msg, "geometry_msgs/msg/TransformStamped"))
+        if motors:
+            for k, t in enumerate(t_motor.tolist()):
+                speeds = np.array([100 + k + i for i in range(n_motor)], dtype=np.int16)
+                w.write(c_motor, t, store.serialize_ros1(Motor(header=stamp_of(store, t), motor_speed=speeds),
+                                                         MOTOR_TYPE))
+    return t_vicon, t_imu, t_motor
+
+
+def test_bag_reads_into_a_recording(tmp_path):
+    bag = tmp_path / "MH_01.bag"
+    t_vicon, t_imu, t_motor = write_bag(bag)
+    rec = rosbag.read_rosbag(bag, HEXAROTOR, rotor_speed_scale=3.0)
+    gt = rec.ground_truth
+    p, q, v = truth(t_vicon)
+    assert np.array_equal(gt.t_ns, t_vicon)
+    np.testing.assert_allclose(gt.p, p, atol=1e-12)
+    np.testing.assert_allclose(gt.q, q, atol=1e-12)
+    np.testing.assert_allclose(gt.v, v, atol=1e-9)  # quadratic positions: differentiation is exact
+    assert np.all(gt.b_w == 0) and np.all(gt.b_a == 0)
+    assert np.array_equal(rec.vicon.t_ns, t_vicon)
+    assert np.array_equal(rec.imu.t_ns, t_imu)  # header stamps, not record times
+    np.testing.assert_allclose(rec.imu.gyro[:, 0], 0.01 * np.arange(200))
+    np.testing.assert_allclose(rec.imu.acc[:, 2], 9.81 + 1e-3 * np.arange(200))
+    assert np.array_equal(rec.rotors.t_ns, t_motor)
+    expected = 3.0 * (100 + np.arange(40)[:, None] + np.arange(6)[None, :])
+    np.testing.assert_array_equal(rec.rotors.speeds, expected)
+    assert rec.vehicle.rotor_speed_scale == 3.0 and rec.path == bag
+
+
+def test_bag_converts_to_a_folder_that_reads_back(tmp_path):
+    bag = tmp_path / "V1_01.bag"
+    write_bag(bag)
+    rec = rosbag.convert_rosbag(bag, tmp_path / "V1_01", HEXAROTOR, rotor_speed_scale=3.0)
+    back = read_recording(tmp_path / "V1_01")
+    np.testing.assert_allclose(back.rotors.speeds, rec.rotors.speeds, rtol=1e-12)
+    np.testing.assert_allclose(back.ground_truth.v, rec.ground_truth.v, rtol=1e-12, atol=1e-15)
+    assert back.vehicle.rotor_speed_scale == 3.0
+
+
+def test_bag_without_motor_topic_and_default_scale(tmp_path):
+    bag = tmp_path / "b.bag"
+    write_bag(bag, motors=False)
+    rec = rosbag.read_rosbag(bag, HEXAROTOR)
+    assert rec.rotors is None and rec.imu is not None and rec.vehicle == HEXAROTOR
+
+
+@pytest.mark.parametrize("kwargs, vehicle, expected", [
+    ({"vicon": False}, HEXAROTOR, "topic '/vicon/firefly_sbx/firefly_sbx' has 0 messages"),
+    ({}, QUADROTOR, "/fcu/motor_speed: has 6 rotor speed columns but the vehicle 'quad-paper' has rotor_count 4"),
+    ({"motor_offset_ns": 5_000_000_000}, HEXAROTOR, "/fcu/motor_speed: does not overlap the vicon stream"),
+])
+def test_bag_errors(tmp_path, kwargs, vehicle, expected):
+    bag = tmp_path / "b.bag"
+    write_bag(bag, **kwargs)
+    with pytest.raises(InputError) as e:
+        rosbag.read_rosbag(bag, vehicle)
+    assert str(bag) in str(e.value) and expected in str(e.value)
+
+
+def test_not_a_bag(tmp_path):
+    with pytest.raises(InputError, match="x.bag: file not found"):
+        rosbag.read_rosbag(tmp_path / "x.bag", HEXAROTOR)
+    (tmp_path / "x.bag").write_text("hello")
+    with pytest.raises(InputError, match="x.bag: not a readable ROS1 bag"):
+        rosbag.read_rosbag(tmp_path / "x.bag", HEXAROTOR)
+
+
+def test_velocity_from_irregular_positions():
+    t = np.cumsum(np.random.default_rng(0).integers(4_000_000, 16_000_000, size=50)).astype(np.int64)
+    s = (t - t[0]) * 1e-9
+    p = np.stack([2 * s, s**2, 0 * s], axis=1)
+    v = rosbag.velocity_from_positions(t, p)
+    np.testing.assert_allclose(v[:, 0], 2.0, atol=1e-9)
+    np.testing.assert_allclose(v[1:-1, 1], 2 * s[1:-1], atol=1e-9)  # central differences: exact inside

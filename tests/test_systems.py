@@ -1,0 +1,121 @@
+"""LightningModules and the freeze-then-fine-tune callback."""
+
+from __future__ import annotations
+
+import lightning as L
+import pytest
+import torch
+
+from uavturb.errors import InputError
+from uavturb.systems import FreezeThenFinetune, HeightModule, TranscoderModule, transcoding_loss
+
+
+def _unit(x):
+    return torch.nn.functional.normalize(x, dim=1)
+
+
+def test_transcoding_loss_zero_iff_perfect():
+    torch.manual_seed(0)
+    n = _unit(torch.randn(2, 3, 16, 16))
+    assert transcoding_loss(n, n.clone(), lam=1e4).item() == 0.0
+    other = _unit(n + 0.1 * torch.randn_like(n))
+    assert transcoding_loss(other, n, lam=1e4).item() > 0
+    # a constant shift hides from the gradient term but not from the pixel term
+    assert transcoding_loss(n + 0.01, n, lam=0.0).item() == pytest.approx(0.0, abs=1e-10)
+    assert transcoding_loss(n + 0.01, n, lam=1.0).item() > 0
+    # the gradient term alone sees edges
+    smooth = torch.zeros(1, 1, 8, 8)
+    edge = smooth.clone()
+    edge[..., 4:] = 1.0
+    assert transcoding_loss(edge, smooth, lam=0.0).item() > 0
+
+
+@pytest.mark.parametrize("target", ["normals", "depth"])
+def test_transcoder_forward_and_step(target):
+    module = TranscoderModule(target=target)
+    depth = torch.rand(2, 1, 32, 32) * 5
+    out = module(depth)
+    assert out.shape == (2, 3 if target == "normals" else 1, 32, 32)
+    y = _unit(torch.randn(2, 3, 32, 32)) if target == "normals" else depth
+    loss = module.training_step({"depth": depth, "target": y}, 0)
+    assert loss.ndim == 0 and loss.item() > 0
+
+
+def _batch(B=2, T=5, size=16):
+    return {"depth": torch.rand(B, T, 1, size, size) * 3, "d": torch.rand(B, T) + 0.1,
+            "fa": torch.rand(B, T) * 1e-4, "sum_omega2": torch.full((B, T), 9e4)}
+
+
+class _Loader(torch.utils.data.Dataset):
+    def __init__(self, n=4):
+        self.items = [{k: v[0] for k, v in _batch(B=1).items()} for _ in range(n)]
+
+    def __len__(self):
+        return len(self.items)
+
+    def __getitem__(self, i):
+        return self.items[i]
+
+
+def _trainer(tmp_path, **kw):
+    return L.Trainer(default_root_dir=tmp_path, accelerator="cpu", devices=1, logger=False, enable_progress_bar=False,
+                     enable_model_summary=False, enable_checkpointing=False, **kw)
+
+
+@pytest.mark.parametrize("use_gru", [True, False])
+def test_height_module_checkpoint_round_trip(tmp_path, use_gru):
+    module = HeightModule(use_gru=use_gru, lr_head=1e-3, lr_encoder=1e-3)
+    dl = torch.utils.data.DataLoader(_Loader(), batch_size=2)
+    trainer = _trainer(tmp_path, max_steps=2)
+    trainer.fit(module, train_dataloaders=dl)
+    path = tmp_path / "m.ckpt"
+    trainer.save_checkpoint(path)
+    again = HeightModule.load_from_checkpoint(path)
+    assert again.hparams.use_gru == use_gru and again.hparams.lr_head == 1e-3
+    x = _batch()["depth"]
+    module.eval()
+    again.eval()
+    with torch.no_grad():
+        torch.testing.assert_close(again(x)[0], module(x)[0], rtol=0, atol=0)
+
+
+def test_height_module_loads_pretrained_encoder(tmp_path):
+    pre = TranscoderModule(target="normals")
+    trainer = _trainer(tmp_path, max_steps=0)
+    trainer.strategy.connect(pre)
+    trainer.save_checkpoint(tmp_path / "pre.ckpt")
+    module = HeightModule(encoder_ckpt=str(tmp_path / "pre.ckpt"))
+    for (k, a), (_, b) in zip(module.encoder.state_dict().items(), pre.encoder.state_dict().items()):
+        torch.testing.assert_close(a, b, msg=k)
+    assert module.hparams.encoder_ckpt is None and module.hparams.pretrained_from.endswith("pre.ckpt")
+    with pytest.raises(InputError, match="not found"):
+        HeightModule(encoder_ckpt=str(tmp_path / "missing.ckpt"))
+    torch.save({"state_dict": {"head.x": torch.zeros(1)}}, tmp_path / "bad.ckpt")
+    with pytest.raises(InputError, match="encoder"):
+        HeightModule(encoder_ckpt=str(tmp_path / "bad.ckpt"))
+
+
+def test_height_module_metrics_names():
+    module = HeightModule()
+    logged = {}
+    module.log = lambda name, value, **kw: logged.setdefault(name, value)
+    module.validation_step(_batch(), 0)
+    assert {"val/loss", "val/rmse_d", "val/rmse_fa"} <= set(logged)
+
+
+def test_freeze_then_finetune(tmp_path):
+    module = HeightModule(lr_head=1e-3, lr_encoder=1e-4)
+    enc0 = {k: v.clone() for k, v in module.encoder.state_dict().items()}
+    cb = FreezeThenFinetune(unfreeze_at_epoch=1, lr=1e-4)
+    dl = torch.utils.data.DataLoader(_Loader(), batch_size=2)
+    trainer = _trainer(tmp_path, max_epochs=1, callbacks=[cb])
+    trainer.fit(module, train_dataloaders=dl)
+    # epoch 0: frozen -- weights and batch-norm statistics untouched, one param group
+    for k, v in module.encoder.state_dict().items():
+        torch.testing.assert_close(v, enc0[k], msg=k)
+    assert len(trainer.optimizers[0].param_groups) == 1 and cb.frozen
+    trainer = _trainer(tmp_path, max_epochs=2, callbacks=[FreezeThenFinetune(unfreeze_at_epoch=1, lr=1e-4)])
+    trainer.fit(module, train_dataloaders=dl)
+    groups = trainer.optimizers[0].param_groups
+    assert len(groups) == 2 and groups[1]["lr"] == 1e-4
+    assert any(not torch.equal(v, enc0[k]) for k, v in module.encoder.state_dict().items())

@@ -1,0 +1,130 @@
+"""The training entry point end to end on tiny synthetic data, with a temporary MLflow store."""
+
+from __future__ import annotations
+
+import mlflow
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from uavturb.config import allowed_keys, load_config
+from uavturb.data import shards
+from uavturb.errors import InputError
+from uavturb.systems import HeightModule
+
+
+@pytest.fixture
+def store(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MLflow artifacts land in ./mlruns
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    return uri
+
+
+def _overrides(tmp_path, *extra):
+    return [f"data.root={tmp_path / 'sim'}", f"data.pairs_root={tmp_path / 'pre'}", "data.image_size=16",
+            "data.window=4", "data.batch_size=8", "data.num_workers=0", "data.synthetic.enabled=true",
+            "data.synthetic.n_scenes=3", "data.synthetic.trajs_per_scene=2", "data.synthetic.T=32",
+            "data.synthetic.pairs=48", f"trainer.default_root_dir={tmp_path / 'runs'}", "trainer.accelerator=cpu",
+            "trainer.enable_progress_bar=false", "trainer.log_every_n_steps=1", "trainer.limit_train_batches=1.0",
+            "trainer.limit_val_batches=1.0", "trainer.limit_test_batches=1.0", "tracking.experiment=test", *extra]
+
+
+def test_tiny_height_training_learns_and_logs(tmp_path, store):
+    from uavturb.train import train
+
+    cfg = load_config(_overrides(tmp_path, "trainer.max_epochs=4", "model.lr_head=3e-3", "model.lr_encoder=3e-3"),
+                      experiment="smoke")
+    assert cfg.model.pretraining == "none"
+    out = train(cfg)
+    assert out["stage"] == "height" and out["checkpoint"].endswith(".ckpt")
+    for key in ("val/rmse_d", "val/rmse_fa", "test/rmse_d", "test/rmse_fa"):
+        assert np.isfinite(out["metrics"][key]), key
+
+    client = mlflow.MlflowClient(store)
+    run = client.get_run(out["run_id"])
+    assert run.data.metrics["test/rmse_d"] == pytest.approx(out["metrics"]["test/rmse_d"], rel=1e-6)
+    assert run.data.tags["data_hash"] == out["data_hash"] == shards.dataset_hash(tmp_path / "sim")
+    assert "git_commit" in run.data.tags
+    assert run.data.params["model.use_gru"] == "True" and run.data.params["data.window"] == "4"
+    assert "config.yaml" in [a.path for a in client.list_artifacts(out["run_id"])]
+    losses = [m.value for m in client.get_metric_history(out["run_id"], "train/loss_step")]
+    assert len(losses) >= 8
+    assert np.mean(losses[-3:]) < np.mean(losses[:3])  # the loss went down
+
+    # the checkpoint alone rebuilds the model
+    module = HeightModule.load_from_checkpoint(out["checkpoint"])
+    module2 = HeightModule.load_from_checkpoint(out["checkpoint"])
+    x = torch.rand(2, 4, 1, 16, 16) * 3
+    module.eval(), module2.eval()
+    with torch.no_grad():
+        torch.testing.assert_close(module(x)[0], module2(x)[0], rtol=0, atol=0)
+    state = torch.load(out["checkpoint"], map_location="cpu", weights_only=True)["state_dict"]
+    torch.testing.assert_close(module.state_dict()["head.mlp.0.weight"], state["head.mlp.0.weight"])
+
+
+def test_pretrain_then_finetune_height(tmp_path, store):
+    from uavturb.train import train
+
+    pre = train(load_config(_overrides(tmp_path, "trainer.max_epochs=1"), experiment="smoke_pretrain"))
+    assert pre["stage"] == "pretrain" and "test/loss" in pre["metrics"] and "val/angle_deg" in pre["metrics"]
+    out = train(load_config(_overrides(tmp_path, "model=normals_finetune", f"model.encoder_ckpt={pre['checkpoint']}",
+                                       "model.unfreeze_at_epoch=1", "trainer.max_epochs=2", "model.lr_head=1e-3"),
+                            experiment="smoke"))
+    module = HeightModule.load_from_checkpoint(out["checkpoint"])
+    assert module.hparams.pretrained_from == pre["checkpoint"] and module.hparams.encoder_ckpt is None
+
+
+def test_height_stage_needs_encoder_checkpoint(tmp_path, store):
+    from uavturb.train import train
+
+    cfg = load_config(_overrides(tmp_path, "model=normals_finetune", "tracking.enabled=false"))
+    with pytest.raises(InputError) as e:
+        train(cfg)
+    assert e.value.where == "model.encoder_ckpt"
+
+
+@pytest.mark.parametrize("override, key", [
+    ("model.use_gr=false", "model.use_gr"),
+    ("trainer.max_epoch=3", "trainer.max_epoch"),
+    ("dta.root=x", "dta"),
+    ("trainer.max_epochs=many", "trainer.max_epochs"),
+    ("model.pretraining=imagenet", "model.pretraining"),
+])
+def test_config_typo_names_the_key(override, key):
+    with pytest.raises(InputError) as e:
+        load_config([override])
+    assert e.value.where == key
+    if "unknown key" in e.value.problem:
+        parent = key.rsplit(".", 1)[0] if "." in key else ""
+        assert all(k in e.value.problem for k in allowed_keys(parent))
+
+
+def test_config_groups_and_experiments():
+    cfg = load_config(["model=none_nogru", "trainer=gpu", "model.lr_head=0.01"])
+    assert cfg.model.pretraining == "none" and cfg.model.use_gru is False and cfg.model.lr_head == 0.01
+    assert cfg.trainer.accelerator == "gpu"
+    smoke = load_config(experiment="smoke")
+    assert smoke.data.synthetic.enabled and smoke.trainer.accelerator == "cpu"
+    assert load_config(["experiment=pretrain_normals"]).stage == "pretrain"
+    paper = load_config()
+    assert paper.model.lr_head == 1e-6 and paper.model.lam == 10000.0 and paper.model.embed_dim == 50
+    with pytest.raises(InputError, match="choices"):
+        load_config(["model=nonsense"])
+    with pytest.raises(InputError, match="choices"):
+        load_config(experiment="nonsense")
+    OmegaConf.to_yaml(paper)
+
+
+def test_group_file_typo_names_file_and_key(tmp_path):
+    import shutil
+
+    from uavturb.config import CONF_DIR
+
+    conf = tmp_path / "conf"
+    shutil.copytree(CONF_DIR, conf)
+    (conf / "model" / "broken.yaml").write_text("use_gruu: true\n")
+    with pytest.raises(InputError) as e:
+        load_config(["model=broken"], conf_dir=conf)
+    assert e.value.where == "model.use_gruu" and "broken.yaml" in e.value.problem

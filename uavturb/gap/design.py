@@ -1,0 +1,203 @@
+"""The translational model the gap finder fits, as regressors.
+
+For each sample the measured total force on the vehicle in W is ``y = m R a_imu`` (IMU; the
+state file's biases removed) or ``y = m (v_dot + g e_z)`` (MoCap). The model is::
+
+    y = k_T S_eff (R e_z (1 - s t) + e_z (G(mu, d_down) + G(kappa, d_up)))     thrust, surface effects, battery
+        + m R b                                                             accelerometer bias left (body)
+        - k_d Wsum R [v_B,x, v_B,y, 0]                                      rotor_drag
+        - c_d |v| v                                                         body_drag
+        + (f_x, f_y, 0)                                                     wind
+
+with ``S_eff = sum(w_lag(tau)^2)`` (``motor_lag``; ``w_lag = w`` when absent) and
+``G(c, d) = rho/(1-rho)``, ``rho = c (r/(4 d))^2`` (``effects.md``, clipped like the paper's
+ground effect). For fixed nonlinear parameters ``(mu, kappa, tau)`` it is linear in
+``(k_T, k_T s, b, k_d, c_d, f_x, f_y)``: nonlinear parameters are profiled (grid, then a
+bounded scalar search), linear ones solved by least squares.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from uavturb.physics import ground_effect as ge
+from uavturb.physics import quaternion as quat
+from uavturb.physics.dynamics import GRAVITY
+from uavturb.physics.effects import lag_rotor_speeds
+from uavturb.physics.flight_data import FlightData
+
+#: nonlinear parameter of each effect whose law is not linear in it, with its search bounds
+NONLINEAR = {"ground_effect": ("mu", 0.05, 40.0), "ceiling_effect": ("kappa", 0.05, 40.0),
+             "motor_lag": ("tau", 0.002, 0.3)}
+LINEAR = {"rotor_drag": ("k_d",), "body_drag": ("c_d",), "wind": ("f_x", "f_y"), "battery_sag": ("s",)}
+
+
+@dataclass
+class GapData:
+    """Samples of one or more flights for the translational fit (``K`` rows).
+
+    Attributes
+    ----------
+    group : (K,) int, recording index
+    t : (K,) s since each recording's start
+    p : (K, 3) m, position in W
+    y : (K, 3) N, measured total non-gravity force in W
+    R : (K, 3, 3) body to world
+    rotor_speeds : (K, N) rad/s (recorded)
+    v : (K, 3) m/s in W
+    d_down, d_up : (K,) m (``inf`` where no surface / no point cloud)
+    mass, rotor_radius : kg, m
+    names : recording names
+    """
+
+    group: np.ndarray
+    t: np.ndarray
+    p: np.ndarray
+    y: np.ndarray
+    R: np.ndarray
+    rotor_speeds: np.ndarray
+    v: np.ndarray
+    d_down: np.ndarray
+    d_up: np.ndarray
+    mass: float
+    rotor_radius: float
+    names: list[str]
+    source: str
+    flights: list[FlightData] = field(default_factory=list, repr=False)
+    _lag_cache: dict = field(default_factory=dict, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def S(self) -> np.ndarray:
+        return np.sum(self.rotor_speeds**2, axis=1)
+
+    def S_lag(self, tau: float) -> np.ndarray:
+        """``sum(w_lag^2)`` with rotor speeds lagging the records by ``tau`` [s] (per recording)."""
+        key = round(float(tau), 9)
+        if key not in self._lag_cache:
+            out = np.empty(len(self))
+            for g in np.unique(self.group):
+                m = self.group == g
+                out[m] = np.sum(lag_rotor_speeds(self.t[m], self.rotor_speeds[m], tau) ** 2, axis=1)
+            if len(self._lag_cache) > 64:
+                self._lag_cache.clear()
+            self._lag_cache[key] = out
+        return self._lag_cache[key]
+
+    def subset(self, mask: np.ndarray) -> "GapData":
+        return GapData(self.group[mask], self.t[mask], self.p[mask], self.y[mask], self.R[mask], self.rotor_speeds[mask],
+                       self.v[mask], self.d_down[mask], self.d_up[mask], self.mass, self.rotor_radius,
+                       self.names, self.source, self.flights)
+
+
+def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, source: str = "auto",
+             min_thrust_ratio: float = 0.3, k_T_guess: float | None = None) -> GapData:
+    """Stack flights into :class:`GapData`, keeping samples in flight (not resting on a surface).
+
+    Rows at the derivative filter's edges and rows whose rotors carry less than
+    ``min_thrust_ratio`` of the weight (resting, contact forces) are left out. Motor lag needs
+    contiguous rows: the lag filter runs on each flight before rows are dropped.
+    """
+    parts = []
+    for g, fd in enumerate(flights):
+        use_imu = fd.acc is not None and source in ("auto", "imu")
+        R = quat.to_rotation_matrix(fd.q)
+        if use_imu:
+            y = mass * np.einsum("kij,kj->ki", R, fd.acc)
+        else:
+            y = mass * (fd.dv + np.array([0.0, 0.0, GRAVITY]))
+        S = np.sum(fd.rotor_speeds**2, axis=1)
+        keep = np.ones(len(fd), bool)
+        keep[: fd.window] = keep[-fd.window:] = False
+        thr = (k_T_guess * S) if k_T_guess else (S / np.median(S) * mass * GRAVITY)
+        keep &= thr > min_thrust_ratio * mass * GRAVITY
+        inf = np.full(len(fd), np.inf)
+        d_down = np.where(np.isfinite(fd.d_down), fd.d_down, np.inf) if fd.d_down is not None else inf
+        d_up = np.where(np.isfinite(fd.d_up), fd.d_up, np.inf) if fd.d_up is not None else inf
+        parts.append(dict(group=np.full(len(fd), g), t=fd.t, p=fd.p, y=y, R=R, rotor_speeds=fd.rotor_speeds, v=fd.v,
+                          d_down=d_down, d_up=d_up, keep=keep, src="imu" if use_imu else "mocap"))
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "src"}
+    keep = cat.pop("keep")
+    data = GapData(**cat, mass=mass, rotor_radius=rotor_radius, names=[f.name for f in flights],
+                   source="+".join(sorted({p["src"] for p in parts})), flights=flights)
+    # motor lag is computed on the full, contiguous flights and then subset with the same mask
+    full = data
+    data = full.subset(keep)
+    data._full, data._keep = full, keep  # type: ignore[attr-defined]
+    return data
+
+
+def surface_ratio(d: np.ndarray, coeff: float, r: float) -> np.ndarray:
+    """``rho/(1-rho)`` with the paper's clip (force ~0 under ``r sqrt(c)/4``)."""
+    g = ge.force_ratio(d, coeff, r)
+    return np.where(np.isfinite(g), g, 0.0)
+
+
+def lagged_S(data: GapData, tau: float) -> np.ndarray:
+    """``sum(w_lag^2)`` on the rows of ``data`` (lag run on the contiguous flights)."""
+    full = getattr(data, "_full", None)
+    if full is None:
+        return data.S_lag(tau)
+    return full.S_lag(tau)[data._keep]  # type: ignore[attr-defined]
+
+
+def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tuple[np.ndarray, list[str]]:
+    """Regressors ``A (3K, P)`` (rows: x of all samples, then y, then z) and the coefficient names.
+
+    Parameters
+    ----------
+    data : samples
+    effects : the effects in the model (names of ``effects.md``)
+    nonlinear : values of ``mu``, ``kappa``, ``tau`` for the nonlinear effects in ``effects``
+    """
+    K = len(data)
+    R = data.R
+    zb = R[:, :, 2]
+    S = lagged_S(data, nonlinear["tau"]) if "motor_lag" in effects else data.S
+    ez = np.zeros((K, 3))
+    ez[:, 2] = 1.0
+    surf = np.zeros(K)
+    if "ground_effect" in effects:
+        surf += surface_ratio(data.d_down, nonlinear["mu"], data.rotor_radius)
+    if "ceiling_effect" in effects:
+        surf += surface_ratio(data.d_up, nonlinear["kappa"], data.rotor_radius)
+    cols = [S[:, None] * (zb + surf[:, None] * ez)]
+    names = ["k_T"]
+    for j, ax in enumerate("xyz"):
+        cols.append(data.mass * R[:, :, j])
+        names.append(f"b_{ax}")
+    if "battery_sag" in effects:
+        cols.append(-(data.t * S)[:, None] * zb)
+        names.append("k_T*s")
+    if "rotor_drag" in effects:
+        vB = np.einsum("kji,kj->ki", R, data.v)
+        vB[:, 2] = 0.0
+        wsum = np.sum(data.rotor_speeds, axis=1)
+        cols.append(-wsum[:, None] * np.einsum("kij,kj->ki", R, vB))
+        names.append("k_d")
+    if "body_drag" in effects:
+        cols.append(-np.linalg.norm(data.v, axis=1, keepdims=True) * data.v)
+        names.append("c_d")
+    if "wind" in effects:
+        ex = np.zeros((K, 3))
+        ex[:, 0] = 1.0
+        ey = np.zeros((K, 3))
+        ey[:, 1] = 1.0
+        cols += [ex, ey]
+        names += ["f_x", "f_y"]
+    A = np.stack([c.T.reshape(-1) for c in cols], axis=1)  # (3K, P): x block, y block, z block
+    return A, names
+
+
+def stack_target(y: np.ndarray) -> np.ndarray:
+    """``(K, 3)`` → ``(3K,)`` in the row order of :func:`design`."""
+    return y.T.reshape(-1)
+
+
+def unstack(r: np.ndarray) -> np.ndarray:
+    """``(3K,)`` → ``(K, 3)``."""
+    return r.reshape(3, -1).T

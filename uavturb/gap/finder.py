@@ -1,0 +1,219 @@
+"""``uavturb gap``: compare, locate, name, model and close the loop (``gap-report.md``)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from uavturb.errors import InputError
+from uavturb.gap import locate
+from uavturb.gap.design import LINEAR, NONLINEAR, GapData, gap_data
+from uavturb.gap.explain import explanation
+from uavturb.gap.fit import ModelFit, fit_model
+from uavturb.gap.report import write_json, write_markdown, write_plots
+from uavturb.gap.selection import folds, heldout, select
+from uavturb.physics.dynamics import GRAVITY
+from uavturb.physics.effects import EFFECTS, EffectInputs, defaults, total_force
+from uavturb.physics.flight_data import flight_data
+from uavturb.physics.sim_config import DEFAULT_EFFECTS, load_physics_config, write_physics_config
+
+SCHEMA = "uavturb.gap/1"
+
+
+def parse_sim_effects(text: str | None) -> dict[str, dict[str, float]]:
+    """``--sim-effects``: comma-separated names, ``none``, or ``None`` for the simulator's default.
+    Parameters come from the simulator's config where it has them, else ``effects.md``'s typical values."""
+    if text is None:
+        return {k: dict(v) for k, v in DEFAULT_EFFECTS.items()}
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if names == ["none"] or not names:
+        return {}
+    out = {}
+    for n in names:
+        if n not in EFFECTS:
+            raise InputError("--sim-effects", f"unknown effect '{n}' (known: {', '.join(EFFECTS)}, or none)")
+        out[n] = dict(DEFAULT_EFFECTS.get(n, defaults(n)))
+    return out
+
+
+def _sim_offset(data: GapData, sim: dict[str, dict[str, float]], k_T: float) -> np.ndarray:
+    """Force [N] of the simulator's own effects at the simulator's parameters, on ``data``'s rows."""
+    if not sim:
+        return np.zeros((len(data), 3))
+    full, keep = data._full, data._keep  # type: ignore[attr-defined]
+    out = np.zeros((len(full), 3))
+    for g in np.unique(full.group):
+        m = full.group == g
+        x = EffectInputs(q=None, v=full.v[m], rotor_speeds=full.rotor_speeds[m], k_T=k_T,
+                         rotor_radius=full.rotor_radius, d_down=full.d_down[m], d_up=full.d_up[m], t=full.t[m],
+                         R=full.R[m])
+        out[m] = total_force(sim, x)
+    return out[keep]
+
+
+def _open_loop(data: GapData, force: np.ndarray, horizon_s: float = 0.5, stride_s: float = 0.5) -> float:
+    """RMS position error [m] of open-loop translational predictions over ``horizon_s``, started
+    from the measured state every ``stride_s``, with measured attitude and rotor speeds and the
+    model's force ``force (K, 3)`` [N] (thrust and effects, in W)."""
+    errs = []
+    g = np.array([0.0, 0.0, GRAVITY])
+    for grp in np.unique(data.group):
+        idx = np.flatnonzero(data.group == grp)
+        t = data.t[idx]
+        dt = float(np.median(np.diff(t)))
+        n = max(2, int(round(horizon_s / dt)))
+        for s in range(0, len(idx) - n, max(1, int(round(stride_s / dt)))):
+            seg = idx[s: s + n + 1]
+            if np.any(np.diff(data.t[seg]) > 3 * dt):  # a gap (rows dropped on the ground)
+                continue
+            a = force[seg[:-1]] / data.mass - g
+            h = np.diff(data.t[seg])[:, None]
+            v = data.v[seg[0]] + np.cumsum(a * h, axis=0)
+            p = data.p[seg[0]] + np.sum(np.vstack([data.v[seg[0]], v[:-1]]) * h + 0.5 * a * h**2, axis=0)
+            errs.append(np.sum((p - data.p[seg[-1]]) ** 2))
+    return float(np.sqrt(np.mean(errs))) if errs else float("nan")
+
+
+def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0) -> tuple[dict, dict]:
+    """The analysis without any writing: returns the report dictionary and what the plots need."""
+    np.random.seed(seed)
+    vehicle = recordings[0].vehicle
+    fds = [flight_data(r) for r in recordings]
+    data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient)
+    if len(data) < 200:
+        raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
+    has_down = bool(np.any(np.isfinite(data.d_down)))
+    has_up = bool(np.any(np.isfinite(data.d_up)))
+
+    nominal = fit_model(data, set(), with_stderr=False)
+    offset = _sim_offset(data, sim, nominal.coef["k_T"])
+    base_data = data.subset(np.ones(len(data), bool))
+    base_data.y = data.y - offset
+    baseline = fit_model(base_data, set(), with_stderr=False)
+    r0 = baseline.residual(base_data)
+    protocol, fm = folds(data)
+    base_ho = heldout(data, frozenset(), fm, offset=offset)
+    segs, rs0, sigma = locate.segments(data, r0)
+    drv = locate.drivers(data, rs0)
+
+    candidates = [e for e in EFFECTS if e not in sim
+                  and not (e == "ground_effect" and not has_down) and not (e == "ceiling_effect" and not has_up)]
+    sim_fit_base = frozenset(e for e in sim if not (e == "ground_effect" and not has_down)
+                             and not (e == "ceiling_effect" and not has_up))
+    sel = select(data, candidates, base=sim_fit_base)
+    final: ModelFit = sel.final
+    rf = final.residual(data)
+    _, rsf, _ = locate.segments(data, rf)
+    n = max(3, int(round(0.5 / float(np.median(np.diff(data.t))))))
+    beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / n)))
+    effects_out = []
+    for s in sel.steps:
+        params, se = final.effect_params(s.name)
+        effects_out.append({
+            "name": s.name, "params": params, "stderr": se,
+            "explanation": explanation(s.name, params, data, final.coef["k_T"]),
+            "heldout_rmse_before_N": s.heldout_before, "heldout_rmse_after_N": s.heldout_after,
+            "t_stat": s.t_stat,
+        })
+    sim_params = {}
+    for name, p in sim.items():
+        fitted = final.effect_params(name)[0] if name in final.effects else {}
+        sim_params[name] = {"sim": p, "fitted": fitted}
+    before_force = baseline.predict(base_data) + offset
+    report = {
+        "schema": SCHEMA,
+        "recordings": [str(r.path) if r.path else r.name for r in recordings],
+        "sim_effects": list(sim),
+        "protocol": protocol,
+        "residual_source": data.source,
+        "baseline": {"rmse_N": float(np.sqrt(np.mean(np.sum(r0**2, 1)))), "heldout_rmse_N": base_ho.rmse},
+        "noise": {"sigma_N": [float(s) for s in sigma], "rms_N": float(np.sqrt(np.sum(sigma**2)))},
+        "mismatch": {"segments": [s.__dict__ for s in segs], "drivers": drv},
+        "effects": effects_out,
+        "sim_effect_params": sim_params,
+        "nominal": {"thrust_coefficient": final.coef["k_T"], "thrust_coefficient_stderr": final.stderr.get("k_T"),
+                    "accel_bias": [final.coef[f"b_{a}"] for a in "xyz"]},
+        "final": {"heldout_rmse_N": sel.final_heldout.rmse, "rmse_N": float(np.sqrt(np.mean(np.sum(rf**2, 1))))},
+        "unexplained": {"rms_N": beyond, "drivers": locate.drivers(data, rsf)},
+        "open_loop": {"horizon_s": 0.5, "before_m": _open_loop(data, before_force),
+                      "after_m": _open_loop(data, final.predict(data))},
+        "candidates_tried": sel.tried,
+    }
+    extras = dict(data=data, r0=r0, rs0=rs0, rf=rf, rsf=rsf, segs=segs, drivers=drv, base_ho=base_ho,
+                  final_ho=sel.final_heldout, final=final)
+    return report, extras
+
+
+def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str | None = None, seed: int = 0,
+        apply: str | Path | None = None, vehicle: str | None = None, log_mlflow: bool = True,
+        physics_config: str | Path | None = None) -> dict:
+    """Run the gap finder on recording folders and write ``out/report.json`` and ``out/report.md``.
+
+    ``out`` holds a complete report or none: everything is built in a temporary folder beside it
+    and renamed at the end.
+    """
+    from uavturb.workflows import load_recordings
+
+    t0 = time.perf_counter()
+    out = Path(out)
+    sim = parse_sim_effects(sim_effects)
+    if physics_config is not None:
+        cfg = load_physics_config(physics_config)["effects"]
+        sim = {n: cfg.get(n, p) for n, p in sim.items()} if sim_effects is not None else cfg
+    if not recordings:
+        raise InputError("gap", "no recording given")
+    if out.exists() and not out.is_dir():
+        raise InputError(out, "exists and is not a folder")
+    if not out.parent.exists():
+        raise InputError(out.parent, "folder does not exist")
+    recs = load_recordings(recordings, vehicle)
+    report, ex = analyse(recs, sim, seed=seed)
+    report["seconds_analysis"] = time.perf_counter() - t0
+
+    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    try:
+        top = ex["drivers"][0]["feature"] if ex["drivers"] else None
+        plots = write_plots(tmp, ex["data"], ex["r0"], ex["rs0"], ex["rf"], ex["rsf"], ex["segs"], top,
+                            ex["base_ho"], ex["final_ho"])
+        if apply is not None:
+            fitted = {e["name"]: e["params"] for e in report["effects"]}
+            for n, p in report["sim_effect_params"].items():
+                fitted[n] = p["fitted"] or p["sim"]
+            write_physics_config(apply, fitted, {"thrust_coefficient": report["nominal"]["thrust_coefficient"]},
+                                 source=f"uavturb gap {' '.join(report['recordings'])}")
+            report["applied_config"] = str(apply)
+        write_markdown(tmp, report, plots)
+        write_json(tmp, report)
+        if out.exists():
+            old = out.parent / f".{out.name}.old-{os.getpid()}"
+            os.replace(out, old)
+            os.replace(tmp, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    if log_mlflow:
+        try:
+            from uavturb.tracking import log_run
+
+            log_run("uavturb-gap", run_name="gap " + ",".join(Path(r).name for r in report["recordings"]),
+                    params={"recordings": report["recordings"], "sim_effects": report["sim_effects"], "seed": seed,
+                            "protocol": report["protocol"]},
+                    metrics={"gap/baseline_heldout_rmse_N": report["baseline"]["heldout_rmse_N"],
+                             "gap/final_heldout_rmse_N": report["final"]["heldout_rmse_N"],
+                             "gap/n_effects": len(report["effects"])},
+                    tags={"effects": ",".join(e["name"] for e in report["effects"]) or "none"}, artifacts=out)
+        except Exception as e:  # tracking must never lose a finished report
+            print(f"uavturb gap: warning: MLflow logging failed ({type(e).__name__}: {e})", file=sys.stderr)
+    return report

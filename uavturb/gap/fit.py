@@ -1,0 +1,132 @@
+"""Fit the gap model for a given set of effects: linear coefficients by least squares,
+nonlinear ones (``mu``, ``kappa``, ``tau``) by profiling the training error over a log grid,
+refined by a bounded scalar search. Standard errors from the linearised model with a
+Newey-West covariance (``physics/least_squares.py``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from uavturb.gap.design import NONLINEAR, GapData, design, stack_target, unstack
+from uavturb.physics.least_squares import lstsq
+
+GRID_POINTS = 17
+
+
+@dataclass
+class ModelFit:
+    """A fitted gap model.
+
+    Attributes
+    ----------
+    effects : the effects in the model
+    nonlinear : fitted ``mu`` / ``kappa`` / ``tau`` of the nonlinear effects in it
+    coef : linear coefficients by name (``k_T``, ``b_x`` ..., ``k_d`` ...)
+    stderr : standard errors of every coefficient and nonlinear parameter
+    rmse : N, training RMS of the residual force norm
+    """
+
+    effects: frozenset[str]
+    nonlinear: dict[str, float]
+    coef: dict[str, float]
+    stderr: dict[str, float]
+    rmse: float
+
+    def predict(self, data: GapData) -> np.ndarray:
+        """Modelled force ``(K, 3)`` [N] in W."""
+        A, names = design(data, set(self.effects), self._nl())
+        return unstack(A @ np.array([self.coef[n] for n in names]))
+
+    def residual(self, data: GapData) -> np.ndarray:
+        return data.y - self.predict(data)
+
+    def _nl(self) -> dict[str, float]:
+        return _nl_values(self.nonlinear)
+
+    def effect_params(self, name: str) -> tuple[dict[str, float], dict[str, float]]:
+        """Parameters of one effect in ``effects.md`` names and units, with standard errors."""
+        if name in NONLINEAR:
+            p = NONLINEAR[name][0]
+            return {p: self.nonlinear[name]}, {p: self.stderr.get(p, float("nan"))}
+        if name == "battery_sag":
+            kT, ks = self.coef["k_T"], self.coef["k_T*s"]
+            s = ks / kT
+            se = abs(s) * np.hypot(self.stderr["k_T*s"] / max(abs(ks), 1e-300), self.stderr["k_T"] / kT)
+            return {"s": s}, {"s": se}
+        keys = {"rotor_drag": ("k_d",), "body_drag": ("c_d",), "wind": ("f_x", "f_y")}[name]
+        return {k: self.coef[k] for k in keys}, {k: self.stderr[k] for k in keys}
+
+
+def _nl_values(nonlinear: dict[str, float]) -> dict[str, float]:
+    out = {"mu": 0.0, "kappa": 0.0, "tau": 0.0}
+    for effect, value in nonlinear.items():
+        out[NONLINEAR[effect][0]] = value
+    return out
+
+
+def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least squares by scaled normal equations (fast for tall, thin problems); returns coef, SSE."""
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    As = A / scale
+    G = As.T @ As
+    c = np.linalg.lstsq(G, As.T @ y, rcond=1e-12)[0]
+    r = y - As @ c
+    return c / scale, float(r @ r)
+
+
+def _sse(data: GapData, effects: set[str], nl: dict[str, float], y: np.ndarray) -> float:
+    A, _ = design(data, effects, _nl_values(nl))
+    return _solve(A, y)[1]
+
+
+def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 50,
+              fixed_nonlinear: dict[str, float] | None = None, with_stderr: bool = True) -> ModelFit:
+    """Fit the model with ``effects`` on ``data``.
+
+    Parameters
+    ----------
+    data : training samples
+    effects : effect names (``effects.md``)
+    lag : Newey-West lag [samples] for the standard errors
+    fixed_nonlinear : nonlinear parameters held at given values instead of fitted
+    """
+    effects = frozenset(effects)
+    y = stack_target(data.y)
+    fixed = dict(fixed_nonlinear or {})
+    free = [e for e in sorted(effects) if e in NONLINEAR and e not in fixed]
+    nl = {e: fixed.get(e, np.sqrt(NONLINEAR[e][1] * NONLINEAR[e][2])) for e in effects if e in NONLINEAR}
+    for _ in range(2 if len(free) > 1 else 1):  # coordinate descent over the nonlinear parameters
+        for e in free:
+            lo, hi = NONLINEAR[e][1], NONLINEAR[e][2]
+            grid = np.geomspace(lo, hi, GRID_POINTS)
+            sse = [_sse(data, effects, nl | {e: g}, y) for g in grid]
+            i = int(np.argmin(sse))
+            a, b = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
+            res = minimize_scalar(lambda z: _sse(data, effects, nl | {e: np.exp(z)}, y), bounds=(a, b),
+                                  method="bounded", options={"xatol": 1e-3})
+            nl[e] = float(np.exp(res.x)) if res.fun <= sse[i] else float(grid[i])
+    A, names = design(data, effects, _nl_values(nl))
+    coef, sse = _solve(A, y)
+    stderr: dict[str, float] = {}
+    if with_stderr:
+        # linearise in the nonlinear parameters (central differences of the prediction)
+        cols, extra = [A], []
+        for e in free:
+            p = nl[e]
+            h = 1e-3 * p
+            Ap, _ = design(data, effects, _nl_values(nl | {e: p + h}))
+            Am, _ = design(data, effects, _nl_values(nl | {e: p - h}))
+            cols.append(((Ap - Am) @ coef / (2 * h))[:, None])
+            extra.append(NONLINEAR[e][0])
+        J = np.hstack(cols)
+        groups = np.concatenate([data.group + 1000 * k for k in range(3)])
+        lin = lstsq(J, y - A @ coef, lag=lag, groups=groups)  # the increments are ~0; we want the covariance
+        se = lin.stderr
+        stderr = dict(zip(names + extra, (float(s) for s in se)))
+    rmse = float(np.sqrt(sse / len(data)))
+    return ModelFit(effects, {e: nl[e] for e in effects if e in NONLINEAR}, dict(zip(names, map(float, coef))),
+                    stderr, rmse)

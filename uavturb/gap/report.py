@@ -1,0 +1,153 @@
+"""The gap report: ``report.json`` (``gap-report.md``) and ``report.md`` with its plots."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from uavturb.gap.locate import AXES, features
+
+
+def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, segs, top_driver: str | None,
+                heldout_before, heldout_after) -> list[str]:
+    """Three figures a person needs to believe the report; returns their file names."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = []
+    groups = np.unique(data.group)
+    # 1. residual over time with the located segments shaded
+    fig, axes = plt.subplots(3, len(groups), figsize=(6 * len(groups) + 2, 7), sharex="col", squeeze=False)
+    for c, g in enumerate(groups):
+        m = data.group == g
+        for j in range(3):
+            ax = axes[j, c]
+            ax.plot(data.t[m], baseline_r[m, j], lw=0.3, color="0.7", label="residual (nominal model)")
+            ax.plot(data.t[m], baseline_rs[m, j], lw=1.0, color="tab:blue", label="smoothed")
+            ax.plot(data.t[m], final_rs[m, j], lw=1.0, color="tab:green", label="after the named effects")
+            for s in segs:
+                if s.recording == data.names[g] and s.axis == AXES[j]:
+                    ax.axvspan(s.t_start, s.t_end, color="tab:red", alpha=0.15, lw=0)
+            ax.set_ylabel(f"F_{AXES[j]} [N]")
+        axes[0, c].set_title(data.names[g])
+        axes[-1, c].set_xlabel("t [s]")
+    axes[0, 0].legend(loc="upper right", fontsize=7)
+    fig.suptitle("Residual force over time; located mismatch segments shaded")
+    fig.tight_layout()
+    fig.savefig(folder / "residual_time.png", dpi=100)
+    plt.close(fig)
+    names.append("residual_time.png")
+
+    # 2. residual against its driving feature, before and after
+    if top_driver is not None:
+        x = features(data)[top_driver]
+        j = int(np.argmax(np.var(baseline_rs, axis=0)))
+        fig, ax = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+        for a, r, title in ((ax[0], baseline_rs, "before"), (ax[1], final_rs, "after")):
+            a.scatter(x, r[:, j], s=1, alpha=0.3)
+            edges = np.unique(np.quantile(x, np.linspace(0, 1, 25)))
+            idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+            cnt = np.maximum(np.bincount(idx), 1)
+            a.plot(0.5 * (edges[1:] + edges[:-1])[: len(cnt)], (np.bincount(idx, weights=r[:, j]) / cnt),
+                   color="k", lw=2, label="bin mean")
+            a.set_title(f"{title}: smoothed F_{AXES[j]} against {top_driver}")
+            a.set_xlabel(top_driver)
+            a.legend()
+        ax[0].set_ylabel(f"F_{AXES[j]} [N]")
+        fig.tight_layout()
+        fig.savefig(folder / "residual_vs_driver.png", dpi=100)
+        plt.close(fig)
+        names.append("residual_vs_driver.png")
+
+    # 3. held-out fit before and after
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    for ho, label, color in ((heldout_before, "before", "tab:blue"), (heldout_after, "after", "tab:green")):
+        e = np.sqrt(ho.err2)
+        k = max(1, len(e) // 400)
+        ax.plot(np.arange(len(e))[::k], np.convolve(e, np.ones(k) / k, "same")[::k], color=color,
+                label=f"{label}: held-out RMSE {ho.rmse:.3f} N")
+    ax.set_xlabel("held-out sample")
+    ax.set_ylabel("|residual| [N]")
+    ax.set_title("Held-out fit before and after the named effects")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(folder / "heldout_fit.png", dpi=100)
+    plt.close(fig)
+    names.append("heldout_fit.png")
+    return names
+
+
+def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
+    """``report.md``: the findings in words, tables and the plots."""
+    L = ["# Sim-to-real gap report", ""]
+    L.append(f"Recordings: {', '.join('`' + r + '`' for r in report['recordings'])}  ")
+    L.append(f"Simulator effects: {', '.join(report['sim_effects']) or 'none'}  ")
+    L.append(f"Protocol: {report['protocol']}; residual from {report['residual_source']}")
+    L.append("")
+    b, f = report["baseline"], report["final"]
+    L.append(f"**Held-out residual RMSE: {b['heldout_rmse_N']:.4f} N → {f['heldout_rmse_N']:.4f} N** "
+             f"(nominal model {b['rmse_N']:.4f} N on all data; sensor noise floor {report['noise']['rms_N']:.4f} N).")
+    L.append("")
+    L.append("## Named effects")
+    if not report["effects"]:
+        L.append("None: no effect of the vocabulary improves the held-out fit beyond what noise explains.")
+    else:
+        L.append("| effect | parameters (± std. error) | held-out RMSE before → after [N] | t |")
+        L.append("|---|---|---|---|")
+        for e in report["effects"]:
+            ps = ", ".join(f"{k} = {v:.4g} ± {e['stderr'][k]:.2g}" for k, v in e["params"].items())
+            L.append(f"| `{e['name']}` | {ps} | {e['heldout_rmse_before_N']:.4f} → {e['heldout_rmse_after_N']:.4f} | "
+                     f"{e['t_stat']:.1f} |")
+        L.append("")
+        for e in report["effects"]:
+            L.append(f"- **{e['name']}**: {e['explanation']}")
+    if report["sim_effect_params"]:
+        L.append("")
+        L.append("## The simulator's own effects, refitted")
+        for n, p in report["sim_effect_params"].items():
+            L.append(f"- `{n}`: simulator {p['sim']}, fitted {p['fitted']}")
+    L.append("")
+    L.append("## Where the mismatch is")
+    segs = report["mismatch"]["segments"]
+    L.append(f"{len(segs)} segment(s) where the nominal model's residual stands out of the noise"
+             + (" (largest first):" if segs else "."))
+    if segs:
+        L.append("")
+        L.append("| recording | t start [s] | t end [s] | axis | RMS [N] |")
+        L.append("|---|---|---|---|---|")
+        for s in segs[:15]:
+            L.append(f"| {Path(s['recording']).name} | {s['t_start']:.2f} | {s['t_end']:.2f} | {s['axis']} | "
+                     f"{s['rms_N']:.3f} |")
+    L.append("")
+    drv = report["mismatch"]["drivers"]
+    L.append("Drivers (share of the smoothed residual explained): " +
+             (", ".join(f"{d['feature']} {d['score']:.2f} ({d['axis']})" for d in drv) or "none"))
+    L.append("")
+    u = report["unexplained"]
+    L.append(f"## Unexplained\nRMS beyond noise after the named effects: {u['rms_N']:.4f} N; drivers: " +
+             (", ".join(f"{d['feature']} {d['score']:.2f}" for d in u["drivers"]) or "none"))
+    if "open_loop" in report:
+        ol = report["open_loop"]
+        L.append("")
+        L.append(f"## Closing the loop\nOpen-loop position error over {ol['horizon_s']} s horizons: "
+                 f"{ol['before_m']:.4f} m → {ol['after_m']:.4f} m with the fitted effects.")
+    L.append("")
+    for p in plots:
+        L.append(f"![{p}]({p})")
+    (folder / "report.md").write_text("\n".join(L) + "\n")
+
+
+def write_json(folder: Path, report: dict) -> None:
+    (folder / "report.json").write_text(json.dumps(report, indent=2, default=_jsonable))
+
+
+def _jsonable(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))

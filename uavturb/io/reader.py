@@ -1,0 +1,161 @@
+"""Read a recording folder (the EuRoC-MAV layout of ``recordings.md``) into a :class:`Recording`.
+
+Also holds the layout itself: the path of every file relative to the recording folder,
+shared with :mod:`uavturb.io.writer`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from uavturb.errors import InputError
+from uavturb.io import align, euroc_csv, ply, sensor_yaml
+from uavturb.io.recording import GroundTruth, Imu, Poses, Recording, Rotors
+from uavturb.physics import quaternion as quat
+from uavturb.physics.vehicle import Vehicle, load_vehicle
+
+# --- the layout (paths relative to the recording folder) -----------------------------------
+VEHICLE_YAML = "vehicle.yaml"
+GROUNDTRUTH_CSV = "mav0/state_groundtruth_estimate0/data.csv"
+IMU_CSV = "mav0/imu0/data.csv"
+IMU_YAML = "mav0/imu0/sensor.yaml"
+ROTORS_CSV = "mav0/rotors0/data.csv"
+POINTS_PLY = "mav0/pointcloud0/data.ply"
+CAM_CSV = "mav0/cam0/data.csv"
+CAM_YAML = "mav0/cam0/sensor.yaml"
+CAM_DATA = "mav0/cam0/data"
+VICON_CSV = "mav0/vicon0/data.csv"
+
+#: A quaternion whose norm differs from 1 by more than this is an error, not rounding.
+QUATERNION_NORM_TOLERANCE = 1e-2
+
+
+def checked_quaternions(path: str | Path, q: np.ndarray, lines: np.ndarray | None = None,
+                        unit: str = "line") -> np.ndarray:
+    """Validate, normalise and make sign-continuous a quaternion series.
+
+    Parameters
+    ----------
+    path : file (or bag) the quaternions come from, named in errors
+    q : (N, 4) quaternions ``w, x, y, z``
+    lines : (N,) line numbers of the rows (default ``1..N``)
+    unit : what ``lines`` count (``"line"``, ``"message"``)
+
+    Returns
+    -------
+    (N, 4) unit quaternions with ``q_k · q_{k-1} > 0``
+
+    Raises
+    ------
+    InputError
+        ``"quaternion at line L has norm X (expected 1)"`` when ``|‖q‖ - 1| > 1e-2``.
+    """
+    q = np.asarray(q, dtype=np.float64)
+    norm = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE)
+    if len(bad):
+        k = bad[0]
+        at = lines[k] if lines is not None else k + 1
+        raise InputError(path, f"quaternion at {unit} {at} has norm {norm[k]:.6g} (expected 1)")
+    return quat.make_continuous(q / norm[:, None])
+
+
+def check_rotor_speeds(path: str | Path, speeds: np.ndarray, vehicle: Vehicle, lines: np.ndarray | None = None,
+                       unit: str = "line") -> None:
+    """Rotor speeds ``(N, K)`` have one column per rotor of ``vehicle`` and none is negative."""
+    if speeds.shape[1] != vehicle.rotor_count:
+        raise InputError(path, f"has {speeds.shape[1]} rotor speed columns but the vehicle "
+                               f"'{vehicle.name}' has rotor_count {vehicle.rotor_count}")
+    neg = np.argwhere(speeds < 0)
+    if len(neg):
+        k, c = neg[0]
+        at = lines[k] if lines is not None else k + 1
+        raise InputError(path, f"{unit} {at}: negative rotor speed {speeds[k, c]} for rotor {c}")
+
+
+def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_rotors: bool = False,
+                   require_imu: bool = False, load_points: bool = True) -> Recording:
+    """Read a recording folder.
+
+    Parameters
+    ----------
+    path : the recording folder (holding ``vehicle.yaml`` and ``mav0/``)
+    vehicle : used when the folder has no ``vehicle.yaml`` (a downloaded EuRoC sequence);
+        a folder's own ``vehicle.yaml`` takes precedence
+    require_rotors, require_imu : make ``rotors0`` / ``imu0`` required
+    load_points : read ``pointcloud0/data.ply`` when present (large)
+
+    Returns
+    -------
+    Recording
+        Ground truth always; ``imu``, ``rotors`` (rad/s, scaled by ``rotor_speed_scale``),
+        ``points``, ``cam0`` (frames listed, not loaded) and ``vicon`` when present.
+
+    Raises
+    ------
+    InputError
+        Naming the file at fault: missing folder or required file, malformed CSV, PLY or
+        YAML, quaternion norm off by more than 1e-2, rotor column count different from the
+        vehicle's ``rotor_count``, negative rotor speed, or an IMU/rotor stream that does not
+        overlap the ground truth in time.
+    """
+    root = Path(path)
+    if not root.exists():
+        raise InputError(root, "recording folder not found")
+    if not root.is_dir():
+        raise InputError(root, "not a recording folder (it is a file)")
+
+    vehicle_file = root / VEHICLE_YAML
+    if vehicle_file.is_file():
+        vehicle = load_vehicle(vehicle_file)
+    elif vehicle is None:
+        raise InputError(vehicle_file, "file not found (a folder without one needs a vehicle given explicitly)")
+
+    gt_file = root / GROUNDTRUTH_CSV
+    t_gt, x, lines = euroc_csv.read_csv(gt_file, euroc_csv.GROUNDTRUTH_COLUMNS, "ground truth", return_lines=True)
+    gt = GroundTruth(t_ns=t_gt, p=x[:, 0:3], q=checked_quaternions(gt_file, x[:, 3:7], lines), v=x[:, 7:10],
+                     b_w=x[:, 10:13], b_a=x[:, 13:16])
+
+    imu = None
+    imu_file = root / IMU_CSV
+    if imu_file.is_file():
+        t, x = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU")
+        align.require_overlap(t_gt, t, imu_file)
+        imu = Imu(t_ns=t, gyro=x[:, 0:3], acc=x[:, 3:6], T_BS=np.eye(4))
+        if (root / IMU_YAML).is_file():
+            sensor = sensor_yaml.read_imu_yaml(root / IMU_YAML)
+            imu.T_BS, imu.rate_hz = sensor.T_BS, sensor.rate_hz
+    elif require_imu:
+        raise InputError(imu_file, "file not found (IMU data are required)")
+
+    rotors = None
+    rotors_file = root / ROTORS_CSV
+    if rotors_file.is_file():
+        t, x, lines = euroc_csv.read_csv(rotors_file, None, "rotor speed", return_lines=True)
+        check_rotor_speeds(rotors_file, x, vehicle, lines)
+        align.require_overlap(t_gt, t, rotors_file)
+        rotors = Rotors(t_ns=t, speeds=x * vehicle.rotor_speed_scale)
+    elif require_rotors:
+        raise InputError(rotors_file, "file not found (rotor speeds are required)")
+
+    points = None
+    if load_points and (root / POINTS_PLY).is_file():
+        points = ply.read_ply(root / POINTS_PLY)
+
+    cam0 = None
+    if (root / CAM_CSV).is_file() or (root / CAM_YAML).is_file():
+        cam0 = sensor_yaml.read_camera_yaml(root / CAM_YAML)
+        if (root / CAM_CSV).is_file():
+            t, files = euroc_csv.read_frame_list(root / CAM_CSV)
+            cam0.t_ns, cam0.files = t, files
+
+    vicon = None
+    vicon_file = root / VICON_CSV
+    if vicon_file.is_file():
+        t, x, lines = euroc_csv.read_csv(vicon_file, euroc_csv.VICON_COLUMNS, "vicon", return_lines=True)
+        vicon = Poses(t_ns=t, p=x[:, 0:3], q=checked_quaternions(vicon_file, x[:, 3:7], lines))
+
+    return Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors, points=points, cam0=cam0,
+                     vicon=vicon, path=root)

@@ -1,0 +1,102 @@
+"""Write a :class:`Recording` as a recording folder (the EuRoC-MAV layout of ``recordings.md``).
+
+The folder is built in a sibling temporary folder and renamed into place, so a reader never
+sees a half-written recording. Floats are written as the shortest text that reads back to
+the same float64: :func:`read_recording` of a written recording returns the same numbers.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from uavturb.errors import InputError
+from uavturb.io import euroc_csv, ply, sensor_yaml
+from uavturb.io.reader import (
+    CAM_CSV, CAM_DATA, CAM_YAML, GROUNDTRUTH_CSV, IMU_CSV, IMU_YAML, POINTS_PLY, ROTORS_CSV, VEHICLE_YAML, VICON_CSV,
+)
+from uavturb.io.recording import Recording
+from uavturb.physics.vehicle import save_vehicle
+
+
+def _write_streams(rec: Recording, root: Path) -> None:
+    """Every file of ``rec`` under ``root`` (an empty folder)."""
+    save_vehicle(rec.vehicle, root / VEHICLE_YAML)
+    gt = rec.ground_truth
+    euroc_csv.write_csv(root / GROUNDTRUTH_CSV, euroc_csv.GROUNDTRUTH_HEADER, gt.t_ns,
+                        np.hstack([gt.p, gt.q, gt.v, gt.b_w, gt.b_a]))
+    if rec.imu is not None:
+        imu = rec.imu
+        euroc_csv.write_csv(root / IMU_CSV, euroc_csv.IMU_HEADER, imu.t_ns, np.hstack([imu.gyro, imu.acc]))
+        T_BS = np.eye(4) if imu.T_BS is None else imu.T_BS
+        sensor_yaml.write_imu_yaml(root / IMU_YAML, sensor_yaml.ImuSensor(T_BS=T_BS, rate_hz=imu.rate_hz))
+    if rec.rotors is not None:
+        speeds = np.asarray(rec.rotors.speeds, dtype=np.float64)
+        n = speeds.shape[1] if speeds.ndim == 2 else 0
+        if n != rec.vehicle.rotor_count:
+            raise InputError(root / ROTORS_CSV, f"rotor speeds have {n} columns but the vehicle "
+                                                f"'{rec.vehicle.name}' has rotor_count {rec.vehicle.rotor_count}")
+        euroc_csv.write_csv(root / ROTORS_CSV, euroc_csv.rotors_header(n), rec.rotors.t_ns,
+                            speeds / rec.vehicle.rotor_speed_scale)
+    if rec.points is not None:
+        ply.write_ply(root / POINTS_PLY, rec.points)
+    if rec.cam0 is not None:
+        sensor_yaml.write_camera_yaml(root / CAM_YAML, rec.cam0)
+        if len(rec.cam0.files):  # a camera without frames is described by its sensor.yaml alone
+            euroc_csv.write_frame_list(root / CAM_CSV, rec.cam0.t_ns, rec.cam0.files)
+        (root / CAM_DATA).mkdir(parents=True, exist_ok=True)
+    if rec.vicon is not None:
+        euroc_csv.write_csv(root / VICON_CSV, euroc_csv.VICON_HEADER, rec.vicon.t_ns,
+                            np.hstack([rec.vicon.p, rec.vicon.q]))
+
+
+def write_recording(rec: Recording, path: str | Path, *, overwrite: bool = False) -> Path:
+    """Write ``rec`` as a recording folder, atomically.
+
+    Parameters
+    ----------
+    rec : the recording (rotor speeds in rad/s; they are divided by the vehicle's
+        ``rotor_speed_scale`` on the way out, so reading back returns them unchanged)
+    path : the recording folder to create
+    overwrite : replace an existing folder at ``path`` (else it is an error)
+
+    Returns
+    -------
+    Path of the written folder. Camera images are not written (the caller puts them
+    under ``mav0/cam0/data/``, which is created).
+
+    Raises
+    ------
+    InputError
+        ``path`` exists and ``overwrite`` is false, or a stream cannot be written
+        (mismatched shapes, non-finite values, timestamps not strictly increasing).
+        Nothing is left at ``path`` (nor any temporary folder) when writing fails.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise InputError(path, "already exists (pass overwrite=True to replace it)")
+    if path.exists() and not path.is_dir():
+        raise InputError(path, "exists and is not a folder")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
+    old = path.with_name(f"{path.name}.old-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        tmp.mkdir()
+        _write_streams(rec, tmp)
+        if path.exists():  # overwrite: move the old folder aside, put the new one in, drop the old
+            os.replace(path, old)
+            try:
+                os.replace(tmp, path)
+            except BaseException:
+                os.replace(old, path)
+                raise
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return path

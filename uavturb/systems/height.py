@@ -1,0 +1,154 @@
+"""Height over ground from depth sequences, and ``f_a`` through the ground-effect law.
+
+    e_t = Enc(D_t);  h_t = GRU(e_t, h_{t-1});  d_t = Pred(h_t);  f_a,t = phi(d_t, Omega_t)
+
+Loss: ``L1 = ||d_t - d*_t||^2`` (mean squared error over the window's frames, or over its
+last frame only: ``loss_frames``). Metrics, on the **last frame of each window** (the frame
+predicted with ``H`` frames of memory), torchmetrics RMSE: ``{train,val,test}/rmse_d`` [m]
+and ``{train,val,test}/rmse_fa`` [N] with ``f_a`` from
+:func:`uavturb.nn.height.phi_alpha_beta` at the frame's rotor speeds; plus ``*/loss``.
+
+Defaults follow the paper: head learning rate 1e-6 (Adam), encoder (fine-tuning) learning
+rate the same; ``alpha, beta`` of the paper's simulated quadrotor (k_T = 5.45e-6, r = 0.01 m,
+mu = 2: ``beta = mu r^2 / 16 = 1.25e-5 m^2``, ``alpha = k_T beta``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+import torch
+import torch.nn.functional as F
+from torchmetrics import MeanSquaredError
+
+from uavturb.config import ALPHA_PAPER, BETA_PAPER
+from uavturb.errors import InputError
+from uavturb.nn.encoder import DepthEncoder
+from uavturb.nn.height import HeightHead, phi_alpha_beta
+
+STAGES = ("train", "val", "test")
+
+
+def load_encoder_state(path: str | Path) -> dict[str, torch.Tensor]:
+    """Encoder weights (``encoder.*`` keys, prefix removed) of a Lightning checkpoint."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "encoder checkpoint not found")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # noqa: BLE001 - any unreadable file is bad input
+        raise InputError(path, f"cannot read as a checkpoint ({type(e).__name__})") from None
+    state = ckpt.get("state_dict", ckpt) if isinstance(ckpt, dict) else {}
+    enc = {k[len("encoder."):]: v for k, v in state.items() if k.startswith("encoder.")}
+    if not enc:
+        raise InputError(path, "holds no 'encoder.*' weights (expected a TranscoderModule checkpoint)")
+    return enc
+
+
+class HeightModule(L.LightningModule):
+    """Encoder + (GRU) head predicting height over ground.
+
+    Parameters
+    ----------
+    use_gru : bool
+        False: Table 1's "x GRU" ablation (per-frame MLP).
+    embed_dim, encoder_hidden, gru_hidden, gru_layers, mlp_hidden : int
+        Architecture (paper: 50, -, 50, 2, -).
+    max_depth : float
+        m, depth normalisation clamp of the encoder.
+    lr_head : float
+        Adam learning rate of the head (paper: 1e-6).
+    lr_encoder : float
+        Learning rate of the encoder when it trains (from scratch, or once unfrozen).
+    alpha : float
+        N m^2/(rad/s)^2, ground-effect law.
+    beta : float
+        m^2, ground-effect law.
+    loss_frames : "all" | "last"
+        Frames of each window the loss uses.
+    encoder_ckpt : str or None
+        Pre-training checkpoint to initialise the encoder from. It is read once here; the
+        saved hyper-parameters record it as ``pretrained_from`` and set ``encoder_ckpt`` to
+        None, so :meth:`load_from_checkpoint` never needs the pre-training file.
+    pretrained_from : str or None
+        Provenance only (see ``encoder_ckpt``).
+    """
+
+    def __init__(self, use_gru: bool = True, embed_dim: int = 50, encoder_hidden: int = 128, gru_hidden: int = 50,
+                 gru_layers: int = 2, mlp_hidden: int = 50, max_depth: float = 10.0, lr_head: float = 1e-6,
+                 lr_encoder: float = 1e-6, alpha: float = ALPHA_PAPER, beta: float = BETA_PAPER,
+                 loss_frames: str = "all", encoder_ckpt: str | None = None, pretrained_from: str | None = None):
+        super().__init__()
+        if loss_frames not in ("all", "last"):
+            raise InputError("model.loss_frames", f"must be all or last, not {loss_frames!r}")
+        self.save_hyperparameters(logger=False)  # train() logs the resolved config once
+        self.encoder = DepthEncoder(embed_dim=embed_dim, hidden=encoder_hidden, max_depth=max_depth)
+        self.head = HeightHead(embed_dim=embed_dim, hidden=gru_hidden, num_layers=gru_layers, mlp_hidden=mlp_hidden,
+                               use_gru=use_gru)
+        if encoder_ckpt:
+            state = load_encoder_state(encoder_ckpt)
+            try:
+                self.encoder.load_state_dict(state)
+            except RuntimeError as e:
+                raise InputError(encoder_ckpt, f"encoder does not match this architecture: {e}") from None
+            self.hparams["pretrained_from"] = str(encoder_ckpt)
+            self.hparams["encoder_ckpt"] = None
+        # keys "<stage>_": a ModuleDict key "train" would clash with nn.Module.train
+        self.rmse_d = torch.nn.ModuleDict({f"{s}_": MeanSquaredError(squared=False) for s in STAGES})
+        self.rmse_fa = torch.nn.ModuleDict({f"{s}_": MeanSquaredError(squared=False) for s in STAGES})
+
+    def forward(self, depth: torch.Tensor, h0: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Heights for depth sequences.
+
+        Parameters
+        ----------
+        depth : (B, T, 1, H, W) depth [m].
+        h0 : GRU state (num_layers, B, gru_hidden) or None.
+
+        Returns
+        -------
+        d : (B, T) heights [m]; h_T : last GRU state (None without GRU).
+        """
+        B, T = depth.shape[:2]
+        e = self.encoder(depth.flatten(0, 1)).view(B, T, -1)
+        return self.head(e, h0)
+
+    def predict_fa(self, d: torch.Tensor, sum_omega2: torch.Tensor) -> torch.Tensor:
+        """``f_a`` [N] from heights [m] and ``sum Omega^2`` [rad^2/s^2] with this module's alpha, beta."""
+        return phi_alpha_beta(d, sum_omega2, self.hparams.alpha, self.hparams.beta)
+
+    def _step(self, batch: dict[str, torch.Tensor], stage: str) -> torch.Tensor:
+        d_hat, _ = self(batch["depth"])
+        d_true = batch["d"]
+        if self.hparams.loss_frames == "last":
+            loss = F.mse_loss(d_hat[:, -1], d_true[:, -1])
+        else:
+            loss = F.mse_loss(d_hat, d_true)
+        d_last = d_hat[:, -1].detach()
+        fa_hat = self.predict_fa(d_last, batch["sum_omega2"][:, -1])
+        bs = d_hat.shape[0]
+        self.rmse_d[f"{stage}_"].update(d_last, d_true[:, -1])
+        self.rmse_fa[f"{stage}_"].update(fa_hat, batch["fa"][:, -1])
+        on_step = stage == "train"
+        self.log(f"{stage}/loss", loss, prog_bar=True, on_step=on_step, on_epoch=True, batch_size=bs)
+        self.log(f"{stage}/rmse_d", self.rmse_d[f"{stage}_"], prog_bar=stage == "val", on_step=False, on_epoch=True,
+                 batch_size=bs)
+        self.log(f"{stage}/rmse_fa", self.rmse_fa[f"{stage}_"], on_step=False, on_epoch=True, batch_size=bs)
+        return loss
+
+    def training_step(self, batch, batch_idx):
+        return self._step(batch, "train")
+
+    def validation_step(self, batch, batch_idx):
+        self._step(batch, "val")
+
+    def test_step(self, batch, batch_idx):
+        self._step(batch, "test")
+
+    def configure_optimizers(self):
+        groups = [{"params": list(self.head.parameters()), "lr": self.hparams.lr_head}]
+        enc = [p for p in self.encoder.parameters() if p.requires_grad]
+        if enc:
+            groups.append({"params": enc, "lr": self.hparams.lr_encoder})
+        return torch.optim.Adam(groups)

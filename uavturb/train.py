@@ -1,0 +1,167 @@
+"""Thin training entry point: ``train(cfg) -> dict``.
+
+Stages (``cfg.stage``):
+
+- ``pretrain`` -- :class:`~uavturb.systems.TranscoderModule` on ``cfg.data.pairs_root``
+  (depth -> normals, or depth -> depth: ``cfg.model.pretraining``).
+- ``height`` -- :class:`~uavturb.systems.HeightModule` on the shards of ``cfg.data.root``;
+  with ``model.pretraining != none`` the encoder comes from ``model.encoder_ckpt`` and is
+  frozen, then fine-tuned from ``model.unfreeze_at_epoch`` (``model.finetune=true``) by
+  :class:`~uavturb.systems.FreezeThenFinetune`.
+
+Both stages keep the best checkpoint on the validation monitor (``val/loss`` resp.
+``val/rmse_d``), then test it. Tracking: one MLflow run (Lightning's ``MLFlowLogger``, store
+from :func:`uavturb.tracking.tracking_uri`) holding the resolved config (flattened as params
+and as ``config.yaml``), tags ``git_commit``, ``data_hash`` and ``stage``, and the metrics.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from uavturb.config import TrainConfig, to_flat_dict, validate
+from uavturb.errors import InputError
+
+
+def _limit(x: float) -> int | float:
+    """Lightning's convention: a float <= 1 is a fraction, an int a number of batches."""
+    return int(x) if x > 1.0 else float(x)
+
+
+def _devices(x: str) -> int | str | list[int]:
+    x = str(x).strip()
+    if x.isdigit():
+        return int(x)
+    if "," in x:
+        return [int(i) for i in x.split(",") if i.strip()]
+    return x
+
+
+def _prepare_data(cfg: DictConfig) -> Path:
+    """The dataset folder of this stage, generated when ``data.synthetic.enabled`` and missing."""
+    from uavturb.data import shards
+
+    syn = cfg.data.synthetic
+    size = cfg.data.image_size or 32
+    if cfg.stage == "pretrain":
+        root = Path(cfg.data.pairs_root)
+        if syn.enabled and not (root / shards.PAIRS_DIR / "meta.json").is_file():
+            shards.make_synthetic_pairs(root, M=syn.pairs, size=size, seed=syn.seed)
+        return root / shards.PAIRS_DIR if (root / shards.PAIRS_DIR).is_dir() else root
+    root = Path(cfg.data.root)
+    if syn.enabled and not (root / shards.MANIFEST).is_file():
+        shards.make_synthetic_dataset(root, n_scenes=syn.n_scenes, trajs_per_scene=syn.trajs_per_scene, T=syn.T,
+                                      size=size, seed=syn.seed)
+    return root
+
+
+def _build(cfg: DictConfig):
+    """(module, datamodule, callbacks, monitor) of the configured stage."""
+    from uavturb.data.datamodules import PairsDataModule, ShardWindowsDataModule
+    from uavturb.systems import FreezeThenFinetune, HeightModule, TranscoderModule
+
+    m, d = cfg.model, cfg.data
+    if cfg.stage == "pretrain":
+        if m.pretraining == "none":
+            raise InputError("model.pretraining", "stage pretrain needs normals or depth, not none")
+        module = TranscoderModule(target=m.pretraining, lr=m.lr_pretrain, lam=m.lam, embed_dim=m.embed_dim,
+                                  encoder_hidden=m.encoder_hidden, max_depth=m.max_depth)
+        dm = PairsDataModule(d.pairs_root, target=m.pretraining, batch_size=d.batch_size, num_workers=d.num_workers,
+                             val_fraction=d.val_fraction, seed=cfg.trainer.seed)
+        return module, dm, [], "val/loss"
+    callbacks = []
+    encoder_ckpt = None
+    if m.pretraining != "none":
+        if not m.encoder_ckpt:
+            raise InputError("model.encoder_ckpt", f"needed with model.pretraining={m.pretraining} (a checkpoint of "
+                             "stage pretrain); or choose model.pretraining=none")
+        encoder_ckpt = str(m.encoder_ckpt)
+        callbacks.append(FreezeThenFinetune(unfreeze_at_epoch=m.unfreeze_at_epoch if m.finetune else -1,
+                                            lr=m.lr_encoder))
+    module = HeightModule(use_gru=m.use_gru, embed_dim=m.embed_dim, encoder_hidden=m.encoder_hidden,
+                          gru_hidden=m.gru_hidden, gru_layers=m.gru_layers, mlp_hidden=m.mlp_hidden,
+                          max_depth=m.max_depth, lr_head=m.lr_head, lr_encoder=m.lr_encoder, alpha=m.alpha,
+                          beta=m.beta, loss_frames=m.loss_frames, encoder_ckpt=encoder_ckpt)
+    dm = ShardWindowsDataModule(d.root, window=d.window, stride=d.stride, eval_stride=d.eval_stride,
+                                batch_size=d.batch_size, num_workers=d.num_workers, image_size=d.image_size)
+    return module, dm, callbacks, "val/rmse_d"
+
+
+def _logger(cfg: DictConfig, data_hash: str):
+    """Lightning's MLFlowLogger with the resolved config, commit and data hash logged once."""
+    if not cfg.tracking.enabled:
+        return None
+    from lightning.pytorch.loggers import MLFlowLogger
+
+    from uavturb.tracking import git_commit, tracking_uri
+
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    run_name = cfg.tracking.run_name or f"{cfg.stage}-{cfg.model.pretraining}-{'gru' if cfg.model.use_gru else 'nogru'}"
+    logger = MLFlowLogger(experiment_name=cfg.tracking.experiment, run_name=run_name, tracking_uri=tracking_uri(),
+                          tags={"git_commit": git_commit(), "data_hash": data_hash, "stage": cfg.stage},
+                          log_model=False)
+    logger.log_hyperparams({k: ("null" if v is None else v) for k, v in to_flat_dict(cfg).items()})
+    logger.experiment.log_text(logger.run_id, OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
+    return logger
+
+
+def train(cfg: DictConfig | TrainConfig | dict) -> dict[str, Any]:
+    """Train one stage as configured, test its best checkpoint, and return the results.
+
+    Parameters
+    ----------
+    cfg : a config from :func:`uavturb.config.load_config` (or anything that merges into
+        :class:`uavturb.config.TrainConfig`; validated again here).
+
+    Returns
+    -------
+    dict with ``stage``, ``metrics`` (``{"val/rmse_d": ..., "test/rmse_d": ..., ...}``,
+    floats), ``checkpoint`` (path of the best checkpoint, str), ``run_id`` (MLflow run id or
+    None), ``data_hash``.
+
+    Raises
+    ------
+    InputError : bad config or data.
+    """
+    import lightning as L
+    from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
+
+    from uavturb.data.shards import dataset_hash
+
+    cfg = validate(cfg)
+    t = cfg.trainer
+    L.seed_everything(t.seed, workers=True, verbose=False)
+    data_root = _prepare_data(cfg)
+    data_hash = dataset_hash(data_root) if data_root.is_dir() else "missing"
+    module, dm, callbacks, monitor = _build(cfg)
+    logger = _logger(cfg, data_hash)
+    run_tag = logger.run_id if logger is not None else time.strftime("%Y%m%d-%H%M%S")
+    ckpt_dir = Path(t.default_root_dir) / "checkpoints" / run_tag
+    checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename="best-{epoch}", monitor=monitor, mode="min", save_top_k=1,
+                                 auto_insert_metric_name=False)
+    callbacks.append(checkpoint)
+    if t.early_stopping_patience > 0:
+        callbacks.append(EarlyStopping(monitor=monitor, mode="min", patience=t.early_stopping_patience))
+    trainer = L.Trainer(max_epochs=t.max_epochs, max_steps=t.max_steps, accelerator=t.accelerator,
+                        devices=_devices(t.devices), strategy=t.strategy, num_nodes=t.num_nodes,
+                        precision=t.precision, limit_train_batches=_limit(t.limit_train_batches),
+                        limit_val_batches=_limit(t.limit_val_batches), limit_test_batches=_limit(t.limit_test_batches),
+                        log_every_n_steps=t.log_every_n_steps, enable_progress_bar=t.enable_progress_bar,
+                        default_root_dir=t.default_root_dir, deterministic=t.deterministic, callbacks=callbacks,
+                        logger=logger if logger is not None else False, enable_model_summary=False)
+    trainer.fit(module, datamodule=dm)
+    metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+    best = checkpoint.best_model_path or None
+    tested = trainer.test(module, datamodule=dm, ckpt_path=best if best else None, verbose=False)
+    for row in tested:
+        metrics.update({k: float(v) for k, v in row.items()})
+    if logger is not None:
+        logger.finalize("success")
+    return {"stage": cfg.stage, "metrics": metrics, "checkpoint": best, "run_id": logger.run_id if logger else None,
+            "data_hash": data_hash}
