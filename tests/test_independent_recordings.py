@@ -1,0 +1,145 @@
+"""Recordings written by hand, independently of ``uavturb.io.writer``, read and identified through the CLI.
+
+The files follow ``recordings.md`` the way another lab would write them: a hexarotor at 200 Hz,
+realistic IMU noise, rotor speeds quantised to 1 rad/s at another rate, a ``vehicle.yaml`` with the
+required keys only (mass given, everything else unknown), ``, `` separators in one file and ``,``
+in another. Malformed copies give one line on stderr naming the file, exit status 2, no traceback
+and no partial output.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from synthetic import inverse_dynamics_flight
+from uavturb.cli import main
+from uavturb.physics.vehicle import HEXAROTOR
+
+GT_HEADER = ("#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], "
+             "v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], b_w_RS_S_x [rad s^-1], b_w_RS_S_y [rad s^-1], "
+             "b_w_RS_S_z [rad s^-1], b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], b_a_RS_S_z [m s^-2]")
+IMU_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+              "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
+VEHICLE_YAML = """name: someone-elses-hex
+mass: 1.5
+rotor_count: 6
+arm_length: 0.215
+rotor_angles_deg: [30, 90, 150, -150, -90, -30]
+rotor_directions: [1, -1, 1, -1, 1, -1]
+rotor_radius: 0.1
+"""
+
+
+def _write(folder, fd, omega_true, *, rotor_rate=100.0, seed=0):
+    """Write ``fd`` by hand in the layout of recordings.md (no project writer involved)."""
+    rng = np.random.default_rng(seed)
+    (folder / "mav0" / "state_groundtruth_estimate0").mkdir(parents=True)
+    (folder / "mav0" / "imu0").mkdir(parents=True)
+    (folder / "mav0" / "rotors0").mkdir(parents=True)
+    (folder / "vehicle.yaml").write_text(VEHICLE_YAML)
+    with open(folder / "mav0" / "state_groundtruth_estimate0" / "data.csv", "w") as f:
+        f.write(GT_HEADER + "\n")
+        for k in range(len(fd.t_ns)):
+            row = [*fd.p[k], *fd.q[k], *fd.v[k], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+            f.write(f"{fd.t_ns[k]}, " + ", ".join(f"{x:.9g}" for x in row) + "\n")
+    with open(folder / "mav0" / "imu0" / "data.csv", "w") as f:
+        f.write(IMU_HEADER + "\n")
+        for k in range(len(fd.t_ns)):
+            f.write(f"{fd.t_ns[k] + 1_000_000}," + ",".join(f"{x:.9g}" for x in [*fd.w[k], *fd.acc[k]]) + "\n")
+    # rotor speeds at another rate, interpolated from the truth, quantised to 1 rad/s
+    t_rot = np.arange(fd.t_ns[0] + 3_000_000, fd.t_ns[-1], int(1e9 / rotor_rate))
+    speeds = np.stack([np.interp(t_rot, fd.t_ns, omega_true[:, i]) for i in range(omega_true.shape[1])], 1)
+    speeds = np.round(speeds)
+    with open(folder / "mav0" / "rotors0" / "data.csv", "w") as f:
+        f.write("#timestamp [ns]," + ",".join(f"w_{i} [rad s^-1]" for i in range(6)) + "\n")
+        for k in range(len(t_rot)):
+            f.write(f"{t_rot[k]}," + ",".join(f"{x:.0f}" for x in speeds[k]) + "\n")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    fd, truth = inverse_dynamics_flight(HEXAROTOR, duration=40.0, seed=21, rotor_quantum=0)
+    return _write(tmp_path_factory.mktemp("independent") / "hex_flight", fd, truth["omega"])
+
+
+def test_identify_json_on_an_independent_recording(recording, capsys):
+    assert main(["identify", str(recording), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert {"thrust_coefficient", "moment_coefficient", "inertia", "theta"} <= set(out)
+    assert out["thrust_coefficient"] == pytest.approx(HEXAROTOR.thrust_coefficient, rel=0.02)
+    assert len(out["inertia"]) == 3 and len(out["theta"]) == 4
+    J = np.array(HEXAROTOR.inertia)
+    assert out["theta"][3] == pytest.approx(J[2] / J[0], rel=0.10)
+
+
+def test_residuals_of_an_independent_recording(recording, tmp_path, capsys):
+    out = tmp_path / "res.csv"
+    assert main(["residuals", str(recording), "--out", str(out)]) == 0
+    import pandas as pd
+
+    df = pd.read_csv(out)
+    # a clean flight: the residual is sensor noise (m * 0.028 m/s^2 per axis), centred on zero
+    fz = df[[c for c in df.columns if c.startswith("F_z")][0]].to_numpy()
+    assert abs(np.mean(fz)) < 0.02 and np.std(fz) < 0.1
+
+
+def _corrupt_lines(path, fn):
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(fn(lines)) + "\n")
+
+
+CORRUPTIONS = {
+    "missing ground truth": ("mav0/state_groundtruth_estimate0/data.csv",
+                             lambda p: p.unlink()),
+    "wrong column count": ("mav0/imu0/data.csv",
+                           lambda p: _corrupt_lines(p, lambda l: l[:5] + [l[5].rsplit(",", 1)[0]] + l[6:])),
+    "NaN": ("mav0/rotors0/data.csv",
+            lambda p: _corrupt_lines(p, lambda l: l[:9] + [l[9].rsplit(",", 1)[0] + ",nan"] + l[10:])),
+    "non-numeric": ("mav0/imu0/data.csv",
+                    lambda p: _corrupt_lines(p, lambda l: l[:7] + [l[7].replace(",", ",abc,", 1)[:-4]] + l[8:])),
+    "timestamps out of order": ("mav0/state_groundtruth_estimate0/data.csv",
+                                lambda p: _corrupt_lines(p, lambda l: l[:20] + [l[21], l[20]] + l[22:])),
+    "duplicated timestamp": ("mav0/imu0/data.csv",
+                             lambda p: _corrupt_lines(p, lambda l: l[:30] + [l[30], l[30]] + l[31:])),
+    "quaternion far from unit norm": ("mav0/state_groundtruth_estimate0/data.csv",
+                                      lambda p: _corrupt_lines(p, lambda l: l[:40] + [
+                                          ", ".join(x if i != 4 else "2.0" for i, x in enumerate(l[40].split(", ")))
+                                      ] + l[41:])),
+    "vehicle.yaml missing a key": ("vehicle.yaml",
+                                   lambda p: p.write_text(VEHICLE_YAML.replace("rotor_radius: 0.1\n", ""))),
+    "vehicle.yaml list of the wrong length": ("vehicle.yaml",
+                                              lambda p: p.write_text(VEHICLE_YAML.replace(
+                                                  "[1, -1, 1, -1, 1, -1]", "[1, -1, 1, -1]"))),
+    "rotor count differs from vehicle.yaml": ("mav0/rotors0/data.csv",
+                                              lambda p: _corrupt_lines(p, lambda l: [",".join(x.split(",")[:-1])
+                                                                                     for x in l])),
+    "empty PLY": ("mav0/pointcloud0/data.ply",
+                  lambda p: (p.parent.mkdir(parents=True, exist_ok=True), p.write_text(""))),
+    "streams that do not overlap": ("mav0/rotors0/data.csv",
+                                    lambda p: _corrupt_lines(p, lambda l: [l[0]] + [
+                                        str(int(x.split(",")[0]) + 10**12) + "," + x.split(",", 1)[1]
+                                        for x in l[1:]])),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CORRUPTIONS))
+@pytest.mark.parametrize("command", ["identify", "residuals"])
+def test_malformed_recordings_give_one_line(recording, tmp_path, capsys, case, command):
+    bad = tmp_path / "bad"
+    shutil.copytree(recording, bad)
+    rel, corrupt = CORRUPTIONS[case]
+    corrupt(bad / rel)
+    out = tmp_path / "out" / "res.csv"
+    out.parent.mkdir()
+    args = ["identify", str(bad)] if command == "identify" else ["residuals", str(bad), "--out", str(out)]
+    assert main(args) == 2, case
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    named = rel.split("/")[-2] if rel.endswith("data.csv") else rel.split("/")[-1]
+    assert named in err, (case, err)
+    assert list(out.parent.iterdir()) == []  # nothing written, not even a temporary file
