@@ -64,6 +64,21 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--no-pairs", action="store_true", help="leave out the pair cases")
     s.add_argument("--seed", type=int, default=0)
 
+    s = sub.add_parser("train", help="train one stage (pretrain or height) from conf/ with key=value overrides")
+    s.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. model=none_gru trainer.max_epochs=3")
+    s.add_argument("--experiment", help="a conf/experiment/*.yaml bundle (e.g. smoke)")
+
+    s = sub.add_parser("sweep", help="run an ablation sweep (sweeps/ablation.yaml: the paper's Table 1) in MLflow")
+    s.add_argument("spec", metavar="SWEEP.yaml")
+    s.add_argument("--preset", default="quick", help="preset of the sweep file (quick, paper; default quick)")
+    s.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
+    s.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides for every run")
+
+    s = sub.add_parser("compare", help="print Table 1 (mean +- std over seeds) from the MLflow store")
+    s.add_argument("--experiment", default=None, help="MLflow experiment (default: the sweep file's)")
+    s.add_argument("--parent", default=None, metavar="RUN_ID", help="sweep parent run (default: the latest)")
+    s.add_argument("--out", default="outputs", metavar="DIR", help="folder for table1.md and table1.csv")
+
     s = sub.add_parser("bench", help="benchmarks that print figures")
     s.add_argument("what", choices=["scene", "physics", "gap"])
 
@@ -120,6 +135,24 @@ def _run(args: argparse.Namespace) -> int:
     elif args.command == "gap-proof":
         workflows.gap_proof(Path(args.out), duration=args.duration, seed=args.seed,
                             singles=args.effects.split(",") if args.effects else None, pairs=not args.no_pairs)
+    elif args.command == "train":
+        from uavturb.config import load_config
+        from uavturb.train import train
+
+        out = train(load_config(args.overrides, experiment=args.experiment))
+        print(json.dumps({k: out[k] for k in ("stage", "run_id", "checkpoint", "data_hash")}))
+        print("  ".join(f"{k} {v:.5g}" for k, v in sorted(out["metrics"].items()) if k.startswith("test/")))
+    elif args.command == "sweep":
+        from uavturb.sweep import sweep
+
+        res = sweep(args.spec, preset=args.preset, seeds=args.seeds, overrides=args.overrides)
+        print(res["table"])
+    elif args.command == "compare":
+        from uavturb.compare import compare
+
+        res = compare(experiment=args.experiment, parent_run_id=args.parent, out=args.out)
+        print(res["table"])
+        print(f"wrote {res['markdown']} and {res['csv']}")
     elif args.command == "bench":
         workflows.bench(args.what)
     elif args.command == "demo":

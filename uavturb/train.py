@@ -13,6 +13,12 @@ Both stages keep the best checkpoint on the validation monitor (``val/loss`` res
 ``val/rmse_d``), then test it. Tracking: one MLflow run (Lightning's ``MLFlowLogger``, store
 from :func:`uavturb.tracking.tracking_uri`) holding the resolved config (flattened as params
 and as ``config.yaml``), tags ``git_commit``, ``data_hash`` and ``stage``, and the metrics.
+
+Checkpoints: the best one is kept locally at
+``<trainer.default_root_dir>/checkpoints/<run_id>/best-<epoch>.ckpt`` (``<run_id>`` the MLflow
+run id; a time stamp when tracking is off), logged to the run as the artifact
+``checkpoints/best.ckpt`` (:data:`CHECKPOINT_ARTIFACT`), and its absolute local path is the
+run's tag ``checkpoint``.
 """
 
 from __future__ import annotations
@@ -26,6 +32,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from uavturb.config import TrainConfig, to_flat_dict, validate
 from uavturb.errors import InputError
+
+#: MLflow artifact path of a run's best checkpoint (the local file: tag ``checkpoint``)
+CHECKPOINT_ARTIFACT = "checkpoints/best.ckpt"
 
 
 def _limit(x: float) -> int | float:
@@ -92,7 +101,7 @@ def _build(cfg: DictConfig):
     return module, dm, callbacks, "val/rmse_d"
 
 
-def _logger(cfg: DictConfig, data_hash: str):
+def _logger(cfg: DictConfig, data_hash: str, tags: dict[str, str] | None = None):
     """Lightning's MLFlowLogger with the resolved config, commit and data hash logged once."""
     if not cfg.tracking.enabled:
         return None
@@ -104,20 +113,37 @@ def _logger(cfg: DictConfig, data_hash: str):
         logging.getLogger(name).setLevel(logging.ERROR)
     run_name = cfg.tracking.run_name or f"{cfg.stage}-{cfg.model.pretraining}-{'gru' if cfg.model.use_gru else 'nogru'}"
     logger = MLFlowLogger(experiment_name=cfg.tracking.experiment, run_name=run_name, tracking_uri=tracking_uri(),
-                          tags={"git_commit": git_commit(), "data_hash": data_hash, "stage": cfg.stage},
+                          tags={"git_commit": git_commit(), "data_hash": data_hash, "stage": cfg.stage,
+                                **(tags or {})},
                           log_model=False)
     logger.log_hyperparams({k: ("null" if v is None else v) for k, v in to_flat_dict(cfg).items()})
     logger.experiment.log_text(logger.run_id, OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
     return logger
 
 
-def train(cfg: DictConfig | TrainConfig | dict) -> dict[str, Any]:
+def _log_checkpoint(logger, best: str | None) -> None:
+    """The best checkpoint as artifact :data:`CHECKPOINT_ARTIFACT`; its local path as tag ``checkpoint``."""
+    import shutil
+    import tempfile
+
+    if not best:
+        return
+    folder, name = CHECKPOINT_ARTIFACT.rsplit("/", 1)
+    client = logger.experiment
+    client.set_tag(logger.run_id, "checkpoint", str(Path(best).resolve()))
+    with tempfile.TemporaryDirectory() as tmp:
+        shutil.copyfile(best, Path(tmp) / name)
+        client.log_artifact(logger.run_id, str(Path(tmp) / name), folder)
+
+
+def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = None) -> dict[str, Any]:
     """Train one stage as configured, test its best checkpoint, and return the results.
 
     Parameters
     ----------
     cfg : a config from :func:`uavturb.config.load_config` (or anything that merges into
         :class:`uavturb.config.TrainConfig`; validated again here).
+    tags : extra MLflow tags of the run (e.g. ``mlflow.parentRunId`` to nest it in a sweep).
 
     Returns
     -------
@@ -140,7 +166,7 @@ def train(cfg: DictConfig | TrainConfig | dict) -> dict[str, Any]:
     data_root = _prepare_data(cfg)
     data_hash = dataset_hash(data_root) if data_root.is_dir() else "missing"
     module, dm, callbacks, monitor = _build(cfg)
-    logger = _logger(cfg, data_hash)
+    logger = _logger(cfg, data_hash, tags)
     run_tag = logger.run_id if logger is not None else time.strftime("%Y%m%d-%H%M%S")
     ckpt_dir = Path(t.default_root_dir) / "checkpoints" / run_tag
     checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename="best-{epoch}", monitor=monitor, mode="min", save_top_k=1,
@@ -162,6 +188,7 @@ def train(cfg: DictConfig | TrainConfig | dict) -> dict[str, Any]:
     for row in tested:
         metrics.update({k: float(v) for k, v in row.items()})
     if logger is not None:
+        _log_checkpoint(logger, best)
         logger.finalize("success")
     return {"stage": cfg.stage, "metrics": metrics, "checkpoint": best, "run_id": logger.run_id if logger else None,
             "data_hash": data_hash}

@@ -145,6 +145,10 @@ def lagged_S(data: GapData, tau: float) -> np.ndarray:
     return full.S_lag(tau)[data._keep]  # type: ignore[attr-defined]
 
 
+#: coefficients whose regressor depends on the nonlinear parameters (``mu``, ``kappa``, ``tau``)
+DEPENDENT = ("k_T", "k_T*s")
+
+
 def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tuple[np.ndarray, list[str]]:
     """Regressors ``A (3K, P)`` (rows: x of all samples, then y, then z) and the coefficient names.
 
@@ -154,25 +158,41 @@ def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tup
     effects : the effects in the model (names of ``effects.md``)
     nonlinear : values of ``mu``, ``kappa``, ``tau`` for the nonlinear effects in ``effects``
     """
+    Ad, dnames = dependent_columns(data, effects, nonlinear)
+    Af, fnames = fixed_columns(data, effects)
+    # order: k_T, biases, k_T*s, then the linear effects
+    return np.hstack([Ad[:, :1], Af[:, :3], Ad[:, 1:], Af[:, 3:]]), dnames[:1] + fnames[:3] + dnames[1:] + fnames[3:]
+
+
+def dependent_columns(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tuple[np.ndarray, list[str]]:
+    """The columns of :func:`design` that depend on ``mu``, ``kappa``, ``tau``: thrust with the
+    surface effects (``k_T``) and, with ``battery_sag``, its decay (``k_T*s``). ``(3K, 1 or 2)``."""
     K = len(data)
-    R = data.R
-    zb = R[:, :, 2]
+    zb = data.R[:, :, 2]
     S = lagged_S(data, nonlinear["tau"]) if "motor_lag" in effects else data.S
-    ez = np.zeros((K, 3))
-    ez[:, 2] = 1.0
     surf = np.zeros(K)
     if "ground_effect" in effects:
         surf += surface_ratio(data.d_down, nonlinear["mu"], data.rotor_radius)
     if "ceiling_effect" in effects:
         surf += surface_ratio(data.d_up, nonlinear["kappa"], data.rotor_radius)
-    cols = [S[:, None] * (zb + surf[:, None] * ez)]
-    names = ["k_T"]
-    for j, ax in enumerate("xyz"):
-        cols.append(data.mass * R[:, :, j])
-        names.append(f"b_{ax}")
+    thrust = S[:, None] * zb
+    thrust[:, 2] += S * surf
+    cols, names = [thrust], ["k_T"]
     if "battery_sag" in effects:
         cols.append(-(data.t * S)[:, None] * zb)
         names.append("k_T*s")
+    return np.stack([c.T.reshape(-1) for c in cols], axis=1), names
+
+
+def fixed_columns(data: GapData, effects: set[str]) -> tuple[np.ndarray, list[str]]:
+    """The columns of :func:`design` that do not depend on the nonlinear parameters: the
+    accelerometer bias (body frame) and the linear effects. ``(3K, P_f)``."""
+    K = len(data)
+    R = data.R
+    cols, names = [], []
+    for j, ax in enumerate("xyz"):
+        cols.append(data.mass * R[:, :, j])
+        names.append(f"b_{ax}")
     if "rotor_drag" in effects:
         vB = np.einsum("kji,kj->ki", R, data.v)
         vB[:, 2] = 0.0
@@ -189,8 +209,7 @@ def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tup
         ey[:, 1] = 1.0
         cols += [ex, ey]
         names += ["f_x", "f_y"]
-    A = np.stack([c.T.reshape(-1) for c in cols], axis=1)  # (3K, P): x block, y block, z block
-    return A, names
+    return np.stack([c.T.reshape(-1) for c in cols], axis=1), names
 
 
 def stack_target(y: np.ndarray) -> np.ndarray:

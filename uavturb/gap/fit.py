@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from uavturb.gap.design import NONLINEAR, GapData, design, stack_target, unstack
+from uavturb.gap.design import NONLINEAR, GapData, dependent_columns, design, fixed_columns, stack_target, unstack
 from uavturb.physics.least_squares import lstsq
 
 GRID_POINTS = 17
@@ -83,6 +83,27 @@ def _sse(data: GapData, effects: set[str], nl: dict[str, float], y: np.ndarray) 
     return _solve(A, y)[1]
 
 
+class _Profile:
+    """Least-squares error as a function of the nonlinear parameters, fast: the Gram matrix of
+    the fixed columns (bias, linear effects) and their products with ``y`` are computed once;
+    each evaluation then needs only the dependent columns' products (``design.DEPENDENT``)."""
+
+    def __init__(self, data: GapData, effects: frozenset[str], y: np.ndarray):
+        self.data, self.effects, self.y = data, set(effects), y
+        self.F, _ = fixed_columns(data, self.effects)
+        self.FF, self.Fy, self.yy = self.F.T @ self.F, self.F.T @ y, float(y @ y)
+
+    def sse(self, nl: dict[str, float]) -> float:
+        D, _ = dependent_columns(self.data, self.effects, _nl_values(nl))
+        DF = D.T @ self.F
+        G = np.block([[D.T @ D, DF], [DF.T, self.FF]])
+        b = np.concatenate([D.T @ self.y, self.Fy])
+        d = np.sqrt(np.diag(G))
+        d[d == 0] = 1.0
+        c = np.linalg.lstsq(G / np.outer(d, d), b / d, rcond=1e-13)[0]
+        return max(self.yy - float(c @ (b / d)), 0.0)
+
+
 def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 50,
               fixed_nonlinear: dict[str, float] | None = None, with_stderr: bool = True) -> ModelFit:
     """Fit the model with ``effects`` on ``data``.
@@ -99,14 +120,15 @@ def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 5
     fixed = dict(fixed_nonlinear or {})
     free = [e for e in sorted(effects) if e in NONLINEAR and e not in fixed]
     nl = {e: fixed.get(e, np.sqrt(NONLINEAR[e][1] * NONLINEAR[e][2])) for e in effects if e in NONLINEAR}
+    prof = _Profile(data, effects, y) if free else None
     for _ in range(2 if len(free) > 1 else 1):  # coordinate descent over the nonlinear parameters
         for e in free:
             lo, hi = NONLINEAR[e][1], NONLINEAR[e][2]
             grid = np.geomspace(lo, hi, GRID_POINTS)
-            sse = [_sse(data, effects, nl | {e: g}, y) for g in grid]
+            sse = [prof.sse(nl | {e: g}) for g in grid]
             i = int(np.argmin(sse))
             a, b = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
-            res = minimize_scalar(lambda z: _sse(data, effects, nl | {e: np.exp(z)}, y), bounds=(a, b),
+            res = minimize_scalar(lambda z: prof.sse(nl | {e: np.exp(z)}), bounds=(a, b),
                                   method="bounded", options={"xatol": 1e-3})
             nl[e] = float(np.exp(res.x)) if res.fun <= sse[i] else float(grid[i])
     A, names = design(data, effects, _nl_values(nl))
@@ -130,3 +152,43 @@ def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 5
     rmse = float(np.sqrt(sse / len(data)))
     return ModelFit(effects, {e: nl[e] for e in effects if e in NONLINEAR}, dict(zip(names, map(float, coef))),
                     stderr, rmse)
+
+
+def robust_nominal(data: GapData, offset: np.ndarray | None = None, *, iterations: int = 12,
+                   cutoff: float = 4.5) -> ModelFit:
+    """The nominal model (thrust coefficient and accelerometer bias, no effect) fitted by
+    iteratively reweighted least squares with Tukey's biweight on the residual force norm.
+
+    Used to *locate* the mismatch: a missing effect confined to some segments (near a surface,
+    at speed) must stand out of the nominal model's residual instead of bending its fit. An
+    ordinary least-squares fit can fail badly here: near the floor the controller lowers the
+    rotor speeds exactly where the missing lift is, and the z accelerometer bias (collinear with
+    the thrust column at hover) then takes the whole thrust. Rows whose residual norm exceeds
+    ``cutoff`` robust standard deviations get no weight.
+
+    Parameters
+    ----------
+    data : samples
+    offset : (K, 3) N, force of the simulator's own effects, taken off ``data.y`` first
+    """
+    y = stack_target(data.y - (0.0 if offset is None else offset))
+    A, names = design(data, set(), _nl_values({}))
+    K = len(data)
+    # start: thrust coefficient alone (no bias), which cannot degenerate
+    coef = np.zeros(A.shape[1])
+    coef[0] = _solve(A[:, :1], y)[0][0]
+    w = np.ones(K)
+    for _ in range(iterations):
+        r = unstack(y - A @ coef)
+        norm = np.linalg.norm(r, axis=1)
+        s = np.median(norm) / 1.538  # median of a 3-D Gaussian norm is 1.538 sigma
+        u = norm / max(cutoff * s, 1e-12)
+        w = np.where(u < 1, (1 - u**2) ** 2, 0.0)
+        sw = np.sqrt(np.tile(w, 3))
+        c_new, _ = _solve(A * sw[:, None], y * sw)
+        if np.allclose(c_new, coef, rtol=1e-6, atol=0):
+            coef = c_new
+            break
+        coef = c_new
+    r = y - A @ coef
+    return ModelFit(frozenset(), {}, dict(zip(names, map(float, coef))), {}, float(np.sqrt(np.sum(r**2) / K)))

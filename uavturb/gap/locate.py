@@ -132,11 +132,26 @@ def explained(x: np.ndarray, y: np.ndarray, bins: int = 24) -> float:
     return float(max(0.0, r2 - (len(edges) - 1) / len(y)))
 
 
+def trend_explained(x: np.ndarray, y: np.ndarray, degree: int = 2) -> float:
+    """Share of ``var(y)`` explained by a polynomial of ``degree`` in ``x`` (a slow drift)."""
+    vy = np.var(y)
+    if vy <= 0 or np.ptp(x) <= 0:
+        return 0.0
+    z = (x - x.mean()) / np.ptp(x)
+    V = np.vander(z, degree + 1)
+    c = np.linalg.lstsq(V, y, rcond=None)[0]
+    return float(max(0.0, 1.0 - np.var(y - V @ c) / vy - degree / len(y)))
+
+
 def drivers(data: GapData, rs: np.ndarray, top: int = 6, min_score: float = 0.05) -> list[dict]:
-    """Features ranked by how much of the smoothed residual they explain (best axis)."""
+    """Features ranked by how much of the smoothed residual they explain (best axis).
+
+    Time since start is scored as a slow trend only (quadratic): binned finely, time would
+    "explain" any residual confined to some moments of the flight, whatever drives it."""
     out = []
     for name, x in features(data).items():
-        scores = [explained(x, rs[:, j]) for j in range(3)]
+        score = trend_explained if name == "t" else explained
+        scores = [score(x, rs[:, j]) for j in range(3)]
         j = int(np.argmax(scores))
         if scores[j] >= min_score:
             out.append({"feature": name, "score": round(scores[j], 4), "axis": AXES[j]})

@@ -96,12 +96,12 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
     if not report["effects"]:
         L.append("None: no effect of the vocabulary improves the held-out fit beyond what noise explains.")
     else:
-        L.append("| effect | parameters (± std. error) | held-out RMSE before → after [N] | t |")
+        L.append("| effect | parameters (± std. error) | held-out RMSE before → after [N] | z |")
         L.append("|---|---|---|---|")
         for e in report["effects"]:
             ps = ", ".join(f"{k} = {v:.4g} ± {e['stderr'][k]:.2g}" for k, v in e["params"].items())
             L.append(f"| `{e['name']}` | {ps} | {e['heldout_rmse_before_N']:.4f} → {e['heldout_rmse_after_N']:.4f} | "
-                     f"{e['t_stat']:.1f} |")
+                     f"{e['z_heldout']:.1f} |")
         L.append("")
         for e in report["effects"]:
             L.append(f"- **{e['name']}**: {e['explanation']}")

@@ -5,10 +5,19 @@ turn (leave-one-recording-out); with one, the last 30 % of it in time.
 
 Guard against false discoveries. An effect is added only when *both* hold:
 
-1. its held-out improvement is significant: the per-sample reduction of the squared error
-   norm, averaged in 1 s blocks (so that correlated samples do not count as independent),
-   has a t statistic above ``t_min`` (default 4: a one-sided p of 3e-5, Bonferroni-safe over
-   the seven effects and several steps);
+1. its held-out improvement is significant. With ``e_b``, ``e_a`` the held-out residuals
+   without and with the effect and ``delta = e_b - e_a`` the correction it predicts (fitted on
+   training data only, so independent of the test noise), the reduction of the squared error
+   is ``sum |e_b|^2 - |e_a|^2 = sum |delta|^2 + 2 sum e_a . delta``. Its random part is
+   ``2 sum e_a . delta``, whose spread is estimated from 1 s block sums (correlated samples
+   do not count as independent). The statistic ``z = reduction / spread`` grows with the
+   effect's signal-to-noise ratio, ``~ sqrt(sum |delta|^2) / (2 sigma)``, however unevenly
+   the effect is spread over the flight; under the null (nothing to find) its mean is
+   negative. ``z > z_improve`` (default 4: one-sided p of 3e-5, Bonferroni-safe over the seven
+   effects and several steps).
+   (A t test over the block means of the reduction, used before, measures the reduction's
+   spread *including the signal's own unevenness*, so it saturates near ``sqrt(blocks)`` and
+   misses a large effect present only at speed or near a surface.)
 2. its parameters are significant on all data (``|value| / stderr > z_min``, Newey-West
    errors) and physically signed (coefficients that are positive by physics must be).
 
@@ -39,10 +48,16 @@ def folds(data: GapData) -> tuple[str, list[tuple[np.ndarray, np.ndarray]]]:
 
 @dataclass
 class HeldOut:
-    """Held-out squared error norms [N^2] over all folds and their 1 s block labels."""
+    """Held-out residuals ``(K, 3)`` [N] over all folds (test rows of every fold, in fold order)
+    and their 1 s block labels ``(K,)``."""
 
-    err2: np.ndarray
+    resid: np.ndarray
     blocks: np.ndarray
+
+    @property
+    def err2(self) -> np.ndarray:
+        """(K,) N^2, squared residual norms."""
+        return np.sum(self.resid**2, axis=1)
 
     @property
     def rmse(self) -> float:
@@ -59,23 +74,26 @@ def heldout(data: GapData, effects: frozenset[str], fold_masks, *, fixed: dict[s
             tr.y = tr.y - offset[train]
             te.y = te.y - offset[test]
         fit = fit_model(tr, effects, fixed_nonlinear=fixed, with_stderr=False)
-        r = fit.residual(te)
-        errs.append(np.sum(r**2, axis=1))
+        errs.append(fit.residual(te))
         blocks.append(te.group * 100000 + np.floor(te.t).astype(int))
     return HeldOut(np.concatenate(errs), np.concatenate(blocks))
 
 
-def improvement_t(before: HeldOut, after: HeldOut) -> float:
-    """t statistic of the held-out squared-error reduction, over 1 s blocks."""
-    d = before.err2 - after.err2
+def improvement_z(before: HeldOut, after: HeldOut, block_s: float = 1.0) -> float:
+    """Significance of the held-out squared-error reduction from ``before`` to ``after``
+    (same test rows): ``z = sum(|e_b|^2 - |e_a|^2) / (2 sqrt(sum_blocks (sum e_a . delta)^2))``,
+    ``delta = e_b - e_a`` (module docstring). ``blocks`` label 1 s blocks."""
+    eb, ea = before.resid, after.resid
+    delta = eb - ea
+    gain = float(np.sum(eb**2) - np.sum(ea**2))
     _, inv = np.unique(before.blocks, return_inverse=True)
-    sums = np.bincount(inv, weights=d)
-    counts = np.bincount(inv)
-    means = sums / counts
-    if len(means) < 3:
+    if inv.max(initial=0) < 2:
         return 0.0
-    sd = np.std(means, ddof=1)
-    return float(np.mean(means) / (sd / np.sqrt(len(means)))) if sd > 0 else (np.inf if np.mean(means) > 0 else 0.0)
+    u = np.bincount(inv, weights=np.sum(ea * delta, axis=1))
+    spread = 2.0 * float(np.sqrt(np.sum(u**2)))
+    if spread <= 0:
+        return 0.0 if gain <= 0 else float(np.inf)
+    return gain / spread
 
 
 @dataclass
@@ -85,7 +103,7 @@ class Step:
     name: str
     heldout_before: float
     heldout_after: float
-    t_stat: float
+    z: float
     fit: ModelFit
 
 
@@ -118,7 +136,7 @@ def _signed_ok(fit: ModelFit, name: str, z_min: float) -> bool:
     return max(zs) > z_min
 
 
-def select(data: GapData, candidates: list[str], base: frozenset[str] = frozenset(), *, t_min: float = 4.0,
+def select(data: GapData, candidates: list[str], base: frozenset[str] = frozenset(), *, z_improve: float = 4.0,
            z_min: float = 4.0, lag: int = 50, max_effects: int = 4, offset: np.ndarray | None = None) -> Selection:
     """Forward selection from ``base`` (the simulator's effects, refitted) over ``candidates``."""
     protocol, fm = folds(data)
@@ -136,13 +154,13 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         best = None
         for c in remaining:
             ho = heldout(data, current | {c}, fm, offset=offset)
-            t = improvement_t(cur_ho, ho)
-            tried.setdefault(c, {})[f"step{len(steps) + 1}_t"] = t
+            t = improvement_z(cur_ho, ho)
+            tried.setdefault(c, {})[f"step{len(steps) + 1}_z"] = t
             tried[c][f"step{len(steps) + 1}_heldout_rmse_N"] = ho.rmse
             if best is None or ho.rmse < best[1].rmse:
                 best = (c, ho, t)
         c, ho, t = best
-        if t < t_min:
+        if t < z_improve:
             break
         fit = fit_model(full, current | {c}, lag=lag)
         if not _signed_ok(fit, c, z_min):
@@ -161,7 +179,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         for s in list(steps):
             without = current - {s.name}
             ho = heldout(data, without, fm, offset=offset)
-            if improvement_t(ho, cur_ho) < t_min:
+            if improvement_z(ho, cur_ho) < z_improve:
                 steps.remove(s)
                 current, cur_ho, changed = without, ho, True
                 break

@@ -1,0 +1,142 @@
+"""``uavturb gap`` on malformed or inconsistent recordings: one clear line naming the file and
+the problem on stderr, a non-zero exit status, no traceback and no report folder
+(gap-report.md, recordings.md)."""
+
+import shutil
+
+import numpy as np
+import pytest
+
+from uavturb.cli import main
+from uavturb.sim.flight import generate_flight
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory):
+    path = tmp_path_factory.mktemp("gapin") / "good"
+    generate_flight(vehicle="hex", effects="none", duration=12.0, kind="mixed", seed=3, out=path)
+    return path
+
+
+def _copy(good, tmp_path, name="rec"):
+    dst = tmp_path / name
+    shutil.copytree(good, dst)
+    return dst
+
+
+def _rewrite_csv(path, fn):
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join([lines[0]] + [fn(i, l) for i, l in enumerate(lines[1:])]) + "\n")
+
+
+def _gap_fails(tmp_path, capsys, recs, *extra, match: str):
+    out = tmp_path / "report"
+    code = main(["gap", *map(str, recs), "--out", str(out), "--sim-effects", "none", "--no-mlflow", *extra])
+    err = capsys.readouterr().err
+    assert code != 0
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    assert match in lines[0], lines[0]
+    assert not out.exists()
+    assert not any(p.name.startswith(".report") for p in tmp_path.iterdir())
+    return lines[0]
+
+
+def test_good_recording_runs_with_exit_0(tmp_path, capsys, good):
+    out = tmp_path / "report"
+    assert main(["gap", str(good), "--out", str(out), "--sim-effects", "none", "--no-mlflow"]) == 0
+    assert (out / "report.json").exists() and (out / "report.md").exists()
+    assert "effects named: none" in capsys.readouterr().out
+
+
+def test_missing_folder(tmp_path, capsys):
+    _gap_fails(tmp_path, capsys, [tmp_path / "nowhere"], match="nowhere")
+
+
+def test_missing_groundtruth_file(tmp_path, capsys, good):
+    rec = _copy(good, tmp_path)
+    (rec / "mav0" / "state_groundtruth_estimate0" / "data.csv").unlink()
+    _gap_fails(tmp_path, capsys, [rec], match="state_groundtruth_estimate0")
+
+
+def test_missing_rotors_file(tmp_path, capsys, good):
+    rec = _copy(good, tmp_path)
+    shutil.rmtree(rec / "mav0" / "rotors0")
+    _gap_fails(tmp_path, capsys, [rec], match="rotors0")
+
+
+def test_missing_vehicle_yaml(tmp_path, capsys, good):
+    rec = _copy(good, tmp_path)
+    (rec / "vehicle.yaml").unlink()
+    _gap_fails(tmp_path, capsys, [rec], match="vehicle.yaml")
+
+
+def test_rotor_count_differs_from_vehicle_yaml(tmp_path, capsys, good):
+    rec = _copy(good, tmp_path)
+    csv = rec / "mav0" / "rotors0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    head = ",".join(lines[0].split(",")[:-2])  # 4 rotor columns for a 6-rotor vehicle.yaml
+    csv.write_text("\n".join([head] + [",".join(l.split(",")[:-2]) for l in lines[1:]]) + "\n")
+    line = _gap_fails(tmp_path, capsys, [rec], match="rotors0")
+    assert "6" in line and "4" in line
+
+
+def test_streams_do_not_overlap_in_time(tmp_path, capsys, good):
+    rec = _copy(good, tmp_path)
+    shift = 3600 * 10**9  # rotor speeds an hour later than the ground truth
+    _rewrite_csv(rec / "mav0" / "rotors0" / "data.csv",
+                 lambda i, l: ",".join([str(int(l.split(",")[0]) + shift)] + l.split(",")[1:]))
+    _gap_fails(tmp_path, capsys, [rec], match="overlap")
+
+
+def test_nan_in_imu(tmp_path, capsys, good):
+    rec = _copy(good, tmp_path)
+    _rewrite_csv(rec / "mav0" / "imu0" / "data.csv",
+                 lambda i, l: ",".join(l.split(",")[:4] + ["nan"] + l.split(",")[5:]) if i == 100 else l)
+    _gap_fails(tmp_path, capsys, [rec], match="imu0")
+
+
+def test_nan_in_groundtruth(tmp_path, capsys, good):
+    rec = _copy(good, tmp_path)
+    _rewrite_csv(rec / "mav0" / "state_groundtruth_estimate0" / "data.csv",
+                 lambda i, l: ",".join(l.split(",")[:2] + ["NaN"] + l.split(",")[3:]) if i == 50 else l)
+    _gap_fails(tmp_path, capsys, [rec], match="state_groundtruth_estimate0")
+
+
+def test_two_recordings_of_different_vehicles(tmp_path, capsys, good):
+    a = _copy(good, tmp_path, "a")
+    b = _copy(good, tmp_path, "b")
+    text = (b / "vehicle.yaml").read_text()
+    (b / "vehicle.yaml").write_text(text.replace("mass: 1.5", "mass: 2.5"))
+    assert "mass: 2.5" in (b / "vehicle.yaml").read_text()
+    _gap_fails(tmp_path, capsys, [a, b], match="vehicle.yaml")
+
+
+def test_unknown_sim_effect(tmp_path, capsys, good):
+    out = tmp_path / "report"
+    code = main(["gap", str(good), "--out", str(out), "--sim-effects", "gust", "--no-mlflow"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "--sim-effects" in err[0] and "gust" in err[0]
+    assert not out.exists()
+
+
+def test_out_parent_missing(tmp_path, capsys, good):
+    code = main(["gap", str(good), "--out", str(tmp_path / "no" / "such" / "dir"), "--no-mlflow"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "does not exist" in err[0]
+
+
+def test_default_sim_effects_follow_the_simulator_config(tmp_path, good):
+    from pathlib import Path
+
+    from uavturb.gap.finder import gap
+    from uavturb.physics.sim_config import load_physics_config
+
+    conf = load_physics_config(Path(__file__).parents[1] / "conf" / "physics" / "default.yaml")["effects"]
+    report = gap([str(good)], tmp_path / "r", log_mlflow=False)
+    assert report["sim_effects"] == list(conf)
+    assert set(report["sim_effect_params"]) == set(conf)
+    for name, params in conf.items():
+        assert report["sim_effect_params"][name]["sim"] == pytest.approx(params)
+    assert np.isfinite(report["final"]["heldout_rmse_N"])

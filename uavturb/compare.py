@@ -1,0 +1,200 @@
+"""Table 1 from the MLflow store (``uavturb compare``): mean +- std over seeds per ablation row.
+
+Rows are the height runs tagged ``ablation=<row>`` (and ``seed=<n>``) by :func:`uavturb.sweep.sweep`,
+FINISHED, with metrics ``test/rmse_d`` [m] and ``test/rmse_fa`` [N]. By default the children of
+the latest sweep parent run of the experiment are used; with no sweep parent at all, every
+such run of the experiment. Where a (row, seed) pair has several runs, the latest counts.
+The standard deviation is the sample one (``ddof=1``); with one seed it is undefined (``nan``,
+printed as ``-``). Rows come in the sweep file's order (the paper's), next to the paper's values.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uavturb.errors import InputError
+
+METRICS = ("test/rmse_d", "test/rmse_fa")
+FA_SCALE = 1e4  # the paper prints RMSE(f_a) in units of 1e-4 N
+
+
+def _client():
+    import mlflow
+
+    from uavturb.tracking import tracking_uri
+
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    return mlflow.MlflowClient(tracking_uri()), tracking_uri()
+
+
+def _search(client, exp_id: str, filter_string: str, order_by: list[str] | None = None) -> list[Any]:
+    out, token = [], None
+    while True:
+        page = client.search_runs([exp_id], filter_string=filter_string, order_by=order_by, max_results=1000,
+                                  page_token=token)
+        out.extend(page)
+        token = page.token
+        if not token:
+            return out
+
+
+def _mean_std(values: list[float]) -> tuple[float, float]:
+    a = np.asarray(values, float)
+    return float(a.mean()), float(a.std(ddof=1)) if len(a) > 1 else math.nan
+
+
+def table_rows(runs: list[Any], spec_rows: list[Any] | None = None) -> list[dict[str, Any]]:
+    """Aggregate finished ablation runs into table rows.
+
+    Parameters
+    ----------
+    runs : MLflow runs (``.data.tags``, ``.data.metrics``, ``.info``), tags ``ablation``, ``seed``.
+    spec_rows : the sweep file's rows (order and paper values).
+
+    Returns
+    -------
+    list of dicts: ``row``, ``pretraining``, ``model``, ``n``, ``seeds``, ``rmse_d_mean``,
+    ``rmse_d_std``, ``rmse_fa_mean``, ``rmse_fa_std`` (N), ``paper_rmse_d``, ``paper_rmse_fa``,
+    ``run_ids``.
+    """
+    latest: dict[tuple[str, str], Any] = {}
+    for r in sorted(runs, key=lambda r: r.info.start_time or 0):
+        tags, m = r.data.tags, r.data.metrics
+        if "ablation" in tags and all(k in m for k in METRICS):
+            latest[(tags["ablation"], tags.get("seed", "?"))] = r
+    by_row: dict[str, list[Any]] = {}
+    for (row, _), r in latest.items():
+        by_row.setdefault(row, []).append(r)
+    spec = {s.name: s for s in (spec_rows or [])}
+    order = [s.name for s in (spec_rows or []) if s.name in by_row] + sorted(set(by_row) - set(spec))
+    out = []
+    for row in order:
+        rs = sorted(by_row[row], key=lambda r: r.data.tags.get("seed", ""))
+        d_mean, d_std = _mean_std([r.data.metrics["test/rmse_d"] for r in rs])
+        fa_mean, fa_std = _mean_std([r.data.metrics["test/rmse_fa"] for r in rs])
+        pre, _, model = row.partition("/")
+        s = spec.get(row)
+        out.append({"row": row, "pretraining": pre, "model": model or "-", "n": len(rs),
+                    "seeds": [r.data.tags.get("seed", "?") for r in rs], "rmse_d_mean": d_mean, "rmse_d_std": d_std,
+                    "rmse_fa_mean": fa_mean, "rmse_fa_std": fa_std,
+                    "paper_rmse_d": getattr(s, "paper_rmse_d", None), "paper_rmse_fa": getattr(s, "paper_rmse_fa", None),
+                    "run_ids": [r.info.run_id for r in rs]})
+    return out
+
+
+def _pm(mean: float, std: float, scale: float = 1.0, digits: int = 4) -> str:
+    s = f"{mean * scale:.{digits}g}"
+    return f"{s} ± {std * scale:.2g}" if not math.isnan(std) else f"{s} ± -"
+
+
+def _paper(x: float | None, scale: float = 1.0) -> str:
+    return "-" if x is None else f"{x * scale:.4g}"
+
+
+HEADER = ("Pre-training", "Model", "Seeds", "RMSE(d) [m]", "RMSE(f_a) [1e-4 N]", "Paper RMSE(d)",
+          "Paper RMSE(f_a) [1e-4 N]")
+
+
+def _cells(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
+    return [(r["pretraining"], r["model"], str(r["n"]), _pm(r["rmse_d_mean"], r["rmse_d_std"]),
+             _pm(r["rmse_fa_mean"], r["rmse_fa_std"], FA_SCALE), _paper(r["paper_rmse_d"]),
+             _paper(r["paper_rmse_fa"], FA_SCALE)) for r in rows]
+
+
+def format_text(rows: list[dict[str, Any]], title: str = "") -> str:
+    """Fixed-width Table 1."""
+    cells = [HEADER, *_cells(rows)]
+    w = [max(len(c[i]) for c in cells) for i in range(len(HEADER))]
+    lines = [title] if title else []
+    for k, c in enumerate(cells):
+        lines.append("  ".join(x.ljust(w[i]) for i, x in enumerate(c)).rstrip())
+        if k == 0:
+            lines.append("  ".join("-" * x for x in w))
+    return "\n".join(lines)
+
+
+def format_markdown(rows: list[dict[str, Any]], title: str = "") -> str:
+    lines = [f"**{title}**", ""] if title else []
+    lines += ["| " + " | ".join(HEADER) + " |", "|" + "|".join(["---"] * 2 + ["---:"] * (len(HEADER) - 2)) + "|"]
+    lines += ["| " + " | ".join(c) + " |" for c in _cells(rows)]
+    return "\n".join(lines) + "\n"
+
+
+def format_csv(rows: list[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    cols = ["row", "pretraining", "model", "n", "seeds", "rmse_d_mean", "rmse_d_std", "rmse_fa_mean", "rmse_fa_std",
+            "paper_rmse_d", "paper_rmse_fa", "run_ids"]
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for r in rows:
+        w.writerow([";".join(map(str, r[c])) if isinstance(r[c], list) else ("" if r[c] is None else r[c])
+                    for c in cols])
+    return buf.getvalue()
+
+
+def compare(experiment: str | None = None, parent_run_id: str | None = None, out: str | Path | None = "outputs",
+            spec: str | Path | None = None) -> dict[str, Any]:
+    """Table 1 of an ablation sweep from the MLflow store.
+
+    Parameters
+    ----------
+    experiment : MLflow experiment (default: the sweep file's, ``uavturb-ablation``).
+    parent_run_id : the sweep's parent run (default: the latest sweep parent of the experiment;
+        without one, every finished ablation run of the experiment).
+    out : folder for ``table1.md`` and ``table1.csv`` (written atomically); None writes nothing.
+    spec : sweep file giving the row order and the paper's values (default ``sweeps/ablation.yaml``).
+
+    Returns
+    -------
+    dict with ``rows`` (see :func:`table_rows`), ``table`` (text), ``markdown_text``,
+    ``csv_text``, ``markdown`` and ``csv`` (paths written, or None), ``parent_run_id``,
+    ``experiment``.
+
+    Raises
+    ------
+    InputError : no such experiment or parent run, or no finished ablation run in it.
+    """
+    from uavturb.data.shards import write_text_atomic
+    from uavturb.sweep import DEFAULT_SPEC, load_spec
+
+    sp = load_spec(spec if spec is not None else DEFAULT_SPEC)
+    experiment = experiment or sp.experiment
+    client, uri = _client()
+    exp = client.get_experiment_by_name(experiment)
+    if exp is None:
+        raise InputError("--experiment", f"no MLflow experiment {experiment!r} in {uri} (run `uavturb sweep` first)")
+    if parent_run_id is None:
+        parents = _search(client, exp.experiment_id, "tags.sweep_hash LIKE '%' and tags.sweep LIKE '%'",
+                          ["attributes.start_time DESC"])
+        parent_run_id = parents[0].info.run_id if parents else None
+    if parent_run_id is not None:
+        try:
+            client.get_run(parent_run_id)
+        except Exception:  # noqa: BLE001 - MlflowException of an unknown id
+            raise InputError("--parent", f"no run {parent_run_id!r} in {uri}") from None
+        filt = f"tags.`mlflow.parentRunId` = '{parent_run_id}' and attributes.status = 'FINISHED'"
+    else:
+        filt = "attributes.status = 'FINISHED'"
+    runs = [r for r in _search(client, exp.experiment_id, filt) if "ablation" in r.data.tags]
+    rows = table_rows(runs, list(sp.rows))
+    if not rows:
+        raise InputError("--experiment", f"no finished ablation run with {', '.join(METRICS)} in experiment "
+                         f"{experiment!r}" + (f", sweep {parent_run_id}" if parent_run_id else ""))
+    title = (f"Table 1: test scenes, mean ± std over seeds (experiment {experiment}"
+             + (f", sweep {parent_run_id})" if parent_run_id else ")"))
+    res: dict[str, Any] = {"rows": rows, "table": format_text(rows, title), "markdown_text": format_markdown(rows, title),
+                           "csv_text": format_csv(rows), "markdown": None, "csv": None,
+                           "parent_run_id": parent_run_id, "experiment": experiment}
+    if out is not None:
+        out = Path(out)
+        res["markdown"] = str(write_text_atomic(out / "table1.md", res["markdown_text"]))
+        res["csv"] = str(write_text_atomic(out / "table1.csv", res["csv_text"]))
+    return res

@@ -1,0 +1,255 @@
+"""EuRoC-layout recordings as evaluation sequences for the height model (paper, "Experimental setup").
+
+EuRoC's vehicles carry no depth camera. As the paper does, every camera frame's depth image
+is the room's point cloud (``pointcloud0``) projected into ``cam0`` with its intrinsics and
+``T_BS`` (:func:`uavturb.scene.projection.depth_from_points`); the true height ``d_down``
+(body origin over the surface below, m) is measured on the same cloud
+(:class:`uavturb.scene.heights.SurfaceIndex`); the ground-truth turbulence ``f_a`` is the
+world-z component of the residual force of the identified model
+(:func:`uavturb.physics.residuals.residual_forces`, N).
+
+Choices (ours):
+
+- **Frame times**: ``cam0/data.csv``'s timestamps when the recording lists frames, else every
+  ``frame_dt`` (default: the training data's 0.05 s, 20 Hz) over the span all streams cover.
+- **Image**: the network's square input of side ``image_size``. A ``cam0`` with another
+  resolution is cropped to its largest centred square and scaled (intrinsics changed
+  accordingly, no resampling of pixels: the cloud is projected straight at the target size).
+- **No cam0** (flights from ``uavturb generate flight``): a forward camera at the body
+  origin, looking along body +x pitched down by ``pitch_deg`` with vertical field of view
+  ``yfov_deg`` -- the camera of the training shards (their manifest's ``pitch_deg`` and
+  ``yfov_deg``; default :mod:`uavturb.data.synthetic`'s 45 deg and 70 deg).
+- **GT f_a per frame**: the residual (IMU rate) averaged over the frame's interval
+  ``[t - dt/2, t + dt/2)`` (a centred box filter that removes the accelerometer's white
+  noise without delay); heights and rotor speeds are taken at the frame instant.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from uavturb.errors import InputError
+from uavturb.io.recording import Recording
+from uavturb.physics.vehicle import Vehicle
+
+DEFAULT_FRAME_DT = 0.05  # s: the training shards' 20 Hz camera
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """A pinhole camera on the body.
+
+    Attributes
+    ----------
+    K : (3, 3) intrinsics [px] at the image size below
+    width, height : px
+    T_BS : (4, 4) camera (optical frame: x right, y down, z forward) to body
+    source : where it came from (``cam0/sensor.yaml`` or the default forward camera)
+    """
+
+    K: np.ndarray
+    width: int
+    height: int
+    T_BS: np.ndarray
+    source: str
+
+
+def forward_camera(size: int, yfov_deg: float, pitch_deg: float) -> CameraModel:
+    """The training shards' camera: forward along body +x, pitched down ``pitch_deg``, square ``size`` px.
+
+    Same intrinsics as :func:`uavturb.data.synthetic.pixel_rays`: ``f = (size/2) / tan(yfov/2)``,
+    principal point at the image centre ``(size - 1) / 2``.
+    """
+    from uavturb.scene.projection import R_BC_FORWARD, intrinsics_matrix
+
+    f = (size / 2) / np.tan(np.deg2rad(yfov_deg) / 2)
+    c = (size - 1) / 2
+    a = np.deg2rad(pitch_deg)
+    R_y = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    T = np.eye(4)
+    T[:3, :3] = R_y @ R_BC_FORWARD
+    return CameraModel(intrinsics_matrix(f, f, c, c), size, size, T,
+                       f"default forward camera (pitch {pitch_deg:g} deg down, vertical fov {yfov_deg:g} deg)")
+
+
+def cam0_camera(rec: Recording, size: int) -> CameraModel:
+    """``cam0`` cropped to its largest centred square and scaled to ``size`` px."""
+    from uavturb.scene.projection import intrinsics_matrix
+
+    cam = rec.cam0
+    W, H = (int(v) for v in cam.resolution)
+    fu, fv, cu, cv = (float(v) for v in cam.intrinsics)
+    side = min(W, H)
+    x0, y0 = (W - side) / 2, (H - side) / 2
+    s = size / side
+    # pixel centres: u' + 0.5 = s (u - x0 + 0.5)
+    K = intrinsics_matrix(fu * s, fv * s, (cu - x0 + 0.5) * s - 0.5, (cv - y0 + 0.5) * s - 0.5)
+    return CameraModel(K, size, size, np.asarray(cam.T_BS, float), "cam0/sensor.yaml (centre square, scaled)")
+
+
+def camera_for(rec: Recording, size: int, yfov_deg: float | None = None, pitch_deg: float | None = None) -> CameraModel:
+    """The recording's ``cam0`` when it has one, else :func:`forward_camera`."""
+    from uavturb.data import synthetic
+
+    if rec.cam0 is not None:
+        return cam0_camera(rec, size)
+    return forward_camera(size, synthetic.YFOV_DEG if yfov_deg is None else yfov_deg,
+                          synthetic.PITCH_DEG if pitch_deg is None else pitch_deg)
+
+
+@dataclass
+class RecordingSequence:
+    """One flight at camera frames, ``K`` frames.
+
+    Attributes
+    ----------
+    name : recording name
+    t : (K,) s since the recording's first ground-truth row
+    depth : (K, S, S) float32 z-depth [m], 0 where no data
+    d : (K,) true height over the surface below [m] (``inf``: none)
+    fa : (K,) ground-truth turbulence, world z [N]
+    sum_omega2 : (K,) ``sum_i Omega_i^2`` [rad^2/s^2]
+    rotor_speeds : (K, N) rad/s
+    p : (K, 3) body position in W [m]
+    camera : CameraModel used
+    """
+
+    name: str
+    t: np.ndarray
+    depth: np.ndarray
+    d: np.ndarray
+    fa: np.ndarray
+    sum_omega2: np.ndarray
+    rotor_speeds: np.ndarray
+    p: np.ndarray
+    camera: CameraModel
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def box_average(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray, width: float) -> np.ndarray:
+    """Mean of the samples ``x`` (at ``t_src``) within ``[t - width/2, t + width/2)`` of each ``t_dst``.
+
+    Falls back to linear interpolation where a window holds no sample.
+    """
+    c = np.concatenate([[0.0], np.cumsum(x)])
+    lo = np.searchsorted(t_src, t_dst - width / 2, side="left")
+    hi = np.searchsorted(t_src, t_dst + width / 2, side="left")
+    n = hi - lo
+    out = np.interp(t_dst, t_src, x)
+    ok = n > 0
+    out[ok] = (c[hi[ok]] - c[lo[ok]]) / n[ok]
+    return out
+
+
+def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 128, frame_dt: float | None = None,
+                       yfov_deg: float | None = None, pitch_deg: float | None = None, progress: bool = False
+                       ) -> RecordingSequence:
+    """A recording as depth frames, true heights and ground-truth ``f_a`` (see the module docstring).
+
+    Parameters
+    ----------
+    rec : recording with ground truth, rotor speeds and a point cloud
+    vehicle : the identified model (``k_T``, ``k_M``, inertia) the residual is computed with
+    image_size : side of the square depth images [px]
+    frame_dt : s, frame period where the recording lists no cam0 frames (default 0.05)
+    yfov_deg, pitch_deg : the default camera's, where there is no cam0
+    progress : print frames/s to stderr
+
+    Raises
+    ------
+    InputError : no point cloud or rotor speeds (naming the file), no frame inside the span.
+    """
+    from uavturb.io import align
+    from uavturb.io.reader import POINTS_PLY
+    from uavturb.physics.flight_data import flight_data
+    from uavturb.physics.residuals import residual_forces
+    from uavturb.scene.heights import SurfaceIndex
+    from uavturb.scene.projection import camera_pose_world, depth_from_points, prepare_cloud
+
+    where = rec.path or rec.name
+    if rec.points is None:
+        raise InputError(f"{where}/{POINTS_PLY}", "point cloud needed (depth images and heights come from it)")
+    fd = flight_data(rec, heights=False)
+    res = residual_forces(fd, vehicle)
+    t0, t1 = int(fd.t_ns[0]), int(fd.t_ns[-1])
+    if rec.cam0 is not None and len(rec.cam0.t_ns):
+        t_ns = np.asarray(rec.cam0.t_ns, np.int64)
+        t_ns = t_ns[(t_ns >= t0) & (t_ns <= t1)]
+        dt = float(np.median(np.diff(t_ns))) * 1e-9 if len(t_ns) > 1 else DEFAULT_FRAME_DT
+    else:
+        dt = float(DEFAULT_FRAME_DT if frame_dt is None else frame_dt)
+        if not dt > 0:
+            raise InputError("frame_dt", f"must be positive, got {dt}")
+        t_ns = np.arange(t0, t1 + 1, int(round(dt * 1e9)), dtype=np.int64)
+    if len(t_ns) == 0:
+        raise InputError(f"{where}/mav0/cam0/data.csv", "no camera frame inside the span of the other streams")
+    t = (t_ns - rec.t0_ns) * 1e-9
+    p = align.interpolate(fd.t_ns, fd.p, t_ns)
+    q = align.interpolate_quaternions(fd.t_ns, fd.q, t_ns)
+    rotors = align.interpolate(fd.t_ns, fd.rotor_speeds, t_ns)
+    fa = box_average(fd.t, res.force[:, 2], t, dt)
+    d = SurfaceIndex(rec.points).d_down(p)
+
+    camera = camera_for(rec, image_size, yfov_deg, pitch_deg)
+    cloud = prepare_cloud(rec.points)
+    T_WC = camera_pose_world(q, p, camera.T_BS)
+    depth = np.empty((len(t_ns), camera.height, camera.width), np.float32)
+    start = time.perf_counter()
+    for k in range(len(t_ns)):
+        depth[k] = depth_from_points(cloud, T_WC[k], camera.K, camera.width, camera.height)
+        if progress and (k % 50 == 49 or k == len(t_ns) - 1):
+            el = time.perf_counter() - start
+            print(f"\r{rec.name}: depth frames {k + 1}/{len(t_ns)}, {(k + 1) / el:.0f} frames/s, "
+                  f"ETA {el / (k + 1) * (len(t_ns) - k - 1):.0f} s", end="", file=sys.stderr, flush=True)
+    if progress:
+        print(file=sys.stderr)
+    return RecordingSequence(name=rec.name, t=t, depth=depth, d=d, fa=fa, sum_omega2=(rotors**2).sum(1),
+                             rotor_speeds=rotors, p=p, camera=camera)
+
+
+class RecordingWindowsDataset:
+    """Windows of ``window`` consecutive frames of :class:`RecordingSequence` s, as the shard windows.
+
+    Items: ``depth (window, 1, S, S)``, ``d``, ``fa``, ``sum_omega2`` ``(window,)`` float32 tensors
+    (the keys :class:`~uavturb.systems.HeightModule` reads), so ``Trainer.test`` runs on flights.
+    Frames with no surface below (``d = inf``) are left out of the windows' starts.
+    """
+
+    def __init__(self, sequences: list[RecordingSequence], window: int = 8, stride: int = 1):
+        if window < 1 or stride < 1:
+            raise InputError("window", f"window and stride must be >= 1, got {window}, {stride}")
+        self.sequences, self.window = sequences, window
+        self.index = [(i, s) for i, seq in enumerate(sequences) for s in range(0, len(seq) - window + 1, stride)
+                      if np.all(np.isfinite(seq.d[s:s + window]))]
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, k: int) -> dict:
+        import torch
+
+        i, s = self.index[k]
+        seq, e = self.sequences[i], s + self.window
+        return {"depth": torch.from_numpy(np.ascontiguousarray(seq.depth[s:e, None])),
+                "d": torch.from_numpy(seq.d[s:e].astype(np.float32)),
+                "fa": torch.from_numpy(seq.fa[s:e].astype(np.float32)),
+                "sum_omega2": torch.from_numpy(seq.sum_omega2[s:e].astype(np.float32))}
+
+
+def read_sequences(paths: list[str | Path], vehicle: Vehicle, **kw) -> list[RecordingSequence]:
+    """:func:`recording_sequence` of each recording folder (point clouds loaded)."""
+    from uavturb.io.reader import read_recording
+
+    return [recording_sequence(read_recording(p, require_rotors=True), vehicle, **kw) for p in paths]
+
+
+__all__ = ["CameraModel", "RecordingSequence", "RecordingWindowsDataset", "box_average", "camera_for",
+           "cam0_camera", "forward_camera", "read_sequences", "recording_sequence", "DEFAULT_FRAME_DT"]
+

@@ -1,0 +1,348 @@
+"""``uavturb evaluate``: the paper's Table 2 -- the height model and the ground-effect law on
+EuRoC-layout flights.
+
+Protocol (paper, "Predicting turbulences" and "Sim2real transfer"):
+
+1. Every flight becomes a sequence of camera frames (:mod:`uavturb.data.recordings`): depth
+   images from the point cloud projected into ``cam0``, true heights ``d`` from the cloud,
+   ground-truth ``f_a`` as the world-z residual force of the identified model [N].
+2. The vehicle's constants (``k_T``, ``k_M``, inertia) are identified by least squares on the
+   **first** flight (:func:`uavturb.physics.identification.identify`); where it has no free
+   flight to identify on, the first flight's ``vehicle.yaml`` constants are used (said so).
+3. ``(alpha, beta)`` of ``f = alpha sum(Omega^2) / (d^2 - beta)`` are identified by BFGS on the
+   **first** flight with its true heights (:func:`uavturb.physics.ground_effect.identify_alpha_beta`),
+   as the paper does on V1_01_easy.
+4. Per flight: ``RMSE(f_a,phi)`` -- the law on true heights vs GT; ``RMSE(f_a)`` -- the law on
+   the network's heights (GRU state carried over the whole flight from zeros) vs GT. A
+   ``Total`` row pools the samples of all flights.
+
+Samples used: the paper "focused the evaluation on selected parts of the flights where the
+ground effect is significant". Our rule: frames whose true height makes the identified law
+worth at least ``ge_fraction`` (1 %) of the thrust, ``beta / (d^2 - beta) >= ge_fraction``,
+i.e. ``d <= sqrt(beta (1 + 1 / ge_fraction))`` (about 0.35 m for the hexarotor with mu = 2).
+The table also reports every frame ("all").
+
+Outputs (folder written atomically): ``table.md``, ``table.csv``, ``fa_<flight>.png`` (f_a over
+time: GT blue, model red, phi on true heights green -- the paper's sim2real figure -- and
+predicted vs true heights), ``series_<flight>.csv``, ``evaluation.json``; an MLflow child run
+of the training run with the metrics, tagged ``evaluation=table2``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from uavturb.errors import InputError
+
+GE_FRACTION = 0.01
+
+
+@dataclass
+class FlightResult:
+    """Table 2 figures and series of one flight (``K`` frames).
+
+    Attributes
+    ----------
+    name : flight name
+    t : (K,) s; d, d_hat : (K,) true and predicted heights [m]
+    fa, fa_phi, fa_model : (K,) GT, law on true heights, law on predicted heights [N]
+    ge : (K,) bool, frames in the ground-effect region (see the module docstring)
+    """
+
+    name: str
+    t: np.ndarray
+    d: np.ndarray
+    d_hat: np.ndarray
+    fa: np.ndarray
+    fa_phi: np.ndarray
+    fa_model: np.ndarray
+    ge: np.ndarray
+
+    def metrics(self) -> dict[str, float]:
+        return _metrics(self.fa, self.fa_phi, self.fa_model, self.d, self.d_hat, self.ge)
+
+
+def _rmse(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean((a - b) ** 2))) if len(a) else float("nan")
+
+
+def _metrics(fa, fa_phi, fa_model, d, d_hat, ge) -> dict[str, float]:
+    fin = np.isfinite(d)
+    return {"n_ge": int(ge.sum()), "rmse_fa_phi": _rmse(fa_phi[ge], fa[ge]), "rmse_fa": _rmse(fa_model[ge], fa[ge]),
+            "rmse_d": _rmse(d_hat[ge], d[ge]), "rms_fa_gt": _rmse(fa[ge], 0 * fa[ge]),
+            "n_all": int(fin.sum()), "rmse_fa_phi_all": _rmse(fa_phi[fin], fa[fin]),
+            "rmse_fa_all": _rmse(fa_model[fin], fa[fin]), "rmse_d_all": _rmse(d_hat[fin], d[fin])}
+
+
+def predict_heights(module, depth: np.ndarray, chunk: int = 64) -> np.ndarray:
+    """Heights [m] of a whole flight, ``depth (K, H, W)``, GRU state carried from zeros across chunks."""
+    import torch
+
+    out, h = [], None
+    with torch.no_grad():
+        for s in range(0, len(depth), chunk):
+            x = torch.from_numpy(np.ascontiguousarray(depth[s:s + chunk], np.float32))[None, :, None]
+            d, h = module(x, h)
+            out.append(d[0].numpy())
+    return np.concatenate(out).astype(float)
+
+
+def ground_effect_height(beta: float, fraction: float = GE_FRACTION) -> float:
+    """Height [m] under which the law ``beta / (d^2 - beta)`` is at least ``fraction`` of the thrust."""
+    return float(np.sqrt(beta * (1.0 + 1.0 / fraction)))
+
+
+def _dataset_camera(run) -> dict[str, Any]:
+    """``image_size``, ``yfov_deg``, ``pitch_deg`` of the run's training data (what is known)."""
+    from uavturb.data import shards
+
+    out: dict[str, Any] = {}
+    if run is None:
+        return out
+    p = run.data.params
+    try:
+        if int(float(p.get("data.image_size", "0"))) > 0:
+            out["image_size"] = int(float(p["data.image_size"]))
+    except ValueError:
+        pass
+    root = p.get("data.root")
+    if root and (Path(root) / shards.MANIFEST).is_file():
+        try:
+            m = shards.read_manifest(root)
+            out.setdefault("image_size", int(m.image_size[0]))
+            for k in ("yfov_deg", "pitch_deg"):
+                if k in m.config:
+                    out[k] = float(m.config[k])
+        except InputError:
+            pass
+    return out
+
+
+def format_table(rows: list[tuple[str, dict[str, float]]], markdown: bool = False) -> str:
+    """Table 2: per flight and Total, ground-effect frames then all frames."""
+    head = ["Flight", "frames (GE)", "RMSE(f_a,phi) [N]", "RMSE(f_a) [N]", "RMSE(d) [m]", "frames (all)",
+            "RMSE(f_a,phi) all [N]", "RMSE(f_a) all [N]"]
+    body = [[name, f"{m['n_ge']}", f"{m['rmse_fa_phi']:.4f}", f"{m['rmse_fa']:.4f}", f"{m['rmse_d']:.4f}",
+             f"{m['n_all']}", f"{m['rmse_fa_phi_all']:.4f}", f"{m['rmse_fa_all']:.4f}"] for name, m in rows]
+    if markdown:
+        lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] + ["---:"] * (len(head) - 1)) + "|"]
+        for i, r in enumerate(body):
+            if i == len(body) - 1:
+                r = [f"**{r[0]}**"] + r[1:]
+            lines.append("| " + " | ".join(r) + " |")
+        return "\n".join(lines)
+    w = [max(len(h), *(len(r[i]) for r in body)) for i, h in enumerate(head)]
+    fmt = lambda r: "  ".join(c.ljust(w[0]) if i == 0 else c.rjust(w[i]) for i, c in enumerate(r))  # noqa: E731
+    sep = "-" * len(fmt(head))
+    return "\n".join([fmt(head), sep, *(fmt(r) for r in body[:-1]), sep, fmt(body[-1])])
+
+
+def plot_flight(res: FlightResult, path: Path, h_ge: float) -> None:
+    """f_a over time (GT, model, phi on true heights) and heights (true, predicted)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+    ax1.plot(res.t, res.fa, color="tab:blue", lw=1.0, label="GT $f_a$ (residual of the identified model)")
+    ax1.plot(res.t, res.fa_model, color="tab:red", lw=1.0, label=r"model: $\phi(\hat d, \Omega)$")
+    ax1.plot(res.t, res.fa_phi, color="tab:green", lw=1.0, label=r"$\phi(d, \Omega)$ on true heights")
+    ax1.set_ylabel("$f_a$ [N]")
+    ax1.legend(loc="upper right", fontsize=8)
+    ax1.set_title(f"{res.name}: ground effect over time")
+    ax2.plot(res.t, res.d, color="k", lw=1.0, label="true height $d$")
+    ax2.plot(res.t, res.d_hat, color="tab:red", lw=1.0, label=r"predicted $\hat d$")
+    ax2.axhline(h_ge, color="grey", ls=":", lw=0.8, label=f"GE region (d <= {h_ge:.2f} m)")
+    ax2.set_ylabel("height [m]")
+    ax2.set_xlabel("t [s]")
+    ax2.legend(loc="upper right", fontsize=8)
+    for ax in (ax1, ax2):
+        ax.grid(alpha=0.3)
+        # shade the ground-effect frames
+        ge = res.ge.astype(int)
+        edges = np.flatnonzero(np.diff(np.r_[0, ge, 0]))
+        for a, b in zip(edges[::2], edges[1::2]):
+            ax.axvspan(res.t[a], res.t[b - 1], color="tab:orange", alpha=0.08, lw=0)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _series_csv(res: FlightResult) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["t [s]", "d [m]", "d_hat [m]", "fa_gt [N]", "fa_phi [N]", "fa_model [N]", "ground_effect"])
+    for row in zip(res.t, res.d, res.d_hat, res.fa, res.fa_phi, res.fa_model, res.ge):
+        w.writerow([f"{row[0]:.4f}", *(f"{x:.6g}" for x in row[1:6]), int(row[6])])
+    return buf.getvalue()
+
+
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
+
+
+def _log(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]], params: dict[str, Any]) -> str:
+    import warnings
+
+    import mlflow
+
+    from uavturb.export import get_run
+    from uavturb.tracking import git_commit, tracking_uri
+
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    parent = get_run(run_id)
+    client = mlflow.MlflowClient(tracking_uri())
+    child = client.create_run(parent.info.experiment_id, run_name=f"evaluate-{run_id[:8]}",
+                              tags={"mlflow.parentRunId": run_id, "evaluation": "table2", "git_commit": git_commit()})
+    cid = child.info.run_id
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for k, v in params.items():
+            client.log_param(cid, k, str(v)[:500])
+        for name, m in results:
+            key = "total" if name == "Total" else _safe(name)
+            for mk, mv in m.items():
+                if np.isfinite(mv):
+                    client.log_metric(cid, f"eval/{key}/{mk}", float(mv))
+        client.log_artifacts(cid, str(folder), "evaluation")
+        client.set_terminated(cid, "FINISHED")
+    return cid
+
+
+def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str | Path = "evaluation",
+             checkpoint: str | Path | None = None, vehicle: str | None = None, image_size: int | None = None,
+             frame_dt: float | None = None, yfov_deg: float | None = None, pitch_deg: float | None = None,
+             ge_fraction: float = GE_FRACTION, overwrite: bool = True, log: bool = True, progress: bool = True
+             ) -> dict[str, Any]:
+    """``uavturb evaluate``: Table 2 on EuRoC-layout flights (see the module docstring).
+
+    Parameters
+    ----------
+    run_id : MLflow run of a height training (its checkpoint; ``checkpoint`` overrides)
+    recordings : recording folders; the first identifies the vehicle and ``(alpha, beta)``
+    out : output folder (replaced when ``overwrite``)
+    vehicle : preset or vehicle.yaml for folders without one (raw EuRoC)
+    image_size, yfov_deg, pitch_deg : camera of the depth images (default: the run's
+        training data's; see :mod:`uavturb.data.recordings`)
+    frame_dt : s, frame period where a recording has no cam0 frames (default 0.05)
+    ge_fraction : the ground-effect region's threshold (law / thrust)
+    log : log a child run of ``run_id`` with the metrics and the output folder
+    progress : print progress to stderr and the table to stdout
+
+    Returns
+    -------
+    dict: ``rows`` [(flight, metrics)] with ``Total`` last, ``alpha``, ``beta``, ``h_ge``,
+    ``vehicle_source``, ``out``, ``mlflow_run`` (child run id or None), ``table`` (text).
+    """
+    import sys
+
+    from uavturb.data.recordings import recording_sequence
+    from uavturb.export import get_run, load_height_module
+    from uavturb.physics.ground_effect import identify_alpha_beta
+    from uavturb.physics.identification import identify
+    from uavturb.workflows import load_recordings
+
+    if not recordings:
+        raise InputError("REC", "at least one recording folder is needed")
+    if not 0 < ge_fraction < 1:
+        raise InputError("--ge-fraction", f"must be in (0, 1), got {ge_fraction}")
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise InputError(out, "already exists")
+    if not out.parent.is_dir():
+        raise InputError(out.parent, "output's parent folder does not exist")
+    run = get_run(run_id) if run_id is not None else None
+    if run is None and checkpoint is None:
+        raise InputError("--run", "a run id (or a checkpoint) is needed")
+    module = load_height_module(run_id, checkpoint)
+    cam = _dataset_camera(run)
+    size = int(image_size or cam.get("image_size", 128))
+    yfov = yfov_deg if yfov_deg is not None else cam.get("yfov_deg")
+    pitch = pitch_deg if pitch_deg is not None else cam.get("pitch_deg")
+
+    recs = load_recordings(recordings, vehicle)
+    first = recs[0]
+    try:
+        veh = identify([first], first.vehicle).apply(first.vehicle)
+        vehicle_source = f"identified on {first.name}"
+    except InputError as e:
+        if not first.vehicle.is_complete():
+            raise InputError(f"{first.path}/vehicle.yaml", f"cannot identify the vehicle ({e.problem}) and "
+                                                             "its constants are incomplete") from None
+        veh = first.vehicle
+        vehicle_source = f"{first.name}/vehicle.yaml (identification impossible: {e.problem})"
+    if progress:
+        print(f"vehicle constants: {vehicle_source}", file=sys.stderr)
+
+    seqs = [recording_sequence(r, veh, image_size=size, frame_dt=frame_dt, yfov_deg=yfov, pitch_deg=pitch,
+                               progress=progress) for r in recs]
+    s0 = seqs[0]
+    fit = identify_alpha_beta(s0.fa, s0.d, s0.sum_omega2)
+    h_ge = ground_effect_height(fit.beta, ge_fraction)
+    if progress:
+        print(f"(alpha, beta) by BFGS on {s0.name}: alpha = {fit.alpha:.4g} N m^2/(rad/s)^2, beta = {fit.beta:.4g} m^2 "
+              f"(fit RMSE {fit.rmse:.4f} N, {fit.n} frames); ground-effect region d <= {h_ge:.3f} m "
+              f"(law >= {100 * ge_fraction:g} % of thrust)", file=sys.stderr)
+
+    results: list[FlightResult] = []
+    for seq in seqs:
+        d_hat = predict_heights(module, seq.depth)
+        ge = np.isfinite(seq.d) & (seq.d <= h_ge)
+        results.append(FlightResult(seq.name, seq.t, seq.d, d_hat, seq.fa, fit.predict(seq.d, seq.sum_omega2),
+                                    fit.predict(d_hat, seq.sum_omega2), ge))
+    rows = [(r.name, r.metrics()) for r in results]
+    cat = lambda k: np.concatenate([getattr(r, k) for r in results])  # noqa: E731
+    rows.append(("Total", _metrics(cat("fa"), cat("fa_phi"), cat("fa_model"), cat("d"), cat("d_hat"), cat("ge"))))
+    table = format_table(rows)
+
+    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    info = {"run_id": run_id, "checkpoint": str(checkpoint) if checkpoint else None,
+            "recordings": [str(r.path) for r in recs], "alpha": fit.alpha, "beta": fit.beta,
+            "alpha_beta_fit_rmse": fit.rmse, "identified_on": s0.name, "vehicle_constants": vehicle_source,
+            "ge_fraction": ge_fraction, "h_ge": h_ge, "image_size": size, "camera": s0.camera.source,
+            "rows": [{"flight": n, **m} for n, m in rows]}
+    try:
+        (tmp / "table.md").write_text(
+            f"Table 2 (ours): (alpha, beta) identified on {s0.name}; ground-effect frames: d <= {h_ge:.3f} m "
+            f"(law >= {100 * ge_fraction:g} % of thrust).\n\n{format_table(rows, markdown=True)}\n")
+        with open(tmp / "table.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            keys = list(rows[0][1])
+            w.writerow(["flight", *keys])
+            for n, m in rows:
+                w.writerow([n, *(m[k] for k in keys)])
+        (tmp / "evaluation.json").write_text(json.dumps(info, indent=2, default=float))
+        for r in results:
+            plot_flight(r, tmp / f"fa_{_safe(r.name)}.png", h_ge)
+            (tmp / f"series_{_safe(r.name)}.csv").write_text(_series_csv(r))
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+    child = None
+    if log and run_id is not None:
+        child = _log(run_id, out, rows, {"alpha": fit.alpha, "beta": fit.beta, "h_ge": h_ge,
+                                         "ge_fraction": ge_fraction, "identified_on": s0.name,
+                                         "recordings": ",".join(r.name for r in recs), "image_size": size,
+                                         "vehicle_constants": vehicle_source})
+    if progress:
+        print(table)
+        print(f"wrote {out}/table.md, table.csv, fa_*.png" + (f"; MLflow child run {child}" if child else ""))
+    return {"rows": rows, "alpha": fit.alpha, "beta": fit.beta, "h_ge": h_ge, "vehicle_source": vehicle_source,
+            "out": str(out), "mlflow_run": child, "table": table, "results": results}

@@ -1,0 +1,200 @@
+"""Presets of the simulated datasets (``uavturb generate sim|normals --preset NAME``).
+
+A preset fixes everything that determines the arrays of a dataset except the seed: which
+scenes and how they are split, how many trajectories of which length, the camera, the
+vehicle, the effects and the simulator's time steps. Its fields are the dataset config
+stored (with its hash) in ``manifest.json``; two runs with the same preset, overrides and
+seed write identical arrays.
+
+=========  ======  =========  ============  ==========  ===========  ============
+preset     scenes  split      trajectories  samples     image        pairs
+=========  ======  =========  ============  ==========  ===========  ============
+tiny       3       1/1/1      3             123         32 x 32      24
+quick      8       5/1/2      16            ~6,700      128 x 128    400
+paper      68      43/9/16    531           ~360,000    128 x 128    22,705
+=========  ======  =========  ============  ==========  ===========  ============
+
+Trajectories are planned by :func:`uavturb.sim.trajectories.plan_trajectory` (random points
+ordered by Christofides, A* around walls, take-offs, low hovers, landings and edge passes);
+their length follows from the number of random points (``plan_points``, drawn per
+trajectory): about 14 s with 1 point, 27 s with 2, 53 s with 3 on the generated scenes, so
+``paper``'s mix (2, 2, 2, 3) averages about 34 s = 676 samples at 20 Hz, the paper's
+358,828 / 531.
+
+``paper`` follows the paper (section "Large-scale generation of simulated UAV trajectory
+data": 68 scenes, 43/9/16, 531 trajectories, 358,828 samples; IRS pre-training on 22,705
+depth/normal pairs). ``quick`` finishes in a few minutes on 2 cores and is what ``make demo``
+uses; ``tiny`` is for tests.
+
+Units: seconds, hertz, metres, degrees, pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
+
+from uavturb.errors import InputError
+from uavturb.physics.sim_config import DEFAULT_EFFECTS
+
+
+@dataclass(frozen=True)
+class SimPreset:
+    """What a simulated dataset is made of.
+
+    Attributes
+    ----------
+    name : str
+    n_scenes, n_train, n_val, n_test : int
+        Scenes (procedural, seeds ``0 .. n_scenes - 1``) and their split
+        (:func:`uavturb.sim.scenes.split_scenes` with ``split_seed``).
+    split_seed : int
+        Seed of the scene permutation (independent of the dataset seed: the split of a
+        preset never changes).
+    trajectories : int
+        Trajectories in all; spread over the scenes as evenly as possible (the first
+        ``trajectories % n_scenes`` scenes get one more).
+    plan_points : tuple of int
+        Random points of a trajectory's plan, drawn uniformly from this tuple per trajectory.
+    max_seconds : float, s
+        Cut flights longer than this (0: fly the whole plan, which ends landed).
+    plan : dict
+        Overrides of :class:`uavturb.sim.trajectories.PlanConfig` fields (``n_points`` excepted).
+    camera_hz : float, Hz
+        Sample (camera) rate.
+    width, height : int, px
+    yfov_deg : float, deg
+        Vertical field of view.
+    pitch_deg : float, deg
+        Downward pitch of the forward camera relative to body +x.
+    normals : bool
+        Also store camera-frame surface normals per sample.
+    rgb : bool
+        Also store a colour image per sample (``rgb.npy``, uint8, beside the contract's arrays).
+    vehicle : str
+        Vehicle preset (:func:`uavturb.physics.vehicle.preset`).
+    effects : dict
+        Effects of ``effects.md`` simulated (``{name: {param: value}}``); ``ground_effect``
+        gives the ``mu`` of the stored ``f_a``.
+    controller : str
+        ``'auto'`` (the CasADi MPC of :mod:`uavturb.sim.trajectories` when installed, else
+        the geometric controller), ``'mpc'`` or ``'geometric'``.
+    physics_dt, control_dt : float, s
+        Integration step of the physics and period of the controller (the geometric
+        controller; the MPC runs at its own default rate).
+    pairs : int
+        Depth/normal pairs of ``generate normals`` (from the training scenes).
+    pairs_chunk : int
+        Pairs per resumable chunk of ``generate normals``.
+    """
+
+    name: str = "custom"
+    n_scenes: int = 8
+    n_train: int = 5
+    n_val: int = 1
+    n_test: int = 2
+    split_seed: int = 0
+    trajectories: int = 16
+    plan_points: tuple = (1, 2)
+    max_seconds: float = 0.0
+    plan: dict = field(default_factory=dict)
+    camera_hz: float = 20.0
+    width: int = 128
+    height: int = 128
+    yfov_deg: float = 70.0
+    pitch_deg: float = 20.0
+    normals: bool = False
+    rgb: bool = False
+    vehicle: str = "quad"
+    effects: dict = field(default_factory=lambda: {k: dict(v) for k, v in DEFAULT_EFFECTS.items()})
+    controller: str = "auto"
+    physics_dt: float = 0.005
+    control_dt: float = 0.005
+    pairs: int = 400
+    pairs_chunk: int = 256
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict of every field."""
+        d = asdict(self)
+        d["plan_points"] = [int(k) for k in self.plan_points]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "SimPreset":
+        """Inverse of :meth:`to_dict` (a manifest's ``config["preset"]``)."""
+        d = dict(d)
+        if "plan_points" in d:
+            d["plan_points"] = tuple(d["plan_points"])
+        return cls(**d)
+
+    def check(self) -> "SimPreset":
+        """Raise :class:`InputError` naming the field when a value is out of range."""
+        def bad(key: str, problem: str) -> InputError:
+            return InputError(f"preset {self.name}: {key}", problem)
+
+        for key in ("n_scenes", "trajectories", "width", "height", "pairs", "pairs_chunk"):
+            if int(getattr(self, key)) < 1:
+                raise bad(key, f"must be at least 1, got {getattr(self, key)}")
+        if self.n_train + self.n_val + self.n_test != self.n_scenes:
+            raise bad("n_train/n_val/n_test", f"sum to {self.n_train + self.n_val + self.n_test}, "
+                                              f"not n_scenes = {self.n_scenes}")
+        if min(self.n_train, self.n_val, self.n_test) < 0 or self.n_train < 1:
+            raise bad("n_train", "every split size must be >= 0 and n_train >= 1")
+        if not self.plan_points or any(int(k) < 1 for k in self.plan_points):
+            raise bad("plan_points", f"must be a non-empty list of integers >= 1, got {self.plan_points}")
+        if self.max_seconds < 0:
+            raise bad("max_seconds", f"must be >= 0, got {self.max_seconds}")
+        from uavturb.sim.trajectories import PlanConfig
+
+        known = {f.name for f in fields(PlanConfig)} - {"n_points"}
+        bad_keys = sorted(set(self.plan) - known)
+        if bad_keys:
+            raise bad(f"plan.{bad_keys[0]}", f"unknown PlanConfig field (known: {', '.join(sorted(known))})")
+        for key in ("camera_hz", "physics_dt", "control_dt"):
+            if not float(getattr(self, key)) > 0:
+                raise bad(key, f"must be positive, got {getattr(self, key)}")
+        if not 0 < self.yfov_deg < 180:
+            raise bad("yfov_deg", f"must be in (0, 180), got {self.yfov_deg}")
+        if self.controller not in ("auto", "mpc", "geometric"):
+            raise bad("controller", f"expected auto, mpc or geometric, got {self.controller!r}")
+        rec = 1.0 / self.camera_hz
+        for key in ("control_dt",):
+            n = round(getattr(self, key) / self.physics_dt)
+            if n < 1 or abs(n * self.physics_dt - getattr(self, key)) > 1e-9:
+                raise bad(key, "must be a whole multiple of physics_dt")
+        n = round(rec / self.physics_dt)
+        if n < 1 or abs(n * self.physics_dt - rec) > 1e-9:
+            raise bad("camera_hz", "1 / camera_hz must be a whole multiple of physics_dt")
+        if "ground_effect" not in self.effects:
+            raise bad("effects", "must hold ground_effect (its mu defines the stored f_a)")
+        return self
+
+
+PRESETS: dict[str, SimPreset] = {
+    "tiny": SimPreset(name="tiny", n_scenes=3, n_train=1, n_val=1, n_test=1, trajectories=3, plan_points=(1,),
+                      max_seconds=2.0, width=32, height=32, pairs=24, pairs_chunk=10),
+    "quick": SimPreset(name="quick"),
+    "paper": SimPreset(name="paper", n_scenes=68, n_train=43, n_val=9, n_test=16, trajectories=531,
+                       plan_points=(2, 2, 2, 3), pairs=22705, pairs_chunk=512),
+}
+
+
+def get_preset(name: str | SimPreset, **overrides: Any) -> SimPreset:
+    """A preset by name (``tiny``, ``quick``, ``paper``) with fields overridden.
+
+    Raises
+    ------
+    InputError
+        Unknown preset, unknown field (named), or a value out of range.
+    """
+    if isinstance(name, SimPreset):
+        base = name
+    elif name in PRESETS:
+        base = PRESETS[name]
+    else:
+        raise InputError("--preset", f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
+    known = {f.name for f in fields(SimPreset)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise InputError(f"preset {base.name}", f"unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
+    return replace(base, **overrides).check() if overrides else base.check()

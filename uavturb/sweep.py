@@ -1,0 +1,315 @@
+"""Ablation sweeps: the paper's Table 1 as one resumable MLflow sweep (``uavturb sweep``).
+
+A sweep file (``sweeps/ablation.yaml``, schema :class:`SweepSpec`) declares the rows (each a
+``conf/model`` choice plus overrides), the pre-training variants (each a ``conf/experiment``
+bundle) and presets (config overrides for every run, the pre-training runs and the height
+runs). :func:`sweep` runs, for each seed ``n = 0 .. N-1``:
+
+1. every pre-training variant the rows need, once (stage ``pretrain``);
+2. every row (stage ``height``), its encoder from that seed's pre-training checkpoint.
+
+Tracking: one MLflow parent run per (sweep file, preset, overrides) -- tags ``sweep``,
+``sweep_hash``, ``preset`` -- and one nested child per run (tag ``mlflow.parentRunId``):
+height runs tagged ``ablation=<row>`` and ``seed=<n>`` with final metrics ``test/rmse_d`` and
+``test/rmse_fa``; pre-training runs tagged ``pretrain=<variant>`` and ``seed=<n>``.
+
+Resuming: the same command finds its parent by ``sweep_hash`` (the seed count is not part of
+it, so more seeds extend a sweep) and skips every child already FINISHED with its metrics;
+a finished pre-training run is reused through its checkpoint (local file, else downloaded
+from the run's artifact ``checkpoints/best.ckpt``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import MISSING, DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from uavturb.config import load_config
+from uavturb.errors import InputError
+from uavturb.train import CHECKPOINT_ARTIFACT, train
+
+DEFAULT_SPEC = Path(__file__).resolve().parents[1] / "sweeps" / "ablation.yaml"
+FINAL_METRICS = ("test/rmse_d", "test/rmse_fa")
+
+
+@dataclass
+class RowSpec:
+    """One table row: a ``conf/model`` choice and overrides; the paper's values for reference."""
+
+    name: str = MISSING
+    model: str = MISSING
+    overrides: list[str] = field(default_factory=list)
+    paper_rmse_d: float | None = None      # m
+    paper_rmse_fa: float | None = None     # N
+
+
+@dataclass
+class PresetSpec:
+    seeds: int = 1
+    overrides: list[str] = field(default_factory=list)   # every run
+    pretrain: list[str] = field(default_factory=list)    # pre-training runs
+    height: list[str] = field(default_factory=list)      # the rows' runs
+
+
+@dataclass
+class SweepSpec:
+    name: str = "ablation"
+    experiment: str = "uavturb-ablation"
+    rows: list[RowSpec] = field(default_factory=list)
+    pretraining: dict[str, str] = field(default_factory=dict)  # model.pretraining -> conf/experiment bundle
+    presets: dict[str, PresetSpec] = field(default_factory=dict)
+
+
+def load_spec(path: str | Path = DEFAULT_SPEC) -> DictConfig:
+    """Read and check a sweep file; a typo fails naming the file and the key."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "sweep file not found")
+    try:
+        body = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as e:
+        raise InputError(path, f"not valid YAML ({str(e).splitlines()[0]})") from None
+    try:
+        spec = OmegaConf.merge(OmegaConf.structured(SweepSpec), body)
+        OmegaConf.to_container(spec, throw_on_missing=True)
+    except OmegaConfBaseException as e:
+        key = str(getattr(e, "full_key", "") or getattr(e, "key", "") or "?")
+        raise InputError(f"{path}: {key}", str(e).splitlines()[0]) from None
+    if not spec.rows:
+        raise InputError(f"{path}: rows", "no rows")
+    names = [r.name for r in spec.rows]
+    if len(set(names)) != len(names):
+        raise InputError(f"{path}: rows", f"row names repeat: {names}")
+    if not spec.presets:
+        raise InputError(f"{path}: presets", "no presets")
+    return spec
+
+
+def _spec_hash(spec: DictConfig, preset: str, overrides: list[str]) -> str:
+    from uavturb.data.shards import config_hash
+
+    body = OmegaConf.to_container(spec)
+    body["presets"] = {preset: {k: v for k, v in body["presets"][preset].items() if k != "seeds"}}
+    return config_hash({"spec": body, "preset": preset, "overrides": list(overrides)})
+
+
+class _Store:
+    """The sweep's MLflow experiment: parent run, and finished children looked up by tags."""
+
+    def __init__(self, experiment: str):
+        import mlflow
+
+        from uavturb.tracking import tracking_uri
+
+        for name in ("mlflow", "alembic"):
+            logging.getLogger(name).setLevel(logging.ERROR)
+        self.client = mlflow.MlflowClient(tracking_uri())
+        exp = self.client.get_experiment_by_name(experiment)
+        self.experiment_id = exp.experiment_id if exp else self.client.create_experiment(experiment)
+        self.experiment = experiment
+
+    def parent(self, name: str, sweep_hash: str, preset: str, params: dict[str, Any]) -> tuple[str, bool]:
+        """(run id, resumed): the latest parent of this sweep hash, else a new one."""
+        from uavturb.tracking import git_commit
+
+        runs = self.client.search_runs([self.experiment_id], filter_string=f"tags.sweep_hash = '{sweep_hash}'",
+                                       order_by=["attributes.start_time DESC"], max_results=1)
+        if runs:
+            run_id = runs[0].info.run_id
+            self.client.update_run(run_id, status="RUNNING")
+            return run_id, True
+        run = self.client.create_run(self.experiment_id, run_name=f"sweep-{name}-{preset}",
+                                     tags={"sweep": name, "sweep_hash": sweep_hash, "preset": preset,
+                                           "git_commit": git_commit()})
+        for k, v in params.items():
+            self.client.log_param(run.info.run_id, k, v)
+        return run.info.run_id, False
+
+    def finished_children(self, parent_id: str) -> list[Any]:
+        """FINISHED child runs of a parent (nested through tag ``mlflow.parentRunId``)."""
+        out, token = [], None
+        while True:
+            page = self.client.search_runs(
+                [self.experiment_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent_id}' and "
+                                                    "attributes.status = 'FINISHED'",
+                max_results=1000, page_token=token)
+            out.extend(page)
+            token = page.token
+            if not token:
+                return out
+
+
+def _find(children: list[Any], **tags: str) -> Any | None:
+    for run in children:
+        if all(run.data.tags.get(k) == v for k, v in tags.items()):
+            return run
+    return None
+
+
+def _checkpoint_of(store: _Store, run: Any, cache_dir: Path) -> str | None:
+    """Local path of a finished run's checkpoint: its tag, else its artifact downloaded."""
+    local = run.data.tags.get("checkpoint")
+    if local and Path(local).is_file():
+        return local
+    try:
+        import mlflow
+
+        from uavturb.tracking import tracking_uri
+
+        dst = cache_dir / run.info.run_id
+        dst.mkdir(parents=True, exist_ok=True)
+        return mlflow.artifacts.download_artifacts(run_id=run.info.run_id, artifact_path=CHECKPOINT_ARTIFACT,
+                                                   dst_path=str(dst), tracking_uri=tracking_uri())
+    except Exception:  # noqa: BLE001 - gone: train it again
+        return None
+
+
+def _say(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | None = None,
+          overrides: list[str] | None = None, experiment: str | None = None,
+          conf_dir: str | Path | None = None) -> dict[str, Any]:
+    """Run (or resume) an ablation sweep.
+
+    Parameters
+    ----------
+    spec : the sweep file (default ``sweeps/ablation.yaml``).
+    preset : a key of the file's ``presets`` (``quick``, ``paper``).
+    seeds : number of seeds ``0 .. seeds-1`` (default: the preset's).
+    overrides : ``key=value`` config overrides for every run (after the preset's).
+    experiment : MLflow experiment (default: the file's ``experiment``).
+    conf_dir : the ``conf`` folder (default: the repository's).
+
+    Returns
+    -------
+    dict with ``parent_run_id``, ``experiment``, ``resumed`` (bool), ``runs`` (one dict per
+    row and seed: ``row``, ``seed``, ``run_id``, ``metrics``, ``checkpoint``, ``reused``),
+    ``pretrain`` (``{(variant, seed): checkpoint}``), ``table`` (Table 1 as text, from
+    :func:`uavturb.compare.compare`).
+
+    Raises
+    ------
+    InputError : bad sweep file, unknown preset, bad override (before anything runs).
+    """
+    from uavturb.compare import compare
+
+    spec_path = Path(spec)
+    sp = load_spec(spec_path)
+    if preset not in sp.presets:
+        raise InputError("--preset", f"no preset {preset!r} in {spec_path}; choices: {', '.join(sp.presets)}")
+    pre = sp.presets[preset]
+    n_seeds = int(seeds if seeds is not None else pre.seeds)
+    if n_seeds < 1:
+        raise InputError("--seeds", f"must be at least 1, got {n_seeds}")
+    overrides = list(overrides or [])
+    experiment = experiment or sp.experiment
+
+    # resolve every config first: a typo fails before anything runs
+    def height_cfg(row: Any, seed: int) -> DictConfig:
+        cfg = load_config([f"model={row.model}", *pre.overrides, *pre.height, *row.overrides, *overrides],
+                          conf_dir=conf_dir)
+        cfg.trainer.seed, cfg.tracking.experiment, cfg.tracking.enabled = seed, experiment, True
+        cfg.tracking.run_name = f"{row.name} seed {seed}"
+        return cfg
+
+    def pretrain_cfg(variant: str, seed: int) -> DictConfig:
+        if variant not in sp.pretraining:
+            raise InputError(f"{spec_path}: pretraining", f"no bundle for model.pretraining={variant}; "
+                             f"has {', '.join(sp.pretraining) or 'none'}")
+        cfg = load_config([*pre.overrides, *pre.pretrain, *overrides], experiment=sp.pretraining[variant],
+                          conf_dir=conf_dir)
+        cfg.model.pretraining = variant
+        cfg.trainer.seed, cfg.tracking.experiment, cfg.tracking.enabled = seed, experiment, True
+        cfg.tracking.run_name = f"pretrain {variant} seed {seed}"
+        return cfg
+
+    rows = list(sp.rows)
+    variants = {r.name: str(height_cfg(r, 0).model.pretraining) for r in rows}
+    needed = sorted({v for v in variants.values() if v != "none"})
+    for v in needed:
+        pretrain_cfg(v, 0)
+
+    sweep_hash = _spec_hash(sp, preset, overrides)
+    store = _Store(experiment)
+    params = {"sweep_file": str(spec_path), "preset": preset, "overrides": json.dumps(overrides),
+              "rows": json.dumps([r.name for r in rows])}
+    parent_id, resumed = store.parent(sp.name, sweep_hash, preset, params)
+    store.client.set_tag(parent_id, "seeds", str(n_seeds))
+    store.client.log_text(parent_id, OmegaConf.to_yaml(sp), "sweep.yaml")
+    children = store.finished_children(parent_id)
+    _say(f"sweep {sp.name} ({preset}, {n_seeds} seed(s), {len(rows)} rows): MLflow experiment {experiment!r}, "
+         f"parent run {parent_id}{' (resumed)' if resumed else ''}")
+
+    jobs = [("pretrain", v, s) for s in range(n_seeds) for v in needed]
+    total = len(jobs) + len(rows) * n_seeds
+    done, t_run, n_run = 0, 0.0, 0
+    results: list[dict[str, Any]] = []
+    pretrain_ckpt: dict[tuple[str, int], str] = {}
+    cache = Path(".uavturb_cache") / "checkpoints"
+
+    def progress(label: str, reused: bool, dt: float, metrics: dict[str, float]) -> None:
+        nonlocal done, t_run, n_run
+        done += 1
+        if not reused:
+            t_run, n_run = t_run + dt, n_run + 1
+        shown = "  ".join(f"{k} {metrics[k]:.4g}" for k in (*FINAL_METRICS, "test/loss") if k in metrics)
+        took = "already done" if reused else f"{dt:.0f} s"
+        eta = f"  (sweep ETA {t_run / n_run * (total - done):.0f} s)" if n_run and done < total else ""
+        _say(f"[{done}/{total}] {label}: {took}  {shown}{eta}")
+
+    try:
+        for seed in range(n_seeds):
+            for v in needed:
+                t0 = time.perf_counter()
+                found = _find(children, pretrain=v, seed=str(seed))
+                ckpt = _checkpoint_of(store, found, cache) if found is not None else None
+                if ckpt is not None:
+                    pretrain_ckpt[(v, seed)] = ckpt
+                    progress(f"pretrain {v} seed {seed}", True, 0.0, dict(found.data.metrics))
+                    continue
+                _say(f"[{done + 1}/{total}] pretrain {v} seed {seed} ...")
+                out = train(pretrain_cfg(v, seed), tags={"mlflow.parentRunId": parent_id, "pretrain": v,
+                                                          "seed": str(seed), "sweep_hash": sweep_hash})
+                if not out["checkpoint"]:
+                    raise InputError(f"pretrain {v} seed {seed}", "training produced no checkpoint")
+                pretrain_ckpt[(v, seed)] = out["checkpoint"]
+                progress(f"pretrain {v} seed {seed}", False, time.perf_counter() - t0, out["metrics"])
+            for row in rows:
+                t0 = time.perf_counter()
+                found = _find(children, ablation=row.name, seed=str(seed))
+                if found is not None and all(k in found.data.metrics for k in FINAL_METRICS):
+                    results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
+                                    "metrics": dict(found.data.metrics), "checkpoint": found.data.tags.get("checkpoint"),
+                                    "reused": True})
+                    progress(f"{row.name} seed {seed}", True, 0.0, dict(found.data.metrics))
+                    continue
+                cfg = height_cfg(row, seed)
+                if variants[row.name] != "none":
+                    cfg.model.encoder_ckpt = pretrain_ckpt[(variants[row.name], seed)]
+                _say(f"[{done + 1}/{total}] {row.name} seed {seed} ...")
+                out = train(cfg, tags={"mlflow.parentRunId": parent_id, "ablation": row.name, "seed": str(seed),
+                                       "sweep_hash": sweep_hash})
+                results.append({"row": row.name, "seed": seed, "run_id": out["run_id"], "metrics": out["metrics"],
+                                "checkpoint": out["checkpoint"], "reused": False})
+                progress(f"{row.name} seed {seed}", False, time.perf_counter() - t0, out["metrics"])
+    except BaseException:
+        store.client.set_terminated(parent_id, status="KILLED")
+        raise
+    table = compare(experiment=experiment, parent_run_id=parent_id, spec=spec_path, out=None)
+    store.client.log_text(parent_id, table["markdown_text"], "table1.md")
+    store.client.log_text(parent_id, table["csv_text"], "table1.csv")
+    store.client.set_terminated(parent_id, status="FINISHED")
+    return {"parent_run_id": parent_id, "experiment": experiment, "resumed": resumed, "runs": results,
+            "pretrain": pretrain_ckpt, "table": table["table"]}
