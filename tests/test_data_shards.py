@@ -201,3 +201,43 @@ def test_pairs_datamodule(tmp_path, target, channels):
     assert not set(dm.train_set.indices) & set(dm.val_set.indices)
     b = next(iter(dm.train_dataloader()))
     assert b["depth"].shape == (5, 1, 16, 16) and b["target"].shape == (5, channels, 16, 16)
+
+
+def test_update_manifest_and_dataset_hash(tmp_path):
+    m = shards.make_synthetic_dataset(tmp_path / "ds", n_scenes=3, trajs_per_scene=1, T=6, size=8)
+    h = shards.dataset_hash(tmp_path / "ds")
+    assert h == shards.dataset_hash(tmp_path / "ds") and len(h) == 16
+    up = shards.update_manifest(tmp_path / "ds", complete=True, statistics={"frames": 18})
+    assert up.extra == {"complete": True, "statistics": {"frames": 18}} and up.splits == m.splits
+    with pytest.raises(InputError, match="splits"):
+        shards.update_manifest(tmp_path / "ds", splits={})
+    h2 = shards.dataset_hash(tmp_path / "ds")
+    assert h2 != h  # the manifest changed
+    (tmp_path / "ds" / ".traj_00009.x.tmp").mkdir()  # an interrupted writer's leftovers do not count
+    np.save(tmp_path / "ds" / ".traj_00009.x.tmp" / "d.npy", np.zeros(3))
+    assert shards.dataset_hash(tmp_path / "ds") == h2
+    folder = m.folders("test")[0]
+    a = {n: np.array(getattr(shards.read_trajectory(folder, mmap=False), n)) for n in shards.ARRAYS}
+    a["d"][0] += 0.5
+    meta = {k: v for k, v in shards.read_meta(folder).items() if k not in shards.WRITER_META}
+    shards.write_trajectory(folder, a, meta, overwrite=True)
+    assert shards.dataset_hash(tmp_path / "ds") != h2  # one value in one array changed
+
+
+def test_synthetic_heights_see_the_boxes(tmp_path):
+    """Known answers of the analytic scene: depth of the floor straight ahead, box tops under the body."""
+    from uavturb.data.synthetic import BoxRoom, camera_rotation, pixel_rays, render
+
+    room = BoxRoom(half=4.0, ceiling=3.0, boxes=np.array([[-1.0, 1.0, -1.0, 1.0, 0.5]]))
+    np.testing.assert_allclose(room.surface_below(np.array([[0.0, 0.0], [2.0, 0.0]])), [0.5, 0.0])
+    # camera 1 m above the floor, looking straight down (pitch 90 deg) over the floor at x = 2.5
+    rays = pixel_rays(5, 70.0)
+    depth, normals = render(room, np.array([[2.5, 0.0, 1.0]]), camera_rotation(np.zeros(1), 90.0), rays)
+    assert depth[0, 2, 2] == pytest.approx(1.0)  # centre pixel: the floor, 1 m along the optical axis
+    np.testing.assert_allclose(normals[0, 2, 2], [0.0, 0.0, -1.0], atol=1e-12)  # towards the camera
+    # over the box: its top 0.5 m below
+    depth, _ = render(room, np.array([[0.0, 0.0, 1.0]]), camera_rotation(np.zeros(1), 90.0), rays)
+    assert depth[0, 2, 2] == pytest.approx(0.5)
+    # looking level along +x from x = 2.5: the wall at x = 4, 1.5 m ahead
+    depth, _ = render(room, np.array([[2.5, 0.0, 1.0]]), camera_rotation(np.zeros(1), 0.0), rays)
+    assert depth[0, 2, 2] == pytest.approx(1.5)

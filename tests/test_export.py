@@ -19,12 +19,15 @@ from uavturb.nn.height import phi_alpha_beta
 from uavturb.systems import HeightModule
 
 
-@pytest.fixture
-def store(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
-    return uri
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    """One temporary MLflow store for the module (creating a SQLite store takes seconds)."""
+    root = tmp_path_factory.mktemp("store")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        uri = f"sqlite:///{root / 'mlflow.db'}"
+        mp.setenv("MLFLOW_TRACKING_URI", uri)
+        yield uri
 
 
 CLEAN_SCRIPT = r"""
@@ -59,7 +62,7 @@ print(json.dumps({"inputs": [i.name for i in sess.get_inputs()], "outputs": [o.n
 
 @pytest.mark.parametrize("use_gru, keep", [(True, "artifact"), (False, "folder")])
 def test_export_equals_module_in_clean_process(tmp_path, store, use_gru, keep):
-    rid, _, data, _ = tiny_height_run(tmp_path, use_gru=use_gru, keep=keep)
+    rid, _, data, _ = tiny_height_run(tmp_path, use_gru=use_gru, keep=keep, steps=3)
     out = tmp_path / "exported"
     result = export(rid, out, n_sequences=1, length=12, verbose=False)
     assert result["max_abs_diff"] <= 1e-5

@@ -32,6 +32,17 @@ def run(tmp_path, recs, **kw):
     on_disk = json.loads((out / "report.json").read_text())
     assert REQUIRED <= set(on_disk)
     assert (out / "report.md").exists()
+    assert on_disk["recordings"] == [str(r) for r in recs]
+    for seg in on_disk["mismatch"]["segments"]:  # gap-report.md: path, seconds since the first ground-truth row
+        assert seg["recording"] in on_disk["recordings"]
+        assert 0.0 <= seg["t_start"] < seg["t_end"] <= 45.0 + 1e-6
+        assert seg["axis"] in ("x", "y", "z") and seg["rms_N"] > 0
+    assert all({"feature", "score"} <= set(d) for d in on_disk["mismatch"]["drivers"])
+    for e in on_disk["effects"]:
+        assert set(e["params"]) == set(e["stderr"])
+        assert {"name", "explanation", "heldout_rmse_before_N", "heldout_rmse_after_N"} <= set(e)
+    for png in ("residual_time.png", "residual_vs_driver.png", "heldout_fit.png"):
+        assert png in (out / "report.md").read_text() and (out / png).stat().st_size > 10_000
     return report
 
 
@@ -63,6 +74,9 @@ def test_ground_effect_named_with_two_recordings_and_applied(tmp_path, flights):
     mu = report["effects"][names.index("ground_effect")]["params"]["mu"]
     assert mu == pytest.approx(2.0, rel=0.15)
     assert report["mismatch"]["drivers"][0]["feature"] == "d_down"
+    # the largest located segment is the take-off over the floor, on z
+    top = report["mismatch"]["segments"][0]
+    assert top["axis"] == "z" and top["t_start"] < 1.0
     cfg = load_physics_config(conf)
     assert cfg["effects"]["ground_effect"]["mu"] == pytest.approx(mu)
     assert report["open_loop"]["after_m"] <= report["open_loop"]["before_m"]
@@ -94,3 +108,13 @@ def test_malformed_recording_writes_no_report(tmp_path, flights):
 def test_unknown_sim_effect_is_one_clear_error(tmp_path, flights):
     with pytest.raises(InputError, match="--sim-effects.*unknown effect 'gust'"):
         gap([str(flights["clean"])], tmp_path / "r", sim_effects="gust", log_mlflow=False)
+
+
+def test_simulator_effect_absent_in_reality_is_fitted_to_zero(tmp_path, flights):
+    # default --sim-effects: the simulator models ground_effect (mu = 2), the drag flight has none.
+    # Its mu must go to 0 (not stay at a search bound, which let a look-alike be named before)
+    report = run(tmp_path, [flights["drag"]])
+    assert report["sim_effects"] == ["ground_effect"]
+    assert [e["name"] for e in report["effects"]] == ["rotor_drag"]
+    assert report["sim_effect_params"]["ground_effect"]["fitted"]["mu"] < 0.2
+    assert report["final"]["heldout_rmse_N"] < report["baseline"]["heldout_rmse_N"]

@@ -140,3 +140,21 @@ def test_default_sim_effects_follow_the_simulator_config(tmp_path, good):
     for name, params in conf.items():
         assert report["sim_effect_params"][name]["sim"] == pytest.approx(params)
     assert np.isfinite(report["final"]["heldout_rmse_N"])
+
+
+def test_rotor_quantum_and_rounding_floor_known_answers():
+    from uavturb.gap.design import rotor_quantum
+
+    rng = np.random.default_rng(0)
+    w = rng.uniform(400, 700, size=(1000, 6))
+    assert rotor_quantum(np.round(w)) == pytest.approx(1.0)
+    assert rotor_quantum(np.round(w / 5.0) * 5.0) == pytest.approx(5.0)  # EuRoC-like: integer units times a scale
+    assert rotor_quantum(w) == 0.0  # not quantised
+    # the floor: (2 k_T)^2 sum(w_i^2) q^2 / 12 at six rotors of 536 rad/s, q = 1 rad/s
+    from types import SimpleNamespace
+
+    from uavturb.gap.design import rounding_floor
+
+    data = SimpleNamespace(S=np.full(10, 6 * 536.0**2))
+    assert rounding_floor(data, 8.54858e-6, 1.0) == pytest.approx((2 * 8.54858e-6) ** 2 * 6 * 536.0**2 / 12)
+    assert rounding_floor(data, 8.54858e-6, 0.0) == 0.0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mlflow
 import numpy as np
 import pytest
@@ -49,6 +51,9 @@ def test_tiny_height_training_learns_and_logs(tmp_path, store):
     assert "git_commit" in run.data.tags
     assert run.data.params["model.use_gru"] == "True" and run.data.params["data.window"] == "4"
     assert "config.yaml" in [a.path for a in client.list_artifacts(out["run_id"])]
+    assert [a.path for a in client.list_artifacts(out["run_id"], "checkpoints")] == ["checkpoints/best.ckpt"]
+    assert [a.path for a in client.list_artifacts(out["run_id"], "plots")] == ["plots/test_heights.png"]
+    assert run.data.tags["checkpoint"] == str(Path(out["checkpoint"]).resolve())
     losses = [m.value for m in client.get_metric_history(out["run_id"], "train/loss_step")]
     assert len(losses) >= 8
     assert np.mean(losses[-3:]) < np.mean(losses[:3])  # the loss went down
@@ -128,3 +133,27 @@ def test_group_file_typo_names_file_and_key(tmp_path):
     with pytest.raises(InputError) as e:
         load_config(["model=broken"], conf_dir=conf)
     assert e.value.where == "model.use_gruu" and "broken.yaml" in e.value.problem
+
+
+def test_cli_train_typo_is_one_line_naming_the_key(capsys):
+    from uavturb.cli import main
+
+    assert main(["train", "model.use_gr=false", "--experiment", "smoke"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "model.use_gr" in err and "use_gru" in err  # names the key and the allowed ones
+
+
+def test_predict_last_frames_matches_the_windows_the_metrics_score(tmp_path):
+    from uavturb.training_plots import plot_test_heights, predict_last_frames
+
+    m = shards.make_synthetic_dataset(tmp_path / "ds", n_scenes=3, trajs_per_scene=1, T=9, size=8)
+    module = HeightModule(encoder_hidden=16)
+    module.eval()
+    tr = shards.read_trajectory(m.folders("test")[0])
+    d = predict_last_frames(module, tr.depth, window=4, batch=2)
+    assert np.isnan(d[:3]).all() and np.isfinite(d[3:]).all()
+    with torch.no_grad():
+        want = module(torch.from_numpy(np.array(tr.depth[2:6])).unsqueeze(0).unsqueeze(2))[0][0, -1]
+    assert d[5] == pytest.approx(float(want), abs=1e-6)
+    png = plot_test_heights(module, m.folders("test"), 4, tmp_path / "p" / "h.png")
+    assert png.stat().st_size > 1000

@@ -43,6 +43,22 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--noise", default="realistic", choices=["realistic", "none"])
     g.add_argument("--out", required=True, help="recording folder to create")
+    g = gsub.add_parser("sim", help="training shards: simulated flights through procedural scenes (resumable)")
+    g.add_argument("--preset", default="quick", help="quick | paper | tiny (default quick)")
+    g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (manifest.json, traj_*/)")
+    g.add_argument("--workers", type=int, default=1, help="processes, one renderer each (default 1)")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--shard", default=None, metavar="K/N", help="only trajectories i with i %% N == K-1 (1 <= K <= N)")
+    g = gsub.add_parser("normals", help="depth/normal pre-training pairs from training scenes, or from IRS")
+    g.add_argument("--preset", default="quick", help="quick | paper | tiny (default quick)")
+    g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (the pairs go to DIR/pairs)")
+    g.add_argument("--workers", type=int, default=1)
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--irs", default=None, metavar="IRS_DIR", help="convert the IRS dataset instead of rendering")
+    g.add_argument("--size", type=int, default=128, help="image side for --irs (default 128)")
+    g = gsub.add_parser("merge", help="join the folders of `generate sim --shard` runs into one dataset")
+    g.add_argument("dirs", nargs="+", metavar="DIR")
+    g.add_argument("--out", required=True, metavar="DIR", help="merged dataset folder (may be one of DIR)")
 
     s = sub.add_parser("gap", help="sim-to-real gap finder: locate, name, fit and apply the physics left out")
     s.add_argument("recordings", nargs="+", metavar="REC", help="recording folders (recordings.md layout)")
@@ -72,6 +88,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("spec", metavar="SWEEP.yaml")
     s.add_argument("--preset", default="quick", help="preset of the sweep file (quick, paper; default quick)")
     s.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
+    s.add_argument("--experiment", default=None, help="MLflow experiment (default: the sweep file's)")
     s.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides for every run")
 
     s = sub.add_parser("compare", help="print Table 1 (mean +- std over seeds) from the MLflow store")
@@ -79,8 +96,28 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--parent", default=None, metavar="RUN_ID", help="sweep parent run (default: the latest)")
     s.add_argument("--out", default="outputs", metavar="DIR", help="folder for table1.md and table1.csv")
 
+    s = sub.add_parser("evaluate", help="Table 2: the height model and the ground-effect law on EuRoC-layout flights")
+    s.add_argument("recordings", nargs="+", metavar="REC", help="recording folders; the first identifies (alpha, beta)")
+    s.add_argument("--run", required=True, metavar="RUN_ID", help="MLflow run of a height training")
+    s.add_argument("--out", default="evaluation", metavar="DIR", help="folder for table.md/csv and plots")
+    s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one (raw EuRoC)")
+    s.add_argument("--frame-dt", type=float, default=None, help="frame period [s] without cam0 frames (0.05)")
+    s.add_argument("--ge-fraction", type=float, default=0.01,
+                   help="ground-effect frames: where the law is at least this share of the thrust (0.01)")
+    s.add_argument("--no-mlflow", action="store_true", help="do not log a child run")
+
+    s = sub.add_parser("export", help="the run's model as a streaming .pt2 and ONNX, checked and logged to MLflow")
+    s.add_argument("--run", required=True, metavar="RUN_ID", help="MLflow run of a height training")
+    s.add_argument("--out", required=True, metavar="DIR", help="output folder (model.pt2, model.onnx, export.json)")
+    s.add_argument("--data", help="shard dataset for the check (default: the run's data.root)")
+    s.add_argument("--alpha", type=float, help="ground-effect law of the exported f_a (default: the model's), "
+                                                "e.g. identified by `uavturb evaluate` (evaluation.json)")
+    s.add_argument("--beta", type=float, help="see --alpha [m^2]")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    s.add_argument("--no-mlflow", action="store_true", help="do not log the model to the run")
+
     s = sub.add_parser("bench", help="benchmarks that print figures")
-    s.add_argument("what", choices=["scene", "physics", "gap"])
+    s.add_argument("what", choices=["scene", "physics", "gap", "generate", "flights", "train", "infer"])
 
     s = sub.add_parser("demo", help="the main job, end to end, on data the project generates")
     s.add_argument("--out", default="demo_out")
@@ -91,7 +128,13 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     os.environ.setdefault("MPLBACKEND", "Agg")
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # key=value overrides given after options (train, sweep): argparse leaves them over
+        if hasattr(args, "overrides") and all("=" in x and not x.startswith("-") for x in extra):
+            args.overrides = [*args.overrides, *extra]
+        else:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         return _run(args)
     except UavturbError as e:
@@ -123,6 +166,14 @@ def _run(args: argparse.Namespace) -> int:
             gt = rec.ground_truth
             print(f"wrote {args.out}: {len(gt)} ground-truth rows, {(gt.t_ns[-1] - gt.t_ns[0]) * 1e-9:.1f} s, "
                   f"effects {args.effects}")
+        elif args.what == "sim":
+            print(workflows.generate_sim(args.preset, args.out, workers=args.workers, seed=args.seed,
+                                         shard=args.shard))
+        elif args.what == "normals":
+            print(workflows.generate_normals(args.preset, args.out, workers=args.workers, seed=args.seed,
+                                             irs=args.irs, size=args.size))
+        elif args.what == "merge":
+            print(workflows.generate_merge(args.dirs, args.out))
     elif args.command == "gap":
         from uavturb.gap.finder import gap
 
@@ -145,7 +196,8 @@ def _run(args: argparse.Namespace) -> int:
     elif args.command == "sweep":
         from uavturb.sweep import sweep
 
-        res = sweep(args.spec, preset=args.preset, seeds=args.seeds, overrides=args.overrides)
+        res = sweep(args.spec, preset=args.preset, seeds=args.seeds, overrides=args.overrides,
+                    experiment=args.experiment)
         print(res["table"])
     elif args.command == "compare":
         from uavturb.compare import compare
@@ -153,6 +205,17 @@ def _run(args: argparse.Namespace) -> int:
         res = compare(experiment=args.experiment, parent_run_id=args.parent, out=args.out)
         print(res["table"])
         print(f"wrote {res['markdown']} and {res['csv']}")
+    elif args.command == "evaluate":
+        from uavturb.evaluate import evaluate
+
+        evaluate(args.run, args.recordings, out=args.out, vehicle=args.vehicle, frame_dt=args.frame_dt,
+                 ge_fraction=args.ge_fraction, log=not args.no_mlflow)
+    elif args.command == "export":
+        from uavturb.export import export
+
+        res = export(args.run, args.out, data=args.data, alpha=args.alpha, beta=args.beta, overwrite=args.overwrite,
+                     log=not args.no_mlflow)
+        print(f"wrote {res['out']}: model.pt2, model.onnx (max abs difference {res['max_abs_diff']:.3g})")
     elif args.command == "bench":
         workflows.bench(args.what)
     elif args.command == "demo":

@@ -85,7 +85,8 @@ def table_rows(runs: list[Any], spec_rows: list[Any] | None = None) -> list[dict
         out.append({"row": row, "pretraining": pre, "model": model or "-", "n": len(rs),
                     "seeds": [r.data.tags.get("seed", "?") for r in rs], "rmse_d_mean": d_mean, "rmse_d_std": d_std,
                     "rmse_fa_mean": fa_mean, "rmse_fa_std": fa_std,
-                    "paper_rmse_d": getattr(s, "paper_rmse_d", None), "paper_rmse_fa": getattr(s, "paper_rmse_fa", None),
+                    "paper_rmse_d": getattr(s, "paper_rmse_d", None),
+                    "paper_rmse_fa": getattr(s, "paper_rmse_fa", None),
                     "run_ids": [r.info.run_id for r in rs]})
     return out
 
@@ -190,8 +191,8 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
                          f"{experiment!r}" + (f", sweep {parent_run_id}" if parent_run_id else ""))
     title = (f"Table 1: test scenes, mean ± std over seeds (experiment {experiment}"
              + (f", sweep {parent_run_id})" if parent_run_id else ")"))
-    res: dict[str, Any] = {"rows": rows, "table": format_text(rows, title), "markdown_text": format_markdown(rows, title),
-                           "csv_text": format_csv(rows), "markdown": None, "csv": None,
+    res: dict[str, Any] = {"rows": rows, "table": format_text(rows, title),
+                           "markdown_text": format_markdown(rows, title), "csv_text": format_csv(rows), "markdown": None, "csv": None,
                            "parent_run_id": parent_run_id, "experiment": experiment}
     if out is not None:
         out = Path(out)

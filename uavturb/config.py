@@ -105,6 +105,7 @@ class TrainerConfig:
     enable_progress_bar: bool = True
     default_root_dir: str = "runs"      # checkpoints go to <default_root_dir>/checkpoints/<run>
     deterministic: bool = False
+    num_threads: int = 0                # torch CPU threads (torch.set_num_threads); 0 = torch's default
 
 
 @dataclass

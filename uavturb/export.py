@@ -338,9 +338,9 @@ def export_streaming(model: StreamingHeightModel, image_size: tuple[int, int], n
         import io
 
         with contextlib.redirect_stdout(io.StringIO()):
-            torch.onnx.export(model, args, str(folder / ONNX_FILE), dynamo=True, input_names=list(INPUT_NAMES),
-                              output_names=list(OUTPUT_NAMES), dynamic_shapes=dyn, external_data=False,
-                              verbose=False)
+            # the exported program itself: one trace serves both formats
+            torch.onnx.export(ep, f=str(folder / ONNX_FILE), input_names=list(INPUT_NAMES),
+                              output_names=list(OUTPUT_NAMES), external_data=False, verbose=False)
 
 
 def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], sample: dict[str, np.ndarray],
@@ -360,8 +360,7 @@ def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], sample: dict
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with mlflow.start_run(run_id=run_id):
-            mlflow.onnx.log_model(onnx.load(str(folder / ONNX_FILE)), name="streaming_model", signature=signature,
-                                  input_example=sample)
+            mlflow.onnx.log_model(onnx.load(str(folder / ONNX_FILE)), name="streaming_model", signature=signature)
             mlflow.log_artifact(str(folder / PT2_FILE), artifact_path="export")
             mlflow.log_artifact(str(folder / META_FILE), artifact_path="export")
             mlflow.log_metric("export/max_abs_diff", meta["max_abs_diff"])
@@ -398,6 +397,8 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
         ``tolerance`` (nothing is written then).
     """
     out = Path(out)
+    if (alpha is None) != (beta is None):
+        raise InputError("--alpha/--beta", "give both of the ground-effect law's constants, or neither")
     if out.exists() and not overwrite:
         raise InputError(out, "already exists (use --overwrite to replace it)")
     if not out.parent.is_dir():

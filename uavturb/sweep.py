@@ -13,6 +13,9 @@ Tracking: one MLflow parent run per (sweep file, preset, overrides) -- tags ``sw
 height runs tagged ``ablation=<row>`` and ``seed=<n>`` with final metrics ``test/rmse_d`` and
 ``test/rmse_fa``; pre-training runs tagged ``pretrain=<variant>`` and ``seed=<n>``.
 
+At the end the parent gets Table 1 (artifacts ``table1.md``, ``table1.csv``; metrics
+``<row>/test/rmse_d_mean`` etc.) and the sweep file as resolved (``sweep.yaml``).
+
 Resuming: the same command finds its parent by ``sweep_hash`` (the seed count is not part of
 it, so more seeds extend a sweep) and skips every child already FINISHED with its metrics;
 a finished pre-training run is reused through its checkpoint (local file, else downloaded
@@ -21,8 +24,10 @@ from the run's artifact ``checkpoints/best.ckpt``).
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -122,7 +127,8 @@ class _Store:
         """(run id, resumed): the latest parent of this sweep hash, else a new one."""
         from uavturb.tracking import git_commit
 
-        runs = self.client.search_runs([self.experiment_id], filter_string=f"tags.sweep_hash = '{sweep_hash}'",
+        runs = self.client.search_runs([self.experiment_id],
+                                       filter_string=f"tags.sweep = '{name}' and tags.sweep_hash = '{sweep_hash}'",
                                        order_by=["attributes.start_time DESC"], max_results=1)
         if runs:
             run_id = runs[0].info.run_id
@@ -156,7 +162,7 @@ def _find(children: list[Any], **tags: str) -> Any | None:
     return None
 
 
-def _checkpoint_of(store: _Store, run: Any, cache_dir: Path) -> str | None:
+def _checkpoint_of(run: Any, cache_dir: Path) -> str | None:
     """Local path of a finished run's checkpoint: its tag, else its artifact downloaded."""
     local = run.data.tags.get("checkpoint")
     if local and Path(local).is_file():
@@ -172,6 +178,17 @@ def _checkpoint_of(store: _Store, run: Any, cache_dir: Path) -> str | None:
                                                    dst_path=str(dst), tracking_uri=tracking_uri())
     except Exception:  # noqa: BLE001 - gone: train it again
         return None
+
+
+def _quiet_lightning() -> None:
+    """Keep the sweep's own progress lines readable: Lightning's per-run notices off."""
+    import warnings
+
+    import lightning  # noqa: F401 - sets its loggers' levels on import; override them after
+
+    for name in ("lightning.pytorch", "lightning.fabric", "lightning"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
 
 
 def _say(msg: str) -> None:
@@ -217,30 +234,27 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     experiment = experiment or sp.experiment
 
     # resolve every config first: a typo fails before anything runs
-    def height_cfg(row: Any, seed: int) -> DictConfig:
-        cfg = load_config([f"model={row.model}", *pre.overrides, *pre.height, *row.overrides, *overrides],
-                          conf_dir=conf_dir)
-        cfg.trainer.seed, cfg.tracking.experiment, cfg.tracking.enabled = seed, experiment, True
-        cfg.tracking.run_name = f"{row.name} seed {seed}"
-        return cfg
-
-    def pretrain_cfg(variant: str, seed: int) -> DictConfig:
-        if variant not in sp.pretraining:
-            raise InputError(f"{spec_path}: pretraining", f"no bundle for model.pretraining={variant}; "
-                             f"has {', '.join(sp.pretraining) or 'none'}")
-        cfg = load_config([*pre.overrides, *pre.pretrain, *overrides], experiment=sp.pretraining[variant],
-                          conf_dir=conf_dir)
-        cfg.model.pretraining = variant
-        cfg.trainer.seed, cfg.tracking.experiment, cfg.tracking.enabled = seed, experiment, True
-        cfg.tracking.run_name = f"pretrain {variant} seed {seed}"
-        return cfg
-
     rows = list(sp.rows)
-    variants = {r.name: str(height_cfg(r, 0).model.pretraining) for r in rows}
+    base_height = {r.name: load_config([f"model={r.model}", *pre.overrides, *pre.height, *r.overrides, *overrides],
+                                       conf_dir=conf_dir) for r in rows}
+    variants = {name: str(cfg.model.pretraining) for name, cfg in base_height.items()}
     needed = sorted({v for v in variants.values() if v != "none"})
+    base_pretrain = {}
     for v in needed:
-        pretrain_cfg(v, 0)
+        if v not in sp.pretraining:
+            raise InputError(f"{spec_path}: pretraining", f"no bundle for model.pretraining={v}; "
+                             f"has {', '.join(sp.pretraining) or 'none'}")
+        base_pretrain[v] = load_config([*pre.overrides, *pre.pretrain, *overrides], experiment=sp.pretraining[v],
+                                       conf_dir=conf_dir)
+        base_pretrain[v].model.pretraining = v
 
+    def for_run(base: DictConfig, seed: int, run_name: str) -> DictConfig:
+        cfg = copy.deepcopy(base)
+        cfg.trainer.seed, cfg.tracking.experiment, cfg.tracking.enabled = seed, experiment, True
+        cfg.tracking.run_name = run_name
+        return cfg
+
+    _quiet_lightning()
     sweep_hash = _spec_hash(sp, preset, overrides)
     store = _Store(experiment)
     params = {"sweep_file": str(spec_path), "preset": preset, "overrides": json.dumps(overrides),
@@ -252,12 +266,18 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     _say(f"sweep {sp.name} ({preset}, {n_seeds} seed(s), {len(rows)} rows): MLflow experiment {experiment!r}, "
          f"parent run {parent_id}{' (resumed)' if resumed else ''}")
 
-    jobs = [("pretrain", v, s) for s in range(n_seeds) for v in needed]
-    total = len(jobs) + len(rows) * n_seeds
+    def finished_row(row: Any, seed: int) -> Any | None:
+        run = _find(children, ablation=row.name, seed=str(seed))
+        return run if run is not None and all(k in run.data.metrics for k in FINAL_METRICS) else None
+
+    # per seed, the pre-training variants the unfinished rows still need
+    todo = {seed: sorted({variants[r.name] for r in rows if finished_row(r, seed) is None} - {"none"})
+            for seed in range(n_seeds)}
+    total = sum(len(v) for v in todo.values()) + len(rows) * n_seeds
     done, t_run, n_run = 0, 0.0, 0
     results: list[dict[str, Any]] = []
     pretrain_ckpt: dict[tuple[str, int], str] = {}
-    cache = Path(".uavturb_cache") / "checkpoints"
+    cache = Path(next(iter(base_height.values())).trainer.default_root_dir) / "checkpoints" / "downloaded"
 
     def progress(label: str, reused: bool, dt: float, metrics: dict[str, float]) -> None:
         nonlocal done, t_run, n_run
@@ -271,45 +291,50 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
 
     try:
         for seed in range(n_seeds):
-            for v in needed:
-                t0 = time.perf_counter()
+            for v in todo[seed]:
+                t0, label = time.perf_counter(), f"pretrain {v} seed {seed}"
                 found = _find(children, pretrain=v, seed=str(seed))
-                ckpt = _checkpoint_of(store, found, cache) if found is not None else None
+                ckpt = _checkpoint_of(found, cache) if found is not None else None
                 if ckpt is not None:
                     pretrain_ckpt[(v, seed)] = ckpt
-                    progress(f"pretrain {v} seed {seed}", True, 0.0, dict(found.data.metrics))
+                    progress(label, True, 0.0, dict(found.data.metrics))
                     continue
-                _say(f"[{done + 1}/{total}] pretrain {v} seed {seed} ...")
-                out = train(pretrain_cfg(v, seed), tags={"mlflow.parentRunId": parent_id, "pretrain": v,
-                                                          "seed": str(seed), "sweep_hash": sweep_hash})
+                _say(f"[{done + 1}/{total}] {label} ...")
+                out = train(for_run(base_pretrain[v], seed, label),
+                            tags={"mlflow.parentRunId": parent_id, "pretrain": v, "seed": str(seed),
+                                  "sweep_hash": sweep_hash})
                 if not out["checkpoint"]:
-                    raise InputError(f"pretrain {v} seed {seed}", "training produced no checkpoint")
+                    raise InputError(label, "training produced no checkpoint")
                 pretrain_ckpt[(v, seed)] = out["checkpoint"]
-                progress(f"pretrain {v} seed {seed}", False, time.perf_counter() - t0, out["metrics"])
+                progress(label, False, time.perf_counter() - t0, out["metrics"])
             for row in rows:
-                t0 = time.perf_counter()
-                found = _find(children, ablation=row.name, seed=str(seed))
-                if found is not None and all(k in found.data.metrics for k in FINAL_METRICS):
+                t0, label = time.perf_counter(), f"{row.name} seed {seed}"
+                found = finished_row(row, seed)
+                if found is not None:
                     results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
-                                    "metrics": dict(found.data.metrics), "checkpoint": found.data.tags.get("checkpoint"),
-                                    "reused": True})
-                    progress(f"{row.name} seed {seed}", True, 0.0, dict(found.data.metrics))
+                                    "metrics": dict(found.data.metrics),
+                                    "checkpoint": found.data.tags.get("checkpoint"), "reused": True})
+                    progress(label, True, 0.0, dict(found.data.metrics))
                     continue
-                cfg = height_cfg(row, seed)
+                cfg = for_run(base_height[row.name], seed, label)
                 if variants[row.name] != "none":
                     cfg.model.encoder_ckpt = pretrain_ckpt[(variants[row.name], seed)]
-                _say(f"[{done + 1}/{total}] {row.name} seed {seed} ...")
+                _say(f"[{done + 1}/{total}] {label} ...")
                 out = train(cfg, tags={"mlflow.parentRunId": parent_id, "ablation": row.name, "seed": str(seed),
                                        "sweep_hash": sweep_hash})
                 results.append({"row": row.name, "seed": seed, "run_id": out["run_id"], "metrics": out["metrics"],
                                 "checkpoint": out["checkpoint"], "reused": False})
-                progress(f"{row.name} seed {seed}", False, time.perf_counter() - t0, out["metrics"])
+                progress(label, False, time.perf_counter() - t0, out["metrics"])
     except BaseException:
         store.client.set_terminated(parent_id, status="KILLED")
         raise
     table = compare(experiment=experiment, parent_run_id=parent_id, spec=spec_path, out=None)
     store.client.log_text(parent_id, table["markdown_text"], "table1.md")
     store.client.log_text(parent_id, table["csv_text"], "table1.csv")
+    for r in table["rows"]:  # the table on the parent too, for the MLflow UI's run comparison
+        for key in ("rmse_d_mean", "rmse_d_std", "rmse_fa_mean", "rmse_fa_std"):
+            if not math.isnan(r[key]):
+                store.client.log_metric(parent_id, f"{r['row']}/test/{key}", r[key])
     store.client.set_terminated(parent_id, status="FINISHED")
     return {"parent_run_id": parent_id, "experiment": experiment, "resumed": resumed, "runs": results,
             "pretrain": pretrain_ckpt, "table": table["table"]}

@@ -18,7 +18,8 @@ Checkpoints: the best one is kept locally at
 ``<trainer.default_root_dir>/checkpoints/<run_id>/best-<epoch>.ckpt`` (``<run_id>`` the MLflow
 run id; a time stamp when tracking is off), logged to the run as the artifact
 ``checkpoints/best.ckpt`` (:data:`CHECKPOINT_ARTIFACT`), and its absolute local path is the
-run's tag ``checkpoint``.
+run's tag ``checkpoint``. Height runs also log ``plots/test_heights.png`` (predicted vs true
+height over test trajectories, :mod:`uavturb.training_plots`).
 """
 
 from __future__ import annotations
@@ -136,6 +137,17 @@ def _log_checkpoint(logger, best: str | None) -> None:
         client.log_artifact(logger.run_id, str(Path(tmp) / name), folder)
 
 
+def _log_height_plot(logger, module, dm, window: int) -> None:
+    """Predicted vs true height over the first test trajectories, as artifact ``plots/test_heights.png``."""
+    import tempfile
+
+    from uavturb.training_plots import plot_test_heights
+
+    with tempfile.TemporaryDirectory() as tmp:
+        png = plot_test_heights(module, dm.sets["test"].folders, window, Path(tmp) / "test_heights.png")
+        logger.experiment.log_artifact(logger.run_id, str(png), "plots")
+
+
 def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = None) -> dict[str, Any]:
     """Train one stage as configured, test its best checkpoint, and return the results.
 
@@ -162,6 +174,10 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
 
     cfg = validate(cfg)
     t = cfg.trainer
+    if t.num_threads > 0:
+        import torch
+
+        torch.set_num_threads(t.num_threads)
     L.seed_everything(t.seed, workers=True, verbose=False)
     data_root = _prepare_data(cfg)
     data_hash = dataset_hash(data_root) if data_root.is_dir() else "missing"
@@ -189,6 +205,8 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
         metrics.update({k: float(v) for k, v in row.items()})
     if logger is not None:
         _log_checkpoint(logger, best)
+        if cfg.stage == "height":
+            _log_height_plot(logger, module, dm, cfg.data.window)
         logger.finalize("success")
     return {"stage": cfg.stage, "metrics": metrics, "checkpoint": best, "run_id": logger.run_id if logger else None,
             "data_hash": data_hash}

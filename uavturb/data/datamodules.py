@@ -60,10 +60,13 @@ class ShardWindowsDataset(Dataset):
         return state
 
     def _open(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        # depth stays a memory map (one file descriptor per trajectory); the per-frame
+        # scalars are tiny and read into memory
         trajs = []
         for f in self.folders:
             tr = shards.read_trajectory(f, mmap=True)
-            trajs.append((tr.depth, tr.d, tr.fa, tr.sum_omega2.astype(np.float32)))
+            trajs.append((tr.depth, np.array(tr.d, np.float32), np.array(tr.fa, np.float32),
+                          tr.sum_omega2.astype(np.float32)))
         return trajs
 
     def __len__(self) -> int:
@@ -76,8 +79,8 @@ class ShardWindowsDataset(Dataset):
         depth, d, fa, s2 = self._trajs[k]
         e = s + self.window
         return {"depth": torch.from_numpy(np.array(depth[s:e], dtype=np.float32)).unsqueeze(1),
-                "d": torch.from_numpy(np.array(d[s:e], dtype=np.float32)),
-                "fa": torch.from_numpy(np.array(fa[s:e], dtype=np.float32)),
+                "d": torch.from_numpy(d[s:e].copy()),
+                "fa": torch.from_numpy(fa[s:e].copy()),
                 "sum_omega2": torch.from_numpy(s2[s:e].copy())}
 
 

@@ -19,9 +19,10 @@ Choices (ours):
   origin, looking along body +x pitched down by ``pitch_deg`` with vertical field of view
   ``yfov_deg`` -- the camera of the training shards (their manifest's ``pitch_deg`` and
   ``yfov_deg``; default :mod:`uavturb.data.synthetic`'s 45 deg and 70 deg).
-- **GT f_a per frame**: the residual (IMU rate) averaged over the frame's interval
-  ``[t - dt/2, t + dt/2)`` (a centred box filter that removes the accelerometer's white
-  noise without delay); heights and rotor speeds are taken at the frame instant.
+- **GT f_a per frame**: the residual (IMU rate) averaged over ``[t - w/2, t + w/2)`` with
+  ``w = min(frame period, gt_window_s = 0.05 s)`` (a centred box filter that removes most of
+  the accelerometer's white noise without delay); heights and rotor speeds are taken at the
+  frame instant.
 """
 
 from __future__ import annotations
@@ -149,8 +150,8 @@ def box_average(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray, width: floa
 
 
 def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 128, frame_dt: float | None = None,
-                       yfov_deg: float | None = None, pitch_deg: float | None = None, progress: bool = False
-                       ) -> RecordingSequence:
+                       yfov_deg: float | None = None, pitch_deg: float | None = None, gt_window_s: float = 0.05,
+                       progress: bool = False) -> RecordingSequence:
     """A recording as depth frames, true heights and ground-truth ``f_a`` (see the module docstring).
 
     Parameters
@@ -160,6 +161,7 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     image_size : side of the square depth images [px]
     frame_dt : s, frame period where the recording lists no cam0 frames (default 0.05)
     yfov_deg, pitch_deg : the default camera's, where there is no cam0
+    gt_window_s : s, longest averaging window of the ground-truth f_a
     progress : print frames/s to stderr
 
     Raises
@@ -194,7 +196,7 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     p = align.interpolate(fd.t_ns, fd.p, t_ns)
     q = align.interpolate_quaternions(fd.t_ns, fd.q, t_ns)
     rotors = align.interpolate(fd.t_ns, fd.rotor_speeds, t_ns)
-    fa = box_average(fd.t, res.force[:, 2], t, dt)
+    fa = box_average(fd.t, res.force[:, 2], t, min(dt, gt_window_s))
     d = SurfaceIndex(rec.points).d_down(p)
 
     camera = camera_for(rec, image_size, yfov_deg, pitch_deg)

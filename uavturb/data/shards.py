@@ -546,31 +546,13 @@ def read_pairs(root: str | Path, mmap: bool = True) -> tuple[np.ndarray, np.ndar
     return depth, normals, meta
 
 
-from uavturb.data.synthetic import make_synthetic_dataset, make_synthetic_pairs, pixel_rays  # noqa: E402,F401
-
-
 # ----------------------------------------------------------------------------------------------
-# additions for the simulator's writers (uavturb.sim.dataset, uavturb.sim.pretraining)
+# additions for the simulator's writers (uavturb.sim.dataset, uavturb.sim.pretraining);
+# update_manifest (above) serves them too
 
 
-def update_manifest(root: str | Path, **fields: Any) -> dict[str, Any]:
-    """Add or replace top-level keys of ``ROOT/manifest.json`` (atomically), e.g. ``statistics``.
-
-    The keys :func:`read_manifest` checks (``version``, ``splits``, ``counts``, ``image_size``,
-    ``config``, ``config_hash``) cannot be changed this way. Returns the new body.
-    """
-    path = Path(root) / MANIFEST
-    body = _read_json(path)
-    fixed = sorted(set(fields) & {"version", "splits", "counts", "image_size", "config", "config_hash"})
-    if fixed:
-        raise InputError(path, f"key {fixed[0]!r} is written by write_manifest only")
-    body.update(fields)
-    write_text_atomic(path, _dumps(body))
-    return body
-
-
-def write_pairs_chunks(root: str | Path, chunks: list[tuple[str | Path, str | Path]], meta: dict[str, Any] | None = None,
-                       overwrite: bool = False) -> Path:
+def write_pairs_chunks(root: str | Path, chunks: list[tuple[str | Path, str | Path]],
+                       meta: dict[str, Any] | None = None, overwrite: bool = False) -> Path:
     """Write ``ROOT/pairs`` (the layout of :func:`write_pairs`) from chunk files, atomically,
     without holding the whole set in memory.
 
@@ -615,3 +597,6 @@ def write_pairs_chunks(root: str | Path, chunks: list[tuple[str | Path, str | Pa
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return folder
+
+
+from uavturb.data.synthetic import make_synthetic_dataset, make_synthetic_pairs, pixel_rays  # noqa: E402,F401

@@ -94,12 +94,23 @@ class GapData:
                        self.names, self.source, self.flights)
 
 
+def _smooth_height(t: np.ndarray, z: np.ndarray, window_s: float) -> np.ndarray:
+    """``z`` [m] through a quadratic Savitzky-Golay filter of ``window_s`` [s]."""
+    from scipy.signal import savgol_filter
+
+    dt = float(np.median(np.diff(t)))
+    n = max(5, int(round(window_s / dt)) | 1)
+    return savgol_filter(z, n, 2, mode="interp") if len(z) > n else z
+
+
 def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, source: str = "auto",
-             min_thrust_ratio: float = 0.3, k_T_guess: float | None = None) -> GapData:
+             min_thrust_ratio: float = 0.3, k_T_guess: float | None = None,
+             height_window_s: float = 0.3) -> GapData:
     """Stack flights into :class:`GapData`, keeping samples in flight (not resting on a surface).
 
     Rows at the derivative filter's edges and rows whose rotors carry less than
-    ``min_thrust_ratio`` of the weight (resting, contact forces) are left out. Motor lag needs
+    ``min_thrust_ratio`` of the weight (resting, contact forces) are left out. Heights over and
+    under surfaces use the body height smoothed over ``height_window_s`` [s]. Motor lag needs
     contiguous rows: the lag filter runs on each flight before rows are dropped.
     """
     parts = []
@@ -116,8 +127,13 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
         thr = (k_T_guess * S) if k_T_guess else (S / np.median(S) * mass * GRAVITY)
         keep &= thr > min_thrust_ratio * mass * GRAVITY
         inf = np.full(len(fd), np.inf)
-        d_down = np.where(np.isfinite(fd.d_down), fd.d_down, np.inf) if fd.d_down is not None else inf
-        d_up = np.where(np.isfinite(fd.d_up), fd.d_up, np.inf) if fd.d_up is not None else inf
+        # heights with the position noise taken out: MoCap noise is white, the body's height
+        # changes slowly, and the surface laws are steep near a surface (1 mm at 6 cm over the
+        # floor is 0.26 N of ground effect at mu = 2). The surface heights under and over the
+        # body (steps at table edges) are kept: only the body's own height is smoothed.
+        dz = _smooth_height(fd.t, fd.p[:, 2], height_window_s) - fd.p[:, 2]
+        d_down = np.where(np.isfinite(fd.d_down), fd.d_down + dz, np.inf) if fd.d_down is not None else inf
+        d_up = np.where(np.isfinite(fd.d_up), fd.d_up - dz, np.inf) if fd.d_up is not None else inf
         parts.append(dict(group=np.full(len(fd), g), t=fd.t, p=fd.p, y=y, R=R, rotor_speeds=fd.rotor_speeds, v=fd.v,
                           d_down=d_down, d_up=d_up, keep=keep, src="imu" if use_imu else "mocap"))
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "src"}
@@ -220,3 +236,37 @@ def stack_target(y: np.ndarray) -> np.ndarray:
 def unstack(r: np.ndarray) -> np.ndarray:
     """``(3K,)`` → ``(K, 3)``."""
     return r.reshape(3, -1).T
+
+
+#: effects whose force acts along the thrust (they scale or lag the thrust): a thrust regressor
+#: corrupted by rounded rotor speeds can be mistaken for them
+THRUST_AXIS = frozenset({"ground_effect", "ceiling_effect", "battery_sag", "motor_lag"})
+
+
+def rotor_quantum(speeds: np.ndarray) -> float:
+    """Resolution [rad/s] of recorded rotor speeds ``(K, N)``: the step all values are whole
+    multiples of (EuRoC's integer motor speeds times their scale; 1 rad/s for the project's
+    synthetic flights), or 0 when they are not quantised."""
+    w = np.asarray(speeds, float).ravel()
+    w = w[np.isfinite(w)]
+    u = np.unique(w)
+    if len(u) < 3:
+        return 0.0
+    d = np.diff(u)
+    d = d[d > 1e-9 * max(float(np.abs(u).max()), 1.0)]
+    if not len(d):
+        return 0.0
+    q = float(np.min(d))
+    frac = np.abs(w / q - np.round(w / q))
+    return q if np.mean(frac < 1e-3) > 0.99 else 0.0
+
+
+def rounding_floor(data: GapData, k_T: float, quantum: float) -> float:
+    """Mean variance [N^2] of the thrust error from rotor speeds rounded to ``quantum`` [rad/s]:
+    ``T = k_T sum(w_i^2)`` with ``w_i`` off by ``e_i``, uniform in ``+-quantum/2``, is off by
+    ``2 k_T sum(w_i e_i)`` (variance ``(2 k_T)^2 sum(w_i^2) quantum^2 / 12``). In a still hover the
+    rounding stays the same for seconds, so this error does not average out: a law along the
+    thrust axis that reduces the held-out squared error by less than this may be fitting it."""
+    if quantum <= 0:
+        return 0.0
+    return float(np.mean((2.0 * k_T) ** 2 * data.S * quantum**2 / 12.0))

@@ -13,7 +13,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.gap import locate
-from uavturb.gap.design import LINEAR, NONLINEAR, GapData, gap_data
+from uavturb.gap.design import LINEAR, NONLINEAR, GapData, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.report import write_json, write_markdown, write_plots
@@ -99,6 +99,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient)
     if len(data) < 200:
         raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
+    paths = [str(r.path) if r.path else r.name for r in recordings]
     has_down = bool(np.any(np.isfinite(data.d_down)))
     has_up = bool(np.any(np.isfinite(data.d_up)))
 
@@ -120,7 +121,9 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                   and not (e == "ground_effect" and not has_down) and not (e == "ceiling_effect" and not has_up)]
     sim_fit_base = frozenset(e for e in sim if not (e == "ground_effect" and not has_down)
                              and not (e == "ceiling_effect" and not has_up))
-    sel = select(data, candidates, base=sim_fit_base)
+    quantum = max((rotor_quantum(r.rotors.speeds) for r in recordings), default=0.0)
+    floor = rounding_floor(data, nominal.coef["k_T"], quantum)
+    sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor)
     final: ModelFit = sel.final
     rf = final.residual(data)
     _, rsf, _ = locate.segments(data, rf)
@@ -142,14 +145,18 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     before_force = baseline.predict(base_data) + offset
     report = {
         "schema": SCHEMA,
-        "recordings": [str(r.path) if r.path else r.name for r in recordings],
+        "recordings": paths,
         "sim_effects": list(sim),
         "protocol": protocol,
         "residual_source": data.source,
         "baseline": {"rmse_N": baseline_ls.rmse, "heldout_rmse_N": base_ho.rmse,
                      "robust_rmse_N": float(np.sqrt(np.mean(np.sum(r0**2, 1))))},
-        "noise": {"sigma_N": [float(s) for s in sigma], "rms_N": float(np.sqrt(np.sum(sigma**2)))},
-        "mismatch": {"segments": [s.__dict__ for s in segs], "drivers": drv},
+        "noise": {"sigma_N": [float(s) for s in sigma], "rms_N": float(np.sqrt(np.sum(sigma**2))),
+                  "rotor_speed_quantum": quantum, "rounding_floor_N2": floor},
+        # segments name their recording as given on the command line (gap-report.md: "path")
+        "mismatch": {"segments": [{"recording": paths[s.group], "t_start": s.t_start, "t_end": s.t_end,
+                                   "axis": s.axis, "rms_N": s.rms_N} for s in segs],
+                     "drivers": drv},
         "effects": effects_out,
         "sim_effect_params": sim_params,
         "nominal": {"thrust_coefficient": final.coef["k_T"], "thrust_coefficient_stderr": final.stderr.get("k_T"),

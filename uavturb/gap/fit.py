@@ -131,6 +131,10 @@ def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 5
             res = minimize_scalar(lambda z: prof.sse(nl | {e: np.exp(z)}), bounds=(a, b),
                                   method="bounded", options={"xatol": 1e-3})
             nl[e] = float(np.exp(res.x)) if res.fun <= sse[i] else float(grid[i])
+            # the effect may be absent altogether (a simulator effect the real flights lack):
+            # its parameter is then 0, not the grid's lower bound
+            if prof.sse(nl | {e: 0.0}) <= min(res.fun, sse[i]):
+                nl[e] = 0.0
     A, names = design(data, effects, _nl_values(nl))
     coef, sse = _solve(A, y)
     stderr: dict[str, float] = {}
@@ -139,6 +143,8 @@ def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 5
         cols, extra = [A], []
         for e in free:
             p = nl[e]
+            if p == 0.0:  # absent: no derivative in the log-parametrised search, no standard error
+                continue
             h = 1e-3 * p
             Ap, _ = design(data, effects, _nl_values(nl | {e: p + h}))
             Am, _ = design(data, effects, _nl_values(nl | {e: p - h}))
@@ -149,6 +155,7 @@ def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 5
         lin = lstsq(J, y - A @ coef, lag=lag, groups=groups)  # the increments are ~0; we want the covariance
         se = lin.stderr
         stderr = dict(zip(names + extra, (float(s) for s in se)))
+        stderr.update({NONLINEAR[e][0]: float("nan") for e in free if nl[e] == 0.0})
     rmse = float(np.sqrt(sse / len(data)))
     return ModelFit(effects, {e: nl[e] for e in effects if e in NONLINEAR}, dict(zip(names, map(float, coef))),
                     stderr, rmse)

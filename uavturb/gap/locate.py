@@ -47,11 +47,15 @@ def smooth(r: np.ndarray, n: int, group: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Segment:
+    """A located segment: ``t_start``/``t_end`` [s] since the recording's first ground-truth row,
+    ``rms_N`` [N] of the smoothed residual on ``axis`` (W); ``group`` indexes the recording."""
+
     recording: str
     t_start: float
     t_end: float
     axis: str
     rms_N: float
+    group: int = 0
 
 
 def segments(data: GapData, r: np.ndarray, *, window_s: float = 0.5, k: float = 5.0,
@@ -79,7 +83,7 @@ def segments(data: GapData, r: np.ndarray, *, window_s: float = 0.5, k: float = 
             for a, b in merged:
                 if t[b - 1] - t[a] >= min_s:
                     out.append(Segment(data.names[g], float(t[a]), float(t[b - 1]), ax,
-                                       float(np.sqrt(np.mean(rs[m[a:b], j] ** 2)))))
+                                       float(np.sqrt(np.mean(rs[m[a:b], j] ** 2))), int(g)))
     out.sort(key=lambda s: -s.rms_N * (s.t_end - s.t_start))
     return out, rs, sigma
 

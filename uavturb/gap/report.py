@@ -30,7 +30,7 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
             ax.plot(data.t[m], baseline_rs[m, j], lw=1.0, color="tab:blue", label="smoothed")
             ax.plot(data.t[m], final_rs[m, j], lw=1.0, color="tab:green", label="after the named effects")
             for s in segs:
-                if s.recording == data.names[g] and s.axis == AXES[j]:
+                if s.group == g and s.axis == AXES[j]:
                     ax.axvspan(s.t_start, s.t_end, color="tab:red", alpha=0.15, lw=0)
             ax.set_ylabel(f"F_{AXES[j]} [N]")
         axes[0, c].set_title(data.names[g])
@@ -52,8 +52,8 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
             edges = np.unique(np.quantile(x, np.linspace(0, 1, 25)))
             idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
             cnt = np.maximum(np.bincount(idx), 1)
-            a.plot(0.5 * (edges[1:] + edges[:-1])[: len(cnt)], (np.bincount(idx, weights=r[:, j]) / cnt),
-                   color="k", lw=2, label="bin mean")
+            a.plot(np.bincount(idx, weights=x) / cnt, np.bincount(idx, weights=r[:, j]) / cnt, "o-",
+                   color="k", lw=1.5, ms=3, label="mean per quantile bin")
             a.set_title(f"{title}: smoothed F_{AXES[j]} against {top_driver}")
             a.set_xlabel(top_driver)
             a.legend()
@@ -63,17 +63,28 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
         plt.close(fig)
         names.append("residual_vs_driver.png")
 
-    # 3. held-out fit before and after
-    fig, ax = plt.subplots(figsize=(9, 3.5))
-    for ho, label, color in ((heldout_before, "before", "tab:blue"), (heldout_after, "after", "tab:green")):
-        e = np.sqrt(ho.err2)
-        k = max(1, len(e) // 400)
-        ax.plot(np.arange(len(e))[::k], np.convolve(e, np.ones(k) / k, "same")[::k], color=color,
-                label=f"{label}: held-out RMSE {ho.rmse:.3f} N")
-    ax.set_xlabel("held-out sample")
-    ax.set_ylabel("|residual| [N]")
-    ax.set_title("Held-out fit before and after the named effects")
-    ax.legend()
+    # 3. held-out fit before and after: |residual| on the held-out rows, per recording, over time
+    hg = heldout_before.group if heldout_before.group is not None else np.zeros(len(heldout_before.err2), int)
+    ht = heldout_before.t if heldout_before.t is not None else np.arange(len(hg), dtype=float)
+    hgroups = np.unique(hg)
+    fig, axes = plt.subplots(1, len(hgroups), figsize=(6 * len(hgroups) + 2, 3.5), squeeze=False, sharey=True)
+    dt = float(np.median(np.diff(data.t)))
+    n = max(1, int(round(0.25 / dt)))  # 0.25 s moving RMS
+    for c, g in enumerate(hgroups):
+        ax = axes[0, c]
+        m = hg == g
+        order = np.argsort(ht[m])
+        for ho, label, color in ((heldout_before, "before", "tab:blue"), (heldout_after, "after", "tab:green")):
+            e2 = ho.err2[m][order]
+            rms = np.sqrt(np.convolve(e2, np.ones(n) / n, "same"))
+            ax.plot(ht[m][order], rms, color=color, lw=1,
+                    label=f"{label}: {np.sqrt(np.mean(ho.err2[m])):.3f} N")
+        ax.set_title(f"held out: {data.names[int(g)]}")
+        ax.set_xlabel("t [s]")
+        ax.legend(fontsize=8)
+    axes[0, 0].set_ylabel("|residual|, 0.25 s RMS [N]")
+    fig.suptitle(f"Held-out fit before and after the named effects (RMSE {heldout_before.rmse:.3f} N → "
+                 f"{heldout_after.rmse:.3f} N)")
     fig.tight_layout()
     fig.savefig(folder / "heldout_fit.png", dpi=100)
     plt.close(fig)
@@ -142,7 +153,22 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
 
 
 def write_json(folder: Path, report: dict) -> None:
-    (folder / "report.json").write_text(json.dumps(report, indent=2, default=_jsonable))
+    """``report.json``: strict JSON (a NaN or infinite number is written as ``null``)."""
+    (folder / "report.json").write_text(json.dumps(_finite(report), indent=2, default=_jsonable, allow_nan=False))
+
+
+def _finite(o):
+    if isinstance(o, dict):
+        return {k: _finite(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _finite(o.tolist())
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    return o
 
 
 def _jsonable(o):

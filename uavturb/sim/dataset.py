@@ -234,7 +234,8 @@ def _plan(scene, vehicle, task_seed: int, n_points: int, preset: SimPreset):
     from uavturb.sim.trajectories import PlanConfig, plan_trajectory
 
     cfg = PlanConfig(**{**preset.plan, "n_points": int(n_points)})
-    return plan_trajectory(scene, task_seed, cfg, rotor_radius=vehicle.rotor_radius)
+    return plan_trajectory(scene, task_seed, cfg, rotor_radius=vehicle.rotor_radius,
+                           vehicle_radius=vehicle.arm_length + vehicle.rotor_radius)
 
 
 def _duration(planned, preset: SimPreset) -> float:
@@ -248,9 +249,9 @@ def _duration(planned, preset: SimPreset) -> float:
 def fly_geometric(scene, vehicle, task_seed: int, n_points: int, preset: SimPreset) -> Flight:
     """Plan with :func:`uavturb.sim.trajectories.plan_trajectory`, fly with the geometric controller.
 
-    Physics: :func:`uavturb.sim.flight.simulate_flight` (RK4 every ``physics_dt`` with the
-    preset's effects and the exact heights of the scene; controller every ``control_dt`` on
-    the reference sampled once, vectorised), noise-free, recorded at the camera rate. The
+    Physics: :func:`uavturb.sim.flight.simulate_flight` (RK4 and controller every
+    ``geometric_dt`` with the preset's effects and the exact heights of the scene; the
+    reference sampled once, vectorised), noise-free, recorded at the camera rate. The
     controller's share of the time is measured by timing its ``update`` calls.
     """
     from uavturb.sim import flight as flight_mod
@@ -275,7 +276,7 @@ def fly_geometric(scene, vehicle, task_seed: int, n_points: int, preset: SimPres
         _, truth = flight_mod.simulate_flight(
             vehicle, planned.reference, duration=_duration(planned, preset),
             effects={k: dict(v) for k, v in preset.effects.items()}, points=np.zeros((1, 3)),
-            surfaces=_SceneHeights(scene), physics_dt=preset.physics_dt, control_dt=preset.control_dt,
+            surfaces=_SceneHeights(scene), physics_dt=preset.geometric_dt, control_dt=preset.geometric_dt,
             record_dt=1.0 / preset.camera_hz, noise=flight_mod.SensorNoise.none(), seed=0)
     finally:
         flight_mod.GeometricController = original
@@ -359,6 +360,11 @@ class _RendererCache:
             self.key = key
         return self.renderer
 
+    def close(self) -> None:
+        if self.renderer is not None:
+            self.renderer.close()
+        self.key = self.renderer = None
+
 
 _RENDERERS = _RendererCache()
 
@@ -414,7 +420,7 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
     from uavturb.sim.scenes import height_below, inside_obstacle
     from uavturb.sim.trajectories import collides
 
-    t_start = time.perf_counter()
+    t_start, cpu_start = time.perf_counter(), time.process_time()
     scene = _scene(task.scene)
     vehicle = vehicle_preset(preset.vehicle)
     fl = FLYERS[controller](scene, vehicle, task.task_seed(seed), task.n_points, preset)
@@ -429,7 +435,8 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
     if len(t) < 2:
         raise InputError(f"trajectory {task.name}", "collided at take-off (no samples left)")
     d = height_below(scene, state[:, :3])
-    k_T, r, mu = float(vehicle.thrust_coefficient), float(vehicle.rotor_radius), float(preset.effects["ground_effect"]["mu"])
+    k_T, r = float(vehicle.thrust_coefficient), float(vehicle.rotor_radius)
+    mu = float(preset.effects["ground_effect"]["mu"])
     fa = phi(d, k_T * np.sum(w**2, axis=1), mu, r)
 
     t_r = time.perf_counter()
@@ -460,8 +467,9 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
     stats = {
         "samples": int(T), "plan_points": int(task.n_points), "low": int(np.sum(d < LOW_HEIGHT)),
         "out_of_view": int(np.sum(oov)), "surface_changed": int(np.sum(changed)),
-        "surface_changed_out_of_view": int(np.sum(changed & oov)), "inside": int(np.sum(inside_obstacle(scene, state[:, :3], 0.0))),
-        "truncated": int(truncated),
+        "surface_changed_out_of_view": int(np.sum(changed & oov)),
+        "inside": int(np.sum(inside_obstacle(scene, state[:, :3], 0.0))),
+        "truncated": int(truncated), "cpu_s": float(time.process_time() - cpu_start),
         "seconds": {"control": float(fl.timing.get("control", float("nan"))),
                     "physics": float(fl.timing.get("physics", t_flown - t_start)),
                     "render": float(t_rendered - t_r),
@@ -652,6 +660,8 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     out.mkdir(parents=True, exist_ok=True)
     all_tasks = plan_tasks(p, seed)
     tasks = [t for t in all_tasks if t.index % n == k - 1]
+    if not tasks:
+        raise InputError("--shard", f"shard {k}/{n} holds no trajectory (the preset has {len(all_tasks)})")
     for t in tasks:  # leftovers of an interrupted writer of this shard's own trajectories
         for junk in out.glob(f".{t.name}.*"):
             shutil.rmtree(junk, ignore_errors=True)
@@ -675,8 +685,11 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     try:
         if workers == 1 or len(jobs) <= 1:
             _init_worker(str(out), chash)
-            for job in jobs:
-                done(_work(job))
+            try:
+                for job in jobs:
+                    done(_work(job))
+            finally:
+                _RENDERERS.close()  # free this process's GL context
         else:
             import multiprocessing as mp
 
@@ -776,11 +789,14 @@ def benchmark(preset: str = "quick", workers: int = 2, seed: int = 0, out: str |
               **overrides: Any) -> dict[str, float]:
     """``uavturb bench generate``: generate a preset from scratch and time it.
 
+    The wall-clock rate depends on what else runs on the machine; the CPU time of the
+    workers (all threads, rendering included) gives the rate the same work reaches on free
+    cores. The split between control (MPC, planning included), physics, rendering and the
+    rest is the workers' wall time per stage.
+
     Returns
     -------
-    dict with ``samples``, ``wall_s``, ``samples_per_s`` and the share of worker time spent
-    in control, physics, rendering and the rest (``share_*``, sum 1), and the single-worker
-    rates of each stage (``*_samples_per_s``).
+    dict of printable figures (names carry units).
     """
     import tempfile
 
@@ -798,9 +814,44 @@ def benchmark(preset: str = "quick", workers: int = 2, seed: int = 0, out: str |
     n = sum(mt["stats"]["samples"] for mt in metas)
     secs = time_split(metas)
     busy = sum(v for v in secs.values() if np.isfinite(v))
-    res = {"samples": float(n), "wall_s": wall, "samples_per_s": n / wall, "workers": float(workers),
-           "width": float(get_preset(preset, **overrides).width)}
+    cpu = sum(mt["stats"].get("cpu_s", float("nan")) for mt in metas)
+    p = get_preset(preset, **overrides)
+    res = {"preset": p.name, "controller": metas[0]["controller"], "image": f"{p.width}x{p.height}",
+           "workers": int(workers), "samples": int(n), "wall_s": wall, "samples_per_s (wall)": n / wall,
+           "cpu_ms_per_sample (all threads)": 1e3 * cpu / n,
+           "samples_per_s per free core (from CPU time)": n / cpu,
+           f"samples_per_s on {workers} free cores (projected)": workers * n / cpu,
+           "cores used on average": cpu / wall}
     for k, v in secs.items():
-        res[f"share_{k}"] = v / busy if busy > 0 else float("nan")
-        res[f"{k}_samples_per_s"] = n / v if v > 0 else float("inf")
+        res[f"share of worker time: {k}"] = v / busy if busy > 0 else float("nan")
     return res
+
+
+def describe(root: str | Path) -> str:
+    """A few lines on a dataset folder: counts per split, statistics, throughput."""
+    import json
+
+    from uavturb.data import shards
+
+    m = shards.read_manifest(root)
+    body = json.loads((Path(root) / shards.MANIFEST).read_text())
+    st = body.get("statistics", {})
+    c = m.counts
+    lines = [f"{root}: " + ", ".join(f"{s} {c[s]['trajectories']} trajectories / {c[s]['frames']} samples "
+                                     f"/ {c[s]['scenes']} scenes" for s in shards.SPLITS)
+             + f"; config {m.config_hash}" + ("" if body.get("complete", True) else
+                                              f" (incomplete: {st.get('trajectories')} of "
+                                              f"{body.get('expected_trajectories')} trajectories)")]
+    if st:
+        lines.append(f"  d < 0.5 m: {st['share_d_below_0.5m']:.1%}, surface below out of view: "
+                     f"{st['share_below_out_of_view']:.1%} (changed within 1 s while out of view: "
+                     f"{st.get('share_surface_changed_out_of_view', float('nan')):.1%}), inside obstacles: "
+                     f"{st['samples_inside_obstacles']}, truncated by collision: {st['truncated_by_collision']}")
+    run = body.get("throughput", {}).get("this_run")
+    if run and run.get("samples_per_s"):
+        secs = run["worker_seconds"]
+        busy = sum(secs.values())
+        split = ", ".join(f"{k} {v / busy:.0%}" for k, v in secs.items()) if busy > 0 else ""
+        lines.append(f"  this run: {run['samples']} samples in {run['wall_s']:.1f} s = {run['samples_per_s']:.0f} "
+                     f"samples/s with {run['workers']} worker(s); worker time: {split}")
+    return "\n".join(lines)

@@ -27,7 +27,7 @@ does the same on a :class:`~uavturb.sim.scenes.Scene`:
    low hovers and landings at floor and top points (heights drawn log-uniformly in
    ``low_heights``, since the ground effect grows as ``1/d^2``), and *edge passes*: from a
    low hover over a furniture top the vehicle slides sideways at that height past the
-   edge (or from beside a piece onto its top), so the surface below drops or rises while
+   edge, and sometimes back onto the top, so the surface below drops or rises while
    the forward camera cannot see it (the paper's negative measurement delay). The flight
    ends landed.
 
@@ -102,6 +102,7 @@ class PlanConfig:
     floor_share : probability that a non-top point is a floor point (descent there)
     land_share : probability of landing (rather than a low hover) at a descent point
     edge_share : probability of an edge pass after a top visit
+    edge_back_share : probability that an edge pass comes back onto the top
     low_heights : (2,) m, range (log-uniform) of the low-hover heights over the surface
     rest_height : m, height of the body origin over the surface when landed (the model has no
         contact: "landed" is a hover there); ``None``: ``clip(0.6 rotor radius, 0.02, 0.06)``
@@ -126,6 +127,7 @@ class PlanConfig:
     floor_share: float = 0.6
     land_share: float = 0.4
     edge_share: float = 0.7
+    edge_back_share: float = 0.5
     low_heights: tuple[float, float] = (0.04, 0.5)
     rest_height: float | None = None
     speed: float = 1.0
@@ -194,12 +196,25 @@ class NavGrid:
         return out
 
     def segment_free(self, a: np.ndarray, b: np.ndarray) -> bool:
-        """Whether the straight segment ``a → b`` (world x, y [m]) stays in free cells
-        (sampled every quarter cell)."""
-        a, b = np.asarray(a, float)[:2], np.asarray(b, float)[:2]
-        n = max(2, int(np.ceil(np.linalg.norm(b - a) / (0.25 * self.res))) + 1)
-        s = np.linspace(0.0, 1.0, n)[:, None]
-        return bool(self.free_at(a + s * (b - a)).all())
+        """Whether the straight segment ``a → b`` (world x, y [m]) crosses free cells only: every
+        cell the segment passes through (exact grid traversal: the cells of the midpoints
+        between consecutive crossings of cell boundaries)."""
+        u0 = (np.asarray(a, float)[:2] - self.origin) / self.res + 0.5  # cell i spans [i, i + 1)
+        u1 = (np.asarray(b, float)[:2] - self.origin) / self.res + 0.5
+        d = u1 - u0
+        ts = [np.array([0.0, 1.0])]
+        for ax in range(2):
+            if abs(d[ax]) > 1e-12:
+                lo, hi = sorted((u0[ax], u1[ax]))
+                k = np.arange(np.floor(lo) + 1, np.ceil(hi))
+                ts.append((k - u0[ax]) / d[ax])
+        t = np.unique(np.clip(np.concatenate(ts), 0.0, 1.0))
+        mid = (t[:-1] + t[1:]) / 2 if len(t) > 1 else np.array([0.0])
+        ij = np.floor(u0 + mid[:, None] * d).astype(int)
+        if ((ij < 0) | (ij >= np.array(self.shape))).any():
+            return False
+        ends = np.stack([np.asarray(a, float)[:2], np.asarray(b, float)[:2]])
+        return not self.occ[ij[:, 0], ij[:, 1]].any() and bool(self.free_at(ends).all())
 
     def graph(self) -> tuple[Any, np.ndarray]:
         """Sparse 8-connected graph of the free cells (diagonal moves only where both
@@ -329,7 +344,8 @@ def simplify_path(grid: NavGrid, xy: np.ndarray) -> np.ndarray:
 
 def christofides_order(lengths: np.ndarray, start: int = 0) -> list[int]:
     """Visiting order of points from a symmetric matrix of path lengths: the Christofides
-    tour (networkx) rotated to begin at ``start``, without its closing edge.
+    tour (networkx) rotated to begin at ``start`` and opened there by dropping the longer of
+    its two edges at ``start`` (the tour is walked in the direction that keeps the shorter).
 
     Parameters
     ----------
@@ -352,7 +368,11 @@ def christofides_order(lengths: np.ndarray, start: int = 0) -> list[int]:
             G.add_edge(i, j, weight=float(lengths[i, j]))
     cycle = christofides(G, weight="weight")[:-1]  # closed tour, first node repeated at the end
     k = cycle.index(start)
-    return cycle[k:] + cycle[:k]
+    order = cycle[k:] + cycle[:k]
+    # open the tour by dropping the longer of the two edges at the start
+    if lengths[start, order[1]] > lengths[start, order[-1]]:
+        order = [start] + order[1:][::-1]
+    return order
 
 
 # --- plans -------------------------------------------------------------------------------------
@@ -425,14 +445,15 @@ class _Builder:
 
 def _edge_pass(b: _Builder, grid: NavGrid, rng: np.random.Generator, surface: float) -> bool:
     """From a low hover over a top of height ``surface``, slide sideways past its edge at the
-    same height; returns whether a free pass was found (and appended)."""
+    same height (the surface below drops), and with probability ``edge_back_share`` back onto
+    the top (it rises); returns whether a free pass was found (and appended)."""
     z = b.p[2]
     dirs = [np.array(d, float) for d in ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))]
     order = rng.permutation(len(dirs))
     S = np.where(np.isfinite(grid.surface), grid.surface, -1e3)
     from scipy import ndimage
 
-    k = int(np.ceil(0.1 / grid.res))  # vehicle radius plus margin, in cells
+    k = int(np.ceil(b.c.flat_radius / grid.res))  # vehicle radius plus margin, in cells
     S_max = ndimage.maximum_filter(S, size=2 * k + 1, mode="nearest")
     for o in order:
         d = dirs[o] / np.linalg.norm(dirs[o])
@@ -451,13 +472,17 @@ def _edge_pass(b: _Builder, grid: NavGrid, rng: np.random.Generator, surface: fl
             # descent-safe point of the cruise map (to climb back)
             if (below.max() <= surface + 0.005 and grid.surface[e[0], e[1]] < surface - 0.1
                     and grid.flat[e[0], e[1]] and z - grid.surface[e[0], e[1]] > 0):
+                start = b.p[:2].copy()
                 b.horizontal(end, b.c.edge_speed, "edge_pass")
+                if rng.random() < b.c.edge_back_share:  # and back onto the top: the surface rises
+                    b.hold(rng, "hover_low")
+                    b.horizontal(start, b.c.edge_speed, "edge_pass")
                 return True
     return False
 
 
 def plan_trajectory(scene: Scene, seed: int, config: PlanConfig = PlanConfig(), rotor_radius: float = 0.01,
-                    name: str | None = None) -> PlannedTrajectory:
+                    name: str | None = None, vehicle_radius: float = 0.0) -> PlannedTrajectory:
     """A reference trajectory through ``scene``, fixed by ``seed``.
 
     Parameters
@@ -467,17 +492,26 @@ def plan_trajectory(scene: Scene, seed: int, config: PlanConfig = PlanConfig(), 
     config : PlanConfig
     rotor_radius : m, sets the landed height (see :meth:`PlanConfig.rest_for`)
     name : the reference's name (default ``traj-<seed>``)
+    vehicle_radius : m, centre to rotor tip (``arm_length + rotor_radius``); the clearance and
+        the level window under descents grow to at least ``vehicle_radius + 0.1`` and
+        ``vehicle_radius + 0.05`` (the defaults fit the 50 g quadrotor, radius 0.056 m)
 
     Returns
     -------
     PlannedTrajectory. Phases in ``reference.notes``: ``rest``, ``takeoff``, ``landing``,
-    ``descent``, ``climb``, ``hover_low`` (floor or top), ``edge_pass``, ``cruise``, ``turn``.
+    ``descent``, ``climb``, ``hover_low`` (floor or top), ``hover_cruise``, ``edge_pass``,
+    ``cruise``, ``turn``.
 
     Raises
     ------
     InputError
-        ``scene``: no floor area large enough to take off at the cruise height.
+        ``scene``: no free floor area to take off from at the cruise height;
+        ``n_points``: fewer than one point.
     """
+    from dataclasses import replace
+
+    config = replace(config, clearance=max(config.clearance, vehicle_radius + 0.1),
+                     flat_radius=max(config.flat_radius, vehicle_radius + 0.05))
     if config.n_points < 1:
         raise InputError("n_points", f"must be at least 1, got {config.n_points}")
     rng = np.random.default_rng([int(seed), 0x7AA])
@@ -575,20 +609,25 @@ def plan_trajectory(scene: Scene, seed: int, config: PlanConfig = PlanConfig(), 
             continue
         if kind == "free":  # the flight ends landed: find the floor
             continue
-        # descent point (floor or top)
+        # descent point (floor or top); low heights stay under the cruise slab
+        top_h = grid.z - config.height_band - s
+
+        def low() -> float:
+            return min(_log_uniform(rng, config.low_heights), top_h)
+
         if first:
-            b.vertical(s + _log_uniform(rng, config.low_heights), "takeoff")
+            b.vertical(s + low(), "takeoff")
             b.hold(rng, "hover_low")
         else:
             land = last or rng.random() < config.land_share
-            h = _log_uniform(rng, config.low_heights)
-            b.vertical(s + max(h, 0.3), "descent")
+            h = low()
+            b.vertical(s + min(max(h, 0.3), top_h), "descent")
             b.vertical(s + (rest if land else h), "landing" if land else "descent")
             b.hold(rng, "rest" if land else "hover_low")
             if last:
                 break
             if land:
-                b.vertical(s + _log_uniform(rng, config.low_heights), "takeoff")
+                b.vertical(s + low(), "takeoff")
                 b.hold(rng, "hover_low")
         corners.append(plan.p.copy())
         if kind == "top" and rng.random() < config.edge_share:
@@ -606,7 +645,7 @@ def plan_trajectory(scene: Scene, seed: int, config: PlanConfig = PlanConfig(), 
             if grid.segment_free(plan.p[:2], xy):
                 b.horizontal(xy, config.speed, "cruise")
                 s = float(grid.surface[c[0], c[1]])
-                b.vertical(s + 0.3, "descent")
+                b.vertical(s + min(0.3, grid.z - s), "descent")
                 b.vertical(s + rest, "landing")
                 break
     plan.hold(1.0, "rest")
@@ -699,9 +738,9 @@ def make_controller(kind: str, vehicle: Any, reference: Reference, control_rate:
 
 def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controller: str = "mpc", *,
                    camera_rate: float = 20.0, physics_rate: float = 200.0, control_rate: float | None = None,
-                   effects: dict[str, dict[str, float]] | None = None, plan: PlanConfig | PlannedTrajectory = PlanConfig(),
-                   duration: float | None = None, controller_options: dict | None = None,
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+                   effects: dict[str, dict[str, float]] | None = None,
+                   plan: PlanConfig | PlannedTrajectory = PlanConfig(), duration: float | None = None,
+                   controller_options: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Plan a reference trajectory through ``scene`` and fly it in closed loop.
 
     Parameters
@@ -746,7 +785,7 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
     if "motor_lag" in effects:
         raise InputError("effects", "motor_lag is not supported by fly_trajectory")
     planned = plan if isinstance(plan, PlannedTrajectory) else plan_trajectory(
-        scene, seed, plan, rotor_radius=veh.rotor_radius)
+        scene, seed, plan, rotor_radius=veh.rotor_radius, vehicle_radius=veh.arm_length + veh.rotor_radius)
     ref = planned.reference
     duration = float(ref.duration if duration is None else duration)
     ctrl, rate = make_controller(controller, veh, ref, control_rate, **(controller_options or {}))
@@ -849,3 +888,103 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
         "samples_per_s": k / wall if wall > 0 else float("inf"), "effects": effects,
     }
     return X, W, t_out, info
+
+
+# --- figures and benchmark -------------------------------------------------------------------
+
+
+def plot_flight(scene: Scene, plan: PlannedTrajectory, path: str, states: np.ndarray | None = None,
+                t: np.ndarray | None = None) -> str:
+    """Top view (free-space map, random points in visiting order, planned corners, reference and
+    flown paths) and altitude profile (reference, flown, surface below) of one trajectory,
+    written to ``path`` (PNG, matplotlib Agg). Returns ``path``."""
+    import os
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ref = plan.reference
+    tt = np.arange(0.0, ref.duration, 0.05)
+    sp = ref(tt)
+    g = plan.grid
+    fig, (ax, az) = plt.subplots(1, 2, figsize=(14, 5.5), gridspec_kw={"width_ratios": [1.1, 1.4]})
+    ext = [g.origin[0] - g.res / 2, g.origin[0] + (g.shape[0] - 0.5) * g.res,
+           g.origin[1] - g.res / 2, g.origin[1] + (g.shape[1] - 0.5) * g.res]
+    surf = np.where(g.occ, np.nan, g.surface)
+    ax.imshow(np.where(g.occ, 1.0, np.nan).T, origin="lower", extent=ext, cmap="Greys", vmin=0, vmax=1.5)
+    im = ax.imshow(surf.T, origin="lower", extent=ext, cmap="YlGn", alpha=0.6)
+    fig.colorbar(im, ax=ax, fraction=0.04, label="surface below [m]")
+    ax.plot(sp.p[:, 0], sp.p[:, 1], "b-", lw=1, label="reference")
+    if states is not None:
+        ax.plot(states[:, 0], states[:, 1], "r--", lw=0.8, label="flown")
+    c = plan.corners
+    ax.plot(c[:, 0], c[:, 1], "k.", ms=4, label="corners (A*)")
+    marks = {"floor": "s", "top": "^", "free": "o"}
+    for rank, k in enumerate(plan.order):
+        x, y = plan.points[k, :2]
+        ax.plot(x, y, marks[plan.kinds[k]], color="C1", ms=8)
+        ax.annotate(str(rank), (x, y), textcoords="offset points", xytext=(5, 5))
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"scene {scene.seed} ({scene.kind}), trajectory {plan.seed}: Christofides order")
+    ax.legend(loc="best", fontsize=7)
+    d = height_below(scene, sp.p)
+    az.plot(tt, sp.p[:, 2], "b-", lw=1, label="reference z")
+    az.plot(tt, sp.p[:, 2] - d, "g-", lw=1, label="surface below")
+    if states is not None and t is not None:
+        az.plot(t, states[:, 2], "r--", lw=0.8, label="flown z")
+    for name, color in (("edge_pass", "C3"), ("landing", "C4"), ("takeoff", "C2"), ("hover_low", "C0")):
+        for i, (a, b) in enumerate(ref.notes.get(name, [])):
+            az.axvspan(a, b, color=color, alpha=0.15, label=name if i == 0 else None)
+    az.set_xlabel("t [s]")
+    az.set_ylabel("height [m]")
+    az.legend(loc="upper right", fontsize=7)
+    az.set_title("altitude profile")
+    fig.tight_layout()
+    tmp = f"{path}.tmp.png"
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def benchmark(n_trajectories: int = 3, controller: str = "mpc", seed: int = 0, print_fn: Any = print,
+              **fly_kw: Any) -> dict[str, float]:
+    """Fly ``n_trajectories`` (one per generated scene ``seed + i``) and report the speed.
+
+    Returns and prints samples/s (camera frames per wall second, one process), the share of
+    time in the controller and the physics, MPC update times (mean, p95) [ms], tracking error
+    (mean, max) [m] and the collision count.
+    """
+    from uavturb.sim.scenes import generate_scene
+
+    frames = wall = ctrl_s = phys_s = 0.0
+    solve, err = [], []
+    coll = 0
+    vehicle = fly_kw.pop("vehicle", "quad")
+    for i in range(n_trajectories):
+        sc = generate_scene(seed + i)
+        X, _, _, info = fly_trajectory(sc, vehicle, seed + i, controller, **fly_kw)
+        frames += len(X)
+        wall += info["wall_s"]
+        ctrl_s += info["control_s"]
+        phys_s += info["physics_s"]
+        solve.append(info["solve_ms"])
+        err.append(info["tracking_error"])
+        coll += info["collisions"]
+        print_fn(f"[{i + 1}/{n_trajectories}] scene {seed + i}: {len(X)} frames, "
+                 f"{len(X) / info['wall_s']:.0f} samples/s")
+    s, e = np.concatenate(solve), np.concatenate(err)
+    out = {"samples_per_s": frames / wall, "frames": frames, "wall_s": wall, "control_share": ctrl_s / wall,
+           "physics_share": phys_s / wall, "solve_mean_ms": float(s.mean()),
+           "solve_p95_ms": float(np.percentile(s, 95)), "solve_median_ms": float(np.median(s)),
+           "error_mean_m": float(e.mean()), "error_max_m": float(e.max()), "collisions": coll}
+    print_fn(f"{controller}: {out['samples_per_s']:.0f} samples/s (one process), "
+             f"control {100 * out['control_share']:.0f}%, physics {100 * out['physics_share']:.0f}%, "
+             f"update {out['solve_mean_ms']:.2f} ms mean / "
+             f"{out['solve_p95_ms']:.2f} ms p95, tracking error {1000 * out['error_mean_m']:.1f} mm mean / "
+             f"{1000 * out['error_max_m']:.1f} mm max, collisions {coll}")
+    return out

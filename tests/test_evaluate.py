@@ -1,0 +1,170 @@
+"""``uavturb evaluate`` (Table 2) on simulated hexarotor flights where the ground-effect law is
+exact, and the recording sequences behind it (camera, frames, GT f_a)."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import mlflow
+import numpy as np
+import pytest
+import torch
+
+from height_run import tiny_height_run
+from uavturb.data.recordings import (RecordingWindowsDataset, box_average, cam0_camera, forward_camera,
+                                    recording_sequence)
+from uavturb.errors import InputError
+from uavturb.evaluate import evaluate, ground_effect_height, predict_heights
+from uavturb.io.reader import read_recording
+from uavturb.physics.ground_effect import phi_alpha_beta
+from uavturb.physics.vehicle import HEXAROTOR
+from uavturb.sim.flight import SensorNoise, generate_flight
+
+MU = 2.0
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """A temporary MLflow store, a tiny trained run and two noise-free hexarotor flights with ground effect."""
+    root = tmp_path_factory.mktemp("eval")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        mp.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{root / 'mlflow.db'}")
+        rid, _, _, module = tiny_height_run(root, use_gru=True, keep="tag", steps=2)
+        flights = [generate_flight(vehicle="hex", effects=f"ground_effect:mu={MU}", duration=20, kind="mixed",
+                                   seed=s, out=root / f"hex_{s}", noise=SensorNoise.none()).path for s in (0, 1)]
+        yield root, rid, module, flights
+
+
+def test_table2_on_flights_where_the_law_is_exact(setup):
+    root, rid, module, flights = setup
+    out = root / "table2"
+    res = evaluate(rid, flights, out=out, frame_dt=0.1, progress=False)
+    rows = dict(res["rows"])
+    assert [n for n, _ in res["rows"]] == ["hex_0", "hex_1", "Total"]
+    # (alpha, beta) identified by BFGS on the first flight: mu and k_T of the simulator
+    assert 16 * res["beta"] / HEXAROTOR.rotor_radius**2 == pytest.approx(MU, rel=0.05)
+    assert res["alpha"] / res["beta"] == pytest.approx(HEXAROTOR.thrust_coefficient, rel=0.05)
+    assert res["h_ge"] == pytest.approx(ground_effect_height(res["beta"]))
+    for name in ("hex_0", "hex_1", "Total"):
+        m = rows[name]
+        assert m["n_ge"] >= 20 and m["n_all"] > m["n_ge"]
+        assert m["rms_fa_gt"] > 0.3  # N: the flights do come close to the ground
+        assert m["rmse_fa_phi"] < 0.02 * m["rms_fa_gt"]  # the law is exact: only the frame averaging is left
+        assert m["rmse_fa"] > 5 * m["rmse_fa_phi"]  # an untrained network is far worse
+    assert rows["Total"]["n_ge"] == rows["hex_0"]["n_ge"] + rows["hex_1"]["n_ge"]
+
+    files = sorted(p.name for p in out.iterdir())
+    assert files == ["evaluation.json", "fa_hex_0.png", "fa_hex_1.png", "series_hex_0.csv", "series_hex_1.csv",
+                     "table.csv", "table.md"]
+    table = list(csv.DictReader(open(out / "table.csv")))
+    assert [r["flight"] for r in table] == ["hex_0", "hex_1", "Total"]
+    assert float(table[2]["rmse_fa"]) == pytest.approx(rows["Total"]["rmse_fa"])
+    assert (out / "table.md").read_text().count("\n| ") == 4  # header + 3 rows
+    # the model's f_a is the identified law on the predicted heights
+    s = np.genfromtxt(out / "series_hex_1.csv", delimiter=",", names=True)
+    r1 = res["results"][1]
+    np.testing.assert_allclose(s["d_hat_m"], r1.d_hat, rtol=1e-5)
+    np.testing.assert_allclose(r1.fa_model, phi_alpha_beta(r1.d_hat, _S(flights[1], r1), res["alpha"], res["beta"]),
+                               rtol=1e-6)
+    # metrics in an MLflow child run of the training run
+    child = mlflow.MlflowClient().get_run(res["mlflow_run"])
+    assert child.data.tags["mlflow.parentRunId"] == rid and child.data.tags["evaluation"] == "table2"
+    assert child.data.metrics["eval/total/rmse_fa_phi"] == pytest.approx(rows["Total"]["rmse_fa_phi"])
+    info = json.loads((out / "evaluation.json").read_text())
+    assert info["identified_on"] == "hex_0" and "identified on hex_0" in info["vehicle_constants"]
+
+
+def _S(flight, result):
+    """sum Omega^2 at the frames of ``result``, from the recording (independent of evaluate)."""
+    rec = read_recording(flight)
+    t = rec.seconds(rec.rotors.t_ns)
+    speeds = np.column_stack([np.interp(result.t, t, c) for c in rec.rotors.speeds.T])
+    return (speeds**2).sum(1)
+
+
+def test_heights_carry_the_gru_state_across_chunks(setup):
+    _, _, module, _ = setup
+    depth = np.random.default_rng(0).uniform(0.5, 4, (23, 16, 16)).astype(np.float32)
+    whole = predict_heights(module, depth, chunk=100)
+    np.testing.assert_allclose(predict_heights(module, depth, chunk=5), whole, rtol=0, atol=1e-6)
+    with torch.no_grad():
+        alone = module(torch.from_numpy(depth[5:10])[None, :, None])[0][0].numpy()
+    assert np.abs(alone - whole[5:10]).max() > 1e-6  # memory from frames 0-4 matters
+
+
+def test_recording_sequence_frames_and_ground_truth(setup):
+    _, _, _, flights = setup
+    rec = read_recording(flights[0])
+    seq = recording_sequence(rec, rec.vehicle, image_size=16, frame_dt=0.25)
+    assert len(seq) == 81 and np.allclose(np.diff(seq.t), 0.25)
+    assert seq.depth.shape == (81, 16, 16) and (seq.depth > 0).mean() > 0.95  # closed room: data everywhere
+    # on a level body the pitched-down camera sees the floor: the bottom row's depth grows with height
+    assert np.corrcoef(seq.d, seq.depth[:, -1, 8])[0, 1] > 0.9
+    assert seq.camera.source.startswith("default forward camera")
+    # GT f_a is the law itself here (noise-free flight, nominal constants = the simulator's)
+    law = phi_alpha_beta(seq.d, seq.sum_omega2, HEXAROTOR.thrust_coefficient * MU * 0.01 / 16, MU * 0.01 / 16)
+    assert np.sqrt(np.mean((law - seq.fa) ** 2)) < 0.02 * np.sqrt(np.mean(seq.fa**2))
+    # as windows for Trainer.test: the keys and shapes of the shard windows
+    ds = RecordingWindowsDataset([seq, seq], window=4, stride=2)
+    assert len(ds) == 2 * len(range(0, 81 - 4 + 1, 2))
+    item = ds[len(ds) - 1]
+    assert item["depth"].shape == (4, 1, 16, 16) and item["d"].shape == item["fa"].shape == (4,)
+    np.testing.assert_allclose(item["sum_omega2"].numpy(), seq.sum_omega2[76:80], rtol=1e-6)
+
+
+def test_cameras():
+    # default camera: the training shards' intrinsics (pixel_rays) and a downward pitch
+    cam = forward_camera(32, yfov_deg=70.0, pitch_deg=45.0)
+    f = 16 / np.tan(np.deg2rad(35))
+    np.testing.assert_allclose(cam.K, [[f, 0, 15.5], [0, f, 15.5], [0, 0, 1]])
+    np.testing.assert_allclose(cam.T_BS[:3, 2], [np.sqrt(0.5), 0, -np.sqrt(0.5)], atol=1e-12)  # optical axis in B
+    # cam0 crop + scale: a point projects where the original image's centre square, scaled, has it
+    from conftest import make_recording
+
+    rec = make_recording()
+    small = cam0_camera(rec, 120)
+    K = rec.cam0.K
+    X = np.array([0.3, -0.2, 2.0])
+    u, v = (K @ X)[:2] / X[2]
+    us, vs = (small.K @ X)[:2] / X[2]
+    side = 480
+    x0 = (752 - side) / 2
+    assert us == pytest.approx((u + 0.5 - x0) * 120 / side - 0.5)
+    assert vs == pytest.approx((v + 0.5) * 120 / side - 0.5)
+    np.testing.assert_array_equal(small.T_BS, rec.cam0.T_BS)
+
+
+def test_box_average():
+    t = np.arange(0, 1, 0.01)
+    x = np.where(t < 0.5, 1.0, 3.0)
+    np.testing.assert_allclose(box_average(t, x, np.array([0.2, 0.8, 0.5]), 0.1), [1.0, 3.0, 2.0])
+
+
+def test_evaluate_bad_inputs(setup, tmp_path):
+    root, rid, _, flights = setup
+    with pytest.raises(InputError, match="no run 'nope'"):
+        evaluate("nope", flights, out=tmp_path / "x", progress=False)
+    bare = tmp_path / "bare"
+    import shutil
+
+    shutil.copytree(flights[0], bare)
+    (bare / "mav0/pointcloud0/data.ply").unlink()
+    with pytest.raises(InputError, match="pointcloud0") as e:
+        evaluate(rid, [bare], out=tmp_path / "y", progress=False, log=False)
+    assert e.value.where.endswith("mav0/pointcloud0/data.ply")
+    assert not (tmp_path / "y").exists()
+    with pytest.raises(InputError, match="not found"):
+        evaluate(rid, [tmp_path / "missing"], out=tmp_path / "z", progress=False, log=False)
+
+
+@pytest.mark.slow
+def test_table2_with_realistic_sensor_noise(setup, tmp_path):
+    root, rid, _, _ = setup
+    flights = [generate_flight(vehicle="hex", effects=f"ground_effect:mu={MU}", duration=20, kind="mixed", seed=s,
+                               out=tmp_path / f"noisy_{s}").path for s in (0, 1)]
+    res = evaluate(rid, flights, out=tmp_path / "t", frame_dt=0.05, progress=False, log=False)
+    for _, m in res["rows"]:
+        # 1 mm MoCap noise on heights of ~6 cm, where the law is steep, dominates
+        assert m["rmse_fa_phi"] < 0.1 * m["rms_fa_gt"]

@@ -1,0 +1,261 @@
+"""The Table 1 sweep and `uavturb compare`, on a temporary MLflow store.
+
+The fast tests replace the training function by a stand-in that logs a run with known metric
+values (the sweep's own logic -- configs, reuse of pre-training, nesting, tags, resuming -- is
+what they check); the slow test trains for real on tiny synthetic data.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import mlflow
+import numpy as np
+import pytest
+
+from uavturb import sweep as sweep_mod
+from uavturb.compare import compare
+from uavturb.errors import InputError
+from uavturb.sweep import DEFAULT_SPEC, load_spec, sweep
+
+ROWS = [r.name for r in load_spec(DEFAULT_SPEC).rows]
+
+
+@pytest.fixture(scope="module")
+def shared_store(tmp_path_factory):
+    """One MLflow store for the module (creating one takes seconds); tests use their own experiments."""
+    root = tmp_path_factory.mktemp("mlflow")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        uri = f"sqlite:///{root / 'mlflow.db'}"
+        mp.setenv("MLFLOW_TRACKING_URI", uri)
+        yield uri
+
+
+@pytest.fixture
+def store(shared_store, request):
+    """(tracking URI, an experiment name of this test's own)."""
+    return shared_store, request.node.name.replace("[", "-").replace("]", "")
+
+
+def known_rmse(row: str, seed: int) -> tuple[float, float]:
+    """The stand-in's test metrics: distinct per row and seed."""
+    k = ROWS.index(row)
+    return 0.1 * (k + 1) + 0.01 * seed, 1e-4 * (k + 1) * (1 + seed)
+
+
+class FakeTrain:
+    """Stands in for uavturb.train.train: one FINISHED MLflow run with the given tags."""
+
+    def __init__(self, tmp_path: Path, fail_at: int | None = None):
+        self.calls: list[tuple[object, dict]] = []
+        self.tmp, self.fail_at = tmp_path, fail_at
+
+    def __call__(self, cfg, tags=None):
+        self.calls.append((cfg, dict(tags)))
+        if self.fail_at is not None and len(self.calls) == self.fail_at:
+            raise KeyboardInterrupt
+        client = mlflow.MlflowClient()
+        exp = client.get_experiment_by_name(cfg.tracking.experiment)
+        run = client.create_run(exp.experiment_id, run_name=cfg.tracking.run_name, tags=tags)
+        rid = run.info.run_id
+        ckpt = self.tmp / "ckpts" / rid / "best.ckpt"
+        ckpt.parent.mkdir(parents=True)
+        ckpt.write_text(f"{cfg.stage} {rid}")
+        client.set_tag(rid, "checkpoint", str(ckpt))
+        client.log_artifact(rid, str(ckpt), "checkpoints")  # as train() does
+        if cfg.stage == "pretrain":
+            metrics = {"test/loss": 1.0}
+        else:
+            d, fa = known_rmse(tags["ablation"], int(tags["seed"]))
+            metrics = {"test/rmse_d": d, "test/rmse_fa": fa}
+        for k, v in metrics.items():
+            client.log_metric(rid, k, v)
+        client.set_terminated(rid, "FINISHED")
+        return {"stage": cfg.stage, "metrics": metrics, "checkpoint": str(ckpt), "run_id": rid, "data_hash": "x"}
+
+
+def _children(store, parent: str) -> list:
+    client = mlflow.MlflowClient(store[0])
+    exp = client.get_experiment_by_name(store[1])
+    return client.search_runs([exp.experiment_id], f"tags.`mlflow.parentRunId` = '{parent}'", max_results=1000)
+
+
+def test_sweep_runs_rows_times_seeds_reusing_pretraining(tmp_path, store, monkeypatch):
+    fake = FakeTrain(tmp_path)
+    monkeypatch.setattr(sweep_mod, "train", fake)
+    res = sweep(DEFAULT_SPEC, preset="quick", seeds=2, experiment=store[1])
+
+    # one pre-training run per variant and seed, one height run per row and seed
+    stages = [(cfg.stage, t.get("pretrain") or t["ablation"], t["seed"]) for cfg, t in fake.calls]
+    assert sorted(s for s in stages if s[0] == "pretrain") == [("pretrain", v, s) for v in ("depth", "normals")
+                                                                  for s in ("0", "1")]
+    assert sorted((r, s) for st, r, s in stages if st == "height") == sorted((r, str(s)) for r in ROWS for s in (0, 1))
+    # each row's encoder comes from the same seed's pre-training of its variant
+    runs = {r.info.run_id: r for r in _children(store, res["parent_run_id"])}
+    ckpt = {(r.data.tags["pretrain"], r.data.tags["seed"]): r.data.tags["checkpoint"] for r in runs.values()
+            if "pretrain" in r.data.tags}
+    assert len(set(ckpt.values())) == 4
+    for cfg, t in fake.calls:
+        if cfg.stage == "height":
+            assert cfg.trainer.seed == int(t["seed"]) and cfg.tracking.experiment == store[1]
+            variant = t["ablation"].split("/")[0]
+            expected = None if variant == "none" else ckpt[(variant, t["seed"])]
+            assert cfg.model.encoder_ckpt == expected, t
+            assert cfg.model.lr_head == 1e-3 and cfg.trainer.max_epochs == 10  # the quick preset
+
+    # the store: 12 nested height children with tags and final metrics, 4 pre-training children
+    height = [r for r in runs.values() if "ablation" in r.data.tags]
+    assert len(height) == 12 and len(runs) == 16
+    for r in height:
+        d, fa = known_rmse(r.data.tags["ablation"], int(r.data.tags["seed"]))
+        assert r.data.metrics["test/rmse_d"] == pytest.approx(d) and r.data.metrics["test/rmse_fa"] == pytest.approx(fa)
+    parent = mlflow.MlflowClient(store[0]).get_run(res["parent_run_id"])
+    assert parent.info.status == "FINISHED" and parent.data.tags["preset"] == "quick"
+    artifacts = {a.path for a in mlflow.MlflowClient(store[0]).list_artifacts(parent.info.run_id)}
+    assert {"table1.md", "table1.csv", "sweep.yaml"} <= artifacts
+    assert parent.data.metrics["normals/finetune/test/rmse_d_mean"] == pytest.approx(
+        np.mean([known_rmse("normals/finetune", s)[0] for s in (0, 1)]))
+    assert res["table"].splitlines()[3].split()[:2] == ["none", "no-GRU"]
+
+
+def test_interrupted_sweep_resumes_without_redoing_finished_runs(tmp_path, store, monkeypatch):
+    first = FakeTrain(tmp_path, fail_at=7)  # 2 pre-trainings, 4 rows done, interrupted in the 5th row
+    monkeypatch.setattr(sweep_mod, "train", first)
+    with pytest.raises(KeyboardInterrupt):
+        sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
+    client = mlflow.MlflowClient(store[0])
+    exp = client.get_experiment_by_name(store[1])
+    (parent,) = client.search_runs([exp.experiment_id], "tags.sweep = 'ablation'")
+    assert parent.info.status == "KILLED" and len(_children(store, parent.info.run_id)) == 6
+
+    # the pre-training checkpoint's local file is gone: the resumed sweep takes it from MLflow
+    (normals,) = [r for r in _children(store, parent.info.run_id) if r.data.tags.get("pretrain") == "normals"]
+    Path(normals.data.tags["checkpoint"]).unlink()
+
+    second = FakeTrain(tmp_path)
+    monkeypatch.setattr(sweep_mod, "train", second)
+    res = sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
+    assert res["parent_run_id"] == parent.info.run_id and res["resumed"]
+    assert [t["ablation"] for _, t in second.calls] == ROWS[4:]  # nothing finished is trained again
+    assert sum(r["reused"] for r in res["runs"]) == 4
+    # the remaining rows got the pre-training checkpoint of the interrupted sweep, downloaded
+    (ckpt,) = {cfg.model.encoder_ckpt for cfg, _ in second.calls}
+    assert Path(ckpt).read_text() == f"pretrain {normals.info.run_id}" and ckpt != normals.data.tags["checkpoint"]
+    assert len(_children(store, parent.info.run_id)) == 8
+
+    # a third call does nothing at all; a second seed adds only that seed's runs
+    third = FakeTrain(tmp_path)
+    monkeypatch.setattr(sweep_mod, "train", third)
+    sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
+    assert third.calls == []
+    sweep(DEFAULT_SPEC, preset="quick", seeds=2, experiment=store[1])
+    assert len(third.calls) == 8 and {t["seed"] for _, t in third.calls} == {"1"}
+    assert len(_children(store, parent.info.run_id)) == 16
+
+
+def _log(client, exp_id, parent, row, seed, d, fa, status="FINISHED"):
+    run = client.create_run(exp_id, tags={"mlflow.parentRunId": parent, "ablation": row, "seed": str(seed)})
+    client.log_metric(run.info.run_id, "test/rmse_d", d)
+    client.log_metric(run.info.run_id, "test/rmse_fa", fa)
+    client.set_terminated(run.info.run_id, status)
+
+
+def test_compare_means_and_stds_from_logged_runs(tmp_path, store):
+    client = mlflow.MlflowClient(store[0])
+    exp_id = client.create_experiment(store[1])
+    old = client.create_run(exp_id, tags={"sweep": "ablation", "sweep_hash": "a"}).info.run_id
+    _log(client, exp_id, old, "none/GRU", 0, 9.0, 9.0)  # an older sweep: not in the table
+    parent = client.create_run(exp_id, tags={"sweep": "ablation", "sweep_hash": "b"}).info.run_id
+    values = {"normals/finetune": [(0.30, 6e-4), (0.32, 7e-4), (0.34, 5e-4)],
+              "none/no-GRU": [(0.50, 4e-3), (0.40, 3e-3)],
+              "depth/frozen": [(0.25, 2e-4)]}
+    for row, vals in values.items():
+        for seed, (d, fa) in enumerate(vals):
+            _log(client, exp_id, parent, row, seed, d, fa)
+    _log(client, exp_id, parent, "none/no-GRU", 2, 100.0, 100.0, status="FAILED")  # unfinished: left out
+
+    res = compare(experiment=store[1], out=tmp_path / "tables")
+    assert res["parent_run_id"] == parent
+    assert [r["row"] for r in res["rows"]] == ["none/no-GRU", "depth/frozen", "normals/finetune"]  # paper's order
+    for r in res["rows"]:
+        d, fa = np.array(values[r["row"]]).T
+        assert r["n"] == len(d)
+        assert r["rmse_d_mean"] == pytest.approx(d.mean()) and r["rmse_fa_mean"] == pytest.approx(fa.mean())
+        if len(d) > 1:
+            assert r["rmse_d_std"] == pytest.approx(d.std(ddof=1)) and r["rmse_fa_std"] == pytest.approx(fa.std(ddof=1))
+        else:
+            assert np.isnan(r["rmse_d_std"])
+    assert res["rows"][2]["paper_rmse_d"] == 0.3184
+    assert "0.32 ± 0.02" in res["table"] and "6 ± 1" in res["table"]  # f_a in 1e-4 N
+    rows = list(csv.DictReader(io.StringIO(Path(res["csv"]).read_text())))
+    assert [r["row"] for r in rows] == [r["row"] for r in res["rows"]]
+    assert float(rows[0]["rmse_d_mean"]) == pytest.approx(0.45) and rows[0]["seeds"] == "0;1"
+    md = Path(res["markdown"]).read_text()
+    assert md.count("\n| ") == 4 and "| normals | finetune | 3 | 0.32 ± 0.02 |" in md
+    assert sorted(p.name for p in (tmp_path / "tables").iterdir()) == ["table1.csv", "table1.md"]
+
+    # an explicit parent; a missing experiment names it
+    assert compare(experiment=store[1], parent_run_id=old, out=None)["rows"][0]["rmse_d_mean"] == 9.0
+    with pytest.raises(InputError, match="nope"):
+        compare(experiment="nope", out=None)
+
+
+def test_sweep_typos_fail_before_anything_runs(tmp_path, store, monkeypatch):
+    fake = FakeTrain(tmp_path)
+    monkeypatch.setattr(sweep_mod, "train", fake)
+    with pytest.raises(InputError) as e:
+        sweep(DEFAULT_SPEC, overrides=["model.use_gr=false"], experiment=store[1])
+    assert e.value.where == "model.use_gr"
+    with pytest.raises(InputError, match="choices: quick, paper"):
+        sweep(DEFAULT_SPEC, preset="fast")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(DEFAULT_SPEC.read_text().replace("presets:", "presetz:"))
+    with pytest.raises(InputError) as e:
+        sweep(bad)
+    assert "presetz" in e.value.where and str(bad) in e.value.where
+    bad.write_text(DEFAULT_SPEC.read_text().replace("model: none_gru", "model: none_gruu"))
+    with pytest.raises(InputError, match="none_gruu"):
+        sweep(bad)
+    assert fake.calls == [] and mlflow.MlflowClient(store[0]).get_experiment_by_name(store[1]) is None
+
+
+def test_cli_compare_without_store_is_one_line(tmp_path, store, capsys):
+    from uavturb.cli import main
+
+    assert main(["compare", "--experiment", "nothing-here"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "nothing-here" in err
+
+
+@pytest.mark.slow
+def test_quick_sweep_trains_for_real_and_resumes(tmp_path, store):
+    over = [f"data.root={tmp_path / 'sim'}", f"data.pairs_root={tmp_path / 'pre'}", "data.image_size=16",
+            "data.window=4", "data.synthetic.n_scenes=3", "data.synthetic.trajs_per_scene=1", "data.synthetic.T=16",
+            "data.synthetic.pairs=32", f"trainer.default_root_dir={tmp_path / 'runs'}", "trainer.max_epochs=2",
+            "model.unfreeze_at_epoch=1"]
+    res = sweep(DEFAULT_SPEC, preset="quick", seeds=1, overrides=over, experiment=store[1])
+    assert sorted(r["row"] for r in res["runs"]) == sorted(ROWS) and not any(r["reused"] for r in res["runs"])
+    kids = _children(store, res["parent_run_id"])
+    assert len(kids) == 8
+    for r in kids:
+        if "ablation" in r.data.tags:
+            assert np.isfinite(r.data.metrics["test/rmse_d"]) and np.isfinite(r.data.metrics["test/rmse_fa"])
+            assert Path(r.data.tags["checkpoint"]).is_file()
+            assert "checkpoints/best.ckpt" in [a.path for a in mlflow.MlflowClient(store[0]).list_artifacts(
+                r.info.run_id, "checkpoints")]
+    again = sweep(DEFAULT_SPEC, preset="quick", seeds=1, overrides=over, experiment=store[1])
+    assert all(r["reused"] for r in again["runs"]) and len(_children(store, res["parent_run_id"])) == 8
+    assert compare(experiment=store[1], out=None)["rows"][0]["n"] == 1
+
+
+def test_cli_sweep_typo_is_one_line_naming_the_key(tmp_path, store, capsys, monkeypatch):
+    from uavturb.cli import main
+
+    fake = FakeTrain(tmp_path)
+    monkeypatch.setattr(sweep_mod, "train", fake)
+    assert main(["sweep", str(DEFAULT_SPEC), "--experiment", store[1], "trainer.max_epoch=3"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "trainer.max_epoch:" in err and "max_epochs" in err and fake.calls == []
