@@ -15,7 +15,7 @@ from height_run import tiny_height_run
 from uavturb.data.recordings import (RecordingWindowsDataset, box_average, cam0_camera, forward_camera,
                                     recording_sequence)
 from uavturb.errors import InputError
-from uavturb.evaluate import evaluate, ground_effect_height, predict_heights
+from uavturb.evaluate import FlightResult, evaluate, ground_effect_height, predict_heights
 from uavturb.io.reader import read_recording
 from uavturb.physics.ground_effect import phi_alpha_beta
 from uavturb.physics.vehicle import HEXAROTOR
@@ -103,6 +103,7 @@ def test_recording_sequence_frames_and_ground_truth(setup):
     # on a level body the pitched-down camera sees the floor: the bottom row's depth grows with height
     assert np.corrcoef(seq.d, seq.depth[:, -1, 8])[0, 1] > 0.9
     assert seq.camera.source.startswith("default forward camera")
+    assert seq.airborne.all()  # the simulated vehicle hovers from the start: never resting on the floor
     # GT f_a is the law itself here (noise-free flight, nominal constants = the simulator's)
     law = phi_alpha_beta(seq.d, seq.sum_omega2, HEXAROTOR.thrust_coefficient * MU * 0.01 / 16, MU * 0.01 / 16)
     assert np.sqrt(np.mean((law - seq.fa) ** 2)) < 0.02 * np.sqrt(np.mean(seq.fa**2))
@@ -134,6 +135,17 @@ def test_cameras():
     assert us == pytest.approx((u + 0.5 - x0) * 120 / side - 0.5)
     assert vs == pytest.approx((v + 0.5) * 120 / side - 0.5)
     np.testing.assert_array_equal(small.T_BS, rec.cam0.T_BS)
+
+
+def test_grounded_frames_are_left_out():
+    d = np.array([0.1, 0.1, 0.2, 2.0, np.inf])
+    fa = np.array([5.0, 1.0, 0.5, 0.0, 0.0])
+    fa_phi = np.array([-20.0, 1.1, 0.5, 0.0, 0.0])  # frame 0: resting on the floor, contact force in the residual
+    airborne = np.array([False, True, True, True, True])
+    ge = airborne & (d <= 0.3)
+    m = FlightResult("x", np.arange(5.0), d, d, fa, fa_phi, fa_phi, ge, airborne).metrics()
+    assert m["n_ge"] == 2 and m["n_all"] == 3
+    assert m["rmse_fa_phi"] == pytest.approx(np.sqrt(0.01 / 2)) and m["rmse_fa_phi_all"] == pytest.approx(0.1 / 3**0.5)
 
 
 def test_box_average():

@@ -32,7 +32,8 @@ def _row(name: str, value: float, unit: str = "") -> None:
 
 
 def bench_train(root: str | Path | None = None, *, size: int = 64, window: int = 8, batch_size: int = 16,
-                workers: tuple[int, ...] = (2, 0), steps: int = 40, use_gru: bool = True) -> dict[int, dict[str, float]]:
+                workers: tuple[int, ...] = (2, 0), steps: int = 40,
+                use_gru: bool = True) -> dict[int, dict[str, float]]:
     """Training samples/s and the input-overhead ratio (see the module docstring).
 
     Parameters

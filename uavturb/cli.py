@@ -49,6 +49,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--workers", type=int, default=1, help="processes, one renderer each (default 1)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--shard", default=None, metavar="K/N", help="only trajectories i with i %% N == K-1 (1 <= K <= N)")
+    g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="preset_set",
+                   help="change a preset field, e.g. --set width=64 --set trajectories=4 (repeatable)")
     g = gsub.add_parser("normals", help="depth/normal pre-training pairs from training scenes, or from IRS")
     g.add_argument("--preset", default="quick", help="quick | paper | tiny (default quick)")
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (the pairs go to DIR/pairs)")
@@ -56,6 +58,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--irs", default=None, metavar="IRS_DIR", help="convert the IRS dataset instead of rendering")
     g.add_argument("--size", type=int, default=128, help="image side for --irs (default 128)")
+    g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="preset_set",
+                   help="change a preset field, e.g. --set width=64 --set pairs=200 (repeatable)")
     g = gsub.add_parser("merge", help="join the folders of `generate sim --shard` runs into one dataset")
     g.add_argument("dirs", nargs="+", metavar="DIR")
     g.add_argument("--out", required=True, metavar="DIR", help="merged dataset folder (may be one of DIR)")
@@ -168,10 +172,10 @@ def _run(args: argparse.Namespace) -> int:
                   f"effects {args.effects}")
         elif args.what == "sim":
             print(workflows.generate_sim(args.preset, args.out, workers=args.workers, seed=args.seed,
-                                         shard=args.shard))
+                                         shard=args.shard, **workflows.preset_overrides(args.preset_set)))
         elif args.what == "normals":
             print(workflows.generate_normals(args.preset, args.out, workers=args.workers, seed=args.seed,
-                                             irs=args.irs, size=args.size))
+                                             irs=args.irs, size=args.size, **workflows.preset_overrides(args.preset_set)))
         elif args.what == "merge":
             print(workflows.generate_merge(args.dirs, args.out))
     elif args.command == "gap":

@@ -17,10 +17,12 @@ Protocol (paper, "Predicting turbulences" and "Sim2real transfer"):
    ``Total`` row pools the samples of all flights.
 
 Samples used: the paper "focused the evaluation on selected parts of the flights where the
-ground effect is significant". Our rule: frames whose true height makes the identified law
-worth at least ``ge_fraction`` (1 %) of the thrust, ``beta / (d^2 - beta) >= ge_fraction``,
-i.e. ``d <= sqrt(beta (1 + 1 / ge_fraction))`` (about 0.35 m for the hexarotor with mu = 2).
-The table also reports every frame ("all").
+ground effect is significant". Our rule: airborne frames (rotor thrust >= 0.3 m g; below that
+the vehicle rests on a surface and the residual is a contact force) whose true height makes
+the identified law worth at least ``ge_fraction`` (1 %) of the thrust,
+``beta / (d^2 - beta) >= ge_fraction``, i.e. ``d <= sqrt(beta (1 + 1 / ge_fraction))`` (about
+0.35 m for the hexarotor with mu = 2). The table also reports every airborne frame with a
+surface below ("all"). ``(alpha, beta)`` are fitted on the first flight's airborne frames.
 
 Outputs (folder written atomically): ``table.md``, ``table.csv``, ``fa_<flight>.png`` (f_a over
 time: GT blue, model red, phi on true heights green -- the paper's sim2real figure -- and
@@ -57,6 +59,7 @@ class FlightResult:
     t : (K,) s; d, d_hat : (K,) true and predicted heights [m]
     fa, fa_phi, fa_model : (K,) GT, law on true heights, law on predicted heights [N]
     ge : (K,) bool, frames in the ground-effect region (see the module docstring)
+    airborne : (K,) bool, frames in flight (the "all" columns use these)
     """
 
     name: str
@@ -67,17 +70,18 @@ class FlightResult:
     fa_phi: np.ndarray
     fa_model: np.ndarray
     ge: np.ndarray
+    airborne: np.ndarray
 
     def metrics(self) -> dict[str, float]:
-        return _metrics(self.fa, self.fa_phi, self.fa_model, self.d, self.d_hat, self.ge)
+        return _metrics(self.fa, self.fa_phi, self.fa_model, self.d, self.d_hat, self.ge, self.airborne)
 
 
 def _rmse(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean((a - b) ** 2))) if len(a) else float("nan")
 
 
-def _metrics(fa, fa_phi, fa_model, d, d_hat, ge) -> dict[str, float]:
-    fin = np.isfinite(d)
+def _metrics(fa, fa_phi, fa_model, d, d_hat, ge, airborne) -> dict[str, float]:
+    fin = np.isfinite(d) & airborne
     return {"n_ge": int(ge.sum()), "rmse_fa_phi": _rmse(fa_phi[ge], fa[ge]), "rmse_fa": _rmse(fa_model[ge], fa[ge]),
             "rmse_d": _rmse(d_hat[ge], d[ge]), "rms_fa_gt": _rmse(fa[ge], 0 * fa[ge]),
             "n_all": int(fin.sum()), "rmse_fa_phi_all": _rmse(fa_phi[fin], fa[fin]),
@@ -103,7 +107,7 @@ def ground_effect_height(beta: float, fraction: float = GE_FRACTION) -> float:
 
 
 def _dataset_camera(run) -> dict[str, Any]:
-    """``image_size``, ``yfov_deg``, ``pitch_deg`` of the run's training data (what is known)."""
+    """``image_size``, ``yfov_deg``, ``pitch_deg``, ``frame_dt`` of the run's training data (what is known)."""
     from uavturb.data import shards
 
     out: dict[str, Any] = {}
@@ -120,9 +124,15 @@ def _dataset_camera(run) -> dict[str, Any]:
         try:
             m = shards.read_manifest(root)
             out.setdefault("image_size", int(m.image_size[0]))
-            for k in ("yfov_deg", "pitch_deg"):
-                if k in m.config:
-                    out[k] = float(m.config[k])
+            # synthetic shards keep the camera at the top of the config, simulator shards in its preset
+            for conf in (m.config, m.config.get("preset") or {}):
+                for k in ("yfov_deg", "pitch_deg"):
+                    if k in conf:
+                        out[k] = float(conf[k])
+                if conf.get("dt"):
+                    out["frame_dt"] = float(conf["dt"])
+                if conf.get("camera_hz"):
+                    out["frame_dt"] = 1.0 / float(conf["camera_hz"])
         except InputError:
             pass
     return out
@@ -182,9 +192,10 @@ def plot_flight(res: FlightResult, path: Path, h_ge: float) -> None:
 def _series_csv(res: FlightResult) -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["t [s]", "d [m]", "d_hat [m]", "fa_gt [N]", "fa_phi [N]", "fa_model [N]", "ground_effect"])
-    for row in zip(res.t, res.d, res.d_hat, res.fa, res.fa_phi, res.fa_model, res.ge):
-        w.writerow([f"{row[0]:.4f}", *(f"{x:.6g}" for x in row[1:6]), int(row[6])])
+    w.writerow(["t [s]", "d [m]", "d_hat [m]", "fa_gt [N]", "fa_phi [N]", "fa_model [N]", "ground_effect",
+                "airborne"])
+    for row in zip(res.t, res.d, res.d_hat, res.fa, res.fa_phi, res.fa_model, res.ge, res.airborne):
+        w.writerow([f"{row[0]:.4f}", *(f"{x:.6g}" for x in row[1:6]), int(row[6]), int(row[7])])
     return buf.getvalue()
 
 
@@ -236,7 +247,8 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     vehicle : preset or vehicle.yaml for folders without one (raw EuRoC)
     image_size, yfov_deg, pitch_deg : camera of the depth images (default: the run's
         training data's; see :mod:`uavturb.data.recordings`)
-    frame_dt : s, frame period where a recording has no cam0 frames (default 0.05)
+    frame_dt : s, frame period where a recording has no cam0 frames (default: the training
+        data's camera period, else 0.05)
     ge_fraction : the ground-effect region's threshold (law / thrust)
     log : log a child run of ``run_id`` with the metrics and the output folder
     progress : print progress to stderr and the table to stdout
@@ -271,6 +283,7 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     size = int(image_size or cam.get("image_size", 128))
     yfov = yfov_deg if yfov_deg is not None else cam.get("yfov_deg")
     pitch = pitch_deg if pitch_deg is not None else cam.get("pitch_deg")
+    frame_dt = frame_dt if frame_dt is not None else cam.get("frame_dt")
 
     recs = load_recordings(recordings, vehicle)
     first = recs[0]
@@ -289,7 +302,10 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     seqs = [recording_sequence(r, veh, image_size=size, frame_dt=frame_dt, yfov_deg=yfov, pitch_deg=pitch,
                                progress=progress) for r in recs]
     s0 = seqs[0]
-    fit = identify_alpha_beta(s0.fa, s0.d, s0.sum_omega2)
+    if not s0.airborne.any():
+        raise InputError(str(recs[0].path), "no airborne frame (rotor thrust >= 0.3 m g) to identify (alpha, beta) on")
+    air = s0.airborne
+    fit = identify_alpha_beta(s0.fa[air], s0.d[air], s0.sum_omega2[air])
     h_ge = ground_effect_height(fit.beta, ge_fraction)
     if progress:
         print(f"(alpha, beta) by BFGS on {s0.name}: alpha = {fit.alpha:.4g} N m^2/(rad/s)^2, beta = {fit.beta:.4g} m^2 "
@@ -299,12 +315,13 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     results: list[FlightResult] = []
     for seq in seqs:
         d_hat = predict_heights(module, seq.depth)
-        ge = np.isfinite(seq.d) & (seq.d <= h_ge)
+        ge = seq.airborne & np.isfinite(seq.d) & (seq.d <= h_ge)
         results.append(FlightResult(seq.name, seq.t, seq.d, d_hat, seq.fa, fit.predict(seq.d, seq.sum_omega2),
-                                    fit.predict(d_hat, seq.sum_omega2), ge))
+                                    fit.predict(d_hat, seq.sum_omega2), ge, seq.airborne))
     rows = [(r.name, r.metrics()) for r in results]
     cat = lambda k: np.concatenate([getattr(r, k) for r in results])  # noqa: E731
-    rows.append(("Total", _metrics(cat("fa"), cat("fa_phi"), cat("fa_model"), cat("d"), cat("d_hat"), cat("ge"))))
+    rows.append(("Total", _metrics(cat("fa"), cat("fa_phi"), cat("fa_model"), cat("d"), cat("d_hat"), cat("ge"),
+                                  cat("airborne"))))
     table = format_table(rows)
 
     tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
@@ -317,8 +334,9 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
             "rows": [{"flight": n, **m} for n, m in rows]}
     try:
         (tmp / "table.md").write_text(
-            f"Table 2 (ours): (alpha, beta) identified on {s0.name}; ground-effect frames: d <= {h_ge:.3f} m "
-            f"(law >= {100 * ge_fraction:g} % of thrust).\n\n{format_table(rows, markdown=True)}\n")
+            f"Table 2 (ours): (alpha, beta) identified on {s0.name}; ground-effect (GE) frames: airborne "
+            f"(thrust >= 0.3 m g) with d <= {h_ge:.3f} m (law >= {100 * ge_fraction:g} % of thrust); "
+            f"'all': every airborne frame with a surface below.\n\n{format_table(rows, markdown=True)}\n")
         with open(tmp / "table.csv", "w", newline="") as f:
             w = csv.writer(f)
             keys = list(rows[0][1])

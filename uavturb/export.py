@@ -265,7 +265,8 @@ def run_data_root(run) -> Path | None:
 # --- checks -------------------------------------------------------------------------------
 
 
-def reference_outputs(module, seq: CheckSequence, alpha: float, beta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def reference_outputs(module, seq: CheckSequence, alpha: float,
+                      beta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Heights, f_a and final GRU state of the Lightning module run on the whole sequence."""
     depth = torch.from_numpy(seq.depth)[None, :, None]
     with torch.no_grad():

@@ -18,11 +18,16 @@ Choices (ours):
 - **No cam0** (flights from ``uavturb generate flight``): a forward camera at the body
   origin, looking along body +x pitched down by ``pitch_deg`` with vertical field of view
   ``yfov_deg`` -- the camera of the training shards (their manifest's ``pitch_deg`` and
-  ``yfov_deg``; default :mod:`uavturb.data.synthetic`'s 45 deg and 70 deg).
+  ``yfov_deg``, read by :mod:`uavturb.evaluate`: 20 deg and 70 deg for the simulator's
+  shards; default :mod:`uavturb.data.synthetic`'s 45 deg and 70 deg).
 - **GT f_a per frame**: the residual (IMU rate) averaged over ``[t - w/2, t + w/2)`` with
   ``w = min(frame period, gt_window_s = 0.05 s)`` (a centred box filter that removes most of
   the accelerometer's white noise without delay); heights and rotor speeds are taken at the
   frame instant.
+- **Airborne frames**: ``airborne`` marks frames whose rotor thrust ``k_T sum(Omega^2)`` is at
+  least ``0.3 m g`` (:data:`AIRBORNE_THRUST_FRACTION`); below that the vehicle sits on the
+  ground or a table (real flights start and end so) and the residual holds the contact
+  force, not turbulence. Evaluations leave those frames out.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ from uavturb.io.recording import Recording
 from uavturb.physics.vehicle import Vehicle
 
 DEFAULT_FRAME_DT = 0.05  # s: the training shards' 20 Hz camera
+AIRBORNE_THRUST_FRACTION = 0.3  # frames with less rotor thrust than this share of the weight are on the ground
 
 
 @dataclass(frozen=True)
@@ -118,6 +124,7 @@ class RecordingSequence:
     rotor_speeds : (K, N) rad/s
     p : (K, 3) body position in W [m]
     camera : CameraModel used
+    airborne : (K,) bool, rotor thrust >= 0.3 m g (else on the ground: contact forces)
     """
 
     name: str
@@ -129,6 +136,7 @@ class RecordingSequence:
     rotor_speeds: np.ndarray
     p: np.ndarray
     camera: CameraModel
+    airborne: np.ndarray
 
     def __len__(self) -> int:
         return len(self.t)
@@ -170,6 +178,7 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     """
     from uavturb.io import align
     from uavturb.io.reader import POINTS_PLY
+    from uavturb.physics.dynamics import GRAVITY
     from uavturb.physics.flight_data import flight_data
     from uavturb.physics.residuals import residual_forces
     from uavturb.scene.heights import SurfaceIndex
@@ -212,8 +221,10 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
                   f"ETA {el / (k + 1) * (len(t_ns) - k - 1):.0f} s", end="", file=sys.stderr, flush=True)
     if progress:
         print(file=sys.stderr)
-    return RecordingSequence(name=rec.name, t=t, depth=depth, d=d, fa=fa, sum_omega2=(rotors**2).sum(1),
-                             rotor_speeds=rotors, p=p, camera=camera)
+    S = (rotors**2).sum(1)
+    airborne = vehicle.thrust_coefficient * S >= AIRBORNE_THRUST_FRACTION * vehicle.mass * GRAVITY
+    return RecordingSequence(name=rec.name, t=t, depth=depth, d=d, fa=fa, sum_omega2=S, rotor_speeds=rotors, p=p,
+                             camera=camera, airborne=airborne)
 
 
 class RecordingWindowsDataset:
@@ -221,7 +232,7 @@ class RecordingWindowsDataset:
 
     Items: ``depth (window, 1, S, S)``, ``d``, ``fa``, ``sum_omega2`` ``(window,)`` float32 tensors
     (the keys :class:`~uavturb.systems.HeightModule` reads), so ``Trainer.test`` runs on flights.
-    Frames with no surface below (``d = inf``) are left out of the windows' starts.
+    Windows holding a frame with no surface below (``d = inf``) are left out.
     """
 
     def __init__(self, sequences: list[RecordingSequence], window: int = 8, stride: int = 1):
@@ -253,5 +264,6 @@ def read_sequences(paths: list[str | Path], vehicle: Vehicle, **kw) -> list[Reco
 
 
 __all__ = ["CameraModel", "RecordingSequence", "RecordingWindowsDataset", "box_average", "camera_for",
-           "cam0_camera", "forward_camera", "read_sequences", "recording_sequence", "DEFAULT_FRAME_DT"]
+           "cam0_camera", "forward_camera", "read_sequences", "recording_sequence", "DEFAULT_FRAME_DT",
+           "AIRBORNE_THRUST_FRACTION"]
 
