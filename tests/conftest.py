@@ -43,3 +43,19 @@ def make_recording(duration: float = 2.0, seed: int = 0) -> Recording:
 @pytest.fixture
 def recording() -> Recording:
     return make_recording()
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_mlflow_store(tmp_path_factory):
+    """No test writes to the working directory's MLflow store: a session-wide temporary one is the
+    default; tests that need their own set ``MLFLOW_TRACKING_URI`` themselves."""
+    import os
+
+    root = tmp_path_factory.mktemp("mlflow-default")
+    old = os.environ.get("MLFLOW_TRACKING_URI")
+    os.environ["MLFLOW_TRACKING_URI"] = f"sqlite:///{root / 'mlflow.db'}"
+    yield
+    if old is None:
+        os.environ.pop("MLFLOW_TRACKING_URI", None)
+    else:
+        os.environ["MLFLOW_TRACKING_URI"] = old

@@ -7,6 +7,8 @@ import csv
 import json
 
 import mlflow
+
+from uavturb.tracking import tracking_uri
 import numpy as np
 import pytest
 import torch
@@ -69,7 +71,7 @@ def test_table2_on_flights_where_the_law_is_exact(setup):
     np.testing.assert_allclose(r1.fa_model, phi_alpha_beta(r1.d_hat, _S(flights[1], r1), res["alpha"], res["beta"]),
                                rtol=1e-6)
     # metrics in an MLflow child run of the training run
-    child = mlflow.MlflowClient().get_run(res["mlflow_run"])
+    child = mlflow.MlflowClient(tracking_uri()).get_run(res["mlflow_run"])
     assert child.data.tags["mlflow.parentRunId"] == rid and child.data.tags["evaluation"] == "table2"
     assert child.data.metrics["eval/total/rmse_fa_phi"] == pytest.approx(rows["Total"]["rmse_fa_phi"])
     info = json.loads((out / "evaluation.json").read_text())

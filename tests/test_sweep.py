@@ -12,6 +12,8 @@ import io
 from pathlib import Path
 
 import mlflow
+
+from uavturb.tracking import tracking_uri
 import numpy as np
 import pytest
 
@@ -57,7 +59,7 @@ class FakeTrain:
         self.calls.append((cfg, dict(tags)))
         if self.fail_at is not None and len(self.calls) == self.fail_at:
             raise KeyboardInterrupt
-        client = mlflow.MlflowClient()
+        client = mlflow.MlflowClient(tracking_uri())
         exp = client.get_experiment_by_name(cfg.tracking.experiment)
         run = client.create_run(exp.experiment_id, run_name=cfg.tracking.run_name, tags=tags)
         rid = run.info.run_id

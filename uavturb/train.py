@@ -98,7 +98,8 @@ def _build(cfg: DictConfig):
                           max_depth=m.max_depth, lr_head=m.lr_head, lr_encoder=m.lr_encoder, alpha=m.alpha,
                           beta=m.beta, loss_frames=m.loss_frames, encoder_ckpt=encoder_ckpt)
     dm = ShardWindowsDataModule(d.root, window=d.window, stride=d.stride, eval_stride=d.eval_stride,
-                                batch_size=d.batch_size, num_workers=d.num_workers, image_size=d.image_size)
+                                batch_size=d.batch_size, num_workers=d.num_workers, image_size=d.image_size,
+                                seed=cfg.trainer.seed)  # seeds differ in batch order too, not only in init
     return module, dm, callbacks, "val/rmse_d"
 
 

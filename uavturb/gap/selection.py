@@ -182,21 +182,22 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
     tried: dict[str, dict[str, float]] = {}
     remaining = [c for c in candidates if c not in current]
     while remaining and len(steps) < max_effects:
-        best = None
+        best = None  # the best held-out fit among the candidates that pass the guards
         for c in remaining:
             ho = heldout(data, current | {c}, fm, offset=offset)
             t = improvement_z(cur_ho, ho)
             tried.setdefault(c, {})[f"step{len(steps) + 1}_z"] = t
             tried[c][f"step{len(steps) + 1}_heldout_rmse_N"] = ho.rmse
+            if t < z_improve:
+                continue
+            if c in THRUST_AXIS and np.mean(cur_ho.err2) - np.mean(ho.err2) <= thrust_floor:
+                tried[c][f"step{len(steps) + 1}_below_rounding_floor"] = 1.0
+                continue
             if best is None or ho.rmse < best[1].rmse:
                 best = (c, ho, t)
-        c, ho, t = best
-        if t < z_improve:
+        if best is None:
             break
-        if c in THRUST_AXIS and np.mean(cur_ho.err2) - np.mean(ho.err2) <= thrust_floor:
-            tried[c]["below_rounding_floor"] = 1.0
-            remaining.remove(c)
-            continue
+        c, ho, t = best
         fit = fit_model(full, current | {c}, lag=lag)
         if not _signed_ok(fit, c, z_min):
             tried[c]["rejected"] = 1.0
