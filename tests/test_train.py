@@ -157,3 +157,30 @@ def test_predict_last_frames_matches_the_windows_the_metrics_score(tmp_path):
     assert d[5] == pytest.approx(float(want), abs=1e-6)
     png = plot_test_heights(module, m.folders("test"), 4, tmp_path / "p" / "h.png")
     assert png.stat().st_size > 1000
+
+
+def test_ddp_with_two_cpu_processes(tmp_path):
+    """The same command scales out: DDP over 2 CPU processes (Lightning's subprocess launcher
+    re-runs the command line), one MLflow run from rank 0, one checkpoint folder, test metrics."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'mlflow.db'}", "PYTHONUNBUFFERED": "1"}
+    cmd = [sys.executable, "-m", "uavturb.cli", "train", "--experiment", "smoke", *_overrides(tmp_path),
+           "trainer.strategy=ddp", "trainer.devices=2", "trainer.num_nodes=1", "trainer.max_epochs=2",
+           "trainer.num_threads=1"]
+    proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = [l for l in proc.stdout.splitlines() if l.startswith("{")]
+    assert len(lines) == 1, proc.stdout  # rank 1 prints nothing
+    out = json.loads(lines[0])
+    assert out["run_id"] and out["checkpoint"].endswith(".ckpt")
+    assert "world size 2" in proc.stderr or "distributed_backend=gloo" in proc.stderr
+    client = mlflow.MlflowClient(env["MLFLOW_TRACKING_URI"])
+    exp = client.get_experiment_by_name("test")
+    runs = client.search_runs([exp.experiment_id])
+    assert len(runs) == 1 and np.isfinite(runs[0].data.metrics["test/rmse_d"])
+    assert len(list((tmp_path / "runs" / "checkpoints").iterdir())) == 1
+    HeightModule.load_from_checkpoint(out["checkpoint"])

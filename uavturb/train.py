@@ -184,7 +184,9 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     data_hash = dataset_hash(data_root) if data_root.is_dir() else "missing"
     module, dm, callbacks, monitor = _build(cfg)
     logger = _logger(cfg, data_hash, tags)
-    run_tag = logger.run_id if logger is not None else time.strftime("%Y%m%d-%H%M%S")
+    # Under DDP only rank 0 has an MLflow run; ModelCheckpoint broadcasts rank 0's folder to the others.
+    run_id = logger.run_id if logger is not None else None
+    run_tag = run_id or time.strftime("%Y%m%d-%H%M%S")
     ckpt_dir = Path(t.default_root_dir) / "checkpoints" / run_tag
     checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename="best-{epoch}", monitor=monitor, mode="min", save_top_k=1,
                                  auto_insert_metric_name=False)
@@ -204,10 +206,11 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     tested = trainer.test(module, datamodule=dm, ckpt_path=best if best else None, verbose=False)
     for row in tested:
         metrics.update({k: float(v) for k, v in row.items()})
-    if logger is not None:
+    if logger is not None and trainer.is_global_zero:
         _log_checkpoint(logger, best)
         if cfg.stage == "height":
             _log_height_plot(logger, module, dm, cfg.data.window)
         logger.finalize("success")
     return {"stage": cfg.stage, "metrics": metrics, "checkpoint": best, "run_id": logger.run_id if logger else None,
+            "global_rank": trainer.global_rank,
             "data_hash": data_hash}

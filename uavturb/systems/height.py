@@ -131,7 +131,8 @@ class HeightModule(L.LightningModule):
         self.rmse_d[f"{stage}_"].update(d_last, d_true[:, -1])
         self.rmse_fa[f"{stage}_"].update(fa_hat, batch["fa"][:, -1])
         on_step = stage == "train"
-        self.log(f"{stage}/loss", loss, prog_bar=True, on_step=on_step, on_epoch=True, batch_size=bs)
+        self.log(f"{stage}/loss", loss, prog_bar=True, on_step=on_step, on_epoch=True, batch_size=bs,
+                 sync_dist=stage != "train")  # mean over DDP ranks (metrics objects sync themselves)
         self.log(f"{stage}/rmse_d", self.rmse_d[f"{stage}_"], prog_bar=stage == "val", on_step=False, on_epoch=True,
                  batch_size=bs)
         self.log(f"{stage}/rmse_fa", self.rmse_fa[f"{stage}_"], on_step=False, on_epoch=True, batch_size=bs)

@@ -77,7 +77,8 @@ class TranscoderModule(L.LightningModule):
         pred, target = self(batch["depth"]), self._target(batch)
         loss = transcoding_loss(pred, target, self.hparams.lam)
         bs = pred.shape[0]
-        self.log(f"{stage}/loss", loss, prog_bar=True, on_step=stage == "train", on_epoch=True, batch_size=bs)
+        self.log(f"{stage}/loss", loss, prog_bar=True, on_step=stage == "train", on_epoch=True, batch_size=bs,
+                 sync_dist=stage != "train")  # mean over DDP ranks
         if stage != "train" and self.hparams.target == "normals":
             valid = target.norm(dim=1) > 0.5
             cos = (pred * target).sum(1).clamp(-1.0, 1.0)
