@@ -1,15 +1,24 @@
 """``make demo``: the project's main job end to end, on data it generates itself.
 
-Today: simulate a hexarotor flight with a known Cheeseman-Bennett ground effect and
-realistic sensor noise, write it in the EuRoC layout, read it back, identify the model
-(the paper's least squares), compute the ground-truth turbulence as the residual force,
-identify the ground effect's ``(alpha, beta)`` by BFGS, and plot the residual against the law.
+Steps (each prints its progress; a re-run reuses what is finished):
+
+1. Simulator: training shards (``generate sim --preset quick``, 32x32 depth to fit the CPU
+   budget) and depth/normal pre-training pairs (``generate normals``).
+2. Table 1: the paper's ablation sweep with one seed (``sweep sweeps/ablation.yaml``), tracked
+   in MLflow; ``compare`` prints the table.
+3. "Real" flights: two hexarotor flights in the EuRoC layout with a Cheeseman-Bennett ground
+   effect and realistic sensor noise (``generate flight``): the stand-in for EuRoC V1.
+4. Physics on the first flight: the paper's least-squares identification, the ground-truth
+   turbulence as the residual force, ``(alpha, beta)`` by BFGS, a plot of residual vs law.
+5. Table 2: the Depth->Normal fine-tuned model of the sweep on the flights (``evaluate``).
+6. Export of that model for onboard use (``.pt2`` and ONNX, checked against the module).
+7. The sim-to-real gap finder on the flights, told that the simulator models nothing
+   (``gap --sim-effects none``): it should name the ground effect and fit its ``mu``.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
 import time
 from pathlib import Path
 
@@ -19,14 +28,26 @@ from uavturb.physics import ground_effect as ge
 from uavturb.physics.vehicle import HEXAROTOR
 
 TRUE_MU = 2.0
+#: the demo's Table 1 data: the quick preset's scenes and trajectories at 32x32 px
+IMAGE_SIZE = 32
+#: sweep overrides that point the quick sweep at the simulator's shards instead of box rooms
+SWEEP_DATA = ["data=shards", f"data.image_size={IMAGE_SIZE}", "data.stride=4", "data.eval_stride=8",
+              "data.num_workers=0"]
+FLIGHT_SECONDS = 60.0
+STEPS = 7
 
 
 def _say(msg: str) -> None:
     print(f"[demo] {msg}", flush=True)
 
 
-def run(out: Path, seed: int = 0) -> dict:
-    """Run the demo into ``out``; returns the summary it also writes to ``out/summary.json``."""
+def _step(k: int, what: str) -> float:
+    _say(f"step {k}/{STEPS}: {what}")
+    return time.perf_counter()
+
+
+def physics_on_flight(rec_path: Path, out: Path) -> dict:
+    """Identification, residual turbulence and the BFGS ground-effect fit on one flight, with a plot."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -35,29 +56,15 @@ def run(out: Path, seed: int = 0) -> dict:
     from uavturb import workflows
     from uavturb.physics.residuals import residual_forces, write_residuals
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    rec_path = out / "flights" / "hex_ground_effect"
-    if rec_path.exists():
-        shutil.rmtree(rec_path)
-    rec_path.parent.mkdir(parents=True, exist_ok=True)
-    _say(f"simulating a 90 s hexarotor flight with ground_effect:mu={TRUE_MU} and realistic sensor noise ...")
-    workflows.generate_flight(vehicle="hex", effects=f"ground_effect:mu={TRUE_MU}", duration=90.0, kind="mixed",
-                              seed=seed, noise="realistic", out=rec_path)
-    _say(f"wrote {rec_path} ({time.perf_counter() - t0:.1f} s)")
-
     ident = workflows.identify_recordings([rec_path])
     print(workflows.format_identification(ident))
     truth = HEXAROTOR
     err_kT = ident.thrust_coefficient / truth.thrust_coefficient - 1
-    ratio_true = truth.inertia[2] / truth.inertia[0]
-    err_ratio = ident.theta[3] / ratio_true - 1
+    err_ratio = ident.theta[3] / (truth.inertia[2] / truth.inertia[0]) - 1
     _say(f"k_T error {100 * err_kT:+.2f} %, J_z/J_x error {100 * err_ratio:+.2f} % (true values from the simulator)")
 
     (rec,) = workflows.load_recordings([rec_path])
-    vehicle = ident.apply(rec.vehicle)
-    res = residual_forces(rec, vehicle)
+    res = residual_forces(rec, ident.apply(rec.vehicle))
     csv = write_residuals(res, out / "residuals.csv")
     _say(f"residual force series ({res.source}) -> {csv}, RMS {res.rmse:.3f} N")
 
@@ -82,16 +89,86 @@ def run(out: Path, seed: int = 0) -> dict:
     fig.tight_layout()
     fig.savefig(out / "residuals.png", dpi=110)
     plt.close(fig)
+    return {"identification": ident.to_dict(), "k_T_error_percent": 100 * err_kT,
+            "Jz_over_Jx_error_percent": 100 * err_ratio, "residual_rms_N": res.rmse,
+            "ground_effect": {"alpha": fit.alpha, "beta": fit.beta, "mu": mu_hat, "mu_true": TRUE_MU,
+                              "rmse_N": fit.rmse}}
 
-    summary = {
-        "recording": str(rec_path),
-        "identification": ident.to_dict(),
-        "k_T_error_percent": 100 * err_kT,
-        "Jz_over_Jx_error_percent": 100 * err_ratio,
-        "residual_rms_N": res.rmse,
-        "ground_effect": {"alpha": fit.alpha, "beta": fit.beta, "mu": mu_hat, "mu_true": TRUE_MU, "rmse_N": fit.rmse},
-        "seconds": time.perf_counter() - t0,
-    }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    _say(f"plot {out / 'residuals.png'}, summary {out / 'summary.json'}; done in {summary['seconds']:.1f} s")
+
+def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
+    """Run the demo into ``out``; returns the summary it also writes to ``out/summary.json``.
+
+    MLflow runs go to the default store (``mlflow.db`` and ``mlruns/`` in the working
+    directory, or ``MLFLOW_TRACKING_URI``).
+    """
+    from uavturb import workflows
+    from uavturb.compare import compare
+    from uavturb.evaluate import evaluate
+    from uavturb.export import export
+    from uavturb.gap.finder import gap
+    from uavturb.sweep import sweep
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    summary: dict = {"seconds": {}}
+
+    t = _step(1, "simulator: training shards and pre-training pairs (quick preset, 32x32 px)")
+    size = {"width": IMAGE_SIZE, "height": IMAGE_SIZE}
+    _say(workflows.generate_sim("quick", out / "sim", workers=workers, seed=seed, **size))
+    _say(workflows.generate_normals("quick", out / "pairs", workers=workers, seed=seed, **size))
+    summary["seconds"]["simulator"] = time.perf_counter() - t
+
+    t = _step(2, "Table 1: the paper's ablation sweep, one seed (MLflow)")
+    res = sweep(preset="quick", seeds=1, overrides=[*SWEEP_DATA, f"data.root={out / 'sim'}",
+                                                     f"data.pairs_root={out / 'pairs'}",
+                                                     f"trainer.default_root_dir={out / 'runs'}"])
+    table1 = compare(parent_run_id=res["parent_run_id"], experiment=res["experiment"], out=out / "table1")
+    ours = next(r for r in res["runs"] if r["row"] == "normals/finetune")
+    summary["table1"] = {"parent_run_id": res["parent_run_id"], "experiment": res["experiment"],
+                         "rows": table1["rows"]}
+    summary["seconds"]["sweep"] = time.perf_counter() - t
+
+    t = _step(3, f"two {FLIGHT_SECONDS:.0f} s hexarotor flights in the EuRoC layout, ground_effect:mu={TRUE_MU}")
+    flights = []
+    for k in range(2):
+        path = out / "flights" / f"hex_ground_effect_{k}"
+        if not (path / "mav0").is_dir():
+            workflows.generate_flight(vehicle="hex", effects=f"ground_effect:mu={TRUE_MU}", duration=FLIGHT_SECONDS,
+                                      kind="mixed", seed=seed + k, noise="realistic", out=path)
+        flights.append(path)
+        _say(f"  {path}")
+    summary["seconds"]["flights"] = time.perf_counter() - t
+
+    t = _step(4, "physics on the first flight: identification, residual turbulence, ground-effect law")
+    summary["physics"] = physics_on_flight(flights[0], out)
+    summary["seconds"]["physics"] = time.perf_counter() - t
+
+    t = _step(5, f"Table 2: model {ours['run_id']} (Depth->Normal, fine-tuned) on the flights")
+    table2 = evaluate(ours["run_id"], flights, out=out / "table2")
+    summary["table2"] = {"rows": table2["rows"], "alpha": table2["alpha"], "beta": table2["beta"]}
+    summary["seconds"]["evaluate"] = time.perf_counter() - t
+
+    t = _step(6, "export for onboard use (.pt2 and ONNX)")
+    exported = export(ours["run_id"], out / "export", overwrite=True)
+    summary["export"] = {k: exported[k] for k in ("max_abs_diff",) if k in exported}
+    summary["seconds"]["export"] = time.perf_counter() - t
+
+    t = _step(7, "sim-to-real gap finder on the flights, simulator effects: none")
+    report = gap([str(f) for f in flights], out / "gap", sim_effects="none", seed=seed)
+    named = ", ".join(f"{e['name']} {e['params']}" for e in report["effects"]) or "none"
+    _say(f"effects named: {named}; held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
+         f"{report['final']['heldout_rmse_N']:.4f} N; report {out / 'gap' / 'report.md'}")
+    summary["gap"] = {"effects": report["effects"], "baseline": report["baseline"], "final": report["final"]}
+    summary["seconds"]["gap"] = time.perf_counter() - t
+
+    summary["seconds"]["total"] = time.perf_counter() - t_start
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+    print()
+    print(table1["table"])
+    print()
+    print(table2["table"])
+    print()
+    _say(f"done in {summary['seconds']['total'] / 60:.1f} min; summary {out / 'summary.json'}")
+    _say("browse every run: mlflow ui --backend-store-uri sqlite:///mlflow.db   (then open http://127.0.0.1:5000)")
     return summary
