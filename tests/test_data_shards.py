@@ -241,3 +241,16 @@ def test_synthetic_heights_see_the_boxes(tmp_path):
     # looking level along +x from x = 2.5: the wall at x = 4, 1.5 m ahead
     depth, _ = render(room, np.array([[2.5, 0.0, 1.0]]), camera_rotation(np.zeros(1), 0.0), rays)
     assert depth[0, 2, 2] == pytest.approx(1.5)
+
+
+def test_written_files_have_ordinary_permissions(tmp_path):
+    """Atomic writes go through private temporary entries; the results are not left private."""
+    import os
+    import stat
+
+    folder = shards.write_trajectory(tmp_path / "t", _arrays(), META)
+    shards.write_manifest(tmp_path, {"train": ["t"], "val": [], "test": []}, {})
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o777 & ~mask
+    assert stat.S_IMODE((tmp_path / "manifest.json").stat().st_mode) == 0o666 & ~mask

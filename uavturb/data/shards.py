@@ -108,6 +108,18 @@ def _dumps(obj: Any) -> str:
     return json.dumps(obj, indent=1, sort_keys=True, default=_json_default)
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _usual_mode(path: Path) -> None:
+    """``tempfile`` makes private (0700/0600) entries; give them the modes of ordinary ones."""
+    base = 0o777 if path.is_dir() else 0o666
+    os.chmod(path, base & ~_umask())
+
+
 def write_text_atomic(path: str | Path, text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
     path = Path(path)
@@ -116,6 +128,7 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
     try:
         with os.fdopen(fd, "w") as f:
             f.write(text)
+        _usual_mode(Path(tmp))
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -268,6 +281,7 @@ def write_trajectory(folder: str | Path, arrays: dict[str, Any], meta: dict[str,
                 arrays={n: {"dtype": str(a.dtype), "shape": list(a.shape)} for n, a in arrs.items()})
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    _usual_mode(tmp)
     try:
         for name, a in arrs.items():
             np.save(tmp / f"{name}.npy", a)
@@ -514,6 +528,7 @@ def write_pairs(root: str | Path, depth: np.ndarray, normals: np.ndarray, meta: 
     body = {**(meta or {}), "count": int(depth.shape[0]), "image_size": list(depth.shape[1:]), "version": VERSION}
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{PAIRS_DIR}.", suffix=".tmp", dir=folder.parent))
+    _usual_mode(tmp)
     try:
         np.save(tmp / "depth.npy", depth)
         np.save(tmp / "normals.npy", normals)
@@ -578,6 +593,7 @@ def write_pairs_chunks(root: str | Path, chunks: list[tuple[str | Path, str | Pa
     body = {**(meta or {}), "count": M, "image_size": [int(s) for s in size], "version": VERSION}
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{PAIRS_DIR}.", suffix=".tmp", dir=folder.parent))
+    _usual_mode(tmp)
     try:
         for name, parts, tail in (("depth", depths, ()), ("normals", normals, (3,))):
             dst = np.lib.format.open_memmap(tmp / f"{name}.npy", mode="w+", dtype=np.float32, shape=(M, *size, *tail))
