@@ -59,3 +59,15 @@ def _private_mlflow_store(tmp_path_factory):
         os.environ.pop("MLFLOW_TRACKING_URI", None)
     else:
         os.environ["MLFLOW_TRACKING_URI"] = old
+
+
+@pytest.fixture(scope="module")
+def module_mlflow_store(tmp_path_factory):
+    """One temporary MLflow store (and working directory, for ``mlruns/``) per test module:
+    creating a SQLite store takes seconds. Yields its tracking URI."""
+    root = tmp_path_factory.mktemp("mlflow")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        uri = f"sqlite:///{root / 'mlflow.db'}"
+        mp.setenv("MLFLOW_TRACKING_URI", uri)
+        yield uri

@@ -20,14 +20,8 @@ from uavturb.systems import HeightModule
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    """One temporary MLflow store for the module (creating a SQLite store takes seconds)."""
-    root = tmp_path_factory.mktemp("store")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.chdir(root)
-        uri = f"sqlite:///{root / 'mlflow.db'}"
-        mp.setenv("MLFLOW_TRACKING_URI", uri)
-        yield uri
+def store(module_mlflow_store):
+    return module_mlflow_store
 
 
 CLEAN_SCRIPT = r"""

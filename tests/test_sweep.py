@@ -26,14 +26,9 @@ ROWS = [r.name for r in load_spec(DEFAULT_SPEC).rows]
 
 
 @pytest.fixture(scope="module")
-def shared_store(tmp_path_factory):
-    """One MLflow store for the module (creating one takes seconds); tests use their own experiments."""
-    root = tmp_path_factory.mktemp("mlflow")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.chdir(root)
-        uri = f"sqlite:///{root / 'mlflow.db'}"
-        mp.setenv("MLFLOW_TRACKING_URI", uri)
-        yield uri
+def shared_store(module_mlflow_store):
+    """One MLflow store for the module; tests use their own experiments."""
+    return module_mlflow_store
 
 
 @pytest.fixture

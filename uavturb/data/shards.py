@@ -120,6 +120,18 @@ def _usual_mode(path: Path) -> None:
     os.chmod(path, base & ~_umask())
 
 
+def _publish_dir(tmp: Path, folder: Path) -> None:
+    """Put the complete folder ``tmp`` under the name ``folder`` (replacing an older one): at no
+    moment does ``folder`` hold a half-written or half-deleted tree."""
+    if folder.exists():
+        trash = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old", dir=folder.parent))
+        os.replace(folder, trash / folder.name)
+        os.replace(tmp, folder)
+        shutil.rmtree(trash, ignore_errors=True)
+    else:
+        os.replace(tmp, folder)
+
+
 def write_text_atomic(path: str | Path, text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
     path = Path(path)
@@ -286,13 +298,7 @@ def write_trajectory(folder: str | Path, arrays: dict[str, Any], meta: dict[str,
         for name, a in arrs.items():
             np.save(tmp / f"{name}.npy", a)
         (tmp / META).write_text(_dumps(meta))
-        if folder.exists():
-            trash = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old", dir=folder.parent))
-            os.replace(folder, trash / folder.name)
-            os.replace(tmp, folder)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.replace(tmp, folder)
+        _publish_dir(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -533,9 +539,7 @@ def write_pairs(root: str | Path, depth: np.ndarray, normals: np.ndarray, meta: 
         np.save(tmp / "depth.npy", depth)
         np.save(tmp / "normals.npy", normals)
         (tmp / META).write_text(_dumps(body))
-        if folder.exists():
-            shutil.rmtree(folder)
-        os.replace(tmp, folder)
+        _publish_dir(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -606,9 +610,7 @@ def write_pairs_chunks(root: str | Path, chunks: list[tuple[str | Path, str | Pa
             dst.flush()
             del dst
         (tmp / META).write_text(_dumps(body))
-        if folder.exists():
-            shutil.rmtree(folder)
-        os.replace(tmp, folder)
+        _publish_dir(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -38,7 +38,7 @@ from uavturb.errors import InputError
 from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY, IDX_Q, IDX_V, IDX_W, N_STATE, dynamics_for, physical_params
-from uavturb.physics.effects import EFFECTS, EffectInputs, effect_force, parse_effects, total_force
+from uavturb.physics.effects import EFFECTS, EffectInputs, effect_force, force_on_state, parse_effects
 from uavturb.physics.vehicle import Vehicle, preset
 from uavturb.sim.controller import ControllerGains, GeometricController, RotationOf
 from uavturb.sim.references import Reference, Room, Setpoint, excitation, low_passes, mixed
@@ -260,11 +260,8 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
         return float(np.asarray(surfaces.d_down(pos)).ravel()[0]), float(np.asarray(surfaces.d_up(pos)).ravel()[0])
 
     def forces_at(x: np.ndarray, w: np.ndarray, t: float, dd: float, du: float) -> np.ndarray:
-        if not effects:
-            return np.zeros(3)
-        inp = EffectInputs(q=x[None, IDX_Q], v=x[None, IDX_V], rotor_speeds=w[None, :], k_T=k_T, rotor_radius=r,
-                           d_down=np.array([dd]), d_up=np.array([du]), t=np.array([t]), R=rotation(x[IDX_Q])[None])
-        return total_force(effects, inp)[0]
+        return force_on_state(effects, x[IDX_Q], x[IDX_V], w, t, dd, du, k_T, r,
+                              rotation(x[IDX_Q]) if effects else None)
 
     # initial state: at rest on the reference, level, with its heading
     sp0 = sp_all[0]

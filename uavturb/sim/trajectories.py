@@ -771,7 +771,7 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
         ``solve_ms`` (controller update times), ``wall_s``, ``samples_per_s``, ``controller``.
     """
     from uavturb.physics.dynamics import IDX_Q, IDX_V, N_STATE, dynamics_for, physical_params
-    from uavturb.physics.effects import EffectInputs, total_force
+    from uavturb.physics.effects import force_on_state
     from uavturb.physics import quaternion as quat
     from uavturb.physics.sim_config import DEFAULT_EFFECTS
     from uavturb.physics.vehicle import preset
@@ -809,11 +809,8 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
         return float(height_below(scene, pos)[0]), float(height_above(scene, pos)[0])
 
     def forces_at(x: np.ndarray, w: np.ndarray, t: float, dd: float, du: float) -> np.ndarray:
-        if not effects:
-            return np.zeros(3)
-        inp = EffectInputs(q=x[None, IDX_Q], v=x[None, IDX_V], rotor_speeds=w[None, :], k_T=k_T, rotor_radius=r,
-                           d_down=np.array([dd]), d_up=np.array([du]), t=np.array([t]), R=rotation(x[IDX_Q])[None])
-        return total_force(effects, inp)[0]
+        return force_on_state(effects, x[IDX_Q], x[IDX_V], w, t, dd, du, k_T, r,
+                              rotation(x[IDX_Q]) if effects else None)
 
     sp0 = ref(0.0)
     x = np.zeros(N_STATE)
