@@ -133,3 +133,40 @@ def test_velocity_from_irregular_positions():
     v = rosbag.velocity_from_positions(t, p)
     np.testing.assert_allclose(v[:, 0], 2.0, atol=1e-9)
     np.testing.assert_allclose(v[1:-1, 1], 2 * s[1:-1], atol=1e-9)  # central differences: exact inside
+
+
+def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
+    """A downloaded EuRoC sequence: ASL folder (no vehicle.yaml, no rotors0) + its bag's motor
+    speeds, with the shipped Firefly vehicle file, becomes a recording of recordings.md."""
+    import shutil
+
+    from conftest import make_recording
+    from uavturb.cli import main
+    from uavturb.io.writer import write_recording
+
+    t_vicon, _, t_motor = write_bag(tmp_path / "V1_01.bag")
+    rec = make_recording(duration=1.0)
+    rec.rotors = None
+    # the ASL folder's ground truth spans the bag's time
+    shift = t_vicon[0] - rec.ground_truth.t_ns[0]
+    for stream in (rec.ground_truth, rec.imu, rec.vicon, rec.cam0):
+        stream.t_ns = stream.t_ns + shift
+    write_recording(rec, tmp_path / "asl")
+    (tmp_path / "asl" / "vehicle.yaml").unlink()
+    shutil.rmtree(tmp_path / "asl" / "mav0" / "rotors0", ignore_errors=True)
+
+    assert main(["import-euroc", str(tmp_path / "V1_01.bag"), "--asl", str(tmp_path / "asl"), "--vehicle", "firefly",
+                 "--rotor-speed-scale", "4.0", "--out", str(tmp_path / "V1_01")]) == 0
+    back = read_recording(tmp_path / "V1_01", require_rotors=True)
+    assert back.vehicle.name == "firefly" and back.vehicle.rotor_count == 6
+    np.testing.assert_array_equal(back.rotors.t_ns, t_motor)
+    np.testing.assert_allclose(back.rotors.speeds[:, 0], 4.0 * (100 + np.arange(40)))
+    np.testing.assert_allclose(back.ground_truth.p, rec.ground_truth.p)  # ASL's ground truth, not the bag's
+    assert back.points is not None and len(back.points) == len(rec.points)
+
+    # bag whose motors lie outside the ASL folder's time span: one line, nothing written
+    write_bag(tmp_path / "late.bag", motor_offset_ns=10**12)
+    assert main(["import-euroc", str(tmp_path / "late.bag"), "--asl", str(tmp_path / "asl"),
+                 "--out", str(tmp_path / "late")]) == 2
+    err = capsys.readouterr().err
+    assert "late.bag" in err and "overlap" in err and not (tmp_path / "late").exists()

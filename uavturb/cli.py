@@ -33,6 +33,14 @@ def _parser() -> argparse.ArgumentParser:
                    help="model constants: identified on this flight (default) or vehicle.yaml's")
     s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one")
 
+    s = sub.add_parser("import-euroc", help="a raw EuRoC sequence (ROS bag, optionally its ASL folder) as a recording")
+    s.add_argument("bag", metavar="BAG", help="the sequence's .bag (rotor speeds from /fcu/motor_speed)")
+    s.add_argument("--asl", metavar="ASL_DIR", help="the sequence's ASL folder: ground truth, IMU, point cloud, cam0")
+    s.add_argument("--vehicle", default="firefly", help="shipped vehicle (firefly), preset or vehicle.yaml")
+    s.add_argument("--rotor-speed-scale", type=float, default=None, help="rad/s per unit of /fcu/motor_speed")
+    s.add_argument("--out", required=True, metavar="REC", help="recording folder to create")
+    s.add_argument("--overwrite", action="store_true")
+
     s = sub.add_parser("generate", help="generate data")
     gsub = s.add_subparsers(dest="what", required=True, metavar="WHAT")
     g = gsub.add_parser("flight", help="a flight in the EuRoC layout with sensor noise and named effects")
@@ -163,6 +171,11 @@ def _run(args: argparse.Namespace) -> int:
                                                 derivative=args.derivative, params=args.params,
                                                 vehicle=args.vehicle)
         print(f"wrote {path}: {len(res.t)} samples, source {res.source}, residual RMS {res.rmse:.4f} N")
+    elif args.command == "import-euroc":
+        rec = workflows.import_euroc(args.bag, args.out, vehicle=args.vehicle, asl=args.asl,
+                                     rotor_speed_scale=args.rotor_speed_scale, overwrite=args.overwrite)
+        print(f"wrote {args.out}: {len(rec.ground_truth.t_ns)} ground-truth rows, {len(rec.rotors.t_ns)} rotor rows, "
+              f"imu {'yes' if rec.imu is not None else 'no'}, point cloud {'yes' if rec.points is not None else 'no'}")
     elif args.command == "generate":
         if args.what == "flight":
             rec = workflows.generate_flight(vehicle=args.vehicle, effects=args.effects, duration=args.duration,

@@ -246,10 +246,19 @@ HEXAROTOR = Vehicle(
 PRESETS: dict[str, Vehicle] = {"quad": QUADROTOR, "hex": HEXAROTOR}
 
 
+#: vehicle files shipped with the package (``uavturb/presets/<name>.yaml``), e.g. EuRoC's ``firefly``
+SHIPPED_DIR = Path(__file__).resolve().parents[1] / "presets"
+
+
 def preset(name: str) -> Vehicle:
-    """A built-in vehicle by name (``quad`` or ``hex``), or a ``vehicle.yaml`` path."""
+    """A built-in vehicle by name (``quad``, ``hex``), a shipped vehicle file (``firefly``), or a
+    ``vehicle.yaml`` path."""
     if name in PRESETS:
         return PRESETS[name]
+    shipped = SHIPPED_DIR / f"{name}.yaml"
+    if shipped.is_file():
+        return load_vehicle(shipped)
     if Path(name).exists():
         return load_vehicle(name)
-    raise InputError("vehicle", f"unknown vehicle '{name}' (built-in: {', '.join(PRESETS)}; or a vehicle.yaml path)")
+    known = [*PRESETS, *sorted(p.stem for p in SHIPPED_DIR.glob("*.yaml"))]
+    raise InputError("vehicle", f"unknown vehicle '{name}' (built-in: {', '.join(known)}; or a vehicle.yaml path)")
