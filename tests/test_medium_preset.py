@@ -31,7 +31,7 @@ def test_medium_sim_preset_splits_scenes_and_trajectories():
 def test_medium_sweep_preset_resolves_every_run_config():
     spec = load_spec(DEFAULT_SPEC)
     pre = spec.presets["medium"]
-    assert pre.seeds == 3
+    assert pre.seeds == 5
     for row in spec.rows:
         cfg = load_config([f"model={row.model}", *pre.overrides, *pre.height])
         assert (cfg.data.root, cfg.data.pairs_root) == ("data/medium/sim", "data/medium/pairs")
