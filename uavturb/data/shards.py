@@ -49,6 +49,7 @@ Synthetic data with known answers (analytic scenes seen by a pinhole camera) com
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -118,6 +119,21 @@ def _usual_mode(path: Path) -> None:
     """``tempfile`` makes private (0700/0600) entries; give them the modes of ordinary ones."""
     base = 0o777 if path.is_dir() else 0o666
     os.chmod(path, base & ~_umask())
+
+
+@contextlib.contextmanager
+def _atomic_dir(folder: Path):
+    """Yield a temporary folder beside ``folder``; when the block ends normally it becomes
+    ``folder`` (:func:`_publish_dir`), otherwise it is removed: ``folder`` is never half-written."""
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    _usual_mode(tmp)
+    try:
+        yield tmp
+        _publish_dir(tmp, folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
 
 def _publish_dir(tmp: Path, folder: Path) -> None:
@@ -291,17 +307,10 @@ def write_trajectory(folder: str | Path, arrays: dict[str, Any], meta: dict[str,
     meta.update(version=VERSION, frames=int(T), image_size=[int(H), int(W)],
                 n_rotors=int(arrs["rotor_speeds"].shape[1]),
                 arrays={n: {"dtype": str(a.dtype), "shape": list(a.shape)} for n, a in arrs.items()})
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
-    _usual_mode(tmp)
-    try:
+    with _atomic_dir(folder) as tmp:
         for name, a in arrs.items():
             np.save(tmp / f"{name}.npy", a)
         (tmp / META).write_text(_dumps(meta))
-        _publish_dir(tmp, folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return folder
 
 
@@ -532,17 +541,10 @@ def write_pairs(root: str | Path, depth: np.ndarray, normals: np.ndarray, meta: 
     if not (np.isfinite(depth).all() and np.isfinite(normals).all()):
         raise InputError(folder, "non-finite values")
     body = {**(meta or {}), "count": int(depth.shape[0]), "image_size": list(depth.shape[1:]), "version": VERSION}
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{PAIRS_DIR}.", suffix=".tmp", dir=folder.parent))
-    _usual_mode(tmp)
-    try:
+    with _atomic_dir(folder) as tmp:
         np.save(tmp / "depth.npy", depth)
         np.save(tmp / "normals.npy", normals)
         (tmp / META).write_text(_dumps(body))
-        _publish_dir(tmp, folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return folder
 
 
@@ -595,10 +597,7 @@ def write_pairs_chunks(root: str | Path, chunks: list[tuple[str | Path, str | Pa
                              "and (M, H, W, 3)")
     M = int(sum(len(dd) for dd in depths))
     body = {**(meta or {}), "count": M, "image_size": [int(s) for s in size], "version": VERSION}
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{PAIRS_DIR}.", suffix=".tmp", dir=folder.parent))
-    _usual_mode(tmp)
-    try:
+    with _atomic_dir(folder) as tmp:
         for name, parts, tail in (("depth", depths, ()), ("normals", normals, (3,))):
             dst = np.lib.format.open_memmap(tmp / f"{name}.npy", mode="w+", dtype=np.float32, shape=(M, *size, *tail))
             i = 0
@@ -610,10 +609,6 @@ def write_pairs_chunks(root: str | Path, chunks: list[tuple[str | Path, str | Pa
             dst.flush()
             del dst
         (tmp / META).write_text(_dumps(body))
-        _publish_dir(tmp, folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return folder
 
 
