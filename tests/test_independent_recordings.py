@@ -34,9 +34,8 @@ rotor_radius: 0.1
 """
 
 
-def _write(folder, fd, omega_true, *, rotor_rate=100.0, seed=0):
+def _write(folder, fd, omega_true, *, rotor_rate=100.0):
     """Write ``fd`` by hand in the layout of recordings.md (no project writer involved)."""
-    rng = np.random.default_rng(seed)
     (folder / "mav0" / "state_groundtruth_estimate0").mkdir(parents=True)
     (folder / "mav0" / "imu0").mkdir(parents=True)
     (folder / "mav0" / "rotors0").mkdir(parents=True)

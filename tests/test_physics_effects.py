@@ -8,7 +8,7 @@ from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
 from uavturb.physics.effects import (EFFECTS, EffectInputs, effect_force, format_effects, lag_rotor_speeds,
                                      parse_effects)
-from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
+from uavturb.physics.vehicle import QUADROTOR
 
 
 def inputs(K=4, yaw=0.0, v=(1.0, 0.0, 0.0), w=500.0, d_down=0.5, d_up=1.5, t=10.0):

@@ -261,7 +261,7 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     import sys
 
     from uavturb.data.recordings import recording_sequence
-    from uavturb.export import get_run, load_height_module
+    from uavturb.export import load_height_module, run_and_output
     from uavturb.physics.ground_effect import identify_alpha_beta
     from uavturb.physics.identification import identify
     from uavturb.workflows import load_recordings
@@ -271,13 +271,7 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     if not 0 < ge_fraction < 1:
         raise InputError("--ge-fraction", f"must be in (0, 1), got {ge_fraction}")
     out = Path(out)
-    if out.exists() and not overwrite:
-        raise InputError(out, "already exists")
-    if not out.parent.is_dir():
-        raise InputError(out.parent, "output's parent folder does not exist")
-    run = get_run(run_id) if run_id is not None else None
-    if run is None and checkpoint is None:
-        raise InputError("--run", "a run id (or a checkpoint) is needed")
+    run = run_and_output(run_id, checkpoint, out, overwrite)
     module = load_height_module(run_id, checkpoint)
     cam = _dataset_camera(run)
     size = int(image_size or cam.get("image_size", 128))

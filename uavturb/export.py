@@ -368,6 +368,25 @@ def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], sample: dict
             mlflow.set_tag("export", str(Path(meta["out"]).resolve()))
 
 
+def run_and_output(run_id: str | None, checkpoint: str | Path | None, out: Path, overwrite: bool,
+                   hint: str = "") -> Any:
+    """Check an output folder and a model source before any work; returns the MLflow run (or None).
+
+    Raises
+    ------
+    InputError : ``out`` exists and ``overwrite`` is false, its parent folder is missing, or
+        neither a run id nor a checkpoint is given (or the run is unknown).
+    """
+    if out.exists() and not overwrite:
+        raise InputError(out, f"already exists{hint}")
+    if not out.parent.is_dir():
+        raise InputError(out.parent, "output's parent folder does not exist")
+    run = get_run(run_id) if run_id is not None else None
+    if run is None and checkpoint is None:
+        raise InputError("--run", "a run id (or a checkpoint) is needed")
+    return run
+
+
 def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None = None, data: str | Path | None = None,
            alpha: float | None = None, beta: float | None = None, n_sequences: int = 2, length: int = 32,
            tolerance: float = TOLERANCE, overwrite: bool = False, log: bool = True, verbose: bool = True
@@ -400,13 +419,7 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
     out = Path(out)
     if (alpha is None) != (beta is None):
         raise InputError("--alpha/--beta", "give both of the ground-effect law's constants, or neither")
-    if out.exists() and not overwrite:
-        raise InputError(out, "already exists (use --overwrite to replace it)")
-    if not out.parent.is_dir():
-        raise InputError(out.parent, "output's parent folder does not exist")
-    run = get_run(run_id) if run_id is not None else None
-    if run is None and checkpoint is None:
-        raise InputError("--run", "a run id (or a checkpoint) is needed")
+    run = run_and_output(run_id, checkpoint, out, overwrite, hint=" (use --overwrite to replace it)")
     ckpt = Path(checkpoint) if checkpoint is not None else run_checkpoint(run_id)
     module = load_height_module(checkpoint=ckpt)
     if data is None:

@@ -13,7 +13,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.gap import locate
-from uavturb.gap.design import LINEAR, NONLINEAR, GapData, gap_data, rotor_quantum, rounding_floor
+from uavturb.gap.design import GapData, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.report import write_json, write_markdown, write_plots

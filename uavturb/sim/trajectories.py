@@ -73,7 +73,7 @@ from typing import Any
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.sim.references import Reference, Setpoint, _Plan
+from uavturb.sim.references import Reference, _Plan
 from uavturb.sim.scenes import Scene, height_above, height_below, inside_obstacle
 
 __all__ = ["PlanConfig", "NavGrid", "PlannedTrajectory", "plan_trajectory", "christofides_order", "astar",
