@@ -61,7 +61,7 @@ def test_export_equals_module_in_clean_process(tmp_path, store, use_gru, keep):
     out = tmp_path / "exported"
     result = export(rid, out, n_sequences=1, length=12, verbose=False)
     assert result["max_abs_diff"] <= 1e-5
-    assert sorted(p.name for p in out.iterdir()) == ["export.json", "model.onnx", "model.pt2"]
+    assert sorted(p.name for p in out.iterdir()) == [".uavturb-output.json", "export.json", "model.onnx", "model.pt2"]
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary folder left
     meta = json.loads((out / "export.json").read_text())
     assert meta["use_gru"] is use_gru and meta["inputs"]["depth"] == [-1, 1, 16, 16]
@@ -135,8 +135,10 @@ def test_export_bad_inputs(tmp_path, store):
         export("nope", tmp_path / "x")
     rid, _, _, _ = tiny_height_run(tmp_path, use_gru=False, keep="tag", steps=1)
     (tmp_path / "taken").mkdir()
-    with pytest.raises(InputError, match="already exists"):
-        export(rid, tmp_path / "taken")
+    (tmp_path / "taken" / "my_notes.txt").write_text("keep")
+    with pytest.raises(InputError, match="not written by uavturb"):
+        export(rid, tmp_path / "taken", overwrite=True)
+    assert (tmp_path / "taken" / "my_notes.txt").read_text() == "keep"
     with pytest.raises(InputError, match="nothing written"):  # a check that cannot pass
         export(rid, tmp_path / "y", tolerance=-1.0, verbose=False, log=False, n_sequences=1, length=4)
     assert not (tmp_path / "y").exists()

@@ -121,10 +121,35 @@ def test_unknown_sim_effect(tmp_path, capsys, good):
     assert not out.exists()
 
 
-def test_out_parent_missing(tmp_path, capsys, good):
-    code = main(["gap", str(good), "--out", str(tmp_path / "no" / "such" / "dir"), "--no-mlflow"])
+def test_out_parent_missing_is_created(tmp_path, good):
+    out = tmp_path / "no" / "such" / "dir"
+    assert main(["gap", str(good), "--out", str(out), "--no-mlflow"]) == 0
+    assert (out / "report.json").is_file()
+
+
+def test_out_never_deletes_a_users_files(tmp_path, capsys, good):
+    out = tmp_path / "notes"
+    out.mkdir()
+    (out / "my_notes.txt").write_text("keep")
+    code = main(["gap", str(good), "--out", str(out), "--no-mlflow", "--overwrite"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code != 0 and len(err) == 1 and "does not exist" in err[0]
+    assert code == 2 and len(err) == 1 and "not written by uavturb" in err[0]
+    assert sorted(p.name for p in out.iterdir()) == ["my_notes.txt"]
+    # a report folder uavturb wrote is replaced only with --overwrite
+    rep = tmp_path / "rep"
+    assert main(["gap", str(good), "--out", str(rep), "--no-mlflow"]) == 0
+    assert main(["gap", str(good), "--out", str(rep), "--no-mlflow"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert main(["gap", str(good), "--out", str(rep), "--no-mlflow", "--overwrite"]) == 0
+
+
+def test_out_current_directory_is_refused(tmp_path, monkeypatch, capsys, good):
+    work = tmp_path / "checkout"
+    work.mkdir()
+    (work / "mlflow.db").write_text("store")
+    monkeypatch.chdir(work)
+    assert main(["gap", str(good), "--out", ".", "--no-mlflow", "--overwrite"]) == 2
+    assert (work / "mlflow.db").read_text() == "store"
 
 
 def test_default_sim_effects_follow_the_simulator_config(tmp_path, good):

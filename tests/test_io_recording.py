@@ -158,7 +158,7 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path, recording, monkeypatch
         raise OSError("disk full")
 
     monkeypatch.setattr(ply, "write_ply", broken)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(InputError, match="cannot be written \(disk full\)"):
         write_recording(recording, tmp_path / "flight")
     assert list(tmp_path.iterdir()) == []
 

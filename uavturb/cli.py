@@ -83,6 +83,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--physics-config", metavar="CONF", help="the simulator's physics config (effect parameters)")
     s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one (raw EuRoC)")
     s.add_argument("--no-mlflow", action="store_true", help="do not log the run to MLflow")
+    s.add_argument("--overwrite", action="store_true", help="replace a report folder that uavturb wrote")
 
     s = sub.add_parser("gap-proof", help="run the gap finder blind on flights with concealed effects; "
                                          "print the confusion table against PySINDy")
@@ -117,6 +118,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--ge-fraction", type=float, default=0.01,
                    help="ground-effect frames: where the law is at least this share of the thrust (0.01)")
     s.add_argument("--no-mlflow", action="store_true", help="do not log a child run")
+    s.add_argument("--overwrite", action="store_true", help="replace an output folder that uavturb wrote")
 
     s = sub.add_parser("export", help="the run's model as a streaming .pt2 and ONNX, checked and logged to MLflow")
     s.add_argument("--run", required=True, metavar="RUN_ID", help="MLflow run of a height training")
@@ -125,7 +127,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--alpha", type=float, help="ground-effect law of the exported f_a (default: the model's), "
                                                 "e.g. identified by `uavturb evaluate` (evaluation.json)")
     s.add_argument("--beta", type=float, help="see --alpha [m^2]")
-    s.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    s.add_argument("--overwrite", action="store_true", help="replace an output folder that uavturb wrote")
     s.add_argument("--no-mlflow", action="store_true", help="do not log the model to the run")
 
     s = sub.add_parser("bench", help="benchmarks that print figures")
@@ -195,7 +197,8 @@ def _run(args: argparse.Namespace) -> int:
         from uavturb.gap.finder import gap
 
         report = gap(args.recordings, args.out, sim_effects=args.sim_effects, seed=args.seed, apply=args.apply,
-                     vehicle=args.vehicle, log_mlflow=not args.no_mlflow, physics_config=args.physics_config)
+                     vehicle=args.vehicle, log_mlflow=not args.no_mlflow, physics_config=args.physics_config,
+                     overwrite=args.overwrite)
         named = ", ".join(f"{e['name']} {e['params']}" for e in report["effects"]) or "none"
         print(f"effects named: {named}")
         print(f"held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
@@ -228,7 +231,7 @@ def _run(args: argparse.Namespace) -> int:
         from uavturb.evaluate import evaluate
 
         evaluate(args.run, args.recordings, out=args.out, vehicle=args.vehicle, frame_dt=args.frame_dt,
-                 ge_fraction=args.ge_fraction, log=not args.no_mlflow)
+                 ge_fraction=args.ge_fraction, log=not args.no_mlflow, overwrite=args.overwrite)
     elif args.command == "export":
         from uavturb.export import export
 

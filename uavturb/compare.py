@@ -163,7 +163,7 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     ------
     InputError : no such experiment or parent run, or no finished ablation run in it.
     """
-    from uavturb.data.shards import write_text_atomic
+    from uavturb.io.publish import write_text_atomic
     from uavturb.sweep import DEFAULT_SPEC, load_spec
 
     sp = load_spec(spec if spec is not None else DEFAULT_SPEC)

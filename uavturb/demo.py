@@ -145,7 +145,7 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     summary["seconds"]["physics"] = time.perf_counter() - t
 
     t = _step(5, f"Table 2: model {ours['run_id']} (Depth->Normal, fine-tuned) on the flights")
-    table2 = evaluate(ours["run_id"], flights, out=out / "table2")
+    table2 = evaluate(ours["run_id"], flights, out=out / "table2", overwrite=True)
     summary["table2"] = {"rows": table2["rows"], "alpha": table2["alpha"], "beta": table2["beta"]}
     summary["seconds"]["evaluate"] = time.perf_counter() - t
 
@@ -155,7 +155,7 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     summary["seconds"]["export"] = time.perf_counter() - t
 
     t = _step(7, "sim-to-real gap finder on the flights, simulator effects: none")
-    report = gap([str(f) for f in flights], out / "gap", sim_effects="none", seed=seed)
+    report = gap([str(f) for f in flights], out / "gap", sim_effects="none", seed=seed, overwrite=True)
     named = ", ".join(f"{e['name']} {e['params']}" for e in report["effects"]) or "none"
     _say(f"effects named: {named}; held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
          f"{report['final']['heldout_rmse_N']:.4f} N; report {out / 'gap' / 'report.md'}")

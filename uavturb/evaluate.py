@@ -45,6 +45,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io.publish import publish_folder
 
 GE_FRACTION = 0.01
 
@@ -235,7 +236,7 @@ def _log(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]],
 def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str | Path = "evaluation",
              checkpoint: str | Path | None = None, vehicle: str | None = None, image_size: int | None = None,
              frame_dt: float | None = None, yfov_deg: float | None = None, pitch_deg: float | None = None,
-             ge_fraction: float = GE_FRACTION, overwrite: bool = True, log: bool = True, progress: bool = True
+             ge_fraction: float = GE_FRACTION, overwrite: bool = False, log: bool = True, progress: bool = True
              ) -> dict[str, Any]:
     """``uavturb evaluate``: Table 2 on EuRoC-layout flights (see the module docstring).
 
@@ -318,15 +319,12 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
                                   cat("airborne"))))
     table = format_table(rows)
 
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
     info = {"run_id": run_id, "checkpoint": str(checkpoint) if checkpoint else None,
             "recordings": [str(r.path) for r in recs], "alpha": fit.alpha, "beta": fit.beta,
             "alpha_beta_fit_rmse": fit.rmse, "identified_on": s0.name, "vehicle_constants": vehicle_source,
             "ge_fraction": ge_fraction, "h_ge": h_ge, "image_size": size, "camera": s0.camera.source,
             "rows": [{"flight": n, **m} for n, m in rows]}
-    try:
+    with publish_folder(out, overwrite=overwrite, command="uavturb evaluate") as tmp:
         (tmp / "table.md").write_text(
             f"Table 2 (ours): (alpha, beta) identified on {s0.name}; ground-effect (GE) frames: airborne "
             f"(thrust >= 0.3 m g) with d <= {h_ge:.3f} m (law >= {100 * ge_fraction:g} % of thrust); "
@@ -341,11 +339,6 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
         for r in results:
             plot_flight(r, tmp / f"fa_{_safe(r.name)}.png", h_ge)
             (tmp / f"series_{_safe(r.name)}.csv").write_text(_series_csv(r))
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
 
     child = None
     if log and run_id is not None:

@@ -48,6 +48,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from uavturb.errors import InputError
+from uavturb.io.publish import check_output_folder, publish_folder
 from uavturb.nn.height import phi_alpha_beta
 
 INPUT_NAMES = ("depth", "rotor_speeds", "state")
@@ -377,10 +378,7 @@ def run_and_output(run_id: str | None, checkpoint: str | Path | None, out: Path,
     InputError : ``out`` exists and ``overwrite`` is false, its parent folder is missing, or
         neither a run id nor a checkpoint is given (or the run is unknown).
     """
-    if out.exists() and not overwrite:
-        raise InputError(out, f"already exists{hint}")
-    if not out.parent.is_dir():
-        raise InputError(out.parent, "output's parent folder does not exist")
+    check_output_folder(out, overwrite=overwrite, hint=hint)
     run = get_run(run_id) if run_id is not None else None
     if run is None and checkpoint is None:
         raise InputError("--run", "a run id (or a checkpoint) is needed")
@@ -432,10 +430,7 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
     model = StreamingHeightModel(module, alpha, beta).eval()
     a, b = float(model.alpha), float(model.beta)
 
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    try:
+    with publish_folder(out, overwrite=overwrite, command="uavturb export") as tmp:
         t0 = time.perf_counter()
         export_streaming(model, (H, W), n_rotors, tmp)
         t_export = time.perf_counter() - t0
@@ -466,11 +461,6 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
                 "max_abs_diff_pt2": diff_pt2, "max_abs_diff_onnx": diff_onnx, "tolerance": tolerance,
                 "check_sequences": [s.name for s in seqs], "data": str(data)}
         (tmp / META_FILE).write_text(json.dumps(meta, indent=2))
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     if log and run_id is not None:
         seq = seqs[0]
         sample = {"depth": seq.depth[:1, None].astype(np.float32), "rotor_speeds": seq.rotor_speeds[:1],

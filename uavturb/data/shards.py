@@ -62,6 +62,7 @@ from typing import Any
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io.publish import atomic_folder, write_text_atomic
 
 VERSION = 1
 MANIFEST = "manifest.json"
@@ -107,61 +108,6 @@ def _json_default(x: Any) -> Any:
 
 def _dumps(obj: Any) -> str:
     return json.dumps(obj, indent=1, sort_keys=True, default=_json_default)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def _usual_mode(path: Path) -> None:
-    """``tempfile`` makes private (0700/0600) entries; give them the modes of ordinary ones."""
-    base = 0o777 if path.is_dir() else 0o666
-    os.chmod(path, base & ~_umask())
-
-
-@contextlib.contextmanager
-def _atomic_dir(folder: Path):
-    """Yield a temporary folder beside ``folder``; when the block ends normally it becomes
-    ``folder`` (:func:`_publish_dir`), otherwise it is removed: ``folder`` is never half-written."""
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
-    _usual_mode(tmp)
-    try:
-        yield tmp
-        _publish_dir(tmp, folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-
-
-def _publish_dir(tmp: Path, folder: Path) -> None:
-    """Put the complete folder ``tmp`` under the name ``folder`` (replacing an older one): at no
-    moment does ``folder`` hold a half-written or half-deleted tree."""
-    if folder.exists():
-        trash = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old", dir=folder.parent))
-        os.replace(folder, trash / folder.name)
-        os.replace(tmp, folder)
-        shutil.rmtree(trash, ignore_errors=True)
-    else:
-        os.replace(tmp, folder)
-
-
-def write_text_atomic(path: str | Path, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        _usual_mode(Path(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -277,7 +223,7 @@ def _check_meta(meta: dict[str, Any], where: Path) -> dict[str, Any]:
 
 
 def write_trajectory(folder: str | Path, arrays: dict[str, Any], meta: dict[str, Any],
-                     overwrite: bool = False) -> Path:
+                     overwrite: bool = False, extra_arrays: dict[str, np.ndarray] | None = None) -> Path:
     """Write one trajectory atomically.
 
     Parameters
@@ -288,6 +234,8 @@ def write_trajectory(folder: str | Path, arrays: dict[str, Any], meta: dict[str,
     meta : JSON-serialisable metadata with at least :data:`REQUIRED_META`.
     overwrite : replace an existing trajectory (the old one stays whole until the new one
         is complete).
+    extra_arrays : arrays outside the contract (``rgb``), written as they are in the same
+        atomic step and listed in ``meta["extra_arrays"]``.
 
     Returns
     -------
@@ -307,8 +255,11 @@ def write_trajectory(folder: str | Path, arrays: dict[str, Any], meta: dict[str,
     meta.update(version=VERSION, frames=int(T), image_size=[int(H), int(W)],
                 n_rotors=int(arrs["rotor_speeds"].shape[1]),
                 arrays={n: {"dtype": str(a.dtype), "shape": list(a.shape)} for n, a in arrs.items()})
-    with _atomic_dir(folder) as tmp:
-        for name, a in arrs.items():
+    extra = {n: np.ascontiguousarray(a) for n, a in (extra_arrays or {}).items()}
+    if extra:
+        meta["extra_arrays"] = {n: {"dtype": str(a.dtype), "shape": list(a.shape)} for n, a in extra.items()}
+    with atomic_folder(folder) as tmp:
+        for name, a in {**arrs, **extra}.items():
             np.save(tmp / f"{name}.npy", a)
         (tmp / META).write_text(_dumps(meta))
     return folder
@@ -541,7 +492,7 @@ def write_pairs(root: str | Path, depth: np.ndarray, normals: np.ndarray, meta: 
     if not (np.isfinite(depth).all() and np.isfinite(normals).all()):
         raise InputError(folder, "non-finite values")
     body = {**(meta or {}), "count": int(depth.shape[0]), "image_size": list(depth.shape[1:]), "version": VERSION}
-    with _atomic_dir(folder) as tmp:
+    with atomic_folder(folder) as tmp:
         np.save(tmp / "depth.npy", depth)
         np.save(tmp / "normals.npy", normals)
         (tmp / META).write_text(_dumps(body))
@@ -597,7 +548,7 @@ def write_pairs_chunks(root: str | Path, chunks: list[tuple[str | Path, str | Pa
                              "and (M, H, W, 3)")
     M = int(sum(len(dd) for dd in depths))
     body = {**(meta or {}), "count": M, "image_size": [int(s) for s in size], "version": VERSION}
-    with _atomic_dir(folder) as tmp:
+    with atomic_folder(folder) as tmp:
         for name, parts, tail in (("depth", depths, ()), ("normals", normals, (3,))):
             dst = np.lib.format.open_memmap(tmp / f"{name}.npy", mode="w+", dtype=np.float32, shape=(M, *size, *tail))
             i = 0

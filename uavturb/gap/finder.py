@@ -12,6 +12,7 @@ from typing import Sequence
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io.publish import check_output_folder, publish_folder
 from uavturb.gap import locate
 from uavturb.gap.design import GapData, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
@@ -174,11 +175,12 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
 
 def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str | None = None, seed: int = 0,
         apply: str | Path | None = None, vehicle: str | None = None, log_mlflow: bool = True,
-        physics_config: str | Path | None = None) -> dict:
+        physics_config: str | Path | None = None, overwrite: bool = False) -> dict:
     """Run the gap finder on recording folders and write ``out/report.json`` and ``out/report.md``.
 
     ``out`` holds a complete report or none: everything is built in a temporary folder beside it
-    and renamed at the end.
+    and renamed at the end (:func:`uavturb.io.publish.publish_folder`: an existing report folder is
+    replaced only with ``overwrite``; a folder uavturb did not write is never touched).
     """
     from uavturb.workflows import load_recordings
 
@@ -190,19 +192,12 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
         sim = {n: cfg.get(n, p) for n, p in sim.items()} if sim_effects is not None else cfg
     if not recordings:
         raise InputError("gap", "no recording given")
-    if out.exists() and not out.is_dir():
-        raise InputError(out, "exists and is not a folder")
-    if not out.parent.exists():
-        raise InputError(out.parent, "folder does not exist")
+    check_output_folder(out, overwrite=overwrite)
     recs = load_recordings(recordings, vehicle)
     report, ex = analyse(recs, sim, seed=seed)
     report["seconds_analysis"] = time.perf_counter() - t0
 
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    try:
+    with publish_folder(out, overwrite=overwrite, command="uavturb gap") as tmp:
         top = ex["drivers"][0]["feature"] if ex["drivers"] else None
         plots = write_plots(tmp, ex["data"], ex["r0"], ex["rs0"], ex["rf"], ex["rsf"], ex["segs"], top,
                             ex["base_ho"], ex["final_ho"])
@@ -215,16 +210,6 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
             report["applied_config"] = str(apply)
         write_markdown(tmp, report, plots)
         write_json(tmp, report)
-        if out.exists():
-            old = out.parent / f".{out.name}.old-{os.getpid()}"
-            os.replace(out, old)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
     if log_mlflow:
         try:
             from uavturb.tracking import log_run

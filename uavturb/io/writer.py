@@ -7,13 +7,12 @@ the same float64: :func:`read_recording` of a written recording returns the same
 
 from __future__ import annotations
 
-import os
-import shutil
 from pathlib import Path
 
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io.publish import publish_folder
 from uavturb.io import euroc_csv, ply, sensor_yaml
 from uavturb.io.reader import (
     CAM_CSV, CAM_DATA, CAM_YAML, GROUNDTRUTH_CSV, IMU_CSV, IMU_YAML, POINTS_PLY, ROTORS_CSV, VEHICLE_YAML, VICON_CSV,
@@ -71,32 +70,12 @@ def write_recording(rec: Recording, path: str | Path, *, overwrite: bool = False
     Raises
     ------
     InputError
-        ``path`` exists and ``overwrite`` is false, or a stream cannot be written
+        ``path`` exists and ``overwrite`` is false (or holds files uavturb did not write),
+        or a stream cannot be written
         (mismatched shapes, non-finite values, timestamps not strictly increasing).
         Nothing is left at ``path`` (nor any temporary folder) when writing fails.
     """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise InputError(path, "already exists (pass overwrite=True to replace it)")
-    if path.exists() and not path.is_dir():
-        raise InputError(path, "exists and is not a folder")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
-    old = path.with_name(f"{path.name}.old-{os.getpid()}")
-    shutil.rmtree(tmp, ignore_errors=True)
-    try:
-        tmp.mkdir()
+    with publish_folder(path, overwrite=overwrite, command="uavturb recording",
+                        hint=" (pass --overwrite / overwrite=True to replace it)") as tmp:
         _write_streams(rec, tmp)
-        if path.exists():  # overwrite: move the old folder aside, put the new one in, drop the old
-            os.replace(path, old)
-            try:
-                os.replace(tmp, path)
-            except BaseException:
-                os.replace(old, path)
-                raise
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return path
+    return Path(path)

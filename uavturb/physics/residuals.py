@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uavturb.io.publish import publish_file
 from uavturb.errors import InputError
 from uavturb.io.recording import Recording
 from uavturb.physics import quaternion as quat
@@ -137,14 +138,9 @@ def write_residuals(res: Residuals, path: str | Path) -> Path:
     """
     path = Path(path)
     df = residual_table(res)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
+    with publish_file(path) as tmp:
         if path.suffix == ".parquet":
             df.to_parquet(tmp, index=False)
         else:
             df.to_csv(tmp, index=False, float_format="%.9g")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return path

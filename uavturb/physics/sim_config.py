@@ -62,7 +62,6 @@ def write_physics_config(path: str | Path, effects: dict[str, dict[str, float]],
     body["effects"] = {n: {k: float(v) for k, v in p.items()} for n, p in effects.items()}
     if vehicle:
         body["vehicle"] = vehicle
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(yaml.safe_dump(body, sort_keys=False))
-    os.replace(tmp, path)
-    return path
+    from uavturb.io.publish import write_text_atomic
+
+    return write_text_atomic(path, yaml.safe_dump(body, sort_keys=False))

@@ -204,10 +204,9 @@ def load_vehicle(path: str | Path) -> Vehicle:
 
 def save_vehicle(vehicle: Vehicle, path: str | Path) -> None:
     """Write ``vehicle.yaml`` atomically (temporary file, then rename)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(yaml.safe_dump(vehicle.to_dict(), sort_keys=False))
-    os.replace(tmp, path)
+    from uavturb.io.publish import write_text_atomic
+
+    write_text_atomic(path, yaml.safe_dump(vehicle.to_dict(), sort_keys=False))
 
 
 # --- presets ------------------------------------------------------------------------

@@ -65,6 +65,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io.publish import atomic_folder
 from uavturb.sim.presets import SimPreset, get_preset
 
 GENERATOR_VERSION = 1
@@ -488,20 +489,8 @@ def _write(folder: Path, arrays: dict[str, np.ndarray], meta: dict[str, Any]) ->
     from uavturb.data import shards
 
     rgb = arrays.pop("rgb", None)
-    if rgb is None:
-        shards.write_trajectory(folder, arrays, meta)
-        return
-    stage = folder.parent / f".{folder.name}.rgb-stage"
-    if stage.exists():
-        shutil.rmtree(stage)
-    meta = {**meta, "extra_arrays": {"rgb": {"dtype": "uint8", "shape": list(rgb.shape)}}}
-    shards.write_trajectory(stage, arrays, meta)
-    try:
-        np.save(stage / "rgb.npy", np.ascontiguousarray(rgb, np.uint8))
-        os.replace(stage, folder)
-    except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
-        raise
+    extra = None if rgb is None else {"rgb": np.asarray(rgb, np.uint8)}
+    shards.write_trajectory(folder, arrays, meta, extra_arrays=extra)
 
 
 def _work(job: tuple[Task, SimPreset, int, str, str]) -> dict[str, Any]:
@@ -766,19 +755,12 @@ def _link_tree(src: Path, dst: Path) -> None:
     """Hard-link (or copy) the files of folder ``src`` into a new folder ``dst``, atomically."""
     if not src.is_dir():
         raise InputError(src, "trajectory folder listed in the manifest is missing")
-    stage = dst.parent / f".{dst.name}.merge-stage"
-    shutil.rmtree(stage, ignore_errors=True)
-    stage.mkdir(parents=True)
-    try:
+    with atomic_folder(dst) as stage:
         for f in src.iterdir():
             try:
                 os.link(f, stage / f.name)
             except OSError:
                 shutil.copy2(f, stage / f.name)
-        os.replace(stage, dst)
-    except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
-        raise
 
 
 # ----------------------------------------------------------------------------------------------

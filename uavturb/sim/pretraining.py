@@ -52,6 +52,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io.publish import atomic_folder, write_text_atomic
 from uavturb.sim.presets import SimPreset, get_preset
 
 CHUNKS_DIR = ".pairs-chunks"
@@ -119,16 +120,9 @@ def _chunk_pairs(job: tuple[int, int, int, int, str, SimPreset, int]) -> int:
                     break
             depth[i], normals[i] = dd, nn
     folder = Path(root) / CHUNKS_DIR / f"chunk_{c:05d}"
-    stage = folder.parent / f".{folder.name}.tmp"
-    shutil.rmtree(stage, ignore_errors=True)
-    stage.mkdir(parents=True)
-    try:
+    with atomic_folder(folder) as stage:
         np.save(stage / "depth.npy", depth)
         np.save(stage / "normals.npy", normals)
-        os.replace(stage, folder)
-    except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
-        raise
     return n
 
 
@@ -179,7 +173,7 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
             raise InputError(cfg_file, f"an interrupted run of another config (hash {old.get('config_hash')}) is "
                                        "there; use another --out or delete that folder")
     else:
-        shards.write_text_atomic(cfg_file, json.dumps({"seed": int(seed), "config_hash": chash}))
+        write_text_atomic(cfg_file, json.dumps({"seed": int(seed), "config_hash": chash}))
     train = scene_splits(p)["train"]
     n_chunks = -(-p.pairs // p.pairs_chunk)
     jobs = []
