@@ -10,14 +10,15 @@ import lightning as L
 import mlflow
 import torch
 
-from uavturb.data import shards
+from uavturb.data import synthetic
 from uavturb.data.datamodules import ShardWindowsDataModule
+from uavturb.io import shards
 from uavturb.systems import HeightModule
 
 
 def tiny_dataset(root: Path, size: int = 16, T: int = 24) -> Path:
     if not (root / shards.MANIFEST).is_file():
-        shards.make_synthetic_dataset(root, n_scenes=3, trajs_per_scene=1, T=T, size=size, seed=0)
+        synthetic.make_synthetic_dataset(root, n_scenes=3, trajs_per_scene=1, T=T, size=size, seed=0)
     return root
 
 

@@ -12,8 +12,8 @@ from scipy.signal import savgol_filter
 
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.physics.flight_data import FlightData
 from uavturb.physics.vehicle import Vehicle
+from uavturb.sysid.flight_data import FlightData
 
 
 def inverse_dynamics_flight(vehicle: Vehicle, *, duration=60.0, rate=200.0, seed=0, rate_amp=(1.6, 1.6, 0.8),

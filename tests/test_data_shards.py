@@ -8,9 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from uavturb.data import shards
-from uavturb.data.datamodules import PairsDataModule, ShardWindowsDataModule, ShardWindowsDataset
+from uavturb.data import synthetic
+from uavturb.data.datamodules import (
+    PairsDataModule,
+    ShardWindowsDataModule,
+    ShardWindowsDataset,
+)
 from uavturb.errors import InputError
+from uavturb.io import shards
 from uavturb.physics.ground_effect import phi
 
 
@@ -127,7 +132,7 @@ def test_manifest_round_trip_and_validation(tmp_path):
 
 
 def test_synthetic_dataset_is_consistent(tmp_path):
-    m = shards.make_synthetic_dataset(tmp_path, n_scenes=3, trajs_per_scene=2, T=40, size=16, seed=3,
+    m = synthetic.make_synthetic_dataset(tmp_path, n_scenes=3, trajs_per_scene=2, T=40, size=16, seed=3,
                                       with_normals=True)
     assert all(len(m.splits[s]) == 2 for s in shards.SPLITS)
     scenes = {s: {shards.read_trajectory(f).meta["scene_id"] for f in m.folders(s)} for s in shards.SPLITS}
@@ -138,16 +143,16 @@ def test_synthetic_dataset_is_consistent(tmp_path):
     np.testing.assert_allclose(tr.fa, phi(tr.d, 5.45e-6 * S, 2.0, 0.01), rtol=1e-5)
     assert (tr.d > 0).all() and np.allclose(tr.state[:, 2] >= tr.d - 1e-4, True)
     # same seed, same dataset
-    m2 = shards.make_synthetic_dataset(tmp_path / "again", n_scenes=3, trajs_per_scene=2, T=40, size=16, seed=3,
+    m2 = synthetic.make_synthetic_dataset(tmp_path / "again", n_scenes=3, trajs_per_scene=2, T=40, size=16, seed=3,
                                        with_normals=True)
     np.testing.assert_array_equal(shards.read_trajectory(m2.folders("train")[0]).depth, tr.depth)
 
 
 def test_synthetic_pairs_normals_match_depth(tmp_path):
-    shards.make_synthetic_pairs(tmp_path, M=8, size=48, seed=1)
+    synthetic.make_synthetic_pairs(tmp_path, M=8, size=48, seed=1)
     depth, normals, meta = shards.read_pairs(tmp_path, mmap=False)
     assert depth.shape == (8, 48, 48) and normals.shape == (8, 48, 48, 3) and meta["count"] == 8
-    rays = shards.pixel_rays(48)
+    rays = synthetic.pixel_rays(48)
     for m in range(8):
         P = rays * depth[m].astype(float)[..., None]
         n = np.cross(P[1:-1, 2:] - P[1:-1, :-2], P[2:, 1:-1] - P[:-2, 1:-1])
@@ -158,7 +163,7 @@ def test_synthetic_pairs_normals_match_depth(tmp_path):
 
 
 def test_window_datamodule(tmp_path):
-    shards.make_synthetic_dataset(tmp_path, n_scenes=3, trajs_per_scene=1, T=20, size=16, seed=0)
+    synthetic.make_synthetic_dataset(tmp_path, n_scenes=3, trajs_per_scene=1, T=20, size=16, seed=0)
     dm = ShardWindowsDataModule(str(tmp_path), window=6, stride=2, eval_stride=1, batch_size=4, num_workers=0)
     dm.setup("fit")
     assert len(dm.sets["train"]) == len(range(0, 15, 2)) and len(dm.sets["val"]) == 15
@@ -173,7 +178,7 @@ def test_window_datamodule(tmp_path):
 def test_window_dataset_opens_maps_once_and_pickles_light(tmp_path):
     import pickle
 
-    m = shards.make_synthetic_dataset(tmp_path, n_scenes=3, trajs_per_scene=1, T=12, size=8)
+    m = synthetic.make_synthetic_dataset(tmp_path, n_scenes=3, trajs_per_scene=1, T=12, size=8)
     ds = ShardWindowsDataset(m.folders("train"), window=4)
     ds[0]
     first = ds._trajs
@@ -185,7 +190,7 @@ def test_window_dataset_opens_maps_once_and_pickles_light(tmp_path):
 
 
 def test_window_datamodule_with_workers(tmp_path):
-    shards.make_synthetic_dataset(tmp_path, n_scenes=3, trajs_per_scene=1, T=12, size=8)
+    synthetic.make_synthetic_dataset(tmp_path, n_scenes=3, trajs_per_scene=1, T=12, size=8)
     dm = ShardWindowsDataModule(str(tmp_path), window=4, batch_size=3, num_workers=2)
     dm.setup("fit")
     n = sum(b["d"].shape[0] for b in dm.train_dataloader())
@@ -194,7 +199,7 @@ def test_window_datamodule_with_workers(tmp_path):
 
 @pytest.mark.parametrize("target, channels", [("normals", 3), ("depth", 1)])
 def test_pairs_datamodule(tmp_path, target, channels):
-    shards.make_synthetic_pairs(tmp_path, M=20, size=16)
+    synthetic.make_synthetic_pairs(tmp_path, M=20, size=16)
     dm = PairsDataModule(str(tmp_path), target=target, batch_size=5, val_fraction=0.2)
     dm.setup("fit")
     assert len(dm.train_set) == 16 and len(dm.val_set) == 4
@@ -204,7 +209,7 @@ def test_pairs_datamodule(tmp_path, target, channels):
 
 
 def test_update_manifest_and_dataset_hash(tmp_path):
-    m = shards.make_synthetic_dataset(tmp_path / "ds", n_scenes=3, trajs_per_scene=1, T=6, size=8)
+    m = synthetic.make_synthetic_dataset(tmp_path / "ds", n_scenes=3, trajs_per_scene=1, T=6, size=8)
     h = shards.dataset_hash(tmp_path / "ds")
     assert h == shards.dataset_hash(tmp_path / "ds") and len(h) == 16
     up = shards.update_manifest(tmp_path / "ds", complete=True, statistics={"frames": 18})

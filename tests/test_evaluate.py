@@ -7,17 +7,26 @@ import csv
 import json
 
 import mlflow
-
-from uavturb.tracking import tracking_uri
 import numpy as np
 import pytest
 import torch
-
 from height_run import tiny_height_run
-from uavturb.data.recordings import (RecordingWindowsDataset, box_average, cam0_camera, forward_camera,
-                                    recording_sequence)
+
+from uavturb.data.recordings import (
+    RecordingWindowsDataset,
+    box_average,
+    cam0_camera,
+    forward_camera,
+    recording_sequence,
+)
 from uavturb.errors import InputError
-from uavturb.evaluate import FlightResult, evaluate, ground_effect_height, predict_heights
+from uavturb.experiments.evaluate import (
+    FlightResult,
+    evaluate,
+    ground_effect_height,
+    predict_heights,
+)
+from uavturb.experiments.tracking import tracking_uri
 from uavturb.io.reader import read_recording
 from uavturb.physics.ground_effect import phi_alpha_beta
 from uavturb.physics.vehicle import HEXAROTOR

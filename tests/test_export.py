@@ -10,12 +10,13 @@ import sys
 import numpy as np
 import pytest
 import torch
-
 from height_run import tiny_height_run
-from uavturb.data import shards
+
 from uavturb.errors import InputError
-from uavturb.export import StreamingHeightModel, export, gru_step, run_checkpoint
+from uavturb.experiments.export import export, run_checkpoint
+from uavturb.io import shards
 from uavturb.nn.height import phi_alpha_beta
+from uavturb.nn.streaming import StreamingHeightModel, gru_step
 from uavturb.systems import HeightModule
 
 

@@ -5,8 +5,9 @@ import json
 import pytest
 
 from uavturb.errors import InputError
-from uavturb.gap.finder import gap
-from uavturb.physics.sim_config import DEFAULT_EFFECTS, load_physics_config
+from uavturb.experiments.gap_run import gap
+from uavturb.io.physics_config import load_physics_config
+from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.sim.flight import generate_flight
 
 REQUIRED = {"schema", "recordings", "sim_effects", "protocol", "baseline", "mismatch", "effects",

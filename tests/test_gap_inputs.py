@@ -155,8 +155,8 @@ def test_out_current_directory_is_refused(tmp_path, monkeypatch, capsys, good):
 def test_default_sim_effects_follow_the_simulator_config(tmp_path, good):
     from pathlib import Path
 
-    from uavturb.gap.finder import gap
-    from uavturb.physics.sim_config import load_physics_config
+    from uavturb.experiments.gap_run import gap
+    from uavturb.io.physics_config import load_physics_config
 
     conf = load_physics_config(Path(__file__).parents[1] / "conf" / "physics" / "default.yaml")["effects"]
     report = gap([str(good)], tmp_path / "r", log_mlflow=False)

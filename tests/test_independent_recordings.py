@@ -14,8 +14,8 @@ import shutil
 
 import numpy as np
 import pytest
-
 from synthetic import inverse_dynamics_flight
+
 from uavturb.cli import main
 from uavturb.physics.vehicle import HEXAROTOR
 

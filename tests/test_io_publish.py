@@ -8,7 +8,12 @@ from pathlib import Path
 import pytest
 
 from uavturb.errors import InputError
-from uavturb.io.publish import MARKER, check_output_folder, publish_folder, write_text_atomic
+from uavturb.io.publish import (
+    MARKER,
+    check_output_folder,
+    publish_folder,
+    write_text_atomic,
+)
 
 
 def _publish(out: Path, text: str = "x", *, overwrite: bool = False) -> None:

@@ -10,7 +10,14 @@ from conftest import T0_NS, make_recording
 
 from uavturb.errors import InputError
 from uavturb.io import align, euroc_csv, ply
-from uavturb.io.reader import GROUNDTRUTH_CSV, IMU_CSV, ROTORS_CSV, VEHICLE_YAML, VICON_CSV, read_recording
+from uavturb.io.reader import (
+    GROUNDTRUTH_CSV,
+    IMU_CSV,
+    ROTORS_CSV,
+    VEHICLE_YAML,
+    VICON_CSV,
+    read_recording,
+)
 from uavturb.io.writer import write_recording
 from uavturb.physics import quaternion as quat
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR

@@ -141,6 +141,7 @@ def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
     import shutil
 
     from conftest import make_recording
+
     from uavturb.cli import main
     from uavturb.io.writer import write_recording
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import pytest
 
-from uavturb.config import load_config
 from uavturb.errors import InputError
+from uavturb.experiments.config import load_config
+from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
 from uavturb.sim.dataset import plan_tasks, scene_splits
 from uavturb.sim.presets import get_preset
-from uavturb.sweep import DEFAULT_SPEC, load_spec
 
 
 def test_medium_sim_preset_splits_scenes_and_trajectories():

@@ -1,9 +1,11 @@
-import pytest
-import yaml
 from pathlib import Path
 
+import pytest
+import yaml
+
 from uavturb.errors import InputError
-from uavturb.physics.sim_config import DEFAULT_EFFECTS, load_physics_config, write_physics_config
+from uavturb.io.physics_config import load_physics_config, write_physics_config
+from uavturb.physics.effects import DEFAULT_EFFECTS
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "physics" / "default.yaml"
 

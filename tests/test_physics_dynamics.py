@@ -1,13 +1,17 @@
 """Known answers for the CasADi model of the paper's eq. 1."""
 
+import casadi as ca
 import numpy as np
 import pytest
 
 from uavturb.physics import quaternion as quat
-from uavturb.physics.dynamics import GRAVITY, dynamics_for, physical_params, rotation_matrix_sym
+from uavturb.physics.dynamics import (
+    GRAVITY,
+    dynamics_for,
+    physical_params,
+    rotation_matrix_sym,
+)
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
-
-import casadi as ca
 
 
 @pytest.mark.parametrize("vehicle", [HEXAROTOR, QUADROTOR], ids=["hex", "quad"])

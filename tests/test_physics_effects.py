@@ -6,8 +6,14 @@ import pytest
 from uavturb.errors import InputError
 from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
-from uavturb.physics.effects import (EFFECTS, EffectInputs, effect_force, format_effects, lag_rotor_speeds,
-                                     parse_effects)
+from uavturb.physics.effects import (
+    EFFECTS,
+    EffectInputs,
+    effect_force,
+    format_effects,
+    lag_rotor_speeds,
+    parse_effects,
+)
 from uavturb.physics.vehicle import QUADROTOR
 
 

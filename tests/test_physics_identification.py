@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
-
 from synthetic import inverse_dynamics_flight
-from uavturb.physics.identification import identify
-from uavturb.physics.residuals import residual_forces
+
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
+from uavturb.sysid.identification import identify
+from uavturb.sysid.residuals import residual_forces
 
 
 @pytest.mark.parametrize("vehicle", [HEXAROTOR, QUADROTOR], ids=["hex", "quad"])

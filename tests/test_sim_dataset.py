@@ -9,10 +9,10 @@ import os
 import numpy as np
 import pytest
 
-from uavturb.data import shards
 from uavturb.errors import InputError
+from uavturb.io import shards
+from uavturb.io.vehicle_file import preset as vehicle_preset
 from uavturb.physics.ground_effect import phi
-from uavturb.physics.vehicle import preset as vehicle_preset
 from uavturb.sim import dataset
 from uavturb.sim.presets import get_preset
 from uavturb.sim.scenes import generate_scene, height_below, inside_obstacle

@@ -10,7 +10,13 @@ from uavturb.physics.dynamics import dynamics_for, physical_params
 from uavturb.physics.effects import lag_rotor_speeds, parse_effects
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
 from uavturb.sim.controller import GeometricController
-from uavturb.sim.flight import EUROC_T0_NS, SensorNoise, generate_flight, make_reference, simulate_flight
+from uavturb.sim.flight import (
+    EUROC_T0_NS,
+    SensorNoise,
+    generate_flight,
+    make_reference,
+    simulate_flight,
+)
 from uavturb.sim.references import Room, excitation, hover, low_passes, mixed
 
 E_Z = np.array([0.0, 0.0, 1.0])

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from uavturb.data import shards
 from uavturb.errors import InputError
+from uavturb.io import shards
 from uavturb.sim import dataset, pretraining
 from uavturb.sim.presets import get_preset
 

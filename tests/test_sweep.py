@@ -12,15 +12,15 @@ import io
 from pathlib import Path
 
 import mlflow
-
-from uavturb.tracking import tracking_uri
 import numpy as np
 import pytest
 
-from uavturb import sweep as sweep_mod
-from uavturb.compare import compare
 from uavturb.errors import InputError
-from uavturb.sweep import DEFAULT_SPEC, load_spec, sweep
+from uavturb.experiments import sweep as sweep_mod
+from uavturb.experiments.compare import compare
+from uavturb.experiments.sweep import sweep
+from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
+from uavturb.experiments.tracking import tracking_uri
 
 ROWS = [r.name for r in load_spec(DEFAULT_SPEC).rows]
 

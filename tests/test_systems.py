@@ -7,7 +7,12 @@ import pytest
 import torch
 
 from uavturb.errors import InputError
-from uavturb.systems import FreezeThenFinetune, HeightModule, TranscoderModule, transcoding_loss
+from uavturb.systems import (
+    FreezeThenFinetune,
+    HeightModule,
+    TranscoderModule,
+    transcoding_loss,
+)
 
 
 def _unit(x):

@@ -10,9 +10,10 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from uavturb.config import allowed_keys, load_config
-from uavturb.data import shards
+from uavturb.data import synthetic
 from uavturb.errors import InputError
+from uavturb.experiments.config import allowed_keys, load_config
+from uavturb.io import shards
 from uavturb.systems import HeightModule
 
 
@@ -34,7 +35,7 @@ def _overrides(tmp_path, *extra):
 
 
 def test_tiny_height_training_learns_and_logs(tmp_path, store):
-    from uavturb.train import train
+    from uavturb.experiments.train import train
 
     cfg = load_config(_overrides(tmp_path, "trainer.max_epochs=4", "model.lr_head=3e-3", "model.lr_encoder=3e-3"),
                       experiment="smoke")
@@ -70,7 +71,7 @@ def test_tiny_height_training_learns_and_logs(tmp_path, store):
 
 
 def test_pretrain_then_finetune_height(tmp_path, store):
-    from uavturb.train import train
+    from uavturb.experiments.train import train
 
     pre = train(load_config(_overrides(tmp_path, "trainer.max_epochs=1"), experiment="smoke_pretrain"))
     assert pre["stage"] == "pretrain" and "test/loss" in pre["metrics"] and "val/angle_deg" in pre["metrics"]
@@ -82,7 +83,7 @@ def test_pretrain_then_finetune_height(tmp_path, store):
 
 
 def test_height_stage_needs_encoder_checkpoint(tmp_path, store):
-    from uavturb.train import train
+    from uavturb.experiments.train import train
 
     cfg = load_config(_overrides(tmp_path, "model=normals_finetune", "tracking.enabled=false"))
     with pytest.raises(InputError) as e:
@@ -125,7 +126,7 @@ def test_config_groups_and_experiments():
 def test_group_file_typo_names_file_and_key(tmp_path):
     import shutil
 
-    from uavturb.config import CONF_DIR
+    from uavturb.experiments.config import CONF_DIR
 
     conf = tmp_path / "conf"
     shutil.copytree(CONF_DIR, conf)
@@ -144,9 +145,9 @@ def test_cli_train_typo_is_one_line_naming_the_key(capsys):
 
 
 def test_predict_last_frames_matches_the_windows_the_metrics_score(tmp_path):
-    from uavturb.training_plots import plot_test_heights, predict_last_frames
+    from uavturb.experiments.plots import plot_test_heights, predict_last_frames
 
-    m = shards.make_synthetic_dataset(tmp_path / "ds", n_scenes=3, trajs_per_scene=1, T=9, size=8)
+    m = synthetic.make_synthetic_dataset(tmp_path / "ds", n_scenes=3, trajs_per_scene=1, T=9, size=8)
     module = HeightModule(encoder_hidden=16)
     module.eval()
     tr = shards.read_trajectory(m.folders("test")[0])

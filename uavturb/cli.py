@@ -160,41 +160,50 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from uavturb import workflows
-
     if args.command == "identify":
-        ident = workflows.identify_recordings(args.recordings, model=args.model, vehicle=args.vehicle)
+        from uavturb.experiments.identify import (
+            format_identification,
+            identify_recordings,
+        )
+
+        ident = identify_recordings(args.recordings, model=args.model, vehicle=args.vehicle)
         if args.json:
             print(json.dumps(ident.to_dict()))
         else:
-            print(workflows.format_identification(ident))
+            print(format_identification(ident))
     elif args.command == "residuals":
-        res, path = workflows.residuals_to_file(args.recording, args.out, source=args.source,
+        from uavturb.experiments.identify import residuals_to_file
+
+        res, path = residuals_to_file(args.recording, args.out, source=args.source,
                                                 derivative=args.derivative, params=args.params,
                                                 vehicle=args.vehicle)
         print(f"wrote {path}: {len(res.t)} samples, source {res.source}, residual RMS {res.rmse:.4f} N")
     elif args.command == "import-euroc":
-        rec = workflows.import_euroc(args.bag, args.out, vehicle=args.vehicle, asl=args.asl,
+        from uavturb.io.euroc_import import import_euroc
+
+        rec = import_euroc(args.bag, args.out, vehicle=args.vehicle, asl=args.asl,
                                      rotor_speed_scale=args.rotor_speed_scale, overwrite=args.overwrite)
         print(f"wrote {args.out}: {len(rec.ground_truth.t_ns)} ground-truth rows, {len(rec.rotors.t_ns)} rotor rows, "
               f"imu {'yes' if rec.imu is not None else 'no'}, point cloud {'yes' if rec.points is not None else 'no'}")
     elif args.command == "generate":
+        from uavturb.experiments import generate
+
         if args.what == "flight":
-            rec = workflows.generate_flight(vehicle=args.vehicle, effects=args.effects, duration=args.duration,
+            rec = generate.generate_flight(vehicle=args.vehicle, effects=args.effects, duration=args.duration,
                                             kind=args.kind, seed=args.seed, noise=args.noise, out=args.out)
             gt = rec.ground_truth
             print(f"wrote {args.out}: {len(gt)} ground-truth rows, {(gt.t_ns[-1] - gt.t_ns[0]) * 1e-9:.1f} s, "
                   f"effects {args.effects}")
         elif args.what == "sim":
-            print(workflows.generate_sim(args.preset, args.out, workers=args.workers, seed=args.seed,
-                                         shard=args.shard, **workflows.preset_overrides(args.preset_set)))
+            print(generate.generate_sim(args.preset, args.out, workers=args.workers, seed=args.seed,
+                                         shard=args.shard, **generate.preset_overrides(args.preset_set)))
         elif args.what == "normals":
-            print(workflows.generate_normals(args.preset, args.out, workers=args.workers, seed=args.seed,
-                                             irs=args.irs, size=args.size, **workflows.preset_overrides(args.preset_set)))
+            print(generate.generate_normals(args.preset, args.out, workers=args.workers, seed=args.seed,
+                                             irs=args.irs, size=args.size, **generate.preset_overrides(args.preset_set)))
         elif args.what == "merge":
-            print(workflows.generate_merge(args.dirs, args.out))
+            print(generate.generate_merge(args.dirs, args.out))
     elif args.command == "gap":
-        from uavturb.gap.finder import gap
+        from uavturb.experiments.gap_run import gap
 
         report = gap(args.recordings, args.out, sim_effects=args.sim_effects, seed=args.seed, apply=args.apply,
                      vehicle=args.vehicle, log_mlflow=not args.no_mlflow, physics_config=args.physics_config,
@@ -204,11 +213,13 @@ def _run(args: argparse.Namespace) -> int:
         print(f"held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
               f"{report['final']['heldout_rmse_N']:.4f} N ({report['protocol']}); report in {args.out}")
     elif args.command == "gap-proof":
-        workflows.gap_proof(Path(args.out), duration=args.duration, seed=args.seed,
+        from uavturb.experiments.gap_proof import gap_proof
+
+        gap_proof(Path(args.out), duration=args.duration, seed=args.seed,
                             singles=args.effects.split(",") if args.effects else None, pairs=not args.no_pairs)
     elif args.command == "train":
-        from uavturb.config import load_config
-        from uavturb.train import train
+        from uavturb.experiments.config import load_config
+        from uavturb.experiments.train import train
 
         out = train(load_config(args.overrides, experiment=args.experiment))
         if out.get("global_rank", 0) != 0:  # DDP: the other ranks say nothing
@@ -216,32 +227,36 @@ def _run(args: argparse.Namespace) -> int:
         print(json.dumps({k: out[k] for k in ("stage", "run_id", "checkpoint", "data_hash")}))
         print("  ".join(f"{k} {v:.5g}" for k, v in sorted(out["metrics"].items()) if k.startswith("test/")))
     elif args.command == "sweep":
-        from uavturb.sweep import sweep
+        from uavturb.experiments.sweep import sweep
 
         res = sweep(args.spec, preset=args.preset, seeds=args.seeds, overrides=args.overrides,
                     experiment=args.experiment)
         print(res["table"])
     elif args.command == "compare":
-        from uavturb.compare import compare
+        from uavturb.experiments.compare import compare
 
         res = compare(experiment=args.experiment, parent_run_id=args.parent, out=args.out)
         print(res["table"])
         print(f"wrote {res['markdown']} and {res['csv']}")
     elif args.command == "evaluate":
-        from uavturb.evaluate import evaluate
+        from uavturb.experiments.evaluate import evaluate
 
         evaluate(args.run, args.recordings, out=args.out, vehicle=args.vehicle, frame_dt=args.frame_dt,
                  ge_fraction=args.ge_fraction, log=not args.no_mlflow, overwrite=args.overwrite)
     elif args.command == "export":
-        from uavturb.export import export
+        from uavturb.experiments.export import export
 
         res = export(args.run, args.out, data=args.data, alpha=args.alpha, beta=args.beta, overwrite=args.overwrite,
                      log=not args.no_mlflow)
         print(f"wrote {res['out']}: model.pt2, model.onnx (max abs difference {res['max_abs_diff']:.3g})")
     elif args.command == "bench":
-        workflows.bench(args.what)
+        from uavturb.experiments.benchmarks import bench
+
+        bench(args.what)
     elif args.command == "demo":
-        workflows.demo(Path(args.out), seed=args.seed)
+        from uavturb.experiments.demo import run
+
+        run(Path(args.out), seed=args.seed)
     return 0
 
 

@@ -26,8 +26,8 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 
-from uavturb.data import shards
 from uavturb.errors import InputError
+from uavturb.io import shards
 
 
 class ShardWindowsDataset(Dataset):

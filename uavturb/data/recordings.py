@@ -179,10 +179,14 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     from uavturb.io import align
     from uavturb.io.reader import POINTS_PLY
     from uavturb.physics.dynamics import GRAVITY
-    from uavturb.physics.flight_data import flight_data
-    from uavturb.physics.residuals import residual_forces
     from uavturb.scene.heights import SurfaceIndex
-    from uavturb.scene.projection import camera_pose_world, depth_from_points, prepare_cloud
+    from uavturb.scene.projection import (
+        camera_pose_world,
+        depth_from_points,
+        prepare_cloud,
+    )
+    from uavturb.sysid.flight_data import flight_data
+    from uavturb.sysid.residuals import residual_forces
 
     where = rec.path or rec.name
     if rec.points is None:

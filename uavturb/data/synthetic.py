@@ -26,8 +26,8 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.physics import quaternion as quat
+from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.physics.ground_effect import phi
-from uavturb.physics.sim_config import DEFAULT_EFFECTS
 from uavturb.physics.vehicle import QUADROTOR
 
 YFOV_DEG = 70.0        # vertical field of view, as the simulator's renderer
@@ -261,7 +261,7 @@ def make_synthetic_dataset(root: str | Path, n_scenes: int = 6, trajs_per_scene:
     -------
     :class:`uavturb.data.shards.Manifest`
     """
-    from uavturb.data import shards
+    from uavturb.io import shards
 
     if T < 1 or size < 1 or trajs_per_scene < 1:
         raise InputError("synthetic", f"T, size and trajs_per_scene must be positive, got {T}, {size}, "
@@ -303,7 +303,7 @@ def make_synthetic_pairs(root: str | Path, M: int = 512, size: int = 32, seed: i
     Cameras sit anywhere above the boxes, look in any direction, pitched down 10-80 deg; a new
     room every ``per_room`` views. Returns the pairs folder.
     """
-    from uavturb.data import shards
+    from uavturb.io import shards
 
     if M < 1 or size < 1:
         raise InputError("pairs", f"M and size must be positive, got {M}, {size}")

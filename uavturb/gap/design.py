@@ -26,7 +26,7 @@ from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import lag_rotor_speeds
-from uavturb.physics.flight_data import FlightData
+from uavturb.sysid.flight_data import FlightData
 
 #: nonlinear parameter of each effect whose law is not linear in it, with its search bounds
 NONLINEAR = {"ground_effect": ("mu", 0.05, 40.0), "ceiling_effect": ("kappa", 0.05, 40.0),

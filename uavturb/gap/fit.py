@@ -10,8 +10,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from uavturb.gap.design import NONLINEAR, GapData, dependent_columns, design, fixed_columns, stack_target, unstack
-from uavturb.physics.least_squares import lstsq
+from uavturb.gap.design import (
+    NONLINEAR,
+    GapData,
+    dependent_columns,
+    design,
+    fixed_columns,
+    stack_target,
+    unstack,
+)
+from uavturb.sysid.least_squares import lstsq
 
 GRID_POINTS = 17
 

@@ -7,14 +7,16 @@ shared with :mod:`uavturb.io.writer`.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io import align, euroc_csv, ply, sensor_yaml
 from uavturb.io.recording import GroundTruth, Imu, Poses, Recording, Rotors
+from uavturb.io.vehicle_file import load_vehicle, preset
 from uavturb.physics import quaternion as quat
-from uavturb.physics.vehicle import Vehicle, load_vehicle
+from uavturb.physics.vehicle import Vehicle
 
 # --- the layout (paths relative to the recording folder) -----------------------------------
 VEHICLE_YAML = "vehicle.yaml"
@@ -159,3 +161,17 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
 
     return Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors, points=points, cam0=cam0,
                      vicon=vicon, path=root)
+
+
+def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None = None) -> list[Recording]:
+    """Read recording folders; ``vehicle`` (preset name, yaml path or Vehicle) serves folders without one."""
+    from uavturb.io.reader import read_recording
+
+    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    recs = [read_recording(p, vehicle=v, require_rotors=True) for p in paths]
+    first = recs[0].vehicle
+    for r in recs[1:]:
+        if r.vehicle.rotor_count != first.rotor_count or r.vehicle.mass != first.mass:
+            raise InputError(r.path / "vehicle.yaml", f"describes another vehicle than {recs[0].path}/vehicle.yaml")
+    return recs
+

@@ -12,13 +12,22 @@ from pathlib import Path
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.io.publish import publish_folder
 from uavturb.io import euroc_csv, ply, sensor_yaml
+from uavturb.io.publish import publish_folder
 from uavturb.io.reader import (
-    CAM_CSV, CAM_DATA, CAM_YAML, GROUNDTRUTH_CSV, IMU_CSV, IMU_YAML, POINTS_PLY, ROTORS_CSV, VEHICLE_YAML, VICON_CSV,
+    CAM_CSV,
+    CAM_DATA,
+    CAM_YAML,
+    GROUNDTRUTH_CSV,
+    IMU_CSV,
+    IMU_YAML,
+    POINTS_PLY,
+    ROTORS_CSV,
+    VEHICLE_YAML,
+    VICON_CSV,
 )
 from uavturb.io.recording import Recording
-from uavturb.physics.vehicle import save_vehicle
+from uavturb.io.vehicle_file import save_vehicle
 
 
 def _write_streams(rec: Recording, root: Path) -> None:

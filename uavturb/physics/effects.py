@@ -22,6 +22,7 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
+from uavturb.physics.vehicle import QUADROTOR
 
 
 @dataclass
@@ -317,3 +318,13 @@ def format_effects(effects: dict[str, dict[str, float]]) -> str:
     if not effects:
         return "none"
     return ",".join(f"{n}:" + ",".join(f"{k}={v:.9g}" for k, v in p.items()) for n, p in effects.items())
+
+
+#: the simulator's default physics; ``conf/physics/default.yaml`` holds the same (a test checks)
+DEFAULT_EFFECTS: dict[str, dict[str, float]] = {"ground_effect": {"mu": 2.0}}
+
+
+#: ground-effect law of the paper's simulated quadrotor (k_T = 5.45e-6, r = 0.01 m) and the
+#: simulator's default mu: beta = mu r^2 / 16 [m^2], alpha = k_T beta [N m^2/(rad/s)^2]
+BETA_PAPER = DEFAULT_EFFECTS["ground_effect"]["mu"] * QUADROTOR.rotor_radius**2 / 16.0
+ALPHA_PAPER = QUADROTOR.thrust_coefficient * BETA_PAPER

@@ -15,13 +15,11 @@ above). With rotor speeds ``w`` [rad/s]::
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from uavturb.errors import InputError
 
@@ -190,23 +188,8 @@ class Vehicle:
         )
 
 
-def load_vehicle(path: str | Path) -> Vehicle:
-    """Read and validate a ``vehicle.yaml``."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "file not found")
-    try:
-        d = yaml.safe_load(path.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as e:
-        raise InputError(path, f"not valid YAML ({type(e).__name__})") from None
-    return Vehicle.from_dict(d, where=path)
 
 
-def save_vehicle(vehicle: Vehicle, path: str | Path) -> None:
-    """Write ``vehicle.yaml`` atomically (temporary file, then rename)."""
-    from uavturb.io.publish import write_text_atomic
-
-    write_text_atomic(path, yaml.safe_dump(vehicle.to_dict(), sort_keys=False))
 
 
 # --- presets ------------------------------------------------------------------------
@@ -245,19 +228,5 @@ HEXAROTOR = Vehicle(
 PRESETS: dict[str, Vehicle] = {"quad": QUADROTOR, "hex": HEXAROTOR}
 
 
-#: vehicle files shipped with the package (``uavturb/presets/<name>.yaml``), e.g. EuRoC's ``firefly``
-SHIPPED_DIR = Path(__file__).resolve().parents[1] / "presets"
 
 
-def preset(name: str) -> Vehicle:
-    """A built-in vehicle by name (``quad``, ``hex``), a shipped vehicle file (``firefly``), or a
-    ``vehicle.yaml`` path."""
-    if name in PRESETS:
-        return PRESETS[name]
-    shipped = SHIPPED_DIR / f"{name}.yaml"
-    if shipped.is_file():
-        return load_vehicle(shipped)
-    if Path(name).exists():
-        return load_vehicle(name)
-    known = [*PRESETS, *sorted(p.stem for p in SHIPPED_DIR.glob("*.yaml"))]
-    raise InputError("vehicle", f"unknown vehicle '{name}' (built-in: {', '.join(known)}; or a vehicle.yaml path)")

@@ -34,7 +34,14 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from uavturb.physics.dynamics import GRAVITY, IDX_P, IDX_Q, IDX_V, IDX_W, rotation_matrix_sym
+from uavturb.physics.dynamics import (
+    GRAVITY,
+    IDX_P,
+    IDX_Q,
+    IDX_V,
+    IDX_W,
+    rotation_matrix_sym,
+)
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sim.references import Setpoint
 

@@ -415,8 +415,8 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
         when the preset asks for it)
     meta : the trajectory's metadata, with ``stats`` (counts and seconds)
     """
+    from uavturb.io.vehicle_file import preset as vehicle_preset
     from uavturb.physics.ground_effect import phi
-    from uavturb.physics.vehicle import preset as vehicle_preset
     from uavturb.sim.render import camera_pose
     from uavturb.sim.scenes import height_below, inside_obstacle
     from uavturb.sim.trajectories import collides
@@ -486,7 +486,7 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
 
 def _write(folder: Path, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
     """Write a trajectory atomically; ``rgb`` rides along in the same atomic rename."""
-    from uavturb.data import shards
+    from uavturb.io import shards
 
     rgb = arrays.pop("rgb", None)
     extra = None if rgb is None else {"rgb": np.asarray(rgb, np.uint8)}
@@ -564,7 +564,7 @@ def dataset_config(preset: SimPreset, seed: int, controller: str) -> dict[str, A
 
 def _existing(out: Path, tasks: Sequence[Task], chash: str) -> dict[str, dict[str, Any]]:
     """Metas of finished trajectories of ``tasks`` under ``out``; refuses another config's data."""
-    from uavturb.data import shards
+    from uavturb.io import shards
 
     done = {}
     for task in tasks:
@@ -602,7 +602,7 @@ def time_split(metas: Sequence[dict[str, Any]]) -> dict[str, float]:
 
 def _write_manifest(out: Path, tasks: Sequence[Task], metas: dict[str, dict[str, Any]], config: dict[str, Any],
                     extra: dict[str, Any]):
-    from uavturb.data import shards
+    from uavturb.io import shards
 
     splits: dict[str, list[str]] = {s: [] for s in shards.SPLITS}
     for task in tasks:
@@ -634,7 +634,7 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     -------
     uavturb.data.shards.Manifest of what ``out`` holds for this shard.
     """
-    from uavturb.data import shards
+    from uavturb.io import shards
 
     p = get_preset(preset, **overrides)
     if int(workers) < 1:
@@ -712,7 +712,7 @@ def merge_datasets(dirs: Sequence[str | Path], out: str | Path):
     uavturb.data.shards.Manifest of the merged dataset (``complete`` tells whether every
     trajectory of the config is there).
     """
-    from uavturb.data import shards
+    from uavturb.io import shards
 
     if not dirs:
         raise InputError("merge", "give at least one dataset folder")
@@ -789,7 +789,7 @@ def benchmark(preset: str = "quick", workers: int = 2, seed: int = 0, out: str |
         t0 = time.perf_counter()
         generate_sim(preset, root, workers=workers, seed=seed, progress=True, **overrides)
         wall = time.perf_counter() - t0
-        from uavturb.data import shards
+        from uavturb.io import shards
 
         m = shards.read_manifest(root)
         metas = [shards.read_meta(f) for s in shards.SPLITS for f in m.folders(s)]
@@ -813,7 +813,7 @@ def describe(root: str | Path) -> str:
     """A few lines on a dataset folder: counts per split, statistics, throughput."""
     import json
 
-    from uavturb.data import shards
+    from uavturb.io import shards
 
     m = shards.read_manifest(root)
     body = json.loads((Path(root) / shards.MANIFEST).read_text())

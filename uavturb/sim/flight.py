@@ -36,12 +36,34 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
+from uavturb.io.vehicle_file import preset
 from uavturb.physics import quaternion as quat
-from uavturb.physics.dynamics import GRAVITY, IDX_Q, IDX_V, IDX_W, N_STATE, dynamics_for, physical_params
-from uavturb.physics.effects import EFFECTS, EffectInputs, effect_force, force_on_state, parse_effects
-from uavturb.physics.vehicle import Vehicle, preset
+from uavturb.physics.dynamics import (
+    GRAVITY,
+    IDX_Q,
+    IDX_V,
+    IDX_W,
+    N_STATE,
+    dynamics_for,
+    physical_params,
+)
+from uavturb.physics.effects import (
+    EFFECTS,
+    EffectInputs,
+    effect_force,
+    force_on_state,
+    parse_effects,
+)
+from uavturb.physics.vehicle import Vehicle
 from uavturb.sim.controller import ControllerGains, GeometricController, RotationOf
-from uavturb.sim.references import Reference, Room, Setpoint, excitation, low_passes, mixed
+from uavturb.sim.references import (
+    Reference,
+    Room,
+    Setpoint,
+    excitation,
+    low_passes,
+    mixed,
+)
 
 #: First timestamp [ns] of synthetic flights: the epoch of EuRoC's MH_01_easy (2014-06-24).
 EUROC_T0_NS = 1403636579758555392

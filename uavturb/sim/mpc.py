@@ -54,7 +54,14 @@ import casadi as ca
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.physics.dynamics import GRAVITY, IDX_Q, IDX_W, N_STATE, dynamics_for, physical_params
+from uavturb.physics.dynamics import (
+    GRAVITY,
+    IDX_Q,
+    IDX_W,
+    N_STATE,
+    dynamics_for,
+    physical_params,
+)
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sim.references import Reference
 
@@ -413,7 +420,7 @@ def benchmark(vehicle: Vehicle | str = "quad", seconds: float = 10.0, **options:
 
     Returns ``{"mean_ms", "median_ms", "p95_ms", "max_ms", "updates", "rms_error_m"}``.
     """
-    from uavturb.physics.vehicle import preset
+    from uavturb.io.vehicle_file import preset
     from uavturb.sim.references import Constant, Waypoints
 
     v = preset(vehicle) if isinstance(vehicle, str) else vehicle

@@ -40,7 +40,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 from uavturb.errors import InputError
-from uavturb.physics.sim_config import DEFAULT_EFFECTS
+from uavturb.physics.effects import DEFAULT_EFFECTS
 
 
 @dataclass(frozen=True)

@@ -146,7 +146,7 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
     """
     import json
 
-    from uavturb.data import shards
+    from uavturb.io import shards
     from uavturb.sim.dataset import Progress, scene_splits
 
     p = get_preset(preset, **overrides)
@@ -350,7 +350,7 @@ def import_irs(root: str | Path, out: str | Path, size: int = 128, limit: int | 
     import json
     import tempfile
 
-    from uavturb.data import shards
+    from uavturb.io import shards
     from uavturb.sim.dataset import Progress
 
     out = Path(out)

@@ -770,11 +770,16 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
         truncated at its first hit), ``collision_time`` (s or None), ``tracking_error`` (T,) m,
         ``solve_ms`` (controller update times), ``wall_s``, ``samples_per_s``, ``controller``.
     """
-    from uavturb.physics.dynamics import IDX_Q, IDX_V, N_STATE, dynamics_for, physical_params
-    from uavturb.physics.effects import force_on_state
+    from uavturb.io.vehicle_file import preset
     from uavturb.physics import quaternion as quat
-    from uavturb.physics.sim_config import DEFAULT_EFFECTS
-    from uavturb.physics.vehicle import preset
+    from uavturb.physics.dynamics import (
+        IDX_Q,
+        IDX_V,
+        N_STATE,
+        dynamics_for,
+        physical_params,
+    )
+    from uavturb.physics.effects import DEFAULT_EFFECTS, force_on_state
     from uavturb.sim.controller import RotationOf
 
     wall0 = time.perf_counter()

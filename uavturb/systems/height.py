@@ -22,10 +22,10 @@ import torch
 import torch.nn.functional as F
 from torchmetrics import MeanSquaredError
 
-from uavturb.config import ALPHA_PAPER, BETA_PAPER
 from uavturb.errors import InputError
 from uavturb.nn.encoder import DepthEncoder
 from uavturb.nn.height import HeightHead, phi_alpha_beta
+from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
 
 STAGES = ("train", "val", "test")
 

@@ -36,8 +36,6 @@ import csv
 import io
 import json
 import logging
-import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -109,7 +107,7 @@ def ground_effect_height(beta: float, fraction: float = GE_FRACTION) -> float:
 
 def _dataset_camera(run) -> dict[str, Any]:
     """``image_size``, ``yfov_deg``, ``pitch_deg``, ``frame_dt`` of the run's training data (what is known)."""
-    from uavturb.data import shards
+    from uavturb.io import shards
 
     out: dict[str, Any] = {}
     if run is None:
@@ -209,8 +207,8 @@ def _log(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]],
 
     import mlflow
 
-    from uavturb.export import get_run
-    from uavturb.tracking import git_commit, tracking_uri
+    from uavturb.experiments.export import get_run
+    from uavturb.experiments.tracking import git_commit, tracking_uri
 
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.ERROR)
@@ -262,10 +260,10 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     import sys
 
     from uavturb.data.recordings import recording_sequence
-    from uavturb.export import load_height_module, run_and_output
+    from uavturb.experiments.export import load_height_module, run_and_output
+    from uavturb.io.reader import load_recordings
     from uavturb.physics.ground_effect import identify_alpha_beta
-    from uavturb.physics.identification import identify
-    from uavturb.workflows import load_recordings
+    from uavturb.sysid.identification import identify
 
     if not recordings:
         raise InputError("REC", "at least one recording folder is needed")

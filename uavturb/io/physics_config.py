@@ -11,7 +11,6 @@ File form (``conf/physics/*.yaml``, and what ``uavturb gap --apply`` writes)::
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -19,9 +18,6 @@ import yaml
 
 from uavturb.errors import InputError
 from uavturb.physics.effects import check_params, defaults
-
-#: the simulator's default physics; ``conf/physics/default.yaml`` holds the same (a test checks)
-DEFAULT_EFFECTS: dict[str, dict[str, float]] = {"ground_effect": {"mu": 2.0}}
 
 
 def load_physics_config(path: str | Path) -> dict[str, Any]:

@@ -28,7 +28,7 @@ FA_SCALE = 1e4  # the paper prints RMSE(f_a) in units of 1e-4 N
 def _client():
     import mlflow
 
-    from uavturb.tracking import tracking_uri
+    from uavturb.experiments.tracking import tracking_uri
 
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.ERROR)
@@ -163,8 +163,8 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     ------
     InputError : no such experiment or parent run, or no finished ablation run in it.
     """
+    from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
     from uavturb.io.publish import write_text_atomic
-    from uavturb.sweep import DEFAULT_SPEC, load_spec
 
     sp = load_spec(spec if spec is not None else DEFAULT_SPEC)
     experiment = experiment or sp.experiment

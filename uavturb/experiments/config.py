@@ -25,15 +25,10 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from uavturb.errors import InputError
-from uavturb.physics.sim_config import DEFAULT_EFFECTS
-from uavturb.physics.vehicle import QUADROTOR
+from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 GROUPS = ("model", "data", "trainer")
-#: ground-effect law of the paper's simulated quadrotor (k_T = 5.45e-6, r = 0.01 m) and the
-#: simulator's mu = 2: beta = mu r^2 / 16 [m^2], alpha = k_T beta [N m^2/(rad/s)^2]
-BETA_PAPER = DEFAULT_EFFECTS["ground_effect"]["mu"] * QUADROTOR.rotor_radius**2 / 16.0
-ALPHA_PAPER = QUADROTOR.thrust_coefficient * BETA_PAPER
 
 
 @dataclass

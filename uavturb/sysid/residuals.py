@@ -19,19 +19,18 @@ Torques: ``tau_ext = J w_dot + w x J w - tau(Omega)`` in B.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from uavturb.io.publish import publish_file
 from uavturb.errors import InputError
+from uavturb.io.publish import publish_file
 from uavturb.io.recording import Recording
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY, dynamics_for, physical_params
-from uavturb.physics.flight_data import FlightData, flight_data
 from uavturb.physics.vehicle import Vehicle
+from uavturb.sysid.flight_data import FlightData, flight_data
 
 E_Z = np.array([0.0, 0.0, 1.0])
 

@@ -171,7 +171,8 @@ def bench_infer(model_dir: str | Path | None = None, *, size: int = 128, frames:
     import onnxruntime as ort
     import torch
 
-    from uavturb.export import ONNX_FILE, PT2_FILE, StreamingHeightModel, export_streaming
+    from uavturb.experiments.export import ONNX_FILE, PT2_FILE, export_streaming
+    from uavturb.nn.streaming import StreamingHeightModel
     from uavturb.systems import HeightModule
 
     tmp = None

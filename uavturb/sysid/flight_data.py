@@ -14,7 +14,6 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from uavturb.errors import InputError
-
 from uavturb.io.recording import Recording
 from uavturb.physics import quaternion as quat
 

@@ -24,6 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from uavturb.experiments.generate import generate_flight, generate_normals, generate_sim
+from uavturb.experiments.identify import format_identification, identify_recordings
+from uavturb.io.reader import load_recordings
 from uavturb.physics import ground_effect as ge
 from uavturb.physics.vehicle import HEXAROTOR
 
@@ -53,17 +56,16 @@ def physics_on_flight(rec_path: Path, out: Path) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from uavturb import workflows
-    from uavturb.physics.residuals import residual_forces, write_residuals
+    from uavturb.sysid.residuals import residual_forces, write_residuals
 
-    ident = workflows.identify_recordings([rec_path])
-    print(workflows.format_identification(ident))
+    ident = identify_recordings([rec_path])
+    print(format_identification(ident))
     truth = HEXAROTOR
     err_kT = ident.thrust_coefficient / truth.thrust_coefficient - 1
     err_ratio = ident.theta[3] / (truth.inertia[2] / truth.inertia[0]) - 1
     _say(f"k_T error {100 * err_kT:+.2f} %, J_z/J_x error {100 * err_ratio:+.2f} % (true values from the simulator)")
 
-    (rec,) = workflows.load_recordings([rec_path])
+    (rec,) = load_recordings([rec_path])
     res = residual_forces(rec, ident.apply(rec.vehicle))
     csv = write_residuals(res, out / "residuals.csv")
     _say(f"residual force series ({res.source}) -> {csv}, RMS {res.rmse:.3f} N")
@@ -101,12 +103,11 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     MLflow runs go to the default store (``mlflow.db`` and ``mlruns/`` in the working
     directory, or ``MLFLOW_TRACKING_URI``).
     """
-    from uavturb import workflows
-    from uavturb.compare import compare
-    from uavturb.evaluate import evaluate
-    from uavturb.export import export
-    from uavturb.gap.finder import gap
-    from uavturb.sweep import sweep
+    from uavturb.experiments.compare import compare
+    from uavturb.experiments.evaluate import evaluate
+    from uavturb.experiments.export import export
+    from uavturb.experiments.gap_run import gap
+    from uavturb.experiments.sweep import sweep
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -115,8 +116,8 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
 
     t = _step(1, "simulator: training shards and pre-training pairs (quick preset, 32x32 px)")
     size = {"width": IMAGE_SIZE, "height": IMAGE_SIZE}
-    _say(workflows.generate_sim("quick", out / "sim", workers=workers, seed=seed, **size))
-    _say(workflows.generate_normals("quick", out / "pairs", workers=workers, seed=seed, **size))
+    _say(generate_sim("quick", out / "sim", workers=workers, seed=seed, **size))
+    _say(generate_normals("quick", out / "pairs", workers=workers, seed=seed, **size))
     summary["seconds"]["simulator"] = time.perf_counter() - t
 
     t = _step(2, "Table 1: the paper's ablation sweep, one seed (MLflow)")
@@ -134,7 +135,7 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     for k in range(2):
         path = out / "flights" / f"hex_ground_effect_{k}"
         if not (path / "mav0").is_dir():
-            workflows.generate_flight(vehicle="hex", effects=f"ground_effect:mu={TRUE_MU}", duration=FLIGHT_SECONDS,
+            generate_flight(vehicle="hex", effects=f"ground_effect:mu={TRUE_MU}", duration=FLIGHT_SECONDS,
                                       kind="mixed", seed=seed + k, noise="realistic", out=path)
         flights.append(path)
         _say(f"  {path}")

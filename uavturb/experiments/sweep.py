@@ -30,78 +30,19 @@ import logging
 import math
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from omegaconf import MISSING, DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
+from omegaconf import DictConfig, OmegaConf
 
-from uavturb.config import load_config
 from uavturb.errors import InputError
-from uavturb.train import CHECKPOINT_ARTIFACT, train
-
-DEFAULT_SPEC = Path(__file__).resolve().parents[1] / "sweeps" / "ablation.yaml"
-FINAL_METRICS = ("test/rmse_d", "test/rmse_fa")
-
-
-@dataclass
-class RowSpec:
-    """One table row: a ``conf/model`` choice and overrides; the paper's values for reference."""
-
-    name: str = MISSING
-    model: str = MISSING
-    overrides: list[str] = field(default_factory=list)
-    paper_rmse_d: float | None = None      # m
-    paper_rmse_fa: float | None = None     # N
-
-
-@dataclass
-class PresetSpec:
-    seeds: int = 1
-    overrides: list[str] = field(default_factory=list)   # every run
-    pretrain: list[str] = field(default_factory=list)    # pre-training runs
-    height: list[str] = field(default_factory=list)      # the rows' runs
-
-
-@dataclass
-class SweepSpec:
-    name: str = "ablation"
-    experiment: str = "uavturb-ablation"
-    rows: list[RowSpec] = field(default_factory=list)
-    pretraining: dict[str, str] = field(default_factory=dict)  # model.pretraining -> conf/experiment bundle
-    presets: dict[str, PresetSpec] = field(default_factory=dict)
-
-
-def load_spec(path: str | Path = DEFAULT_SPEC) -> DictConfig:
-    """Read and check a sweep file; a typo fails naming the file and the key."""
-    import yaml
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "sweep file not found")
-    try:
-        body = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as e:
-        raise InputError(path, f"not valid YAML ({str(e).splitlines()[0]})") from None
-    try:
-        spec = OmegaConf.merge(OmegaConf.structured(SweepSpec), body)
-        OmegaConf.to_container(spec, throw_on_missing=True)
-    except OmegaConfBaseException as e:
-        key = str(getattr(e, "full_key", "") or getattr(e, "key", "") or "?")
-        raise InputError(f"{path}: {key}", str(e).splitlines()[0]) from None
-    if not spec.rows:
-        raise InputError(f"{path}: rows", "no rows")
-    names = [r.name for r in spec.rows]
-    if len(set(names)) != len(names):
-        raise InputError(f"{path}: rows", f"row names repeat: {names}")
-    if not spec.presets:
-        raise InputError(f"{path}: presets", "no presets")
-    return spec
+from uavturb.experiments.config import load_config
+from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec
+from uavturb.experiments.train import CHECKPOINT_ARTIFACT, train
 
 
 def _spec_hash(spec: DictConfig, preset: str, overrides: list[str]) -> str:
-    from uavturb.data.shards import config_hash
+    from uavturb.io.shards import config_hash
 
     body = OmegaConf.to_container(spec)
     body["presets"] = {preset: {k: v for k, v in body["presets"][preset].items() if k != "seeds"}}
@@ -114,7 +55,7 @@ class _Store:
     def __init__(self, experiment: str):
         import mlflow
 
-        from uavturb.tracking import tracking_uri
+        from uavturb.experiments.tracking import tracking_uri
 
         for name in ("mlflow", "alembic"):
             logging.getLogger(name).setLevel(logging.ERROR)
@@ -125,7 +66,7 @@ class _Store:
 
     def parent(self, name: str, sweep_hash: str, preset: str, params: dict[str, Any]) -> tuple[str, bool]:
         """(run id, resumed): the latest parent of this sweep hash, else a new one."""
-        from uavturb.tracking import git_commit
+        from uavturb.experiments.tracking import git_commit
 
         runs = self.client.search_runs([self.experiment_id],
                                        filter_string=f"tags.sweep = '{name}' and tags.sweep_hash = '{sweep_hash}'",
@@ -170,7 +111,7 @@ def _checkpoint_of(run: Any, cache_dir: Path) -> str | None:
     try:
         import mlflow
 
-        from uavturb.tracking import tracking_uri
+        from uavturb.experiments.tracking import tracking_uri
 
         dst = cache_dir / run.info.run_id
         dst.mkdir(parents=True, exist_ok=True)
@@ -220,7 +161,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     ------
     InputError : bad sweep file, unknown preset, bad override (before anything runs).
     """
-    from uavturb.compare import compare
+    from uavturb.experiments.compare import compare
 
     spec_path = Path(spec)
     sp = load_spec(spec_path)

@@ -39,9 +39,9 @@ from uavturb.errors import InputError
 from uavturb.io.recording import Recording
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.physics.flight_data import FlightData, flight_data
-from uavturb.physics.least_squares import lstsq
 from uavturb.physics.vehicle import Vehicle
+from uavturb.sysid.flight_data import FlightData, flight_data
+from uavturb.sysid.least_squares import lstsq
 
 
 @dataclass

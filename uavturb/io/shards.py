@@ -43,18 +43,13 @@ Pre-training pairs (:func:`write_pairs`, :func:`read_pairs`) live in ``ROOT/pair
 and conventions as above) and ``meta.json`` (``count``, ``image_size``, ``version`` ...).
 
 Synthetic data with known answers (analytic scenes seen by a pinhole camera) come from
-:mod:`uavturb.data.synthetic` and are re-exported here: :func:`make_synthetic_dataset`,
-:func:`make_synthetic_pairs`, :func:`pixel_rays`.
+:mod:`uavturb.data.synthetic`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
-import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -446,7 +441,7 @@ def dataset_hash(root: str | Path) -> str:
 
     Hidden entries (temporary folders of an interrupted writer) are left out.
     """
-    from uavturb.tracking import files_hash
+    from uavturb.io.shards import files_hash
 
     root = Path(root)
     if not root.is_dir():
@@ -563,4 +558,13 @@ def write_pairs_chunks(root: str | Path, chunks: list[tuple[str | Path, str | Pa
     return folder
 
 
-from uavturb.data.synthetic import make_synthetic_dataset, make_synthetic_pairs, pixel_rays  # noqa: E402,F401
+def files_hash(paths: list[Path]) -> str:
+    """SHA-256 over the bytes of files (sorted by path): the data hash of a run."""
+    h = hashlib.sha256()
+    for p in sorted(Path(x) for x in paths):
+        h.update(str(p.name).encode())
+        with open(p, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()[:16]
+

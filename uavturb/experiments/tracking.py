@@ -6,7 +6,6 @@ The store is MLflow 3's own default: an embedded SQLite ``mlflow.db`` with artif
 
 from __future__ import annotations
 
-import hashlib
 import os
 import subprocess
 from pathlib import Path
@@ -26,15 +25,6 @@ def git_commit() -> str:
         return "unknown"
 
 
-def files_hash(paths: list[Path]) -> str:
-    """SHA-256 over the bytes of files (sorted by path): the data hash of a run."""
-    h = hashlib.sha256()
-    for p in sorted(Path(x) for x in paths):
-        h.update(str(p.name).encode())
-        with open(p, "rb") as f:
-            for chunk in iter(lambda: f.read(1 << 20), b""):
-                h.update(chunk)
-    return h.hexdigest()[:16]
 
 
 def log_run(experiment: str, *, run_name: str, params: dict[str, Any], metrics: dict[str, float],

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from uavturb.data import shards
+from uavturb.io import shards
 
 
 @torch.no_grad()

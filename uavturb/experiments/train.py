@@ -31,8 +31,8 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from uavturb.config import TrainConfig, to_flat_dict, validate
 from uavturb.errors import InputError
+from uavturb.experiments.config import TrainConfig, to_flat_dict, validate
 
 #: MLflow artifact path of a run's best checkpoint (the local file: tag ``checkpoint``)
 CHECKPOINT_ARTIFACT = "checkpoints/best.ckpt"
@@ -54,18 +54,19 @@ def _devices(x: str) -> int | str | list[int]:
 
 def _prepare_data(cfg: DictConfig) -> Path:
     """The dataset folder of this stage, generated when ``data.synthetic.enabled`` and missing."""
-    from uavturb.data import shards
+    from uavturb.data import synthetic
+    from uavturb.io import shards
 
     syn = cfg.data.synthetic
     size = cfg.data.image_size or 32
     if cfg.stage == "pretrain":
         root = Path(cfg.data.pairs_root)
         if syn.enabled and not (root / shards.PAIRS_DIR / "meta.json").is_file():
-            shards.make_synthetic_pairs(root, M=syn.pairs, size=size, seed=syn.seed)
+            synthetic.make_synthetic_pairs(root, M=syn.pairs, size=size, seed=syn.seed)
         return root / shards.PAIRS_DIR if (root / shards.PAIRS_DIR).is_dir() else root
     root = Path(cfg.data.root)
     if syn.enabled and not (root / shards.MANIFEST).is_file():
-        shards.make_synthetic_dataset(root, n_scenes=syn.n_scenes, trajs_per_scene=syn.trajs_per_scene, T=syn.T,
+        synthetic.make_synthetic_dataset(root, n_scenes=syn.n_scenes, trajs_per_scene=syn.trajs_per_scene, T=syn.T,
                                       size=size, seed=syn.seed)
     return root
 
@@ -109,7 +110,7 @@ def _logger(cfg: DictConfig, data_hash: str, tags: dict[str, str] | None = None)
         return None
     from lightning.pytorch.loggers import MLFlowLogger
 
-    from uavturb.tracking import git_commit, tracking_uri
+    from uavturb.experiments.tracking import git_commit, tracking_uri
 
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.ERROR)
@@ -142,7 +143,7 @@ def _log_height_plot(logger, module, dm, window: int) -> None:
     """Predicted vs true height over the first test trajectories, as artifact ``plots/test_heights.png``."""
     import tempfile
 
-    from uavturb.training_plots import plot_test_heights
+    from uavturb.experiments.plots import plot_test_heights
 
     with tempfile.TemporaryDirectory() as tmp:
         png = plot_test_heights(module, dm.sets["test"].folders, window, Path(tmp) / "test_heights.png")
@@ -171,7 +172,7 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     import lightning as L
     from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
 
-    from uavturb.data.shards import dataset_hash
+    from uavturb.io.shards import dataset_hash
 
     cfg = validate(cfg)
     t = cfg.trainer

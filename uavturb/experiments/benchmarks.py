@@ -1,0 +1,58 @@
+"""``uavturb bench``: benchmarks that print figures (never timed tests)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def bench(what: str) -> None:
+    """``uavturb bench``: print figures."""
+    if what in ("train", "infer"):  # learning pipeline (uavturb.bench_learning)
+        from uavturb.experiments import bench_learning
+
+        (bench_learning.bench_train if what == "train" else bench_learning.bench_infer)()
+        return
+    if what == "generate":
+        from uavturb.sim import dataset
+
+        for k, v in dataset.benchmark().items():
+            print(f"{k:<48}{v:>12.4g}" if isinstance(v, float) else f"{k:<48}{v:>12}")
+        return
+    if what == "flights":  # MPC solve times and closed-loop flight speed (uavturb.sim.trajectories)
+        from uavturb.sim import mpc, trajectories
+
+        for k, v in mpc.benchmark().items():
+            print(f"{'mpc ' + k:<40}{v:>12.4g}")
+        for ctrl in trajectories.CONTROLLERS:
+            trajectories.benchmark(3, ctrl)
+        return
+    if what == "scene":
+        from uavturb.scene import heights
+
+        for k, v in heights.benchmark().items():
+            print(f"{k:<40}{v:>12.4g}")
+    elif what == "gap":
+        from uavturb.experiments.gap_proof import gap_proof
+
+        gap_proof(Path("gap_proof"))
+    elif what == "physics":
+        from uavturb.physics.dynamics import dynamics_for, physical_params
+        from uavturb.physics.vehicle import HEXAROTOR
+
+        d, th = dynamics_for(HEXAROTOR), physical_params(HEXAROTOR)
+        x = np.r_[0, 0, 1.0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0]
+        w = np.full(6, HEXAROTOR.hover_speed())
+        t = time.perf_counter()
+        for _ in range(5000):
+            x = d.step(x, w, th, 1e-3)
+        single = (time.perf_counter() - t) / 5000
+        X, W = np.tile(x, (100000, 1)), np.tile(w, (100000, 1))
+        t = time.perf_counter()
+        d.xdot(X, W, th)
+        mapped = (time.perf_counter() - t) / 100000
+        print(f"{'RK4 step, one state (us)':<40}{single * 1e6:>12.2f}")
+        print(f"{'x_dot over 100k states (us/state)':<40}{mapped * 1e6:>12.3f}")
+

@@ -1,0 +1,67 @@
+"""``uavturb generate flight|sim|normals|merge``: the simulator's generators as commands."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+from uavturb.errors import InputError
+from uavturb.io.recording import Recording
+
+
+def generate_flight(*, vehicle: str = "hex", effects: str = "none", duration: float = 60.0, kind: str = "mixed",
+                    seed: int = 0, noise: str = "realistic", out: str | Path | None = None) -> Recording:
+    """``uavturb generate flight``: a simulated flight in the EuRoC layout."""
+    from uavturb.sim import flight
+
+    if noise not in ("realistic", "none"):
+        raise InputError("--noise", f"unknown value '{noise}' (allowed: realistic, none)")
+    sensor_noise = flight.SensorNoise() if noise == "realistic" else flight.SensorNoise.none()
+    return flight.generate_flight(vehicle=vehicle, effects=effects, duration=duration, kind=kind, seed=seed,
+                                  noise=sensor_noise, out=out)
+
+
+def preset_overrides(items: Sequence[str]) -> dict:
+    """``--set KEY=VALUE`` options as a dict; values are read as YAML scalars (``64``, ``0.5``, ``true``)."""
+    import yaml
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise InputError("--set", f"expected KEY=VALUE, got {item!r}")
+        try:
+            out[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise InputError(f"--set {key.strip()}", f"cannot read value {value!r}") from None
+    return out
+
+
+def generate_sim(preset: str, out: str | Path, *, workers: int = 1, seed: int = 0, shard: str | None = None,
+                 **overrides) -> str:
+    """``uavturb generate sim``: training shards; ``overrides`` change preset fields. Returns the summary line."""
+    from uavturb.sim import dataset
+
+    m = dataset.generate_sim(preset, out, workers=workers, seed=seed, shard=shard, **overrides)
+    return dataset.describe(m.root)
+
+
+def generate_normals(preset: str, out: str | Path, *, workers: int = 1, seed: int = 0, irs: str | None = None,
+                     size: int = 128, **overrides) -> str:
+    """``uavturb generate normals``: pre-training pairs (rendered, or converted from IRS)."""
+    from uavturb.sim import pretraining
+
+    if irs is not None:
+        meta = pretraining.import_irs(irs, out, size=size)
+    else:
+        meta = pretraining.generate_normals(preset, out, workers=workers, seed=seed, **overrides)
+    return f"wrote {Path(out) / 'pairs'}: {meta['count']} pairs of {meta['image_size'][0]}x{meta['image_size'][1]} px"
+
+
+def generate_merge(dirs: Sequence[str | Path], out: str | Path) -> str:
+    """``uavturb generate merge``: join shard folders."""
+    from uavturb.sim import dataset
+
+    m = dataset.merge_datasets(dirs, out)
+    return dataset.describe(m.root)
+

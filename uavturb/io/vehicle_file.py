@@ -1,0 +1,48 @@
+"""``vehicle.yaml`` files (``recordings.md``) and vehicles by name: built-in presets, files
+shipped with the package (``uavturb/presets/<name>.yaml``, e.g. EuRoC's ``firefly``) or a path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from uavturb.errors import InputError
+from uavturb.io.publish import write_text_atomic
+from uavturb.physics.vehicle import PRESETS, Vehicle
+
+
+def load_vehicle(path: str | Path) -> Vehicle:
+    """Read and validate a ``vehicle.yaml``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "file not found")
+    try:
+        d = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as e:
+        raise InputError(path, f"not valid YAML ({type(e).__name__})") from None
+    return Vehicle.from_dict(d, where=path)
+
+
+def save_vehicle(vehicle: Vehicle, path: str | Path) -> None:
+    """Write ``vehicle.yaml`` atomically (temporary file, then rename)."""
+    write_text_atomic(path, yaml.safe_dump(vehicle.to_dict(), sort_keys=False))
+
+
+#: vehicle files shipped with the package (``uavturb/presets/<name>.yaml``), e.g. EuRoC's ``firefly``
+SHIPPED_DIR = Path(__file__).resolve().parents[1] / "presets"
+
+
+def preset(name: str) -> Vehicle:
+    """A built-in vehicle by name (``quad``, ``hex``), a shipped vehicle file (``firefly``), or a
+    ``vehicle.yaml`` path."""
+    if name in PRESETS:
+        return PRESETS[name]
+    shipped = SHIPPED_DIR / f"{name}.yaml"
+    if shipped.is_file():
+        return load_vehicle(shipped)
+    if Path(name).exists():
+        return load_vehicle(name)
+    known = [*PRESETS, *sorted(p.stem for p in SHIPPED_DIR.glob("*.yaml"))]
+    raise InputError("vehicle", f"unknown vehicle '{name}' (built-in: {', '.join(known)}; or a vehicle.yaml path)")
+
