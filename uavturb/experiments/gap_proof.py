@@ -25,6 +25,7 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.gap.design import GapData, design, lagged_S, stack_target
 from uavturb.gap.finder import analyse
+from uavturb.gap.selection import folds
 from uavturb.physics.effects import EFFECTS
 
 #: concealed magnitudes. Sensor noise is about 0.042 N per axis and sample (EuRoC's ADIS16448
@@ -81,36 +82,75 @@ def cases(singles: list[str] | None = None, pairs: bool = True, clean: int = 2) 
     return out
 
 
-def sindy_names(data: GapData, threshold: float = 0.05) -> dict[str, dict[str, float]]:
-    """Named terms by PySINDy's STLSQ on the nominal model's candidate library.
+#: relative STLSQ thresholds PySINDy's held-out choice picks from (multiples of the RMS target)
+SINDY_THRESHOLDS = tuple(float(x) for x in np.geomspace(0.002, 0.5, 13))
+#: bagged models of PySINDy's ensemble (its documentation's default)
+SINDY_MODELS = 20
 
-    The library's columns are the regressors of :func:`uavturb.gap.design.design` with every
-    effect in, surface laws at ``mu = kappa = 2``, plus the lag column; columns are scaled to
-    unit norm so the threshold is relative. Returns effect → its parameters in effects.md names
-    and units (surface laws and the lag through their library columns' first-order scaling).
-    """
-    import pysindy as ps
 
+def sindy_library(data: GapData) -> tuple[np.ndarray, list[str]]:
+    """PySINDy's candidate library ``Theta (3K, P)`` and labels: the regressors of
+    :func:`uavturb.gap.design.design` with every effect in, surface laws at ``mu = kappa = 2``
+    split out of the thrust column, plus a first-order motor-lag column."""
     effects = set(EFFECTS) - {"motor_lag"}
     A, names = design(data, effects, {"mu": 2.0, "kappa": 2.0, "tau": 0.0})
-    # ground and ceiling columns split out of the thrust column, so the library can name them
     base, _ = design(data, set(), {"mu": 0.0, "kappa": 0.0, "tau": 0.0})
     Ag, _ = design(data, {"ground_effect"}, {"mu": 2.0, "kappa": 0.0, "tau": 0.0})
     Ac, _ = design(data, {"ceiling_effect"}, {"mu": 0.0, "kappa": 2.0, "tau": 0.0})
-    ground_col = Ag[:, 0] - base[:, 0]
-    ceil_col = Ac[:, 0] - base[:, 0]
     dS = (lagged_S(data, 1e-9) - lagged_S(data, 0.01)) / 0.01  # ~ d(sum w^2)/dt: first order in tau
-    zb = data.R[:, :, 2]
-    lag_col = stack_target(-dS[:, None] * zb)
-    cols = [base[:, 0]] + [A[:, i] for i, n in enumerate(names) if n != "k_T"] + [ground_col, ceil_col, lag_col]
+    lag_col = stack_target(-dS[:, None] * data.R[:, :, 2])
+    cols = [base[:, 0]] + [A[:, i] for i, n in enumerate(names) if n != "k_T"] + [
+        Ag[:, 0] - base[:, 0], Ac[:, 0] - base[:, 0], lag_col]
     labels = ["k_T"] + [n for n in names if n != "k_T"] + ["ground_effect", "ceiling_effect", "motor_lag"]
-    Theta = np.stack(cols, 1)
+    return np.stack(cols, 1), labels
+
+
+def _sindy_fit(Theta: np.ndarray, y: np.ndarray, threshold: float, ensemble: bool, seed: int) -> np.ndarray:
+    """Coefficients of PySINDy's STLSQ (bagged ensemble, median of the models, when ``ensemble``)
+    on unit-norm columns; ``threshold`` is relative to the RMS of ``y``."""
+    import pysindy as ps
+
     scale = np.linalg.norm(Theta, axis=0)
     scale[scale == 0] = 1.0
-    y = stack_target(data.y)
-    opt = ps.STLSQ(threshold=threshold * np.linalg.norm(y) / np.sqrt(len(y)) , alpha=0.0, normalize_columns=False)
+    opt = ps.STLSQ(threshold=threshold * np.linalg.norm(y) / np.sqrt(len(y)), alpha=0.0, normalize_columns=False)
+    if ensemble:
+        np.random.seed(seed)  # PySINDy's bagging draws from numpy's global generator
+        opt = ps.EnsembleOptimizer(opt, bagging=True, n_models=SINDY_MODELS)
     opt.fit(Theta / scale, y)
-    coef = np.asarray(opt.coef_).ravel() / scale
+    return np.asarray(opt.coef_).ravel() / scale
+
+
+def sindy_threshold(data: GapData, Theta: np.ndarray, y: np.ndarray, *, ensemble: bool = True,
+                    seed: int = 0) -> tuple[float, dict[float, float]]:
+    """The threshold with the least held-out error, on the same held-out protocol as uavturb
+    (whole recordings held out): PySINDy's documentation chooses the threshold by
+    cross-validation. Returns it and the held-out RMS per threshold; ties go to the sparser."""
+    _, fm = folds(data)
+    rows = lambda m: np.tile(m, 3)  # noqa: E731  (the stacked x, y, z rows of samples m)
+    errs = {}
+    for th in SINDY_THRESHOLDS:
+        sse, n = 0.0, 0
+        for train, test in fm:
+            c = _sindy_fit(Theta[rows(train)], y[rows(train)], th, ensemble, seed)
+            r = y[rows(test)] - Theta[rows(test)] @ c
+            sse, n = sse + float(r @ r), n + int(test.sum())
+        errs[th] = float(np.sqrt(sse / max(n, 1)))
+    best = min(errs.values())
+    return max(th for th, e in errs.items() if e <= best * (1 + 1e-6)), errs
+
+
+def sindy_names(data: GapData, threshold: float | None = None, *, ensemble: bool = True,
+                seed: int = 0) -> dict[str, dict[str, float]]:
+    """Named terms by PySINDy at its best: STLSQ on the nominal model's candidate library
+    (:func:`sindy_library`), its threshold chosen on held-out data (:func:`sindy_threshold`)
+    unless given, bagged as an ensemble (``EnsembleOptimizer``, median of the models).
+    Returns effect → its parameters in effects.md names and units (surface laws and the lag
+    through their library columns' first-order scaling)."""
+    Theta, labels = sindy_library(data)
+    y = stack_target(data.y)
+    if threshold is None:
+        threshold, _ = sindy_threshold(data, Theta, y, ensemble=ensemble, seed=seed)
+    coef = _sindy_fit(Theta, y, threshold, ensemble, seed)
     kT = coef[0]
     c = dict(zip(labels, coef))
     named: dict[str, dict[str, float]] = {}

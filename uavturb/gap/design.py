@@ -4,7 +4,7 @@ For each sample the measured total force on the vehicle in W is ``y = m R a_imu`
 state file's biases removed) or ``y = m (v_dot + g e_z)`` (MoCap). The model is::
 
     y = k_T S_eff (R e_z (1 - s t) + e_z (G(mu, d_down) + G(kappa, d_up)))     thrust, surface effects, battery
-        + m R b                                                             accelerometer bias left (body)
+        + m R b                                                             accelerometer bias left (body; IMU rows only)
         - k_d Wsum R [v_B,x, v_B,y, 0]                                      rotor_drag
         - c_d |v| v                                                         body_drag
         + (f_x, f_y, 0)                                                     wind
@@ -14,6 +14,12 @@ with ``S_eff = sum(w_lag(tau)^2)`` (``motor_lag``; ``w_lag = w`` when absent) an
 ground effect). For fixed nonlinear parameters ``(mu, kappa, tau)`` it is linear in
 ``(k_T, k_T s, b, k_d, c_d, f_x, f_y)``: nonlinear parameters are profiled (grid, then a
 bounded scalar search), linear ones solved by least squares.
+
+Rows of recordings without an IMU (the residual comes from differentiated MoCap velocity)
+have no accelerometer and so no bias term: its columns are zero there, and absent altogether
+when no recording has an IMU (``recordings.md``: no accelerometer, no bias to estimate).
+Which effects are nonlinear, act along the thrust or need a surface is read from the effect
+registry (:data:`uavturb.physics.effects.EFFECTS`), never listed here.
 """
 
 from __future__ import annotations
@@ -25,13 +31,12 @@ import numpy as np
 from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.physics.effects import lag_rotor_speeds
+from uavturb.physics.effects import EFFECTS, lag_rotor_speeds
 from uavturb.sysid.flight_data import FlightData
 
 #: nonlinear parameter of each effect whose law is not linear in it, with its search bounds
-NONLINEAR = {"ground_effect": ("mu", 0.05, 40.0), "ceiling_effect": ("kappa", 0.05, 40.0),
-             "motor_lag": ("tau", 0.002, 0.3)}
-LINEAR = {"rotor_drag": ("k_d",), "body_drag": ("c_d",), "wind": ("f_x", "f_y"), "battery_sag": ("s",)}
+#: (from the registry)
+NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items() if e.search is not None}
 
 
 @dataclass
@@ -66,6 +71,8 @@ class GapData:
     names: list[str]
     source: str
     flights: list[FlightData] = field(default_factory=list, repr=False)
+    imu: np.ndarray | None = None
+    fits_bias: bool = True
     _lag_cache: dict = field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
@@ -91,7 +98,8 @@ class GapData:
     def subset(self, mask: np.ndarray) -> "GapData":
         return GapData(self.group[mask], self.t[mask], self.p[mask], self.y[mask], self.R[mask], self.rotor_speeds[mask],
                        self.v[mask], self.d_down[mask], self.d_up[mask], self.mass, self.rotor_radius,
-                       self.names, self.source, self.flights)
+                       self.names, self.source, self.flights,
+                       None if self.imu is None else self.imu[mask], self.fits_bias)
 
 
 def _smooth_height(t: np.ndarray, z: np.ndarray, window_s: float) -> np.ndarray:
@@ -135,11 +143,13 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
         d_down = np.where(np.isfinite(fd.d_down), fd.d_down + dz, np.inf) if fd.d_down is not None else inf
         d_up = np.where(np.isfinite(fd.d_up), fd.d_up - dz, np.inf) if fd.d_up is not None else inf
         parts.append(dict(group=np.full(len(fd), g), t=fd.t, p=fd.p, y=y, R=R, rotor_speeds=fd.rotor_speeds, v=fd.v,
-                          d_down=d_down, d_up=d_up, keep=keep, src="imu" if use_imu else "mocap"))
+                          d_down=d_down, d_up=d_up, keep=keep, imu=np.full(len(fd), use_imu),
+                          src="imu" if use_imu else "mocap"))
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "src"}
     keep = cat.pop("keep")
     data = GapData(**cat, mass=mass, rotor_radius=rotor_radius, names=[f.name for f in flights],
-                   source="+".join(sorted({p["src"] for p in parts})), flights=flights)
+                   source="+".join(sorted({p["src"] for p in parts})), flights=flights,
+                   fits_bias=bool(np.any(cat["imu"])))
     # motor lag is computed on the full, contiguous flights and then subset with the same mask
     full = data
     data = full.subset(keep)
@@ -177,7 +187,9 @@ def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tup
     Ad, dnames = dependent_columns(data, effects, nonlinear)
     Af, fnames = fixed_columns(data, effects)
     # order: k_T, biases, k_T*s, then the linear effects
-    return np.hstack([Ad[:, :1], Af[:, :3], Ad[:, 1:], Af[:, 3:]]), dnames[:1] + fnames[:3] + dnames[1:] + fnames[3:]
+    nb = bias_count(data)
+    return (np.hstack([Ad[:, :1], Af[:, :nb], Ad[:, 1:], Af[:, nb:]]),
+            dnames[:1] + fnames[:nb] + dnames[1:] + fnames[nb:])
 
 
 def dependent_columns(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tuple[np.ndarray, list[str]]:
@@ -202,13 +214,16 @@ def dependent_columns(data: GapData, effects: set[str], nonlinear: dict[str, flo
 
 def fixed_columns(data: GapData, effects: set[str]) -> tuple[np.ndarray, list[str]]:
     """The columns of :func:`design` that do not depend on the nonlinear parameters: the
-    accelerometer bias (body frame) and the linear effects. ``(3K, P_f)``."""
+    accelerometer bias (body frame; rows with an IMU only, none without any IMU) and the linear
+    effects. ``(3K, P_f)``."""
     K = len(data)
     R = data.R
     cols, names = [], []
-    for j, ax in enumerate("xyz"):
-        cols.append(data.mass * R[:, :, j])
-        names.append(f"b_{ax}")
+    if data.fits_bias:
+        on = np.ones(K) if data.imu is None else data.imu.astype(float)
+        for j, ax in enumerate("xyz"):
+            cols.append(data.mass * R[:, :, j] * on[:, None])
+            names.append(f"b_{ax}")
     if "rotor_drag" in effects:
         vB = np.einsum("kji,kj->ki", R, data.v)
         vB[:, 2] = 0.0
@@ -225,7 +240,14 @@ def fixed_columns(data: GapData, effects: set[str]) -> tuple[np.ndarray, list[st
         ey[:, 1] = 1.0
         cols += [ex, ey]
         names += ["f_x", "f_y"]
+    if not cols:
+        return np.zeros((3 * K, 0)), names
     return np.stack([c.T.reshape(-1) for c in cols], axis=1), names
+
+
+def bias_count(data: GapData) -> int:
+    """Number of accelerometer-bias columns in :func:`design` (3, or 0 without an IMU)."""
+    return 3 if data.fits_bias else 0
 
 
 def stack_target(y: np.ndarray) -> np.ndarray:
@@ -239,8 +261,8 @@ def unstack(r: np.ndarray) -> np.ndarray:
 
 
 #: effects whose force acts along the thrust (they scale or lag the thrust): a thrust regressor
-#: corrupted by rounded rotor speeds can be mistaken for them
-THRUST_AXIS = frozenset({"ground_effect", "ceiling_effect", "battery_sag", "motor_lag"})
+#: corrupted by rounded rotor speeds can be mistaken for them (from the registry)
+THRUST_AXIS = frozenset(n for n, e in EFFECTS.items() if e.along_thrust)
 
 
 def rotor_quantum(speeds: np.ndarray) -> float:

@@ -8,10 +8,11 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.gap import locate
+from uavturb.gap.decide import ambiguity, bias_alike, flight_facts, surface_reach
 from uavturb.gap.design import GapData, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
-from uavturb.gap.selection import folds, heldout, select
+from uavturb.gap.selection import Selection, finish, folds, heldout, select
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
     DEFAULT_EFFECTS,
@@ -99,8 +100,6 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     if len(data) < 200:
         raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
     paths = [str(r.path) if r.path else r.name for r in recordings]
-    has_down = bool(np.any(np.isfinite(data.d_down)))
-    has_up = bool(np.any(np.isfinite(data.d_up)))
 
     # the simulator's model: nominal rigid body and thrust plus its own effects at its parameters;
     # its thrust coefficient and bias are fitted robustly (a local mismatch must not bend them)
@@ -116,14 +115,18 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     segs, rs0, sigma = locate.segments(data, r0)
     drv = locate.drivers(data, rs0)
 
-    candidates = [e for e in EFFECTS if e not in sim
-                  and not (e == "ground_effect" and not has_down) and not (e == "ceiling_effect" and not has_up)]
-    sim_fit_base = frozenset(e for e in sim if not (e == "ground_effect" and not has_down)
-                             and not (e == "ceiling_effect" and not has_up))
+    reach = {e: surface_reach(data, e) for e, spec in EFFECTS.items() if spec.surface is not None}
+    testable = {e for e in EFFECTS if e not in reach or reach[e].testable}
+    candidates = [e for e in EFFECTS if e not in sim and e in testable]
+    not_testable = [{"name": e, "why": r.why(), "to_separate": r.to_separate()}
+                    for e, r in reach.items() if not r.testable]
+    sim_fit_base = frozenset(e for e in sim if e in testable)
     quantum = max((rotor_quantum(r.rotors.speeds) for r in recordings), default=0.0)
     floor = rounding_floor(data, nominal.coef["k_T"], quantum)
     sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor)
+    sel, ambiguous, rejected = _decide(data, sel, offset, candidates)
     final: ModelFit = sel.final
+    facts = flight_facts(data, final.coef["k_T"])
     rf = final.residual(data)
     _, rsf, _ = locate.segments(data, rf)
     n = max(3, int(round(0.5 / float(np.median(np.diff(data.t))))))
@@ -133,7 +136,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         params, se = final.effect_params(s.name)
         effects_out.append({
             "name": s.name, "params": params, "stderr": se,
-            "explanation": explanation(s.name, params, data, final.coef["k_T"]),
+            "explanation": explanation(s.name, params, facts),
             "heldout_rmse_before_N": s.heldout_before, "heldout_rmse_after_N": s.heldout_after,
             "z_heldout": s.z,
         })
@@ -159,7 +162,15 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "effects": effects_out,
         "sim_effect_params": sim_params,
         "nominal": {"thrust_coefficient": final.coef["k_T"], "thrust_coefficient_stderr": final.stderr.get("k_T"),
-                    "accel_bias": [final.coef[f"b_{a}"] for a in "xyz"]},
+                    "accel_bias": [final.coef[f"b_{a}"] for a in "xyz"] if data.fits_bias else None,
+                    "accel_bias_note": None if data.fits_bias else
+                    "no IMU in these recordings: no accelerometer, so no accelerometer bias was estimated"},
+        "ambiguous": ambiguous,
+        "rejected": rejected,
+        "not_testable": not_testable,
+        "facts": {"heading_span_deg": facts.heading_span_deg, "speed_p90_m_s": facts.speed_p90,
+                  "d_down_min_m": facts.d_down_min, "d_up_min_m": facts.d_up_min, "has_imu": facts.has_imu,
+                  "duration_s": facts.duration_s},
         "final": {"heldout_rmse_N": sel.final_heldout.rmse, "rmse_N": float(np.sqrt(np.mean(np.sum(rf**2, 1))))},
         "unexplained": {"rms_N": beyond, "drivers": locate.drivers(data, rsf)},
         "open_loop": {"horizon_s": 0.5, "before_m": _open_loop(data, before_force),
@@ -171,3 +182,51 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     return report, extras
 
 
+def _decide(data: GapData, sel: Selection, offset: np.ndarray, candidates: list[str]
+            ) -> tuple[Selection, list[dict], list[dict]]:
+    """Keep only what the data decide (:mod:`uavturb.gap.decide`): a chosen effect outside its
+    physical range is rejected, one its data cannot tell from the other unknowns goes to
+    ``ambiguous``; the selection is then refitted without them. A candidate not chosen whose force
+    is an accelerometer bias on these flights, while the fitted bias is significant, is reported
+    as ambiguous too (a steady push may hide in the bias)."""
+    ambiguous: list[dict] = []
+    rejected: list[dict] = []
+    steps = list(sel.steps)
+    while True:
+        final = sel.final
+        facts = flight_facts(data, final.coef["k_T"])
+        drop = None
+        for s in steps:
+            params, _ = final.effect_params(s.name)
+            bad = EFFECTS[s.name].physical_range.violation(params, facts)
+            if bad is not None:
+                rejected.append({"name": s.name, "params": params, "why": bad})
+                drop = s
+                break
+            amb = ambiguity(data, final, s.name, facts)
+            if amb is not None:
+                ambiguous.append(amb | {"params_if_named": params})
+                drop = s
+                break
+        if drop is None:
+            break
+        steps.remove(drop)
+        sel = finish(data, sel.base, steps, offset=offset, tried=sel.tried)
+    final = sel.final
+    facts = flight_facts(data, final.coef["k_T"])
+    named = {a for entry in ambiguous for a in entry["candidates"]}
+    for c in candidates:
+        if c in final.effects or c in named or bias_alike(data, c) < 0.9:
+            continue
+        b = np.array([final.coef[f"b_{a}"] for a in "xy"])
+        se = np.array([final.stderr.get(f"b_{a}", np.inf) for a in "xy"])
+        if np.max(np.abs(b) / se) > 4.0:
+            push = data.mass * float(np.hypot(*b))
+            ambiguous.append({
+                "candidates": [c, "accelerometer_bias"],
+                "why": (f"the heading changed by only {facts.heading_span_deg:.0f} deg: the fitted accelerometer bias "
+                        f"({b[0]:.3g}, {b[1]:.3g}) m/s^2 (body x, y) could as well be a steady push of about "
+                        f"{push:.3g} N fixed in the world"),
+                "to_separate": "fly the same pattern at two or more headings (90 deg apart), or rely on motion "
+                               "capture alone"})
+    return sel, ambiguous, rejected

@@ -19,6 +19,7 @@ from uavturb.gap.design import (
     stack_target,
     unstack,
 )
+from uavturb.physics.effects import EFFECTS
 from uavturb.sysid.least_squares import lstsq
 
 GRID_POINTS = 17
@@ -64,8 +65,8 @@ class ModelFit:
             s = ks / kT
             se = abs(s) * np.hypot(self.stderr["k_T*s"] / max(abs(ks), 1e-300), self.stderr["k_T"] / kT)
             return {"s": s}, {"s": se}
-        keys = {"rotor_drag": ("k_d",), "body_drag": ("c_d",), "wind": ("f_x", "f_y")}[name]
-        return {k: self.coef[k] for k in keys}, {k: self.stderr[k] for k in keys}
+        keys = EFFECTS[name].params
+        return {k: self.coef[k] for k in keys}, {k: self.stderr.get(k, float("nan")) for k in keys}
 
 
 def _nl_values(nonlinear: dict[str, float]) -> dict[str, float]:

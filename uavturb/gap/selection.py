@@ -41,8 +41,10 @@ import numpy as np
 
 from uavturb.gap.design import NONLINEAR, THRUST_AXIS, GapData
 from uavturb.gap.fit import ModelFit, fit_model
+from uavturb.physics.effects import EFFECTS
 
-POSITIVE = {"ground_effect", "ceiling_effect", "motor_lag", "rotor_drag", "body_drag", "battery_sag"}
+#: effects whose parameters are positive by physics (from the registry)
+POSITIVE = frozenset(n for n, e in EFFECTS.items() if e.positive)
 
 
 def folds(data: GapData) -> tuple[str, list[tuple[np.ndarray, np.ndarray]]]:
@@ -219,13 +221,25 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
                 steps.remove(s)
                 current, cur_ho, changed = without, ho, True
                 break
+    return finish(data, frozenset(base), steps, offset=offset, lag=lag, tried=tried)
+
+
+def finish(data: GapData, base: frozenset[str], steps: list[Step], *, offset: np.ndarray | None = None,
+           lag: int = 50, tried: dict | None = None) -> Selection:
+    """The selection made of ``base`` plus ``steps``: the final fit on all data, and each step's
+    held-out error before and after along the chain (also after steps were dropped later)."""
+    protocol, fm = folds(data)
+    full = data
+    if offset is not None:
+        full = data.subset(np.ones(len(data), bool))
+        full.y = data.y - offset
+    current = frozenset(base) | {s.name for s in steps}
+    base_ho = heldout(data, frozenset(base), fm, offset=offset)
     final = fit_model(full, current, lag=lag)
-    if steps:  # report each step's before/after along the final chain
-        chain_ho = base_ho
-        chain = frozenset(base)
-        for s in steps:
-            chain = chain | {s.name}
-            ho = heldout(data, chain, fm, offset=offset)
-            s.heldout_before, s.heldout_after = chain_ho.rmse, ho.rmse
-            chain_ho = ho
-    return Selection(protocol, frozenset(base), steps, final, cur_ho, base_ho, tried)
+    chain_ho, chain = base_ho, frozenset(base)
+    for s in steps:
+        chain = chain | {s.name}
+        ho = heldout(data, chain, fm, offset=offset)
+        s.heldout_before, s.heldout_after = chain_ho.rmse, ho.rmse
+        chain_ho = ho
+    return Selection(protocol, frozenset(base), steps, final, chain_ho, base_ho, tried or {})

@@ -170,8 +170,68 @@ def motor_lag_force(x: EffectInputs, tau: float) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class FlightFacts:
+    """What explanations and physical ranges may refer to: facts measured on the recordings at
+    hand (never assumed), so every sentence written about an effect holds for these flights.
+
+    Attributes
+    ----------
+    mass : kg; rotor_count : -; rotor_radius : m
+    k_T : N/(rad/s)^2, thrust coefficient identified on the flights
+    wsum_hover : rad/s, sum of the rotor speeds at hover, ``n sqrt(m g / (n k_T))``
+    speed_p90 : m/s, 90th percentile of the horizontal speed
+    heading_span_deg : deg, range of headings flown (0 when the heading never changed)
+    has_imu : an accelerometer was recorded (so an accelerometer bias exists)
+    d_down_min, d_up_min : m, closest approach to the surface below / above (inf: none known)
+    duration_s : s, flight time analysed
+    """
+
+    mass: float
+    rotor_count: int
+    rotor_radius: float
+    k_T: float
+    wsum_hover: float
+    speed_p90: float
+    heading_span_deg: float
+    has_imu: bool
+    d_down_min: float
+    d_up_min: float
+    duration_s: float
+
+
+@dataclass(frozen=True)
+class PhysicalRange:
+    """The range a fitted effect must lie in to be a discovery (``effects.md``: "a fit outside
+    it is not a discovery"), stated on one physical quantity derived from the parameters.
+
+    Attributes
+    ----------
+    quantity : str, what is compared, with its unit
+    lo, hi : float, bounds of ``quantity``
+    of : callable ``(params, FlightFacts) -> float``, the quantity of fitted parameters
+    source : str, where the range comes from
+    """
+
+    quantity: str
+    lo: float
+    hi: float
+    of: Callable[[dict, FlightFacts], float]
+    source: str
+
+    def violation(self, params: dict[str, float], facts: FlightFacts) -> str | None:
+        """None inside the range, else one sentence saying where the fit lies."""
+        q = float(self.of(params, facts))
+        if self.lo <= q <= self.hi and np.isfinite(q):
+            return None
+        return (f"{self.quantity} = {q:.3g} lies outside its physical range [{self.lo:.3g}, {self.hi:.3g}] "
+                f"({self.source})")
+
+
+@dataclass(frozen=True)
 class EffectSpec:
-    """One entry of the ``effects.md`` vocabulary.
+    """One entry of the ``effects.md`` vocabulary, declared once: the law, its parameters with
+    units and typical values, how the gap finder fits it, its physical range with a source, and
+    the sentences written about it (from :class:`FlightFacts` only).
 
     Attributes
     ----------
@@ -181,6 +241,14 @@ class EffectSpec:
     typical : tuple of float, magnitudes seen on 1-2 kg multirotors (defaults)
     force : callable ``(EffectInputs, **params) -> (K, 3)`` world force [N]
     linear : bool, force linear in the parameters (a linear least-squares fit suffices)
+    summary : str, one line
+    physical_range : PhysicalRange
+    explain : callable ``(params, FlightFacts) -> str``, one or two sentences
+    search : (lo, hi) bounds of the 1-D search of a nonlinear parameter (None for linear laws)
+    along_thrust : the force acts along the rotor axis (it scales or lags the thrust)
+    surface : ``"d_down"`` / ``"d_up"`` for surface effects (they need flights near that surface)
+    positive : the parameters are positive by physics
+    manoeuvre : str, the flight that excites this effect apart from the others (for ``ambiguous``)
     """
 
     name: str
@@ -190,25 +258,131 @@ class EffectSpec:
     force: Callable[..., np.ndarray]
     linear: bool
     summary: str
+    physical_range: PhysicalRange
+    explain: Callable[[dict, FlightFacts], str]
+    search: tuple[float, float] | None = None
+    along_thrust: bool = False
+    surface: str | None = None
+    positive: bool = True
+    manoeuvre: str = ""
 
+    def surface_reach(self, rotor_radius: float, share: float = 0.01) -> float:
+        """m, the height under which this surface law, at the top of its physical range, adds at
+        least ``share`` of the thrust: flights that never come closer cannot decide it."""
+        if self.surface is None:
+            return float("inf")
+        rho = share / (1.0 + share)  # rho/(1-rho) = share
+        return rotor_radius / 4.0 * float(np.sqrt(self.physical_range.hi / rho))
+
+
+def _heading_clause(f: FlightFacts) -> str:
+    if not f.has_imu:
+        return "these recordings have no accelerometer, so it is no sensor bias"
+    if f.heading_span_deg >= 30.0:
+        return (f"it stays fixed in the world while the heading changed by {f.heading_span_deg:.0f} deg, "
+                "so it is no accelerometer bias")
+    return f"the heading changed by only {f.heading_span_deg:.0f} deg"
+
+
+def _explain_ground(p: dict, f: FlightFacts) -> str:
+    d = 2 * f.rotor_radius
+    rho = p["mu"] * (f.rotor_radius / (4 * d)) ** 2
+    return (f"Extra lift near the surface below follows the Cheeseman-Bennett law with mu = {p['mu']:.3g} "
+            f"(+{100 * rho / (1 - rho):.1f} % thrust at two rotor radii; these flights came within "
+            f"{f.d_down_min:.2f} m of it). Switch ground_effect on in the simulator.")
+
+
+def _explain_ceiling(p: dict, f: FlightFacts) -> str:
+    d = 2 * f.rotor_radius
+    rho = p["kappa"] * (f.rotor_radius / (4 * d)) ** 2
+    return (f"Suction towards the surface above follows the ceiling law with kappa = {p['kappa']:.3g} "
+            f"(+{100 * rho / (1 - rho):.1f} % thrust at two rotor radii; these flights came within "
+            f"{f.d_up_min:.2f} m of it). Switch ceiling_effect on in the simulator.")
+
+
+def _explain_rotor_drag(p: dict, f: FlightFacts) -> str:
+    per = p["k_d"] * f.wsum_hover
+    return (f"Horizontal drag proportional to rotor speed and body-horizontal airspeed is missing: about "
+            f"{per:.3g} N per m/s at hover ({per * f.speed_p90:.2g} N at these flights' 90th-percentile "
+            f"{f.speed_p90:.1f} m/s). Add RotorS-style rotor drag with k_d = {p['k_d']:.3g} N s^2/m.")
+
+
+def _explain_body_drag(p: dict, f: FlightFacts) -> str:
+    return (f"The airframe's quadratic drag is missing: {p['c_d'] * f.speed_p90**2:.2g} N at these flights' "
+            f"90th-percentile {f.speed_p90:.1f} m/s, growing with the square of speed. "
+            f"Add body drag with c_d = {p['c_d']:.3g} kg/m.")
+
+
+def _explain_wind(p: dict, f: FlightFacts) -> str:
+    mag = float(np.hypot(p["f_x"], p["f_y"]))
+    towards = float(np.degrees(np.arctan2(p["f_y"], p["f_x"])))
+    return (f"A steady horizontal push of {mag:.2g} N ({100 * mag / (f.mass * 9.81):.1f} % of the weight) towards "
+            f"{towards:.0f} deg in the world frame; {_heading_clause(f)}: a draught or steady wind "
+            f"(drag on the airspeed).")
+
+
+def _explain_battery(p: dict, f: FlightFacts) -> str:
+    return (f"Thrust per rotor speed falls as the flight goes on, by {100 * p['s'] * 60:.2g} % per minute "
+            f"(s = {p['s']:.3g} 1/s, {100 * p['s'] * f.duration_s:.2g} % over these {f.duration_s:.0f} s): "
+            f"battery voltage sag. Model it, or feed the controller the voltage.")
+
+
+def _explain_motor_lag(p: dict, f: FlightFacts) -> str:
+    return (f"The rotors follow their recorded speeds with a first-order lag of {1000 * p['tau']:.0f} ms: the "
+            f"recorded speeds are commands. Add a motor time constant to the simulator and controller.")
+
+
+_SURFACE_RANGE_SOURCE = ("Cheeseman & Bennett 1955 give mu = 1 for one rotor; 1-3 fits most small "
+                         "multirotors (effects.md), up to ~6 with rotor interaction (Sanchez-Cuevas et al. 2017)")
 
 EFFECTS: dict[str, EffectSpec] = {
     e.name: e
     for e in [
         EffectSpec("ground_effect", ("mu",), ("-",), (2.0,), ground_effect_force, False,
-                   "Cheeseman-Bennett ground effect: extra lift near the surface below"),
+                   "Cheeseman-Bennett ground effect: extra lift near the surface below",
+                   PhysicalRange("mu", 0.25, 12.0, lambda p, f: p["mu"], _SURFACE_RANGE_SOURCE),
+                   _explain_ground, search=(0.05, 40.0), along_thrust=True, surface="d_down",
+                   manoeuvre="hover over the floor at several heights within a few rotor radii"),
         EffectSpec("ceiling_effect", ("kappa",), ("-",), (2.0,), ceiling_effect_force, False,
-                   "ceiling effect: suction towards the surface above"),
+                   "ceiling effect: suction towards the surface above",
+                   PhysicalRange("kappa", 0.25, 12.0, lambda p, f: p["kappa"], _SURFACE_RANGE_SOURCE),
+                   _explain_ceiling, search=(0.05, 40.0), along_thrust=True, surface="d_up",
+                   manoeuvre="hover under the ceiling at several distances within a few rotor radii"),
         EffectSpec("rotor_drag", ("k_d",), ("N s^2/m",), (8.06e-5,), rotor_drag_force, True,
-                   "rotor drag (blade flapping, induced drag), linear in body-horizontal speed"),
+                   "rotor drag (blade flapping, induced drag), linear in body-horizontal speed",
+                   PhysicalRange("drag per unit mass at hover, k_d Wsum_hover / m [1/s]", 0.005, 1.5,
+                                 lambda p, f: p["k_d"] * f.wsum_hover / f.mass,
+                                 "RotorS Firefly 0.15 1/s; 0.3-0.5 1/s measured on small quadrotors "
+                                 "(Faessler et al. 2018)"),
+                   _explain_rotor_drag, manoeuvre="fly at several horizontal speeds in different directions"),
         EffectSpec("body_drag", ("c_d",), ("kg/m",), (0.05,), body_drag_force, True,
-                   "quadratic parasitic drag of the airframe"),
+                   "quadratic parasitic drag of the airframe",
+                   PhysicalRange("c_d [kg/m]", 1e-3, 1.0, lambda p, f: p["c_d"],
+                                 "0.5 rho C_D A with air at 1.2 kg/m^3, C_D 0.5-1.5 and a frontal area "
+                                 "of 0.01-1 m^2"),
+                   _explain_body_drag, manoeuvre="fly faster: a quadratic drag parts from linear laws at speed"),
         EffectSpec("wind", ("f_x", "f_y"), ("N", "N"), (0.3, 0.0), wind_force, True,
-                   "a steady horizontal push"),
+                   "a steady horizontal push",
+                   PhysicalRange("push / weight [-]", 0.0, 1.0,
+                                 lambda p, f: float(np.hypot(p["f_x"], p["f_y"])) / (f.mass * 9.81),
+                                 "a vehicle holding its course against a push above its weight would have "
+                                 "to tilt beyond 45 deg"),
+                   _explain_wind, positive=False,
+                   manoeuvre="fly the same pattern at two or more headings and speeds"),
         EffectSpec("battery_sag", ("s",), ("1/s",), (1e-3,), battery_sag_force, True,
-                   "thrust coefficient decaying as the battery drains"),
+                   "thrust coefficient decaying as the battery drains",
+                   PhysicalRange("s [1/s]", 0.0, 2e-3, lambda p, f: p["s"],
+                                 "a LiPo pack sags by at most ~20 % of its voltage over a discharge; "
+                                 "2e-3 1/s is 12 % of thrust per minute"),
+                   _explain_battery, along_thrust=True,
+                   manoeuvre="fly longer, or repeat the flight with a fresh and a drained battery"),
         EffectSpec("motor_lag", ("tau",), ("s",), (0.02,), motor_lag_force, False,
-                   "rotor speeds lagging their commands with a first-order time constant"),
+                   "rotor speeds lagging their commands with a first-order time constant",
+                   PhysicalRange("tau [s]", 0.003, 0.2, lambda p, f: p["tau"],
+                                 "motor time constants of 12.5-25 ms (RotorS), 45 ms actuator lag "
+                                 "(Neural-Lander); effects.md"),
+                   _explain_motor_lag, search=(0.002, 0.3), along_thrust=True,
+                   manoeuvre="fly sharp thrust steps (climbs and stops)"),
     ]
 }
 

@@ -1,0 +1,106 @@
+"""What the recordings can decide: reach of surfaces, separability, physical ranges, facts."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from uavturb.gap.decide import (
+    ambiguity,
+    bias_alike,
+    collinearity,
+    flight_facts,
+    heading_span_deg,
+    surface_reach,
+)
+from uavturb.gap.design import GapData
+from uavturb.gap.fit import fit_model
+from uavturb.physics import quaternion as quat
+from uavturb.physics.dynamics import GRAVITY
+from uavturb.physics.effects import EFFECTS
+
+
+def _data(yaw: np.ndarray, *, d_down: float | np.ndarray = np.inf, imu: bool = True, push=(0.0, 0.0),
+          bias=(0.0, 0.0, 0.0), seed: int = 0) -> GapData:
+    """Hover-like samples at 100 Hz with headings ``yaw`` [rad], small tilts, a steady world push
+    [N] and an accelerometer bias [m/s^2, body] in the measured force."""
+    rng = np.random.default_rng(seed)
+    K = len(yaw)
+    t = np.arange(K) * 0.01
+    roll, pitch = 0.05 * np.sin(0.7 * t), 0.05 * np.cos(0.5 * t)
+    R = quat.to_rotation_matrix(quat.from_euler(roll, pitch, yaw))
+    mass, k_T = 1.5, 8.5e-6
+    w = np.full((K, 6), np.sqrt(mass * GRAVITY / (6 * k_T))) + rng.normal(0, 5, (K, 6))
+    S = np.sum(w**2, 1)
+    y = k_T * S[:, None] * R[:, :, 2] + np.array([*push, 0.0]) + mass * np.einsum("kij,j->ki", R, bias)
+    y += rng.normal(0, 0.04, y.shape)
+    d = np.broadcast_to(np.asarray(d_down, float), (K,)).copy()
+    return GapData(np.zeros(K, int), t, np.zeros((K, 3)), y, R, w, rng.normal(0, 0.3, (K, 3)), d,
+                   np.full(K, np.inf), mass, 0.1, ["synthetic"], "imu" if imu else "mocap",
+                   imu=np.full(K, imu), fits_bias=imu)
+
+
+def test_collinearity_known_answers():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(500, 1))
+    b = rng.normal(size=(500, 2))
+    assert collinearity(a, np.hstack([3 * a, b])) == pytest.approx(1.0, abs=1e-12)
+    orth = np.linalg.qr(np.hstack([a, b]))[0]
+    assert collinearity(orth[:, :1], orth[:, 1:]) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_heading_span_and_facts():
+    fixed = _data(np.full(3000, 0.3))
+    turning = _data(np.linspace(0, np.pi, 3000))
+    assert heading_span_deg(fixed) == pytest.approx(0.0, abs=1e-9)
+    assert heading_span_deg(turning) == pytest.approx(180.0, rel=1e-6)
+    f = flight_facts(turning, 8.5e-6)
+    assert f.wsum_hover == pytest.approx(6 * np.sqrt(1.5 * GRAVITY / (6 * 8.5e-6)))
+    assert f.has_imu and f.duration_s == pytest.approx(29.99)
+
+
+def test_push_and_bias_look_alike_only_at_a_fixed_heading():
+    assert bias_alike(_data(np.full(3000, 0.3)), "wind") > 0.99
+    assert bias_alike(_data(np.linspace(0, 2 * np.pi, 3000)), "wind") < 0.5
+    assert bias_alike(_data(np.full(3000, 0.3), imu=False), "wind") == 0.0  # no IMU, no bias
+
+
+def test_wind_at_a_fixed_heading_with_an_imu_is_ambiguous_and_without_imu_is_not():
+    with_imu = _data(np.full(4000, 0.3), push=(-2.0, 0.5), bias=(0.2, 0.0, 0.0))
+    fit = fit_model(with_imu, {"wind"})
+    amb = ambiguity(with_imu, fit, "wind", flight_facts(with_imu, fit.coef["k_T"]))
+    assert amb is not None and amb["candidates"][:2] == ["wind", "accelerometer_bias"]
+    assert "heading changed by only 0 deg" in amb["why"] and "headings" in amb["to_separate"]
+
+    no_imu = _data(np.full(4000, 0.3), push=(-2.0, 0.5), imu=False)
+    fit = fit_model(no_imu, {"wind"})
+    assert ambiguity(no_imu, fit, "wind", flight_facts(no_imu, fit.coef["k_T"])) is None
+    params, _ = fit.effect_params("wind")
+    assert params["f_x"] == pytest.approx(-2.0, abs=0.02) and params["f_y"] == pytest.approx(0.5, abs=0.02)
+    assert "b_x" not in fit.coef  # recordings.md: no accelerometer, no bias to estimate
+
+
+def test_surface_effects_need_flights_within_reach():
+    far = surface_reach(_data(np.zeros(3000), d_down=1.3), "ground_effect")
+    assert not far.testable and far.closest_m == pytest.approx(1.3)
+    assert "no closer than 1.30 m" in far.why()
+    reach = EFFECTS["ground_effect"].surface_reach(0.1)
+    # mu at the top of the physical range adds 1 % of the thrust at the reach height
+    rho = EFFECTS["ground_effect"].physical_range.hi * (0.1 / (4 * reach)) ** 2
+    assert rho / (1 - rho) == pytest.approx(0.01)
+    d = np.full(3000, 1.3)
+    d[:500] = 0.3  # 5 s within reach
+    assert surface_reach(_data(np.zeros(3000), d_down=d), "ground_effect").testable
+    assert not surface_reach(_data(np.zeros(3000)), "ceiling_effect").testable
+
+
+def test_physical_ranges_name_the_quantity_and_source():
+    f = flight_facts(_data(np.zeros(1000)), 8.5e-6)
+    wind = EFFECTS["wind"].physical_range
+    assert wind.violation({"f_x": 3.0, "f_y": 0.0}, f) is None
+    bad = wind.violation({"f_x": -33.0, "f_y": 0.0}, f)
+    assert bad is not None and "push / weight" in bad and "45 deg" in bad
+    assert EFFECTS["ground_effect"].physical_range.violation({"mu": 39.0}, f) is not None
+    assert EFFECTS["motor_lag"].physical_range.violation({"tau": 0.015}, f) is None
+    for spec in EFFECTS.values():  # every effect declares its range with a source and a manoeuvre
+        assert spec.physical_range.source and spec.manoeuvre and spec.physical_range.lo < spec.physical_range.hi

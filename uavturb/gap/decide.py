@@ -1,0 +1,208 @@
+"""What the recordings can decide (``gap-report.md``: ``ambiguous``, physical ranges, surfaces).
+
+The forward selection (:mod:`uavturb.gap.selection`) finds effects that improve the held-out
+fit. That is necessary, not sufficient, for a discovery a flight engineer can trust:
+
+1. **Reach.** A surface effect (ground, ceiling) is tested only where the flights come within
+   reach of that surface: under the height where its law, at the top of its physical range,
+   adds 1 % of the thrust (:meth:`~uavturb.physics.effects.EffectSpec.surface_reach`), for at
+   least :data:`MIN_NEAR_S` seconds. Farther away the law is flat: whatever it "fits" is the
+   thrust coefficient or noise.
+2. **Separability.** An effect whose force, on these flights, is nearly a combination of the
+   nominal model's unknowns (thrust coefficient, accelerometer bias) or of another effect's
+   force cannot have its parameters pinned down: the data trade one for the other. This is
+   measured on the regressors themselves (uncentred R^2 of the effect's columns on the others',
+   :func:`collinearity`); above :data:`R2_AMBIGUOUS` (a variance inflation above 10, the usual
+   rule) the effect goes to ``ambiguous`` with the manoeuvre that would separate them. The
+   classic case is a steady push and an accelerometer bias at a fixed heading: both are a
+   constant force in the same body/world direction.
+3. **Physical range.** A fit outside its effect's physical range (``EffectSpec.physical_range``,
+   with its source) is no discovery: the law does not describe what was found.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavturb.gap.design import GapData, bias_count, design
+from uavturb.gap.fit import ModelFit, _nl_values
+from uavturb.physics.dynamics import GRAVITY
+from uavturb.physics.effects import EFFECTS, FlightFacts
+
+#: uncentred R^2 above which two sets of regressors are taken as indistinguishable (VIF > 10)
+R2_AMBIGUOUS = 0.9
+#: s of flight within reach of a surface needed to test its law
+MIN_NEAR_S = 2.0
+#: deg of heading change under which a body-fixed and a world-fixed force look alike
+HEADING_SPAN_DEG = 30.0
+
+NOMINAL_GROUPS = {"thrust_coefficient": ("k_T",), "accelerometer_bias": ("b_x", "b_y", "b_z")}
+
+
+def heading_span_deg(data: GapData) -> float:
+    """deg, the largest range of headings flown in one recording (yaw of the body x axis)."""
+    span = 0.0
+    for g in np.unique(data.group):
+        R = data.R[data.group == g]
+        yaw = np.unwrap(np.arctan2(R[:, 1, 0], R[:, 0, 0]))
+        span = max(span, float(np.degrees(np.ptp(yaw))) if len(yaw) else 0.0)
+    return min(span, 360.0)
+
+
+def flight_facts(data: GapData, k_T: float) -> FlightFacts:
+    """The facts explanations and ranges may cite, measured on ``data``."""
+    n = data.rotor_speeds.shape[1]
+    wsum_hover = n * float(np.sqrt(data.mass * GRAVITY / (n * k_T))) if k_T > 0 else float("nan")
+    duration = float(sum(np.ptp(data.t[data.group == g]) for g in np.unique(data.group)))
+    d_down = data.d_down[np.isfinite(data.d_down)]
+    d_up = data.d_up[np.isfinite(data.d_up)]
+    return FlightFacts(mass=data.mass, rotor_count=n, rotor_radius=data.rotor_radius, k_T=k_T,
+                       wsum_hover=wsum_hover,
+                       speed_p90=float(np.percentile(np.linalg.norm(data.v[:, :2], axis=1), 90)),
+                       heading_span_deg=heading_span_deg(data), has_imu=bool(data.fits_bias),
+                       d_down_min=float(d_down.min()) if len(d_down) else float("inf"),
+                       d_up_min=float(d_up.min()) if len(d_up) else float("inf"), duration_s=duration)
+
+
+@dataclass
+class Reach:
+    """Whether a surface effect can be tested on these flights."""
+
+    name: str
+    testable: bool
+    reach_m: float
+    near_s: float
+    closest_m: float
+
+    def why(self) -> str:
+        where = "below" if EFFECTS[self.name].surface == "d_down" else "above"
+        if not np.isfinite(self.closest_m):
+            return f"the recordings have no surface {where} the vehicle (no point cloud, or nothing there)"
+        return (f"the flights came no closer than {self.closest_m:.2f} m to the surface {where} and spent "
+                f"{self.near_s:.1f} s within {self.reach_m:.2f} m of it, where the law could add 1 % of the thrust "
+                f"(at least {MIN_NEAR_S:.0f} s needed)")
+
+    def to_separate(self) -> str:
+        where = "over the floor" if EFFECTS[self.name].surface == "d_down" else "under the ceiling"
+        return f"hover {where} at several heights below {self.reach_m:.2f} m for a few seconds each"
+
+
+def surface_reach(data: GapData, name: str) -> Reach:
+    """Can the surface law ``name`` be tested on ``data``? (module docstring, point 1)"""
+    spec = EFFECTS[name]
+    d = data.d_down if spec.surface == "d_down" else data.d_up
+    reach = spec.surface_reach(data.rotor_radius)
+    near = np.isfinite(d) & (d <= reach)
+    dt = float(np.median(np.diff(data.t))) if len(data) > 1 else 0.0
+    near_s = float(near.sum()) * dt
+    closest = float(np.min(d[np.isfinite(d)])) if np.any(np.isfinite(d)) else float("inf")
+    return Reach(name, near_s >= MIN_NEAR_S, reach, near_s, closest)
+
+
+def _scaled(A: np.ndarray) -> np.ndarray:
+    s = np.linalg.norm(A, axis=0)
+    s[s == 0] = 1.0
+    return A / s
+
+
+def collinearity(target: np.ndarray, others: np.ndarray) -> float:
+    """Smallest uncentred R^2 of each column of ``target`` (3K, p) regressed on ``others`` (3K, q):
+    1 when the target's force is a combination of the others on every sample, 0 when orthogonal."""
+    if target.shape[1] == 0 or others.shape[1] == 0:
+        return 0.0
+    O = _scaled(others)
+    r2 = []
+    for c in _scaled(target).T:
+        beta = np.linalg.lstsq(O, c, rcond=None)[0]
+        r = c - O @ beta
+        r2.append(1.0 - float(r @ r) / max(float(c @ c), 1e-300))
+    return min(r2)
+
+
+def _columns(data: GapData, fit: ModelFit) -> tuple[np.ndarray, list[str]]:
+    return design(data, set(fit.effects), _nl_values(fit.nonlinear))
+
+
+def effect_columns(names: list[str], effect: str) -> list[int]:
+    """Indices of the coefficients that belong to ``effect`` (battery_sag's is ``k_T*s``)."""
+    keys = ("k_T*s",) if effect == "battery_sag" else (() if EFFECTS[effect].search is not None
+                                                         else EFFECTS[effect].params)
+    return [i for i, n in enumerate(names) if n in keys]
+
+
+def nonlinear_column(data: GapData, fit: ModelFit, effect: str) -> np.ndarray:
+    """(3K, 1) the change of the thrust column per unit change of a nonlinear effect's parameter
+    (central difference at its fitted value), i.e. how the effect shows in the data."""
+    p = fit.nonlinear[effect]
+    h = max(1e-3 * p, 1e-6)
+    up = _nl_values(fit.nonlinear | {effect: p + h})
+    dn = _nl_values(fit.nonlinear | {effect: max(p - h, 0.0)})
+    Ap, names = design(data, set(fit.effects), up)
+    Am, _ = design(data, set(fit.effects), dn)
+    k = names.index("k_T")
+    return ((Ap[:, k] - Am[:, k]) * fit.coef["k_T"])[:, None]
+
+
+def look_alikes(data: GapData, fit: ModelFit, effect: str) -> list[tuple[str, float]]:
+    """The unknowns of ``fit`` that ``effect``'s force resembles on ``data``, with their R^2:
+    the nominal groups (thrust coefficient, accelerometer bias) and every other effect of the fit,
+    each alone, then all of them together (``"all"``)."""
+    A, names = _columns(data, fit)
+    if EFFECTS[effect].search is not None:
+        target = nonlinear_column(data, fit, effect)
+        own: list[int] = []
+    else:
+        own = effect_columns(names, effect)
+        target = A[:, own]
+    groups = {g: [names.index(k) for k in keys if k in names] for g, keys in NOMINAL_GROUPS.items()}
+    for other in fit.effects - {effect}:
+        groups[other] = effect_columns(names, other)
+    out = [(g, collinearity(target, A[:, idx])) for g, idx in groups.items() if idx]
+    rest = [i for i in range(A.shape[1]) if i not in own]
+    out.append(("all", collinearity(target, A[:, rest])))
+    return out
+
+
+def _why(effect: str, partner: str, r2: float, facts: FlightFacts) -> str:
+    alike = f"on these flights their forces are alike (R^2 = {r2:.3f} of one on the other)"
+    if partner == "accelerometer_bias":
+        return (f"the heading changed by only {facts.heading_span_deg:.0f} deg: a force fixed in the world and a "
+                f"sensor bias fixed in the body look alike; {alike}")
+    if partner == "thrust_coefficient":
+        return f"{effect} scales the thrust much as the thrust coefficient does here; {alike}"
+    return f"{effect} and {partner} bend the residual the same way; {alike}"
+
+
+def _to_separate(effect: str, partner: str) -> str:
+    if partner == "accelerometer_bias":
+        return "fly the same pattern at two or more headings (90 deg apart), or rely on motion capture alone"
+    if partner in EFFECTS:
+        return f"{EFFECTS[effect].manoeuvre}; {EFFECTS[partner].manoeuvre}"
+    return EFFECTS[effect].manoeuvre
+
+
+def ambiguity(data: GapData, fit: ModelFit, effect: str, facts: FlightFacts) -> dict | None:
+    """An ``ambiguous`` entry when ``effect`` cannot be told apart from the other unknowns of
+    ``fit`` on ``data`` (R^2 above :data:`R2_AMBIGUOUS`), else None."""
+    found = look_alikes(data, fit, effect)
+    overall = dict(found)["all"]
+    if overall < R2_AMBIGUOUS:
+        return None
+    singles = sorted((x for x in found if x[0] != "all"), key=lambda x: -x[1])
+    partners = [g for g, r2 in singles if r2 >= R2_AMBIGUOUS] or [singles[0][0]]
+    main = partners[0]
+    return {"candidates": [effect, *partners], "why": _why(effect, main, overall, facts),
+            "to_separate": _to_separate(effect, main), "r2": round(overall, 4)}
+
+
+def bias_alike(data: GapData, effect: str) -> float:
+    """R^2 of a linear effect's force on the accelerometer-bias columns (0 without an IMU)."""
+    if not data.fits_bias or EFFECTS[effect].search is not None or effect == "battery_sag":
+        return 0.0
+    fit = ModelFit(frozenset({effect}), {}, {}, {}, 0.0)
+    A, names = _columns(data, fit)
+    own = effect_columns(names, effect)
+    nb = bias_count(data)
+    return collinearity(A[:, own], A[:, 1:1 + nb])
