@@ -116,6 +116,7 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
         L.append("")
         for e in report["effects"]:
             L.append(f"- **{e['name']}**: {e['explanation']}")
+    L += _undecided_lines(report)
     if report["sim_effect_params"]:
         L.append("")
         L.append("## The simulator's own effects, refitted")
@@ -150,6 +151,28 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
     for p in plots:
         L.append(f"![{p}]({p})")
     (folder / "report.md").write_text("\n".join(L) + "\n")
+
+
+def _undecided_lines(report: dict) -> list[str]:
+    """What these recordings cannot decide, fits outside physical ranges, untestable effects."""
+    L: list[str] = []
+    if report.get("ambiguous"):
+        L += ["", "## Undecided (ambiguous)",
+              "These recordings cannot tell the following apart; nothing here is a discovery."]
+        for a in report["ambiguous"]:
+            L.append(f"- **{' vs '.join(a['candidates'])}**: {a['why']}. To separate them: {a['to_separate']}.")
+    if report.get("rejected"):
+        L += ["", "## Fits outside their physical range (not discoveries)"]
+        for r in report["rejected"]:
+            L.append(f"- `{r['name']}`: {r['why']}.")
+    if report.get("not_testable"):
+        L += ["", "## Not testable on these flights"]
+        for r in report["not_testable"]:
+            L.append(f"- `{r['name']}`: {r['why']}. To test it: {r['to_separate']}.")
+    nominal = report.get("nominal", {})
+    if nominal.get("accel_bias_note"):
+        L += ["", nominal["accel_bias_note"].capitalize() + "."]
+    return L
 
 
 def write_json(folder: Path, report: dict) -> None:
