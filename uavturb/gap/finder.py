@@ -8,7 +8,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.gap import locate
-from uavturb.gap.decide import ambiguity, bias_alike, flight_facts, surface_reach
+from uavturb.gap.decide import R2_AMBIGUOUS, ambiguity, bias_alike, flight_facts, surface_reach
 from uavturb.gap.design import GapData, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
@@ -216,7 +216,7 @@ def _decide(data: GapData, sel: Selection, offset: np.ndarray, candidates: list[
     facts = flight_facts(data, final.coef["k_T"])
     named = {a for entry in ambiguous for a in entry["candidates"]}
     for c in candidates:
-        if c in final.effects or c in named or bias_alike(data, c) < 0.9:
+        if c in final.effects or c in named or bias_alike(data, c) < R2_AMBIGUOUS:
             continue
         b = np.array([final.coef[f"b_{a}"] for a in "xy"])
         se = np.array([final.stderr.get(f"b_{a}", np.inf) for a in "xy"])
