@@ -15,7 +15,7 @@ fit. That is necessary, not sufficient, for a discovery a flight engineer can tr
    :func:`collinearity`); above :data:`R2_AMBIGUOUS` the effect goes to ``ambiguous`` with the
    manoeuvre that would separate them. The classic case is a steady push and an accelerometer
    bias at a fixed heading: both are a constant force in the same body/world direction
-   (R^2 > 0.997 with tilts of a few degrees). The threshold is a variance inflation of 100: any
+   (R^2 = 0.999 with 3 deg tilts, tests/test_gap_decide.py). The threshold is a variance inflation of 100: any
    force the model does not describe (drag on the airspeed, a thrust curve) then leaks into the
    parameter amplified tenfold, beyond what its standard error shows. Milder collinearity is
    left to the standard errors: a 90 s battery-sag flight (R^2 = 0.93 against the thrust
