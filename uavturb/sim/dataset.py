@@ -18,7 +18,8 @@ Pipeline of a trajectory (:func:`make_trajectory`)
    :func:`uavturb.sim.trajectories.plan_trajectory` (random points, Christofides, A*,
    take-offs, low hovers, landings, edge passes); ``mpc`` flies with the CasADi MPC of
    :mod:`uavturb.sim.mpc` through :func:`~uavturb.sim.trajectories.fly_trajectory`,
-   ``geometric`` with the geometric controller through :func:`uavturb.sim.flight.simulate_flight`.
+   ``geometric`` with the geometric controller through :func:`uavturb.sim.closed_loop.track_reference`
+   (the closed loop both share).
    The flyer is pluggable (:data:`FLYERS`).
 2. *collide*: the flight is truncated before the first sample where the vehicle (a
    cylinder of radius ``arm_length + rotor_radius``) touches the scene
@@ -250,42 +251,31 @@ def _duration(planned, preset: SimPreset) -> float:
 def fly_geometric(scene, vehicle, task_seed: int, n_points: int, preset: SimPreset) -> Flight:
     """Plan with :func:`uavturb.sim.trajectories.plan_trajectory`, fly with the geometric controller.
 
-    Physics: :func:`uavturb.sim.flight.simulate_flight` (RK4 and controller every
+    Physics: :func:`uavturb.sim.closed_loop.track_reference` (RK4 and controller every
     ``geometric_dt`` with the preset's effects and the exact heights of the scene; the
-    reference sampled once, vectorised), noise-free, recorded at the camera rate. The
-    controller's share of the time is measured by timing its ``update`` calls.
+    reference sampled once, vectorised), sampled at the camera rate. The controller's share
+    of the time is what the closed loop reports for its controller calls.
     """
-    from uavturb.sim import flight as flight_mod
-    from uavturb.sim.controller import GeometricController
+    from uavturb.sim.closed_loop import track_reference
 
     t0 = time.perf_counter()
     planned = _plan(scene, vehicle, task_seed, n_points, preset)
     t_plan = time.perf_counter() - t0
-    spent = [0.0]
-
-    class _Timed(GeometricController):
-        def update(self, *a, **kw):
-            t1 = time.perf_counter()
-            out = super().update(*a, **kw)
-            spent[0] += time.perf_counter() - t1
-            return out
-
     t0 = time.perf_counter()
-    original = flight_mod.GeometricController
-    flight_mod.GeometricController = _Timed  # measured, process-local, restored below
-    try:
-        _, truth = flight_mod.simulate_flight(
-            vehicle, planned.reference, duration=_duration(planned, preset),
-            effects={k: dict(v) for k, v in preset.effects.items()}, points=np.zeros((1, 3)),
-            surfaces=_SceneHeights(scene), physics_dt=preset.geometric_dt, control_dt=preset.geometric_dt,
-            record_dt=1.0 / preset.camera_hz, noise=flight_mod.SensorNoise.none(), seed=0)
-    finally:
-        flight_mod.GeometricController = original
+    record_dt = 1.0 / preset.camera_hz
+    effects = {k: dict(v) for k, v in preset.effects.items()}
+    lag = effects.pop("motor_lag", None)
+    loop = track_reference(vehicle, planned.reference, _SceneHeights(scene), duration=_duration(planned, preset),
+                           effects=effects, physics_dt=preset.geometric_dt, control_dt=preset.geometric_dt,
+                           record_dt=record_dt, motor_tau=float(lag["tau"]) if lag is not None else 0.0)
     total = time.perf_counter() - t0
-    return Flight(t=truth.t, state=truth.x, rotor_speeds=truth.rotor_speeds,
-                  timing={"control": t_plan + spent[0], "physics": total - spent[0]},
+    rec_every = int(round(record_dt / preset.geometric_dt))
+    t = np.arange(len(loop.x)) * (rec_every * preset.geometric_dt)
+    error = loop.x[:, 0:3] - planned.reference(t).p
+    return Flight(t=t, state=loop.x, rotor_speeds=loop.rotor_speeds,
+                  timing={"control": t_plan + loop.control_s, "physics": total - loop.control_s},
                   info={"controller": "geometric", "plan_s": t_plan, "plan_points": int(n_points),
-                        "tracking_rms_m": truth.tracking_rms()})
+                        "tracking_rms_m": float(np.sqrt(np.mean(np.sum(error**2, axis=1))))})
 
 
 def _mpc_available() -> bool:

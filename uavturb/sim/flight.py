@@ -1,25 +1,16 @@
 """Synthetic flights: close the loop around the dynamics with the named effects of
 ``effects.md`` switched on, and record what the sensors of ``recordings.md`` would see.
 
-Time stepping (all rates are multiples of ``physics_dt``):
+The closed loop (controller, effects, RK4 physics, motor lag, held heights) is
+:func:`uavturb.sim.closed_loop.track_reference`, the loop of every simulated flight: physics every
+``physics_dt`` (1 ms), :class:`~uavturb.sim.controller.GeometricController` every ``control_dt``
+(5 ms) on the true state, heights over the surface below and to the surface above from a
+:class:`~uavturb.scene.heights.SurfaceIndex` on the scene cloud at the control rate.
+``motor_lag``: ``rotors0`` records the commands (``effects.md``).
 
-- physics, every ``physics_dt`` (1 ms): one RK4 step of :class:`~uavturb.physics.dynamics.Dynamics`
-  (its ``rk4`` CasADi function, called through a preallocated buffer) with the rotor
-  speeds and the effect force held over the step. The effect force is evaluated at the
-  start of every step by :func:`~uavturb.physics.effects.total_force` with the actual
-  rotor speeds, the heights ``d_down``, ``d_up`` and ``t``.
-- ``motor_lag``: the actual rotor speeds follow the held command with the exact
-  first-order update ``w <- w_cmd + (w - w_cmd) exp(-dt / tau)`` every physics step;
-  ``rotors0`` records the commands (``effects.md``).
-- control, every ``control_dt`` (5 ms): :class:`~uavturb.sim.controller.GeometricController`
-  on the true state; its rotor commands are held until the next update. The heights
-  over the surface below and to the surface above come from a
-  :class:`~uavturb.scene.heights.SurfaceIndex` on the scene cloud at this rate; between
-  updates they follow the vehicle's height change (exact over flat surfaces; a table edge
-  is resolved to one control period).
-- recording, every ``record_dt`` (5 ms, 200 Hz): ground truth, IMU and rotor speeds, with
-  the noise of :class:`SensorNoise`. The accelerometer reads the specific force
-  ``R^T (F_thrust + F_ext) / m`` of the same instant (from ``Dynamics.xdot``).
+This module adds what the sensors of ``recordings.md`` see, every ``record_dt`` (5 ms, 200 Hz):
+ground truth, IMU and rotor speeds, with the noise of :class:`SensorNoise`. The accelerometer
+reads the specific force ``R^T (F_thrust + F_ext) / m`` of the same instant (from ``Dynamics.xdot``).
 
 Timestamps are ``int64`` nanoseconds from a EuRoC-like epoch (:data:`EUROC_T0_NS`), so that
 float-precision mistakes downstream show.
@@ -38,24 +29,11 @@ from uavturb.errors import InputError
 from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
 from uavturb.io.vehicle_file import preset
 from uavturb.physics import quaternion as quat
-from uavturb.physics.dynamics import (
-    GRAVITY,
-    IDX_Q,
-    IDX_V,
-    IDX_W,
-    N_STATE,
-    dynamics_for,
-    physical_params,
-)
-from uavturb.physics.effects import (
-    EFFECTS,
-    EffectInputs,
-    effect_force,
-    force_on_state,
-    parse_effects,
-)
+from uavturb.physics.dynamics import GRAVITY, IDX_Q, IDX_V, IDX_W, dynamics_for, physical_params
+from uavturb.physics.effects import EFFECTS, EffectInputs, effect_force, parse_effects
 from uavturb.physics.vehicle import Vehicle
-from uavturb.sim.controller import ControllerGains, GeometricController, RotationOf
+from uavturb.sim.closed_loop import track_reference, whole_ratio
+from uavturb.sim.controller import ControllerGains
 from uavturb.sim.references import (
     Reference,
     Room,
@@ -208,13 +186,6 @@ def surface_index(points: np.ndarray | None = None, room: Room = Room(), spacing
 # --- simulation ----------------------------------------------------------------------
 
 
-def _ratio(a: float, b: float, what: str) -> int:
-    n = int(round(a / b))
-    if n < 1 or abs(n * b - a) > 1e-9 * max(a, 1.0):
-        raise InputError("simulate_flight", f"{what} must be a whole multiple of physics_dt")
-    return n
-
-
 def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float | None = None,
                     effects: dict[str, dict[str, float]] | None = None, points: np.ndarray | None = None,
                     surfaces: Any = None, room: Room = Room(), physics_dt: float = 0.001, control_dt: float = 0.005,
@@ -256,89 +227,23 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
     duration = float(reference.duration if duration is None else duration)
     if duration <= 0:
         raise InputError("simulate_flight", "duration must be positive")
-    ctrl_every = _ratio(control_dt, physics_dt, "control_dt")
-    rec_every = _ratio(record_dt, physics_dt, "record_dt")
-    n_phys = int(round(duration / physics_dt))
-    K = n_phys // rec_every + 1
+    whole_ratio(control_dt, physics_dt, "control_dt")
+    rec_every = whole_ratio(record_dt, physics_dt, "record_dt")
     lag = effects.pop("motor_lag", None)
-    tau_lag = float(lag["tau"]) if lag is not None else 0.0
-    a_lag = float(np.exp(-physics_dt / tau_lag)) if tau_lag > 0 else 0.0
     if surfaces is None:
         surfaces = surface_index(points, room)
     if points is None:
         points = room_points(room)
-
+    loop = track_reference(vehicle, reference, surfaces, duration=duration, effects=effects, physics_dt=physics_dt,
+                           control_dt=control_dt, record_dt=record_dt,
+                           motor_tau=float(lag["tau"]) if lag is not None else 0.0, gains=gains,
+                           feedforward=feedforward, settle=settle)
+    X, W_act, W_cmd, F_rec, DD, DU, SAT = (loop.x, loop.rotor_speeds, loop.rotor_commands, loop.force, loop.d_down,
+                                           loop.d_up, loop.saturated)
+    K = len(X)
     dyn = dynamics_for(vehicle)
     theta = physical_params(vehicle)
     k_T, r = float(vehicle.thrust_coefficient), float(vehicle.rotor_radius)
-    N = vehicle.rotor_count
-    ctrl = GeometricController(vehicle, gains)
-    n_ctrl = n_phys // ctrl_every + 1
-    sp_all = reference(np.arange(n_ctrl) * control_dt)
-    rotation = RotationOf()
-
-    def heights(p: np.ndarray) -> tuple[float, float]:
-        pos = np.asarray(p, float)[None, :]
-        return float(np.asarray(surfaces.d_down(pos)).ravel()[0]), float(np.asarray(surfaces.d_up(pos)).ravel()[0])
-
-    def forces_at(x: np.ndarray, w: np.ndarray, t: float, dd: float, du: float) -> np.ndarray:
-        return force_on_state(effects, x[IDX_Q], x[IDX_V], w, t, dd, du, k_T, r,
-                              rotation(x[IDX_Q]) if effects else None)
-
-    # initial state: at rest on the reference, level, with its heading
-    sp0 = sp_all[0]
-    x = np.zeros(N_STATE)
-    x[0:3], x[IDX_V] = sp0.p, sp0.v
-    x[IDX_Q] = quat.from_euler(0.0, 0.0, float(sp0.yaw))
-    dd, du = heights(x[0:3])
-    F = np.zeros(3)
-    if settle and effects and not feedforward:
-        for _ in range(4):  # fixed point: the force depends on the thrust that answers it
-            ctrl.reset(F)
-            w0 = ctrl.update(x, sp0, 0.0)
-            F = forces_at(x, w0, 0.0, dd, du)
-    ctrl.reset(F if (settle and not feedforward) else None)
-
-    # RK4 of Dynamics through a preallocated CasADi buffer (about 1 us a call)
-    buf, run_rk4 = dyn.rk4.buffer()
-    x_in, om_in, th_in = x.copy(), np.zeros(N), theta.astype(float).copy()
-    f_in, tau_in, dt_in, x_out = np.zeros(3), np.zeros(3), np.array([float(physics_dt)]), np.zeros(N_STATE)
-    for i, a in enumerate((x_in, om_in, th_in, f_in, tau_in, dt_in)):
-        buf.set_arg(i, memoryview(a))
-    buf.set_res(0, memoryview(x_out))
-
-    X = np.empty((K, N_STATE))
-    W_act, W_cmd = np.empty((K, N)), np.empty((K, N))
-    F_rec, DD, DU = np.empty((K, 3)), np.empty(K), np.empty(K)
-    SAT = np.zeros(K, bool)
-    w_act = np.zeros(N)
-    w_cmd = np.zeros(N)
-    z_c = x[2]
-    dd_c, du_c = dd, du
-    saturated = False
-    k = 0
-    for i in range(n_phys + 1):
-        t = i * physics_dt
-        if i % ctrl_every == 0:
-            dd_c, du_c = heights(x[0:3])  # held, following the height change, until the next update
-            z_c = x[2]
-            w_cmd = ctrl.update(x, sp_all[i // ctrl_every], control_dt, F if feedforward else None)
-            saturated = ctrl.last.saturated
-            if i == 0 or tau_lag <= 0:
-                w_act = w_cmd.copy()
-        dz = x[2] - z_c
-        dd, du = dd_c + dz, du_c - dz
-        F = forces_at(x, w_act, t, dd, du)
-        if i % rec_every == 0:
-            X[k], W_act[k], W_cmd[k], F_rec[k], DD[k], DU[k], SAT[k] = x, w_act, w_cmd, F, dd, du, saturated
-            k += 1
-        if i == n_phys:
-            break
-        x_in[:], om_in[:], f_in[:] = x, w_act, F
-        run_rk4()
-        x = x_out.copy()
-        if tau_lag > 0:
-            w_act = w_cmd + (w_act - w_cmd) * a_lag
 
     # --- what the sensors see ---------------------------------------------------------
     t_rec = np.arange(K) * (rec_every * physics_dt)

@@ -696,29 +696,17 @@ def _ratio(rate_hi: float, rate_lo: float, what: str) -> int:
     return n
 
 
-class _GeometricTracker:
-    """:class:`~uavturb.sim.controller.GeometricController` behind the interface the flight loop
-    uses: ``reset(x)``, ``update(x, t) -> rotor speeds``; the reference is sampled once at all
-    control times (one vectorised call)."""
+class _SceneHeightQuery:
+    """The scene's exact heights as a :class:`~uavturb.sim.closed_loop.HeightQuery`."""
 
-    def __init__(self, vehicle: Any, reference: Reference, dt: float):
-        from uavturb.sim.controller import GeometricController
+    def __init__(self, scene: Scene):
+        self.scene = scene
 
-        self.ctrl = GeometricController(vehicle)
-        self.reference, self.dt = reference, dt
-        self.setpoints = reference(np.arange(int(np.ceil(reference.duration / dt)) + 2) * dt)
-        self.solve_times: list[float] = []
+    def d_down(self, positions: np.ndarray) -> np.ndarray:
+        return height_below(self.scene, positions)
 
-    def reset(self, x: np.ndarray) -> None:
-        self.ctrl.reset()
-
-    def update(self, x: np.ndarray, t: float) -> np.ndarray:
-        t0 = time.perf_counter()
-        k = int(round(t / self.dt))
-        sp = self.setpoints[k] if k < len(self.setpoints) else self.reference(t)
-        w = self.ctrl.update(x, sp, self.dt)
-        self.solve_times.append(time.perf_counter() - t0)
-        return w
+    def d_up(self, positions: np.ndarray) -> np.ndarray:
+        return height_above(self.scene, positions)
 
 
 def make_controller(kind: str, vehicle: Any, reference: Reference, control_rate: float | None = None,
@@ -731,8 +719,11 @@ def make_controller(kind: str, vehicle: Any, reference: Reference, control_rate:
         rate = 25.0 if control_rate is None else float(control_rate)
         return MPCController(vehicle, reference, dt=1.0 / rate, **options), rate
     if kind == "geometric":
+        from uavturb.sim.closed_loop import GeometricTracker
+
         rate = 200.0 if control_rate is None else float(control_rate)
-        return _GeometricTracker(vehicle, reference, 1.0 / rate), rate
+        dt = 1.0 / rate
+        return GeometricTracker(vehicle, reference, dt, int(np.ceil(reference.duration / dt)) + 2), rate
     raise InputError("controller", f"unknown controller '{kind}' (known: {', '.join(CONTROLLERS)})")
 
 
@@ -771,16 +762,8 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
         ``solve_ms`` (controller update times), ``wall_s``, ``samples_per_s``, ``controller``.
     """
     from uavturb.io.vehicle_file import preset
-    from uavturb.physics import quaternion as quat
-    from uavturb.physics.dynamics import (
-        IDX_Q,
-        IDX_V,
-        N_STATE,
-        dynamics_for,
-        physical_params,
-    )
-    from uavturb.physics.effects import DEFAULT_EFFECTS, force_on_state
-    from uavturb.sim.controller import RotationOf
+    from uavturb.physics.effects import DEFAULT_EFFECTS
+    from uavturb.sim.closed_loop import CollisionWatch, initial_state, run_closed_loop
 
     wall0 = time.perf_counter()
     veh = preset(vehicle) if isinstance(vehicle, str) else vehicle
@@ -797,86 +780,25 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
     cam_every = _ratio(physics_rate, camera_rate, "camera_rate")
     ctrl_every = _ratio(physics_rate, rate, "control_rate")
     dt = 1.0 / physics_rate
-    n_phys = int(round(duration * physics_rate))
-    K = n_phys // cam_every + 1
-
-    dyn = dynamics_for(veh)
-    theta = physical_params(veh)
-    k_T, r = float(veh.thrust_coefficient), float(veh.rotor_radius)
-    N = veh.rotor_count
     radius = veh.arm_length + veh.rotor_radius
     rest = float(ref(0.0).p[2] - planned.points[0, 2])  # m, landed height of the start
     half_h = float(np.clip(0.5 * rest, 0.005, 0.02))  # m, vertical half-extent in the collision check
-    rotation = RotationOf()
 
-    def heights(p: np.ndarray) -> tuple[float, float]:
-        pos = p[None, :]
-        return float(height_below(scene, pos)[0]), float(height_above(scene, pos)[0])
-
-    def forces_at(x: np.ndarray, w: np.ndarray, t: float, dd: float, du: float) -> np.ndarray:
-        return force_on_state(effects, x[IDX_Q], x[IDX_V], w, t, dd, du, k_T, r,
-                              rotation(x[IDX_Q]) if effects else None)
-
-    sp0 = ref(0.0)
-    x = np.zeros(N_STATE)
-    x[0:3], x[IDX_V] = sp0.p, sp0.v
-    x[IDX_Q] = quat.from_euler(0.0, 0.0, float(sp0.yaw))
+    x = initial_state(ref(0.0))
     ctrl.reset(x)
-
-    buf, run_rk4 = dyn.rk4.buffer()
-    x_in, om_in, th_in = x.copy(), np.zeros(N), theta.astype(float).copy()
-    f_in, tau_in, dt_in, x_out = np.zeros(3), np.zeros(3), np.array([dt]), np.zeros(N_STATE)
-    for i, a in enumerate((x_in, om_in, th_in, f_in, tau_in, dt_in)):
-        buf.set_arg(i, memoryview(a))
-    buf.set_res(0, memoryview(x_out))
-
-    X, W = np.empty((K, N_STATE)), np.empty((K, N))
-    F_rec, DD, DU = np.empty((K, 3)), np.empty(K), np.empty(K)
     # collision check in batches of the positions of every physics step (about 1 s of flight)
-    batch = max(1, int(round(physics_rate)))
-    P_batch = np.empty((batch, 3))
-    n_batch = 0
-    w = np.zeros(N)
-    dd_c = du_c = z_c = 0.0
-    k = 0
-    collided, t_hit = False, None
-    t_ctrl = t_phys = 0.0
-    for i in range(n_phys + 1):
-        t = i * dt
-        if not np.all(np.isfinite(x)):
-            collided, t_hit = True, t
-            break
-        P_batch[n_batch] = x[0:3]
-        n_batch += 1
-        if n_batch == batch or i == n_phys:
-            hit = collides(scene, P_batch[:n_batch], radius, half_h)
-            if hit.any():
-                collided, t_hit = True, (i - n_batch + 1 + int(np.argmax(hit))) * dt
-                k = min(k, int(np.ceil(t_hit * camera_rate - 1e-9)))  # frames strictly before the hit
-                break
-            n_batch = 0
-        if i % ctrl_every == 0:
-            dd_c, du_c = heights(x[0:3])
-            z_c = x[2]
-            t1 = time.perf_counter()
-            w = ctrl.update(x, t)
-            t_ctrl += time.perf_counter() - t1
-        t1 = time.perf_counter()
-        dz = x[2] - z_c
-        dd, du = dd_c + dz, du_c - dz
-        F = forces_at(x, w, t, dd, du)
-        if i % cam_every == 0:
-            X[k], W[k], F_rec[k], DD[k], DU[k] = x, w, F, dd, du
-            k += 1
-        if i == n_phys:
-            break
-        x_in[:], om_in[:], f_in[:] = x, w, F
-        run_rk4()
-        x = x_out.copy()
-        t_phys += time.perf_counter() - t1
+    watch = CollisionWatch(lambda p: collides(scene, p, radius, half_h), int(round(physics_rate)), dt)
+    loop = run_closed_loop(veh, x, lambda x, t, force: ctrl.update(x, t), _SceneHeightQuery(scene), effects=effects,
+                           n_steps=int(round(duration * physics_rate)), physics_dt=dt, control_every=ctrl_every,
+                           record_every=cam_every, watch=watch)
+    k = loop.count
+    collided, t_hit = loop.stop_time is not None, loop.stop_time
+    if collided and not loop.diverged:
+        k = min(k, int(np.ceil(t_hit * camera_rate - 1e-9)))  # frames strictly before the hit
     if collided:
         k = max(k - 1, 0)  # drop the last frame before the hit too: the vehicle was about to touch
-    X, W, F_rec, DD, DU = X[:k], W[:k], F_rec[:k], DD[:k], DU[:k]
+    X, W, F_rec, DD, DU = loop.x[:k], loop.rotor_speeds[:k], loop.force[:k], loop.d_down[:k], loop.d_up[:k]
+    t_ctrl, t_phys = loop.control_s, loop.physics_s
     t_out = np.arange(k) / camera_rate
     sp = ref(t_out)
     wall = time.perf_counter() - wall0
