@@ -12,7 +12,7 @@ from omegaconf import OmegaConf
 
 from uavturb.data import synthetic
 from uavturb.errors import InputError
-from uavturb.experiments.config import allowed_keys, load_config
+from uavturb.experiments.config import CONF_DIR, allowed_keys, load_config
 from uavturb.io import shards
 from uavturb.systems import HeightModule
 
@@ -115,7 +115,9 @@ def test_config_groups_and_experiments():
     assert smoke.data.synthetic.enabled and smoke.trainer.accelerator == "cpu"
     assert load_config(["experiment=pretrain_normals"]).stage == "pretrain"
     paper = load_config()
-    assert paper.model.lr_head == 1e-6 and paper.model.lam == 10000.0 and paper.model.embed_dim == 50
+    for group in ("model", "trainer", "data"):  # every choice of every group resolves and validates
+        for choice in sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml")):
+            assert load_config([f"{group}={choice}"])[group] is not None
     with pytest.raises(InputError, match="choices"):
         load_config(["model=nonsense"])
     with pytest.raises(InputError, match="choices"):
