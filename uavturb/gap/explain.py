@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from uavturb.gap.design import GapData
+from uavturb.physics.constants import GRAVITY
 
 
 def explanation(name: str, params: dict[str, float], data: GapData, k_T: float) -> str:
     """One or two sentences: what the effect is, how large it is on these flights, what to do."""
-    hover_w = float(np.sqrt(data.mass * 9.81 / (k_T * data.rotor_speeds.shape[1])))
+    hover_w = float(np.sqrt(data.mass * GRAVITY / (k_T * data.rotor_speeds.shape[1])))
     wsum_hover = hover_w * data.rotor_speeds.shape[1]
     speed = float(np.percentile(np.linalg.norm(data.v[:, :2], axis=1), 90))
     if name == "rotor_drag":
