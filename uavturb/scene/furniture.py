@@ -127,6 +127,17 @@ def _overlaps(rect, others, gap: float) -> bool:
                        & (rect[1] < o[:, 3] + gap) & (rect[3] > o[:, 1] - gap)))
 
 
+def _corner_along(rng: np.random.Generator, lo: float, hi: float, size: float, back: int, low_side: int,
+                  high_side: int) -> float:
+    """Lower corner [m] along one room axis ``[lo, hi]`` of a piece of ``size`` [m]: against the
+    wall at ``lo`` when ``back == low_side``, at ``hi`` when ``back == high_side``, else drawn."""
+    if back == low_side:
+        return lo + WALL_GAP
+    if back == high_side:
+        return hi - WALL_GAP - size
+    return rng.uniform(lo + WALL_GAP, hi - WALL_GAP - size)
+
+
 def furnish(rng, rooms: list[SceneRoom], keepouts: list) -> list[Furniture]:
     furniture: list[Furniture] = []
     for ri, room in enumerate(rooms):
@@ -152,18 +163,8 @@ def furnish(rng, rooms: list[SceneRoom], keepouts: list) -> list[Furniture]:
                         sx, sy = w, d
                     if sx > rx1 - rx0 - 2 * WALL_GAP or sy > ry1 - ry0 - 2 * WALL_GAP:
                         continue
-                    if back == 0:
-                        x0 = rx0 + WALL_GAP
-                    elif back == 1:
-                        x0 = rx1 - WALL_GAP - sx
-                    else:
-                        x0 = rng.uniform(rx0 + WALL_GAP, rx1 - WALL_GAP - sx)
-                    if back == 2:
-                        y0 = ry0 + WALL_GAP
-                    elif back == 3:
-                        y0 = ry1 - WALL_GAP - sy
-                    else:
-                        y0 = rng.uniform(ry0 + WALL_GAP, ry1 - WALL_GAP - sy)
+                    x0 = _corner_along(rng, rx0, rx1, sx, back, 0, 1)
+                    y0 = _corner_along(rng, ry0, ry1, sy, back, 2, 3)
                 else:
                     back = -1
                     sx, sy = (w, d) if rng.random() < 0.5 else (d, w)
