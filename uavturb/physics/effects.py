@@ -22,6 +22,7 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
+from uavturb.physics.constants import GRAVITY
 from uavturb.physics.vehicle import QUADROTOR
 
 
@@ -316,7 +317,7 @@ def _explain_body_drag(p: dict, f: FlightFacts) -> str:
 def _explain_wind(p: dict, f: FlightFacts) -> str:
     mag = float(np.hypot(p["f_x"], p["f_y"]))
     towards = float(np.degrees(np.arctan2(p["f_y"], p["f_x"])))
-    return (f"A steady horizontal push of {mag:.2g} N ({100 * mag / (f.mass * 9.81):.1f} % of the weight) towards "
+    return (f"A steady horizontal push of {mag:.2g} N ({100 * mag / (f.mass * GRAVITY):.1f} % of the weight) towards "
             f"{towards:.0f} deg in the world frame; {_heading_clause(f)}: a draught or steady wind "
             f"(drag on the airspeed).")
 
@@ -364,7 +365,7 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("wind", ("f_x", "f_y"), ("N", "N"), (0.3, 0.0), wind_force, True,
                    "a steady horizontal push",
                    PhysicalRange("push / weight [-]", 0.0, 1.0,
-                                 lambda p, f: float(np.hypot(p["f_x"], p["f_y"])) / (f.mass * 9.81),
+                                 lambda p, f: float(np.hypot(p["f_x"], p["f_y"])) / (f.mass * GRAVITY),
                                  "a vehicle holding its course against a push above its weight would have "
                                  "to tilt beyond 45 deg"),
                    _explain_wind, positive=False,
