@@ -205,3 +205,35 @@ def test_dead_rotor_column(tmp_path, flight, value, expected):
     with pytest.raises(InputError) as e:
         load_recordings([tmp_path / "r"])
     assert str(e.value).startswith(f"{tmp_path / 'r' / 'mav0/rotors0/data.csv'}: ") and expected in str(e.value)
+
+
+# --- evaluate's depth images: cam0's T_BS is relative to S ------------------------------------
+
+
+def test_cam0_is_posed_through_T_BS(tmp_path, flight):
+    """A rotated, offset S: cam0/sensor.yaml holds the camera's pose in S (EuRoC). The depth images
+    equal those of the S = B twin whose cam0 holds the camera's pose in B."""
+    from uavturb.data.recordings import forward_camera, recording_sequence
+    from uavturb.io.recording import Camera
+
+    T_BC = forward_camera(16, yfov_deg=70.0, pitch_deg=30.0).T_BS  # camera pose in B
+    T_BS = euroc_like_T_BS()
+    cam = Camera(intrinsics=np.array([20.0, 20.0, 15.5, 11.5]), resolution=(32, 24), T_BS=T_BC)
+    write_recording(replace(flight, cam0=cam), tmp_path / "b")
+    twin = to_sensor_frame(flight, T_BS)
+    T_SC = np.linalg.inv(T_BS) @ T_BC  # what EuRoC's cam0/sensor.yaml would hold
+    write_recording(replace(twin, cam0=replace(cam, T_BS=T_SC)), tmp_path / "s")
+
+    seqs = []
+    for name in ("b", "s"):
+        rec = read_recording(tmp_path / name, require_rotors=True)
+        seqs.append(recording_sequence(rec, HEXAROTOR, image_size=16, frame_dt=1.0))
+    b, s = seqs
+    np.testing.assert_allclose(s.camera.T_BS, T_BC, atol=1e-12)
+    assert len(b) == len(s) > 10 and (b.depth > 0).mean() > 0.9
+    np.testing.assert_allclose(s.depth, b.depth, atol=1e-4)
+    np.testing.assert_allclose(s.p, b.p, atol=1e-9)
+    # the camera taken as relative to B (the old reading) would look elsewhere
+    wrong = replace(read_recording(tmp_path / "s"), vehicle=HEXAROTOR)
+    assert not np.allclose(recording_sequence(wrong, HEXAROTOR, image_size=16, frame_dt=1.0).depth, b.depth,
+                           atol=0.05)
