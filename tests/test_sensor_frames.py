@@ -237,3 +237,56 @@ def test_cam0_is_posed_through_T_BS(tmp_path, flight):
     wrong = replace(read_recording(tmp_path / "s"), vehicle=HEXAROTOR)
     assert not np.allclose(recording_sequence(wrong, HEXAROTOR, image_size=16, frame_dt=1.0).depth, b.depth,
                            atol=0.05)
+
+
+# --- motion capture only, 50 Hz, jittered --------------------------------------------------------
+
+
+def mocap_only_50hz(flight: Recording, seed: int = 0, jitter_ns: int = 3_000_000) -> Recording:
+    """``flight`` without imu0: ground truth and rotor speeds at 50 Hz on independently jittered
+    timestamps (+-3 ms), interpolated from the 200 Hz streams (scipy's slerp for attitudes)."""
+    from scipy.spatial.transform import Slerp
+
+    rng = np.random.default_rng(seed)
+    gt = flight.ground_truth
+
+    def jittered(start: int) -> np.ndarray:
+        t = np.arange(start, gt.t_ns[-1], 20_000_000, dtype=np.int64)
+        return np.sort(t + rng.integers(-jitter_ns, jitter_ns + 1, len(t)))[1:-1]
+
+    src = (gt.t_ns - gt.t_ns[0]) * 1e-9
+    t_gt, t_rot = jittered(int(gt.t_ns[0])), jittered(int(gt.t_ns[0]) + 7_000_000)
+    s, sr = (t_gt - gt.t_ns[0]) * 1e-9, (t_rot - gt.t_ns[0]) * 1e-9
+    lin = lambda x, at: np.column_stack([np.interp(at, src, c) for c in x.T])  # noqa: E731
+    q = Slerp(src, Rotation.from_quat(gt.q[:, [1, 2, 3, 0]]))(s).as_quat()[:, [3, 0, 1, 2]]
+    z = np.zeros((len(s), 3))
+    return replace(flight, imu=None, ground_truth=GroundTruth(t_ns=t_gt, p=lin(gt.p, s), q=q, v=lin(gt.v, s), b_w=z,
+                                                              b_a=z),
+                   rotors=Rotors(t_ns=t_rot, speeds=lin(flight.rotors.speeds, sr)))
+
+
+def test_mocap_only_50hz_flight(tmp_path, flight):
+    """No IMU, 50 Hz, jittered: k_T as the simulator's, no accelerometer bias, residuals that
+    find the injected steady push (0.6, -0.3, 0) N with a noise floor measured on the data."""
+    from uavturb.experiments.identify import format_identification
+    from uavturb.sysid.identification import identify
+    from uavturb.sysid.residuals import residual_forces
+
+    write_recording(mocap_only_50hz(flight), tmp_path / "m50")
+    (rec,) = load_recordings([tmp_path / "m50"])
+    assert rec.imu is None and np.ptp(np.diff(rec.ground_truth.t_ns)) > 4_000_000  # jittered
+    ident = identify([rec])
+    assert ident.thrust_coefficient == pytest.approx(HEXAROTOR.thrust_coefficient, rel=0.02)
+    assert ident.accel_bias is None and ident.to_dict()["accel_bias"] is None
+    assert "accelerometer bias" in format_identification(ident) and "absent" in format_identification(ident)
+
+    res = residual_forces(rec, ident.apply(rec.vehicle))
+    assert res.source == "mocap"
+    inner = (res.t > 1.0) & (res.t < res.t[-1] - 1.0)  # the reference's start and end are left out
+    F, injected = res.force[inner], np.array([0.6, -0.3, 0.0])
+    np.testing.assert_allclose(F.mean(axis=0), injected, atol=0.05)  # N
+    noise = np.sqrt(np.mean((F - injected) ** 2, axis=0))  # N, what is not the push: ~0.1 N per axis
+    floor = res.noise_floor()
+    np.testing.assert_allclose(floor, noise, rtol=0.15)  # the floor measured without knowing the push
+    rms = np.sqrt(np.mean(np.sum(F**2, axis=1)))
+    assert rms == pytest.approx(np.sqrt(injected @ injected + floor @ floor), rel=0.05)
