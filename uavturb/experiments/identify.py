@@ -37,8 +37,10 @@ def format_identification(ident: Identification) -> str:
     lines = [f"identified from {len(ident.recordings)} recording(s), {ident.n_samples} samples in free flight, "
              f"inertia model {ident.model}", f"{'parameter':<22}{'value':>14}{'std. error':>14}  unit"]
     lines += [f"{n:<22}{v:>14.6g}{s:>14.3g}  {u}" for n, v, s, u in rows]
-    if np.all(np.isfinite(ident.accel_bias)):
+    if ident.accel_bias is not None:
         lines.append(f"{'accelerometer bias':<22}{np.array2string(ident.accel_bias, precision=4):>28}  m/s^2 (body)")
+    else:
+        lines.append(f"{'accelerometer bias':<22}{'absent':>28}  (no imu0: motion capture only, nothing to estimate)")
     return "\n".join(lines)
 
 

@@ -54,7 +54,9 @@ class Identification:
     thrust_coefficient, moment_coefficient : float, N/(rad/s)^2 and N m/(rad/s)^2
     inertia : (3,) kg m^2, diagonal of J
     theta : (4,) the paper's ``[k_T/m, l k_T/J_x, k_M/J_z, J_z/J_x]``
-    accel_bias : (3,) m/s^2, accelerometer bias left after the state file's (nan without IMU)
+    accel_bias : (3,) m/s^2 in B, accelerometer bias left after the state file's; ``None`` when
+        the flights have no IMU (motion capture only: there is no accelerometer, so no bias to
+        estimate, and none is fitted)
     model : ``"general"`` or ``"jx=jy"``
     """
 
@@ -67,7 +69,7 @@ class Identification:
     inertia_se: np.ndarray
     theta: np.ndarray
     theta_se: np.ndarray
-    accel_bias: np.ndarray
+    accel_bias: np.ndarray | None
     angular_bias: np.ndarray
     model: str
     n_samples: int
@@ -96,7 +98,8 @@ class Identification:
             "theta": [float(t) for t in self.theta],
             "theta_stderr": [float(t) for t in self.theta_se],
             "theta_names": ["k_T/m", "l*k_T/J_x", "k_M/J_z", "J_z/J_x"],
-            "accel_bias": [None if not np.isfinite(b) else float(b) for b in self.accel_bias],
+            "accel_bias": None if self.accel_bias is None else [float(b) for b in self.accel_bias],
+            "sources": "imu+mocap" if self.accel_bias is not None else "mocap",
             "angular_bias": [float(b) for b in self.angular_bias],
             "rms": self.rms,
         }
@@ -184,7 +187,7 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     groups = rows["group"]
 
     # --- translation: theta_0 and the accelerometer's z bias, jointly ---------------
-    has_imu = np.all(np.isfinite(rows["acc"]))
+    has_imu = bool(np.all(np.isfinite(rows["acc"])))
     if has_imu:
         K = len(rows["S"])
         A = np.block([[rows["S_smooth"][:, None], np.zeros((K, 1))], [rows["S"][:, None], np.ones((K, 1))]])
@@ -201,7 +204,7 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     else:
         fit_t = lstsq(rows["S_smooth"][:, None], rows["y_mocap"], lag=lag, groups=groups)
         theta0, theta0_se = fit_t.coef[0], fit_t.stderr[0]
-        accel_bias = np.full(3, np.nan)
+        accel_bias = None  # no accelerometer: nothing to estimate, and nothing is fitted
         rms_t = fit_t.rms
     if theta0 <= 0:
         raise InputError(names[0], "identified thrust coefficient is not positive: rotor speeds or mass are wrong")
