@@ -142,14 +142,15 @@ def sindy_threshold(data: GapData, Theta: np.ndarray, y: np.ndarray, *, ensemble
 def sindy_names(data: GapData, threshold: float | None = None, *, ensemble: bool = True,
                 seed: int = 0) -> dict[str, dict[str, float]]:
     """Named terms by PySINDy at its best: STLSQ on the nominal model's candidate library
-    (:func:`sindy_library`), its threshold chosen on held-out data (:func:`sindy_threshold`)
-    unless given, bagged as an ensemble (``EnsembleOptimizer``, median of the models).
+    (:func:`sindy_library`), its threshold chosen on held-out data (:func:`sindy_threshold`,
+    plain STLSQ for speed) unless given, then bagged as an ensemble at that threshold
+    (``EnsembleOptimizer``, median of :data:`SINDY_MODELS` models).
     Returns effect → its parameters in effects.md names and units (surface laws and the lag
     through their library columns' first-order scaling)."""
     Theta, labels = sindy_library(data)
     y = stack_target(data.y)
-    if threshold is None:
-        threshold, _ = sindy_threshold(data, Theta, y, ensemble=ensemble, seed=seed)
+    if threshold is None:  # chosen with plain STLSQ (the ensemble's median follows the same threshold)
+        threshold, _ = sindy_threshold(data, Theta, y, ensemble=False, seed=seed)
     coef = _sindy_fit(Theta, y, threshold, ensemble, seed)
     kT = coef[0]
     c = dict(zip(labels, coef))
