@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from uavturb.errors import InputError
-from uavturb.scene.heights import SurfaceIndex, benchmark, sample_mesh_points
+from uavturb.scene.heights import SurfaceIndex, sample_mesh_points
 
 CELL = 0.05
 
@@ -152,8 +152,3 @@ def test_sample_mesh_points_count_surface_and_seed():
         sample_mesh_points(box, 0.0)
     with pytest.raises(InputError):
         sample_mesh_points(trimesh.Trimesh(), 0.1)
-
-
-def test_benchmark_reports_timings():
-    out = benchmark(n_points=20_000, n_queries=1_000, projection=False)
-    assert len(out) == 4 and all(v > 0 for v in out.values())

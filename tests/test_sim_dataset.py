@@ -13,9 +13,11 @@ from uavturb.errors import InputError
 from uavturb.io import shards
 from uavturb.io.vehicle_file import preset as vehicle_preset
 from uavturb.physics.ground_effect import phi
-from uavturb.sim import dataset
+from uavturb.scene.procedural import generate_scene
+from uavturb.scene.queries import height_below, inside_obstacle
+from uavturb.sim import dataset, trajectory
 from uavturb.sim.presets import get_preset
-from uavturb.sim.scenes import generate_scene, height_below, inside_obstacle
+from uavturb.sim.tasks import plan_tasks, scene_splits
 
 #: three scenes (one per split), one 1-second trajectory each, 24 x 24 px, geometric controller
 SMALL = dict(max_seconds=1.0, width=24, height=24, controller="geometric")
@@ -156,14 +158,14 @@ def test_bad_inputs_fail_naming_the_key(full, tmp_path):
 
 def test_paper_preset_matches_the_paper():
     p = get_preset("paper")
-    tasks = dataset.plan_tasks(p, 0)
-    splits = dataset.scene_splits(p)
+    tasks = plan_tasks(p, 0)
+    splits = scene_splits(p)
     assert len(tasks) == 531 and p.n_scenes == 68 and [len(splits[s]) for s in shards.SPLITS] == [43, 9, 16]
     assert {t.split for t in tasks if t.scene in splits["val"]} == {"val"}
     counts = np.bincount([t.scene for t in tasks])
     assert counts.min() == 7 and counts.max() == 8
     assert get_preset("paper").pairs == 22705
-    assert dataset.plan_tasks(p, 0) == tasks and dataset.plan_tasks(p, 1) != tasks
+    assert plan_tasks(p, 0) == tasks and plan_tasks(p, 1) != tasks
 
 
 @pytest.mark.parametrize("pitch, depth_scale, expected", [(90.0, 1.0, False), (90.0, 0.5, True), (0.0, 1.0, True)])
@@ -175,7 +177,7 @@ def test_below_out_of_view_known_answers(pitch, depth_scale, expected):
     f = 16.0
     K = np.array([[f, 0, 15.5], [0, f, 15.5], [0, 0, 1]])
     depth = np.full((1, 32, 32), 0.8 * depth_scale, np.float32)  # camera looking down sees the floor at 0.8 m
-    assert dataset.below_out_of_view(state, d, depth, K, pitch)[0] == expected
+    assert trajectory.below_out_of_view(state, d, depth, K, pitch)[0] == expected
 
 
 @pytest.mark.slow

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import casadi as ca
 import numpy as np
 import pytest
 
@@ -131,5 +130,13 @@ def test_bad_options():
         mpc.MPCController(QUADROTOR, hover((0, 0, 1)), horizon=0)
 
 
-def test_casadi_is_what_solves():
-    assert isinstance(mpc._linearisation(QUADROTOR, 4, 0.04, 1, 300.0), ca.Function)
+@pytest.mark.parametrize("vehicle", [QUADROTOR, HEXAROTOR])
+def test_hover_command_is_the_hover_speed(vehicle):
+    """At rest on its hover set-point, the MPC commands every rotor at the hover speed
+    sqrt(m g / (N k_T)) (the CasADi model's thrust balances the weight), within 0.1 %."""
+    c = mpc.MPCController(vehicle, hover((0.0, 0.0, 1.0)), compile=False)
+    x = np.zeros(13)
+    x[2], x[3] = 1.0, 1.0
+    w = c.update(x, 0.0)
+    hover_speed = np.sqrt(vehicle.mass * 9.81 / (vehicle.rotor_count * vehicle.thrust_coefficient))
+    np.testing.assert_allclose(w, hover_speed, rtol=1e-3)

@@ -9,7 +9,7 @@ import pytest
 
 from uavturb.errors import InputError
 from uavturb.io import shards
-from uavturb.sim import dataset, pretraining
+from uavturb.sim import pretraining, tasks
 from uavturb.sim.presets import get_preset
 
 
@@ -29,7 +29,7 @@ def test_pairs_are_consistent_and_from_training_scenes(pairs):
     depth, normals, meta = shards.read_pairs(pairs, mmap=False)
     p = get_preset("tiny")
     assert depth.shape == (24, 32, 32) and normals.shape == (24, 32, 32, 3) and meta["count"] == 24
-    assert meta["scenes"] == dataset.scene_splits(p)["train"] and meta["split"] == "train"
+    assert meta["scenes"] == tasks.scene_splits(p)["train"] and meta["split"] == "train"
     assert meta["config_hash"] == shards.config_hash(meta["config"])
     hit = depth > 0
     np.testing.assert_allclose(np.linalg.norm(normals[hit], axis=-1), 1.0, atol=1e-5)

@@ -11,8 +11,8 @@ import pytest  # noqa: E402
 
 from uavturb.errors import InputError  # noqa: E402
 from uavturb.physics import quaternion as quat  # noqa: E402
+from uavturb.scene import boxes, procedural  # noqa: E402
 from uavturb.sim import render as R  # noqa: E402
-from uavturb.sim import scenes as S  # noqa: E402
 
 
 def _pixel_rays(K, H, W):
@@ -37,7 +37,7 @@ def test_camera_pose_convention():
 
 
 def test_depth_of_wall_in_front():
-    wall = S.boxes_to_mesh(np.array([[[5.0, -20.0, -20.0], [6.0, 20.0, 20.0]]]))
+    wall = boxes.boxes_to_mesh(np.array([[[5.0, -20.0, -20.0], [6.0, 20.0, 20.0]]]))
     with R.SceneRenderer(wall, 128, 128, yfov_deg=70.0) as r:
         T = R.camera_pose([3.0, 0.0, 1.0], [1, 0, 0, 0], 0.0)
         d = r.depth(T)
@@ -51,7 +51,7 @@ def test_depth_of_wall_in_front():
 
 
 def test_floor_depth_and_normals_match_analytic():
-    floor = S.boxes_to_mesh(np.array([[[-60.0, -60.0, -1.0], [60.0, 60.0, 0.0]]]))
+    floor = boxes.boxes_to_mesh(np.array([[[-60.0, -60.0, -1.0], [60.0, 60.0, 0.0]]]))
     with R.SceneRenderer(floor, 128, 96, yfov_deg=60.0, zfar=20.0) as r:
         h = 1.5
         q = quat.from_euler(0.15, 0.0, 0.4)  # a roll makes left/right and up/down matter
@@ -74,7 +74,7 @@ def test_floor_depth_and_normals_match_analytic():
 
 
 def test_generated_scene_depth_matches_ray_casting_and_normals_axis_aligned():
-    sc = S.generate_scene(3)
+    sc = procedural.generate_scene(3)
     poses = R.random_poses(sc, 4, seed=1, pitch_deg=25.0)
     rng = np.random.default_rng(0)
     with R.SceneRenderer(sc, 96, 72, yfov_deg=80.0) as r:
@@ -105,7 +105,7 @@ def test_generated_scene_depth_matches_ray_casting_and_normals_axis_aligned():
 
 
 def test_rgb_and_lifecycle():
-    sc = S.generate_scene(5)
+    sc = procedural.generate_scene(5)
     T = R.random_poses(sc, 1, seed=2)[0]
     r = R.SceneRenderer(sc, 64, 48, rgb=True)
     img = r.rgb(T)
@@ -127,7 +127,7 @@ def test_rgb_and_lifecycle():
 
 def test_surfaces_are_two_sided():
     """A camera inside a closed box sees its inside in both passes (scanned meshes have no outside)."""
-    box = S.boxes_to_mesh(np.array([[[-1.0, -3.0, -3.0], [1.5, 3.0, 3.0]]]))
+    box = boxes.boxes_to_mesh(np.array([[[-1.0, -3.0, -3.0], [1.5, 3.0, 3.0]]]))
     with R.SceneRenderer(box, 64, 64, yfov_deg=60.0) as r:
         T = R.camera_pose([0.0, 0.0, 0.0], [1, 0, 0, 0], 0.0)
         d, n = r.depth_and_normals(T)

@@ -16,18 +16,18 @@ def bench(what: str) -> None:
         (bench_learning.bench_train if what == "train" else bench_learning.bench_infer)()
         return
     if what == "generate":
-        from uavturb.sim import dataset
+        from uavturb.sim import dataset_benchmark
 
-        for k, v in dataset.benchmark().items():
+        for k, v in dataset_benchmark.benchmark().items():
             print(f"{k:<48}{v:>12.4g}" if isinstance(v, float) else f"{k:<48}{v:>12}")
         return
-    if what == "flights":  # MPC solve times and closed-loop flight speed (uavturb.sim.trajectories)
-        from uavturb.sim import mpc, trajectories
+    if what == "flights":  # MPC solve times and closed-loop flight speed (uavturb.sim.flight_benchmark)
+        from uavturb.sim import flight_benchmark, mpc, scene_flight
 
         for k, v in mpc.benchmark().items():
             print(f"{'mpc ' + k:<40}{v:>12.4g}")
-        for ctrl in trajectories.CONTROLLERS:
-            trajectories.benchmark(3, ctrl)
+        for ctrl in scene_flight.CONTROLLERS:
+            flight_benchmark.benchmark(3, ctrl)
         return
     if what == "scene":
         from uavturb.scene import heights

@@ -28,6 +28,7 @@ from uavturb.experiments.generate import generate_flight, generate_normals, gene
 from uavturb.experiments.identify import format_identification, identify_recordings
 from uavturb.io.reader import load_recordings
 from uavturb.physics import ground_effect as ge
+from uavturb.physics.constants import GRAVITY
 from uavturb.physics.vehicle import HEXAROTOR
 
 TRUE_MU = 2.0
@@ -71,7 +72,7 @@ def physics_on_flight(rec_path: Path, out: Path) -> dict:
     _say(f"residual force series ({res.source}) -> {csv}, RMS {res.rmse:.3f} N")
 
     d = res.data.d_down
-    ok = np.isfinite(d) & (d > 0.05) & (res.thrust > 0.3 * rec.vehicle.mass * 9.81)
+    ok = np.isfinite(d) & (d > 0.05) & (res.thrust > 0.3 * rec.vehicle.mass * GRAVITY)
     fit = ge.identify_alpha_beta(res.force[ok, 2], d[ok], res.sum_omega2[ok])
     mu_hat = fit.mu(rec.vehicle.rotor_radius)
     _say(f"BFGS ground-effect fit: alpha {fit.alpha:.4g}, beta {fit.beta:.4g} m^2 -> mu {mu_hat:.3f} "

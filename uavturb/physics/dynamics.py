@@ -31,9 +31,9 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
+from uavturb.physics.constants import GRAVITY
 from uavturb.physics.vehicle import Vehicle
 
-GRAVITY = 9.81  # m/s^2, |g|; gravity in W is (0, 0, -GRAVITY) (recordings.md)
 N_STATE = 13
 IDX_P = slice(0, 3)
 IDX_Q = slice(3, 7)

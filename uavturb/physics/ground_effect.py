@@ -30,8 +30,9 @@ import numpy as np
 from scipy.optimize import minimize
 
 from uavturb.errors import InputError
+from uavturb.physics.constants import GRAVITY
 
-CLIP_FORCE_N = 0.1e-6 * 9.81  # N: the paper's clip value, 0.1 mg, as a weight
+CLIP_FORCE_N = 0.1e-6 * GRAVITY  # N: the paper's clip value, 0.1 mg, as a weight
 
 
 def rho(d: np.ndarray, mu: float, r: float) -> np.ndarray:

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.physics.constants import GRAVITY
 
 REQUIRED_KEYS = ("mass", "rotor_count", "arm_length", "rotor_angles_deg", "rotor_directions", "rotor_radius")
 OPTIONAL_KEYS = ("name", "thrust_coefficient", "moment_coefficient", "inertia", "rotor_speed_scale", "max_rotor_speed")
@@ -97,7 +98,7 @@ class Vehicle:
         """Rotor speed [rad/s] at which all rotors together carry the weight."""
         if self.thrust_coefficient is None:
             raise InputError(self.name, "thrust_coefficient is unknown")
-        return math.sqrt(self.mass * 9.81 / (self.rotor_count * self.thrust_coefficient))
+        return math.sqrt(self.mass * GRAVITY / (self.rotor_count * self.thrust_coefficient))
 
     @property
     def J(self) -> np.ndarray:

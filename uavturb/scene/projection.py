@@ -383,6 +383,21 @@ def depth_from_points(
         Bad cloud (empty, wrong shape, NaN), pose, intrinsics or image size.
     """
     T_WC, K, W, H = _check_camera(T_WC, K, width, height)
+    pts, spacing, point_size = _cloud_and_spacing(points, point_size, subset)
+    depth = np.zeros((H, W), dtype=np.float32)
+    if len(pts) == 0:
+        return depth
+    u, v, z, r = _project_splats(pts, spacing, point_size, T_WC, K, W, H, near, far, splat_scale)
+    if len(z) == 0:
+        return depth
+    return _splat_and_composite(u, v, z, r, W, H, eps, occlusion, window, fill_area)
+
+
+def _cloud_and_spacing(points: np.ndarray | PreparedCloud, point_size: float | None, subset: np.ndarray | None
+                       ) -> tuple[np.ndarray, np.ndarray | None, float | None]:
+    """``(points (P, 3) float32, per-point spacing (P,) or None, point_size)`` of a checked cloud:
+    a prepared cloud's own spacing unless ``point_size`` [m] is given, else one size for all
+    (estimated when not given); only the ``subset`` rows when given."""
     if isinstance(points, PreparedCloud):
         pts, spacing = points.points, points.spacing
         if point_size is not None:
@@ -398,11 +413,15 @@ def depth_from_points(
         pts = pts[subset]
         if spacing is not None:
             spacing = spacing[subset]
-    depth = np.zeros((H, W), dtype=np.float32)
-    if len(pts) == 0:
-        return depth
+    return pts, spacing, point_size
 
-    # 1. cull and transform: p_C = R^T (p_W - t), only the z column first
+
+def _project_splats(pts: np.ndarray, spacing: np.ndarray | None, point_size: float | None, T_WC: np.ndarray,
+                    K: np.ndarray, W: int, H: int, near: float, far: float, splat_scale: float
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Step 1: cull and project. ``(u, v)`` [px], z-depth [m] and splat radius [px] of the points
+    in front of the camera within ``near``..``far`` whose splat touches the image."""
+    # p_C = R^T (p_W - t), only the z column first
     R = T_WC[:3, :3].astype(np.float32)
     b = -(T_WC[:3, 3] @ T_WC[:3, :3]).astype(np.float32)
     fx, fy, cx, cy = (np.float32(v) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
@@ -421,10 +440,13 @@ def depth_from_points(
         r = (np.float32(splat_scale) * f) * spacing[sel] * inv
     r = np.minimum(r, np.float32(1.5 * 2 ** max(0, int(np.floor(np.log2(max(1, min(W, H))))) - 2)))
     ok = np.flatnonzero((u > -0.5 - r) & (u < W - 0.5 + r) & (v > -0.5 - r) & (v < H - 0.5 + r))
-    u, v, z, r = u[ok], v[ok], z[ok], r[ok]
-    if len(z) == 0:
-        return depth
+    return u[ok], v[ok], z[ok], r[ok]
 
+
+def _splat_and_composite(u: np.ndarray, v: np.ndarray, z: np.ndarray, r: np.ndarray, W: int, H: int, eps: float,
+                         occlusion: float, window: int, fill_area: int) -> np.ndarray:
+    """Steps 2-6: splat every point into its pyramid level (soft z-buffer), clean each level
+    (visibility test, hole filling) and composite the levels into one (H, W) depth image."""
     # 2. pyramid level per point: radius below one level pixel (capped at the top level).
     # All levels live in one flat buffer, each level image padded by _PAD pixels so that
     # stamps need no bounds checks.
@@ -440,6 +462,25 @@ def depth_from_points(
     stride = strides[lvl]
     base = starts[lvl] + (fl.astype(np.int64) + _PAD) * stride + (fk.astype(np.int64) + _PAD)
     dv, du = vl - fl, ul - fk  # offsets of the point from its pixel centre, in [-0.5, 0.5]
+    flat = _soft_zbuffer(*_stamps(base, stride, dv, du, z, rl), int(starts[-1]), eps)
+    composite = []
+    for lv in np.flatnonzero(np.bincount(lvl, minlength=top + 1)):
+        hl, wl = levels[lv]
+        img = flat[starts[lv]:starts[lv + 1]].reshape(hl + 2 * _PAD, wl + 2 * _PAD)[_PAD:-_PAD, _PAD:-_PAD]
+        img = _hide_occluded(img, window, occlusion)
+        img = _fill_small_holes(img, fill_area, eps)
+        if lv > 0:
+            img = img[(np.arange(H) >> int(lv))[:, None], (np.arange(W) >> int(lv))[None, :]]
+        composite.append(img)
+    if len(composite) == 1:
+        return composite[0].astype(np.float32)
+    return _composite_levels(composite, int(lvl.max()), eps, occlusion, window, fill_area)
+
+
+def _stamps(base: np.ndarray, stride: np.ndarray, dv: np.ndarray, du: np.ndarray, z: np.ndarray, rl: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(flat pixel index, z, weight)`` of every pixel each splat covers: its own pixel and the
+    neighbours within its radius ``rl`` [level px], weight ``1 / (1 + d^2 / r^2)``."""
     inv_r2 = np.float32(1.0) / np.maximum(rl, np.float32(0.5)) ** 2
     idx_parts = [base]
     z_parts = [z]
@@ -452,22 +493,15 @@ def depth_from_points(
         idx_parts.append(base[k] + di * stride[k] + dj)
         z_parts.append(zg[k])
         w_parts.append(np.float32(1.0) / (np.float32(1.0) + d2[k] * inv_r2[k]))
-    flat = _soft_zbuffer(np.concatenate(idx_parts), np.concatenate(z_parts), np.concatenate(w_parts),
-                         int(starts[-1]), eps)
+    return np.concatenate(idx_parts), np.concatenate(z_parts), np.concatenate(w_parts)
 
-    composite = []
-    for lv in np.flatnonzero(np.bincount(lvl, minlength=top + 1)):
-        hl, wl = levels[lv]
-        img = flat[starts[lv]:starts[lv + 1]].reshape(hl + 2 * _PAD, wl + 2 * _PAD)[_PAD:-_PAD, _PAD:-_PAD]
-        img = _hide_occluded(img, window, occlusion)
-        img = _fill_small_holes(img, fill_area, eps)
-        if lv > 0:
-            img = img[(np.arange(H) >> int(lv))[:, None], (np.arange(W) >> int(lv))[None, :]]
-        composite.append(img)
 
-    # 6. composite the levels with the soft z-buffer rule
-    if len(composite) == 1:
-        return composite[0].astype(np.float32)
+def _composite_levels(composite: list[np.ndarray], top_used: int, eps: float, occlusion: float, window: int,
+                      fill_area: int) -> np.ndarray:
+    """Step 6: composite full-resolution level images with the soft z-buffer rule, then clean
+    where the levels meet."""
+    H, W = composite[0].shape
+    depth = np.zeros((H, W), dtype=np.float32)
     stack = np.stack(composite)
     a = np.where(stack > 0, stack, np.inf)
     zmin = a.min(axis=0)
@@ -479,7 +513,7 @@ def depth_from_points(
     # where levels meet (and where a coarse level left a hole) the composite may have
     # holes up to one coarse pixel wide and leaks of a finer level through them
     depth = _hide_occluded(depth, window, occlusion)
-    return _fill_small_holes(depth, max(fill_area, 2 * 4 ** int(lvl.max())), eps)
+    return _fill_small_holes(depth, max(fill_area, 2 * 4 ** top_used), eps)
 
 
 def depth_to_points(depth: np.ndarray, K: np.ndarray, T_WC: np.ndarray) -> np.ndarray:

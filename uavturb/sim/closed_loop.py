@@ -38,7 +38,13 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from uavturb.physics import quaternion as quat
-from uavturb.physics.dynamics import IDX_Q, IDX_V, N_STATE, dynamics_for, physical_params
+from uavturb.physics.dynamics import (
+    IDX_Q,
+    IDX_V,
+    N_STATE,
+    dynamics_for,
+    physical_params,
+)
 from uavturb.physics.effects import force_on_state
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sim.controller import ControllerGains, GeometricController, RotationOf

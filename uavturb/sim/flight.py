@@ -29,7 +29,14 @@ from uavturb.errors import InputError
 from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
 from uavturb.io.vehicle_file import preset
 from uavturb.physics import quaternion as quat
-from uavturb.physics.dynamics import GRAVITY, IDX_Q, IDX_V, IDX_W, dynamics_for, physical_params
+from uavturb.physics.dynamics import (
+    GRAVITY,
+    IDX_Q,
+    IDX_V,
+    IDX_W,
+    dynamics_for,
+    physical_params,
+)
 from uavturb.physics.effects import EFFECTS, EffectInputs, effect_force, parse_effects
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sim.closed_loop import track_reference, whole_ratio

@@ -31,7 +31,7 @@ acceleration and yaw in time) with the rotor speeds as inputs and their bounds
 
 The first input is applied (zero-order hold) until the next update, ``dt`` later (the
 MPC runs slower than the physics: 25 Hz by default, physics at 200 Hz in
-:func:`~uavturb.sim.trajectories.fly_trajectory`).
+:func:`~uavturb.sim.scene_flight.fly_trajectory`).
 
 Timing: :class:`MPCController` records every update's wall time in ``solve_times`` [s];
 ``uavturb bench``-style figures come from :func:`benchmark`.

@@ -15,7 +15,7 @@ medium     27      18/3/6     60            ~25,000     32 x 32      2,000
 paper      68      43/9/16    531           ~360,000    128 x 128    22,705
 =========  ======  =========  ============  ==========  ===========  ============
 
-Trajectories are planned by :func:`uavturb.sim.trajectories.plan_trajectory` (random points
+Trajectories are planned by :func:`uavturb.sim.planning.plan_trajectory` (random points
 ordered by Christofides, A* around walls, take-offs, low hovers, landings and edge passes);
 their length follows from the number of random points (``plan_points``, drawn per
 trajectory): about 14 s with 1 point, 27 s with 2, 53 s with 3 on the generated scenes, so
@@ -52,7 +52,7 @@ class SimPreset:
     name : str
     n_scenes, n_train, n_val, n_test : int
         Scenes (procedural, seeds ``0 .. n_scenes - 1``) and their split
-        (:func:`uavturb.sim.scenes.split_scenes` with ``split_seed``).
+        (:func:`uavturb.scene.procedural.split_scenes` with ``split_seed``).
     split_seed : int
         Seed of the scene permutation (independent of the dataset seed: the split of a
         preset never changes).
@@ -64,7 +64,7 @@ class SimPreset:
     max_seconds : float, s
         Cut flights longer than this (0: fly the whole plan, which ends landed).
     plan : dict
-        Overrides of :class:`uavturb.sim.trajectories.PlanConfig` fields (``n_points`` excepted).
+        Overrides of :class:`uavturb.sim.planning.PlanConfig` fields (``n_points`` excepted).
     camera_hz : float, Hz
         Sample (camera) rate.
     width, height : int, px
@@ -82,7 +82,7 @@ class SimPreset:
         Effects of ``effects.md`` simulated (``{name: {param: value}}``); ``ground_effect``
         gives the ``mu`` of the stored ``f_a``.
     controller : str
-        ``'auto'`` (the CasADi MPC of :mod:`uavturb.sim.trajectories` when installed, else
+        ``'auto'`` (the CasADi MPC of :mod:`uavturb.sim.scene_flight` when installed, else
         the geometric controller), ``'mpc'`` or ``'geometric'``.
     physics_dt : float, s
         Integration step of the physics of MPC flights (the MPC runs at its own rate,
@@ -152,7 +152,7 @@ class SimPreset:
             raise bad("plan_points", f"must be a non-empty list of integers >= 1, got {self.plan_points}")
         if self.max_seconds < 0:
             raise bad("max_seconds", f"must be >= 0, got {self.max_seconds}")
-        from uavturb.sim.trajectories import PlanConfig
+        from uavturb.sim.planning import PlanConfig
 
         known = {f.name for f in fields(PlanConfig)} - {"n_points"}
         bad_keys = sorted(set(self.plan) - known)

@@ -79,8 +79,8 @@ def random_viewpoints(scene, n: int, rng: np.random.Generator) -> np.ndarray:
     See the module notes for the distribution.
     """
     from uavturb.physics import quaternion as quat
+    from uavturb.scene.queries import inside_obstacle
     from uavturb.sim.render import camera_pose
-    from uavturb.sim.scenes import inside_obstacle
 
     rooms = scene.rooms
     if not rooms:
@@ -103,8 +103,8 @@ def _chunk_pairs(job: tuple[int, int, int, int, str, SimPreset, int]) -> int:
     """Render chunk ``c`` (pairs ``[start, stop)``) of scene ``scene_index`` into its chunk folder."""
     c, start, stop, scene_index, root, preset, seed = job
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    from uavturb.scene.procedural import generate_scene
     from uavturb.sim.render import SceneRenderer
-    from uavturb.sim.scenes import generate_scene
 
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), c]))
     scene = generate_scene(scene_index)
@@ -147,7 +147,8 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
     import json
 
     from uavturb.io import shards
-    from uavturb.sim.dataset import Progress, scene_splits
+    from uavturb.sim.progress import Progress
+    from uavturb.sim.tasks import scene_splits
 
     p = get_preset(preset, **overrides)
     if int(workers) < 1:
@@ -351,7 +352,7 @@ def import_irs(root: str | Path, out: str | Path, size: int = 128, limit: int | 
     import tempfile
 
     from uavturb.io import shards
-    from uavturb.sim.dataset import Progress
+    from uavturb.sim.progress import Progress
 
     out = Path(out)
     total = len(irs_pairs(root)) if limit is None else min(limit, len(irs_pairs(root)))

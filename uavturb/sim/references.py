@@ -29,9 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from uavturb.errors import InputError
-
-GRAVITY = 9.81  # m/s^2
-
+from uavturb.physics.constants import GRAVITY
 
 # --- the room ------------------------------------------------------------------------
 

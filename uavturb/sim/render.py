@@ -184,7 +184,7 @@ class SceneRenderer:
 
     Parameters
     ----------
-    scene_mesh : trimesh.Trimesh or uavturb.sim.scenes.Scene
+    scene_mesh : trimesh.Trimesh or uavturb.scene.indoor.Scene
         World-frame mesh [m]. A ``Scene`` also gives per-box colours for :meth:`rgb`.
     width, height : int, pixels
     yfov_deg : float, deg
@@ -205,7 +205,7 @@ class SceneRenderer:
         zfar: float = 20.0,
         rgb: bool = False,
     ):
-        from uavturb.sim.scenes import Scene
+        from uavturb.scene.indoor import Scene
 
         scene = scene_mesh if isinstance(scene_mesh, Scene) else None
         mesh = scene.mesh if scene is not None else scene_mesh
@@ -396,7 +396,7 @@ def random_poses(scene, n: int, seed: int = 0, pitch_deg: float = 20.0) -> np.nd
     Positions are uniform over the rooms' free floor area at 0.3-1.8 m height, at least
     0.1 m from any solid, with random yaw, and the camera pitched down by ``pitch_deg``.
     """
-    from uavturb.sim.scenes import inside_obstacle
+    from uavturb.scene.queries import inside_obstacle
 
     rng = np.random.default_rng(seed)
     rooms = scene.rooms
@@ -428,7 +428,7 @@ def benchmark(n: int = 500, width: int = 128, height: int = 128, seed: int = 3) 
     dict with ``depth_fps`` (depth only), ``normals_fps`` (depth and normals, one pass,
     decoding included), ``scene_faces``.
     """
-    from uavturb.sim.scenes import generate_scene
+    from uavturb.scene.procedural import generate_scene
 
     scene = generate_scene(seed)
     poses = random_poses(scene, n)

@@ -10,19 +10,19 @@ import trimesh
 from scipy import ndimage
 
 from uavturb.errors import InputError
-from uavturb.sim import scenes as S
+from uavturb.scene import indoor, procedural, queries
 
 SEEDS = range(30)
 
 
 @pytest.fixture(scope="module")
 def many():
-    return [S.generate_scene(s) for s in SEEDS]
+    return [procedural.generate_scene(s) for s in SEEDS]
 
 
 def _table_scene():
     for seed in range(200):
-        sc = S.generate_scene(seed)
+        sc = procedural.generate_scene(seed)
         for f in sc.furniture:
             if f.kind == "table":
                 return sc, f
@@ -33,16 +33,16 @@ def _free_points(sc, n=400, seed=0, z=(0.3, 2.0), margin=0.2):
     rng = np.random.default_rng(seed)
     lo, hi = sc.bounds
     p = rng.uniform([lo[0], lo[1], z[0]], [hi[0], hi[1], z[1]], (n, 3))
-    return p[~S.inside_obstacle(sc, p, margin=margin)]
+    return p[~queries.inside_obstacle(sc, p, margin=margin)]
 
 
 def test_same_seed_same_vertices_and_different_seeds_differ():
-    a, b = S.generate_scene(11), S.generate_scene(11)
+    a, b = procedural.generate_scene(11), procedural.generate_scene(11)
     assert np.array_equal(a.mesh.vertices, b.mesh.vertices)
     assert np.array_equal(a.mesh.faces, b.mesh.faces)
-    c = S.generate_scene(12)
+    c = procedural.generate_scene(12)
     assert a.mesh.vertices.shape != c.mesh.vertices.shape or not np.allclose(a.mesh.vertices, c.mesh.vertices)
-    assert S.generate_scene(11, "office").kind == "office"
+    assert procedural.generate_scene(11, "office").kind == "office"
 
 
 def test_scenes_vary(many):
@@ -65,7 +65,7 @@ def test_rooms_floor_ceiling_doors(many):
         # the floor covers every room: straight down from 1 m over free points is 1 m or a surface
         p = _free_points(sc, z=(1.0, 1.0), margin=0.0)
         assert len(p) > 20
-        below, above = S.height_below(sc, p), S.height_above(sc, p)
+        below, above = queries.height_below(sc, p), queries.height_above(sc, p)
         assert np.all(below <= 1.0 + 1e-12) and np.any(below == 1.0)
         assert np.all(above <= sc.ceiling_height - 1.0 + 1e-12)
         assert np.isclose(above.max(), sc.ceiling_height - 1.0)
@@ -108,7 +108,7 @@ def test_furniture_no_overlap_inside_rooms_clear_of_doors(many):
 def test_furniture_heights():
     tops = {}
     for seed in range(60):
-        for f in S.generate_scene(seed).furniture:
+        for f in procedural.generate_scene(seed).furniture:
             tops.setdefault(f.kind, []).append(f.surface)
             if f.kind == "shelf":
                 assert 1.5 <= f.top <= 2.0
@@ -119,14 +119,14 @@ def test_furniture_heights():
 
 
 def test_split_scenes():
-    sp = S.split_scenes()
+    sp = procedural.split_scenes()
     assert [len(sp[k]) for k in ("train", "val", "test")] == [43, 9, 16]
     allk = sp["train"] + sp["val"] + sp["test"]
     assert sorted(allk) == list(range(68))
-    assert sp == S.split_scenes()
-    assert sp != S.split_scenes(seed=1)
+    assert sp == procedural.split_scenes()
+    assert sp != procedural.split_scenes(seed=1)
     with pytest.raises(InputError):
-        S.split_scenes(68, 40, 9, 16)
+        procedural.split_scenes(68, 40, 9, 16)
 
 
 def test_heights_over_floor_and_table():
@@ -134,22 +134,22 @@ def test_heights_over_floor_and_table():
     c = t.centre
     top_slab = t.parts[0]
     p = np.array([[c[0], c[1], 1.0], [c[0], c[1], 0.3]])
-    below = S.height_below(sc, p)
-    above = S.height_above(sc, p)
+    below = queries.height_below(sc, p)
+    above = queries.height_above(sc, p)
     assert np.isclose(below[0], 1.0 - t.top)
     assert np.isclose(below[1], 0.3)  # free space under the table, legs at the corners
     assert np.isclose(above[1], top_slab[0, 2] - 0.3)
     assert np.isclose(above[0], sc.ceiling_height - 1.0)
     # over the floor at 1 m
     q = _free_points(sc, z=(1.0, 1.0), margin=0.0)
-    b = S.height_below(sc, q)
+    b = queries.height_below(sc, q)
     assert np.any(b == 1.0)
     # the mesh ray caster agrees with the boxes
     pts = _free_points(sc, n=300)
-    assert np.allclose(S.height_below(sc.mesh, pts), S.height_below(sc, pts), atol=1e-9)
-    assert np.allclose(S.height_above(sc.mesh, pts), S.height_above(sc, pts), atol=1e-9)
+    assert np.allclose(queries.height_below(sc.mesh, pts), queries.height_below(sc, pts), atol=1e-9)
+    assert np.allclose(queries.height_above(sc.mesh, pts), queries.height_above(sc, pts), atol=1e-9)
     with pytest.raises(InputError):
-        S.height_below(sc, np.zeros((3, 2)))
+        queries.height_below(sc, np.zeros((3, 2)))
 
 
 def test_inside_obstacle():
@@ -163,14 +163,14 @@ def test_inside_obstacle():
         [-5.0, -5.0, 1.0],  # outside the building
         [c[0], c[1], -0.01],  # under the floor
     ])
-    hit = S.inside_obstacle(sc, pts)
+    hit = queries.inside_obstacle(sc, pts)
     assert hit.tolist() == [True, False, False, True, True]
-    assert S.inside_obstacle(sc, pts[2:3], margin=0.15)[0]
+    assert queries.inside_obstacle(sc, pts[2:3], margin=0.15)[0]
     wall = sc.boxes[sc.box_kinds == "wall"][0]
-    assert S.inside_obstacle(sc, ((wall[0] + wall[1]) / 2)[None])[0]
+    assert queries.inside_obstacle(sc, ((wall[0] + wall[1]) / 2)[None])[0]
     free = _free_points(sc, margin=0.3)
-    assert not S.inside_obstacle(sc, free).any()
-    assert S.inside_obstacle(sc, free, margin=0.0).sum() == 0
+    assert not queries.inside_obstacle(sc, free).any()
+    assert queries.inside_obstacle(sc, free, margin=0.0).sum() == 0
 
 
 def test_free_space_grid_navigable(many):
@@ -188,12 +188,12 @@ def test_free_space_grid_navigable(many):
         # free cells are clear of obstacles by the margin (horizontally and, with the band, vertically)
         ij = np.argwhere(~occ)
         xyz = np.c_[origin + ij * res, np.full(len(ij), 1.0)]
-        assert not S.inside_obstacle(sc, xyz, margin=0.29).any()
+        assert not queries.inside_obstacle(sc, xyz, margin=0.29).any()
 
 
 def test_free_space_grid_from_mesh_matches_boxes():
-    sc = S.generate_scene(7)
-    ext = S.Scene(mesh=sc.mesh, seed=None, kind="external", bounds=sc.bounds)
+    sc = procedural.generate_scene(7)
+    ext = indoor.Scene(mesh=sc.mesh, seed=None, kind="external", bounds=sc.bounds)
     ob, o1, _ = sc.free_space_grid(1.0, 0.1, 0.3)
     om, o2, _ = ext.free_space_grid(1.0, 0.1, 0.3)
     assert np.allclose(o1, o2) and ob.shape == om.shape
@@ -201,39 +201,39 @@ def test_free_space_grid_from_mesh_matches_boxes():
 
 
 def test_load_scene_mesh_round_trip(tmp_path):
-    sc = S.generate_scene(4)
+    sc = procedural.generate_scene(4)
     for ext in ("ply", "obj"):
         path = tmp_path / f"scene.{ext}"
         sc.mesh.export(path)
-        loaded = S.load_scene_mesh(path)
+        loaded = indoor.load_scene_mesh(path)
         assert loaded.kind == "external" and loaded.furniture == [] and loaded.seed is None
         assert np.allclose(loaded.bounds, sc.bounds, atol=1e-5)
         assert np.isclose(loaded.mesh.area, sc.mesh.area, rtol=1e-5)
         pts = _free_points(sc, n=100)
-        assert np.allclose(S.height_below(loaded, pts), S.height_below(sc, pts), atol=1e-5)
-        assert np.allclose(S.height_above(loaded, pts), S.height_above(sc, pts), atol=1e-5)
+        assert np.allclose(queries.height_below(loaded, pts), queries.height_below(sc, pts), atol=1e-5)
+        assert np.allclose(queries.height_above(loaded, pts), queries.height_above(sc, pts), atol=1e-5)
     # y-up file (Habitat/Matterport convention)
     yup = sc.mesh.copy()
     yup.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
     yup.export(tmp_path / "yup.ply")
-    loaded = S.load_scene_mesh(tmp_path / "yup.ply", up_axis="y")
+    loaded = indoor.load_scene_mesh(tmp_path / "yup.ply", up_axis="y")
     assert np.allclose(loaded.bounds, sc.bounds, atol=1e-5)
     # several geometries are concatenated
     multi = trimesh.Scene([trimesh.creation.box((1, 1, 1)), trimesh.creation.box((2, 2, 2))])
     multi.export(tmp_path / "multi.glb")
-    assert len(S.load_scene_mesh(tmp_path / "multi.glb").mesh.faces) == 24
+    assert len(indoor.load_scene_mesh(tmp_path / "multi.glb").mesh.faces) == 24
 
 
 def test_load_scene_mesh_errors(tmp_path):
     missing = tmp_path / "nope.glb"
     with pytest.raises(InputError, match="nope.glb"):
-        S.load_scene_mesh(missing)
+        indoor.load_scene_mesh(missing)
     bad = tmp_path / "bad.ply"
     bad.write_bytes(b"this is not a mesh")
     with pytest.raises(InputError, match="bad.ply"):
-        S.load_scene_mesh(bad)
+        indoor.load_scene_mesh(bad)
     (tmp_path / "ok.ply").write_bytes(b"")
     with pytest.raises(InputError):
-        S.load_scene_mesh(tmp_path / "ok.ply", up_axis="x")
+        indoor.load_scene_mesh(tmp_path / "ok.ply", up_axis="x")
     with pytest.raises(InputError):
-        S.generate_scene(0, "castle")
+        procedural.generate_scene(0, "castle")

@@ -1,0 +1,159 @@
+"""Closed-loop flights through a scene along a planned reference.
+
+``fly_trajectory(scene, vehicle, seed, controller="mpc", camera_rate=20.0, ...)`` plans a
+reference as above and flies it in closed loop
+(:func:`uavturb.sim.closed_loop.run_closed_loop`):
+
+- physics every ``1 / physics_rate`` s (default 200 Hz): one RK4 step of the one model of
+  :mod:`uavturb.physics.dynamics` with the effects of ``effects.md`` (default: the
+  simulator's ground effect, ``mu = 2``) evaluated with the actual rotor speeds and the
+  heights ``d_down``/``d_up`` over the scene (exact box queries of :mod:`~uavturb.scene.queries`,
+  refreshed at the control rate and followed by the height change in between);
+- control every ``1 / control_rate`` s: ``controller="mpc"`` (:class:`~uavturb.sim.mpc.MPCController`,
+  default 25 Hz, a real-time-iteration MPC on the full quaternion model with rotor-speed
+  bounds) or ``"geometric"`` (:class:`~uavturb.sim.controller.GeometricController`, default
+  200 Hz);
+- samples every ``1 / camera_rate`` s (the camera frames);
+- collision check of the position at every physics step (:func:`~uavturb.scene.queries.collides`: boxes grown by
+  the vehicle's radius ``arm_length + rotor_radius`` horizontally and half the landed
+  height vertically), in batches of one second of flight: a flight that hits something is
+  truncated one frame before the hit (``info["collided"]``, ``info["collisions"]``).
+
+Returns ``(states (T, 13), rotor_speeds (T, N), t (T,), info)``: states are ``p`` [m] in W,
+``q`` (w, x, y, z, body to world), ``v`` [m/s] in W, ``w`` [rad/s] in B; ``rotor_speeds``
+[rad/s] the actual speeds applied over the frame's instant; ``t`` [s] from the flight's
+start; ``info`` holds ``d_down`` (T,) [m] height of the body over the surface below,
+``effect_force`` (T, 3) [N] in W, ``reference`` (a :class:`Setpoint` of K=T samples),
+``phases``, the plan, timing figures and the collision report.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from uavturb.errors import InputError
+from uavturb.scene.indoor import Scene
+from uavturb.scene.queries import collides, scene_heights
+from uavturb.sim.planning import PlanConfig, PlannedTrajectory, plan_trajectory
+from uavturb.sim.references import Reference
+
+__all__ = ["CONTROLLERS", "make_controller", "fly_trajectory"]
+
+CONTROLLERS = ("mpc", "geometric")
+
+
+def _ratio(rate_hi: float, rate_lo: float, what: str) -> int:
+    n = int(round(rate_hi / rate_lo))
+    if n < 1 or abs(n * rate_lo - rate_hi) > 1e-6 * rate_hi:
+        raise InputError(what, f"physics_rate ({rate_hi} Hz) must be a whole multiple of it ({rate_lo} Hz)")
+    return n
+
+
+
+def make_controller(kind: str, vehicle: Any, reference: Reference, control_rate: float | None = None,
+                    **options: Any) -> tuple[Any, float]:
+    """A controller for :func:`fly_trajectory` and its rate [Hz] (defaults: MPC 25 Hz,
+    geometric 200 Hz)."""
+    if kind == "mpc":
+        from uavturb.sim.mpc import MPCController
+
+        rate = 25.0 if control_rate is None else float(control_rate)
+        return MPCController(vehicle, reference, dt=1.0 / rate, **options), rate
+    if kind == "geometric":
+        from uavturb.sim.closed_loop import GeometricTracker
+
+        rate = 200.0 if control_rate is None else float(control_rate)
+        dt = 1.0 / rate
+        return GeometricTracker(vehicle, reference, dt, int(np.ceil(reference.duration / dt)) + 2), rate
+    raise InputError("controller", f"unknown controller '{kind}' (known: {', '.join(CONTROLLERS)})")
+
+
+def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controller: str = "mpc", *,
+                   camera_rate: float = 20.0, physics_rate: float = 200.0, control_rate: float | None = None,
+                   effects: dict[str, dict[str, float]] | None = None,
+                   plan: PlanConfig | PlannedTrajectory = PlanConfig(), duration: float | None = None,
+                   controller_options: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """Plan a reference trajectory through ``scene`` and fly it in closed loop.
+
+    Parameters
+    ----------
+    scene : Scene
+    vehicle : Vehicle or preset name (``quad``: the paper's 50 g drone; ``hex``)
+    seed : fixes the plan (the flight itself is deterministic)
+    controller : ``"mpc"`` or ``"geometric"``
+    camera_rate : Hz, sample rate of the output (camera frames)
+    physics_rate : Hz, integration rate; a whole multiple of ``camera_rate`` and ``control_rate``
+    control_rate : Hz (default 25 for the MPC, 200 for the geometric controller)
+    effects : ``{name: {param: value}}`` of ``effects.md`` (default: the simulator's
+        :data:`~uavturb.physics.sim_config.DEFAULT_EFFECTS`, ground effect ``mu = 2``);
+        ``{}`` for none. ``motor_lag`` is not supported here.
+    plan : PlanConfig, or an already planned trajectory
+    duration : s, flight length (default: the reference's)
+    controller_options : passed on to the controller (e.g. ``horizon`` for the MPC)
+
+    Returns
+    -------
+    states : (T, 13) ``p`` [m] W, ``q`` w, x, y, z (body to world), ``v`` [m/s] W, ``w`` [rad/s] B
+    rotor_speeds : (T, N) rad/s, actual rotor speeds at the sample times
+    t : (T,) s from the start, ``k / camera_rate``
+    info : dict with ``d_down`` (T,) m, ``d_up`` (T,) m, ``effect_force`` (T, 3) N in W,
+        ``reference`` (Setpoint of T samples), ``phases`` (dict of ``(t0, t1)`` lists),
+        ``plan`` (PlannedTrajectory), ``collided`` (bool), ``collisions`` (0 or 1: the flight is
+        truncated at its first hit), ``collision_time`` (s or None), ``tracking_error`` (T,) m,
+        ``solve_ms`` (controller update times), ``wall_s``, ``samples_per_s``, ``controller``.
+    """
+    from uavturb.io.vehicle_file import preset
+    from uavturb.physics.effects import DEFAULT_EFFECTS
+    from uavturb.sim.closed_loop import CollisionWatch, initial_state, run_closed_loop
+
+    wall0 = time.perf_counter()
+    veh = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    if controller not in CONTROLLERS:
+        raise InputError("controller", f"unknown controller '{controller}' (known: {', '.join(CONTROLLERS)})")
+    effects = dict(DEFAULT_EFFECTS if effects is None else effects)
+    if "motor_lag" in effects:
+        raise InputError("effects", "motor_lag is not supported by fly_trajectory")
+    planned = plan if isinstance(plan, PlannedTrajectory) else plan_trajectory(
+        scene, seed, plan, rotor_radius=veh.rotor_radius, vehicle_radius=veh.arm_length + veh.rotor_radius)
+    ref = planned.reference
+    duration = float(ref.duration if duration is None else duration)
+    ctrl, rate = make_controller(controller, veh, ref, control_rate, **(controller_options or {}))
+    cam_every = _ratio(physics_rate, camera_rate, "camera_rate")
+    ctrl_every = _ratio(physics_rate, rate, "control_rate")
+    dt = 1.0 / physics_rate
+    radius = veh.arm_length + veh.rotor_radius
+    rest = float(ref(0.0).p[2] - planned.points[0, 2])  # m, landed height of the start
+    half_h = float(np.clip(0.5 * rest, 0.005, 0.02))  # m, vertical half-extent in the collision check
+
+    x = initial_state(ref(0.0))
+    ctrl.reset(x)
+    # collision check in batches of the positions of every physics step (about 1 s of flight)
+    watch = CollisionWatch(lambda p: collides(scene, p, radius, half_h), int(round(physics_rate)), dt)
+    loop = run_closed_loop(veh, x, lambda x, t, force: ctrl.update(x, t), scene_heights(scene), effects=effects,
+                           n_steps=int(round(duration * physics_rate)), physics_dt=dt, control_every=ctrl_every,
+                           record_every=cam_every, watch=watch)
+    k = loop.count
+    collided, t_hit = loop.stop_time is not None, loop.stop_time
+    if collided and not loop.diverged:
+        k = min(k, int(np.ceil(t_hit * camera_rate - 1e-9)))  # frames strictly before the hit
+    if collided:
+        k = max(k - 1, 0)  # drop the last frame before the hit too: the vehicle was about to touch
+    X, W, F_rec, DD, DU = loop.x[:k], loop.rotor_speeds[:k], loop.force[:k], loop.d_down[:k], loop.d_up[:k]
+    t_ctrl, t_phys = loop.control_s, loop.physics_s
+    t_out = np.arange(k) / camera_rate
+    sp = ref(t_out)
+    wall = time.perf_counter() - wall0
+    solve = np.asarray(getattr(ctrl, "solve_times", []), float) * 1e3
+    info: dict[str, Any] = {
+        "d_down": DD, "d_up": DU, "effect_force": F_rec, "reference": sp, "phases": dict(ref.notes),
+        "plan": planned, "collided": collided, "collisions": int(collided), "collision_time": t_hit,
+        "tracking_error": np.linalg.norm(X[:, 0:3] - sp.p, axis=1) if k else np.zeros(0),
+        "solve_ms": solve, "controller": controller, "control_rate": rate, "physics_rate": physics_rate,
+        "camera_rate": camera_rate, "wall_s": wall, "control_s": t_ctrl, "physics_s": t_phys,
+        "samples_per_s": k / wall if wall > 0 else float("inf"), "effects": effects,
+    }
+    return X, W, t_out, info
+
