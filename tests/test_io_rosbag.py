@@ -32,7 +32,8 @@ def truth(t_ns):
     return p, q, v
 
 
-def write_bag(path, *, n_motor=6, motors=True, vicon=True, motor_offset_ns=0):
+def write_bag(path, *, n_motor=6, motors=True, vicon=True, motor_offset_ns=0, imu_R=None):
+    """A small EuRoC-like bag; ``imu_R`` (3, 3) rotates the IMU's vectors (into a sensor frame S)."""
     store = get_typestore(Stores.ROS1_NOETIC)
     store.register(get_types_from_msg(MOTOR_MSG.replace("[6]", f"[{n_motor}]"), MOTOR_TYPE))
     Imu, Vec = store.types["sensor_msgs/msg/Imu"], store.types["geometry_msgs/msg/Vector3"]
@@ -46,11 +47,13 @@ def write_bag(path, *, n_motor=6, motors=True, vicon=True, motor_offset_ns=0):
         c_imu = w.add_connection(rosbag.IMU_TOPIC, "sensor_msgs/msg/Imu", typestore=store)
         c_vicon = w.add_connection(rosbag.VICON_TOPIC, "geometry_msgs/msg/TransformStamped", typestore=store)
         c_motor = w.add_connection(rosbag.MOTOR_TOPIC, MOTOR_TYPE, typestore=store)
+        R = np.eye(3) if imu_R is None else np.asarray(imu_R, float)
         for k, t in enumerate(t_imu.tolist()):
+            gx, gy, gz = (R @ [0.01 * k, -0.02, 0.4]).tolist()
+            ax, ay, az = (R @ [0.1, 0.2, 9.81 + 1e-3 * k]).tolist()
             msg = Imu(header=stamp_of(store, t), orientation=Quat(x=0.0, y=0.0, z=0.0, w=1.0),
-                      orientation_covariance=np.zeros(9), angular_velocity=Vec(x=0.01 * k, y=-0.02, z=0.4),
-                      angular_velocity_covariance=np.zeros(9),
-                      linear_acceleration=Vec(x=0.1, y=0.2, z=9.81 + 1e-3 * k),
+                      orientation_covariance=np.zeros(9), angular_velocity=Vec(x=gx, y=gy, z=gz),
+                      angular_velocity_covariance=np.zeros(9), linear_acceleration=Vec(x=ax, y=ay, z=az),
                       linear_acceleration_covariance=np.zeros(9))
             w.write(c_imu, t + 777, store.serialize_ros1(msg, "sensor_msgs/msg/Imu"))  # record time != stamp
         if vicon:
@@ -148,6 +151,12 @@ def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
     t_vicon, _, t_motor = write_bag(tmp_path / "V1_01.bag")
     rec = make_recording(duration=1.0)
     rec.rotors = None
+    # EuRoC's frames: the ASL's ground truth and IMU in S, the Vicon (rotor) frame's pose in S in
+    # vicon0/sensor.yaml; the recording is written from B into S with T_BS = that pose's inverse
+    T_S_vicon = np.array([[0.33638, -0.01749, 0.94156, 0.06901], [-0.02078, -0.99972, -0.01114, -0.02781],
+                          [0.94150, -0.01582, -0.33665, -0.12395], [0.0, 0.0, 0.0, 1.0]])
+    T_BS = np.linalg.inv(T_S_vicon)
+    rec.vehicle = rec.vehicle.with_params(T_BS=tuple(map(tuple, T_BS.tolist())))
     # the ASL folder's ground truth spans the bag's time
     shift = t_vicon[0] - rec.ground_truth.t_ns[0]
     for stream in (rec.ground_truth, rec.imu, rec.vicon, rec.cam0):
@@ -155,6 +164,12 @@ def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
     write_recording(rec, tmp_path / "asl")
     (tmp_path / "asl" / "vehicle.yaml").unlink()
     shutil.rmtree(tmp_path / "asl" / "mav0" / "rotors0", ignore_errors=True)
+    from uavturb.io.sensor_yaml import _dump, _matrix
+
+    _dump(tmp_path / "asl" / "mav0" / "vicon0" / "sensor.yaml",
+          {"sensor_type": "visual-inertial", "comment": "vicon", "T_BS": _matrix(T_S_vicon)}, "Vicon in S")
+    raw = read_recording(tmp_path / "asl", vehicle=rec.vehicle, frame="S")
+    assert np.mean(raw.imu.acc[:, 0]) > 8.0  # EuRoC-like: x_S points up
 
     assert main(["import-euroc", str(tmp_path / "V1_01.bag"), "--asl", str(tmp_path / "asl"), "--vehicle", "firefly",
                  "--rotor-speed-scale", "4.0", "--out", str(tmp_path / "V1_01")]) == 0
@@ -162,8 +177,13 @@ def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
     assert back.vehicle.name == "firefly" and back.vehicle.rotor_count == 6
     np.testing.assert_array_equal(back.rotors.t_ns, t_motor)
     np.testing.assert_allclose(back.rotors.speeds[:, 0], 4.0 * (100 + np.arange(40)))
-    np.testing.assert_allclose(back.ground_truth.p, rec.ground_truth.p)  # ASL's ground truth, not the bag's
+    # the ASL's ground truth, not the bag's, back in B (EuRoC's 5-decimal rotation is 7e-6 from a
+    # rotation: the general and the rigid inverse of T_S_vicon differ by 1e-6 m here)
+    np.testing.assert_allclose(back.ground_truth.p, rec.ground_truth.p, atol=1e-5)
     assert back.points is not None and len(back.points) == len(rec.points)
+    # T_BS from the sequence's vicon0/sensor.yaml: the inverse of the Vicon frame's pose in S
+    np.testing.assert_allclose(np.array(back.vehicle.T_BS), T_BS, atol=1e-5)
+    np.testing.assert_allclose(back.imu.acc.mean(0), rec.imu.acc.mean(0), atol=1e-3)  # in B again
 
     # bag whose motors lie outside the ASL folder's time span: one line, nothing written
     write_bag(tmp_path / "late.bag", motor_offset_ns=10**12)
@@ -171,3 +191,27 @@ def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
                  "--out", str(tmp_path / "late")]) == 2
     err = capsys.readouterr().err
     assert "late.bag" in err and "overlap" in err and not (tmp_path / "late").exists()
+
+
+def test_import_euroc_bag_only_uses_the_presets_T_BS(tmp_path, capsys):
+    """Without an ASL folder the shipped Firefly's T_BS applies: the bag's IMU in a EuRoC-like S
+    (x up) reads +z in B; the same bag with its IMU in B stops with one line on T_BS."""
+    from uavturb.cli import main
+    from uavturb.io.vehicle_file import preset
+
+    firefly = preset("firefly")
+    R_BS = firefly.T_BS_matrix[:3, :3]
+    np.testing.assert_allclose(R_BS @ [9.2, 0.0, -3.3], [0.0, -0.1, 9.8], atol=0.06)  # hover: S -> B is up
+    write_bag(tmp_path / "V1.bag", imu_R=R_BS.T)
+    assert main(["import-euroc", str(tmp_path / "V1.bag"), "--out", str(tmp_path / "V1")]) == 0
+    back = read_recording(tmp_path / "V1", require_rotors=True)
+    assert back.vehicle.T_BS == firefly.T_BS
+    raw = read_recording(tmp_path / "V1", frame="S")
+    assert np.mean(raw.imu.acc[:, 0]) > 8.0  # stored in S, as EuRoC
+    assert np.mean(back.imu.acc[:, 2]) > 9.5  # physics sees +z_B
+
+    write_bag(tmp_path / "flat.bag")  # IMU already in B: the Firefly's T_BS turns it sideways
+    assert main(["import-euroc", str(tmp_path / "flat.bag"), "--out", str(tmp_path / "flat")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "vehicle 'firefly': T_BS: the mean specific force in flight points" in err and "\n" not in err
+    assert not (tmp_path / "flat").exists()

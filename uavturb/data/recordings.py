@@ -2,7 +2,9 @@
 
 EuRoC's vehicles carry no depth camera. As the paper does, every camera frame's depth image
 is the room's point cloud (``pointcloud0``) projected into ``cam0`` with its intrinsics and
-``T_BS`` (:func:`uavturb.scene.projection.depth_from_points`); the true height ``d_down``
+extrinsics (:func:`uavturb.scene.projection.depth_from_points`). ``cam0/sensor.yaml``'s
+``T_BS`` is the camera's pose in the sensor frame S (EuRoC), and the recording's state is in
+the rotor frame B, so the camera's pose in W is ``T_WB T_BS(vehicle.yaml) T_SC(cam0)``; the true height ``d_down``
 (body origin over the surface below, m) is measured on the same cloud
 (:class:`uavturb.scene.heights.SurfaceIndex`); the ground-truth turbulence ``f_a`` is the
 world-z component of the residual force of the identified model
@@ -55,7 +57,7 @@ class CameraModel:
     ----------
     K : (3, 3) intrinsics [px] at the image size below
     width, height : px
-    T_BS : (4, 4) camera (optical frame: x right, y down, z forward) to body
+    T_BS : (4, 4) camera (optical frame: x right, y down, z forward) pose in the rotor frame B
     source : where it came from (``cam0/sensor.yaml`` or the default forward camera)
     """
 
@@ -84,8 +86,16 @@ def forward_camera(size: int, yfov_deg: float, pitch_deg: float) -> CameraModel:
                        f"default forward camera (pitch {pitch_deg:g} deg down, vertical fov {yfov_deg:g} deg)")
 
 
+def cam0_pose_in_body(rec: Recording) -> np.ndarray:
+    """``T_BC = T_BS(vehicle.yaml) T_SC(cam0/sensor.yaml)`` (4, 4): the camera's pose in the frame of
+    the recording's state (B; for a recording kept in S, ``T_SC`` alone)."""
+    T_SC = np.asarray(rec.cam0.T_BS, float)
+    return rec.vehicle.T_BS_matrix @ T_SC if rec.frame == "B" else T_SC
+
+
 def cam0_camera(rec: Recording, size: int) -> CameraModel:
-    """``cam0`` cropped to its largest centred square and scaled to ``size`` px."""
+    """``cam0`` cropped to its largest centred square and scaled to ``size`` px, posed in B
+    (:func:`cam0_pose_in_body`)."""
     from uavturb.scene.projection import intrinsics_matrix
 
     cam = rec.cam0
@@ -96,7 +106,7 @@ def cam0_camera(rec: Recording, size: int) -> CameraModel:
     s = size / side
     # pixel centres: u' + 0.5 = s (u - x0 + 0.5)
     K = intrinsics_matrix(fu * s, fv * s, (cu - x0 + 0.5) * s - 0.5, (cv - y0 + 0.5) * s - 0.5)
-    return CameraModel(K, size, size, np.asarray(cam.T_BS, float), "cam0/sensor.yaml (centre square, scaled)")
+    return CameraModel(K, size, size, cam0_pose_in_body(rec), "cam0/sensor.yaml (centre square, scaled)")
 
 
 def camera_for(rec: Recording, size: int, yfov_deg: float | None = None, pitch_deg: float | None = None) -> CameraModel:
@@ -188,6 +198,9 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     from uavturb.sysid.flight_data import flight_data
     from uavturb.sysid.residuals import residual_forces
 
+    from uavturb.io.body_frame import to_body
+
+    rec = to_body(rec)  # state in B (no-op for the readers' recordings): the camera is posed in B
     where = rec.path or rec.name
     if rec.points is None:
         raise InputError(f"{where}/{POINTS_PLY}", "point cloud needed (depth images and heights come from it)")
@@ -262,12 +275,12 @@ class RecordingWindowsDataset:
 
 def read_sequences(paths: list[str | Path], vehicle: Vehicle, **kw) -> list[RecordingSequence]:
     """:func:`recording_sequence` of each recording folder (point clouds loaded)."""
-    from uavturb.io.reader import read_recording
+    from uavturb.io.reader import load_recordings
 
-    return [recording_sequence(read_recording(p, require_rotors=True), vehicle, **kw) for p in paths]
+    return [recording_sequence(r, vehicle, **kw) for r in load_recordings(paths)]
 
 
 __all__ = ["CameraModel", "RecordingSequence", "RecordingWindowsDataset", "box_average", "camera_for",
-           "cam0_camera", "forward_camera", "read_sequences", "recording_sequence", "DEFAULT_FRAME_DT",
+           "cam0_camera", "cam0_pose_in_body", "forward_camera", "read_sequences", "recording_sequence", "DEFAULT_FRAME_DT",
            "AIRBORNE_THRUST_FRACTION"]
 

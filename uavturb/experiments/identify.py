@@ -41,7 +41,7 @@ def format_identification(ident: Identification) -> str:
     if undetermined:
         lines.append("not determined by these flights (estimates in brackets are not results):")
         for label, s in undetermined:
-            if s.reason == "absent" or np.ndim(s.value):
+            if s.reason == "absent" or np.ndim(s.value) or not np.isfinite(s.value):
                 shown = "-"
             else:
                 shown = f"[{s.value:.3g} +- {s.stderr:.2g}]"

@@ -78,7 +78,7 @@ def check_rotor_speeds(path: str | Path, speeds: np.ndarray, vehicle: Vehicle, l
 
 
 def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_rotors: bool = False,
-                   require_imu: bool = False, load_points: bool = True) -> Recording:
+                   require_imu: bool = False, load_points: bool = True, frame: str = "B") -> Recording:
     """Read a recording folder.
 
     Parameters
@@ -88,6 +88,10 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
         a folder's own ``vehicle.yaml`` takes precedence
     require_rotors, require_imu : make ``rotors0`` / ``imu0`` required
     load_points : read ``pointcloud0/data.ply`` when present (large)
+    frame : ``"B"`` (default): ground truth and IMU expressed in the rotor frame B with
+        ``vehicle.yaml``'s ``T_BS`` (:func:`uavturb.io.body_frame.to_body`: attitude, position
+        and velocity of B's origin, gyroscope rotated, accelerometer rotated with the lever-arm
+        accelerations removed, biases rotated); ``"S"``: as stored, in the sensor frame
 
     Returns
     -------
@@ -159,16 +163,28 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
         t, x, lines = euroc_csv.read_csv(vicon_file, euroc_csv.VICON_COLUMNS, "vicon", return_lines=True)
         vicon = Poses(t_ns=t, p=x[:, 0:3], q=checked_quaternions(vicon_file, x[:, 3:7], lines))
 
-    return Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors, points=points, cam0=cam0,
-                     vicon=vicon, path=root)
+    rec = Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors, points=points, cam0=cam0,
+                    vicon=vicon, path=root, frame="S")
+    if frame == "S":
+        return rec
+    if frame != "B":
+        raise ValueError(f"frame must be 'B' or 'S', got {frame!r}")
+    from uavturb.io.body_frame import to_body
+
+    return to_body(rec)
 
 
 def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None = None) -> list[Recording]:
-    """Read recording folders; ``vehicle`` (preset name, yaml path or Vehicle) serves folders without one."""
-    from uavturb.io.reader import read_recording
+    """Read recording folders for physics (``identify``, ``residuals``, ``gap``, ``evaluate``): in
+    the rotor frame B, rotor speeds required, and checked (:func:`uavturb.io.consistency.check_recording`:
+    thrust axis against the data, no dead or frozen rotor column). ``vehicle`` (preset name,
+    yaml path or Vehicle) serves folders without a ``vehicle.yaml``."""
+    from uavturb.io.consistency import check_recording
 
     v = preset(vehicle) if isinstance(vehicle, str) else vehicle
     recs = [read_recording(p, vehicle=v, require_rotors=True) for p in paths]
+    for r in recs:
+        check_recording(r)
     first = recs[0].vehicle
     for r in recs[1:]:
         if r.vehicle.rotor_count != first.rotor_count or r.vehicle.mass != first.mass:

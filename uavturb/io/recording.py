@@ -1,7 +1,11 @@
 """In-memory flight recording: the streams of the EuRoC-MAV layout (``recordings.md``).
 
-Timestamps are integer nanoseconds (``int64``). Frames: world W (z up), body B (x forward,
-y left, z up; the IMU frame). Quaternions ``w, x, y, z``, body to world.
+Timestamps are integer nanoseconds (``int64``). Frames: world W (z up), rotor frame B (x
+forward, y left, z up along the rotor axes), sensor frame S (the frame of the ground truth and
+the IMU on disk; ``vehicle.yaml``'s ``T_BS`` is its pose in B). A :class:`Recording` holds its
+ground truth and IMU in the frame named by ``Recording.frame``: ``"B"`` (what the readers
+return and all physics uses) or ``"S"`` (as stored on disk). Quaternions ``w, x, y, z``, that
+frame to world.
 """
 
 from __future__ import annotations
@@ -19,11 +23,11 @@ class GroundTruth:
     """``mav0/state_groundtruth_estimate0``: MoCap-grade state, shapes ``(N, ·)``."""
 
     t_ns: np.ndarray  # (N,) int64 ns
-    p: np.ndarray  # (N, 3) m, position of B in W
-    q: np.ndarray  # (N, 4) quaternion w, x, y, z, body to world
-    v: np.ndarray  # (N, 3) m/s, velocity in W
-    b_w: np.ndarray  # (N, 3) rad/s, gyroscope bias in B
-    b_a: np.ndarray  # (N, 3) m/s^2, accelerometer bias in B
+    p: np.ndarray  # (N, 3) m, position of the frame's origin (B or S) in W
+    q: np.ndarray  # (N, 4) quaternion w, x, y, z, frame (B or S) to world
+    v: np.ndarray  # (N, 3) m/s, velocity of the frame's origin in W
+    b_w: np.ndarray  # (N, 3) rad/s, gyroscope bias in the frame
+    b_a: np.ndarray  # (N, 3) m/s^2, accelerometer bias in the frame
 
     def __len__(self) -> int:
         return len(self.t_ns)
@@ -31,12 +35,13 @@ class GroundTruth:
 
 @dataclass
 class Imu:
-    """``mav0/imu0``: gyroscope and accelerometer in B, shapes ``(N, 3)``."""
+    """``mav0/imu0``: gyroscope and accelerometer, shapes ``(N, 3)``, in the recording's frame
+    (``Recording.frame``; on disk in the IMU's own frame, which ``T_BS`` places in S)."""
 
     t_ns: np.ndarray  # (N,) int64 ns
-    gyro: np.ndarray  # (N, 3) rad/s, angular velocity of B in B
-    acc: np.ndarray  # (N, 3) m/s^2, specific force in B (what an accelerometer reads)
-    T_BS: np.ndarray | None = None  # (4, 4) sensor to body, from imu0/sensor.yaml (identity if absent)
+    gyro: np.ndarray  # (N, 3) rad/s, angular velocity of the body, in the frame
+    acc: np.ndarray  # (N, 3) m/s^2, specific force at the frame's origin, in the frame
+    T_BS: np.ndarray | None = None  # (4, 4) IMU pose in S, from imu0/sensor.yaml (EuRoC: identity)
     rate_hz: float | None = None
 
     def __len__(self) -> int:
@@ -60,7 +65,7 @@ class Camera:
 
     intrinsics: np.ndarray  # (4,) fu, fv, cu, cv [px]
     resolution: tuple[int, int]  # (width, height) px
-    T_BS: np.ndarray  # (4, 4) camera (sensor) to body
+    T_BS: np.ndarray  # (4, 4) camera pose in S (x_S = T_BS x_C), as in EuRoC's cam0/sensor.yaml
     distortion_model: str = "radial-tangential"
     distortion: np.ndarray = field(default_factory=lambda: np.zeros(4))
     t_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
@@ -85,7 +90,11 @@ class Poses:
 
 @dataclass
 class Recording:
-    """One flight. Optional streams are ``None`` when absent from the folder."""
+    """One flight. Optional streams are ``None`` when absent from the folder.
+
+    ``frame`` is ``"B"`` when ground truth and IMU are in the rotor frame (readers' default),
+    ``"S"`` when they are as stored (in the sensor frame, ``vehicle.T_BS`` away from B).
+    """
 
     vehicle: Vehicle
     ground_truth: GroundTruth
@@ -95,6 +104,7 @@ class Recording:
     cam0: Camera | None = None
     vicon: Poses | None = None
     path: Path | None = None
+    frame: str = "B"
 
     @property
     def t0_ns(self) -> int:

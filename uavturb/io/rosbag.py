@@ -5,9 +5,16 @@ Topics read (names configurable):
 - ``/fcu/motor_speed``: the flight controller's motor speeds, integers 0..200 in an array
   field (``motor_speed``, else the first numeric array field of the message); multiplied
   by ``rotor_speed_scale`` into rad/s (``recordings.md``: the conversion is not published).
-- ``/imu0``: ``sensor_msgs/Imu``.
+- ``/imu0``: ``sensor_msgs/Imu``, in the sensor frame S; moved into the rotor frame B with
+  the vehicle's ``T_BS`` (:func:`uavturb.io.body_frame.imu_to_body`: rotated, lever-arm
+  accelerations removed).
 - ``/vicon/firefly_sbx/firefly_sbx``: ``geometry_msgs/TransformStamped`` (or ``PoseStamped``),
-  the ground truth: position and attitude; velocity by differentiating the position; biases 0.
+  the ground truth: position and attitude of the Vicon body frame, taken as the rotor frame B
+  (EuRoC's Firefly: its Vicon frame is aligned with the rotors, see ``uavturb/presets/firefly.yaml``);
+  velocity by differentiating the position; biases 0.
+
+The returned recording is in B (``Recording.frame``); writing it stores the ground truth and
+the IMU in S, with ``T_BS`` in ``vehicle.yaml``.
 
 Message types, custom ones included, are registered from the definitions the bag carries.
 Timestamps are the message header stamps (the bag's record time where a message has none);
@@ -29,6 +36,7 @@ from scipy.signal import savgol_filter
 
 from uavturb.errors import InputError
 from uavturb.io import align
+from uavturb.io.body_frame import imu_to_body
 from uavturb.io.reader import check_rotor_speeds, checked_quaternions
 from uavturb.io.recording import GroundTruth, Imu, Poses, Recording, Rotors
 from uavturb.physics.vehicle import Vehicle
@@ -197,7 +205,7 @@ def read_rosbag(path: str | Path, vehicle: Vehicle, *, rotor_speed_scale: float 
     if data[imu_topic][0]:
         t, gyro, acc = _sorted_unique(*data[imu_topic])
         align.require_overlap(t_gt, t, f"{path}:{imu_topic}", "the vicon stream")
-        imu = Imu(t_ns=t, gyro=gyro, acc=acc, T_BS=np.eye(4))
+        imu = imu_to_body(Imu(t_ns=t, gyro=gyro, acc=acc, T_BS=np.eye(4)), vehicle.T_BS_matrix)
 
     rotors = None
     if data[motor_topic][0]:
@@ -210,7 +218,7 @@ def read_rosbag(path: str | Path, vehicle: Vehicle, *, rotor_speed_scale: float 
         rotors = Rotors(t_ns=t, speeds=raw_speeds * scale)
 
     return Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors,
-                     vicon=Poses(t_ns=t_gt.copy(), p=p.copy(), q=q.copy()), path=path)
+                     vicon=Poses(t_ns=t_gt.copy(), p=p.copy(), q=q.copy()), path=path, frame="B")
 
 
 def convert_rosbag(bag: str | Path, out: str | Path, vehicle: Vehicle, *, overwrite: bool = False,

@@ -132,6 +132,13 @@ def read_camera_yaml(path: str | Path) -> Camera:
                   distortion_model=model, distortion=dist, rate_hz=_number(path, d, "rate_hz", required=False))
 
 
+def read_sensor_pose(path: str | Path) -> np.ndarray:
+    """``T_BS`` (4, 4) of any EuRoC ``sensor.yaml`` (e.g. ``vicon0/sensor.yaml``): the sensor's pose
+    in EuRoC's body frame, which is the recordings' sensor frame S (``x_S = T_BS x_sensor``)."""
+    path = Path(path)
+    return _transform(path, _load(path))
+
+
 def read_imu_yaml(path: str | Path) -> ImuSensor:
     """Read ``imu0/sensor.yaml``: ``T_BS`` required; rate and noise keys optional."""
     path = Path(path)

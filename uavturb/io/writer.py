@@ -31,7 +31,10 @@ from uavturb.io.vehicle_file import save_vehicle
 
 
 def _write_streams(rec: Recording, root: Path) -> None:
-    """Every file of ``rec`` under ``root`` (an empty folder)."""
+    """Every file of ``rec`` under ``root`` (an empty folder); ground truth and IMU in S, as stored."""
+    from uavturb.io.body_frame import to_sensor
+
+    rec = to_sensor(rec)  # a recording in B goes back into S with vehicle.yaml's T_BS
     save_vehicle(rec.vehicle, root / VEHICLE_YAML)
     gt = rec.ground_truth
     euroc_csv.write_csv(root / GROUNDTRUTH_CSV, euroc_csv.GROUNDTRUTH_HEADER, gt.t_ns,
@@ -67,7 +70,9 @@ def write_recording(rec: Recording, path: str | Path, *, overwrite: bool = False
     Parameters
     ----------
     rec : the recording (rotor speeds in rad/s; they are divided by the vehicle's
-        ``rotor_speed_scale`` on the way out, so reading back returns them unchanged)
+        ``rotor_speed_scale`` on the way out, so reading back returns them unchanged). Ground
+        truth and IMU of a recording in B (``rec.frame``) are written in S with the vehicle's
+        ``T_BS`` (:func:`uavturb.io.body_frame.to_sensor`), so reading back returns them in B.
     path : the recording folder to create
     overwrite : replace an existing folder at ``path`` (else it is an error)
 

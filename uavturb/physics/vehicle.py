@@ -25,7 +25,12 @@ from uavturb.errors import InputError
 from uavturb.physics.constants import GRAVITY
 
 REQUIRED_KEYS = ("mass", "rotor_count", "arm_length", "rotor_angles_deg", "rotor_directions", "rotor_radius")
-OPTIONAL_KEYS = ("name", "thrust_coefficient", "moment_coefficient", "inertia", "rotor_speed_scale", "max_rotor_speed")
+OPTIONAL_KEYS = ("name", "thrust_coefficient", "moment_coefficient", "inertia", "rotor_speed_scale", "max_rotor_speed",
+                 "T_BS")
+
+#: ``T_BS`` rotation blocks whose ``R R^T`` differs from the identity by more than this are not
+#: rotations (EuRoC prints them to 5 decimals: about 1e-5 off).
+ROTATION_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -55,6 +60,10 @@ class Vehicle:
         rad/s per unit of the ``rotors0`` values (raw EuRoC motor commands need one).
     max_rotor_speed : float or None
         rad/s, actuator bound used by controllers.
+    T_BS : 4x4 tuple of tuples of float, or None
+        Pose of the sensor frame S (the ground truth's and the IMU's frame) in the rotor frame
+        B: ``x_B = T_BS x_S`` (rotation ``R_BS``, translation ``t_BS`` [m] = the origin of S in
+        B). ``None`` (key absent) means S = B. Kept as written so that files round-trip.
     """
 
     name: str
@@ -68,6 +77,7 @@ class Vehicle:
     inertia: tuple[float, float, float] | None = None
     rotor_speed_scale: float = 1.0
     max_rotor_speed: float | None = None
+    T_BS: tuple[tuple[float, ...], ...] | None = None
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     @property
@@ -93,6 +103,22 @@ class Vehicle:
         if k_T is None or k_M is None:
             raise InputError(self.name, "thrust_coefficient and moment_coefficient are unknown (identify them first)")
         return np.array([k_T, self.arm_length * k_T, self.arm_length * k_T, k_M])[:, None] * self.mixer()
+
+    @property
+    def T_BS_matrix(self) -> np.ndarray:
+        """``T_BS`` (4, 4) with its rotation block made exactly orthonormal (nearest rotation, by
+        SVD), so that transforming into B and back is exact to rounding; identity when absent."""
+        T = np.eye(4)
+        if not self.sensor_is_body:
+            T[:3, :] = np.asarray(self.T_BS, dtype=float)[:3, :]
+            U, _, Vt = np.linalg.svd(T[:3, :3])
+            T[:3, :3] = U @ Vt
+        return T
+
+    @property
+    def sensor_is_body(self) -> bool:
+        """Whether S = B (no ``T_BS``, or an identity one)."""
+        return self.T_BS is None or np.array_equal(np.asarray(self.T_BS, dtype=float), np.eye(4))
 
     def hover_speed(self) -> float:
         """Rotor speed [rad/s] at which all rotors together carry the weight."""
@@ -122,9 +148,11 @@ class Vehicle:
         d["rotor_directions"] = [int(s) for s in self.rotor_directions]
         if self.inertia is not None:
             d["inertia"] = [float(j) for j in self.inertia]
+        if self.T_BS is not None:
+            d["T_BS"] = [[float(x) for x in row] for row in self.T_BS]
         order = ["name", "mass", "rotor_count", "arm_length", "rotor_angles_deg", "rotor_directions",
                  "rotor_radius", "thrust_coefficient", "moment_coefficient", "inertia",
-                 "rotor_speed_scale", "max_rotor_speed"]
+                 "rotor_speed_scale", "max_rotor_speed", "T_BS"]
         return {k: d[k] for k in order if d.get(k) is not None}
 
     @classmethod
@@ -176,6 +204,8 @@ class Vehicle:
             if any(j <= 0 for j in inertia):
                 raise InputError(where, "key 'inertia' must hold positive values")
             kwargs["inertia"] = tuple(inertia)
+        if d.get("T_BS") is not None:
+            kwargs["T_BS"] = checked_transform(d["T_BS"], where)
         name = d.get("name") or Path(str(where)).parent.name or "vehicle"
         return cls(
             name=str(name),
@@ -188,9 +218,27 @@ class Vehicle:
             **kwargs,
         )
 
+def checked_transform(value: Any, where: str | Path, key: str = "T_BS") -> tuple[tuple[float, ...], ...]:
+    """Validate a rigid transform given as 4 rows of 4 numbers; returns it as a tuple of tuples.
 
-
-
+    Raises :class:`InputError` naming ``where`` and ``key`` unless it is 4x4, finite, with last
+    row ``0 0 0 1`` and a rotation block (``R R^T = I`` to :data:`ROTATION_TOLERANCE`, ``det R > 0``).
+    """
+    shape_msg = f"key '{key}' must be 4 rows of 4 numbers (a rigid transform, last row 0 0 0 1)"
+    if not isinstance(value, (list, tuple)) or len(value) != 4 or \
+            any(not isinstance(r, (list, tuple)) or len(r) != 4 for r in value):
+        raise InputError(where, f"{shape_msg}, got {value!r}")
+    for r in value:
+        for x in r:
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(float(x)):
+                raise InputError(where, f"key '{key}' holds a non-numeric or non-finite value {x!r}")
+    T = np.asarray(value, dtype=float)
+    R = T[:3, :3]
+    if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise InputError(where, f"key '{key}' must end with the row [0, 0, 0, 1], got {list(value[3])!r}")
+    if not np.allclose(R @ R.T, np.eye(3), atol=ROTATION_TOLERANCE) or np.linalg.det(R) <= 0:
+        raise InputError(where, f"key '{key}': the upper-left 3x3 block is not a rotation (R R^T != I or det R < 0)")
+    return tuple(tuple(float(x) for x in r) for r in value)
 
 
 # --- presets ------------------------------------------------------------------------

@@ -1,9 +1,15 @@
 """A recording's streams on one time base, with the derivatives dynamics work needs.
 
 The time base is the IMU's timestamps where there is an IMU (the accelerometer is then
-used as recorded, never interpolated), else the ground truth's; it is cut to the span that
-every stream covers. Derivatives are Savitzky-Golay (quadratic, window in seconds); the same
-filter smooths regressors, so that fits compare like with like.
+used as recorded, never interpolated), else the ground truth's (motion-capture-only flights,
+50 Hz and up); it is cut to the span that every stream covers. Ground truth and IMU are in the
+rotor frame B (the readers put them there with ``vehicle.yaml``'s ``T_BS``).
+
+Derivatives are local quadratic fits over a window given in seconds
+(:mod:`uavturb.io.differentiate`: Savitzky-Golay on uniform sampling, correct on jittered
+timestamps too); the window holds at least 5 samples, so at 50 Hz a 0.05 s window becomes
+0.1 s. The same filter smooths regressors, so that fits compare like with like. Streams at
+other rates (rotor speeds at 50 Hz, jittered) are interpolated linearly at their true times.
 """
 
 from __future__ import annotations
@@ -11,9 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from uavturb.errors import InputError
+from uavturb.io.differentiate import local_quadratic
 from uavturb.io.recording import Recording
 from uavturb.physics import quaternion as quat
 
@@ -28,8 +34,8 @@ class FlightData:
     t_ns : (K,) int64 ns, the time base
     t : (K,) s since the first ground-truth row
     p : (K, 3) m, position in W
-    q : (K, 4) quaternion w, x, y, z, body to world
-    v : (K, 3) m/s, velocity in W
+    q : (K, 4) quaternion w, x, y, z, B to world
+    v : (K, 3) m/s, velocity of B's origin in W
     w : (K, 3) rad/s, body rates (gyro minus bias, or from the quaternions)
     acc : (K, 3) m/s^2 or None, specific force in B, biases of the state file removed
     rotor_speeds : (K, N) rad/s
@@ -64,7 +70,7 @@ class FlightData:
 
     def smooth(self, x: np.ndarray) -> np.ndarray:
         """The filter of the derivatives, without differentiating (axis 0)."""
-        return savgol_filter(np.asarray(x, float), self.window, 2, axis=0, mode="interp")
+        return local_quadratic(self.t, np.asarray(x, float), self.window, deriv=0)
 
     def subset(self, mask: np.ndarray) -> "FlightData":
         """Rows where ``mask`` holds (derivatives already computed stay as they are)."""
@@ -87,7 +93,9 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     time_base : ``auto`` (IMU if present), ``imu`` or ``groundtruth``
     """
     from uavturb.io import align
+    from uavturb.io.body_frame import to_body
 
+    rec = to_body(rec)  # no-op for the readers' recordings, already in B
     where = rec.path or rec.name
     gt = rec.ground_truth
     if rec.rotors is None:
@@ -104,7 +112,8 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         raise InputError(f"{where}/{streams[-1][0]}", "does not overlap the other streams in time")
     base = rec.imu.t_ns if use_imu else gt.t_ns
     t_ns = base[(base >= start) & (base <= end)]
-    dt = float(np.median(np.diff(t_ns))) * 1e-9 if len(t_ns) > 1 else 0.0
+    t_rel = (t_ns - t_ns[0]) * 1e-9 if len(t_ns) else np.zeros(0)
+    dt = float(np.median(np.diff(t_rel))) if len(t_ns) > 1 else 0.0
     window = max(5, int(round(window_s / dt)) | 1) if dt > 0 else 5
     if len(t_ns) < window + 2:
         raise InputError(str(where), f"only {len(t_ns)} samples where all streams overlap (need {window + 2})")
@@ -120,18 +129,15 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     if use_imu:
         imu = rec.imu
         sel = np.searchsorted(imu.t_ns, t_ns)
-        gyro, acc = imu.gyro[sel], imu.acc[sel]
-        if imu.T_BS is not None and not np.allclose(imu.T_BS[:3, :3], np.eye(3)):
-            R_BS = imu.T_BS[:3, :3]  # sensor to body; the lever arm is ignored (IMU near the CoM)
-            gyro, acc = gyro @ R_BS.T, acc @ R_BS.T
+        gyro, acc = imu.gyro[sel], imu.acc[sel]  # in B, lever-arm terms removed by the reader
         w = gyro - b_w
         acc = acc - b_a
     else:
         w = quat.angular_velocity_body(t, q)
         acc = None
 
-    dv = savgol_filter(v, window, 2, deriv=1, delta=dt, axis=0, mode="interp")
-    dw = savgol_filter(w, window, 2, deriv=1, delta=dt, axis=0, mode="interp")
+    dv = local_quadratic(t_rel, v, window, deriv=1)  # m/s^2, at the samples' true times
+    dw = local_quadratic(t_rel, w, window, deriv=1)  # rad/s^2
 
     d_down = d_up = None
     if heights and rec.points is not None:

@@ -204,10 +204,12 @@ def _not_excited(f: _Findings, ex: dict[str, AxisExcitation], axes: Sequence[tup
 
 
 def _conditioning(f: _Findings, value: float, stderr: float, conds: dict[str, float], fits: Sequence[str]) -> None:
-    if np.isfinite(value) and value != 0 and stderr / abs(value) > REL_SE_MAX:
+    if not np.isfinite(value) or not np.isfinite(stderr):
+        if not f.items:  # a constant left out of the fit for want of excitation says so already
+            f.add(ILL_CONDITIONED, "the regression gives no finite estimate")
+        return
+    if value != 0 and stderr / abs(value) > REL_SE_MAX:
         f.add(ILL_CONDITIONED, f"relative standard error {stderr / abs(value):.2g} (above {REL_SE_MAX:g})")
-    elif not np.isfinite(value) or not np.isfinite(stderr):
-        f.add(ILL_CONDITIONED, "the regression gives no finite estimate")
     for fit in fits:
         c = conds.get(fit, 0.0)
         if c > COND_MAX:
@@ -249,11 +251,11 @@ def assess(est: dict[str, Any], se: dict[str, Any], excitation: dict[str, AxisEx
     out: dict[str, ParameterStatus] = {}
 
     def positive(f: _Findings, name: str, what: str) -> None:
-        if not est[name] > 0:
+        if np.isfinite(est[name]) and not est[name] > 0:
             f.add(IMPOSSIBLE, f"{what} {est[name]:.3g} is not positive")
 
     def inertia_bound(f: _Findings, name: str) -> None:
-        if est[name] > j_max:
+        if np.isfinite(est[name]) and est[name] > j_max:
             f.add(IMPOSSIBLE, f"{est[name]:.3g} kg m^2 exceeds m (l + r)^2 = {j_max:.3g} kg m^2, the inertia of the "
                               "whole mass at the propeller tips")
 

@@ -68,7 +68,9 @@ class Identification:
     thrust_coefficient, moment_coefficient : float, N/(rad/s)^2 and N m/(rad/s)^2
     inertia : (3,) kg m^2, diagonal of J
     theta : (4,) the paper's ``[k_T/m, l k_T/J_x, k_M/J_z, J_z/J_x]``
-    accel_bias : (3,) m/s^2, accelerometer bias left after the state file's (nan without IMU)
+    accel_bias : (3,) m/s^2 in B, accelerometer bias left after the state file's; ``None`` when
+        the flights have no IMU (motion capture only: there is no accelerometer, so no bias to
+        estimate, and none is fitted)
     model : ``"general"`` or ``"jx=jy"``
     status : name -> :class:`~uavturb.sysid.identifiability.ParameterStatus` (``k_T``, ``k_M``,
         ``J_x``, ``J_y``, ``J_z``, ``theta_0`` .. ``theta_3``, ``accel_bias``): whether the flight
@@ -87,7 +89,7 @@ class Identification:
     inertia_se: np.ndarray
     theta: np.ndarray
     theta_se: np.ndarray
-    accel_bias: np.ndarray
+    accel_bias: np.ndarray | None
     angular_bias: np.ndarray
     model: str
     n_samples: int
@@ -158,7 +160,8 @@ class Identification:
             "theta": [float(t) for t in self.theta],
             "theta_stderr": [float(t) for t in self.theta_se],
             "theta_names": ["k_T/m", "l*k_T/J_x", "k_M/J_z", "J_z/J_x"],
-            "accel_bias": [None if not np.isfinite(b) else float(b) for b in self.accel_bias],
+            "accel_bias": None if self.accel_bias is None else [float(b) for b in self.accel_bias],
+            "sources": "imu+mocap" if self.accel_bias is not None else "mocap",
             "angular_bias": [float(b) for b in self.angular_bias],
             "rms": self.rms,
             "parameters": {n: s.to_dict() for n, s in self.status.items()},
@@ -284,10 +287,18 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     theta0, theta0_se = tr["theta0"], tr["theta0_se"]
 
     # --- rotation ---------------------------------------------------------------------
+    ex = axis_excitation([fd.w for fd in fds], [fd.dw for fd in fds], masks, [fd.dt for fd in fds])
+    # without yaw motion the gyroscopic columns (w_y w_z, w_x w_z) hold only noise: they are left
+    # out, and J_z (which only they carry) is not estimated
+    gyro = ex["yaw"].rate_std >= RATE_MIN
     u, ww, dw = rows["u"], rows["ww"], rows["dw"]
     one = np.ones(len(dw))
-    fit_x = lstsq(np.stack([u[:, 1], ww[:, 0], one], 1), dw[:, 0], lag=lag, groups=groups)
-    fit_y = lstsq(np.stack([u[:, 2], ww[:, 1], one], 1), dw[:, 1], lag=lag, groups=groups)
+
+    def columns(*cols: np.ndarray) -> np.ndarray:
+        return np.stack([c for c in cols if c is not None], 1)
+
+    fit_x = lstsq(columns(u[:, 1], ww[:, 0] if gyro else None, one), dw[:, 0], lag=lag, groups=groups)
+    fit_y = lstsq(columns(u[:, 2], ww[:, 1] if gyro else None, one), dw[:, 1], lag=lag, groups=groups)
     fit_z = lstsq(np.stack([u[:, 3], ww[:, 2], one], 1), dw[:, 2], lag=lag, groups=groups)
     a_x, a_y = fit_x.coef[0], fit_y.coef[0]
     differ = abs(a_x - a_y) > 3.0 * np.hypot(fit_x.stderr[0], fit_y.stderr[0])
@@ -298,15 +309,18 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     th0 = rng.normal(theta0, theta0_se, n_draws)
     kT = m * th0
     cz = rng.multivariate_normal(fit_z.coef, fit_z.cov, n_draws)
+    no_Jz = np.full(n_draws, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         if chosen == "general":
             cx = rng.multivariate_normal(fit_x.coef, fit_x.cov, n_draws)
             cy = rng.multivariate_normal(fit_y.coef, fit_y.cov, n_draws)
             Jx, Jy = l * kT / cx[:, 0], l * kT / cy[:, 0]
-            Jz1, Jz2 = Jy - cx[:, 1] * Jx, Jx + cy[:, 1] * Jy  # from (J_y - J_z)/J_x and (J_z - J_x)/J_y
-            v1, v2 = np.var(Jz1), np.var(Jz2)
-            Jz = (Jz1 / v1 + Jz2 / v2) / (1 / v1 + 1 / v2)
-            ang_bias = np.array([fit_x.coef[2], fit_y.coef[2], fit_z.coef[2]])
+            Jz = no_Jz
+            if gyro:
+                Jz1, Jz2 = Jy - cx[:, 1] * Jx, Jx + cy[:, 1] * Jy  # from (J_y - J_z)/J_x and (J_z - J_x)/J_y
+                v1, v2 = np.var(Jz1), np.var(Jz2)
+                Jz = (Jz1 / v1 + Jz2 / v2) / (1 / v1 + 1 / v2)
+            ang_bias = np.array([fit_x.coef[-1], fit_y.coef[-1], fit_z.coef[2]])
             rms_r = {"roll": fit_x.rms, "pitch": fit_y.rms}
             conds = {"roll": fit_x.cond, "pitch": fit_y.cond}
             shares = (column_share(fit_x.coef[0], u[:, 1], dw[:, 0]), column_share(fit_y.coef[0], u[:, 2], dw[:, 1]))
@@ -314,14 +328,14 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
             # the paper's model: w_dot_x = th1 u_1 + (1 - th3) w_y w_z, w_dot_y = th1 u_2 - (1 - th3) w_x w_z
             K = len(dw)
             zeros = np.zeros(K)
-            A = np.block([[np.stack([u[:, 1], ww[:, 0], one, zeros], 1)],
-                          [np.stack([u[:, 2], -ww[:, 1], zeros, one], 1)]])
+            A = np.block([[columns(u[:, 1], ww[:, 0] if gyro else None, one, zeros)],
+                          [columns(u[:, 2], -ww[:, 1] if gyro else None, zeros, one)]])
             fit_xy = lstsq(A, np.concatenate([dw[:, 0], dw[:, 1]]), lag=lag,
                            groups=np.concatenate([groups, groups + 1000]))
             cxy = rng.multivariate_normal(fit_xy.coef, fit_xy.cov, n_draws)
             Jx = Jy = l * kT / cxy[:, 0]
-            Jz = Jx * (1.0 - cxy[:, 1])
-            ang_bias = np.array([fit_xy.coef[2], fit_xy.coef[3], fit_z.coef[2]])
+            Jz = Jx * (1.0 - cxy[:, 1]) if gyro else no_Jz
+            ang_bias = np.array([fit_xy.coef[-2], fit_xy.coef[-1], fit_z.coef[2]])
             rms_r = {"roll_pitch": fit_xy.rms}
             conds = {"roll": fit_xy.cond, "pitch": fit_xy.cond}
             shares = (column_share(fit_xy.coef[0], u[:, 1], dw[:, 0]), column_share(fit_xy.coef[0], u[:, 2], dw[:, 1]))
@@ -339,7 +353,6 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     inertia, inertia_se = zip(*(est(d) for d in (Jx, Jy, Jz)))
     kM_est, kM_se = est(kM)
 
-    ex = axis_excitation([fd.w for fd in fds], [fd.dw for fd in fds], masks, [fd.dt for fd in fds])
     share = {"roll": shares[0], "pitch": shares[1], "yaw": column_share(fit_z.coef[0], u[:, 3], dw[:, 2])}
     ex = {a: AxisExcitation(e.rate_std, e.acc_std, share[a]) for a, e in ex.items()}
     conds = {"thrust": tr["cond"], **conds, "yaw": fit_z.cond}
@@ -362,7 +375,7 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
         inertia_se=np.array(inertia_se),
         theta=theta_all,
         theta_se=theta_se_all,
-        accel_bias=tr["bias"],
+        accel_bias=tr["bias"] if tr["has_imu"] else None,
         angular_bias=ang_bias,
         model=chosen,
         n_samples=n,

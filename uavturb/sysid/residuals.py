@@ -15,6 +15,12 @@ For the velocity rows that is ``F = m (v_{t+1} - v_t)/dt - R T e_z + m g e_z``
   Savitzky-Golay (``derivative="savgol"``) or by the paper's forward difference.
 
 Torques: ``tau_ext = J w_dot + w x J w - tau(Omega)`` in B.
+
+Motion-capture-only flights (no ``imu0``, 50 Hz and up, jittered timestamps) use the MoCap
+source; ``v_dot`` is then a local quadratic fit at the samples' true times over a window in
+seconds (:mod:`uavturb.sysid.flight_data`). The residual's noise floor is measured on the data
+(:func:`noise_floor`), never assumed: the differentiated velocity's noise is not white (it is
+the derivative filter's response to white noise), so first differences would understate it.
 """
 
 from __future__ import annotations
@@ -33,6 +39,8 @@ from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.flight_data import FlightData, flight_data
 
 E_Z = np.array([0.0, 0.0, 1.0])
+#: s, the residual's slow part (unmodelled physics) is a quadratic fit over this window
+NOISE_WINDOW_S = 0.5
 
 
 @dataclass
@@ -64,6 +72,34 @@ class Residuals:
     def rmse(self) -> float:
         """Root mean square of the force norm [N]."""
         return float(np.sqrt(np.mean(np.sum(self.force**2, axis=1))))
+
+    def noise_floor(self, window_s: float = NOISE_WINDOW_S) -> np.ndarray:
+        """Per-axis noise level of ``force`` [N] (3,), W: see :func:`noise_floor`."""
+        return noise_floor(self.t, self.force, window_s)
+
+
+def noise_floor(t: np.ndarray, r: np.ndarray, window_s: float = NOISE_WINDOW_S) -> np.ndarray:
+    """Noise level [units of ``r``] per column of a residual ``r`` (K, D) at times ``t`` [s], from its
+    high-frequency content.
+
+    The slow part (unmodelled physics varies over seconds) is a local quadratic fit over
+    ``window_s``; what is left holds the sensor noise and the derivative filter's response to it.
+    Its robust spread, ``1.4826 MAD``, is divided by ``sqrt(1 - h)`` (``h`` the fit's own weight at
+    the centre sample, so that white noise is not understated).
+    """
+    from scipy.signal import savgol_coeffs
+
+    from uavturb.io.differentiate import local_quadratic, window_samples
+
+    r = np.asarray(r, float).reshape(len(r), -1)
+    n = window_samples(np.asarray(t, float), window_s)
+    if n < 5:
+        return np.full(r.shape[1], np.nan)
+    hf = r - local_quadratic(t, r, n, deriv=0)
+    inner = hf[n // 2: len(hf) - n // 2] if len(hf) > n else hf  # away from the fit's edges
+    mad = np.median(np.abs(inner - np.median(inner, axis=0)), axis=0)
+    h = float(savgol_coeffs(n, 2)[n // 2])
+    return 1.4826 * mad / np.sqrt(1.0 - h)
 
 
 def residual_forces(rec: Recording | FlightData, vehicle: Vehicle, *, source: str = "auto",

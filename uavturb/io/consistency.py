@@ -1,0 +1,123 @@
+"""Checks of a recording against what a flying multirotor must show, before any physics.
+
+Two mistakes pass every format check and silently spoil identification, residuals and gap
+reports, so the commands that do physics stop on them with one line (``recordings.md``):
+
+* **Thrust axis** (:func:`check_thrust_axis`). Rotors push along ``+z_B``; whatever the
+  vehicle does, the mean specific force over a flight (what an accelerometer reads: thrust
+  plus external forces over the mass) points along it, up to the mean external force. A
+  ``T_BS`` that is missing or wrong (EuRoC's IMU frame S has x within ~20 deg of up) puts it
+  far off. Threshold :data:`MAX_THRUST_AXIS_ANGLE_DEG` = 30 deg: a correct frame stays within a
+  few degrees (a sustained mean horizontal force of 0.58 g would be needed to reach 30 deg,
+  more drag than any indoor flight has), while a wrong axis assignment is off by 70-180 deg
+  (EuRoC without ``T_BS``: about 70 deg).
+* **Rotor columns** (:func:`check_rotor_columns`). A column that is zero, or constant, while
+  the vehicle flies and the other rotors vary, is a dead sensor, a wrong column order or a
+  stream that is not rotor speeds: the vehicle could not fly so.
+
+"In flight": rows whose rotor ``sum(w_i^2)`` is at least :data:`FLIGHT_SHARE` of its 95th
+percentile (hover dominates a flight; idling or resting on the ground is far below).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from uavturb.errors import InputError
+from uavturb.io import align
+from uavturb.io.differentiate import derivative
+from uavturb.io.recording import Recording
+from uavturb.physics import quaternion as quat
+from uavturb.physics.dynamics import GRAVITY
+
+MAX_THRUST_AXIS_ANGLE_DEG = 30.0
+FLIGHT_SHARE = 0.5
+#: below this norm [m/s^2] the mean specific force has no direction worth checking (free fall)
+MIN_SPECIFIC_FORCE = 0.3 * GRAVITY
+#: s, window of the ground-truth velocity derivative when there is no IMU
+MOCAP_DERIVATIVE_WINDOW_S = 0.1
+MIN_FLIGHT_ROWS = 20
+
+
+def _where(rec: Recording, relative: str) -> str:
+    return f"{rec.path}/{relative}" if rec.path is not None else f"{rec.name}: {relative}"
+
+
+def in_flight(rec: Recording, t_ns: np.ndarray) -> np.ndarray:
+    """(N,) bool: rows at ``t_ns`` where the rotors carry at least :data:`FLIGHT_SHARE` of their
+    95th-percentile ``sum(w^2)``; all rows when there are no rotor speeds or too few such rows."""
+    if rec.rotors is None or len(rec.rotors) < 2:
+        return np.ones(len(t_ns), bool)
+    S = align.interpolate(rec.rotors.t_ns, np.sum(rec.rotors.speeds**2, axis=1), t_ns)
+    top = np.percentile(S, 95)
+    flying = S >= FLIGHT_SHARE * top if top > 0 else np.zeros(len(t_ns), bool)
+    return flying if flying.sum() >= MIN_FLIGHT_ROWS else np.ones(len(t_ns), bool)
+
+
+def mean_specific_force(rec: Recording) -> tuple[np.ndarray, str]:
+    """Mean specific force in flight [m/s^2] in B (3,), and its source (``imu0`` or ``ground truth``).
+
+    IMU: the accelerometer in B. Without one: ``R_WB^T (dv/dt + g e_z)`` from the ground truth.
+    """
+    if rec.imu is not None and len(rec.imu) > 0:
+        return rec.imu.acc[in_flight(rec, rec.imu.t_ns)].mean(axis=0), "imu0"
+    gt = rec.ground_truth
+    t = (gt.t_ns - gt.t_ns[0]) * 1e-9
+    dv = derivative(t, gt.v, MOCAP_DERIVATIVE_WINDOW_S)  # m/s^2 in W
+    f_B = quat.rotate_inverse(gt.q, dv + np.array([0.0, 0.0, GRAVITY]))  # R_WB^T (dv/dt + g e_z)
+    return f_B[in_flight(rec, gt.t_ns)].mean(axis=0), "ground truth"
+
+
+def check_thrust_axis(rec: Recording) -> float:
+    """Angle [deg] between the mean specific force in flight and ``+z_B``; raises past 30 deg.
+
+    Raises
+    ------
+    InputError
+        ``<rec>/vehicle.yaml: T_BS: the mean specific force in flight points A deg away from the
+        rotor axis +z_B ...``
+    """
+    if rec.frame != "B":
+        raise ValueError("check_thrust_axis needs a recording in the rotor frame B")
+    f, source = mean_specific_force(rec)
+    norm = float(np.linalg.norm(f))
+    if not np.isfinite(norm) or norm < MIN_SPECIFIC_FORCE:
+        return float("nan")
+    angle = float(np.degrees(np.arccos(np.clip(f[2] / norm, -1.0, 1.0))))
+    if angle > MAX_THRUST_AXIS_ANGLE_DEG:
+        raise InputError(_where(rec, "vehicle.yaml"),
+                         f"T_BS: the mean specific force in flight points {angle:.0f} deg away from the rotor axis "
+                         f"+z_B (reads ({f[0]:.1f}, {f[1]:.1f}, {f[2]:.1f}) m/s^2 in B, from {source}); set T_BS "
+                         f"to the pose of the sensor frame S in the rotor frame B")
+    return angle
+
+
+def check_rotor_columns(rec: Recording) -> None:
+    """No rotor column is zero, or constant, in flight while the other rotors vary.
+
+    Raises
+    ------
+    InputError
+        ``<rec>/mav0/rotors0/data.csv: column w_3 is 0 throughout the flight ...``
+    """
+    if rec.rotors is None or len(rec.rotors) < MIN_FLIGHT_ROWS:
+        return
+    w = rec.rotors.speeds[in_flight(rec, rec.rotors.t_ns)]
+    where = _where(rec, "mav0/rotors0/data.csv")
+    spins = np.any(w > 0, axis=0)
+    varies = np.ptp(w, axis=0) > 0
+    for c in range(w.shape[1]):
+        others = np.delete(np.arange(w.shape[1]), c)
+        if not spins[c] and np.any(spins[others]):
+            raise InputError(where, f"column w_{c} is 0 throughout the flight while the other rotors spin: "
+                                    f"a dead motor or a missing stream cannot fly")
+        if spins[c] and not varies[c] and np.any(varies[others]):
+            value = w[0, c] / rec.vehicle.rotor_speed_scale  # as written in the file
+            raise InputError(where, f"column w_{c} holds the constant value {value:.6g} throughout the flight "
+                                    f"while the other rotors vary: not a rotor speed of a flying vehicle")
+
+
+def check_recording(rec: Recording) -> None:
+    """:func:`check_rotor_columns` then :func:`check_thrust_axis` (the checks physics commands run)."""
+    check_rotor_columns(rec)
+    check_thrust_axis(rec)

@@ -1,0 +1,69 @@
+"""Time derivatives of sampled streams, at any rate and with jittered timestamps.
+
+Real streams run at 50 Hz and up and their timestamps jitter (``recordings.md``). A
+Savitzky-Golay filter assumes uniform sampling: on a jittered stream it differentiates as if
+every sample were at its nominal time, an error of ``x_dot * jitter / dt``. Here every sample's
+derivative is the slope of a quadratic fitted by least squares to the samples of a window
+around it **at their true times** -- the Savitzky-Golay derivative when sampling is uniform
+(``mode="interp"`` at the edges: the window is shifted inside and the fit evaluated at the
+sample), and exact for quadratic signals whatever the sampling.
+
+The window is given in seconds, so a derivative has the same bandwidth at every rate; it
+holds at least :data:`MIN_WINDOW_SAMPLES` samples (a quadratic through 3 points does not smooth).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: fewest samples in a window (at 50 Hz a 0.05 s window would hold 3)
+MIN_WINDOW_SAMPLES = 5
+
+
+def window_samples(t: np.ndarray, window_s: float) -> int:
+    """Odd number of samples of a ``window_s`` [s] window at the median step of ``t`` [s]
+    (at least :data:`MIN_WINDOW_SAMPLES`, at most ``len(t)`` rounded down to odd)."""
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    n = max(MIN_WINDOW_SAMPLES, int(round(window_s / dt)) | 1) if dt > 0 else MIN_WINDOW_SAMPLES
+    return min(n, len(t) if len(t) % 2 else len(t) - 1)
+
+
+def local_quadratic(t: np.ndarray, x: np.ndarray, window: int, deriv: int = 1) -> np.ndarray:
+    """Value (``deriv=0``) or first derivative (``deriv=1``) of a moving quadratic fit.
+
+    Parameters
+    ----------
+    t : (N,) increasing times [s] (any spacing)
+    x : (N,) or (N, D) samples
+    window : odd number of samples per fit (>= 3)
+    deriv : 0 (smoothed value) or 1 (derivative, units of ``x`` per second)
+
+    Returns
+    -------
+    Same shape as ``x``.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    flat = x.reshape(len(x), -1)
+    N = len(t)
+    if N < 3:
+        return np.zeros_like(x) if deriv else x.copy()
+    n = min(window, N if N % 2 else N - 1)
+    h = n // 2
+    start = np.clip(np.arange(N) - h, 0, N - n)
+    idx = start[:, None] + np.arange(n)[None, :]  # (N, n) the samples of each fit
+    tau = t[idx] - t[:, None]  # (N, n) s, times relative to the sample evaluated
+    scale = np.maximum(np.abs(tau).max(axis=1, keepdims=True), 1e-12)
+    u = tau / scale  # dimensionless, in [-1, 1]: a well-conditioned normal matrix
+    powers = np.stack([np.ones_like(u), u, u * u], axis=2)  # (N, n, 3)
+    A = np.einsum("kni,knj->kij", powers, powers)  # (N, 3, 3)
+    b = np.einsum("kni,knd->kid", powers, flat[idx])  # (N, 3, D)
+    coef = np.linalg.solve(A, b)  # (N, 3, D): x ~ c0 + c1 u + c2 u^2
+    out = coef[:, 0, :] if deriv == 0 else coef[:, 1, :] / scale
+    return out.reshape(x.shape)
+
+
+def derivative(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray:
+    """``dx/dt`` of samples ``x`` (N,) or (N, D) at times ``t`` [s], by :func:`local_quadratic`
+    over ``window_s`` seconds (:func:`window_samples`)."""
+    return local_quadratic(t, x, window_samples(np.asarray(t, float), window_s), deriv=1)
