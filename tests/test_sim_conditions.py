@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import yaml
@@ -152,3 +154,16 @@ def test_bad_condition_options_give_one_line(tmp_path, capsys, option, value, na
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and named in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_identify_on_a_fixed_heading_mocap_flight_reports_yaw_not_excited(tmp_path, capsys):
+    out = tmp_path / "fixed"
+    assert main(["generate", "flight", "--duration", "10", "--kind", "excitation", "--seed", "7", "--out", str(out),
+                 "--fixed-heading", "--no-imu", "--rate-hz", "100"]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(out), "--json"]) == 0
+    p = json.loads(capsys.readouterr().out)["parameters"]
+    assert p["k_T"]["identifiable"] and p["k_T"]["value"] == pytest.approx(HEXAROTOR.thrust_coefficient, rel=0.02)
+    for name in ("J_z", "k_M"):
+        assert p[name]["reason"] == "not excited" and "yaw" in p[name]["why"], p[name]
+    assert p["accel_bias"]["reason"] == "absent"
