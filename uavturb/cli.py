@@ -51,6 +51,21 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--noise", default="realistic", choices=["realistic", "none"])
     g.add_argument("--out", required=True, help="recording folder to create")
+    r = g.add_argument_group("real recordings' troubles (truth in REC/truth.yaml)")
+    r.add_argument("--no-imu", action="store_true", help="no imu0: motion capture only")
+    r.add_argument("--rate-hz", type=float, default=None, help="ground truth and rotors at this rate (IMU stays 200 Hz)")
+    r.add_argument("--jitter-ms", type=float, default=0.0, help="sampling-time jitter of those streams, +- ms")
+    r.add_argument("--fixed-heading", action="store_true", help="the reference's yaw never changes")
+    r.add_argument("--motor-commands", action="store_true",
+                   help="rotors0 holds commands u in [0,1]; true speed w = a + b u; rotor_speed_scale exact at hover")
+    r.add_argument("--wind-speed", metavar="VX,VY", default=None,
+                   help="steady wind [m/s, world]: rotor and body drag act on the airspeed v - v_wind")
+    r.add_argument("--accel-bias-walk", type=float, default=0.0, metavar="SIGMA",
+                   help="accelerometer bias random walk, m/s^3/sqrt(Hz); the state file keeps the initial bias")
+    r.add_argument("--sensor-frame", default="body", choices=["body", "euroc"],
+                   help="streams in a EuRoC-like sensor frame S (T_BS in vehicle.yaml, 10 cm lever arm)")
+    r.add_argument("--mass-error", type=float, default=0.0, metavar="FRACTION",
+                   help="vehicle.yaml's mass is the simulated one times 1 + FRACTION")
     g = gsub.add_parser("sim", help="training shards: simulated flights through procedural scenes (resumable)")
     g.add_argument("--preset", default="quick", help="quick | paper | tiny (default quick)")
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (manifest.json, traj_*/)")
@@ -190,7 +205,11 @@ def _run(args: argparse.Namespace) -> int:
 
         if args.what == "flight":
             rec = generate.generate_flight(vehicle=args.vehicle, effects=args.effects, duration=args.duration,
-                                            kind=args.kind, seed=args.seed, noise=args.noise, out=args.out)
+                                            kind=args.kind, seed=args.seed, noise=args.noise, out=args.out,
+                                            no_imu=args.no_imu, rate_hz=args.rate_hz, jitter_ms=args.jitter_ms,
+                                            fixed_heading=args.fixed_heading, motor_commands=args.motor_commands,
+                                            wind_speed=args.wind_speed, accel_bias_walk=args.accel_bias_walk,
+                                            sensor_frame=args.sensor_frame, mass_error=args.mass_error)
             gt = rec.ground_truth
             print(f"wrote {args.out}: {len(gt)} ground-truth rows, {(gt.t_ns[-1] - gt.t_ns[0]) * 1e-9:.1f} s, "
                   f"effects {args.effects}")

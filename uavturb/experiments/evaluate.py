@@ -7,8 +7,9 @@ Protocol (paper, "Predicting turbulences" and "Sim2real transfer"):
    images from the point cloud projected into ``cam0``, true heights ``d`` from the cloud,
    ground-truth ``f_a`` as the world-z residual force of the identified model [N].
 2. The vehicle's constants (``k_T``, ``k_M``, inertia) are identified by least squares on the
-   **first** flight (:func:`uavturb.physics.identification.identify`); where it has no free
-   flight to identify on, the first flight's ``vehicle.yaml`` constants are used (said so).
+   **first** flight (:func:`uavturb.sysid.identification.identify`); where it has no free
+   flight to identify on, the first flight's ``vehicle.yaml`` constants are used (said so), and
+   so are those the flight does not determine (:mod:`uavturb.sysid.identifiability`; said so).
 3. ``(alpha, beta)`` of ``f = alpha sum(Omega^2) / (d^2 - beta)`` are identified by BFGS on the
    **first** flight with its true heights (:func:`uavturb.physics.ground_effect.identify_alpha_beta`),
    as the paper does on V1_01_easy.
@@ -281,8 +282,11 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     recs = load_recordings(recordings, vehicle)
     first = recs[0]
     try:
-        veh = identify([first], first.vehicle).apply(first.vehicle)
+        ident = identify([first], first.vehicle)
+        veh = ident.apply(first.vehicle)
         vehicle_source = f"identified on {first.name}"
+        if ident.fallbacks(first.vehicle):
+            vehicle_source += "; " + "; ".join(ident.fallbacks(first.vehicle))
     except InputError as e:
         if not first.vehicle.is_complete():
             raise InputError(f"{first.path}/vehicle.yaml", f"cannot identify the vehicle ({e.problem}) and "

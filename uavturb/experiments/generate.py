@@ -9,16 +9,35 @@ from uavturb.errors import InputError
 from uavturb.io.recording import Recording
 
 
+def parse_wind_speed(text: str | None) -> tuple[float, float] | None:
+    """``"vx,vy"`` [m/s] -> ``(vx, vy)``; ``None`` stays ``None``."""
+    if text is None:
+        return None
+    try:
+        vx, vy = (float(x) for x in str(text).split(","))
+    except ValueError:
+        raise InputError("--wind-speed", f"expected vx,vy in m/s (e.g. 1.5,-0.5), got '{text}'") from None
+    return vx, vy
+
+
 def generate_flight(*, vehicle: str = "hex", effects: str = "none", duration: float = 60.0, kind: str = "mixed",
-                    seed: int = 0, noise: str = "realistic", out: str | Path | None = None) -> Recording:
-    """``uavturb generate flight``: a simulated flight in the EuRoC layout."""
+                    seed: int = 0, noise: str = "realistic", out: str | Path | None = None, no_imu: bool = False,
+                    rate_hz: float | None = None, jitter_ms: float = 0.0, fixed_heading: bool = False,
+                    motor_commands: bool = False, wind_speed: str | None = None, accel_bias_walk: float = 0.0,
+                    sensor_frame: str = "body", mass_error: float = 0.0) -> Recording:
+    """``uavturb generate flight``: a simulated flight in the EuRoC layout, with the troubles of real
+    recordings asked for (:class:`uavturb.sim.conditions.Conditions`) and their truth in ``truth.yaml``."""
     from uavturb.sim import flight
+    from uavturb.sim.conditions import Conditions, generate_conditioned_flight
 
     if noise not in ("realistic", "none"):
         raise InputError("--noise", f"unknown value '{noise}' (allowed: realistic, none)")
     sensor_noise = flight.SensorNoise() if noise == "realistic" else flight.SensorNoise.none()
-    return flight.generate_flight(vehicle=vehicle, effects=effects, duration=duration, kind=kind, seed=seed,
-                                  noise=sensor_noise, out=out)
+    cond = Conditions(no_imu=no_imu, rate_hz=rate_hz, jitter_ms=jitter_ms, fixed_heading=fixed_heading,
+                      motor_commands=motor_commands, wind_speed=parse_wind_speed(wind_speed),
+                      accel_bias_walk=accel_bias_walk, sensor_frame=sensor_frame, mass_error=mass_error)
+    return generate_conditioned_flight(vehicle=vehicle, effects=effects, duration=duration, kind=kind, seed=seed,
+                                       conditions=cond, noise=sensor_noise, out=out).recording
 
 
 def preset_overrides(items: Sequence[str]) -> dict:

@@ -22,25 +22,30 @@ def identify_recordings(paths: Sequence[str | Path], *, model: str = "auto",
 
 
 def format_identification(ident: Identification) -> str:
-    """A human-readable table of identified constants with standard errors."""
-    rows = [
-        ("k_T", ident.thrust_coefficient, ident.thrust_coefficient_se, "N/(rad/s)^2"),
-        ("k_M", ident.moment_coefficient, ident.moment_coefficient_se, "N m/(rad/s)^2"),
-        ("J_x", ident.inertia[0], ident.inertia_se[0], "kg m^2"),
-        ("J_y", ident.inertia[1], ident.inertia_se[1], "kg m^2"),
-        ("J_z", ident.inertia[2], ident.inertia_se[2], "kg m^2"),
-        ("theta_0 = k_T/m", ident.theta[0], ident.theta_se[0], "N/(kg (rad/s)^2)"),
-        ("theta_1 = l k_T/J_x", ident.theta[1], ident.theta_se[1], "1/(rad/s)^2 s^-2 rad"),
-        ("theta_2 = k_M/J_z", ident.theta[2], ident.theta_se[2], "s^-2/(rad/s)^2"),
-        ("theta_3 = J_z/J_x", ident.theta[3], ident.theta_se[3], "-"),
-    ]
+    """A human-readable table of the constants the flights determine, with standard errors; then
+    the ones they do not, each with its reason (estimate in brackets, or ``-``: never as a result)."""
+    names = {"k_T": "k_T", "k_M": "k_M", "J_x": "J_x", "J_y": "J_y", "J_z": "J_z",
+             "theta_0": "theta_0 = k_T/m", "theta_1": "theta_1 = l k_T/J_x", "theta_2": "theta_2 = k_M/J_z",
+             "theta_3": "theta_3 = J_z/J_x", "accel_bias": "accelerometer bias"}
     lines = [f"identified from {len(ident.recordings)} recording(s), {ident.n_samples} samples in free flight, "
              f"inertia model {ident.model}", f"{'parameter':<22}{'value':>14}{'std. error':>14}  unit"]
-    lines += [f"{n:<22}{v:>14.6g}{s:>14.3g}  {u}" for n, v, s, u in rows]
-    if ident.accel_bias is not None:
-        lines.append(f"{'accelerometer bias':<22}{np.array2string(ident.accel_bias, precision=4):>28}  m/s^2 (body)")
-    else:
-        lines.append(f"{'accelerometer bias':<22}{'absent':>28}  (no imu0: motion capture only, nothing to estimate)")
+    undetermined = []
+    for key, label in names.items():
+        s = ident.status[key]
+        if not s.identifiable:
+            undetermined.append((label, s))
+        elif key == "accel_bias":
+            lines.append(f"{label:<22}{np.array2string(np.asarray(s.value), precision=4):>28}  m/s^2 (body)")
+        else:
+            lines.append(f"{label:<22}{s.value:>14.6g}{s.stderr:>14.3g}  {s.unit}")
+    if undetermined:
+        lines.append("not determined by these flights (estimates in brackets are not results):")
+        for label, s in undetermined:
+            if s.reason == "absent" or np.ndim(s.value) or not np.isfinite(s.value):
+                shown = "-"
+            else:
+                shown = f"[{s.value:.3g} +- {s.stderr:.2g}]"
+            lines.append(f"  {label:<20}{shown:>24}  {s.reason}: {s.why}")
     return "\n".join(lines)
 
 

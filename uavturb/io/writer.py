@@ -64,7 +64,8 @@ def _write_streams(rec: Recording, root: Path) -> None:
                             np.hstack([rec.vicon.p, rec.vicon.q]))
 
 
-def write_recording(rec: Recording, path: str | Path, *, overwrite: bool = False) -> Path:
+def write_recording(rec: Recording, path: str | Path, *, overwrite: bool = False,
+                    extras: dict[str, str] | None = None) -> Path:
     """Write ``rec`` as a recording folder, atomically.
 
     Parameters
@@ -75,6 +76,8 @@ def write_recording(rec: Recording, path: str | Path, *, overwrite: bool = False
         ``T_BS`` (:func:`uavturb.io.body_frame.to_sensor`), so reading back returns them in B.
     path : the recording folder to create
     overwrite : replace an existing folder at ``path`` (else it is an error)
+    extras : ``{relative path: text}``, further files written with the streams (a simulator's
+        ``truth.yaml``), inside the same atomic publication
 
     Returns
     -------
@@ -92,4 +95,7 @@ def write_recording(rec: Recording, path: str | Path, *, overwrite: bool = False
     with publish_folder(path, overwrite=overwrite, command="uavturb recording",
                         hint=" (pass --overwrite / overwrite=True to replace it)") as tmp:
         _write_streams(rec, tmp)
+        for rel, text in (extras or {}).items():
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            (tmp / rel).write_text(text)
     return Path(path)

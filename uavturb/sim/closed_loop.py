@@ -130,16 +130,18 @@ class Rk4Step:
 
 class EffectForce:
     """The effect force [N, W] on one state: :func:`~uavturb.physics.effects.force_on_state` of
-    ``effects`` (``{name: params}``; ``motor_lag`` excluded) for this vehicle."""
+    ``effects`` (``{name: params}``; ``motor_lag`` excluded) for this vehicle. With a ``wind``
+    velocity [m/s, W] the laws see the airspeed ``v - wind`` (drag acts on the airspeed)."""
 
-    def __init__(self, vehicle: Vehicle, effects: dict[str, dict[str, float]]):
+    def __init__(self, vehicle: Vehicle, effects: dict[str, dict[str, float]], wind: np.ndarray | None = None):
         self.effects = effects
+        self.wind = np.zeros(3) if wind is None else np.asarray(wind, float)
         self.k_T, self.r = float(vehicle.thrust_coefficient), float(vehicle.rotor_radius)
         self._rotation = RotationOf()
 
     def __call__(self, x: np.ndarray, w: np.ndarray, t: float, d_down: float, d_up: float) -> np.ndarray:
         q = x[IDX_Q]
-        return force_on_state(self.effects, q, x[IDX_V], w, t, d_down, d_up, self.k_T, self.r,
+        return force_on_state(self.effects, q, x[IDX_V] - self.wind, w, t, d_down, d_up, self.k_T, self.r,
                               self._rotation(q) if self.effects else None)
 
 
@@ -201,7 +203,7 @@ def initial_state(sp0: Setpoint) -> np.ndarray:
 def run_closed_loop(vehicle: Vehicle, x0: np.ndarray, pilot: Pilot, heights: HeightQuery, *,
                     effects: dict[str, dict[str, float]], n_steps: int, physics_dt: float, control_every: int,
                     record_every: int, motor_tau: float = 0.0, force0: np.ndarray | None = None,
-                    watch: CollisionWatch | None = None) -> LoopRecord:
+                    watch: CollisionWatch | None = None, wind: np.ndarray | None = None) -> LoopRecord:
     """Fly ``n_steps`` physics steps of ``physics_dt`` [s] from ``x0`` (13,) with ``pilot``.
 
     Parameters
@@ -218,12 +220,13 @@ def run_closed_loop(vehicle: Vehicle, x0: np.ndarray, pilot: Pilot, heights: Hei
     motor_tau : s, first-order rotor lag (0: none)
     force0 : (3,) N, the "last" effect force the pilot sees at ``t = 0`` (default zero)
     watch : CollisionWatch stopping the loop (none: run to the end)
+    wind : (3,) m/s, wind velocity in W: the effects see the airspeed (none: still air)
 
     Returns
     -------
     LoopRecord of ``n_steps // record_every + 1`` samples (``count`` of them filled).
     """
-    step, force_of, held = Rk4Step(vehicle, physics_dt), EffectForce(vehicle, effects), HeldHeights(heights)
+    step, force_of, held = Rk4Step(vehicle, physics_dt), EffectForce(vehicle, effects, wind), HeldHeights(heights)
     rec = LoopRecord.empty(n_steps // record_every + 1, vehicle.rotor_count)
     a_lag = float(np.exp(-physics_dt / motor_tau)) if motor_tau > 0 else 0.0
     x = np.asarray(x0, float).copy()
@@ -327,13 +330,14 @@ def whole_ratio(a: float, b: float, what: str, where: str = "simulate_flight") -
 def track_reference(vehicle: Vehicle, reference: Reference, heights: HeightQuery, *, duration: float,
                     effects: dict[str, dict[str, float]], physics_dt: float, control_dt: float, record_dt: float,
                     motor_tau: float = 0.0, gains: ControllerGains = ControllerGains(), feedforward: bool = False,
-                    settle: bool = True) -> LoopRecord:
+                    settle: bool = True, wind: np.ndarray | None = None) -> LoopRecord:
     """Fly ``reference`` for ``duration`` [s] with the geometric controller (:class:`GeometricTracker`).
 
     The vehicle starts at rest on the reference (:func:`initial_state`). With ``settle`` (and
     effects, and no feed-forward) it starts as if it had been resting in the initial effect force:
     the controller's integral preloaded with it (:meth:`GeometricTracker.settle`).
-    ``control_dt`` and ``record_dt`` are whole multiples of ``physics_dt``.
+    ``control_dt`` and ``record_dt`` are whole multiples of ``physics_dt``; ``wind`` [m/s, W]: see
+    :class:`EffectForce`.
     """
     ctrl_every = whole_ratio(control_dt, physics_dt, "control_dt")
     rec_every = whole_ratio(record_dt, physics_dt, "record_dt")
@@ -343,12 +347,12 @@ def track_reference(vehicle: Vehicle, reference: Reference, heights: HeightQuery
     F = np.zeros(3)
     if settle and effects and not feedforward:
         dd, du = HeldHeights(heights).now(x[0:3])
-        force_of = EffectForce(vehicle, effects)
+        force_of = EffectForce(vehicle, effects, wind)
         F = tracker.settle(x, lambda w: force_of(x, w, 0.0, dd, du))
     else:
         tracker.ctrl.reset(F if (settle and not feedforward) else None)
     return run_closed_loop(vehicle, x, tracker, heights, effects=effects, n_steps=n_steps, physics_dt=physics_dt,
-                           control_every=ctrl_every, record_every=rec_every, motor_tau=motor_tau, force0=F)
+                           control_every=ctrl_every, record_every=rec_every, motor_tau=motor_tau, force0=F, wind=wind)
 
 
 __all__ = ["Pilot", "HeightQuery", "LoopRecord", "Rk4Step", "EffectForce", "HeldHeights", "CollisionWatch",

@@ -198,7 +198,7 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
                     surfaces: Any = None, room: Room = Room(), physics_dt: float = 0.001, control_dt: float = 0.005,
                     record_dt: float = 0.005, noise: SensorNoise = SensorNoise(), seed: int = 0,
                     gains: ControllerGains = ControllerGains(), feedforward: bool = False, settle: bool = True,
-                    t0_ns: int = EUROC_T0_NS) -> tuple[Recording, Truth]:
+                    t0_ns: int = EUROC_T0_NS, wind: np.ndarray | None = None) -> tuple[Recording, Truth]:
     """Fly ``vehicle`` along ``reference`` with ``effects`` switched on and record it.
 
     Parameters
@@ -221,6 +221,7 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
     settle : start as if the vehicle had been resting in the initial effect force (the
         controller's integral preloaded with it); otherwise the integral starts at zero
     t0_ns : int, timestamp [ns] of the first sample
+    wind : (3,) m/s, wind velocity in W: the effects act on the airspeed ``v - wind`` (none: still air)
 
     Returns
     -------
@@ -244,7 +245,7 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
     loop = track_reference(vehicle, reference, surfaces, duration=duration, effects=effects, physics_dt=physics_dt,
                            control_dt=control_dt, record_dt=record_dt,
                            motor_tau=float(lag["tau"]) if lag is not None else 0.0, gains=gains,
-                           feedforward=feedforward, settle=settle)
+                           feedforward=feedforward, settle=settle, wind=wind)
     X, W_act, W_cmd, F_rec, DD, DU, SAT = (loop.x, loop.rotor_speeds, loop.rotor_commands, loop.force, loop.d_down,
                                            loop.d_up, loop.saturated)
     K = len(X)
@@ -260,7 +261,8 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
     z_b = quat.to_rotation_matrix(X[:, IDX_Q])[:, :, 2]
     thrust_cmd, _ = dyn.thrust_torque(W_cmd, theta)
     lag_force = (thrust - thrust_cmd)[:, None] * z_b
-    inp = EffectInputs(q=X[:, IDX_Q], v=X[:, IDX_V], rotor_speeds=W_act, k_T=k_T, rotor_radius=r, d_down=DD, d_up=DU,
+    airspeed = X[:, IDX_V] - (0.0 if wind is None else np.asarray(wind, float))
+    inp = EffectInputs(q=X[:, IDX_Q], v=airspeed, rotor_speeds=W_act, k_T=k_T, rotor_radius=r, d_down=DD, d_up=DU,
                        t=t_rec)
     per_effect = {name: effect_force(name, params, inp) for name, params in effects.items()}
     if lag is not None:

@@ -41,12 +41,26 @@ from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.flight_data import FlightData, flight_data
+from uavturb.sysid.identifiability import (
+    ACC_MIN,
+    BIAS_SE_MAX,
+    COND_MAX,
+    LOWPASS_S,
+    RATE_MIN,
+    REL_SE_MAX,
+    TRIANGLE_SLACK,
+    AxisExcitation,
+    ParameterStatus,
+    assess,
+    axis_excitation,
+    column_share,
+)
 from uavturb.sysid.least_squares import lstsq
 
 
 @dataclass
 class Identification:
-    """Identified constants with standard errors (same units).
+    """Identified constants with standard errors (same units), and what the flight determines.
 
     Attributes
     ----------
@@ -58,6 +72,12 @@ class Identification:
         the flights have no IMU (motion capture only: there is no accelerometer, so no bias to
         estimate, and none is fitted)
     model : ``"general"`` or ``"jx=jy"``
+    status : name -> :class:`~uavturb.sysid.identifiability.ParameterStatus` (``k_T``, ``k_M``,
+        ``J_x``, ``J_y``, ``J_z``, ``theta_0`` .. ``theta_3``, ``accel_bias``): whether the flight
+        determines each constant, and why not. The fields above are the raw estimates: use
+        :meth:`apply` (or check ``status``) rather than reading them as results.
+    excitation : axis (``roll``, ``pitch``, ``yaw``) -> AxisExcitation
+    conditions : fit (``thrust``, ``roll``, ``pitch``, ``yaw``) -> condition number
     """
 
     mass: float
@@ -75,15 +95,57 @@ class Identification:
     n_samples: int
     rms: dict[str, float]
     recordings: list[str] = field(default_factory=list)
+    status: dict[str, ParameterStatus] = field(default_factory=dict)
+    excitation: dict[str, AxisExcitation] = field(default_factory=dict)
+    conditions: dict[str, float] = field(default_factory=dict)
+    accel_bias_se: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+
+    def identified(self, name: str) -> bool:
+        """Whether the flight determines constant ``name`` (``k_T``, ``J_z``, ...)."""
+        s = self.status.get(name)
+        return True if s is None else s.identifiable
+
+    @property
+    def not_identified(self) -> list[str]:
+        """Names of the constants the flight does not determine."""
+        return [n for n, s in self.status.items() if not s.identifiable]
 
     def apply(self, vehicle: Vehicle) -> Vehicle:
-        """The vehicle with the identified constants."""
-        return vehicle.with_params(thrust_coefficient=float(self.thrust_coefficient),
-                                   moment_coefficient=float(self.moment_coefficient),
-                                   inertia=tuple(float(j) for j in self.inertia))
+        """The vehicle with the identified constants; a constant the flight does not determine keeps
+        ``vehicle``'s nominal value (from vehicle.yaml). Without one, raises :class:`InputError`
+        naming the constant, why the flight cannot determine it and what would."""
+        nominal_J = vehicle.inertia
+        J = []
+        for i, name in enumerate(("J_x", "J_y", "J_z")):
+            J.append(self._pick(name, float(self.inertia[i]), None if nominal_J is None else nominal_J[i]))
+        return vehicle.with_params(
+            thrust_coefficient=self._pick("k_T", float(self.thrust_coefficient), vehicle.thrust_coefficient),
+            moment_coefficient=self._pick("k_M", float(self.moment_coefficient), vehicle.moment_coefficient),
+            inertia=tuple(J))
+
+    def _pick(self, name: str, value: float, nominal: float | None) -> float:
+        if self.identified(name):
+            return value
+        if nominal is not None:
+            return float(nominal)
+        s = self.status[name]
+        raise InputError(name, f"{s.why}; {s.advice()}")
+
+    def fallbacks(self, vehicle: Vehicle) -> list[str]:
+        """The constants :meth:`apply` takes from ``vehicle`` rather than from the flight, with why."""
+        nominal = {"k_T": vehicle.thrust_coefficient, "k_M": vehicle.moment_coefficient,
+                   **{n: (None if vehicle.inertia is None else vehicle.inertia[i])
+                      for i, n in enumerate(("J_x", "J_y", "J_z"))}}
+        return [f"{n} = {nominal[n]:.6g} from vehicle.yaml ({self.status[n].reason} on this flight)"
+                for n in nominal if not self.identified(n) and nominal[n] is not None]
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (the ``identify --json`` output)."""
+        """JSON-ready dictionary (the ``identify --json`` output).
+
+        The flat keys (``thrust_coefficient``, ``inertia``, ``theta`` ...) hold the raw estimates, as
+        before; ``parameters`` says per constant whether the flight determines it:
+        ``{"value", "stderr", "identifiable", "reason", "why"}``.
+        """
         return {
             "recordings": self.recordings,
             "model": self.model,
@@ -102,6 +164,13 @@ class Identification:
             "sources": "imu+mocap" if self.accel_bias is not None else "mocap",
             "angular_bias": [float(b) for b in self.angular_bias],
             "rms": self.rms,
+            "parameters": {n: s.to_dict() for n, s in self.status.items()},
+            "not_identified": self.not_identified,
+            "excitation": {a: e.to_dict() for a, e in self.excitation.items()},
+            "condition_numbers": self.conditions,
+            "thresholds": {"rate_min_rad_s": RATE_MIN, "acc_min_rad_s2": ACC_MIN, "rel_se_max": REL_SE_MAX,
+                           "cond_max": COND_MAX, "bias_se_max_m_s2": BIAS_SE_MAX, "lowpass_s": LOWPASS_S,
+                           "triangle_slack": TRIANGLE_SLACK},
         }
 
 
@@ -156,10 +225,34 @@ def _rows(fds: Sequence[FlightData], vehicle: Vehicle, masks: Sequence[np.ndarra
     return {k: np.concatenate(v) for k, v in parts.items()}
 
 
+def _fit_translation(rows: dict[str, np.ndarray], lag: int) -> dict[str, Any]:
+    """``theta_0`` (and, with an IMU, the accelerometer bias) from the body-z specific force."""
+    groups = rows["group"]
+    if np.all(np.isfinite(rows["acc"])):
+        K = len(rows["S"])
+        A = np.block([[rows["S_smooth"][:, None], np.zeros((K, 1))], [rows["S"][:, None], np.ones((K, 1))]])
+        y = np.concatenate([rows["y_mocap"], rows["acc"][:, 2]])
+        first = lstsq(A, y, lag=lag)
+        var_m = np.var(first.residual[:K])
+        var_i = np.var(first.residual[K:])
+        wts = np.concatenate([np.full(K, 1 / var_m), np.full(K, 1 / var_i)])
+        fit = lstsq(A, y, lag=lag, weights=wts, groups=np.concatenate([groups, groups + 1000]))
+        one = np.ones((K, 1))
+        fx, fy = (lstsq(one, rows["acc"][:, i], lag=lag, groups=groups) for i in (0, 1))
+        return {"theta0": fit.coef[0], "theta0_se": fit.stderr[0], "has_imu": True,
+                "bias": np.array([fx.coef[0], fy.coef[0], fit.coef[1]]),
+                "bias_se": np.array([fx.stderr[0], fy.stderr[0], fit.stderr[1]]),
+                "rms": float(np.sqrt(np.mean(fit.residual[K:] ** 2))), "cond": fit.cond}
+    fit = lstsq(rows["S_smooth"][:, None], rows["y_mocap"], lag=lag, groups=groups)
+    return {"theta0": fit.coef[0], "theta0_se": fit.stderr[0], "has_imu": False, "bias": np.full(3, np.nan),
+            "bias_se": np.full(3, np.nan), "rms": fit.rms, "cond": fit.cond}
+
+
 def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Vehicle | None = None, *,
              model: str = "auto", window_s: float = 0.05, lag_s: float = 0.25, n_draws: int = 4000,
              seed: int = 0) -> Identification:
-    """Identify ``k_T``, ``k_M`` and ``J`` from one or more flights of one vehicle.
+    """Identify ``k_T``, ``k_M`` and ``J`` from one or more flights of one vehicle, and say which of
+    them the flights determine (:mod:`uavturb.sysid.identifiability`).
 
     Parameters
     ----------
@@ -170,12 +263,15 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     lag_s : correlation length for the Newey-West standard errors [s]
     n_draws : Monte Carlo draws propagating the standard errors
     """
+    # the two inertia models and the Monte Carlo propagation read best in one place (~100 lines)
     if not recordings:
         raise InputError("identify", "no recording given")
     if vehicle is None:
         if not isinstance(recordings[0], Recording):
             raise InputError("identify", "a vehicle is needed with FlightData input")
         vehicle = recordings[0].vehicle
+    if model not in ("auto", "general", "jx=jy"):
+        raise InputError("identify.model", f"unknown model '{model}' (allowed: auto, general, jx=jy)")
     fds = [r if isinstance(r, FlightData) else flight_data(r, window_s=window_s) for r in recordings]
     names = [str(r.path) if isinstance(r, Recording) and r.path else fd.name for r, fd in zip(recordings, fds)]
     masks = [usable_mask(fd, vehicle) for fd in fds]
@@ -187,89 +283,106 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     groups = rows["group"]
 
     # --- translation: theta_0 and the accelerometer's z bias, jointly ---------------
-    has_imu = bool(np.all(np.isfinite(rows["acc"])))
-    if has_imu:
-        K = len(rows["S"])
-        A = np.block([[rows["S_smooth"][:, None], np.zeros((K, 1))], [rows["S"][:, None], np.ones((K, 1))]])
-        y = np.concatenate([rows["y_mocap"], rows["acc"][:, 2]])
-        first = lstsq(A, y, lag=lag)
-        var_m = np.var(first.residual[:K])
-        var_i = np.var(first.residual[K:])
-        wts = np.concatenate([np.full(K, 1 / var_m), np.full(K, 1 / var_i)])
-        fit_t = lstsq(A, y, lag=lag, weights=wts, groups=np.concatenate([groups, groups + 1000]))
-        theta0, bz = fit_t.coef
-        theta0_se = fit_t.stderr[0]
-        accel_bias = np.array([np.mean(rows["acc"][:, 0]), np.mean(rows["acc"][:, 1]), bz])
-        rms_t = float(np.sqrt(np.mean(fit_t.residual[K:] ** 2)))
-    else:
-        fit_t = lstsq(rows["S_smooth"][:, None], rows["y_mocap"], lag=lag, groups=groups)
-        theta0, theta0_se = fit_t.coef[0], fit_t.stderr[0]
-        accel_bias = None  # no accelerometer: nothing to estimate, and nothing is fitted
-        rms_t = fit_t.rms
-    if theta0 <= 0:
-        raise InputError(names[0], "identified thrust coefficient is not positive: rotor speeds or mass are wrong")
+    tr = _fit_translation(rows, lag)
+    theta0, theta0_se = tr["theta0"], tr["theta0_se"]
 
     # --- rotation ---------------------------------------------------------------------
+    ex = axis_excitation([fd.w for fd in fds], [fd.dw for fd in fds], masks, [fd.dt for fd in fds])
+    # without yaw motion the gyroscopic columns (w_y w_z, w_x w_z) hold only noise: they are left
+    # out, and J_z (which only they carry) is not estimated
+    gyro = ex["yaw"].rate_std >= RATE_MIN
     u, ww, dw = rows["u"], rows["ww"], rows["dw"]
     one = np.ones(len(dw))
-    fit_x = lstsq(np.stack([u[:, 1], ww[:, 0], one], 1), dw[:, 0], lag=lag, groups=groups)
-    fit_y = lstsq(np.stack([u[:, 2], ww[:, 1], one], 1), dw[:, 1], lag=lag, groups=groups)
+
+    def columns(*cols: np.ndarray) -> np.ndarray:
+        return np.stack([c for c in cols if c is not None], 1)
+
+    fit_x = lstsq(columns(u[:, 1], ww[:, 0] if gyro else None, one), dw[:, 0], lag=lag, groups=groups)
+    fit_y = lstsq(columns(u[:, 2], ww[:, 1] if gyro else None, one), dw[:, 1], lag=lag, groups=groups)
     fit_z = lstsq(np.stack([u[:, 3], ww[:, 2], one], 1), dw[:, 2], lag=lag, groups=groups)
     a_x, a_y = fit_x.coef[0], fit_y.coef[0]
     differ = abs(a_x - a_y) > 3.0 * np.hypot(fit_x.stderr[0], fit_y.stderr[0])
     chosen = model if model != "auto" else ("general" if differ else "jx=jy")
-    if chosen not in ("general", "jx=jy"):
-        raise InputError("identify.model", f"unknown model '{model}' (allowed: auto, general, jx=jy)")
 
     rng = np.random.default_rng(seed)
     m, l = vehicle.mass, vehicle.arm_length
     th0 = rng.normal(theta0, theta0_se, n_draws)
     kT = m * th0
     cz = rng.multivariate_normal(fit_z.coef, fit_z.cov, n_draws)
-    if chosen == "general":
-        cx = rng.multivariate_normal(fit_x.coef, fit_x.cov, n_draws)
-        cy = rng.multivariate_normal(fit_y.coef, fit_y.cov, n_draws)
-        Jx, Jy = l * kT / cx[:, 0], l * kT / cy[:, 0]
-        Jz1, Jz2 = Jy - cx[:, 1] * Jx, Jx + cy[:, 1] * Jy  # from (J_y - J_z)/J_x and (J_z - J_x)/J_y
-        v1, v2 = np.var(Jz1), np.var(Jz2)
-        Jz = (Jz1 / v1 + Jz2 / v2) / (1 / v1 + 1 / v2)
-        ang_bias = np.array([fit_x.coef[2], fit_y.coef[2], fit_z.coef[2]])
-        rms_r = {"roll": fit_x.rms, "pitch": fit_y.rms}
-    else:
-        # the paper's model: w_dot_x = th1 u_1 + (1 - th3) w_y w_z, w_dot_y = th1 u_2 - (1 - th3) w_x w_z
-        K = len(dw)
-        zeros = np.zeros(K)
-        A = np.block([[np.stack([u[:, 1], ww[:, 0], one, zeros], 1)], [np.stack([u[:, 2], -ww[:, 1], zeros, one], 1)]])
-        fit_xy = lstsq(A, np.concatenate([dw[:, 0], dw[:, 1]]), lag=lag, groups=np.concatenate([groups, groups + 1000]))
-        cxy = rng.multivariate_normal(fit_xy.coef, fit_xy.cov, n_draws)
-        Jx = Jy = l * kT / cxy[:, 0]
-        Jz = Jx * (1.0 - cxy[:, 1])
-        ang_bias = np.array([fit_xy.coef[2], fit_xy.coef[3], fit_z.coef[2]])
-        rms_r = {"roll_pitch": fit_xy.rms}
-    kM = cz[:, 0] * Jz
+    no_Jz = np.full(n_draws, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if chosen == "general":
+            cx = rng.multivariate_normal(fit_x.coef, fit_x.cov, n_draws)
+            cy = rng.multivariate_normal(fit_y.coef, fit_y.cov, n_draws)
+            Jx, Jy = l * kT / cx[:, 0], l * kT / cy[:, 0]
+            Jz = no_Jz
+            if gyro:
+                Jz1, Jz2 = Jy - cx[:, 1] * Jx, Jx + cy[:, 1] * Jy  # from (J_y - J_z)/J_x and (J_z - J_x)/J_y
+                v1, v2 = np.var(Jz1), np.var(Jz2)
+                Jz = (Jz1 / v1 + Jz2 / v2) / (1 / v1 + 1 / v2)
+            ang_bias = np.array([fit_x.coef[-1], fit_y.coef[-1], fit_z.coef[2]])
+            rms_r = {"roll": fit_x.rms, "pitch": fit_y.rms}
+            conds = {"roll": fit_x.cond, "pitch": fit_y.cond}
+            shares = (column_share(fit_x.coef[0], u[:, 1], dw[:, 0]), column_share(fit_y.coef[0], u[:, 2], dw[:, 1]))
+        else:
+            # the paper's model: w_dot_x = th1 u_1 + (1 - th3) w_y w_z, w_dot_y = th1 u_2 - (1 - th3) w_x w_z
+            K = len(dw)
+            zeros = np.zeros(K)
+            A = np.block([[columns(u[:, 1], ww[:, 0] if gyro else None, one, zeros)],
+                          [columns(u[:, 2], -ww[:, 1] if gyro else None, zeros, one)]])
+            fit_xy = lstsq(A, np.concatenate([dw[:, 0], dw[:, 1]]), lag=lag,
+                           groups=np.concatenate([groups, groups + 1000]))
+            cxy = rng.multivariate_normal(fit_xy.coef, fit_xy.cov, n_draws)
+            Jx = Jy = l * kT / cxy[:, 0]
+            Jz = Jx * (1.0 - cxy[:, 1]) if gyro else no_Jz
+            ang_bias = np.array([fit_xy.coef[-2], fit_xy.coef[-1], fit_z.coef[2]])
+            rms_r = {"roll_pitch": fit_xy.rms}
+            conds = {"roll": fit_xy.cond, "pitch": fit_xy.cond}
+            shares = (column_share(fit_xy.coef[0], u[:, 1], dw[:, 0]), column_share(fit_xy.coef[0], u[:, 2], dw[:, 1]))
+        kM = cz[:, 0] * Jz
+        theta_draws = [th0, l * kT / Jx, cz[:, 0], Jz / Jx]
 
     def est(draws: np.ndarray) -> tuple[float, float]:
+        draws = draws[np.isfinite(draws)]
+        if len(draws) < 10:
+            return float("nan"), float("nan")
         lo, med, hi = np.percentile(draws, [15.87, 50.0, 84.13])
         return float(med), float((hi - lo) / 2.0)
 
-    theta_draws = [th0, l * kT / Jx, cz[:, 0], Jz / Jx]
     theta, theta_se = zip(*(est(d) for d in theta_draws))
     inertia, inertia_se = zip(*(est(d) for d in (Jx, Jy, Jz)))
     kM_est, kM_se = est(kM)
+
+    share = {"roll": shares[0], "pitch": shares[1], "yaw": column_share(fit_z.coef[0], u[:, 3], dw[:, 2])}
+    ex = {a: AxisExcitation(e.rate_std, e.acc_std, share[a]) for a, e in ex.items()}
+    conds = {"thrust": tr["cond"], **conds, "yaw": fit_z.cond}
+    theta_all = np.array([theta0, *theta[1:]])
+    theta_se_all = np.array([theta0_se, *theta_se[1:]])
+    values = {"k_T": float(m * theta0), "k_M": kM_est, "J_x": inertia[0], "J_y": inertia[1], "J_z": inertia[2],
+              **{f"theta_{i}": float(theta_all[i]) for i in range(4)}, "accel_bias": tr["bias"]}
+    errors = {"k_T": float(m * theta0_se), "k_M": kM_se, "J_x": inertia_se[0], "J_y": inertia_se[1],
+              "J_z": inertia_se[2], **{f"theta_{i}": float(theta_se_all[i]) for i in range(4)},
+              "accel_bias": tr["bias_se"]}
+    status = assess(values, errors, ex, conds, has_imu=tr["has_imu"], mass=m, arm_length=l,
+                    rotor_radius=vehicle.rotor_radius, jx_equals_jy=chosen == "jx=jy")
     return Identification(
         mass=m,
-        thrust_coefficient=float(m * theta0),
-        thrust_coefficient_se=float(m * theta0_se),
+        thrust_coefficient=values["k_T"],
+        thrust_coefficient_se=errors["k_T"],
         moment_coefficient=kM_est,
         moment_coefficient_se=kM_se,
         inertia=np.array(inertia),
         inertia_se=np.array(inertia_se),
-        theta=np.array([theta0, *theta[1:]]),
-        theta_se=np.array([theta0_se, *theta_se[1:]]),
-        accel_bias=accel_bias,
+        theta=theta_all,
+        theta_se=theta_se_all,
+        accel_bias=tr["bias"] if tr["has_imu"] else None,
         angular_bias=ang_bias,
         model=chosen,
         n_samples=n,
-        rms={"thrust": rms_t, **rms_r, "yaw": fit_z.rms},
+        rms={"thrust": tr["rms"], **rms_r, "yaw": fit_z.rms},
         recordings=names,
+        status=status,
+        excitation=ex,
+        conditions={k: float(v) for k, v in conds.items()},
+        accel_bias_se=tr["bias_se"],
     )

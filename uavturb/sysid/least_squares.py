@@ -23,12 +23,15 @@ class LstsqResult:
     cov : (P, P) Newey-West covariance of ``coef``
     residual : (K,) ``y - A coef``
     rms : float, root mean square of the residual
+    cond : float, condition number of the column-normalised (weighted) regressors: how nearly
+        collinear the columns are (1: orthogonal)
     """
 
     coef: np.ndarray
     cov: np.ndarray
     residual: np.ndarray
     rms: float
+    cond: float = 1.0
 
     @property
     def stderr(self) -> np.ndarray:
@@ -79,4 +82,6 @@ def lstsq(A: np.ndarray, y: np.ndarray, *, lag: int = 20, weights: np.ndarray | 
     coef = coef_s / scale
     cov = cov_s / np.outer(scale, scale)
     residual = y - A @ coef
-    return LstsqResult(coef=coef, cov=cov, residual=residual, rms=float(np.sqrt(np.mean(residual**2))))
+    sv = np.linalg.svd(As, compute_uv=False)
+    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+    return LstsqResult(coef=coef, cov=cov, residual=residual, rms=float(np.sqrt(np.mean(residual**2))), cond=cond)

@@ -1,0 +1,409 @@
+"""Real recordings' troubles, reproduced on simulated flights with a known truth.
+
+``uavturb generate flight`` simulates a flight (:func:`uavturb.sim.flight.simulate_flight`:
+true states, rotor speeds, accelerations, and the clean 200 Hz recording of ``recordings.md``
+in B). The :class:`Conditions` here make it look like a real recording, each trouble written
+down in ``truth.yaml`` (:func:`truth_document`) so that tests and the gap proof can score
+against it:
+
+``no_imu``
+    no ``imu0`` folder (motion capture only).
+``rate_hz``, ``jitter_ms``
+    ground truth and rotors resampled at ``rate_hz`` (the IMU keeps the simulator's rate), each
+    row taken at ``k / rate_hz + U(-jitter, jitter)`` from the stream's first time, two streams
+    with independent jitter: every row is the (noisy) state *at its own timestamp* (states
+    interpolated linearly, attitudes by slerp, from the 200 Hz record; rotor commands held, as
+    a flight controller holds them). Timestamps are exact; the sampling is irregular.
+``fixed_heading``
+    the reference's yaw is held at its initial value (a flight that never turns).
+``motor_commands``
+    ``rotors0`` holds normalised motor commands ``u`` in [0, 1] instead of speeds; the vehicle's
+    true speed is the affine thrust curve ``w = a + b u`` [rad/s] (:class:`MotorCurve`: ``a`` an
+    idle speed of a quarter of the hover speed, ``a + b`` the controller's top speed).
+    ``vehicle.yaml``'s ``rotor_speed_scale`` is ``w_hover / u_hover``, so the nominal model,
+    which sees ``scale * u``, is exact at hover and off by ``a (w - w_h) / (w_h - a)`` elsewhere:
+    the mismatch is known.
+``wind_speed``
+    a steady horizontal wind ``v_w = (v_x, v_y, 0)`` [m/s, W], acting as drag on the airspeed
+    ``v_a = v - v_w`` (``effects.md``): every effect law sees ``v_a`` instead of ``v``, with the
+    vehicle's drag coefficients (``rotor_drag:k_d`` and ``body_drag:c_d`` as given in
+    ``--effects``, else their ``effects.md`` magnitudes, switched on)::
+
+        F = -k_d Wsum R [v_a,B,x, v_a,B,y, 0] - c_d |v_a| v_a
+
+    At hover (``v = 0``, level, ``Wsum_h = n sqrt(m g / (n k_T))``) that is the steady push
+    ``(f_x, f_y) = k_d Wsum_h (v_x, v_y) + c_d |v_w| (v_x, v_y)`` (:func:`wind_push_at_hover`):
+    the ``wind`` the gap finder should find, recorded under ``equivalent_effects``.
+``accel_bias_walk``
+    the accelerometer bias performs a random walk of density ``sigma`` [m/s^3/sqrt(Hz)] (from
+    the sensor's initial bias); the state file's ``b_a`` columns stay at that initial bias, as
+    a motion-capture ground truth would not know the walk. The true path is
+    ``truth/accel_bias.csv`` (in the IMU's frame).
+``sensor_frame = "euroc"``
+    ground truth and IMU written in a sensor frame S like EuRoC's VI-sensor IMU
+    (:data:`EUROC_T_BS`): x_S 20 deg from B's up axis, z_S forward and 20 deg down, the origin
+    10 cm from B's (8 cm forward, 6 cm down), ``T_BS`` in ``vehicle.yaml`` (``recordings.md``:
+    ``x_B = T_BS x_S``, ``q_RS`` the attitude of S, ``p``/``v`` of S's origin, IMU in S). The
+    IMU at S feels the lever-arm accelerations, computed from the true angular velocity and
+    acceleration (:mod:`uavturb.physics.frames`).
+``mass_error``
+    ``vehicle.yaml``'s mass is the simulated mass times ``1 + mass_error``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from uavturb.errors import InputError
+from uavturb.io import align
+from uavturb.io.recording import GroundTruth, Recording, Rotors
+from uavturb.physics import frames
+from uavturb.physics.dynamics import GRAVITY, IDX_W, dynamics_for, physical_params
+from uavturb.physics.effects import EFFECTS
+from uavturb.physics.vehicle import Vehicle
+from uavturb.sim.references import Constant, Reference
+
+#: EuRoC-like pose of the sensor frame S in B (``x_B = T_BS x_S``): columns of the rotation are S's
+#: axes in B, x_S = (sin 20, 0, cos 20) (20 deg from up), y_S = (0, -1, 0), z_S = (cos 20, 0, -sin 20)
+#: (forward, 20 deg down); origin (0.08, 0, -0.06) m: 10 cm forward and below the rotor centre.
+#: At hover the IMU reads R_BS^T (0, 0, g) = (9.22, 0, -3.36) m/s^2, as EuRoC's does (recordings.md).
+_C, _S = np.cos(np.radians(20.0)), np.sin(np.radians(20.0))
+EUROC_T_BS = np.array([[_S, 0.0, _C, 0.08],
+                       [0.0, -1.0, 0.0, 0.0],
+                       [_C, 0.0, -_S, -0.06],
+                       [0.0, 0.0, 0.0, 1.0]])
+SENSOR_FRAMES = ("body", "euroc")
+#: file of the truth, at the recording's root
+TRUTH_FILE = "truth.yaml"
+BIAS_FILE = "truth/accel_bias.csv"
+
+
+@dataclass(frozen=True)
+class Conditions:
+    """The troubles of a real recording to reproduce (all off by default; see the module)."""
+
+    no_imu: bool = False
+    rate_hz: float | None = None
+    jitter_ms: float = 0.0
+    fixed_heading: bool = False
+    motor_commands: bool = False
+    wind_speed: tuple[float, float] | None = None
+    accel_bias_walk: float = 0.0
+    sensor_frame: str = "body"
+    mass_error: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.rate_hz is not None and not 0 < self.rate_hz <= 200:
+            raise InputError("--rate-hz", f"must be in (0, 200] Hz (the simulator records at 200 Hz), got {self.rate_hz}")
+        if self.jitter_ms < 0:
+            raise InputError("--jitter-ms", f"must be >= 0, got {self.jitter_ms}")
+        period_ms = 1000.0 / (self.rate_hz or 200.0)
+        if self.jitter_ms >= period_ms / 2:
+            raise InputError("--jitter-ms", f"must be under half the sampling period ({period_ms / 2:g} ms) so that "
+                                            f"timestamps stay in order, got {self.jitter_ms}")
+        if self.accel_bias_walk < 0:
+            raise InputError("--accel-bias-walk", f"must be >= 0, got {self.accel_bias_walk}")
+        if self.sensor_frame not in SENSOR_FRAMES:
+            raise InputError("--sensor-frame", f"unknown frame '{self.sensor_frame}' (allowed: {', '.join(SENSOR_FRAMES)})")
+        if not -0.5 < self.mass_error < 0.5:
+            raise InputError("--mass-error", f"must be a fraction in (-0.5, 0.5), got {self.mass_error}")
+        if self.no_imu and self.accel_bias_walk > 0:
+            raise InputError("--accel-bias-walk", "needs an IMU (it cannot be combined with --no-imu)")
+        if self.wind_speed is not None and (len(self.wind_speed) != 2 or not np.all(np.isfinite(self.wind_speed))):
+            raise InputError("--wind-speed", f"expected two finite numbers vx,vy [m/s], got {self.wind_speed}")
+
+    @property
+    def resampled(self) -> bool:
+        return self.rate_hz is not None or self.jitter_ms > 0
+
+
+# --- before the simulation: the reference and the physics ------------------------------------------
+
+
+def hold_heading(reference: Reference) -> Reference:
+    """``reference`` with its yaw held at its initial value [rad] (yaw rate and acceleration zero)."""
+    yaw0 = float(reference.yaw.derivs(np.zeros(1))[0, 0])
+    return replace(reference, yaw=Constant(yaw0), name=f"{reference.name}, fixed heading")
+
+
+def drag_coefficients(effects: dict[str, dict[str, float]]) -> tuple[float, float]:
+    """``(k_d [N s^2/m], c_d [kg/m])``: the ``--effects`` values, else ``effects.md``'s magnitudes."""
+    k_d = effects.get("rotor_drag", {}).get("k_d", EFFECTS["rotor_drag"].typical[0])
+    c_d = effects.get("body_drag", {}).get("c_d", EFFECTS["body_drag"].typical[0])
+    return float(k_d), float(c_d)
+
+
+def with_drag(effects: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
+    """``effects`` with rotor and body drag switched on (the wind acts through them)."""
+    k_d, c_d = drag_coefficients(effects)
+    return {**effects, "rotor_drag": {"k_d": k_d}, "body_drag": {"c_d": c_d}}
+
+
+def hover_rotor_sum(vehicle: Vehicle) -> float:
+    """``Wsum_h = n sqrt(m g / (n k_T))`` [rad/s]: the rotor speeds' sum at hover."""
+    n = vehicle.rotor_count
+    return n * float(np.sqrt(vehicle.mass * GRAVITY / (n * float(vehicle.thrust_coefficient))))
+
+
+def wind_push_at_hover(vehicle: Vehicle, k_d: float, c_d: float, wind_speed: tuple[float, float]) -> np.ndarray:
+    """The steady push [N] (2,) of a wind ``(v_x, v_y)`` [m/s] on the vehicle hovering level:
+    ``k_d Wsum_h v_w + c_d |v_w| v_w`` (rotor drag and body drag on the airspeed ``-v_w``)."""
+    vw = np.asarray(wind_speed, float)
+    return k_d * hover_rotor_sum(vehicle) * vw + c_d * float(np.linalg.norm(vw)) * vw
+
+
+@dataclass(frozen=True)
+class MotorCurve:
+    """Affine thrust curve of the motors: true speed ``w = a + b u`` [rad/s] for a command ``u`` in [0, 1].
+
+    Attributes
+    ----------
+    a : rad/s, speed at zero command (idle)
+    b : rad/s, speed gained from zero to full command
+    """
+
+    a: float
+    b: float
+
+    @classmethod
+    def for_vehicle(cls, vehicle: Vehicle, w_max: float) -> "MotorCurve":
+        """Idle at a quarter of the hover speed, full command at ``w_max`` [rad/s]."""
+        a = round(0.25 * vehicle.hover_speed(), 1)
+        return cls(a=a, b=round(w_max - a, 1))
+
+    def speed(self, u: np.ndarray) -> np.ndarray:
+        """rad/s, ``a + b u``."""
+        return self.a + self.b * np.asarray(u, float)
+
+    def command(self, w: np.ndarray) -> np.ndarray:
+        """``u = (w - a) / b``, clipped to [0, 1]."""
+        return np.clip((np.asarray(w, float) - self.a) / self.b, 0.0, 1.0)
+
+    def scale_at_hover(self, w_hover: float) -> float:
+        """rad/s per unit command that makes ``scale * u`` exact at hover: ``w_h / u_h``."""
+        return float(w_hover / ((w_hover - self.a) / self.b))
+
+
+# --- after the simulation: what the recording shows ---------------------------------------------------
+
+
+def angular_motion(truth: Any, vehicle: Vehicle) -> tuple[np.ndarray, np.ndarray]:
+    """True ``(omega_B [rad/s], alpha_B [rad/s^2])`` (K, 3) of a simulated flight (``Truth``):
+    the states' rates and the dynamics' angular acceleration (no external torque is simulated)."""
+    dyn, theta = dynamics_for(vehicle), physical_params(vehicle)
+    xdot = dyn.xdot(truth.x, truth.rotor_speeds, theta, truth.force)
+    return truth.x[:, IDX_W], np.asarray(xdot)[:, IDX_W]
+
+
+def to_sensor_frame(rec: Recording, truth: Any, T_BS: np.ndarray) -> Recording:
+    """``rec`` (in B, S = B) as recorded by a sensor at ``T_BS`` (pose of S in B): ground truth of
+    S's origin and attitude, IMU in S with the lever-arm accelerations of the true motion."""
+    omega, alpha = angular_motion(truth, rec.vehicle)
+    gt = rec.ground_truth
+    gt_s = GroundTruth(t_ns=gt.t_ns, p=frames.position_to_sensor(gt.p, gt.q, T_BS),
+                       q=frames.attitude_to_sensor(gt.q, T_BS), v=frames.velocity_to_sensor(gt.v, gt.q, omega, T_BS),
+                       b_w=frames.vector_to_sensor(gt.b_w, T_BS), b_a=frames.vector_to_sensor(gt.b_a, T_BS))
+    imu = rec.imu
+    if imu is not None:
+        imu = replace(imu, gyro=frames.vector_to_sensor(imu.gyro, T_BS),
+                      acc=frames.specific_force_to_sensor(imu.acc, omega, alpha, T_BS), T_BS=np.eye(4))
+    T = tuple(tuple(float(x) for x in row) for row in T_BS)
+    return replace(rec, vehicle=rec.vehicle.with_params(T_BS=T), ground_truth=gt_s, imu=imu, frame="S")
+
+
+def jittered_times(t0_ns: int, t1_ns: int, rate_hz: float, jitter_ms: float, rng: np.random.Generator) -> np.ndarray:
+    """int64 ns, ``t0 + k / rate + U(-jitter, jitter)`` within ``[t0, t1]``, strictly increasing."""
+    period = 1e9 / rate_hz
+    n = int((t1_ns - t0_ns) // period) + 1
+    t = t0_ns + np.round(np.arange(n) * period).astype(np.int64)
+    if jitter_ms > 0:
+        t = t + np.round(rng.uniform(-jitter_ms, jitter_ms, n) * 1e6).astype(np.int64)
+    return np.clip(t, t0_ns, t1_ns)
+
+
+def resample_streams(rec: Recording, rate_hz: float, jitter_ms: float, rng: np.random.Generator) -> Recording:
+    """Ground truth and rotors at ``rate_hz`` with jittered sampling times (module docstring)."""
+    gt, rot = rec.ground_truth, rec.rotors
+    t = jittered_times(int(gt.t_ns[0]), int(gt.t_ns[-1]), rate_hz, jitter_ms, rng)
+    lin = {k: align.interpolate(gt.t_ns, getattr(gt, k), t) for k in ("p", "v", "b_w", "b_a")}
+    gt_new = GroundTruth(t_ns=t, q=align.interpolate_quaternions(gt.t_ns, gt.q, t), **lin)
+    rotors = rot
+    if rot is not None:
+        tr = jittered_times(int(rot.t_ns[0]), int(rot.t_ns[-1]), rate_hz, jitter_ms, rng)
+        held = np.searchsorted(rot.t_ns, tr, side="right") - 1  # the command in force at each time
+        rotors = Rotors(t_ns=tr, speeds=rot.speeds[held])
+    return replace(rec, ground_truth=gt_new, rotors=rotors)
+
+
+def motor_command_stream(rec: Recording, curve: MotorCurve, w_hover: float) -> tuple[Recording, dict[str, Any]]:
+    """``rotors0`` as normalised commands ``u = (w - a) / b``; ``vehicle.yaml``'s
+    ``rotor_speed_scale`` = ``w_h / u_h`` (in memory the rotor stream is ``scale * u``, which the
+    writer divides by the scale: ``u`` on disk)."""
+    u = curve.command(rec.rotors.speeds)
+    clipped = int(np.sum((rec.rotors.speeds < curve.a) | (rec.rotors.speeds > curve.a + curve.b)))
+    scale = curve.scale_at_hover(w_hover)
+    vehicle = rec.vehicle.with_params(rotor_speed_scale=scale)
+    truth = {"law": "w = a + b u (true rotor speed [rad/s] from the normalised command u in rotors0)",
+             "a": curve.a, "b": curve.b, "rotor_speed_scale": scale, "u_hover": float((w_hover - curve.a) / curve.b),
+             "nominal_model_error": "scale u - w = a (w - w_hover) / (w_hover - a) [rad/s]: exact at hover",
+             "clipped_samples": clipped}
+    return replace(rec, vehicle=vehicle, rotors=Rotors(rec.rotors.t_ns, scale * u)), truth
+
+
+@dataclass
+class Conditioned:
+    """A conditioned recording and its truth.
+
+    Attributes
+    ----------
+    recording : the Recording to write (``frame`` ``"S"`` with a sensor frame)
+    truth : the ``truth.yaml`` document (dict)
+    extras : ``{relative path: text}`` files of the truth (``truth.yaml``, the bias path)
+    """
+
+    recording: Recording
+    truth: dict[str, Any]
+    extras: dict[str, str] = field(default_factory=dict)
+
+
+def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Vehicle,
+              effects: dict[str, dict[str, float]], seed: int = 0, w_max: float | None = None) -> Conditioned:
+    """Make the simulator's recording ``rec`` (in B, with its ``Truth``) show the troubles of ``cond``.
+
+    Parameters
+    ----------
+    rec, truth : :func:`~uavturb.sim.flight.simulate_flight`'s outputs
+    cond : Conditions
+    true_vehicle : the simulated vehicle
+    effects : the simulated effects (``{name: params}``)
+    seed : seeds the sampling jitter
+    w_max : rad/s, the controller's top speed (the motor curve's full command)
+    """
+    rng = np.random.default_rng([int(seed), 11])
+    doc: dict[str, Any] = {}
+    extras: dict[str, str] = {}
+    if cond.accel_bias_walk > 0 and rec.imu is not None:
+        b0 = truth.acc_bias[:1]  # the initial bias: all a motion-capture state file would know
+        rec = replace(rec, ground_truth=replace(rec.ground_truth, b_a=np.repeat(b0, len(rec.ground_truth), 0)))
+    T_BS = EUROC_T_BS if cond.sensor_frame == "euroc" else np.eye(4)
+    if cond.sensor_frame == "euroc":
+        rec = to_sensor_frame(rec, truth, T_BS)
+        doc["sensor_frame"] = {"name": "euroc", "T_BS": T_BS.tolist(), "lever_arm_m": float(np.linalg.norm(T_BS[:3, 3])),
+                               "x_S_from_up_deg": 20.0, "imu_at_hover_m_s2": (T_BS[:3, :3].T @ [0, 0, GRAVITY]).tolist()}
+    if cond.accel_bias_walk > 0 and rec.imu is not None:
+        bias = frames.vector_to_sensor(truth.acc_bias, T_BS)  # the true bias, in the IMU's frame
+        lines = ["#timestamp [ns],b_a_x [m s^-2],b_a_y [m s^-2],b_a_z [m s^-2]"]
+        lines += [f"{t},{b[0]:.9g},{b[1]:.9g},{b[2]:.9g}" for t, b in zip(rec.imu.t_ns, bias)]
+        extras[BIAS_FILE] = "\n".join(lines) + "\n"
+        doc["accel_bias_walk"] = {"sigma": cond.accel_bias_walk, "unit": "m/s^3/sqrt(Hz)", "file": BIAS_FILE,
+                                  "frame": "S" if cond.sensor_frame == "euroc" else "B",
+                                  "state_file_b_a": "held at the initial bias", "initial": bias[0].tolist(),
+                                  "final": bias[-1].tolist(), "max_abs": float(np.abs(bias).max())}
+    if cond.motor_commands:
+        curve = MotorCurve.for_vehicle(true_vehicle, w_max or 2.5 * true_vehicle.hover_speed())
+        rec, doc["motor_commands"] = motor_command_stream(rec, curve, true_vehicle.hover_speed())
+    if cond.resampled:
+        rate = cond.rate_hz or 200.0
+        rec = resample_streams(rec, rate, cond.jitter_ms, rng)
+        doc["streams"] = {"rate_hz": rate, "jitter_ms": cond.jitter_ms,
+                          "applies_to": ["state_groundtruth_estimate0", "rotors0"],
+                          "law": "row k taken at k / rate_hz + U(-jitter, jitter) (exact timestamps); rotor commands "
+                                 "held"}
+    if cond.no_imu:
+        rec = replace(rec, imu=None)
+        doc["no_imu"] = True
+    if cond.mass_error:
+        m = true_vehicle.mass
+        rec = replace(rec, vehicle=rec.vehicle.with_params(mass=m * (1.0 + cond.mass_error)))
+        doc["mass_error"] = {"fraction": cond.mass_error, "true_mass": m, "recorded_mass": m * (1.0 + cond.mass_error)}
+    if cond.fixed_heading:
+        doc["fixed_heading"] = {"yaw_rad": float(truth.reference.yaw[0])}
+    if cond.wind_speed is not None:
+        k_d, c_d = drag_coefficients(effects)
+        push = wind_push_at_hover(true_vehicle, k_d, c_d, cond.wind_speed)
+        doc["wind_speed"] = {"v_x": float(cond.wind_speed[0]), "v_y": float(cond.wind_speed[1]), "unit": "m/s",
+                             "law": "F = -k_d Wsum R [v_a,B,x, v_a,B,y, 0] - c_d |v_a| v_a, v_a = v - v_wind",
+                             "k_d": k_d, "c_d": c_d, "wsum_hover": hover_rotor_sum(true_vehicle),
+                             "push_at_hover": {"f_x": float(push[0]), "f_y": float(push[1])}}
+    return Conditioned(rec, doc, extras)
+
+
+def truth_document(true_vehicle: Vehicle, effects: dict[str, dict[str, float]], conditions: dict[str, Any], *,
+                   seed: int, kind: str, duration: float) -> dict[str, Any]:
+    """The ``truth.yaml`` document: the simulated vehicle, the simulated effects, the effects the
+    gap finder should find (``equivalent_effects``) and the conditions' truths."""
+    equivalent = {name: dict(p) for name, p in effects.items()}
+    if "wind_speed" in conditions:
+        equivalent["wind"] = dict(conditions["wind_speed"]["push_at_hover"])
+    return {
+        "simulator": "uavturb generate flight",
+        "seed": int(seed), "kind": kind, "duration_s": float(duration),
+        "vehicle": {"mass": true_vehicle.mass, "thrust_coefficient": true_vehicle.thrust_coefficient,
+                    "moment_coefficient": true_vehicle.moment_coefficient,
+                    "inertia": [float(j) for j in true_vehicle.inertia]},
+        "effects": {name: {k: float(v) for k, v in p.items()} for name, p in effects.items()},
+        "equivalent_effects": {name: {k: float(v) for k, v in p.items()} for name, p in equivalent.items()},
+        "conditions": conditions,
+    }
+
+
+def read_truth(path: str | Path) -> dict[str, Any]:
+    """``truth.yaml`` of a generated recording folder."""
+    f = Path(path) / TRUTH_FILE
+    if not f.is_file():
+        raise InputError(f, "file not found (only recordings made by 'uavturb generate flight' carry one)")
+    return yaml.safe_load(f.read_text())
+
+
+def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dict[str, float]] = "",
+                                duration: float = 60.0, kind: str = "mixed", seed: int = 0,
+                                conditions: Conditions = Conditions(), noise: Any = None,
+                                out: str | Path | None = None, overwrite: bool = False) -> Conditioned:
+    """Simulate a named flight under ``conditions`` and, when ``out`` is given, write it with its
+    ``truth.yaml`` (one atomic publication).
+
+    Parameters
+    ----------
+    vehicle : preset name, ``vehicle.yaml`` path or Vehicle (the simulated, true vehicle)
+    effects : ``"wind:f_x=0.5,rotor_drag"`` or the parsed dict (``effects.md``)
+    duration : s; kind : flight kind (:data:`uavturb.sim.flight.KINDS`); seed : reference and noise
+    conditions : Conditions
+    noise : SensorNoise (default realistic); ``accel_bias_walk`` sets its ``acc_random_walk``
+    out : recording folder to write; overwrite : replace it
+
+    Returns
+    -------
+    Conditioned (``recording.path`` set when written).
+    """
+    from uavturb.io.vehicle_file import preset
+    from uavturb.io.writer import write_recording
+    from uavturb.physics.effects import parse_effects
+    from uavturb.sim.flight import SensorNoise, make_reference, simulate_flight
+
+    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    eff = parse_effects(effects) if isinstance(effects, str) or effects is None else dict(effects)
+    noise = SensorNoise() if noise is None else noise
+    if conditions.accel_bias_walk > 0:
+        noise = replace(noise, acc_random_walk=float(conditions.accel_bias_walk))
+    ref = make_reference(kind, duration, seed, v)
+    if conditions.fixed_heading:
+        ref = hold_heading(ref)
+    wind = None
+    if conditions.wind_speed is not None:
+        eff = with_drag(eff)
+        wind = np.array([conditions.wind_speed[0], conditions.wind_speed[1], 0.0])
+    rec, truth = simulate_flight(v, ref, duration=duration, effects=eff, noise=noise, seed=seed, wind=wind)
+    w_max = v.max_rotor_speed or 2.5 * v.hover_speed()  # the controller's bound (sim.controller)
+    out_c = condition(rec, truth, conditions, true_vehicle=v, effects=eff, seed=seed, w_max=w_max)
+    out_c.truth = truth_document(v, eff, out_c.truth, seed=seed, kind=kind, duration=duration)
+    out_c.extras[TRUTH_FILE] = ("# what the simulator knows and the recording does not (uavturb.sim.conditions)\n"
+                                + yaml.safe_dump(out_c.truth, sort_keys=False))
+    if out is not None:
+        write_recording(out_c.recording, out, overwrite=overwrite, extras=out_c.extras)
+        out_c.recording = replace(out_c.recording, path=Path(out))
+    return out_c

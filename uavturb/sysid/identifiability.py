@@ -1,0 +1,344 @@
+"""Which constants a flight determines, and why not the others.
+
+A least-squares fit always returns numbers; whether they mean anything depends on the flight.
+Every constant of :func:`uavturb.sysid.identification.identify` gets a :class:`ParameterStatus`,
+``identified`` or one of these reasons (in this order of precedence: the first that applies is
+the reason, the others are added to the explanation):
+
+``absent``
+    the stream it needs is not in the recording (no ``imu0``: no accelerometer bias).
+``not excited``
+    the motion that makes it visible never happened. Measured per body axis on the samples
+    used, after a :data:`LOWPASS_S` moving average (manoeuvres are slower than 5 Hz; the
+    average removes sensor noise and the noise of rates differentiated from motion capture):
+    the body-rate standard deviation must reach :data:`RATE_MIN` and the angular-acceleration
+    standard deviation :data:`ACC_MIN`. Which axes a constant needs: ``J_x``/``theta_1`` roll,
+    ``J_y`` pitch (roll or pitch with ``J_x = J_y``), ``J_z``/``theta_3`` the yaw rate (its
+    gyroscopic terms ``w_y w_z``, ``w_x w_z``), ``theta_2 = k_M/J_z`` the yaw acceleration,
+    ``k_M`` both. The share of the angular acceleration's variance that the rotor-torque
+    column explains is reported alongside (``share``), not used to decide.
+``ill-conditioned``
+    the data hold it but cannot pin it: relative standard error above :data:`REL_SE_MAX`, or
+    condition number of the (column-normalised) regression it comes from above
+    :data:`COND_MAX` (nearly collinear columns), or, for the accelerometer bias, a standard error
+    above :data:`BIAS_SE_MAX`.
+``physically impossible``
+    a value no rigid multirotor has: ``k_T``, ``k_M`` or an inertia not positive; an inertia
+    above ``m (l + r)^2`` (the whole mass at the propeller tips); ``k_M > k_T r`` (a rotor
+    whose drag torque exceeds thrust times radius: blades with more drag than lift); the
+    triangle inequality of principal moments ``J_k <= J_i + J_j`` broken by more than
+    :data:`TRIANGLE_SLACK` beyond two standard errors (the least certain of the three is
+    withdrawn).
+A constant computed from another that is not identified inherits that one's reason
+(``k_M = theta_2 J_z``; ``J_x = l k_T / (l k_T/J_x)``; ``theta_0 = k_T/m``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+
+#: s, moving-average window before measuring excitation (removes noise, keeps manoeuvres < 5 Hz)
+LOWPASS_S = 0.2
+#: rad/s, smallest body-rate standard deviation that counts as a manoeuvre about an axis (3 deg/s;
+#: a held heading under a position controller stays near 0.001-0.01 rad/s)
+RATE_MIN = 0.05
+#: rad/s^2, smallest angular-acceleration standard deviation that counts as a manoeuvre
+ACC_MIN = 0.05
+#: largest relative standard error |se / value| of an identified constant
+REL_SE_MAX = 0.3
+#: largest condition number of a column-normalised regression (variance inflation ~ COND^2)
+COND_MAX = 1.0e3
+#: m/s^2, largest standard error of an identified accelerometer bias component
+BIAS_SE_MAX = 0.05
+#: how far J_k may exceed J_i + J_j: RotorS's Firefly inertia, used by the hexarotor preset
+#: and the shipped firefly.yaml, exceeds it by 21 % (J_z = 0.0977 > 0.0806): a model estimate
+TRIANGLE_SLACK = 0.3
+
+IDENTIFIED = "identified"
+ABSENT = "absent"
+NOT_EXCITED = "not excited"
+ILL_CONDITIONED = "ill-conditioned"
+IMPOSSIBLE = "physically impossible"
+PRECEDENCE = (ABSENT, NOT_EXCITED, ILL_CONDITIONED, IMPOSSIBLE)
+
+AXES = ("roll", "pitch", "yaw")
+
+#: per constant: its unit, the vehicle.yaml key that can stand in for it, the manoeuvre that
+#: determines it
+PARAMETERS: dict[str, dict[str, str]] = {
+    "k_T": {"unit": "N/(rad/s)^2", "key": "thrust_coefficient", "manoeuvre": "fly thrust changes (climbs, descents)"},
+    "k_M": {"unit": "N m/(rad/s)^2", "key": "moment_coefficient", "manoeuvre": "fly yaw steps"},
+    "J_x": {"unit": "kg m^2", "key": "inertia", "manoeuvre": "fly roll doublets"},
+    "J_y": {"unit": "kg m^2", "key": "inertia", "manoeuvre": "fly pitch doublets"},
+    "J_z": {"unit": "kg m^2", "key": "inertia", "manoeuvre": "fly yaw steps while rolling and pitching"},
+    "theta_0": {"unit": "N/(kg (rad/s)^2)", "key": "thrust_coefficient", "manoeuvre": "fly thrust changes"},
+    "theta_1": {"unit": "rad/(s^2 (rad/s)^2)", "key": "inertia", "manoeuvre": "fly roll doublets"},
+    "theta_2": {"unit": "rad/(s^2 (rad/s)^2)", "key": "moment_coefficient", "manoeuvre": "fly yaw steps"},
+    "theta_3": {"unit": "-", "key": "inertia", "manoeuvre": "fly yaw steps while rolling and pitching"},
+    "accel_bias": {"unit": "m/s^2", "key": "", "manoeuvre": "record the IMU (imu0)"},
+}
+
+
+@dataclass(frozen=True)
+class AxisExcitation:
+    """How much a flight moved about one body axis (samples used by the fits).
+
+    Attributes
+    ----------
+    rate_std : rad/s, standard deviation of the body rate after a :data:`LOWPASS_S` average
+    acc_std : rad/s^2, standard deviation of the angular acceleration after the same average
+    share : -, share of the angular acceleration's variance explained by the rotor-torque column
+    """
+
+    rate_std: float
+    acc_std: float
+    share: float = float("nan")
+
+    def to_dict(self) -> dict[str, float]:
+        return {"rate_std": self.rate_std, "acc_std": self.acc_std, "share": self.share}
+
+
+@dataclass(frozen=True)
+class ParameterStatus:
+    """One constant: its estimate, and whether the flight determines it.
+
+    Attributes
+    ----------
+    name : ``k_T``, ``k_M``, ``J_x`` ... (keys of :data:`PARAMETERS`)
+    value, stderr : float, or (3,) for ``accel_bias``; the raw least-squares estimate
+    identifiable : whether it can be used as a result
+    reason : ``identified`` or one of :data:`PRECEDENCE`
+    why : the findings in words ("" when identified)
+    """
+
+    name: str
+    value: Any
+    stderr: Any
+    identifiable: bool
+    reason: str
+    why: str = ""
+
+    @property
+    def unit(self) -> str:
+        return PARAMETERS[self.name]["unit"]
+
+    def advice(self) -> str:
+        """What would determine it: the manoeuvre, or the vehicle.yaml key that can stand in."""
+        p = PARAMETERS[self.name]
+        return f"{p['manoeuvre']} or give {p['key']} in vehicle.yaml" if p["key"] else p["manoeuvre"]
+
+    def to_dict(self) -> dict[str, Any]:
+        def plain(x):
+            if x is None:
+                return None
+            if np.ndim(x):
+                return [plain(v) for v in np.asarray(x, float)]
+            return float(x) if np.isfinite(x) else None
+
+        return {"value": plain(self.value), "stderr": plain(self.stderr), "identifiable": self.identifiable,
+                "reason": self.reason, "why": self.why}
+
+
+def axis_excitation(rates: Sequence[np.ndarray], accelerations: Sequence[np.ndarray], masks: Sequence[np.ndarray],
+                    dts: Sequence[float]) -> dict[str, AxisExcitation]:
+    """Excitation per body axis over several flights.
+
+    Parameters
+    ----------
+    rates : per flight (K, 3) rad/s, body rates
+    accelerations : per flight (K, 3) rad/s^2, body angular accelerations
+    masks : per flight (K,) bool, the samples the fits use
+    dts : per flight, s, sampling step
+    """
+    w_lp, a_lp = [], []
+    for w, a, m, dt in zip(rates, accelerations, masks, dts):
+        n = max(1, int(round(LOWPASS_S / dt)))
+        w_lp.append(uniform_filter1d(np.asarray(w, float), n, axis=0, mode="nearest")[m])
+        a_lp.append(uniform_filter1d(np.asarray(a, float), n, axis=0, mode="nearest")[m])
+    W, A = np.concatenate(w_lp), np.concatenate(a_lp)
+    return {ax: AxisExcitation(float(np.std(W[:, i])), float(np.std(A[:, i]))) for i, ax in enumerate(AXES)}
+
+
+def column_share(coef: float, column: np.ndarray, target: np.ndarray) -> float:
+    """Share of ``target``'s variance that ``coef * column`` carries (may exceed 1 with cancelling terms)."""
+    var = float(np.var(target))
+    return float(np.var(coef * np.asarray(column, float)) / var) if var > 0 else float("nan")
+
+
+@dataclass
+class _Findings:
+    """Findings on one constant, gathered before the status is decided."""
+
+    items: list[tuple[str, str]] = field(default_factory=list)
+
+    def add(self, reason: str, why: str) -> None:
+        self.items.append((reason, why))
+
+    def status(self, name: str, value: Any, stderr: Any) -> ParameterStatus:
+        """Identified when nothing was found; else the reason of highest precedence, and the first
+        finding of each reason in words."""
+        if not self.items:
+            return ParameterStatus(name, value, stderr, True, IDENTIFIED)
+        ordered = sorted(self.items, key=lambda rw: PRECEDENCE.index(rw[0]))
+        first: dict[str, str] = {}
+        for reason, why in ordered:
+            first.setdefault(reason, why)
+        return ParameterStatus(name, value, stderr, False, ordered[0][0], "; ".join(first.values()))
+
+
+def _not_excited(f: _Findings, ex: dict[str, AxisExcitation], axes: Sequence[tuple[str, str]]) -> None:
+    """One finding per axis that lacks the motion: ``axes`` lists ``(axis, "rate" | "acc")``."""
+    missing: dict[str, list[str]] = {}
+    for axis, kind in axes:
+        e = ex[axis]
+        if kind == "rate" and e.rate_std < RATE_MIN:
+            missing.setdefault(axis, []).append(f"{axis} rate std {e.rate_std:.2g} rad/s, under {RATE_MIN:g}")
+        if kind == "acc" and e.acc_std < ACC_MIN:
+            missing.setdefault(axis, []).append(f"{axis} acceleration std {e.acc_std:.2g} rad/s^2, under {ACC_MIN:g}")
+    for axis, what in missing.items():
+        f.add(NOT_EXCITED, f"the flight has no {axis} manoeuvre ({'; '.join(what)})")
+
+
+def _conditioning(f: _Findings, value: float, stderr: float, conds: dict[str, float], fits: Sequence[str]) -> None:
+    if not np.isfinite(value) or not np.isfinite(stderr):
+        if not f.items:  # a constant left out of the fit for want of excitation says so already
+            f.add(ILL_CONDITIONED, "the regression gives no finite estimate")
+        return
+    if value != 0 and stderr / abs(value) > REL_SE_MAX:
+        f.add(ILL_CONDITIONED, f"relative standard error {stderr / abs(value):.2g} (above {REL_SE_MAX:g})")
+    for fit in fits:
+        c = conds.get(fit, 0.0)
+        if c > COND_MAX:
+            f.add(ILL_CONDITIONED, f"condition number {c:.2g} of the {fit} regression (above {COND_MAX:g}): its "
+                                   f"columns are nearly collinear")
+
+
+def _inherit(f: _Findings, name: str, status: dict[str, ParameterStatus], deps: Sequence[str]) -> None:
+    """A constant that looks sound itself but is computed from one that is not identified takes that
+    one's reason (its first finding)."""
+    if f.items:
+        return
+    for d in deps:
+        s = status[d]
+        if not s.identifiable:
+            f.add(s.reason, f"{name} is computed from {d}, and {s.why.split('; ')[0]}")
+            return
+
+
+def assess(est: dict[str, Any], se: dict[str, Any], excitation: dict[str, AxisExcitation], conds: dict[str, float],
+           *, has_imu: bool, mass: float, arm_length: float, rotor_radius: float,
+           jx_equals_jy: bool) -> dict[str, ParameterStatus]:
+    """The status of every constant of :data:`PARAMETERS`.
+
+    Parameters
+    ----------
+    est, se : estimates and standard errors by name (``accel_bias``: (3,) arrays)
+    excitation : :func:`axis_excitation` per axis (``share`` filled in)
+    conds : condition numbers by fit: ``thrust``, ``roll``, ``pitch``, ``yaw``
+    has_imu : whether an accelerometer was recorded
+    mass : kg; arm_length, rotor_radius : m (the physical bounds)
+    jx_equals_jy : the paper's ``J_x = J_y`` model was fitted (roll or pitch excites both)
+    """
+    ex = dict(excitation)
+    if jx_equals_jy:  # one joint fit: the better-excited of roll and pitch serves both
+        best = max((ex["roll"], ex["pitch"]), key=lambda e: min(e.rate_std / RATE_MIN, e.acc_std / ACC_MIN))
+        ex["roll"] = ex["pitch"] = best
+    j_max = mass * (arm_length + rotor_radius) ** 2  # kg m^2, all the mass at the propeller tips
+    out: dict[str, ParameterStatus] = {}
+
+    def positive(f: _Findings, name: str, what: str) -> None:
+        if np.isfinite(est[name]) and not est[name] > 0:
+            f.add(IMPOSSIBLE, f"{what} {est[name]:.3g} is not positive")
+
+    def inertia_bound(f: _Findings, name: str) -> None:
+        if np.isfinite(est[name]) and est[name] > j_max:
+            f.add(IMPOSSIBLE, f"{est[name]:.3g} kg m^2 exceeds m (l + r)^2 = {j_max:.3g} kg m^2, the inertia of the "
+                              "whole mass at the propeller tips")
+
+    f = _Findings()
+    _conditioning(f, est["k_T"], se["k_T"], conds, ["thrust"])
+    positive(f, "k_T", "the thrust coefficient")
+    out["k_T"] = f.status("k_T", est["k_T"], se["k_T"])
+    f = _Findings()
+    _inherit(f, "theta_0", out, ["k_T"])
+    out["theta_0"] = f.status("theta_0", est["theta_0"], se["theta_0"])
+
+    for name, theta, axis in (("J_x", "theta_1", "roll"), ("J_y", None, "pitch")):
+        fits = ["roll", "pitch"] if jx_equals_jy else [axis]
+        if theta is not None:
+            f = _Findings()
+            _not_excited(f, ex, [(axis, "rate"), (axis, "acc")])
+            _conditioning(f, est[theta], se[theta], conds, fits)
+            positive(f, theta, theta)
+            out[theta] = f.status(theta, est[theta], se[theta])
+        f = _Findings()
+        _not_excited(f, ex, [(axis, "rate"), (axis, "acc")])
+        _conditioning(f, est[name], se[name], conds, fits)
+        positive(f, name, "the inertia")
+        inertia_bound(f, name)
+        _inherit(f, name, out, ["k_T"])
+        out[name] = f.status(name, est[name], se[name])
+
+    f = _Findings()
+    _not_excited(f, ex, [("yaw", "rate")])
+    _conditioning(f, est["J_z"], se["J_z"], conds, ["roll", "pitch"])
+    positive(f, "J_z", "the inertia")
+    inertia_bound(f, "J_z")
+    _inherit(f, "J_z", out, ["J_x", "J_y"])
+    out["J_z"] = f.status("J_z", est["J_z"], se["J_z"])
+    _triangle(out, se)
+
+    f = _Findings()
+    _not_excited(f, ex, [("yaw", "acc")])
+    _conditioning(f, est["theta_2"], se["theta_2"], conds, ["yaw"])
+    positive(f, "theta_2", "theta_2")
+    out["theta_2"] = f.status("theta_2", est["theta_2"], se["theta_2"])
+    f = _Findings()
+    _not_excited(f, ex, [("yaw", "rate")])
+    _conditioning(f, est["theta_3"], se["theta_3"], {}, [])
+    _inherit(f, "theta_3", out, ["J_z", "J_x"])
+    out["theta_3"] = f.status("theta_3", est["theta_3"], se["theta_3"])
+
+    f = _Findings()
+    _not_excited(f, ex, [("yaw", "rate"), ("yaw", "acc")])
+    _conditioning(f, est["k_M"], se["k_M"], conds, ["yaw"])
+    positive(f, "k_M", "the moment coefficient")
+    if est["k_M"] > 0 and est["k_T"] > 0 and est["k_M"] > est["k_T"] * rotor_radius:
+        f.add(IMPOSSIBLE, f"k_M {est['k_M']:.3g} exceeds k_T r = {est['k_T'] * rotor_radius:.3g}: a rotor whose drag "
+                          "torque exceeds thrust times radius")
+    _inherit(f, "k_M", out, ["theta_2", "J_z"])
+    out["k_M"] = f.status("k_M", est["k_M"], se["k_M"])
+
+    f = _Findings()
+    if not has_imu:
+        f.add(ABSENT, "the recording has no IMU (imu0), so no accelerometer and no bias to estimate")
+    elif np.any(~np.isfinite(se["accel_bias"])) or np.max(se["accel_bias"]) > BIAS_SE_MAX:
+        f.add(ILL_CONDITIONED, f"standard error {np.max(se['accel_bias']):.2g} m/s^2 (above {BIAS_SE_MAX:g})")
+    out["accel_bias"] = (f.status("accel_bias", est["accel_bias"], se["accel_bias"]) if has_imu
+                         else f.status("accel_bias", None, None))
+    return {name: out[name] for name in PARAMETERS}
+
+
+def _triangle(out: dict[str, ParameterStatus], se: dict[str, Any]) -> None:
+    """Withdraw the least certain inertia when the three break ``J_k <= J_i + J_j`` (in place)."""
+    names = ("J_x", "J_y", "J_z")
+    if not all(out[n].identifiable for n in names):
+        return
+    J = np.array([out[n].value for n in names], float)
+    s = np.array([se[n] for n in names], float)
+    for k in range(3):
+        i, j = [n for n in range(3) if n != k]
+        excess = J[k] - (1.0 + TRIANGLE_SLACK) * (J[i] + J[j])
+        if excess > 2.0 * float(np.sqrt(s[k] ** 2 + s[i] ** 2 + s[j] ** 2)):
+            rel = s / np.abs(J)
+            worst = k if rel[k] >= rel.max() * (1 - 1e-9) else int(np.argmax(rel))
+            why = (f"{names[k]} = {J[k]:.3g} > {1 + TRIANGLE_SLACK:g} ({names[i]} + {names[j]}) = "
+                   f"{(1 + TRIANGLE_SLACK) * (J[i] + J[j]):.3g} kg m^2 breaks the triangle inequality of principal "
+                   f"moments; {names[worst]} is the least certain of the three")
+            old = out[names[worst]]
+            out[names[worst]] = ParameterStatus(old.name, old.value, old.stderr, False, IMPOSSIBLE, why)
+            return
