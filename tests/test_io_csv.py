@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -98,16 +97,14 @@ def test_frame_list_round_trip(tmp_path):
         euroc_csv.read_frame_list(write(tmp_path, "#h\n2, a.png\n1, b.png\n", "f.csv"))
 
 
-def test_read_csv_is_fast(tmp_path):
+def test_read_csv_large_file_round_trips(tmp_path):
     n, pool = 100_000, np.random.default_rng(1).normal(size=(1000, 16))
     t = T0 + np.arange(n, dtype=np.int64) * 5_000_000
     rows = [", ".join(map(repr, r)) for r in pool.tolist()]
     path = tmp_path / "big.csv"
     path.write_text(euroc_csv.GROUNDTRUTH_HEADER + "\n" + "".join(
         f"{a}, {rows[k % 1000]}\n" for k, a in enumerate(t.tolist())))
-    start = time.perf_counter()
-    t2, x2 = euroc_csv.read_csv(path, 17)
-    assert time.perf_counter() - start < 2.0  # ~0.4 s here; the bound only catches a slow path
+    t2, x2 = euroc_csv.read_csv(path, 17)  # speed: `uavturb bench physics`, not a timed test
     assert np.array_equal(t2, t) and np.array_equal(x2, pool[np.arange(n) % 1000])
 
 
@@ -181,13 +178,11 @@ def test_ply_malformed(tmp_path, content, expected):
     assert str(path) in str(e.value) and expected in str(e.value)
 
 
-def test_ply_million_points_fast(tmp_path):
+def test_ply_million_points_round_trip(tmp_path):
     pts = np.random.default_rng(0).uniform(-5, 5, size=(1_000_000, 3))
     path = tmp_path / "big.ply"
-    start = time.perf_counter()
     ply.write_ply(path, pts)
     assert np.array_equal(ply.read_ply(path), pts)
-    assert time.perf_counter() - start < 2.0
 
 
 # --- sensor.yaml ----------------------------------------------------------------------

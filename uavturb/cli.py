@@ -106,6 +106,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--duration", type=float, default=90.0, help="seconds per flight (default 90)")
     s.add_argument("--effects", default=None, help="comma-separated single-effect cases (default: all)")
     s.add_argument("--no-pairs", action="store_true", help="leave out the pair cases")
+    s.add_argument("--suite", default="all", choices=["all", "concealed", "conditions"],
+                   help="concealed effects, real recordings' troubles (conditions), or both (default)")
     s.add_argument("--seed", type=int, default=0)
 
     s = sub.add_parser("train", help="train one stage (pretrain or height) from conf/ with key=value overrides")
@@ -235,7 +237,7 @@ def _run(args: argparse.Namespace) -> int:
         from uavturb.experiments.gap_proof import gap_proof
 
         gap_proof(Path(args.out), duration=args.duration, seed=args.seed,
-                            singles=args.effects.split(",") if args.effects else None, pairs=not args.no_pairs)
+                            singles=args.effects.split(",") if args.effects else None, pairs=not args.no_pairs, suite=args.suite)
     elif args.command == "train":
         from uavturb.experiments.config import load_config
         from uavturb.experiments.train import train

@@ -298,27 +298,45 @@ def confusion_table(rows: list[dict]) -> str:
 
 
 def gap_proof(out: Path, *, duration: float = 90.0, seed: int = 0, singles: list[str] | None = None,
-              pairs: bool = True) -> dict:
-    """``uavturb gap-proof``: the finder blind on concealed effects; writes ``out/proof.md`` and ``proof.json``."""
+              pairs: bool = True, suite: str = "all") -> dict:
+    """``uavturb gap-proof``: the finder blind on concealed effects (``suite`` ``concealed``) and on
+    flights with real recordings' troubles (``conditions``, :mod:`uavturb.experiments.gap_conditions`);
+    writes ``out/proof.md`` and ``proof.json``."""
     import json
 
+    from uavturb.experiments.gap_conditions import conditions_table, run_conditions
     from uavturb.physics.effects import EFFECTS
 
+    if suite not in ("all", "concealed", "conditions"):
+        raise InputError("--suite", f"unknown suite '{suite}' (allowed: all, concealed, conditions)")
     for s in singles or []:
         if s not in EFFECTS:
             raise InputError("--effects", f"unknown effect '{s}' (known: {', '.join(EFFECTS)})")
-    result = run_proof(out, duration=duration, seed=seed, singles=singles, pairs=pairs)
-    table = confusion_table(result["rows"])
-    s = result["summary"]
-    text = (f"{table}\n\n{s['exact']}/{s['cases']} cases named exactly (PySINDy: {s['sindy_exact']}/{s['cases']}); "
-            f"{s['params_within_15pct']}/{s['cases']} named exactly with every parameter within 15 % "
-            f"(PySINDy: {s['sindy_params_within_15pct']}/{s['cases']}); "
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    result: dict = {}
+    parts: list[str] = []
+    if suite in ("all", "concealed"):
+        result = run_proof(out, duration=duration, seed=seed, singles=singles, pairs=pairs)
+        s = result["summary"]
+        parts.append(
+            f"{confusion_table(result['rows'])}\n\n{s['exact']}/{s['cases']} cases named exactly (PySINDy: "
+            f"{s['sindy_exact']}/{s['cases']}); {s['params_within_15pct']}/{s['cases']} named exactly with every "
+            f"parameter within 15 % (PySINDy: {s['sindy_params_within_15pct']}/{s['cases']}); "
             f"{s['heldout_improved']}/{s['cases']} with every held-out fit improved; "
             f"{s['false_discoveries_on_clean']} false discoveries on clean flights "
             f"(PySINDy: {s['sindy_false_discoveries_on_clean']}); analysis of two {duration:.0f} s flights at 200 Hz "
-            f"(reading included): median {s['median_analysis_seconds']:.1f} s, slowest {s['max_analysis_seconds']:.1f} s\n")
+            f"(reading included): median {s['median_analysis_seconds']:.1f} s, slowest "
+            f"{s['max_analysis_seconds']:.1f} s\n")
+    if suite in ("all", "conditions"):
+        cond = run_conditions(out, duration=min(duration, 60.0), seed=seed)
+        c = cond["summary"]
+        result["conditions"] = cond
+        parts.append(f"{conditions_table(cond['rows'])}\n\n{c['right']}/{c['conditions']} conditions right, "
+                     f"{c['ambiguous']} reported ambiguous, {c['missed']} missed, {c['wrong']} wrong "
+                     f"(PySINDy tuned: {c['sindy_right']} right, {c['sindy_wrong']} wrong)\n")
+    text = "\n".join(parts)
     print(text)
     (out / "proof.md").write_text(text)
     (out / "proof.json").write_text(json.dumps(result, indent=2, default=float))
     return result
-
