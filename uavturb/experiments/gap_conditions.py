@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from uavturb.experiments.proof_scoring import param_error, with_hidden_bias
+from uavturb.experiments.sindy_peer import sindy_names
 from uavturb.gap.finder import analyse
 from uavturb.sim.conditions import Conditions
 
@@ -72,7 +74,6 @@ def _truth(condition: Condition, recording_truths: list[dict]) -> tuple[dict, se
 
 def verdict(targets: dict[str, dict[str, float]], physics: set[str], report: dict) -> tuple[str, dict]:
     """The row's verdict (module docstring) and the errors of the targets."""
-    from uavturb.experiments.gap_proof import param_error
 
     named = {e["name"]: e["params"] for e in report["effects"]}
     undecided = {c for a in report.get("ambiguous", []) for c in a["candidates"]}
@@ -89,7 +90,6 @@ def verdict(targets: dict[str, dict[str, float]], physics: set[str], report: dic
 
 def run_conditions(out: Path, *, duration: float = 60.0, seed: int = 0, progress=print) -> dict:
     """Generate each condition's two flights under ``out/flights/``, run the finder blind, score."""
-    from uavturb.experiments.gap_proof import sindy_names, with_hidden_bias
     from uavturb.io.reader import load_recordings
     from uavturb.sim.conditions import generate_conditioned_flight, read_truth
 
