@@ -61,13 +61,9 @@ TOLERANCE = 1e-5
 
 
 def _client():
-    import mlflow
+    from uavturb.experiments.tracking import client
 
-    from uavturb.experiments.tracking import tracking_uri
-
-    for name in ("mlflow", "alembic"):
-        logging.getLogger(name).setLevel(logging.ERROR)
-    return mlflow.MlflowClient(tracking_uri())
+    return client()
 
 
 def get_run(run_id: str):
@@ -272,8 +268,7 @@ def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], sample: dict
 
     from uavturb.experiments.tracking import tracking_uri
 
-    for name in ("mlflow", "alembic"):
-        logging.getLogger(name).setLevel(logging.ERROR)
+    _client()  # opens the store (created safely, stale runs marked) before the fluent API uses it
     mlflow.set_tracking_uri(tracking_uri())
     signature = infer_signature(sample, outputs)
     with warnings.catch_warnings():
