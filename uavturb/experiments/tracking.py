@@ -80,6 +80,26 @@ def store_lock(uri: str | None = None) -> Iterator[None]:
         lock.release()
 
 
+def named_lock(name: str):
+    """A :class:`filelock.FileLock` named ``name`` for the configured store, shared by the processes of
+    this host (a sweep's parent and children): in ``<db>.locks/`` beside a SQLite store, else in a
+    per-store folder of the temporary directory."""
+    import hashlib
+    import tempfile
+
+    from filelock import FileLock
+
+    uri = tracking_uri()
+    db = sqlite_path(uri)
+    if db is not None:
+        folder = Path(str(db) + ".locks")
+    else:
+        folder = Path(tempfile.gettempdir()) / f"uavturb-mlflow-locks-{hashlib.sha1(uri.encode()).hexdigest()[:12]}"
+    folder.mkdir(parents=True, exist_ok=True)
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
+    return FileLock(str(folder / f"{safe}.lock"))
+
+
 def _quiet() -> None:
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.ERROR)

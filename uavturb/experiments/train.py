@@ -143,9 +143,10 @@ def _resumable_run(client, run_id: str):
     tags = run.data.tags
     if "stage" not in tags or "checkpoint_dir" not in tags:
         raise InputError("--resume", f"run {run_id} is not a uavturb training run (no tags stage, checkpoint_dir)")
-    if run.info.status == "RUNNING":
+    alive = process_alive(tags)
+    if run.info.status == "RUNNING" and alive is not False:  # False: its process is gone (stale)
         where = f"pid {tags.get('pid', '?')} on {tags.get('host', '?')}"
-        state = "still runs" if process_alive(tags) else "is RUNNING on another host"
+        state = "still runs" if alive else "is RUNNING on another host"
         raise InputError("--resume", f"run {run_id} {state} ({where}); stop it first or wait for it")
     return run
 
