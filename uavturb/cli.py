@@ -234,7 +234,7 @@ def _run(args: argparse.Namespace) -> int:
             out = train(load_config(args.overrides, experiment=args.experiment))
         if out.get("global_rank", 0) != 0:  # DDP: the other ranks say nothing
             return 0
-        print(json.dumps({k: out[k] for k in ("stage", "run_id", "checkpoint", "data_hash")}))
+        print(json.dumps({k: out[k] for k in ("stage", "run_id", "checkpoint", "data_hash", "start_epoch")}))
         print("  ".join(f"{k} {v:.5g}" for k, v in sorted(out["metrics"].items()) if k.startswith("test/")))
     elif args.command == "sweep":
         from uavturb.experiments.sweep import sweep

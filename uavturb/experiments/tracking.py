@@ -139,12 +139,12 @@ def client():
 
     _quiet()
     uri = tracking_uri()
-    c = mlflow.MlflowClient(uri)
     if uri in _OPENED:
-        return c
+        return mlflow.MlflowClient(uri)
     try:
         with store_lock(uri):
-            c.search_experiments(max_results=1)  # creates and migrates the store where needed
+            c = mlflow.MlflowClient(uri)  # MLflow may create and migrate the store right here
+            c.search_experiments(max_results=1)  # or here, lazily
     except StoreError:
         raise
     except (MlflowException, OSError, ImportError) as e:

@@ -511,6 +511,25 @@ def _init_worker(out: str, chash: str) -> None:
     _CONFIG_HASH[out] = chash
 
 
+def _init_pool_worker(out: str, chash: str) -> None:
+    """A pool worker: Ctrl-C (SIGINT to the whole process group) is the parent's to handle; it
+    stops the workers (SIGTERM, ``Pool.terminate``) and removes what they left half-written."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _init_worker(out, chash)
+
+
+def _remove_unfinished(out: Path, tasks: Sequence[Task], created: bool) -> None:
+    """After an interruption: the temporary folders of trajectories being written, and ``out``
+    itself where this run created it and nothing was finished."""
+    for t in tasks:
+        for junk in out.glob(f".{t.name}.*"):
+            shutil.rmtree(junk, ignore_errors=True)
+    if created and out.is_dir() and not any(out.iterdir()):
+        out.rmdir()
+
+
 # ----------------------------------------------------------------------------------------------
 # progress
 
@@ -646,6 +665,7 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(out, "exists and is not a folder")
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     all_tasks = plan_tasks(p, seed)
     tasks = [t for t in all_tasks if t.index % n == k - 1]
@@ -683,9 +703,13 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
             import multiprocessing as mp
 
             ctx = mp.get_context("spawn")
-            with ctx.Pool(min(int(workers), len(jobs)), initializer=_init_worker, initargs=(str(out), chash)) as pool:
+            with ctx.Pool(min(int(workers), len(jobs)), initializer=_init_pool_worker,
+                          initargs=(str(out), chash)) as pool:  # on an exception: pool.terminate()
                 for meta in pool.imap_unordered(_work, jobs, chunksize=1):
                     done(meta)
+    except BaseException:  # Interrupted (SIGTERM, SIGINT) or an error: the workers are stopped by now
+        _remove_unfinished(out, todo, created)
+        raise
     finally:
         if bar is not None:
             bar.close()
