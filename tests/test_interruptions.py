@@ -54,7 +54,11 @@ def _last_line(stderr: str) -> str:
 
 
 def _runs(uri: str, experiment: str) -> list:
-    client = mlflow.MlflowClient(uri)
+    from uavturb.experiments.tracking import store_lock
+
+    with store_lock(uri):  # the store may be being created by the command under test
+        client = mlflow.MlflowClient(uri)
+        client.search_experiments(max_results=1)
     exp = client.get_experiment_by_name(experiment)
     return client.search_runs([exp.experiment_id]) if exp else []
 
@@ -62,25 +66,46 @@ def _runs(uri: str, experiment: str) -> list:
 # --- SIGTERM, then --resume --------------------------------------------------------------------
 
 
-def test_sigterm_stops_training_killed_then_resume_continues_the_same_run(tmp_path):
-    import torch
-
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+def _train_until(tmp_path: Path, uri: str, sig: int, *, after_epoch: bool):
+    """Start a tiny training, send ``sig`` once its run exists (or once it saved ``last.ckpt``); returns
+    (process, stderr, run id, last.ckpt or None)."""
     cmd = [sys.executable, "-m", "uavturb.cli", "train", *_tiny(tmp_path, "trainer.max_epochs=200")]
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=_env(uri), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
-    last = _wait_for(lambda: next(iter((tmp_path / "runs" / "checkpoints").glob("*/last.ckpt")), None)
-                     if (tmp_path / "runs" / "checkpoints").is_dir() else None, proc, what="last.ckpt")
-    proc.send_signal(signal.SIGTERM)
+    folder = tmp_path / "runs" / "checkpoints"
+    if after_epoch:
+        last = _wait_for(lambda: next(iter(folder.glob("*/last.ckpt")), None) if folder.is_dir() else None, proc,
+                         what="last.ckpt")
+    else:
+        last = None
+        _wait_for(lambda: (tmp_path / "mlflow.db").is_file() and _runs(uri, "sig"), proc, what="a run")
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=120)
-    run_id = last.parent.name
+    (run,) = _runs(uri, "sig")
+    return proc, err, run, last
+
+
+def test_sigterm_stops_training_in_one_line_and_the_run_is_killed(tmp_path):
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    proc, err, run, _ = _train_until(tmp_path, uri, signal.SIGTERM, after_epoch=False)
+    run_id = run.info.run_id
     assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
     assert "Traceback" not in err
     assert _last_line(err) == (f"uavturb train: interrupted by SIGTERM; run {run_id} marked KILLED; continue it "
                                f"with `uavturb train --resume {run_id}`")
-    (run,) = _runs(uri, "sig")
-    assert run.info.run_id == run_id and run.info.status == "KILLED"
-    assert run.data.tags["pid"] == str(proc.pid) and run.data.tags["checkpoint_dir"] == str(last.parent.resolve())
+    assert run.info.status == "KILLED" and run.data.tags["pid"] == str(proc.pid)
+
+
+@pytest.mark.slow
+def test_sigint_then_resume_continues_the_same_run_at_the_next_epoch(tmp_path, monkeypatch, capsys):
+    import torch
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    proc, err, run, last = _train_until(tmp_path, uri, signal.SIGINT, after_epoch=True)
+    run_id = run.info.run_id
+    assert proc.returncode == 130 and run.info.status == "KILLED", err[-3000:]
+    assert _last_line(err).startswith("uavturb train: interrupted by SIGINT; run ")
+    assert run.data.tags["checkpoint_dir"] == str(last.parent.resolve()) and last.parent.name == run_id
 
     epoch = torch.load(last, map_location="cpu", weights_only=False)["epoch"]  # the last epoch saved
     res = subprocess.run([sys.executable, "-m", "uavturb.cli", "train", "--resume", run_id,
@@ -95,13 +120,28 @@ def test_sigterm_stops_training_killed_then_resume_continues_the_same_run(tmp_pa
     assert run.data.tags["resume_changes"] == f"trainer.max_epochs 200 -> {epoch + 3}"
     steps = [m.step for m in mlflow.MlflowClient(uri).get_metric_history(run_id, "train/loss_epoch")]
     assert len(steps) == len(set(steps)) and len(steps) >= epoch + 2  # no epoch trained twice, none lost after it
-    # a finished run cannot be changed beyond its resumable keys
-    bad = subprocess.run([sys.executable, "-m", "uavturb.cli", "train", "--resume", run_id, *_tiny(tmp_path),
-                          "model.lr_head=0.5"], cwd=tmp_path, env=_env(uri), capture_output=True, text=True,
-                         timeout=600)
-    assert bad.returncode == 2 and _last_line(bad.stderr).startswith("uavturb train: error: --resume: model.lr_head")
 
 
+def test_resume_refuses_a_changed_config_before_any_work(tmp_path, monkeypatch, capsys):
+    from uavturb.experiments import tracking
+    from uavturb.experiments.config import load_config, to_flat_dict
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    c = tracking.client()
+    rid = c.create_run(tracking.experiment_id(c, "sig"), tags={"stage": "height", "checkpoint_dir": "x"}).info.run_id
+    for k, v in to_flat_dict(load_config(_tiny(tmp_path)[2:], experiment="smoke")).items():
+        c.log_param(rid, k, str("null" if v is None else v))
+    c.set_terminated(rid, "KILLED")
+    assert main(["train", "--resume", rid, *_tiny(tmp_path), "model.lr_head=0.5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("uavturb train: error: --resume: model.lr_head is '0.5' here")
+    assert not (tmp_path / "sim").exists()  # refused before any data was made
+    assert main(["train", "--resume", "0" * 32]) == 2
+    assert "no run '00000000000000000000000000000000'" in capsys.readouterr().err
+
+
+@pytest.mark.slow
 def test_sigint_on_a_sweep_exits_130_in_one_line_parent_and_child_killed(tmp_path):
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     overrides = [f"data.root={tmp_path / 'sim'}", f"data.pairs_root={tmp_path / 'pre'}", "data.image_size=16",

@@ -328,6 +328,10 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     cfg = validate(cfg)
     if resume is not None and not cfg.tracking.enabled:
         raise InputError("--resume", "needs tracking.enabled=true (the run lives in MLflow)")
+    if resume is not None and _is_rank_zero():  # a run that cannot be resumed fails before any work
+        from uavturb.experiments.tracking import client
+
+        _config_changes(cfg, _resumable_run(client(), resume))
     t = cfg.trainer
     if t.num_threads > 0:
         import torch
