@@ -45,6 +45,7 @@ import torch
 from torch import nn
 
 from uavturb.errors import InputError
+from uavturb.experiments.tracking import client as _client
 from uavturb.io.publish import check_output_folder, publish_folder
 from uavturb.nn.height import phi_alpha_beta
 from uavturb.nn.streaming import INPUT_NAMES, OUTPUT_NAMES, StreamingHeightModel
@@ -58,12 +59,6 @@ TOLERANCE = 1e-5
 
 
 # --- where a run's checkpoint is ---------------------------------------------------------
-
-
-def _client():
-    from uavturb.experiments.tracking import client
-
-    return client()
 
 
 def get_run(run_id: str):
