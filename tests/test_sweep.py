@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import csv
 import io
+import signal
 from pathlib import Path
 
 import mlflow
 import numpy as np
 import pytest
 
-from uavturb.errors import InputError
+from uavturb.errors import InputError, Interrupted
 from uavturb.experiments import sweep as sweep_mod
 from uavturb.experiments.compare import compare
 from uavturb.experiments.sweep import sweep
@@ -46,20 +47,28 @@ def known_rmse(row: str, seed: int) -> tuple[float, float]:
 class FakeTrain:
     """Stands in for uavturb.train.train: one FINISHED MLflow run with the given tags."""
 
-    def __init__(self, tmp_path: Path, fail_at: int | None = None):
+    def __init__(self, tmp_path: Path, fail_at: int | None = None, kill_at: int | None = None):
         self.calls: list[tuple[object, dict]] = []
-        self.tmp, self.fail_at = tmp_path, fail_at
+        self.resumed: list[str] = []
+        self.tmp, self.fail_at, self.kill_at = tmp_path, fail_at, kill_at
 
-    def __call__(self, cfg, tags=None):
+    def __call__(self, cfg, tags=None, resume=None):
         self.calls.append((cfg, dict(tags)))
         if self.fail_at is not None and len(self.calls) == self.fail_at:
             raise KeyboardInterrupt
         client = mlflow.MlflowClient(tracking_uri())
         exp = client.get_experiment_by_name(cfg.tracking.experiment)
-        run = client.create_run(exp.experiment_id, run_name=cfg.tracking.run_name, tags=tags)
-        rid = run.info.run_id
+        if resume is not None:  # as train() does: the same run goes on
+            self.resumed.append(resume)
+            rid = resume
+        else:
+            rid = client.create_run(exp.experiment_id, run_name=cfg.tracking.run_name,
+                                    tags={**tags, "checkpoint_dir": str(self.tmp / "ckpts")}).info.run_id
+        if self.kill_at is not None and len(self.calls) == self.kill_at:  # a signal mid-training: run KILLED
+            client.set_terminated(rid, "KILLED")
+            raise Interrupted(signal.SIGTERM)
         ckpt = self.tmp / "ckpts" / rid / "best.ckpt"
-        ckpt.parent.mkdir(parents=True)
+        ckpt.parent.mkdir(parents=True, exist_ok=True)
         ckpt.write_text(f"{cfg.stage} {rid}")
         client.set_tag(rid, "checkpoint", str(ckpt))
         client.log_artifact(rid, str(ckpt), "checkpoints")  # as train() does
@@ -151,6 +160,27 @@ def test_interrupted_sweep_resumes_without_redoing_finished_runs(tmp_path, store
     sweep(DEFAULT_SPEC, preset="quick", seeds=2, experiment=store[1])
     assert len(third.calls) == 8 and {t["seed"] for _, t in third.calls} == {"1"}
     assert len(_children(store, parent.info.run_id)) == 16
+
+
+def test_a_sweep_rerun_resumes_its_interrupted_child_in_place(tmp_path, store, monkeypatch):
+    first = FakeTrain(tmp_path, kill_at=4)  # 2 pre-trainings, 1 row done, a signal in the 2nd row
+    monkeypatch.setattr(sweep_mod, "train", first)
+    with pytest.raises(Interrupted) as e:
+        sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
+    client = mlflow.MlflowClient(store[0])
+    (parent,) = client.search_runs([client.get_experiment_by_name(store[1]).experiment_id], "tags.sweep = 'ablation'")
+    assert parent.info.status == "KILLED" and "run the same command again" in e.value.message()
+    (killed,) = [r for r in _children(store, parent.info.run_id) if r.info.status == "KILLED"]
+    assert killed.data.tags["ablation"] == ROWS[1]
+
+    second = FakeTrain(tmp_path)
+    monkeypatch.setattr(sweep_mod, "train", second)
+    res = sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
+    assert second.resumed == [killed.info.run_id]  # continued, not trained again beside it
+    assert [t["ablation"] for _, t in second.calls] == ROWS[1:]
+    kids = _children(store, res["parent_run_id"])
+    assert len(kids) == 2 + len(ROWS) and {r.info.status for r in kids} == {"FINISHED"}
+    assert client.get_run(res["parent_run_id"]).info.status == "FINISHED"
 
 
 def _log(client, exp_id, parent, row, seed, d, fa, status="FINISHED"):
@@ -256,3 +286,36 @@ def test_cli_sweep_typo_is_one_line_naming_the_key(tmp_path, store, capsys, monk
     assert main(["sweep", str(DEFAULT_SPEC), "--experiment", store[1], "trainer.max_epoch=3"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "trainer.max_epoch:" in err and "max_epochs" in err and fake.calls == []
+
+
+def test_two_identical_sweeps_started_together_train_each_child_once(tmp_path, store, monkeypatch):
+    """The second sweep finds the first one's parent and waits for the child it is training
+    (a lock per child), then reuses it: nothing is trained twice."""
+    import threading
+    import time
+
+    fake = FakeTrain(tmp_path)
+
+    def slow(cfg, tags=None):
+        time.sleep(0.3)  # both sweeps reach the same child while it trains
+        return fake(cfg, tags)
+
+    monkeypatch.setattr(sweep_mod, "train", slow)
+    results, errors = [], []
+
+    def one():
+        try:
+            results.append(sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1]))
+        except BaseException as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=one) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=300)
+    assert not errors, errors
+    assert results[0]["parent_run_id"] == results[1]["parent_run_id"]
+    trained = [(t.get("pretrain") or t["ablation"], t["seed"]) for _, t in fake.calls]
+    assert len(trained) == len(set(trained)) == 2 + len(ROWS)  # every child once
+    assert len(_children(store, results[0]["parent_run_id"])) == 2 + len(ROWS)

@@ -8,7 +8,7 @@ import os
 import sys
 from pathlib import Path
 
-from uavturb.errors import UavturbError
+from uavturb.errors import Interrupted, UavturbError, raise_on_signals
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -113,6 +113,9 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("train", help="train one stage (pretrain or height) from conf/ with key=value overrides")
     s.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. model=none_gru trainer.max_epochs=3")
     s.add_argument("--experiment", help="a conf/experiment/*.yaml bundle (e.g. smoke)")
+    s.add_argument("--resume", metavar="RUN_ID", help="continue an interrupted (or finished) run in the same MLflow "
+                                                      "run from its last.ckpt; alone or with trainer.max_epochs=N, "
+                                                      "the run's own config is used")
 
     s = sub.add_parser("sweep", help="run an ablation sweep (sweeps/ablation.yaml: the paper's Table 1) in MLflow")
     s.add_argument("spec", metavar="SWEEP.yaml")
@@ -167,10 +170,14 @@ def main(argv: list[str] | None = None) -> int:
         else:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
-        return _run(args)
+        with raise_on_signals():  # SIGTERM (kill, scancel, time limits), SIGINT: clean up, one line, 128 + signum
+            return _run(args)
     except UavturbError as e:
         print(f"uavturb {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except Interrupted as e:
+        print(f"uavturb {args.command}: {e.message()}", file=sys.stderr, flush=True)
+        return e.exit_status
     except KeyboardInterrupt:
         print(f"uavturb {args.command}: interrupted", file=sys.stderr)
         return 130
@@ -240,12 +247,15 @@ def _run(args: argparse.Namespace) -> int:
                             singles=args.effects.split(",") if args.effects else None, pairs=not args.no_pairs, suite=args.suite)
     elif args.command == "train":
         from uavturb.experiments.config import load_config
-        from uavturb.experiments.train import train
+        from uavturb.experiments.train import resume_config, train
 
-        out = train(load_config(args.overrides, experiment=args.experiment))
+        if args.resume:
+            out = train(resume_config(args.resume, args.overrides, args.experiment), resume=args.resume)
+        else:
+            out = train(load_config(args.overrides, experiment=args.experiment))
         if out.get("global_rank", 0) != 0:  # DDP: the other ranks say nothing
             return 0
-        print(json.dumps({k: out[k] for k in ("stage", "run_id", "checkpoint", "data_hash")}))
+        print(json.dumps({k: out[k] for k in ("stage", "run_id", "checkpoint", "data_hash", "start_epoch")}))
         print("  ".join(f"{k} {v:.5g}" for k, v in sorted(out["metrics"].items()) if k.startswith("test/")))
     elif args.command == "sweep":
         from uavturb.experiments.sweep import sweep

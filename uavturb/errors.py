@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
+from typing import Iterator
 
 
 class UavturbError(Exception):
@@ -24,3 +26,69 @@ class InputError(UavturbError):
         self.where = str(where)
         self.problem = problem
         super().__init__(f"{self.where}: {problem}")
+
+
+class Interrupted(BaseException):
+    """A signal (SIGTERM from ``kill``, ``scancel`` or a time limit; SIGINT from Ctrl-C) stopped the work.
+
+    A ``BaseException`` (like ``KeyboardInterrupt``) so that ``except Exception`` blocks do not swallow
+    it; code that owns resources (an MLflow run, worker processes, temporary folders) closes them and
+    re-raises, adding what the user should know to :attr:`notes` (e.g. how to resume). The command
+    line reports it as one line and exits ``128 + signum`` (143 for SIGTERM, 130 for SIGINT).
+    """
+
+    def __init__(self, signum: int):
+        import signal
+
+        self.signum = int(signum)
+        self.signame = signal.Signals(self.signum).name
+        self.notes: list[str] = []
+        super().__init__(self.signame)
+
+    @property
+    def exit_status(self) -> int:
+        return 128 + self.signum
+
+    def message(self) -> str:
+        return "; ".join([f"interrupted by {self.signame}", *self.notes])
+
+
+@contextlib.contextmanager
+def raise_on_signals() -> Iterator[None]:
+    """While the block runs, SIGTERM and SIGINT raise :class:`Interrupted` in this (the main) process.
+
+    Cleanup code then runs as for any exception. A second signal while cleaning up ends the
+    process at once (``os._exit``). Processes forked from this one (DataLoader workers) inherit
+    the handler; there it restores the default action and re-sends the signal, so they die as
+    they would have. The previous handlers come back when the block ends; outside the main
+    thread nothing changes.
+    """
+    import os
+    import signal
+    import sys
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    main_pid = os.getpid()
+    seen: list[int] = []
+
+    def handler(signum, frame):
+        if os.getpid() != main_pid:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        if seen:
+            print(f"interrupted again by {signal.Signals(signum).name}: stopping without cleaning up",
+                  file=sys.stderr, flush=True)
+            os._exit(128 + signum)
+        seen.append(signum)
+        raise Interrupted(signum)
+
+    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import csv
 import io
-import logging
 import math
 from pathlib import Path
 from typing import Any
@@ -23,16 +22,6 @@ from uavturb.errors import InputError
 
 METRICS = ("test/rmse_d", "test/rmse_fa")
 FA_SCALE = 1e4  # the paper prints RMSE(f_a) in units of 1e-4 N
-
-
-def _client():
-    import mlflow
-
-    from uavturb.experiments.tracking import tracking_uri
-
-    for name in ("mlflow", "alembic"):
-        logging.getLogger(name).setLevel(logging.ERROR)
-    return mlflow.MlflowClient(tracking_uri()), tracking_uri()
 
 
 def _search(client, exp_id: str, filter_string: str, order_by: list[str] | None = None) -> list[Any]:
@@ -168,7 +157,10 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
 
     sp = load_spec(spec if spec is not None else DEFAULT_SPEC)
     experiment = experiment or sp.experiment
-    client, uri = _client()
+    from uavturb.experiments.tracking import client as tracking_client
+    from uavturb.experiments.tracking import tracking_uri
+
+    client, uri = tracking_client(), tracking_uri()
     exp = client.get_experiment_by_name(experiment)
     if exp is None:
         raise InputError("--experiment", f"no MLflow experiment {experiment!r} in {uri} (run `uavturb sweep` first)")

@@ -9,7 +9,10 @@ Composition (``load_config``), later wins::
                                           # <group>=<choice> picks a group file, experiment=<name>
 
 Every layer is merged into the :class:`TrainConfig` schema, so a misspelt key or a value of
-the wrong type raises :class:`~uavturb.errors.InputError` naming the key and the allowed keys.
+the wrong type raises :class:`~uavturb.errors.InputError` naming the key and the allowed keys;
+then every value is checked against the range or choices declared next to its field
+(:class:`Allowed`), so ``trainer.max_epochs=0`` fails naming the key, the value and what is
+allowed, before any data is read or any run opened.
 """
 
 from __future__ import annotations
@@ -31,29 +34,105 @@ CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 GROUPS = ("model", "data", "trainer")
 
 
+@dataclass(frozen=True)
+class Allowed:
+    """The values a config field accepts, declared once next to the field (``field(metadata=...)``)
+    and checked by :func:`validate` before anything starts.
+
+    A number must lie within the given bounds (``ge``, ``gt``, ``le``, ``lt``; floats also finite)
+    or be one of ``also`` (sentinels such as ``-1`` = off); a string must be one of ``choices``,
+    match ``pattern`` (a full-match regular expression) or, with ``nonempty``, not be empty.
+    ``None`` passes where the field's type allows it.
+    """
+
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    also: tuple[Any, ...] = ()
+    choices: tuple[str, ...] | None = None
+    pattern: str | None = None
+    nonempty: bool = False
+    text: str | None = None             # how the allowed values are described (else generated)
+
+    def accepts(self, value: Any) -> bool:
+        import math
+        import re
+
+        if value is None or value in self.also:
+            return True
+        if self.choices is not None and value not in self.choices:
+            return False
+        if self.pattern is not None and not re.fullmatch(self.pattern, str(value)):
+            return False
+        if self.nonempty and not str(value).strip():
+            return False
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if isinstance(value, float) and not math.isfinite(value):
+                return False
+            return ((self.ge is None or value >= self.ge) and (self.gt is None or value > self.gt)
+                    and (self.le is None or value <= self.le) and (self.lt is None or value < self.lt))
+        return True
+
+    def describe(self, noun: str = "a number") -> str:
+        if self.text:
+            return self.text
+        if self.choices is not None:
+            return "one of " + ", ".join(self.choices)
+        if self.nonempty:
+            return "a non-empty string"
+        bounds = [f"{op} {b:g}" for op, b in ((">=", self.ge), (">", self.gt), ("<=", self.le), ("<", self.lt))
+                  if b is not None]
+        out = f"{noun} " + " and ".join(bounds) if bounds else noun
+        return out + "".join(f" or {a}" for a in self.also)
+
+
+def allowed(default: Any, **kw: Any) -> Any:
+    """A dataclass field with default ``default`` whose values are limited by :class:`Allowed` (``kw``)."""
+    return field(default=default, metadata={"allowed": Allowed(**kw)})
+
+
+_POSITIVE_INT = {"ge": 1}
+_POSITIVE = {"gt": 0}
+#: Lightning's accepted values (tests/test_config_validation.py checks them against Lightning's registries;
+#: importing Lightning here would cost seconds for every config read)
+ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps", "tpu")
+PRECISIONS = ("32-true", "16-mixed", "bf16-mixed", "16-true", "bf16-true", "64-true", "transformer-engine",
+              "transformer-engine-float16", "64", "32", "16", "bf16")
+STRATEGIES = ("auto", "ddp", "ddp_spawn", "ddp_fork", "ddp_notebook", "ddp_find_unused_parameters_false",
+              "ddp_find_unused_parameters_true", "ddp_spawn_find_unused_parameters_false",
+              "ddp_spawn_find_unused_parameters_true", "ddp_fork_find_unused_parameters_false",
+              "ddp_fork_find_unused_parameters_true", "ddp_notebook_find_unused_parameters_false",
+              "ddp_notebook_find_unused_parameters_true", "deepspeed", "deepspeed_stage_1", "deepspeed_stage_2",
+              "deepspeed_stage_2_offload", "deepspeed_stage_3", "deepspeed_stage_3_offload",
+              "deepspeed_stage_3_offload_nvme", "fsdp", "fsdp_cpu_offload", "single_device", "single_xla",
+              "xla_debug", "xla", "single_tpu")
+
+
 @dataclass
 class ModelConfig:
     """Networks, pre-training variant and optimisation (Table 1's rows are files of conf/model)."""
 
-    pretraining: str = "normals"        # none | depth | normals: stage pretrain trains this target;
+    pretraining: str = allowed("normals", choices=("none", "depth", "normals"))
+    #                                     none | depth | normals: stage pretrain trains this target;
     #                                     stage height loads an encoder pre-trained this way
     encoder_ckpt: str | None = None     # stage height: the pre-training checkpoint (unless pretraining=none)
     finetune: bool = True               # stage height: unfreeze the pre-trained encoder at unfreeze_at_epoch
-    unfreeze_at_epoch: int = 10         # epoch the encoder joins training (finetune=true)
+    unfreeze_at_epoch: int = allowed(10, ge=0)  # epoch the encoder joins training (finetune=true)
     use_gru: bool = True                # false: Table 1's "x GRU" ablation
-    embed_dim: int = 50
-    encoder_hidden: int = 128
-    gru_hidden: int = 50
-    gru_layers: int = 2
-    mlp_hidden: int = 50
-    max_depth: float = 10.0             # m, encoder input clamp
-    lr_pretrain: float = 1e-3           # paper: Adam 1e-3, 500 epochs
-    lam: float = 10000.0                # paper: lambda = 10,000
-    lr_head: float = 1e-6               # paper: 1e-6
-    lr_encoder: float = 1e-6            # paper: "the same optimizer configuration"
-    alpha: float = ALPHA_PAPER          # ground-effect law f_a = alpha S / (d^2 - beta)
-    beta: float = BETA_PAPER
-    loss_frames: str = "all"            # all | last: frames of a window the height loss uses
+    embed_dim: int = allowed(50, **_POSITIVE_INT)
+    encoder_hidden: int = allowed(128, **_POSITIVE_INT)
+    gru_hidden: int = allowed(50, **_POSITIVE_INT)
+    gru_layers: int = allowed(2, **_POSITIVE_INT)
+    mlp_hidden: int = allowed(50, **_POSITIVE_INT)
+    max_depth: float = allowed(10.0, **_POSITIVE)            # m, encoder input clamp
+    lr_pretrain: float = allowed(1e-3, **_POSITIVE)          # paper: Adam 1e-3, 500 epochs
+    lam: float = allowed(10000.0, ge=0)                      # paper: lambda = 10,000
+    lr_head: float = allowed(1e-6, **_POSITIVE)              # paper: 1e-6
+    lr_encoder: float = allowed(1e-6, **_POSITIVE)           # paper: "the same optimizer configuration"
+    alpha: float = allowed(ALPHA_PAPER, ge=0)                # ground-effect law f_a = alpha S / (d^2 - beta)
+    beta: float = allowed(BETA_PAPER, ge=0)                  # m^2
+    loss_frames: str = allowed("all", choices=("all", "last"))  # frames of a window the height loss uses
 
 
 @dataclass
@@ -61,70 +140,83 @@ class SyntheticConfig:
     """Generate a synthetic dataset where none exists (smoke runs); see uavturb.data.shards."""
 
     enabled: bool = False
-    n_scenes: int = 6
-    trajs_per_scene: int = 3
-    T: int = 64
-    pairs: int = 512
-    seed: int = 0
+    n_scenes: int = allowed(6, ge=3, text="an integer >= 3 (train, val and test rooms)")
+    trajs_per_scene: int = allowed(3, **_POSITIVE_INT)
+    T: int = allowed(64, ge=2)
+    pairs: int = allowed(512, ge=2)
+    seed: int = allowed(0, ge=0, lt=2**32)
 
 
 @dataclass
 class DataConfig:
-    root: str = "data/sim"              # shard dataset (manifest.json)
-    pairs_root: str = "data/pairs"      # pre-training pairs (holds pairs/)
-    window: int = 8                     # H, frames of memory per sample
-    stride: int = 1                     # frames between training windows
-    eval_stride: int = 1                # frames between val/test windows
-    batch_size: int = 16
-    num_workers: int = 2
-    image_size: int = 128               # px (square); 0 = whatever the data holds
-    val_fraction: float = 0.1           # pairs held out for validation
+    root: str = allowed("data/sim", nonempty=True)            # shard dataset (manifest.json)
+    pairs_root: str = allowed("data/pairs", nonempty=True)    # pre-training pairs (holds pairs/)
+    window: int = allowed(8, **_POSITIVE_INT)                 # H, frames of memory per sample
+    stride: int = allowed(1, **_POSITIVE_INT)                 # frames between training windows
+    eval_stride: int = allowed(1, **_POSITIVE_INT)            # frames between val/test windows
+    batch_size: int = allowed(16, **_POSITIVE_INT)
+    num_workers: int = allowed(2, ge=0)
+    image_size: int = allowed(128, ge=0)                      # px (square); 0 = whatever the data holds
+    val_fraction: float = allowed(0.1, gt=0, lt=1)            # pairs held out for validation
     synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
 
 
 @dataclass
 class TrainerConfig:
-    max_epochs: int = 100
-    max_steps: int = -1
-    accelerator: str = "auto"
-    devices: str = "auto"               # "auto", a count ("2") or ids ("0,1")
-    strategy: str = "auto"
-    num_nodes: int = 1
-    precision: str = "32-true"
-    seed: int = 0
-    limit_train_batches: float = 1.0    # <= 1: fraction; > 1: number of batches
-    limit_val_batches: float = 1.0
-    limit_test_batches: float = 1.0
-    log_every_n_steps: int = 50
-    early_stopping_patience: int = 0    # epochs without val improvement; 0 = off
+    max_epochs: int = allowed(100, **_POSITIVE_INT)
+    max_steps: int = allowed(-1, ge=1, also=(-1,), text="an integer >= 1, or -1 (no limit)")
+    accelerator: str = allowed("auto", choices=ACCELERATORS)
+    devices: str = allowed("auto", pattern=r"auto|-1|[1-9][0-9]*|[0-9]+(,[0-9]+)*,?",
+                           text='"auto", a count ("2"), -1 (all) or device ids ("0,1")')
+    strategy: str = allowed("auto", choices=STRATEGIES)
+    num_nodes: int = allowed(1, **_POSITIVE_INT)
+    precision: str = allowed("32-true", choices=PRECISIONS)
+    seed: int = allowed(0, ge=0, lt=2**32)
+    limit_train_batches: float = allowed(1.0, **_POSITIVE)    # <= 1: fraction; > 1: number of batches
+    limit_val_batches: float = allowed(1.0, **_POSITIVE)
+    limit_test_batches: float = allowed(1.0, **_POSITIVE)
+    log_every_n_steps: int = allowed(50, **_POSITIVE_INT)
+    early_stopping_patience: int = allowed(0, ge=0)          # epochs without val improvement; 0 = off
     enable_progress_bar: bool = True
-    default_root_dir: str = "runs"      # checkpoints go to <default_root_dir>/checkpoints/<run>
+    default_root_dir: str = allowed("runs", nonempty=True)   # checkpoints go to <default_root_dir>/checkpoints/<run>
     deterministic: bool = False
-    num_threads: int = 0                # torch CPU threads (torch.set_num_threads); 0 = torch's default
+    num_threads: int = allowed(0, ge=0)  # torch CPU threads (torch.set_num_threads); 0 = torch's default
 
 
 @dataclass
 class TrackingConfig:
     enabled: bool = True
-    experiment: str = "uavturb"
+    experiment: str = allowed("uavturb", nonempty=True)
     run_name: str | None = None
 
 
 @dataclass
 class TrainConfig:
-    stage: str = "height"               # pretrain | height
+    stage: str = allowed("height", choices=("pretrain", "height"))
     model: ModelConfig = field(default_factory=ModelConfig)
     data: DataConfig = field(default_factory=DataConfig)
     trainer: TrainerConfig = field(default_factory=TrainerConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
 
 
-#: keys whose values come from a closed set
-CHOICES: dict[str, tuple[str, ...]] = {
-    "stage": ("pretrain", "height"),
-    "model.pretraining": ("none", "depth", "normals"),
-    "model.loss_frames": ("all", "last"),
-}
+def check_values(cfg: DictConfig, cls: Any = TrainConfig, prefix: str = "") -> None:
+    """Check every value of ``cfg`` against the :class:`Allowed` declared on its field.
+
+    Raises
+    ------
+    InputError : naming the first key whose value is not allowed, the value and what is.
+    """
+    for f in dataclasses.fields(cls):
+        value = cfg.get(f.name)
+        key = f"{prefix}{f.name}"
+        sub = typing.get_type_hints(cls)[f.name]
+        if dataclasses.is_dataclass(sub):
+            check_values(value, sub, key + ".")
+            continue
+        rule = f.metadata.get("allowed")
+        if rule is not None and not rule.accepts(value):
+            noun = "an integer" if sub is int else "a number"
+            raise InputError(key, f"{value!r} is not allowed; allowed: {rule.describe(noun)}")
 
 
 def allowed_keys(path: str) -> list[str]:
@@ -187,13 +279,10 @@ def _defaults(d: dict[str, Any], path: Path) -> dict[str, str]:
 
 
 def validate(cfg: DictConfig | TrainConfig | dict) -> DictConfig:
-    """Merge into the schema (types, unknown keys) and check the closed-set values."""
+    """Merge into the schema (types, unknown keys) and check every value (:func:`check_values`)."""
     schema = OmegaConf.structured(TrainConfig)
     cfg = _merge(schema, cfg, "config")
-    for key, allowed in CHOICES.items():
-        value = OmegaConf.select(cfg, key)
-        if value not in allowed:
-            raise InputError(key, f"{value!r} is not allowed; choices: {', '.join(allowed)}")
+    check_values(cfg)
     return cfg
 
 

@@ -36,7 +36,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -206,29 +205,30 @@ def _safe(name: str) -> str:
 def _log(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]], params: dict[str, Any]) -> str:
     import warnings
 
-    import mlflow
-
     from uavturb.experiments.export import get_run
-    from uavturb.experiments.tracking import git_commit, tracking_uri
+    from uavturb.experiments.tracking import client as tracking_client
+    from uavturb.experiments.tracking import close_run, run_tags
 
-    for name in ("mlflow", "alembic"):
-        logging.getLogger(name).setLevel(logging.ERROR)
     parent = get_run(run_id)
-    client = mlflow.MlflowClient(tracking_uri())
+    client = tracking_client()
     child = client.create_run(parent.info.experiment_id, run_name=f"evaluate-{run_id[:8]}",
-                              tags={"mlflow.parentRunId": run_id, "evaluation": "table2", "git_commit": git_commit()})
+                              tags=run_tags({"mlflow.parentRunId": run_id, "evaluation": "table2"}))
     cid = child.info.run_id
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        for k, v in params.items():
-            client.log_param(cid, k, str(v)[:500])
-        for name, m in results:
-            key = "total" if name == "Total" else _safe(name)
-            for mk, mv in m.items():
-                if np.isfinite(mv):
-                    client.log_metric(cid, f"eval/{key}/{mk}", float(mv))
-        client.log_artifacts(cid, str(folder), "evaluation")
-        client.set_terminated(cid, "FINISHED")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for k, v in params.items():
+                client.log_param(cid, k, str(v)[:500])
+            for name, m in results:
+                key = "total" if name == "Total" else _safe(name)
+                for mk, mv in m.items():
+                    if np.isfinite(mv):
+                        client.log_metric(cid, f"eval/{key}/{mk}", float(mv))
+            client.log_artifacts(cid, str(folder), "evaluation")
+    except BaseException as e:
+        close_run(client, cid, e)
+        raise
+    close_run(client, cid)
     return cid
 
 

@@ -45,6 +45,7 @@ import torch
 from torch import nn
 
 from uavturb.errors import InputError
+from uavturb.experiments.tracking import client as _client
 from uavturb.io.publish import check_output_folder, publish_folder
 from uavturb.nn.height import phi_alpha_beta
 from uavturb.nn.streaming import INPUT_NAMES, OUTPUT_NAMES, StreamingHeightModel
@@ -58,16 +59,6 @@ TOLERANCE = 1e-5
 
 
 # --- where a run's checkpoint is ---------------------------------------------------------
-
-
-def _client():
-    import mlflow
-
-    from uavturb.experiments.tracking import tracking_uri
-
-    for name in ("mlflow", "alembic"):
-        logging.getLogger(name).setLevel(logging.ERROR)
-    return mlflow.MlflowClient(tracking_uri())
 
 
 def get_run(run_id: str):
@@ -272,8 +263,7 @@ def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], sample: dict
 
     from uavturb.experiments.tracking import tracking_uri
 
-    for name in ("mlflow", "alembic"):
-        logging.getLogger(name).setLevel(logging.ERROR)
+    _client()  # opens the store (created safely, stale runs marked) before the fluent API uses it
     mlflow.set_tracking_uri(tracking_uri())
     signature = infer_signature(sample, outputs)
     with warnings.catch_warnings():

@@ -24,6 +24,7 @@ from the run's artifact ``checkpoints/best.ckpt``).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import logging
@@ -31,11 +32,11 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from omegaconf import DictConfig, OmegaConf
 
-from uavturb.errors import InputError
+from uavturb.errors import InputError, Interrupted
 from uavturb.experiments.config import load_config
 from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec
 from uavturb.experiments.train import CHECKPOINT_ARTIFACT, train
@@ -50,50 +51,51 @@ def _spec_hash(spec: DictConfig, preset: str, overrides: list[str]) -> str:
 
 
 class _Store:
-    """The sweep's MLflow experiment: parent run, and finished children looked up by tags."""
+    """The sweep's MLflow experiment: parent run, and children looked up by tags."""
 
     def __init__(self, experiment: str):
-        import mlflow
+        from uavturb.experiments.tracking import client, experiment_id
 
-        from uavturb.experiments.tracking import tracking_uri
-
-        for name in ("mlflow", "alembic"):
-            logging.getLogger(name).setLevel(logging.ERROR)
-        self.client = mlflow.MlflowClient(tracking_uri())
-        exp = self.client.get_experiment_by_name(experiment)
-        self.experiment_id = exp.experiment_id if exp else self.client.create_experiment(experiment)
+        self.client = client()
+        self.experiment_id = experiment_id(self.client, experiment)
         self.experiment = experiment
 
     def parent(self, name: str, sweep_hash: str, preset: str, params: dict[str, Any]) -> tuple[str, bool]:
-        """(run id, resumed): the latest parent of this sweep hash, else a new one."""
-        from uavturb.experiments.tracking import git_commit
+        """(run id, resumed): the latest parent of this sweep hash, else a new one. Two sweeps started
+        together find the same parent (a lock per sweep hash)."""
+        from uavturb.experiments.tracking import claim_run, named_lock, run_tags
 
-        runs = self.client.search_runs([self.experiment_id],
-                                       filter_string=f"tags.sweep = '{name}' and tags.sweep_hash = '{sweep_hash}'",
-                                       order_by=["attributes.start_time DESC"], max_results=1)
-        if runs:
-            run_id = runs[0].info.run_id
-            self.client.update_run(run_id, status="RUNNING")
-            return run_id, True
-        run = self.client.create_run(self.experiment_id, run_name=f"sweep-{name}-{preset}",
-                                     tags={"sweep": name, "sweep_hash": sweep_hash, "preset": preset,
-                                           "git_commit": git_commit()})
+        with named_lock(f"sweep-{sweep_hash}"):
+            runs = self.client.search_runs([self.experiment_id],
+                                           filter_string=f"tags.sweep = '{name}' and tags.sweep_hash = '{sweep_hash}'",
+                                           order_by=["attributes.start_time DESC"], max_results=1)
+            if runs:
+                run_id = runs[0].info.run_id
+                claim_run(self.client, run_id)
+                return run_id, True
+            run = self.client.create_run(self.experiment_id, run_name=f"sweep-{name}-{preset}",
+                                         tags=run_tags({"sweep": name, "sweep_hash": sweep_hash, "preset": preset}))
         for k, v in params.items():
             self.client.log_param(run.info.run_id, k, v)
         return run.info.run_id, False
 
-    def finished_children(self, parent_id: str) -> list[Any]:
-        """FINISHED child runs of a parent (nested through tag ``mlflow.parentRunId``)."""
+    def children(self, parent_id: str, status: str | None = None) -> list[Any]:
+        """Child runs of a parent (nested through tag ``mlflow.parentRunId``), latest first; only
+        those of ``status`` if given."""
+        filt = f"tags.`mlflow.parentRunId` = '{parent_id}'"
+        if status is not None:
+            filt += f" and attributes.status = '{status}'"
         out, token = [], None
         while True:
-            page = self.client.search_runs(
-                [self.experiment_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent_id}' and "
-                                                    "attributes.status = 'FINISHED'",
-                max_results=1000, page_token=token)
+            page = self.client.search_runs([self.experiment_id], filter_string=filt, max_results=1000,
+                                           order_by=["attributes.start_time DESC"], page_token=token)
             out.extend(page)
             token = page.token
             if not token:
                 return out
+
+    def finished_children(self, parent_id: str) -> list[Any]:
+        return self.children(parent_id, "FINISHED")
 
 
 def _find(children: list[Any], **tags: str) -> Any | None:
@@ -101,6 +103,57 @@ def _find(children: list[Any], **tags: str) -> Any | None:
         if all(run.data.tags.get(k) == v for k, v in tags.items()):
             return run
     return None
+
+
+@contextlib.contextmanager
+def _child_lock(parent_id: str, label: str) -> Iterator[None]:
+    """Only one sweep process of this host works on a child at a time; the others wait, then
+    find it finished (two identical sweeps started together do not train it twice)."""
+    from filelock import Timeout
+
+    from uavturb.experiments.tracking import named_lock
+
+    lock = named_lock(f"child-{parent_id}-{label}")
+    try:
+        lock.acquire(timeout=0)
+    except Timeout:
+        _say(f"  {label}: another sweep is working on it; waiting")
+        lock.acquire()
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+def _child_state(store: _Store, parent_id: str, done: Any, **tags: str) -> tuple[Any | None, str | None]:
+    """(finished run to reuse, id of an interrupted run to resume) of the child with ``tags``.
+
+    A finished run counts where ``done(run)`` holds. A run still RUNNING in a live process of this
+    host (a ``uavturb train --resume`` started by hand) is waited for. An interrupted one (KILLED,
+    FAILED, or RUNNING whose process is gone) that :func:`uavturb.experiments.train.train` opened is
+    resumed in place rather than trained again beside it.
+    """
+    from uavturb.experiments.tracking import process_alive
+
+    said = False
+    while True:
+        runs = [r for r in store.children(parent_id) if all(r.data.tags.get(k) == v for k, v in tags.items())]
+        for run in runs:
+            if run.info.status == "FINISHED" and done(run):
+                return run, None
+        live = [r for r in runs if r.info.status == "RUNNING" and process_alive(r.data.tags)]
+        if not live:
+            break
+        if not said:
+            _say(f"  waiting for run {live[0].info.run_id} (pid {live[0].data.tags.get('pid')}) to end")
+            said = True
+        time.sleep(5.0)
+    for run in runs:  # latest first
+        unfinished = run.info.status in ("KILLED", "FAILED") or (
+            run.info.status == "RUNNING" and process_alive(run.data.tags) is False)
+        if unfinished and "checkpoint_dir" in run.data.tags:
+            return None, run.info.run_id
+    return None, None
 
 
 def _checkpoint_of(run: Any, cache_dir: Path) -> str | None:
@@ -162,6 +215,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     InputError : bad sweep file, unknown preset, bad override (before anything runs).
     """
     from uavturb.experiments.compare import compare
+    from uavturb.experiments.tracking import close_run
 
     spec_path = Path(spec)
     sp = load_spec(spec_path)
@@ -207,9 +261,12 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     _say(f"sweep {sp.name} ({preset}, {n_seeds} seed(s), {len(rows)} rows): MLflow experiment {experiment!r}, "
          f"parent run {parent_id}{' (resumed)' if resumed else ''}")
 
+    def has_metrics(run: Any) -> bool:
+        return all(k in run.data.metrics for k in FINAL_METRICS)
+
     def finished_row(row: Any, seed: int) -> Any | None:
         run = _find(children, ablation=row.name, seed=str(seed))
-        return run if run is not None and all(k in run.data.metrics for k in FINAL_METRICS) else None
+        return run if run is not None and has_metrics(run) else None
 
     # per seed, the pre-training variants the unfinished rows still need
     todo = {seed: sorted({variants[r.name] for r in rows if finished_row(r, seed) is None} - {"none"})
@@ -230,44 +287,49 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
         eta = f"  (sweep ETA {t_run / n_run * (total - done):.0f} s)" if n_run and done < total else ""
         _say(f"[{done}/{total}] {label}: {took}  {shown}{eta}")
 
+    def run_child(cfg: DictConfig, label: str, tags: dict[str, str], resume: str | None) -> dict[str, Any]:
+        tags = {"mlflow.parentRunId": parent_id, **tags, "sweep_hash": sweep_hash}
+        _say(f"[{done + 1}/{total}] {label} ..." + (f" (resuming run {resume})" if resume else ""))
+        return train(cfg, tags=tags, resume=resume) if resume else train(cfg, tags=tags)
+
     try:
         for seed in range(n_seeds):
             for v in todo[seed]:
                 t0, label = time.perf_counter(), f"pretrain {v} seed {seed}"
-                found = _find(children, pretrain=v, seed=str(seed))
-                ckpt = _checkpoint_of(found, cache) if found is not None else None
-                if ckpt is not None:
-                    pretrain_ckpt[(v, seed)] = ckpt
-                    progress(label, True, 0.0, dict(found.data.metrics))
-                    continue
-                _say(f"[{done + 1}/{total}] {label} ...")
-                out = train(for_run(base_pretrain[v], seed, label),
-                            tags={"mlflow.parentRunId": parent_id, "pretrain": v, "seed": str(seed),
-                                  "sweep_hash": sweep_hash})
+                with _child_lock(parent_id, label):
+                    found, resume = _child_state(store, parent_id, lambda r: _checkpoint_of(r, cache) is not None,
+                                                 pretrain=v, seed=str(seed))
+                    if found is not None:
+                        pretrain_ckpt[(v, seed)] = _checkpoint_of(found, cache)
+                        progress(label, True, 0.0, dict(found.data.metrics))
+                        continue
+                    out = run_child(for_run(base_pretrain[v], seed, label), label, {"pretrain": v, "seed": str(seed)},
+                                    resume)
                 if not out["checkpoint"]:
                     raise InputError(label, "training produced no checkpoint")
                 pretrain_ckpt[(v, seed)] = out["checkpoint"]
                 progress(label, False, time.perf_counter() - t0, out["metrics"])
             for row in rows:
                 t0, label = time.perf_counter(), f"{row.name} seed {seed}"
-                found = finished_row(row, seed)
-                if found is not None:
-                    results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
-                                    "metrics": dict(found.data.metrics),
-                                    "checkpoint": found.data.tags.get("checkpoint"), "reused": True})
-                    progress(label, True, 0.0, dict(found.data.metrics))
-                    continue
-                cfg = for_run(base_height[row.name], seed, label)
-                if variants[row.name] != "none":
-                    cfg.model.encoder_ckpt = pretrain_ckpt[(variants[row.name], seed)]
-                _say(f"[{done + 1}/{total}] {label} ...")
-                out = train(cfg, tags={"mlflow.parentRunId": parent_id, "ablation": row.name, "seed": str(seed),
-                                       "sweep_hash": sweep_hash})
+                with _child_lock(parent_id, label):
+                    found, resume = _child_state(store, parent_id, has_metrics, ablation=row.name, seed=str(seed))
+                    if found is not None:
+                        results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
+                                        "metrics": dict(found.data.metrics),
+                                        "checkpoint": found.data.tags.get("checkpoint"), "reused": True})
+                        progress(label, True, 0.0, dict(found.data.metrics))
+                        continue
+                    cfg = for_run(base_height[row.name], seed, label)
+                    if variants[row.name] != "none":
+                        cfg.model.encoder_ckpt = pretrain_ckpt[(variants[row.name], seed)]
+                    out = run_child(cfg, label, {"ablation": row.name, "seed": str(seed)}, resume)
                 results.append({"row": row.name, "seed": seed, "run_id": out["run_id"], "metrics": out["metrics"],
                                 "checkpoint": out["checkpoint"], "reused": False})
                 progress(label, False, time.perf_counter() - t0, out["metrics"])
-    except BaseException:
-        store.client.set_terminated(parent_id, status="KILLED")
+    except BaseException as e:
+        status = close_run(store.client, parent_id, e)
+        if isinstance(e, Interrupted):
+            e.notes.append(f"sweep parent run {parent_id} marked {status}; run the same command again to resume it")
         raise
     table = compare(experiment=experiment, parent_run_id=parent_id, spec=spec_path, out=None)
     store.client.log_text(parent_id, table["markdown_text"], "table1.md")
@@ -276,6 +338,6 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
         for key in ("rmse_d_mean", "rmse_d_std", "rmse_fa_mean", "rmse_fa_std"):
             if not math.isnan(r[key]):
                 store.client.log_metric(parent_id, f"{r['row']}/test/{key}", r[key])
-    store.client.set_terminated(parent_id, status="FINISHED")
+    close_run(store.client, parent_id)
     return {"parent_run_id": parent_id, "experiment": experiment, "resumed": resumed, "runs": results,
             "pretrain": pretrain_ckpt, "table": table["table"]}

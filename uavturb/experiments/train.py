@@ -19,12 +19,19 @@ Checkpoints: the best one is kept locally at
 run id; a time stamp when tracking is off), logged to the run as the artifact
 ``checkpoints/best.ckpt`` (:data:`CHECKPOINT_ARTIFACT`), and its absolute local path is the
 run's tag ``checkpoint``. Height runs also log ``plots/test_heights.png`` (predicted vs true
-height over test trajectories, :mod:`uavturb.training_plots`).
+height over test trajectories, :mod:`uavturb.training_plots`). ``last.ckpt`` beside it holds the
+latest epoch (tag ``checkpoint_dir``: the folder).
+
+Interruptions and resuming: the run is FINISHED when training and testing complete, KILLED when
+a signal stops it (:class:`uavturb.errors.Interrupted`), FAILED on an error; its tags ``host``,
+``pid`` and ``pid_start`` let any later command mark it FAILED if its process dies without
+closing it (SIGKILL). ``train(cfg, resume=RUN_ID)`` (``uavturb train --resume RUN_ID``) continues
+such a run in the same MLflow run from its ``last.ckpt``, as Lightning's ``ckpt_path`` does.
+Bad config values and bad data fail before any run is opened.
 """
 
 from __future__ import annotations
 
-import logging
 import time
 from pathlib import Path
 from typing import Any
@@ -104,24 +111,145 @@ def _build(cfg: DictConfig):
     return module, dm, callbacks, "val/rmse_d"
 
 
-def _logger(cfg: DictConfig, data_hash: str, tags: dict[str, str] | None = None):
-    """Lightning's MLFlowLogger with the resolved config, commit and data hash logged once."""
+#: keys a resumed run may change (how long and where it trains, not what it learns); any other
+#: difference from the run's own config is refused
+RESUMABLE_KEYS = ("trainer.max_epochs", "trainer.max_steps", "trainer.num_threads", "trainer.enable_progress_bar",
+                  "trainer.accelerator", "trainer.devices", "trainer.strategy", "trainer.num_nodes",
+                  "data.num_workers", "model.encoder_ckpt")
+#: name of the checkpoint of the latest epoch, in the run's checkpoint folder (tag ``checkpoint_dir``)
+LAST_CHECKPOINT = "last.ckpt"
+
+
+def _run_name(cfg: DictConfig) -> str:
+    return cfg.tracking.run_name or f"{cfg.stage}-{cfg.model.pretraining}-{'gru' if cfg.model.use_gru else 'nogru'}"
+
+
+def _is_rank_zero() -> bool:
+    from lightning.pytorch.utilities import rank_zero_only
+
+    return getattr(rank_zero_only, "rank", 0) == 0
+
+
+def _resumable_run(client, run_id: str):
+    """The run ``run_id`` if it is a training run that may be resumed now; InputError otherwise."""
+    from mlflow.exceptions import MlflowException
+
+    from uavturb.experiments.tracking import process_alive, tracking_uri
+
+    try:
+        run = client.get_run(run_id)
+    except MlflowException:
+        raise InputError("--resume", f"no run '{run_id}' in the MLflow store {tracking_uri()}") from None
+    tags = run.data.tags
+    if "stage" not in tags or "checkpoint_dir" not in tags:
+        raise InputError("--resume", f"run {run_id} is not a uavturb training run (no tags stage, checkpoint_dir)")
+    alive = process_alive(tags)
+    if run.info.status == "RUNNING" and alive is not False:  # False: its process is gone (stale)
+        where = f"pid {tags.get('pid', '?')} on {tags.get('host', '?')}"
+        state = "still runs" if alive else "is RUNNING on another host"
+        raise InputError("--resume", f"run {run_id} {state} ({where}); stop it first or wait for it")
+    return run
+
+
+def run_config(run_id: str) -> DictConfig:
+    """The resolved config a training run logged (its ``config.yaml`` artifact), validated."""
+    import tempfile
+
+    from uavturb.experiments.tracking import client
+
+    c = client()
+    _resumable_run(c, run_id)
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            path = c.download_artifacts(run_id, "config.yaml", tmp)
+        except Exception:  # noqa: BLE001 - MlflowException or OSError: the artifact is gone
+            raise InputError("--resume", f"run {run_id} has no readable config.yaml artifact") from None
+        return validate(OmegaConf.load(path))
+
+
+def resume_config(run_id: str, overrides: list[str] | None = None, experiment: str | None = None) -> DictConfig:
+    """The config of ``uavturb train --resume RUN_ID [overrides]``.
+
+    With only :data:`RESUMABLE_KEYS` overrides (e.g. ``trainer.max_epochs=50``) and no
+    ``--experiment``: the run's own config with those changes. Otherwise the config is composed
+    as for a new run (repeating the run's command line); :func:`train` then refuses it if it
+    differs from the run's in any other key.
+    """
+    from uavturb.experiments.config import load_config
+
+    overrides = list(overrides or [])
+    if experiment is None and all(o.split("=", 1)[0] in RESUMABLE_KEYS for o in overrides):
+        base = run_config(run_id)
+        return validate(OmegaConf.merge(base, OmegaConf.from_dotlist(overrides)))
+    return load_config(overrides, experiment=experiment)
+
+
+def _config_changes(cfg: DictConfig, run) -> dict[str, tuple[str, str]]:
+    """``{key: (run's value, new value)}`` where ``cfg`` differs from a run's logged params; InputError
+    where a key outside :data:`RESUMABLE_KEYS` differs."""
+    changes = {}
+    for key, value in to_flat_dict(cfg).items():
+        new, old = str("null" if value is None else value)[:250], run.data.params.get(key)
+        if old is None or old == new:
+            continue
+        if key not in RESUMABLE_KEYS:
+            raise InputError("--resume", f"{key} is {new!r} here but {old!r} in run {run.info.run_id}; a resumed run "
+                             f"keeps its config except {', '.join(RESUMABLE_KEYS)} (or start a new run)")
+        changes[key] = (old, new)
+    return changes
+
+
+def _open_run(cfg: DictConfig, data_hash: str, ckpt_root: Path, tags: dict[str, str] | None,
+              resume: str | None) -> tuple[Any, str, Path | None]:
+    """Open (or, with ``resume``, re-open) the MLflow run: (client, run id, last checkpoint or None).
+
+    A new run gets the resolved config (params and ``config.yaml``), the tags ``git_commit``,
+    ``data_hash``, ``stage``, ``checkpoint_dir`` and :func:`uavturb.experiments.tracking.process_tags`.
+    A resumed one is marked RUNNING by this process, keeps its params, and records what changed
+    in the tags ``resumed`` (how many times) and ``resume_changes``.
+    """
+    from mlflow.entities import Param
+
+    from uavturb.experiments.tracking import claim_run, client, experiment_id, run_tags
+
+    c = client()
+    if resume is not None:
+        run = _resumable_run(c, resume)
+        changes = _config_changes(cfg, run)
+        claim_run(c, resume)
+        c.set_tag(resume, "resumed", str(int(run.data.tags.get("resumed", "0")) + 1))
+        if changes:
+            c.set_tag(resume, "resume_changes", ", ".join(f"{k} {a} -> {b}" for k, (a, b) in changes.items()))
+        last = Path(run.data.tags["checkpoint_dir"]) / LAST_CHECKPOINT
+        return c, resume, last if last.is_file() else None
+    exp_id = experiment_id(c, cfg.tracking.experiment)
+    run = c.create_run(exp_id, run_name=_run_name(cfg),
+                       tags=run_tags({"data_hash": data_hash, "stage": cfg.stage, **(tags or {})}))
+    run_id = run.info.run_id
+    try:
+        c.set_tag(run_id, "checkpoint_dir", str((ckpt_root / run_id).resolve()))
+        params = [Param(k, str("null" if v is None else v)[:250]) for k, v in to_flat_dict(cfg).items()]
+        for i in range(0, len(params), 100):
+            c.log_batch(run_id, params=params[i:i + 100])
+        c.log_text(run_id, OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
+    except BaseException as e:
+        from uavturb.experiments.tracking import close_run
+
+        close_run(c, run_id, e)
+        raise
+    return c, run_id, None
+
+
+def _logger(cfg: DictConfig, run_id: str | None):
+    """Lightning's MLFlowLogger writing into run ``run_id`` (None on DDP ranks other than 0)."""
     if not cfg.tracking.enabled:
         return None
     from lightning.pytorch.loggers import MLFlowLogger
 
-    from uavturb.experiments.tracking import git_commit, tracking_uri
+    from uavturb.experiments.tracking import tracking_uri
 
-    for name in ("mlflow", "alembic"):
-        logging.getLogger(name).setLevel(logging.ERROR)
-    run_name = cfg.tracking.run_name or f"{cfg.stage}-{cfg.model.pretraining}-{'gru' if cfg.model.use_gru else 'nogru'}"
-    logger = MLFlowLogger(experiment_name=cfg.tracking.experiment, run_name=run_name, tracking_uri=tracking_uri(),
-                          tags={"git_commit": git_commit(), "data_hash": data_hash, "stage": cfg.stage,
-                                **(tags or {})},
-                          log_model=False)
-    logger.log_hyperparams({k: ("null" if v is None else v) for k, v in to_flat_dict(cfg).items()})
-    logger.experiment.log_text(logger.run_id, OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
-    return logger
+    return MLFlowLogger(experiment_name=cfg.tracking.experiment, run_name=_run_name(cfg), tracking_uri=tracking_uri(),
+                        run_id=run_id, log_model=False)
 
 
 def _log_checkpoint(logger, best: str | None) -> None:
@@ -150,7 +278,25 @@ def _log_height_plot(logger, module, dm, window: int) -> None:
         logger.experiment.log_artifact(logger.run_id, str(png), "plots")
 
 
-def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = None) -> dict[str, Any]:
+class _FirstEpoch:
+    """Remembers the epoch training starts at (0, or where a resumed run continues)."""
+
+    def __init__(self):
+        from lightning.pytorch.callbacks import Callback
+
+        outer = self
+
+        class _Cb(Callback):
+            def on_train_epoch_start(self, trainer, pl_module):
+                if outer.epoch is None:
+                    outer.epoch = int(trainer.current_epoch)
+
+        self.epoch: int | None = None
+        self.callback = _Cb()
+
+
+def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = None,
+          resume: str | None = None) -> dict[str, Any]:
     """Train one stage as configured, test its best checkpoint, and return the results.
 
     Parameters
@@ -158,23 +304,34 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     cfg : a config from :func:`uavturb.config.load_config` (or anything that merges into
         :class:`uavturb.config.TrainConfig`; validated again here).
     tags : extra MLflow tags of the run (e.g. ``mlflow.parentRunId`` to nest it in a sweep).
+    resume : id of an interrupted (KILLED, FAILED) or finished run to continue in the same MLflow
+        run from its ``last.ckpt`` (epoch, optimizer, callbacks), as Lightning's ``ckpt_path`` does;
+        without a ``last.ckpt`` (stopped in its first epoch) it starts over in that run. ``cfg``
+        may differ from the run's config only in :data:`RESUMABLE_KEYS`.
 
     Returns
     -------
     dict with ``stage``, ``metrics`` (``{"val/rmse_d": ..., "test/rmse_d": ..., ...}``,
     floats), ``checkpoint`` (path of the best checkpoint, str), ``run_id`` (MLflow run id or
-    None), ``data_hash``.
+    None), ``data_hash``, ``start_epoch`` (first epoch trained here; > 0 when resumed).
 
     Raises
     ------
-    InputError : bad config or data.
+    InputError : bad config or data (before any run is opened), or a run that cannot be resumed.
+    uavturb.errors.Interrupted : SIGTERM or SIGINT (the command line's handlers); the run is then
+        KILLED and the error's notes say how to resume it.
     """
     import lightning as L
-    from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
 
     from uavturb.io.shards import dataset_hash
 
     cfg = validate(cfg)
+    if resume is not None and not cfg.tracking.enabled:
+        raise InputError("--resume", "needs tracking.enabled=true (the run lives in MLflow)")
+    if resume is not None and _is_rank_zero():  # a run that cannot be resumed fails before any work
+        from uavturb.experiments.tracking import client
+
+        _config_changes(cfg, _resumable_run(client(), resume))
     t = cfg.trainer
     if t.num_threads > 0:
         import torch
@@ -184,14 +341,43 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     data_root = _prepare_data(cfg)
     data_hash = dataset_hash(data_root) if data_root.is_dir() else "missing"
     module, dm, callbacks, monitor = _build(cfg)
-    logger = _logger(cfg, data_hash, tags)
+    dm.setup("fit")  # bad data fails here, before a run is opened
+    ckpt_root = Path(t.default_root_dir) / "checkpoints"
+    client, run_id, last = None, None, None
+    if cfg.tracking.enabled and _is_rank_zero():
+        client, run_id, last = _open_run(cfg, data_hash, ckpt_root, tags, resume)
+    elif resume is not None:  # DDP ranks > 0: rank 0's run, found by the same command line's --resume
+        last = ckpt_root / resume / LAST_CHECKPOINT
+        last = last if last.is_file() else None
+    try:
+        return _fit_and_test(cfg, module, dm, callbacks, monitor, client, run_id, last, ckpt_root, resume, data_hash)
+    except BaseException as e:
+        if client is not None:
+            from uavturb.errors import Interrupted
+            from uavturb.experiments.tracking import close_run
+
+            status = close_run(client, run_id, e)
+            if isinstance(e, Interrupted):
+                e.notes.append(f"run {run_id} marked {status}; continue it with `uavturb train --resume {run_id}`")
+        raise
+
+
+def _fit_and_test(cfg, module, dm, callbacks, monitor, client, run_id, last, ckpt_root, resume, data_hash
+                  ) -> dict[str, Any]:
+    """Fit (from ``last`` when resuming), test the best checkpoint, log it; the run is closed FINISHED."""
+    import sys
+
+    import lightning as L
+    from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
+
+    t = cfg.trainer
+    logger = _logger(cfg, run_id)
     # Under DDP only rank 0 has an MLflow run; ModelCheckpoint broadcasts rank 0's folder to the others.
-    run_id = logger.run_id if logger is not None else None
-    run_tag = run_id or time.strftime("%Y%m%d-%H%M%S")
-    ckpt_dir = Path(t.default_root_dir) / "checkpoints" / run_tag
-    checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename="best-{epoch}", monitor=monitor, mode="min", save_top_k=1,
-                                 auto_insert_metric_name=False)
-    callbacks.append(checkpoint)
+    run_tag = run_id or resume or time.strftime("%Y%m%d-%H%M%S")
+    checkpoint = ModelCheckpoint(dirpath=ckpt_root / run_tag, filename="best-{epoch}", monitor=monitor, mode="min",
+                                 save_top_k=1, save_last=True, auto_insert_metric_name=False)
+    first = _FirstEpoch()
+    callbacks = [*callbacks, checkpoint, first.callback]
     if t.early_stopping_patience > 0:
         callbacks.append(EarlyStopping(monitor=monitor, mode="min", patience=t.early_stopping_patience))
     trainer = L.Trainer(max_epochs=t.max_epochs, max_steps=t.max_steps, accelerator=t.accelerator,
@@ -201,17 +387,22 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
                         log_every_n_steps=t.log_every_n_steps, enable_progress_bar=t.enable_progress_bar,
                         default_root_dir=t.default_root_dir, deterministic=t.deterministic, callbacks=callbacks,
                         logger=logger if logger is not None else False, enable_model_summary=False)
-    trainer.fit(module, datamodule=dm)
+    if resume is not None and trainer.is_global_zero:
+        print(f"resuming run {resume} " + (f"from {last}" if last else f"from the start (no {LAST_CHECKPOINT} yet)"),
+              file=sys.stderr, flush=True)
+    trainer.fit(module, datamodule=dm, ckpt_path=str(last) if last else None)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     best = checkpoint.best_model_path or None
     tested = trainer.test(module, datamodule=dm, ckpt_path=best if best else None, verbose=False)
     for row in tested:
         metrics.update({k: float(v) for k, v in row.items()})
-    if logger is not None and trainer.is_global_zero:
+    if client is not None and trainer.is_global_zero:
+        from uavturb.experiments.tracking import close_run
+
         _log_checkpoint(logger, best)
         if cfg.stage == "height":
             _log_height_plot(logger, module, dm, cfg.data.window)
-        logger.finalize("success")
-    return {"stage": cfg.stage, "metrics": metrics, "checkpoint": best, "run_id": logger.run_id if logger else None,
-            "global_rank": trainer.global_rank,
-            "data_hash": data_hash}
+        close_run(client, run_id)
+    return {"stage": cfg.stage, "metrics": metrics, "checkpoint": best, "run_id": run_id,
+            "global_rank": trainer.global_rank, "data_hash": data_hash,
+            "start_epoch": first.epoch if first.epoch is not None else int(trainer.current_epoch)}

@@ -160,14 +160,13 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(out, "exists and is not a folder")
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     all_tasks = plan_tasks(p, seed)
     tasks = [t for t in all_tasks if t.index % n == k - 1]
     if not tasks:
         raise InputError("--shard", f"shard {k}/{n} holds no trajectory (the preset has {len(all_tasks)})")
-    for t in tasks:  # leftovers of an interrupted writer of this shard's own trajectories
-        for junk in out.glob(f".{t.name}.*"):
-            shutil.rmtree(junk, ignore_errors=True)
+    _remove_unfinished(out, tasks, created=False)  # leftovers of an interrupted writer of this shard
     metas = _existing(out, tasks, chash)
     todo = [t for t in tasks if t.name not in metas]
     # scene-major order keeps each worker's renderer on one scene for several trajectories
@@ -186,6 +185,9 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
 
     try:
         _run_jobs([(t, p, int(seed), controller, str(out)) for t in todo], int(workers), str(out), chash, done)
+    except BaseException:  # Interrupted (SIGTERM, SIGINT) or an error: the workers are stopped by now
+        _remove_unfinished(out, todo, created)
+        raise
     finally:
         if bar is not None:
             bar.close()
@@ -215,9 +217,29 @@ def _run_jobs(jobs: list, workers: int, out: str, chash: str, done: Callable[[di
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")
-    with ctx.Pool(min(workers, len(jobs)), initializer=init_worker, initargs=(out, chash)) as pool:
+    with ctx.Pool(min(workers, len(jobs)), initializer=_init_pool_worker,
+                  initargs=(out, chash)) as pool:  # on an exception: pool.terminate()
         for meta in pool.imap_unordered(work, jobs, chunksize=1):
             done(meta)
+
+
+def _init_pool_worker(out: str, chash: str) -> None:
+    """A pool worker: Ctrl-C (SIGINT to the whole process group) is the parent's to handle; it
+    stops the workers (SIGTERM, ``Pool.terminate``) and removes what they left half-written."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    init_worker(out, chash)
+
+
+def _remove_unfinished(out: Path, tasks: Sequence[Task], created: bool) -> None:
+    """After an interruption: the temporary folders of trajectories being written, and ``out``
+    itself where this run created it and nothing was finished."""
+    for t in tasks:
+        for junk in out.glob(f".{t.name}.*"):
+            shutil.rmtree(junk, ignore_errors=True)
+    if created and out.is_dir() and not any(out.iterdir()):
+        out.rmdir()
 
 
 def merge_datasets(dirs: Sequence[str | Path], out: str | Path):
