@@ -37,7 +37,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from uavturb.errors import InputError
 from uavturb.experiments.config import load_config
-from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec
+from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec, resolve_spec
 from uavturb.experiments.train import CHECKPOINT_ARTIFACT, train
 
 
@@ -143,12 +143,12 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
 
     Parameters
     ----------
-    spec : the sweep file (default ``sweeps/ablation.yaml``).
+    spec : the sweep file, or a shipped sweep's name (default: the shipped ``ablation``).
     preset : a key of the file's ``presets`` (``quick``, ``paper``).
     seeds : number of seeds ``0 .. seeds-1`` (default: the preset's).
     overrides : ``key=value`` config overrides for every run (after the preset's).
     experiment : MLflow experiment (default: the file's ``experiment``).
-    conf_dir : the ``conf`` folder (default: the repository's).
+    conf_dir : a user's config folder, searched before the shipped one.
 
     Returns
     -------
@@ -163,7 +163,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     """
     from uavturb.experiments.compare import compare
 
-    spec_path = Path(spec)
+    spec_path = resolve_spec(spec)
     sp = load_spec(spec_path)
     if preset not in sp.presets:
         raise InputError("--preset", f"no preset {preset!r} in {spec_path}; choices: {', '.join(sp.presets)}")
