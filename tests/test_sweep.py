@@ -113,8 +113,18 @@ def test_sweep_runs_rows_times_seeds_reusing_pretraining(tmp_path, store, monkey
     assert parent.info.status == "FINISHED" and parent.data.tags["preset"] == "quick"
     artifacts = {a.path for a in mlflow.MlflowClient(store[0]).list_artifacts(parent.info.run_id)}
     assert {"table1.md", "table1.csv", "sweep.yaml"} <= artifacts
-    assert parent.data.metrics["normals/finetune/test/rmse_d_mean"] == pytest.approx(
-        np.mean([known_rmse("normals/finetune", s)[0] for s in (0, 1)]))
+    # Table 1 is the parent's description; its means stay off the metrics (the run table compares children)
+    assert parent.data.metrics == {}
+    note = parent.data.tags["mlflow.note.content"]
+    mean_d = np.mean([known_rmse("normals/finetune", s)[0] for s in (0, 1)])
+    assert any(line.startswith("| normals | finetune |") and f"{mean_d:.3f}" in line for line in note.splitlines())
+    # each height run names the pre-training run its encoder comes from
+    pre_run = {(r.data.tags["pretrain"], r.data.tags["seed"]): r.info.run_id for r in runs.values()
+               if "pretrain" in r.data.tags}
+    for r in height:
+        variant = r.data.tags["ablation"].split("/")[0]
+        assert r.data.tags.get("pretrain_run_id") == pre_run.get((variant, r.data.tags["seed"]))
+        assert r.data.tags["mlflow.note.content"].startswith(f"Table 1 row `{r.data.tags['ablation']}`")
     assert res["table"].splitlines()[3].split()[:2] == ["none", "no-GRU"]
 
 
@@ -222,9 +232,13 @@ def test_sweep_typos_fail_before_anything_runs(tmp_path, store, monkeypatch):
 def test_cli_compare_without_store_is_one_line(tmp_path, store, capsys):
     from uavturb.cli import main
 
-    assert main(["compare", "--experiment", "nothing-here"]) == 2
+    assert main(["compare", "--mlflow-experiment", "nothing-here"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "nothing-here" in err
+    # the old spelling still works, with one deprecation line
+    assert main(["compare", "--experiment", "nothing-here"]) == 2
+    old = capsys.readouterr().err.splitlines()
+    assert old[0] == "uavturb compare: --experiment is deprecated, use --mlflow-experiment" and old[1] == err.strip()
 
 
 @pytest.mark.slow
@@ -253,6 +267,6 @@ def test_cli_sweep_typo_is_one_line_naming_the_key(tmp_path, store, capsys, monk
 
     fake = FakeTrain(tmp_path)
     monkeypatch.setattr(sweep_mod, "train", fake)
-    assert main(["sweep", str(DEFAULT_SPEC), "--experiment", store[1], "trainer.max_epoch=3"]) == 2
+    assert main(["sweep", str(DEFAULT_SPEC), "--mlflow-experiment", store[1], "trainer.max_epoch=3"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "trainer.max_epoch:" in err and "max_epochs" in err and fake.calls == []

@@ -171,7 +171,7 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     client, uri = _client()
     exp = client.get_experiment_by_name(experiment)
     if exp is None:
-        raise InputError("--experiment", f"no MLflow experiment {experiment!r} in {uri} (run `uavturb sweep` first)")
+        raise InputError("--mlflow-experiment", f"no MLflow experiment {experiment!r} in {uri} (run `uavturb sweep` first)")
     if parent_run_id is None:
         parents = _search(client, exp.experiment_id, "tags.sweep_hash LIKE '%' and tags.sweep LIKE '%'",
                           ["attributes.start_time DESC"])
@@ -187,7 +187,7 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     runs = [r for r in _search(client, exp.experiment_id, filt) if "ablation" in r.data.tags]
     rows = table_rows(runs, list(sp.rows))
     if not rows:
-        raise InputError("--experiment", f"no finished ablation run with {', '.join(METRICS)} in experiment "
+        raise InputError("--mlflow-experiment", f"no finished ablation run with {', '.join(METRICS)} in experiment "
                          f"{experiment!r}" + (f", sweep {parent_run_id}" if parent_run_id else ""))
     title = (f"Table 1: test scenes, mean ± std over seeds (experiment {experiment}"
              + (f", sweep {parent_run_id})" if parent_run_id else ")"))

@@ -2,6 +2,14 @@
 
 The store is MLflow 3's own default: an embedded SQLite ``mlflow.db`` with artifacts under
 ``mlruns/`` in the working directory; ``MLFLOW_TRACKING_URI`` points elsewhere (a server).
+
+MLflow's own conventions, so that its UI fills its columns: experiments are tagged
+``mlflow.experimentKind = custom_model_development`` (the UI opens on the runs, not on MLflow 3's
+GenAI overview), runs ``mlflow.source.git.commit`` (the Version column), datasets are logged
+inputs with their digest (the Dataset column), descriptions are ``mlflow.note.content``. Paths
+in tags and params are relative to the working folder where they lie under it
+(:func:`project_path`). A run that a command logs again with the same inputs (tag
+:data:`KEY_TAG`) is reused rather than duplicated (:func:`find_run`).
 """
 
 from __future__ import annotations
@@ -25,22 +33,106 @@ def git_commit() -> str:
         return "unknown"
 
 
+#: tag ``mlflow.experimentKind``: MLflow 3's UI opens experiments of this kind on their runs table
+EXPERIMENT_KIND = "custom_model_development"
+#: a run's inputs, hashed: a command run again on the same inputs finds and reuses its run
+KEY_TAG = "uavturb.key"
+#: the description MLflow's UI shows on a run's page (Markdown)
+NOTE_TAG = "mlflow.note.content"
+
+
+def quiet_mlflow() -> None:
+    """MLflow's and its database's INFO lines off (table creation, experiment creation)."""
+    import logging
+
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
+def client():
+    """An MlflowClient of :func:`tracking_uri`."""
+    import mlflow
+
+    quiet_mlflow()
+    return mlflow.MlflowClient(tracking_uri())
+
+
+def ensure_experiment(name: str, mlflow_client=None) -> str:
+    """Id of the experiment ``name``, created if missing, tagged :data:`EXPERIMENT_KIND`."""
+    c = mlflow_client or client()
+    exp = c.get_experiment_by_name(name)
+    exp_id = exp.experiment_id if exp is not None else c.create_experiment(name)
+    if exp is None or exp.tags.get("mlflow.experimentKind") != EXPERIMENT_KIND:
+        c.set_experiment_tag(exp_id, "mlflow.experimentKind", EXPERIMENT_KIND)
+    return exp_id
+
+
+def source_tags() -> dict[str, str]:
+    """``mlflow.source.git.commit`` (when the package runs from a git checkout)."""
+    commit = git_commit()
+    return {"mlflow.source.git.commit": commit} if commit != "unknown" else {}
+
+
+def project_path(path: str | Path) -> str:
+    """``path`` relative to the working folder where it lies under it, else absolute."""
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(p)
+
+
+def input_key(**inputs: Any) -> str:
+    """A short hash of a run's inputs (the value of :data:`KEY_TAG`)."""
+    import hashlib
+    import json
+
+    return hashlib.sha256(json.dumps(inputs, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def find_run(mlflow_client, experiment_id: str, key: str, parent_run_id: str | None = None) -> Any | None:
+    """The latest live run of an experiment tagged :data:`KEY_TAG` = ``key`` (and child of ``parent_run_id``)."""
+    filt = f"tags.`{KEY_TAG}` = '{key}'"
+    if parent_run_id is not None:
+        filt += f" and tags.`mlflow.parentRunId` = '{parent_run_id}'"
+    runs = mlflow_client.search_runs([experiment_id], filter_string=filt, order_by=["attributes.start_time DESC"],
+                                     max_results=1)
+    return runs[0] if runs else None
+
+
+def log_dataset(mlflow_client, run_id: str, root: str | Path, digest: str, context: str = "training") -> None:
+    """The dataset folder as the run's input (name, digest, local source): the UI's Dataset column."""
+    import json
+
+    from mlflow.entities import Dataset, DatasetInput, InputTag
+
+    root = Path(root)
+    dataset = Dataset(name=root.parent.name if root.name == "pairs" else root.name, digest=digest[:36],
+                      source_type="local", source=json.dumps({"uri": project_path(root)}))
+    mlflow_client.log_inputs(run_id, datasets=[DatasetInput(dataset, [InputTag("mlflow.data.context", context)])])
 
 
 def log_run(experiment: str, *, run_name: str, params: dict[str, Any], metrics: dict[str, float],
             tags: dict[str, str] | None = None, artifacts: Path | None = None) -> str:
-    """One MLflow run with params, metrics, tags and a folder of artifacts; returns its id."""
-    import logging
+    """One MLflow run with params, metrics, tags and a folder of artifacts; returns its id.
 
+    A run of the same experiment, name and params already logged is reused (its metrics
+    and artifacts written again), so a command run twice on the same inputs keeps one run.
+    """
     import mlflow
 
-    logging.getLogger("mlflow").setLevel(logging.ERROR)
-    logging.getLogger("alembic").setLevel(logging.ERROR)
+    quiet_mlflow()
     mlflow.set_tracking_uri(tracking_uri())
-    mlflow.set_experiment(experiment)
-    with mlflow.start_run(run_name=run_name) as run:
-        mlflow.set_tags({"git_commit": git_commit(), **(tags or {})})
-        mlflow.log_params({k: str(v)[:500] for k, v in params.items()})
+    params = {k: str(v)[:500] for k, v in params.items()}
+    c = client()
+    exp_id = ensure_experiment(experiment, c)
+    key = input_key(run_name=run_name, params=params)
+    previous = find_run(c, exp_id, key)
+    with mlflow.start_run(run_id=previous.info.run_id if previous else None, experiment_id=exp_id,
+                          run_name=None if previous else run_name) as run:
+        mlflow.set_tags({**source_tags(), KEY_TAG: key, **(tags or {})})
+        if previous is None:
+            mlflow.log_params(params)
         mlflow.log_metrics({k: float(v) for k, v in metrics.items() if v is not None})
         if artifacts is not None:
             mlflow.log_artifacts(str(artifacts))
