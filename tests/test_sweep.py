@@ -196,12 +196,15 @@ def test_compare_means_and_stds_from_logged_runs(tmp_path, store):
         else:
             assert np.isnan(r["rmse_d_std"])
     assert res["rows"][2]["paper_rmse_d"] == 0.3184
-    assert "0.32 ± 0.02" in res["table"] and "6 ± 1" in res["table"]  # f_a in 1e-4 N
+    # one number of decimals per column (3 significant digits of its smallest value); f_a in 1e-4 N
+    assert "0.320 ± 0.020" in res["table"] and "6.00 ± 1.00" in res["table"]
+    frozen = next(line for line in res["table"].splitlines() if line.startswith("depth"))
+    assert frozen.split()[2:5] == ["1", "0.250", "2.00"] and "±" not in frozen and "-" not in frozen.split()[3:5]
     rows = list(csv.DictReader(io.StringIO(Path(res["csv"]).read_text())))
     assert [r["row"] for r in rows] == [r["row"] for r in res["rows"]]
     assert float(rows[0]["rmse_d_mean"]) == pytest.approx(0.45) and rows[0]["seeds"] == "0;1"
     md = Path(res["markdown"]).read_text()
-    assert md.count("\n| ") == 4 and "| normals | finetune | 3 | 0.32 ± 0.02 |" in md
+    assert md.count("\n| ") == 4 and "| normals | finetune | 3 | 0.320 ± 0.020 | 6.00 ± 1.00 | 0.3184 | 6.357 |" in md
     assert sorted(p.name for p in (tmp_path / "tables").iterdir()) == ["table1.csv", "table1.md"]
 
     # an explicit parent; a missing experiment names it

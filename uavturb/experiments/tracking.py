@@ -42,9 +42,11 @@ NOTE_TAG = "mlflow.note.content"
 
 
 def quiet_mlflow() -> None:
-    """MLflow's and its database's INFO lines off (table creation, experiment creation)."""
+    """MLflow's and its database's INFO lines off (table creation, experiment creation), and its
+    artifact download bars (``\\r`` lines in log files)."""
     import logging
 
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.ERROR)
 
