@@ -55,7 +55,6 @@ from __future__ import annotations
 import math
 import os
 import shutil
-import sys
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -66,6 +65,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io.publish import atomic_folder
+from uavturb.progress import progress_bar, show_rate
 from uavturb.sim.presets import SimPreset, get_preset
 
 GENERATOR_VERSION = 1
@@ -512,47 +512,6 @@ def _init_worker(out: str, chash: str) -> None:
 
 
 # ----------------------------------------------------------------------------------------------
-# progress
-
-
-class Progress:
-    """A progress line on stderr: items done, samples, samples/s and ETA (from the items' pace)."""
-
-    def __init__(self, label: str, total_items: int, stream=None, every: float = 0.5):
-        self.label, self.total_items = label, total_items
-        self.items, self.samples = 0, 0
-        self.t0 = time.perf_counter()
-        self.stream = stream if stream is not None else sys.stderr
-        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
-        self.every = every if self.tty else 5.0
-        self.last = 0.0
-
-    def update(self, items: int, samples: int) -> None:
-        self.items += items
-        self.samples += samples
-        now = time.perf_counter()
-        if now - self.last >= self.every or self.items >= self.total_items:
-            self.last = now
-            self._print(now)
-
-    def rate(self) -> float:
-        """Samples per second since the start."""
-        return self.samples / max(time.perf_counter() - self.t0, 1e-9)
-
-    def _print(self, now: float) -> None:
-        elapsed = now - self.t0
-        left = self.total_items - self.items
-        eta = elapsed / self.items * left if self.items else float("nan")
-        line = (f"{self.label}: {self.items}/{self.total_items}, {self.samples} samples, "
-                f"{self.rate():.0f} samples/s, elapsed {elapsed:.0f} s, ETA {eta:.0f} s")
-        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=self.stream, flush=True)
-
-    def close(self) -> None:
-        if self.tty and self.items:
-            print(file=self.stream, flush=True)
-
-
-# ----------------------------------------------------------------------------------------------
 # the dataset
 
 
@@ -658,7 +617,8 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     todo = [t for t in tasks if t.name not in metas]
     # scene-major order keeps each worker's renderer on one scene for several trajectories
     todo.sort(key=lambda t: (t.scene, t.k))
-    bar = Progress(f"generate sim ({p.name}{'' if n == 1 else f', shard {k}/{n}'})", len(todo)) if progress else None
+    bar = progress_bar(len(todo), f"generate sim ({p.name}{'' if n == 1 else f', shard {k}/{n}'})",
+                       "trajectories") if progress else None
     t0 = time.perf_counter()
     new: list[dict[str, Any]] = []
 
@@ -666,7 +626,8 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
         metas[meta["trajectory_id"]] = meta
         new.append(meta)
         if bar is not None:
-            bar.update(1, meta["stats"]["samples"])
+            show_rate(bar, sum(m["stats"]["samples"] for m in new), "samples")
+            bar.update(1)
         if on_trajectory is not None:
             on_trajectory(meta)
 
