@@ -255,12 +255,12 @@ def _run(args: argparse.Namespace) -> int:
             print(generate.generate_merge(args.dirs, args.out))
     elif args.command == "gap":
         from uavturb.experiments.gap_run import gap
+        from uavturb.gap.report import format_effect
 
         report = gap(args.recordings, args.out, sim_effects=args.sim_effects, seed=args.seed, apply=args.apply,
                      vehicle=args.vehicle, log_mlflow=not args.no_mlflow, physics_config=args.physics_config,
                      overwrite=args.overwrite)
-        named = ", ".join(f"{e['name']} {e['params']}" for e in report["effects"]) or "none"
-        print(f"effects named: {named}")
+        print(f"effects named: {', '.join(format_effect(e) for e in report['effects']) or 'none'}")
         print(f"held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
               f"{report['final']['heldout_rmse_N']:.4f} N ({report['protocol']}); report in {args.out}")
     elif args.command == "gap-proof":

@@ -107,6 +107,7 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     from uavturb.experiments.evaluate import evaluate
     from uavturb.experiments.export import export
     from uavturb.experiments.gap_run import gap
+    from uavturb.gap.report import format_effect
     from uavturb.experiments.sweep import sweep
 
     out = Path(out)
@@ -157,7 +158,7 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
 
     t = _step(7, "sim-to-real gap finder on the flights, simulator effects: none")
     report = gap([str(f) for f in flights], out / "gap", sim_effects="none", seed=seed, overwrite=True)
-    named = ", ".join(f"{e['name']} {e['params']}" for e in report["effects"]) or "none"
+    named = ", ".join(format_effect(e) for e in report["effects"]) or "none"
     _say(f"effects named: {named}; held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
          f"{report['final']['heldout_rmse_N']:.4f} N; report {out / 'gap' / 'report.md'}")
     summary["gap"] = {"effects": report["effects"], "baseline": report["baseline"], "final": report["final"]}
