@@ -93,6 +93,23 @@ def test_pretrain_then_finetune_height(tmp_path, store):
     assert module.hparams.pretrained_from == pre["checkpoint"] and module.hparams.encoder_ckpt is None
 
 
+def test_optional_system_metrics(tmp_path, store):
+    """tracking.system_metrics=true: MLflow's system/* metrics on the run, or one line naming the key without psutil."""
+    import importlib.util
+
+    from uavturb.experiments.train import train
+
+    cfg = load_config(_overrides(tmp_path, "trainer.max_epochs=1", "tracking.system_metrics=true"), experiment="smoke")
+    if importlib.util.find_spec("psutil") is None:
+        with pytest.raises(InputError) as e:
+            train(cfg)
+        assert e.value.where == "tracking.system_metrics" and "psutil" in e.value.problem
+    else:
+        out = train(cfg)
+        metrics = mlflow.MlflowClient(store).get_run(out["run_id"]).data.metrics
+        assert any(k.startswith("system/") for k in metrics)
+
+
 def test_height_stage_needs_encoder_checkpoint(tmp_path, store):
     from uavturb.experiments.train import train
 

@@ -115,6 +115,7 @@ class TrackingConfig:
     enabled: bool = True
     experiment: str = "uavturb"
     run_name: str | None = None
+    system_metrics: bool = False        # CPU, memory, GPU use logged as system/* metrics (needs psutil)
 
 
 @dataclass

@@ -109,6 +109,7 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     from uavturb.experiments.gap_run import gap
     from uavturb.gap.report import format_effect
     from uavturb.experiments.sweep import sweep
+    from uavturb.experiments.tracking import ui_url
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -172,5 +173,6 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     print(table2["table"])
     print()
     _say(f"done in {summary['seconds']['total'] / 60:.1f} min; summary {out / 'summary.json'}")
-    _say("browse every run: mlflow ui --backend-store-uri sqlite:///mlflow.db   (then open http://127.0.0.1:5000)")
+    _say("browse every run: `make ui` (or .venv/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db), then open "
+         f"{ui_url(res['view'])} (Table 1: the six rows with test/rmse_d [m] and test/rmse_fa_1e-4N)")
     return summary

@@ -39,7 +39,7 @@ from omegaconf import DictConfig, OmegaConf
 from uavturb.errors import InputError
 from uavturb.experiments.config import load_config
 from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec, resolve_spec
-from uavturb.experiments.tracking import NOTE_TAG
+from uavturb.experiments.tracking import NOTE_TAG, ui_url
 from uavturb.experiments.train import CHECKPOINT_ARTIFACT, train
 
 
@@ -285,5 +285,21 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     store.client.set_tag(parent_id, NOTE_TAG, f"Sweep `{sp.name}`, preset `{preset}`, {n_seeds} seed(s); "
                                               f"one child run per row and seed.\n\n{table['markdown_text']}")
     store.client.set_terminated(parent_id, status="FINISHED")
+    view = table1_view(store, sp.name, preset, sweep_hash)
+    _say(f"Table 1 in the MLflow UI: {ui_url(view)}")
     return {"parent_run_id": parent_id, "experiment": experiment, "resumed": resumed, "runs": results,
-            "pretrain": pretrain_ckpt, "table": table["table"]}
+            "pretrain": pretrain_ckpt, "table": table["table"], "view": view}
+
+
+#: the columns of the UI's Table 1 view: the row, the seed, RMSE(d) [m] and RMSE(f_a) [1e-4 N], [N]
+TABLE1_COLUMNS = ["tags.`ablation`", "tags.`seed`", "metrics.`test/rmse_d`", "metrics.`test/rmse_fa_1e-4N`",
+                  "metrics.`test/rmse_fa`"]
+
+
+def table1_view(store: _Store, name: str, preset: str, sweep_hash: str) -> str:
+    """A saved view of the experiment listing this sweep's Table 1 runs with their test metrics."""
+    from uavturb.experiments.tracking import save_view
+
+    return save_view(store.client, store.experiment_id, f"table1-{sweep_hash}", f"Table 1 ({name}, {preset})",
+                     search_filter=f"tags.sweep_hash = '{sweep_hash}' and tags.ablation LIKE '%'",
+                     columns=TABLE1_COLUMNS, order_by="tags.`ablation`")

@@ -139,3 +139,44 @@ def log_run(experiment: str, *, run_name: str, params: dict[str, Any], metrics: 
         if artifacts is not None:
             mlflow.log_artifacts(str(artifacts))
         return run.info.run_id
+
+
+#: MLflow UI's saved views: an experiment tag with this prefix holds a view of the runs table
+VIEW_TAG_PREFIX = "mlflow.sharedViewState."
+
+
+def save_view(mlflow_client, experiment_id: str, key: str, name: str, *, search_filter: str,
+              columns: list[str], order_by: str | None = None, ascending: bool = True) -> str:
+    """A saved view of the experiment's runs table (the UI's "Views" menu); returns its URL fragment.
+
+    Parameters
+    ----------
+    key : the view's share key (letters, digits, ``-``, ``_``)
+    name : the view's name in the UI
+    search_filter : MLflow search syntax; a filter also lists nested runs flat, not under their parent
+    columns : columns shown, in MLflow's canonical form (``metrics.`test/rmse_d```, ``tags.`seed```)
+    order_by : a column to sort by (canonical form)
+
+    Returns
+    -------
+    ``#/experiments/<id>/runs?workflowType=machine_learning&viewStateShareKey=<key>``: append it to
+    the UI's address. ``workflowType`` opens the model-training pages: MLflow 3.17's UI decides
+    between its GenAI and model-training pages by a switch of its own (stored in the browser), not
+    by the experiment's ``mlflow.experimentKind``, so a fresh browser opens on the GenAI overview.
+    """
+    import json
+    import time
+
+    state = {"searchFilter": search_filter, "orderByKey": order_by or "attributes.start_time",
+             "orderByAsc": ascending if order_by else False, "startTime": "ALL", "lifecycleFilter": "Active",
+             "modelVersionFilter": "All Runs", "datasetsFilter": [], "selectedColumns": list(columns),
+             "runsExpanded": {}, "runsPinned": [], "runsHidden": [], "viewMaximized": False, "runListHidden": False}
+    now = int(time.time() * 1000)
+    envelope = {"name": name, "createdAt": now, "updatedAt": now, "state": json.dumps(state)}
+    mlflow_client.set_experiment_tag(experiment_id, VIEW_TAG_PREFIX + key, json.dumps(envelope))
+    return f"#/experiments/{experiment_id}/runs?workflowType=machine_learning&viewStateShareKey={key}"
+
+
+def ui_url(fragment: str) -> str:
+    """The address of a UI page of :func:`save_view` on ``mlflow ui``'s default port (``make ui``)."""
+    return f"http://127.0.0.1:5000/{fragment}"

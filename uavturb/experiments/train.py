@@ -220,6 +220,27 @@ def _progress_callbacks(t) -> tuple[bool, list]:
     return False, [epoch_lines(t.max_epochs)]
 
 
+def _check_system_metrics(cfg: DictConfig) -> None:
+    """``tracking.system_metrics`` needs psutil: fail before anything is logged."""
+    import importlib.util
+
+    if cfg.tracking.enabled and cfg.tracking.system_metrics and importlib.util.find_spec("psutil") is None:
+        raise InputError("tracking.system_metrics", "needs psutil: pip install 'uavturb[system-metrics]'")
+
+
+def _system_metrics(cfg: DictConfig, logger):
+    """MLflow's system-metrics monitor on the run (``tracking.system_metrics``), started; or None."""
+    if logger is None or not cfg.tracking.system_metrics:
+        return None
+    from mlflow.system_metrics.system_metrics_monitor import SystemMetricsMonitor
+
+    from uavturb.experiments.tracking import tracking_uri
+
+    monitor = SystemMetricsMonitor(logger.run_id, tracking_uri=tracking_uri())
+    monitor.start()
+    return monitor
+
+
 def _log_checkpoint(logger, best: str | None) -> None:
     """The best checkpoint as artifact :data:`CHECKPOINT_ARTIFACT`; its local path as tag ``checkpoint``."""
     import shutil
@@ -273,6 +294,7 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     from uavturb.io.shards import dataset_hash
 
     cfg = validate(cfg)
+    _check_system_metrics(cfg)
     quiet_lightning()
     t = cfg.trainer
     if t.num_threads > 0:
@@ -302,7 +324,12 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
                         log_every_n_steps=t.log_every_n_steps, enable_progress_bar=progress_bar,
                         default_root_dir=t.default_root_dir, deterministic=t.deterministic, callbacks=callbacks,
                         logger=logger if logger is not None else False, enable_model_summary=False)
-    trainer.fit(module, datamodule=dm)
+    system = _system_metrics(cfg, logger) if logger is not None and trainer.is_global_zero else None
+    try:
+        trainer.fit(module, datamodule=dm)
+    finally:
+        if system is not None:
+            system.finish()
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     best = checkpoint.best_model_path or None
     tested = trainer.test(module, datamodule=dm, ckpt_path=best if best else None, verbose=False)
