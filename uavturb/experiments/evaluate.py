@@ -35,7 +35,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
