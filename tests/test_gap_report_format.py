@@ -15,7 +15,8 @@ def test_effects_print_as_names_and_values_not_dicts():
 def test_report_lists_segments_largest_first_and_params_readably(tmp_path):
     segs = [{"recording": "a/hex_0", "t_start": t, "t_end": t + 1, "axis": "z", "rms_N": rms}
             for t, rms in ((1.0, 0.2), (5.0, 0.9), (9.0, 0.5))]
-    report = {"recordings": ["a/hex_0"], "sim_effects": ["ground_effect"], "protocol": "2-fold", "residual_source": "imu",
+    report = {"recordings": ["a/hex_0"], "sim_effects": ["ground_effect"], "protocol": "2-fold",
+              "residual_source": "imu",
               "baseline": {"heldout_rmse_N": 0.27, "rmse_N": 0.26}, "final": {"heldout_rmse_N": 0.08},
               "noise": {"rms_N": 0.075}, "effects": [],
               "sim_effect_params": {"ground_effect": {"sim": {"mu": 2.0}, "fitted": {"mu": 1.8712345}}},

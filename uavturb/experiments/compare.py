@@ -186,7 +186,8 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     client, uri = _client()
     exp = client.get_experiment_by_name(experiment)
     if exp is None:
-        raise InputError("--mlflow-experiment", f"no MLflow experiment {experiment!r} in {uri} (run `uavturb sweep` first)")
+        raise InputError("--mlflow-experiment",
+                         f"no MLflow experiment {experiment!r} in {uri} (run `uavturb sweep` first)")
     if parent_run_id is None:
         parents = _search(client, exp.experiment_id, "tags.sweep_hash LIKE '%' and tags.sweep LIKE '%'",
                           ["attributes.start_time DESC"])

@@ -230,7 +230,8 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
         done += 1
         if not reused:
             t_run, n_run = t_run + dt, n_run + 1
-        shown = "  ".join(f"{k} {metrics[k]:.4g}" for k in ("test/rmse_d", "test/rmse_fa_1e-4N", "test/loss") if k in metrics)
+        shown = "  ".join(f"{k} {metrics[k]:.4g}" for k in ("test/rmse_d", "test/rmse_fa_1e-4N", "test/loss")
+                          if k in metrics)
         took = "already done" if reused else f"{dt:.0f} s"
         eta = f"  (sweep ETA {t_run / n_run * (total - done):.0f} s)" if n_run and done < total else ""
         _say(f"[{done}/{total}] {label}: {took}  {shown}{eta}")
