@@ -7,7 +7,7 @@ STAMP := $(VENV)/.uavturb-installed
 export PYOPENGL_PLATFORM ?= egl
 export MPLBACKEND ?= Agg
 
-.PHONY: setup demo test test-all clean
+.PHONY: setup demo test test-all ui clean
 
 setup: $(STAMP)
 
@@ -24,5 +24,9 @@ test: setup
 test-all: setup
 	$(BIN)/python -m pytest -m ""
 
+# the MLflow UI on the store of `make demo` (runs, Table 1, models): http://127.0.0.1:5000
+ui: setup
+	$(BIN)/mlflow ui --backend-store-uri sqlite:///mlflow.db --host 127.0.0.1 --port $${PORT:-5000}
+
 clean:
-	rm -rf demo_out .pytest_cache
+	rm -rf demo_out .pytest_cache build *.egg-info

@@ -82,7 +82,14 @@ def test_table2_on_flights_where_the_law_is_exact(setup):
     # metrics in an MLflow child run of the training run
     child = mlflow.MlflowClient(tracking_uri()).get_run(res["mlflow_run"])
     assert child.data.tags["mlflow.parentRunId"] == rid and child.data.tags["evaluation"] == "table2"
-    assert child.data.metrics["eval/total/rmse_fa_phi"] == pytest.approx(rows["Total"]["rmse_fa_phi"])
+    assert child.data.metrics["eval/rmse_fa_phi"] == pytest.approx(rows["Total"]["rmse_fa_phi"])
+    assert not [k for k in child.data.metrics if "hex_" in k]  # per-flight figures: artifacts, not columns
+    # the same evaluation again reuses its child run (a second `make demo` adds no run)
+    again = evaluate(rid, flights, out=out, frame_dt=0.1, progress=False, overwrite=True)
+    assert again["mlflow_run"] == res["mlflow_run"]
+    client = mlflow.MlflowClient(tracking_uri())
+    children = client.search_runs([child.info.experiment_id], f"tags.`mlflow.parentRunId` = '{rid}'")
+    assert [c.info.run_id for c in children] == [res["mlflow_run"]]
     info = json.loads((out / "evaluation.json").read_text())
     assert info["identified_on"] == "hex_0" and "identified on hex_0" in info["vehicle_constants"]
 

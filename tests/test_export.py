@@ -59,6 +59,9 @@ print(json.dumps({"inputs": [i.name for i in sess.get_inputs()], "outputs": [o.n
                                            pytest.param(False, "folder", marks=pytest.mark.slow)])
 def test_export_equals_module_in_clean_process(tmp_path, store, use_gru, keep):
     rid, _, data, _ = tiny_height_run(tmp_path, use_gru=use_gru, keep=keep, steps=3)
+    import mlflow
+
+    mlflow.MlflowClient(store).log_metric(rid, "test/rmse_d", 0.5 if use_gru else 0.3)  # the registry's "best"
     out = tmp_path / "exported"
     result = export(rid, out, n_sequences=1, length=12, verbose=False)
     assert result["max_abs_diff"] <= 1e-5
@@ -107,6 +110,46 @@ def test_export_equals_module_in_clean_process(tmp_path, store, use_gru, keep):
     assert [o["name"] for o in json.loads(sig["outputs"])] == ["height", "f_a", "state_out"]
     client = mlflow.MlflowClient(store)
     assert client.get_run(rid).data.metrics["export/max_abs_diff"] == pytest.approx(result["max_abs_diff"])
+    _check_mlflow_model(client, rid, result, out, use_gru, depth, rotors, d_ref)
+
+
+def _check_mlflow_model(client, rid, result, out, use_gru, depth, rotors, d_ref):
+    """The logged model: its shapes, a batch of 3 through pyfunc, registered, metadata; the ONNX axis names."""
+    import mlflow
+    import onnx
+
+    from uavturb.experiments.export import REGISTERED_MODEL
+
+    L, S = (2, 50) if use_gru else (1, 1)
+    info = mlflow.models.get_model_info(f"runs:/{rid}/streaming_model")
+    shapes = {i["name"]: i["tensor-spec"]["shape"] for i in json.loads(info.signature.to_dict()["inputs"])}
+    assert shapes == {"depth": [-1, 1, 16, 16], "rotor_speeds": [-1, rotors.shape[1]], "state": [L, -1, S]}
+    assert info.metadata["alpha"] == pytest.approx(result["alpha"]) and info.metadata["run_id"] == rid
+    assert info.metadata["units"]["height"] == "m" and info.saved_input_example_info is not None
+    version = result["mlflow"]["registered_version"]
+    assert version is not None
+    model = mlflow.pyfunc.load_model(f"models:/{REGISTERED_MODEL}/{version}")
+    batch = {"depth": np.repeat(depth[:1, None], 3, 0), "rotor_speeds": np.repeat(rotors[:1], 3, 0),
+             "state": np.zeros((L, 3, S), np.float32)}
+    pred = model.predict(batch)  # schema enforcement passes a batch of 3
+    np.testing.assert_allclose(pred["height"], np.repeat(d_ref[:1], 3), rtol=0, atol=1e-5)
+    assert pred["state_out"].shape == (L, 3, S)
+    # alias "best": the version whose run has the lowest test/rmse_d (the GRU run comes first, at 0.5)
+    assert client.get_registered_model(REGISTERED_MODEL).aliases["best"] == version
+    m = onnx.load(str(out / "model.onnx"))
+    assert m.graph.input[0].type.tensor_type.shape.dim[0].dim_param == "batch"
+    assert m.graph.input[2].type.tensor_type.shape.dim[1].dim_param == "batch"
+    props = {p.key: p.value for p in m.metadata_props}
+    assert float(props["beta"]) == pytest.approx(result["beta"]) and props["run_id"] == rid
+    # the same export again logs and registers nothing new
+    n_versions = len(client.search_model_versions(f"name = '{REGISTERED_MODEL}'"))
+    again = export(rid, out, n_sequences=1, length=12, verbose=False, overwrite=True)
+    assert again["mlflow"]["reused"] and again["mlflow"]["registered_version"] == version
+    assert len(client.search_model_versions(f"name = '{REGISTERED_MODEL}'")) == n_versions
+    exp_id = client.get_run(rid).info.experiment_id
+    logged = mlflow.search_logged_models(experiment_ids=[exp_id], output_format="list",
+                                         filter_string=f"source_run_id = '{rid}'")
+    assert len(logged) == 1
 
 
 def test_streaming_gru_step_is_torch_gru():

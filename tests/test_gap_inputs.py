@@ -158,7 +158,7 @@ def test_default_sim_effects_follow_the_simulator_config(tmp_path, good):
     from uavturb.experiments.gap_run import gap
     from uavturb.io.physics_config import load_physics_config
 
-    conf = load_physics_config(Path(__file__).parents[1] / "conf" / "physics" / "default.yaml")["effects"]
+    conf = load_physics_config(Path(__file__).parents[1] / "uavturb" / "conf" / "physics" / "default.yaml")["effects"]
     report = gap([str(good)], tmp_path / "r", log_mlflow=False)
     assert report["sim_effects"] == list(conf)
     assert set(report["sim_effect_params"]) == set(conf)

@@ -149,7 +149,7 @@ def test_sigint_on_a_sweep_exits_130_in_one_line_parent_and_child_killed(tmp_pat
                  "data.synthetic.T=16", "data.synthetic.pairs=32", f"trainer.default_root_dir={tmp_path / 'runs'}",
                  "trainer.max_epochs=200"]
     cmd = [sys.executable, "-m", "uavturb.cli", "sweep", str(REPO / "sweeps" / "ablation.yaml"), "--preset", "quick",
-           "--seeds", "1", "--experiment", "sw", *overrides]
+           "--seeds", "1", "--mlflow-experiment", "sw", *overrides]
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=_env(uri), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     _wait_for(lambda: (tmp_path / "runs" / "checkpoints").is_dir() and any((tmp_path / "runs" / "checkpoints").iterdir()),
@@ -189,7 +189,7 @@ def test_sigkill_leaves_a_run_the_next_store_command_marks_failed(tmp_path, monk
     assert client.get_run(run_id).info.status == "RUNNING"
 
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
-    assert main(["compare", "--experiment", "k"]) == 2  # any command that opens the store; this one finds no table
+    assert main(["compare", "--mlflow-experiment", "k"]) == 2  # any command that opens the store; this one finds no table
     run = client.get_run(run_id)
     assert run.info.status == "FAILED"
     assert run.data.tags["stale"].startswith(f"process {proc.pid} on ")
@@ -291,7 +291,7 @@ def test_a_broken_store_is_one_line_with_what_to_do(tmp_path, monkeypatch, capsy
     db = tmp_path / "mlflow.db"
     db.write_bytes(b"this is not a database" * 100)
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{db}")
-    assert main(["compare", "--experiment", "x"]) == 2
+    assert main(["compare", "--mlflow-experiment", "x"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.startswith(f"uavturb compare: error: MLflow store sqlite:///{db} ")
     assert "mlflow db upgrade" in err

@@ -7,7 +7,7 @@ from uavturb.errors import InputError
 from uavturb.io.physics_config import load_physics_config, write_physics_config
 from uavturb.physics.effects import DEFAULT_EFFECTS
 
-CONF = Path(__file__).resolve().parents[1] / "conf" / "physics" / "default.yaml"
+CONF = Path(__file__).resolve().parents[1] / "uavturb" / "conf" / "physics" / "default.yaml"
 
 
 def test_default_config_file_matches_code():

@@ -43,7 +43,6 @@ def test_residual_recovers_a_known_force_from_imu_and_mocap():
     moc = residual_forces(fd, HEXAROTOR, source="mocap")
     inner = slice(50, -50)
     err_imu = imu.force[inner] - truth["F_ext"][inner]
-    err_moc = moc.force[inner] - truth["F_ext"][inner]
     # the IMU residual is the noise of m * acc (0.028 m/s^2 * 1.5 kg); the MoCap one has no sensor noise here
     assert np.sqrt(np.mean(err_imu**2)) < 0.06
     assert np.abs(np.mean(err_imu, axis=0)).max() < 0.01

@@ -122,8 +122,18 @@ def test_sweep_runs_rows_times_seeds_reusing_pretraining(tmp_path, store, monkey
     assert parent.info.status == "FINISHED" and parent.data.tags["preset"] == "quick"
     artifacts = {a.path for a in mlflow.MlflowClient(store[0]).list_artifacts(parent.info.run_id)}
     assert {"table1.md", "table1.csv", "sweep.yaml"} <= artifacts
-    assert parent.data.metrics["normals/finetune/test/rmse_d_mean"] == pytest.approx(
-        np.mean([known_rmse("normals/finetune", s)[0] for s in (0, 1)]))
+    # Table 1 is the parent's description; its means stay off the metrics (the run table compares children)
+    assert parent.data.metrics == {}
+    note = parent.data.tags["mlflow.note.content"]
+    mean_d = np.mean([known_rmse("normals/finetune", s)[0] for s in (0, 1)])
+    assert any(line.startswith("| normals | finetune |") and f"{mean_d:.3f}" in line for line in note.splitlines())
+    # each height run names the pre-training run its encoder comes from
+    pre_run = {(r.data.tags["pretrain"], r.data.tags["seed"]): r.info.run_id for r in runs.values()
+               if "pretrain" in r.data.tags}
+    for r in height:
+        variant = r.data.tags["ablation"].split("/")[0]
+        assert r.data.tags.get("pretrain_run_id") == pre_run.get((variant, r.data.tags["seed"]))
+        assert r.data.tags["mlflow.note.content"].startswith(f"Table 1 row `{r.data.tags['ablation']}`")
     assert res["table"].splitlines()[3].split()[:2] == ["none", "no-GRU"]
 
 
@@ -216,12 +226,15 @@ def test_compare_means_and_stds_from_logged_runs(tmp_path, store):
         else:
             assert np.isnan(r["rmse_d_std"])
     assert res["rows"][2]["paper_rmse_d"] == 0.3184
-    assert "0.32 ± 0.02" in res["table"] and "6 ± 1" in res["table"]  # f_a in 1e-4 N
+    # one number of decimals per column (3 significant digits of its smallest value); f_a in 1e-4 N
+    assert "0.320 ± 0.020" in res["table"] and "6.00 ± 1.00" in res["table"]
+    frozen = next(line for line in res["table"].splitlines() if line.startswith("depth"))
+    assert frozen.split()[2:5] == ["1", "0.250", "2.00"] and "±" not in frozen and "-" not in frozen.split()[3:5]
     rows = list(csv.DictReader(io.StringIO(Path(res["csv"]).read_text())))
     assert [r["row"] for r in rows] == [r["row"] for r in res["rows"]]
     assert float(rows[0]["rmse_d_mean"]) == pytest.approx(0.45) and rows[0]["seeds"] == "0;1"
     md = Path(res["markdown"]).read_text()
-    assert md.count("\n| ") == 4 and "| normals | finetune | 3 | 0.32 ± 0.02 |" in md
+    assert md.count("\n| ") == 4 and "| normals | finetune | 3 | 0.320 ± 0.020 | 6.00 ± 1.00 | 0.3184 | 6.357 |" in md
     assert sorted(p.name for p in (tmp_path / "tables").iterdir()) == ["table1.csv", "table1.md"]
 
     # an explicit parent; a missing experiment names it
@@ -252,9 +265,13 @@ def test_sweep_typos_fail_before_anything_runs(tmp_path, store, monkeypatch):
 def test_cli_compare_without_store_is_one_line(tmp_path, store, capsys):
     from uavturb.cli import main
 
-    assert main(["compare", "--experiment", "nothing-here"]) == 2
+    assert main(["compare", "--mlflow-experiment", "nothing-here"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "nothing-here" in err
+    # the old spelling still works, with one deprecation line
+    assert main(["compare", "--mlflow-experiment", "nothing-here"]) == 2
+    old = capsys.readouterr().err.splitlines()
+    assert old[0] == "uavturb compare: --experiment is deprecated, use --mlflow-experiment" and old[1] == err.strip()
 
 
 @pytest.mark.slow
@@ -283,7 +300,7 @@ def test_cli_sweep_typo_is_one_line_naming_the_key(tmp_path, store, capsys, monk
 
     fake = FakeTrain(tmp_path)
     monkeypatch.setattr(sweep_mod, "train", fake)
-    assert main(["sweep", str(DEFAULT_SPEC), "--experiment", store[1], "trainer.max_epoch=3"]) == 2
+    assert main(["sweep", str(DEFAULT_SPEC), "--mlflow-experiment", store[1], "trainer.max_epoch=3"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "trainer.max_epoch:" in err and "max_epochs" in err and fake.calls == []
 

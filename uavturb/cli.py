@@ -11,8 +11,50 @@ from pathlib import Path
 from uavturb.errors import Interrupted, UavturbError, raise_on_signals
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("uavturb")
+    except PackageNotFoundError:  # a checkout on PYTHONPATH, not installed
+        import uavturb
+
+        return uavturb.__version__
+
+
+def _renamed(new: str) -> type[argparse.Action]:
+    """An option kept under its old spelling: works as ``new`` and prints a deprecation line."""
+
+    class Renamed(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            print(f"{parser.prog}: {option_string} is deprecated, use {new}", file=sys.stderr)
+            setattr(namespace, self.dest, values)
+
+    return Renamed
+
+
+def _sim_presets() -> str:
+    from uavturb.sim.presets import PRESETS
+
+    return " | ".join(PRESETS)
+
+
+def _sweep_presets() -> str:
+    from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
+
+    return ", ".join(load_spec(DEFAULT_SPEC).presets)
+
+
+def _add_mlflow_experiment(s: argparse.ArgumentParser) -> None:
+    s.add_argument("--mlflow-experiment", dest="mlflow_experiment", default=None, metavar="NAME",
+                   help="MLflow experiment (default: the sweep file's, uavturb-ablation)")
+    s.add_argument("--experiment", dest="mlflow_experiment", action=_renamed("--mlflow-experiment"),
+                   help=argparse.SUPPRESS)
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="uavturb", description=__doc__.split("\n")[0] if __doc__ else None)
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("identify", help="identify k_T, k_M and inertia from flights (the paper's least squares)")
@@ -41,6 +83,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, metavar="REC", help="recording folder to create")
     s.add_argument("--overwrite", action="store_true")
 
+    sim_presets = _sim_presets()
     s = sub.add_parser("generate", help="generate data")
     gsub = s.add_subparsers(dest="what", required=True, metavar="WHAT")
     g = gsub.add_parser("flight", help="a flight in the EuRoC layout with sensor noise and named effects")
@@ -67,7 +110,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--mass-error", type=float, default=0.0, metavar="FRACTION",
                    help="vehicle.yaml's mass is the simulated one times 1 + FRACTION")
     g = gsub.add_parser("sim", help="training shards: simulated flights through procedural scenes (resumable)")
-    g.add_argument("--preset", default="quick", help="quick | paper | tiny (default quick)")
+    g.add_argument("--preset", default="quick", help=f"{sim_presets} (default quick)")
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (manifest.json, traj_*/)")
     g.add_argument("--workers", type=int, default=1, help="processes, one renderer each (default 1)")
     g.add_argument("--seed", type=int, default=0)
@@ -75,7 +118,7 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="preset_set",
                    help="change a preset field, e.g. --set width=64 --set trajectories=4 (repeatable)")
     g = gsub.add_parser("normals", help="depth/normal pre-training pairs from training scenes, or from IRS")
-    g.add_argument("--preset", default="quick", help="quick | paper | tiny (default quick)")
+    g.add_argument("--preset", default="quick", help=f"{sim_presets} (default quick)")
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (the pairs go to DIR/pairs)")
     g.add_argument("--workers", type=int, default=1)
     g.add_argument("--seed", type=int, default=0)
@@ -110,22 +153,27 @@ def _parser() -> argparse.ArgumentParser:
                    help="concealed effects, real recordings' troubles (conditions), or both (default)")
     s.add_argument("--seed", type=int, default=0)
 
+    config_dir_help = ("your own config folder, laid out like the shipped one (config.yaml, model/, data/, "
+                       "trainer/, experiment/); its files replace or add to the shipped ones")
     s = sub.add_parser("train", help="train one stage (pretrain or height) from conf/ with key=value overrides")
     s.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. model=none_gru trainer.max_epochs=3")
-    s.add_argument("--experiment", help="a conf/experiment/*.yaml bundle (e.g. smoke)")
+    s.add_argument("--experiment", help="a config bundle, conf/experiment/NAME.yaml (e.g. smoke)")
     s.add_argument("--resume", metavar="RUN_ID", help="continue an interrupted (or finished) run in the same MLflow "
                                                       "run from its last.ckpt; alone or with trainer.max_epochs=N, "
                                                       "the run's own config is used")
+    s.add_argument("--config-dir", metavar="DIR", help=config_dir_help)
 
     s = sub.add_parser("sweep", help="run an ablation sweep (sweeps/ablation.yaml: the paper's Table 1) in MLflow")
-    s.add_argument("spec", metavar="SWEEP.yaml")
-    s.add_argument("--preset", default="quick", help="preset of the sweep file (quick, paper; default quick)")
+    s.add_argument("spec", metavar="SWEEP", help="a sweep file, or a shipped sweep's name (ablation)")
+    s.add_argument("--preset", default="quick", help=f"preset of the sweep file (ablation: {_sweep_presets()}; "
+                                                     "default quick)")
     s.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
-    s.add_argument("--experiment", default=None, help="MLflow experiment (default: the sweep file's)")
+    _add_mlflow_experiment(s)
+    s.add_argument("--config-dir", metavar="DIR", help=config_dir_help)
     s.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides for every run")
 
     s = sub.add_parser("compare", help="print Table 1 (mean +- std over seeds) from the MLflow store")
-    s.add_argument("--experiment", default=None, help="MLflow experiment (default: the sweep file's)")
+    _add_mlflow_experiment(s)
     s.add_argument("--parent", default=None, metavar="RUN_ID", help="sweep parent run (default: the latest)")
     s.add_argument("--out", default="outputs", metavar="DIR", help="folder for table1.md and table1.csv")
 
@@ -150,8 +198,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--overwrite", action="store_true", help="replace an output folder that uavturb wrote")
     s.add_argument("--no-mlflow", action="store_true", help="do not log the model to the run")
 
-    s = sub.add_parser("bench", help="benchmarks that print figures")
-    s.add_argument("what", choices=["scene", "physics", "gap", "generate", "flights", "train", "infer"])
+    from uavturb.experiments.benchmarks import TARGETS
+
+    s = sub.add_parser("bench", help="benchmarks that print figures", formatter_class=argparse.RawTextHelpFormatter,
+                       epilog="targets:\n" + "\n".join(f"  {k:<10}{v}" for k, v in TARGETS.items()))
+    s.add_argument("what", choices=list(TARGETS), metavar="TARGET", help=" | ".join(TARGETS))
 
     s = sub.add_parser("demo", help="the main job, end to end, on data the project generates")
     s.add_argument("--out", default="demo_out")
@@ -232,12 +283,12 @@ def _run(args: argparse.Namespace) -> int:
             print(generate.generate_merge(args.dirs, args.out))
     elif args.command == "gap":
         from uavturb.experiments.gap_run import gap
+        from uavturb.gap.report import format_effect
 
         report = gap(args.recordings, args.out, sim_effects=args.sim_effects, seed=args.seed, apply=args.apply,
                      vehicle=args.vehicle, log_mlflow=not args.no_mlflow, physics_config=args.physics_config,
                      overwrite=args.overwrite)
-        named = ", ".join(f"{e['name']} {e['params']}" for e in report["effects"]) or "none"
-        print(f"effects named: {named}")
+        print(f"effects named: {', '.join(format_effect(e) for e in report['effects']) or 'none'}")
         print(f"held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
               f"{report['final']['heldout_rmse_N']:.4f} N ({report['protocol']}); report in {args.out}")
     elif args.command == "gap-proof":
@@ -252,7 +303,7 @@ def _run(args: argparse.Namespace) -> int:
         if args.resume:
             out = train(resume_config(args.resume, args.overrides, args.experiment), resume=args.resume)
         else:
-            out = train(load_config(args.overrides, experiment=args.experiment))
+            out = train(load_config(args.overrides, experiment=args.experiment, conf_dir=args.config_dir))
         if out.get("global_rank", 0) != 0:  # DDP: the other ranks say nothing
             return 0
         print(json.dumps({k: out[k] for k in ("stage", "run_id", "checkpoint", "data_hash", "start_epoch")}))
@@ -261,12 +312,12 @@ def _run(args: argparse.Namespace) -> int:
         from uavturb.experiments.sweep import sweep
 
         res = sweep(args.spec, preset=args.preset, seeds=args.seeds, overrides=args.overrides,
-                    experiment=args.experiment)
+                    experiment=args.mlflow_experiment, conf_dir=args.config_dir)
         print(res["table"])
     elif args.command == "compare":
         from uavturb.experiments.compare import compare
 
-        res = compare(experiment=args.experiment, parent_run_id=args.parent, out=args.out)
+        res = compare(experiment=args.mlflow_experiment, parent_run_id=args.parent, out=args.out)
         print(res["table"])
         print(f"wrote {res['markdown']} and {res['csv']}")
     elif args.command == "evaluate":

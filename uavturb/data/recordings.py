@@ -34,8 +34,6 @@ Choices (ours):
 
 from __future__ import annotations
 
-import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,6 +42,7 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.io.recording import Recording
 from uavturb.physics.vehicle import Vehicle
+from uavturb.progress import progress_bar
 
 DEFAULT_FRAME_DT = 0.05  # s: the training shards' 20 Hz camera
 AIRBORNE_THRUST_FRACTION = 0.3  # frames with less rotor thrust than this share of the weight are on the ground
@@ -229,15 +228,10 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     cloud = prepare_cloud(rec.points)
     T_WC = camera_pose_world(q, p, camera.T_BS)
     depth = np.empty((len(t_ns), camera.height, camera.width), np.float32)
-    start = time.perf_counter()
-    for k in range(len(t_ns)):
-        depth[k] = depth_from_points(cloud, T_WC[k], camera.K, camera.width, camera.height)
-        if progress and (k % 50 == 49 or k == len(t_ns) - 1):
-            el = time.perf_counter() - start
-            print(f"\r{rec.name}: depth frames {k + 1}/{len(t_ns)}, {(k + 1) / el:.0f} frames/s, "
-                  f"ETA {el / (k + 1) * (len(t_ns) - k - 1):.0f} s", end="", file=sys.stderr, flush=True)
-    if progress:
-        print(file=sys.stderr)
+    with progress_bar(len(t_ns), f"{rec.name}: depth frames", "frames", disable=not progress) as bar:
+        for k in range(len(t_ns)):
+            depth[k] = depth_from_points(cloud, T_WC[k], camera.K, camera.width, camera.height)
+            bar.update(1)
     S = (rotors**2).sum(1)
     airborne = vehicle.thrust_coefficient * S >= AIRBORNE_THRUST_FRACTION * vehicle.mass * GRAVITY
     return RecordingSequence(name=rec.name, t=t, depth=depth, d=d, fa=fa, sum_omega2=S, rotor_speeds=rotors, p=p,

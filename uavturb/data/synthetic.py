@@ -16,8 +16,6 @@ The body flies level (roll = pitch = 0), heading along its horizontal velocity.
 
 from __future__ import annotations
 
-import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,6 +27,7 @@ from uavturb.physics import quaternion as quat
 from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.physics.ground_effect import phi
 from uavturb.physics.vehicle import QUADROTOR
+from uavturb.progress import progress_bar, show_rate
 
 YFOV_DEG = 70.0        # vertical field of view, as the simulator's renderer
 PITCH_DEG = 45.0       # camera pitched down [deg]
@@ -270,7 +269,8 @@ def make_synthetic_dataset(root: str | Path, n_scenes: int = 6, trajs_per_scene:
     rng = np.random.default_rng(seed)
     split_of = scene_splits(n_scenes)
     splits: dict[str, list[str]] = {s: [] for s in shards.SPLITS}
-    t0, k = time.perf_counter(), 0
+    k = 0
+    bar = progress_bar(n_scenes * trajs_per_scene, "synthetic shards", "trajectories") if progress else None
     for s in range(n_scenes):
         room = BoxRoom.random(rng)
         for j in range(trajs_per_scene):
@@ -283,13 +283,11 @@ def make_synthetic_dataset(root: str | Path, n_scenes: int = 6, trajs_per_scene:
             shards.write_trajectory(root / name, arrays, meta, overwrite=True)
             splits[split_of[s]].append(name)
             k += 1
-            if progress:
-                el = time.perf_counter() - t0
-                total = n_scenes * trajs_per_scene
-                print(f"\rsynthetic shards: {k}/{total} trajectories, {k * T / el:.0f} frames/s, "
-                      f"ETA {el / k * (total - k):.0f} s", end="", file=sys.stderr, flush=True)
-    if progress:
-        print(file=sys.stderr)
+            if bar is not None:
+                show_rate(bar, k * T, "frames")
+                bar.update(1)
+    if bar is not None:
+        bar.close()
     config: dict[str, Any] = {"generator": "synthetic", "n_scenes": n_scenes, "trajs_per_scene": trajs_per_scene,
                               "T": T, "size": size, "seed": seed, "with_normals": with_normals, "dt": dt,
                               "yfov_deg": yfov_deg, "pitch_deg": pitch_deg}

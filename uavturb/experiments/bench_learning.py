@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from uavturb.progress import progress_bar
+
 
 def _row(name: str, value: float, unit: str = "") -> None:
     print(f"{name:<58}{value:>12.4g}  {unit}")
@@ -99,6 +101,8 @@ def _bench_train_once(root, size: int, window: int, batch_size: int, num_workers
     t_mem: list[float] = []
     t_fetch: list[float] = []
     bs = batch_size
+    bar = progress_bar(n_blocks, f"bench train ({num_workers} workers), blocks of 5 steps DataLoader + 5 from memory",
+                       "blocks")
     for blk in range(n_blocks):
         batches = []
         for _ in range(block):
@@ -120,9 +124,8 @@ def _bench_train_once(root, size: int, window: int, batch_size: int, num_workers
             if blk > 0:
                 t_mem.append(time.perf_counter() - t0)
         bs = int(batches[-1]["depth"].shape[0])
-        print(f"\rbench train ({num_workers} workers): block {blk + 1}/{n_blocks} (5 steps DataLoader + 5 from "
-              f"memory)", end="", file=sys.stderr, flush=True)
-    print(file=sys.stderr)
+        bar.update(1)
+    bar.close()
     del it
     # medians: robust to the scheduling hiccups of a shared machine
     loader, memory, wait = (float(np.median(x)) for x in (t_load, t_mem, t_fetch))

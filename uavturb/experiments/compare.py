@@ -5,7 +5,9 @@ FINISHED, with metrics ``test/rmse_d`` [m] and ``test/rmse_fa`` [N]. By default 
 the latest sweep parent run of the experiment are used; with no sweep parent at all, every
 such run of the experiment. Where a (row, seed) pair has several runs, the latest counts.
 The standard deviation is the sample one (``ddof=1``); with one seed it is undefined (``nan``,
-printed as ``-``). Rows come in the sweep file's order (the paper's), next to the paper's values.
+and the table prints the mean alone). Every column has one number of decimals, enough for three
+significant digits of its smallest value. Rows come in the sweep file's order (the paper's), next
+to the paper's values.
 """
 
 from __future__ import annotations
@@ -80,13 +82,21 @@ def table_rows(runs: list[Any], spec_rows: list[Any] | None = None) -> list[dict
     return out
 
 
-def _pm(mean: float, std: float, scale: float = 1.0, digits: int = 4) -> str:
-    s = f"{mean * scale:.{digits}g}"
-    return f"{s} ± {std * scale:.2g}" if not math.isnan(std) else f"{s} ± -"
+def decimals(values: list[float | None], significant: int = 3) -> int:
+    """Decimals that show ``significant`` digits of the smallest nonzero finite value (0 to 6)."""
+    finite = [abs(v) for v in values if v is not None and math.isfinite(v) and v != 0]
+    if not finite:
+        return 3
+    return int(min(6, max(0, significant - 1 - math.floor(math.log10(min(finite))))))
 
 
-def _paper(x: float | None, scale: float = 1.0) -> str:
-    return "-" if x is None else f"{x * scale:.4g}"
+def _pm(mean: float, std: float, places: int) -> str:
+    """``mean ± std`` with ``places`` decimals; the mean alone where the std is undefined (one seed)."""
+    return f"{mean:.{places}f}" if math.isnan(std) else f"{mean:.{places}f} ± {std:.{places}f}"
+
+
+def _paper(x: float | None, places: int) -> str:
+    return "-" if x is None else f"{x:.{places}f}"
 
 
 HEADER = ("Pre-training", "Model", "Seeds", "RMSE(d) [m]", "RMSE(f_a) [1e-4 N]", "Paper RMSE(d)",
@@ -94,9 +104,14 @@ HEADER = ("Pre-training", "Model", "Seeds", "RMSE(d) [m]", "RMSE(f_a) [1e-4 N]",
 
 
 def _cells(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
-    return [(r["pretraining"], r["model"], str(r["n"]), _pm(r["rmse_d_mean"], r["rmse_d_std"]),
-             _pm(r["rmse_fa_mean"], r["rmse_fa_std"], FA_SCALE), _paper(r["paper_rmse_d"]),
-             _paper(r["paper_rmse_fa"], FA_SCALE)) for r in rows]
+    fa = [{k: (None if r[k] is None else r[k] * FA_SCALE) for k in ("rmse_fa_mean", "rmse_fa_std", "paper_rmse_fa")}
+          for r in rows]
+    d_places = decimals([r["rmse_d_mean"] for r in rows])
+    fa_places = decimals([f["rmse_fa_mean"] for f in fa])
+    paper_d, paper_fa = decimals([r["paper_rmse_d"] for r in rows], 4), decimals([f["paper_rmse_fa"] for f in fa], 4)
+    return [(r["pretraining"], r["model"], str(r["n"]), _pm(r["rmse_d_mean"], r["rmse_d_std"], d_places),
+             _pm(f["rmse_fa_mean"], f["rmse_fa_std"], fa_places), _paper(r["paper_rmse_d"], paper_d),
+             _paper(f["paper_rmse_fa"], paper_fa)) for r, f in zip(rows, fa)]
 
 
 def format_text(rows: list[dict[str, Any]], title: str = "") -> str:
@@ -163,7 +178,8 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     client, uri = tracking_client(), tracking_uri()
     exp = client.get_experiment_by_name(experiment)
     if exp is None:
-        raise InputError("--experiment", f"no MLflow experiment {experiment!r} in {uri} (run `uavturb sweep` first)")
+        raise InputError("--mlflow-experiment",
+                         f"no MLflow experiment {experiment!r} in {uri} (run `uavturb sweep` first)")
     if parent_run_id is None:
         parents = _search(client, exp.experiment_id, "tags.sweep_hash LIKE '%' and tags.sweep LIKE '%'",
                           ["attributes.start_time DESC"])
@@ -179,7 +195,7 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     runs = [r for r in _search(client, exp.experiment_id, filt) if "ablation" in r.data.tags]
     rows = table_rows(runs, list(sp.rows))
     if not rows:
-        raise InputError("--experiment", f"no finished ablation run with {', '.join(METRICS)} in experiment "
+        raise InputError("--mlflow-experiment", f"no finished ablation run with {', '.join(METRICS)} in experiment "
                          f"{experiment!r}" + (f", sweep {parent_run_id}" if parent_run_id else ""))
     title = (f"Table 1: test scenes, mean ± std over seeds (experiment {experiment}"
              + (f", sweep {parent_run_id})" if parent_run_id else ")"))

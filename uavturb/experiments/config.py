@@ -1,5 +1,10 @@
 """Training configuration: OmegaConf structured configs from dataclasses, composed from ``conf/``.
 
+The shipped ``conf/`` folder is package data (``uavturb/conf``, :data:`CONF_DIR`), so an installed
+package trains from any folder. A user's own config folder (``uavturb train --config-dir DIR``) is
+searched first: a file there replaces the shipped file of the same name, and its new choices
+(``DIR/model/mine.yaml``) join the shipped ones.
+
 Composition (``load_config``), later wins::
 
     conf/config.yaml                      # top level; its ``defaults`` picks one file per group
@@ -20,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import typing
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +36,8 @@ from omegaconf.errors import OmegaConfBaseException
 from uavturb.errors import InputError
 from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
 
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+#: the shipped config folder (package data)
+CONF_DIR = Path(str(resources.files("uavturb") / "conf"))
 GROUPS = ("model", "data", "trainer")
 
 
@@ -188,6 +195,7 @@ class TrackingConfig:
     enabled: bool = True
     experiment: str = allowed("uavturb", nonempty=True)
     run_name: str | None = None
+    system_metrics: bool = False        # CPU, memory, GPU use logged as system/* metrics (needs psutil)
 
 
 @dataclass
@@ -257,14 +265,33 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     return d
 
 
-def _choices(conf_dir: Path, group: str) -> list[str]:
-    return sorted(p.stem for p in (conf_dir / group).glob("*.yaml"))
+def search_path(conf_dir: str | Path | None = None) -> list[Path]:
+    """Config folders searched in order: ``conf_dir`` (a user's, if given), then the shipped one."""
+    if conf_dir is None:
+        return [CONF_DIR]
+    conf_dir = Path(conf_dir)
+    if not conf_dir.is_dir():
+        raise InputError(conf_dir, "config folder not found (--config-dir)")
+    return [conf_dir] if conf_dir.resolve() == CONF_DIR.resolve() else [conf_dir, CONF_DIR]
 
 
-def _group_file(conf_dir: Path, group: str, choice: str) -> Path:
-    path = conf_dir / group / f"{choice}.yaml"
-    if not path.is_file():
-        raise InputError(group, f"no config {choice!r}; choices: {', '.join(_choices(conf_dir, group))}")
+def _locate(dirs: list[Path], *parts: str) -> Path | None:
+    """The first ``dir/parts...`` that exists along the search path."""
+    for d in dirs:
+        path = d.joinpath(*parts)
+        if path.is_file():
+            return path
+    return None
+
+
+def _choices(dirs: list[Path], group: str) -> list[str]:
+    return sorted({p.stem for d in dirs for p in (d / group).glob("*.yaml")})
+
+
+def _group_file(dirs: list[Path], group: str, choice: str) -> Path:
+    path = _locate(dirs, group, f"{choice}.yaml")
+    if path is None:
+        raise InputError(group, f"no config {choice!r}; choices: {', '.join(_choices(dirs, group))}")
     return path
 
 
@@ -295,7 +322,7 @@ def load_config(overrides: list[str] | None = None, experiment: str | None = Non
     overrides : ``key=value`` strings (OmegaConf dot-list: ``model.use_gru=false``); also
         ``<group>=<choice>`` (``model=none_gru``) and ``experiment=<name>``.
     experiment : name of a ``conf/experiment/*.yaml`` bundle.
-    conf_dir : the ``conf`` folder (default: the repository's).
+    conf_dir : a user's config folder, searched before the shipped one (see :func:`search_path`).
 
     Returns
     -------
@@ -306,7 +333,7 @@ def load_config(overrides: list[str] | None = None, experiment: str | None = Non
     InputError : unknown key or group choice (naming it and listing the allowed ones), wrong
         value type, value outside its closed set, malformed override, missing file.
     """
-    conf_dir = Path(conf_dir) if conf_dir is not None else CONF_DIR
+    dirs = search_path(conf_dir)
     overrides = list(overrides or [])
     group_choice: dict[str, str] = {}
     dotlist: list[str] = []
@@ -321,15 +348,15 @@ def load_config(overrides: list[str] | None = None, experiment: str | None = Non
         else:
             dotlist.append(item)
 
-    top_path = conf_dir / "config.yaml"
+    top_path = _locate(dirs, "config.yaml") or dirs[0] / "config.yaml"
     top = _read_yaml(top_path)
     defaults = _defaults(top, top_path)
     exp: dict[str, Any] = {}
     if experiment:
-        exp_path = conf_dir / "experiment" / f"{experiment}.yaml"
-        if not exp_path.is_file():
+        exp_path = _locate(dirs, "experiment", f"{experiment}.yaml")
+        if exp_path is None:
             raise InputError("experiment", f"no experiment {experiment!r}; choices: "
-                             f"{', '.join(_choices(conf_dir, 'experiment'))}")
+                             f"{', '.join(_choices(dirs, 'experiment'))}")
         exp = _read_yaml(exp_path)
         defaults.update(_defaults(exp, exp_path))
     defaults.update(group_choice)
@@ -338,7 +365,7 @@ def load_config(overrides: list[str] | None = None, experiment: str | None = Non
     cfg = _merge(cfg, top, str(top_path))
     for group in GROUPS:
         if group in defaults:
-            path = _group_file(conf_dir, group, defaults[group])
+            path = _group_file(dirs, group, defaults[group])
             cfg = _merge(cfg, {group: _read_yaml(path)}, str(path))
     if exp:
         cfg = _merge(cfg, exp, f"experiment {experiment}")

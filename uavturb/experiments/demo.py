@@ -108,7 +108,9 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     from uavturb.experiments.evaluate import evaluate
     from uavturb.experiments.export import export
     from uavturb.experiments.gap_run import gap
+    from uavturb.gap.report import format_effect
     from uavturb.experiments.sweep import sweep
+    from uavturb.experiments.tracking import ui_url
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -158,7 +160,7 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
 
     t = _step(7, "sim-to-real gap finder on the flights, simulator effects: none")
     report = gap([str(f) for f in flights], out / "gap", sim_effects="none", seed=seed, overwrite=True)
-    named = ", ".join(f"{e['name']} {e['params']}" for e in report["effects"]) or "none"
+    named = ", ".join(format_effect(e) for e in report["effects"]) or "none"
     _say(f"effects named: {named}; held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
          f"{report['final']['heldout_rmse_N']:.4f} N; report {out / 'gap' / 'report.md'}")
     summary["gap"] = {"effects": report["effects"], "baseline": report["baseline"], "final": report["final"]}
@@ -172,5 +174,6 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     print(table2["table"])
     print()
     _say(f"done in {summary['seconds']['total'] / 60:.1f} min; summary {out / 'summary.json'}")
-    _say("browse every run: mlflow ui --backend-store-uri sqlite:///mlflow.db   (then open http://127.0.0.1:5000)")
+    _say("browse every run: `make ui` (or .venv/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db), then open "
+         f"{ui_url(res['view'])} (Table 1: the six rows with test/rmse_d [m] and test/rmse_fa_1e-4N)")
     return summary

@@ -203,32 +203,48 @@ def _safe(name: str) -> str:
 
 
 def _log(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]], params: dict[str, Any]) -> str:
+    """A child run of the training run: params, Table 2's Total as ``eval/<metric>``, the folder as artifacts.
+
+    Per-flight figures stay in the artifacts (``evaluation/table.csv``): one metric column per
+    flight and figure would crowd MLflow's run table. The same evaluation again (same run,
+    recordings and settings) reuses its child run instead of adding one.
+    """
     import warnings
 
+    from uavturb.experiments import tracking
     from uavturb.experiments.export import get_run
-    from uavturb.experiments.tracking import client as tracking_client
-    from uavturb.experiments.tracking import close_run, run_tags
 
     parent = get_run(run_id)
-    client = tracking_client()
-    child = client.create_run(parent.info.experiment_id, run_name=f"evaluate-{run_id[:8]}",
-                              tags=run_tags({"mlflow.parentRunId": run_id, "evaluation": "table2"}))
-    cid = child.info.run_id
+    client = tracking.client()
+    params = {k: str(v)[:500] for k, v in params.items()}
+    key = tracking.input_key(parent=run_id, **params)
+    previous = tracking.find_run(client, parent.info.experiment_id, key, parent_run_id=run_id)
+    total = dict(results[-1][1])
+    note = (f"Table 2 of run `{run_id}` on {params['recordings']}: RMSE(f_a) {total['rmse_fa']:.4f} N "
+            f"(law on true heights {total['rmse_fa_phi']:.4f} N), RMSE(d) {total['rmse_d']:.3f} m over "
+            f"{int(total['n_ge'])} ground-effect frames.")
+    if previous is not None:
+        cid = previous.info.run_id
+        tracking.claim_run(client, cid)
+    else:
+        cid = client.create_run(parent.info.experiment_id, run_name=f"evaluate-{run_id[:8]}",
+                                tags=tracking.run_tags({"mlflow.parentRunId": run_id, "evaluation": "table2",
+                                                        tracking.KEY_TAG: key})).info.run_id
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            for k, v in params.items():
-                client.log_param(cid, k, str(v)[:500])
-            for name, m in results:
-                key = "total" if name == "Total" else _safe(name)
-                for mk, mv in m.items():
-                    if np.isfinite(mv):
-                        client.log_metric(cid, f"eval/{key}/{mk}", float(mv))
+            if previous is None:
+                for k, v in params.items():
+                    client.log_param(cid, k, v)
+            client.set_tag(cid, tracking.NOTE_TAG, note)
+            for mk, mv in total.items():
+                if np.isfinite(mv):
+                    client.log_metric(cid, f"eval/{mk}", float(mv))
             client.log_artifacts(cid, str(folder), "evaluation")
     except BaseException as e:
-        close_run(client, cid, e)
+        tracking.close_run(client, cid, e)
         raise
-    close_run(client, cid)
+    tracking.close_run(client, cid)
     return cid
 
 

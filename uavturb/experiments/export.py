@@ -21,7 +21,8 @@ Output folder (written under a temporary name and renamed when complete):
 - ``model.pt2`` -- :func:`torch.export.save` of the exported program (load it with
   :func:`torch.export.load`, call ``.module()``);
 - ``model.onnx`` -- the same graph for ONNX Runtime (inputs ``depth``, ``rotor_speeds``,
-  ``state``; outputs ``height``, ``f_a``, ``state_out``; the batch dimension is dynamic);
+  ``state``; outputs ``height``, ``f_a``, ``state_out``; the dynamic batch axis is named
+  ``batch``; units, ``(alpha, beta)`` and the source run in the model's metadata properties);
 - ``export.json`` -- shapes, ``(alpha, beta)``, the run and checkpoint it came from, and the
   check below.
 
@@ -29,6 +30,12 @@ The check: on real sequences from the run's dataset (shard trajectories, test sp
 the exported program and the ONNX model are stepped frame by frame with the state carried,
 and compared with the Lightning module run on the whole sequence; the largest absolute
 difference (heights, f_a, final state) must not exceed ``tolerance`` (1e-5).
+
+MLflow: the ONNX model is logged to the run as ``streaming_model`` with a signature that states
+every shape (the state is ``(L, batch, S)``: batch on axis 1), an input example, and metadata
+(units, ``alpha``, ``beta``, the run), and registered as :data:`REGISTERED_MODEL`; the alias
+:data:`BEST_ALIAS` follows the version whose run has the lowest ``test/rmse_d``. Exporting the
+same checkpoint with the same law again logs and registers nothing new.
 """
 
 from __future__ import annotations
@@ -52,6 +59,12 @@ from uavturb.nn.streaming import INPUT_NAMES, OUTPUT_NAMES, StreamingHeightModel
 
 PT2_FILE, ONNX_FILE, META_FILE = "model.pt2", "model.onnx", "export.json"
 TOLERANCE = 1e-5
+#: name of the logged model in its run, and in MLflow's model registry
+MODEL_NAME, REGISTERED_MODEL = "streaming_model", "uavturb-height"
+#: registry alias of the version whose training run has the lowest ``test/rmse_d``
+BEST_ALIAS, BEST_METRIC = "best", "test/rmse_d"
+UNITS = {"depth": "m (z-depth, 0 = no data)", "rotor_speeds": "rad/s", "height": "m", "f_a": "N (vertical, world +z)",
+         "state": "GRU hidden state (layers, batch, hidden); zeros at the start of a flight"}
 
 
 
@@ -228,8 +241,27 @@ def max_abs_diff(ref: tuple[np.ndarray, ...], got: tuple[np.ndarray, ...]) -> fl
 # --- the export ---------------------------------------------------------------------------
 
 
-def export_streaming(model: StreamingHeightModel, image_size: tuple[int, int], n_rotors: int, folder: Path) -> None:
-    """Write ``model.pt2`` and ``model.onnx`` of ``model`` into ``folder`` (dynamic batch)."""
+def name_batch_axis(path: Path, properties: dict[str, str] | None = None) -> None:
+    """Name the ONNX model's dynamic batch axis ``batch`` (the exporter writes a symbol such as ``s12``)
+    and store ``properties`` as its metadata properties."""
+    import onnx
+
+    m = onnx.load(str(path))
+    symbol = m.graph.input[0].type.tensor_type.shape.dim[0].dim_param
+    if symbol:
+        for value in [*m.graph.input, *m.graph.output, *m.graph.value_info]:
+            for dim in value.type.tensor_type.shape.dim:
+                if dim.dim_param == symbol:
+                    dim.dim_param = "batch"
+    if properties:
+        onnx.helper.set_model_props(m, {k: str(v) for k, v in properties.items()})
+    onnx.save(m, str(path))
+
+
+def export_streaming(model: StreamingHeightModel, image_size: tuple[int, int], n_rotors: int, folder: Path,
+                     properties: dict[str, str] | None = None) -> None:
+    """Write ``model.pt2`` and ``model.onnx`` of ``model`` into ``folder`` (dynamic batch);
+    ``properties``: the ONNX model's metadata."""
     import warnings
 
     H, W = image_size
@@ -251,29 +283,81 @@ def export_streaming(model: StreamingHeightModel, image_size: tuple[int, int], n
             # the exported program itself: one trace serves both formats
             torch.onnx.export(ep, f=str(folder / ONNX_FILE), input_names=list(INPUT_NAMES),
                               output_names=list(OUTPUT_NAMES), external_data=False, verbose=False)
+    name_batch_axis(folder / ONNX_FILE, properties)
 
 
-def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], sample: dict[str, np.ndarray],
-                   outputs: dict[str, np.ndarray]) -> None:
+def signature(model: StreamingHeightModel, image_size: tuple[int, int], n_rotors: int):
+    """The MLflow signature with every shape: batch is axis 0 of the frames, axis 1 of the state."""
+    from mlflow.models import ModelSignature
+    from mlflow.types import Schema, TensorSpec
+
+    f32, (H, W) = np.dtype(np.float32), image_size
+    state = (model.layers, -1, model.hidden)
+    return ModelSignature(
+        inputs=Schema([TensorSpec(f32, (-1, 1, H, W), "depth"), TensorSpec(f32, (-1, n_rotors), "rotor_speeds"),
+                       TensorSpec(f32, state, "state")]),
+        outputs=Schema([TensorSpec(f32, (-1,), "height"), TensorSpec(f32, (-1,), "f_a"),
+                        TensorSpec(f32, state, "state_out")]))
+
+
+def _update_best_alias(client, name: str) -> str | None:
+    """Point :data:`BEST_ALIAS` at the registered version whose run has the lowest :data:`BEST_METRIC`."""
+    scored = []
+    for v in client.search_model_versions(f"name = '{name}'"):
+        if v.run_id:
+            value = client.get_run(v.run_id).data.metrics.get(BEST_METRIC)
+            if value is not None and np.isfinite(value):
+                scored.append((value, int(v.version)))
+    if not scored:
+        return None
+    best = str(min(scored)[1])
+    client.set_registered_model_alias(name, BEST_ALIAS, best)
+    return best
+
+
+def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], example: dict[str, np.ndarray], sig,
+                   registered_name: str | None) -> dict[str, Any]:
+    """Log the ONNX model (signature, input example, metadata) and register it; reuse an identical export.
+
+    Returns ``{"model_uri", "registered_version", "reused"}``.
+    """
     import warnings
 
     import mlflow
     import onnx
-    from mlflow.models import infer_signature
 
-    from uavturb.experiments.tracking import tracking_uri
+    from uavturb.experiments import tracking
 
-    _client()  # opens the store (created safely, stale runs marked) before the fluent API uses it
-    mlflow.set_tracking_uri(tracking_uri())
-    signature = infer_signature(sample, outputs)
+    client = tracking.client()
+    mlflow.set_tracking_uri(tracking.tracking_uri())
+    exp_id = client.get_run(run_id).info.experiment_id
+    key = tracking.input_key(checkpoint_sha256=meta["checkpoint_sha256"], alpha=meta["alpha"], beta=meta["beta"],
+                             registered_name=registered_name)
+    previous = mlflow.search_logged_models(experiment_ids=[exp_id], output_format="list",
+                                           filter_string=f"source_run_id = '{run_id}' AND name = '{MODEL_NAME}'")
+    same = [m for m in previous if m.tags.get(tracking.KEY_TAG) == key]
+    if same:
+        versions = client.search_model_versions(f"name = '{registered_name}'") if registered_name else []
+        version = next((v.version for v in versions if v.source == same[0].model_uri
+                        or v.model_id == same[0].model_id), None)
+        return {"model_uri": same[0].model_uri, "registered_version": version, "reused": True}
+    for m in previous:  # a different export of this run replaces the one logged before
+        client.delete_logged_model(m.model_id)
+    metadata = {k: meta[k] for k in ("units", "alpha", "beta", "use_gru", "inputs", "outputs", "max_abs_diff")}
+    metadata["run_id"] = run_id
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with mlflow.start_run(run_id=run_id):
-            mlflow.onnx.log_model(onnx.load(str(folder / ONNX_FILE)), name="streaming_model", signature=signature)
+            info = mlflow.onnx.log_model(onnx.load(str(folder / ONNX_FILE)), name=MODEL_NAME, signature=sig,
+                                         input_example=example, metadata=metadata, tags={tracking.KEY_TAG: key},
+                                         registered_model_name=registered_name)
             mlflow.log_artifact(str(folder / PT2_FILE), artifact_path="export")
             mlflow.log_artifact(str(folder / META_FILE), artifact_path="export")
             mlflow.log_metric("export/max_abs_diff", meta["max_abs_diff"])
-            mlflow.set_tag("export", str(Path(meta["out"]).resolve()))
+            mlflow.set_tag("export", tracking.project_path(meta["out"]))
+    if registered_name:
+        _update_best_alias(client, registered_name)
+    return {"model_uri": info.model_uri, "registered_version": info.registered_model_version, "reused": False}
 
 
 def run_and_output(run_id: str | None, checkpoint: str | Path | None, out: Path, overwrite: bool,
@@ -294,8 +378,8 @@ def run_and_output(run_id: str | None, checkpoint: str | Path | None, out: Path,
 
 def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None = None, data: str | Path | None = None,
            alpha: float | None = None, beta: float | None = None, n_sequences: int = 2, length: int = 32,
-           tolerance: float = TOLERANCE, overwrite: bool = False, log: bool = True, verbose: bool = True
-           ) -> dict[str, Any]:
+           tolerance: float = TOLERANCE, overwrite: bool = False, log: bool = True, verbose: bool = True,
+           registered_name: str | None = REGISTERED_MODEL) -> dict[str, Any]:
     """``uavturb export``: the run's model as ``model.pt2`` and ``model.onnx``, checked and logged.
 
     Parameters
@@ -310,11 +394,14 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
     overwrite : replace an existing ``out``
     log : log the ONNX model (with its signature), the ``.pt2`` and the check into the run
     verbose : print the check's figures
+    registered_name : register the logged model under this name in MLflow's model registry
+        (None: do not register)
 
     Returns
     -------
     dict: ``out``, ``max_abs_diff`` (worst of both formats), ``max_abs_diff_pt2``,
-    ``max_abs_diff_onnx``, ``alpha``, ``beta``, ``checkpoint``, ``image_size``, ``state_shape``.
+    ``max_abs_diff_onnx``, ``alpha``, ``beta``, ``checkpoint``, ``image_size``, ``state_shape``,
+    ``mlflow`` (``model_uri``, ``registered_version``, ``reused``; None without logging).
 
     Raises
     ------
@@ -336,10 +423,12 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
     n_rotors = seqs[0].rotor_speeds.shape[1]
     model = StreamingHeightModel(module, alpha, beta).eval()
     a, b = float(model.alpha), float(model.beta)
+    properties = {"units": json.dumps(UNITS), "alpha": repr(a), "beta": repr(b), "run_id": str(run_id),
+                  "use_gru": str(model.use_gru)}
 
     with publish_folder(out, overwrite=overwrite, command="uavturb export") as tmp:
         t0 = time.perf_counter()
-        export_streaming(model, (H, W), n_rotors, tmp)
+        export_streaming(model, (H, W), n_rotors, tmp, properties)
         t_export = time.perf_counter() - t0
         program = torch.export.load(str(tmp / PT2_FILE)).module()
         step_pt2, step_onnx = torch_stepper(program), onnx_stepper(tmp / ONNX_FILE)
@@ -359,23 +448,33 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
         if not worst <= tolerance:
             raise InputError(out, f"exported model differs from the Lightning module by {worst:.3g} "
                                   f"(> {tolerance:g}); nothing written")
-        meta = {"run_id": run_id, "checkpoint": str(ckpt), "out": str(out), "inputs": {
+        meta = {"run_id": run_id, "checkpoint": str(ckpt), "checkpoint_sha256": _sha256(ckpt), "out": str(out),
+                "inputs": {
                     "depth": [-1, 1, int(H), int(W)], "rotor_speeds": [-1, int(n_rotors)],
                     "state": [model.layers, -1, model.hidden]},
                 "outputs": {"height": [-1], "f_a": [-1], "state_out": [model.layers, -1, model.hidden]},
-                "units": {"depth": "m (z-depth, 0 = no data)", "rotor_speeds": "rad/s", "height": "m", "f_a": "N"},
+                "units": UNITS,
                 "use_gru": model.use_gru, "alpha": a, "beta": b, "max_abs_diff": worst,
                 "max_abs_diff_pt2": diff_pt2, "max_abs_diff_onnx": diff_onnx, "tolerance": tolerance,
                 "check_sequences": [s.name for s in seqs], "data": str(data)}
         (tmp / META_FILE).write_text(json.dumps(meta, indent=2))
+    logged = None
     if log and run_id is not None:
         seq = seqs[0]
-        sample = {"depth": seq.depth[:1, None].astype(np.float32), "rotor_speeds": seq.rotor_speeds[:1],
-                  "state": np.zeros(model.state_shape(1), np.float32)}
-        d, fa, s = step_pt2(sample["depth"], sample["rotor_speeds"], sample["state"])
-        _log_to_mlflow(run_id, out, meta, sample, {"height": d, "f_a": fa, "state_out": s})
+        example = {"depth": seq.depth[:2, None].astype(np.float32), "rotor_speeds": seq.rotor_speeds[:2],
+                   "state": np.zeros(model.state_shape(2), np.float32)}
+        logged = _log_to_mlflow(run_id, out, meta, example, signature(model, (H, W), n_rotors), registered_name)
         if verbose:
-            print(f"logged to MLflow run {run_id}: model 'streaming_model' (ONNX, with signature), export/model.pt2")
+            reg = (f", registered as {registered_name} version {logged['registered_version']}"
+                   if logged["registered_version"] else "")
+            print(f"MLflow run {run_id}: model '{MODEL_NAME}' (ONNX, signature, input example){reg}"
+                  + (" -- the same export was logged before, nothing new" if logged["reused"] else ""))
     return {"out": str(out), "max_abs_diff": worst, "max_abs_diff_pt2": diff_pt2, "max_abs_diff_onnx": diff_onnx,
             "alpha": a, "beta": b, "checkpoint": str(ckpt), "image_size": (int(H), int(W)),
-            "state_shape": model.state_shape(1)}
+            "state_shape": model.state_shape(1), "mlflow": logged}
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

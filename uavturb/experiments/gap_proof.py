@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.experiments.proof_scoring import HIDDEN_BIAS, param_error, with_hidden_bias
+from uavturb.experiments.proof_scoring import param_error, with_hidden_bias
 from uavturb.experiments.sindy_peer import sindy_names
 from uavturb.gap.finder import analyse
 from uavturb.physics.effects import EFFECTS
@@ -92,7 +92,7 @@ def run_proof(out: Path, *, duration: float = 90.0, seed: int = 0, singles: list
     out), run PySINDy on the same samples, and tabulate. Cases with the ceiling effect fly
     :data:`CEILING_DURATION` s (the plan's hovers under the ceiling need it); the others
     ``duration``. ``seconds`` times reading both recordings and the analysis. Every flight
-    carries :data:`HIDDEN_BIAS`."""
+    carries :data:`uavturb.experiments.proof_scoring.HIDDEN_BIAS`."""
     from uavturb.io.reader import read_recording
     from uavturb.sim.flight import SensorNoise, generate_flight
 

@@ -45,9 +45,8 @@ def predict_last_frames(module: torch.nn.Module, depth: np.ndarray, window: int,
     return out
 
 
-def plot_test_heights(module: torch.nn.Module, folders: list[str | Path], window: int, path: str | Path,
-                      n: int = 3) -> Path:
-    """Save the figure for the first ``n`` trajectories of ``folders``; returns the PNG path."""
+def figure_test_heights(module: torch.nn.Module, folders: list[str | Path], window: int, n: int = 3):
+    """Predicted vs true height [m] over time [s] for the first ``n`` trajectories of ``folders`` (a Figure)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -69,6 +68,15 @@ def plot_test_heights(module: torch.nn.Module, folders: list[str | Path], window
     axes[0, 0].legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()
+    return fig
+
+
+def plot_test_heights(module: torch.nn.Module, folders: list[str | Path], window: int, path: str | Path,
+                      n: int = 3) -> Path:
+    """Save :func:`figure_test_heights` as a PNG; returns its path."""
+    import matplotlib.pyplot as plt
+
+    fig = figure_test_heights(module, folders, window, n)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

@@ -10,11 +10,14 @@ runs). :func:`sweep` runs, for each seed ``n = 0 .. N-1``:
 
 Tracking: one MLflow parent run per (sweep file, preset, overrides) -- tags ``sweep``,
 ``sweep_hash``, ``preset`` -- and one nested child per run (tag ``mlflow.parentRunId``):
-height runs tagged ``ablation=<row>`` and ``seed=<n>`` with final metrics ``test/rmse_d`` and
-``test/rmse_fa``; pre-training runs tagged ``pretrain=<variant>`` and ``seed=<n>``.
+height runs tagged ``ablation=<row>`` and ``seed=<n>`` with final metrics ``test/rmse_d`` [m],
+``test/rmse_fa`` [N] and ``test/rmse_fa_1e-4N``, and the pre-training run they start from as tag
+``pretrain_run_id``; pre-training runs tagged ``pretrain=<variant>`` and ``seed=<n>``. Every run
+has a description (MLflow's ``mlflow.note.content``).
 
-At the end the parent gets Table 1 (artifacts ``table1.md``, ``table1.csv``; metrics
-``<row>/test/rmse_d_mean`` etc.) and the sweep file as resolved (``sweep.yaml``).
+At the end the parent gets Table 1 as its description and as artifacts (``table1.md``,
+``table1.csv``), and the sweep file as resolved (``sweep.yaml``). The table's means stay off the
+parent's metrics: MLflow's run table then compares the children's metrics alone.
 
 Resuming: the same command finds its parent by ``sweep_hash`` (the seed count is not part of
 it, so more seeds extend a sweep) and skips every child already FINISHED with its metrics;
@@ -27,8 +30,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import json
-import logging
-import math
 import sys
 import time
 from pathlib import Path
@@ -38,8 +39,17 @@ from omegaconf import DictConfig, OmegaConf
 
 from uavturb.errors import InputError, Interrupted
 from uavturb.experiments.config import load_config
-from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec
+from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec, resolve_spec
+from uavturb.experiments.tracking import NOTE_TAG, ui_url
 from uavturb.experiments.train import CHECKPOINT_ARTIFACT, train
+
+
+def _spec_name(path: Path) -> str:
+    """The sweep file as logged: a shipped sweep by its name, another file relative to the working folder."""
+    from uavturb.experiments.sweep_spec import SWEEPS_DIR
+    from uavturb.experiments.tracking import project_path
+
+    return f"{path.stem} (shipped)" if path.resolve().parent == SWEEPS_DIR.resolve() else project_path(path)
 
 
 def _spec_hash(spec: DictConfig, preset: str, overrides: list[str]) -> str:
@@ -74,7 +84,8 @@ class _Store:
                 claim_run(self.client, run_id)
                 return run_id, True
             run = self.client.create_run(self.experiment_id, run_name=f"sweep-{name}-{preset}",
-                                         tags=run_tags({"sweep": name, "sweep_hash": sweep_hash, "preset": preset}))
+                                         tags=run_tags({"sweep": name, "sweep_hash": sweep_hash, "preset": preset,
+                                                        NOTE_TAG: f"Sweep `{name}`, preset `{preset}`: running."}))
         for k, v in params.items():
             self.client.log_param(run.info.run_id, k, v)
         return run.info.run_id, False
@@ -174,15 +185,14 @@ def _checkpoint_of(run: Any, cache_dir: Path) -> str | None:
         return None
 
 
-def _quiet_lightning() -> None:
-    """Keep the sweep's own progress lines readable: Lightning's per-run notices off."""
-    import warnings
-
-    import lightning  # noqa: F401 - sets its loggers' levels on import; override them after
-
-    for name in ("lightning.pytorch", "lightning.fabric", "lightning"):
-        logging.getLogger(name).setLevel(logging.WARNING)
-    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
+def _row_note(row: Any, cfg: DictConfig, seed: int, pretrain_run: str | None) -> str:
+    """A child's description: its Table 1 row, seed and the pre-training run it starts from."""
+    m = cfg.model
+    what = f"Table 1 row `{row.name}` (seed {seed}): {'GRU' if m.use_gru else 'no GRU'}"
+    if m.pretraining == "none":
+        return f"{what}, encoder trained from scratch."
+    return (f"{what}, encoder pre-trained on depth → {m.pretraining} (run `{pretrain_run}`), "
+            f"{'fine-tuned from epoch ' + str(m.unfreeze_at_epoch) if m.finetune else 'frozen'}.")
 
 
 def _say(msg: str) -> None:
@@ -196,12 +206,12 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
 
     Parameters
     ----------
-    spec : the sweep file (default ``sweeps/ablation.yaml``).
+    spec : the sweep file, or a shipped sweep's name (default: the shipped ``ablation``).
     preset : a key of the file's ``presets`` (``quick``, ``paper``).
     seeds : number of seeds ``0 .. seeds-1`` (default: the preset's).
     overrides : ``key=value`` config overrides for every run (after the preset's).
     experiment : MLflow experiment (default: the file's ``experiment``).
-    conf_dir : the ``conf`` folder (default: the repository's).
+    conf_dir : a user's config folder, searched before the shipped one.
 
     Returns
     -------
@@ -217,7 +227,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     from uavturb.experiments.compare import compare
     from uavturb.experiments.tracking import close_run
 
-    spec_path = Path(spec)
+    spec_path = resolve_spec(spec)
     sp = load_spec(spec_path)
     if preset not in sp.presets:
         raise InputError("--preset", f"no preset {preset!r} in {spec_path}; choices: {', '.join(sp.presets)}")
@@ -249,10 +259,9 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
         cfg.tracking.run_name = run_name
         return cfg
 
-    _quiet_lightning()
     sweep_hash = _spec_hash(sp, preset, overrides)
     store = _Store(experiment)
-    params = {"sweep_file": str(spec_path), "preset": preset, "overrides": json.dumps(overrides),
+    params = {"sweep_file": _spec_name(spec_path), "preset": preset, "overrides": json.dumps(overrides),
               "rows": json.dumps([r.name for r in rows])}
     parent_id, resumed = store.parent(sp.name, sweep_hash, preset, params)
     store.client.set_tag(parent_id, "seeds", str(n_seeds))
@@ -275,6 +284,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     done, t_run, n_run = 0, 0.0, 0
     results: list[dict[str, Any]] = []
     pretrain_ckpt: dict[tuple[str, int], str] = {}
+    pretrain_run: dict[tuple[str, int], str] = {}
     cache = Path(next(iter(base_height.values())).trainer.default_root_dir) / "checkpoints" / "downloaded"
 
     def progress(label: str, reused: bool, dt: float, metrics: dict[str, float]) -> None:
@@ -282,7 +292,8 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
         done += 1
         if not reused:
             t_run, n_run = t_run + dt, n_run + 1
-        shown = "  ".join(f"{k} {metrics[k]:.4g}" for k in (*FINAL_METRICS, "test/loss") if k in metrics)
+        shown = "  ".join(f"{k} {metrics[k]:.4g}" for k in ("test/rmse_d", "test/rmse_fa_1e-4N", "test/loss")
+                          if k in metrics)
         took = "already done" if reused else f"{dt:.0f} s"
         eta = f"  (sweep ETA {t_run / n_run * (total - done):.0f} s)" if n_run and done < total else ""
         _say(f"[{done}/{total}] {label}: {took}  {shown}{eta}")
@@ -301,13 +312,15 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
                                                  pretrain=v, seed=str(seed))
                     if found is not None:
                         pretrain_ckpt[(v, seed)] = _checkpoint_of(found, cache)
+                        pretrain_run[(v, seed)] = found.info.run_id
                         progress(label, True, 0.0, dict(found.data.metrics))
                         continue
-                    out = run_child(for_run(base_pretrain[v], seed, label), label, {"pretrain": v, "seed": str(seed)},
-                                    resume)
+                    out = run_child(for_run(base_pretrain[v], seed, label), label, {"pretrain": v, "seed": str(seed),
+                                     NOTE_TAG: f"Pre-training for Table 1 (seed {seed}): depth encoder, "
+                                               f"depth → {v} transcoder."}, resume)
                 if not out["checkpoint"]:
                     raise InputError(label, "training produced no checkpoint")
-                pretrain_ckpt[(v, seed)] = out["checkpoint"]
+                pretrain_ckpt[(v, seed)], pretrain_run[(v, seed)] = out["checkpoint"], out["run_id"]
                 progress(label, False, time.perf_counter() - t0, out["metrics"])
             for row in rows:
                 t0, label = time.perf_counter(), f"{row.name} seed {seed}"
@@ -320,9 +333,13 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
                         progress(label, True, 0.0, dict(found.data.metrics))
                         continue
                     cfg = for_run(base_height[row.name], seed, label)
+                    link: dict[str, str] = {}
                     if variants[row.name] != "none":
                         cfg.model.encoder_ckpt = pretrain_ckpt[(variants[row.name], seed)]
-                    out = run_child(cfg, label, {"ablation": row.name, "seed": str(seed)}, resume)
+                        link = {"pretrain_run_id": pretrain_run[(variants[row.name], seed)]}
+                    out = run_child(cfg, label, {"ablation": row.name, "seed": str(seed), **link,
+                                                 NOTE_TAG: _row_note(row, cfg, seed, link.get("pretrain_run_id"))},
+                                    resume)
                 results.append({"row": row.name, "seed": seed, "run_id": out["run_id"], "metrics": out["metrics"],
                                 "checkpoint": out["checkpoint"], "reused": False})
                 progress(label, False, time.perf_counter() - t0, out["metrics"])
@@ -334,10 +351,24 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     table = compare(experiment=experiment, parent_run_id=parent_id, spec=spec_path, out=None)
     store.client.log_text(parent_id, table["markdown_text"], "table1.md")
     store.client.log_text(parent_id, table["csv_text"], "table1.csv")
-    for r in table["rows"]:  # the table on the parent too, for the MLflow UI's run comparison
-        for key in ("rmse_d_mean", "rmse_d_std", "rmse_fa_mean", "rmse_fa_std"):
-            if not math.isnan(r[key]):
-                store.client.log_metric(parent_id, f"{r['row']}/test/{key}", r[key])
+    store.client.set_tag(parent_id, NOTE_TAG, f"Sweep `{sp.name}`, preset `{preset}`, {n_seeds} seed(s); "
+                                              f"one child run per row and seed.\n\n{table['markdown_text']}")
     close_run(store.client, parent_id)
+    view = table1_view(store, sp.name, preset, sweep_hash)
+    _say(f"Table 1 in the MLflow UI: {ui_url(view)}")
     return {"parent_run_id": parent_id, "experiment": experiment, "resumed": resumed, "runs": results,
-            "pretrain": pretrain_ckpt, "table": table["table"]}
+            "pretrain": pretrain_ckpt, "table": table["table"], "view": view}
+
+
+#: the columns of the UI's Table 1 view: the row, the seed, RMSE(d) [m] and RMSE(f_a) [1e-4 N], [N]
+TABLE1_COLUMNS = ["tags.`ablation`", "tags.`seed`", "metrics.`test/rmse_d`", "metrics.`test/rmse_fa_1e-4N`",
+                  "metrics.`test/rmse_fa`"]
+
+
+def table1_view(store: _Store, name: str, preset: str, sweep_hash: str) -> str:
+    """A saved view of the experiment listing this sweep's Table 1 runs with their test metrics."""
+    from uavturb.experiments.tracking import save_view
+
+    return save_view(store.client, store.experiment_id, f"table1-{sweep_hash}", f"Table 1 ({name}, {preset})",
+                     search_filter=f"tags.sweep_hash = '{sweep_hash}' and tags.ablation LIKE '%'",
+                     columns=TABLE1_COLUMNS, order_by="tags.`ablation`")

@@ -1,8 +1,14 @@
-"""Sweep files (``sweeps/ablation.yaml``): typed schema and reader. A typo fails naming the key."""
+"""Sweep files (``sweeps/ablation.yaml``): typed schema and reader. A typo fails naming the key.
+
+The shipped sweep files are package data (``uavturb/sweeps``, :data:`SWEEPS_DIR`); a sweep is named
+by a path to a file or by the name of a shipped one (``ablation``; ``sweeps/ablation.yaml`` too, where
+no such file exists in the working folder): :func:`resolve_spec`.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 
 from omegaconf import MISSING, DictConfig, OmegaConf
@@ -10,7 +16,33 @@ from omegaconf.errors import OmegaConfBaseException
 
 from uavturb.errors import InputError
 
-DEFAULT_SPEC = Path(__file__).resolve().parents[2] / "sweeps" / "ablation.yaml"
+#: the shipped sweep files (package data)
+SWEEPS_DIR = Path(str(resources.files("uavturb") / "sweeps"))
+DEFAULT_SPEC = SWEEPS_DIR / "ablation.yaml"
+
+
+def shipped_sweeps() -> list[str]:
+    """Names of the shipped sweep files (``ablation``)."""
+    return sorted(p.stem for p in SWEEPS_DIR.glob("*.yaml"))
+
+
+def resolve_spec(spec: str | Path) -> Path:
+    """A sweep file: ``spec`` itself where it exists, else the shipped sweep of that name.
+
+    ``ablation``, ``ablation.yaml`` and ``sweeps/ablation.yaml`` (from a folder without such a file)
+    all name the shipped ``uavturb/sweeps/ablation.yaml``.
+
+    Raises
+    ------
+    InputError : neither a file nor a shipped sweep's name (listing the shipped ones).
+    """
+    path = Path(spec)
+    if path.is_file():
+        return path
+    shipped = SWEEPS_DIR / f"{path.stem}.yaml"
+    if path.suffix in ("", ".yaml") and shipped.is_file():
+        return shipped
+    raise InputError(path, f"sweep file not found (shipped sweeps: {', '.join(shipped_sweeps())})")
 
 
 FINAL_METRICS = ("test/rmse_d", "test/rmse_fa")
@@ -48,9 +80,7 @@ def load_spec(path: str | Path = DEFAULT_SPEC) -> DictConfig:
     """Read and check a sweep file; a typo fails naming the file and the key."""
     import yaml
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "sweep file not found")
+    path = resolve_spec(path)
     try:
         body = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as e:

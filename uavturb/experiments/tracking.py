@@ -15,6 +15,14 @@ Everyone opens the store through :func:`client`:
   a process marks RUNNING runs whose process on this host is gone (SIGKILL, out of memory) as
   FAILED with a ``stale`` tag (:func:`mark_stale_runs`). Runs of other hosts are left alone.
 - A run stopped by a signal is KILLED, by an error FAILED (:func:`close_run`).
+
+MLflow's own conventions, so that its UI fills its columns: experiments are tagged
+``mlflow.experimentKind = custom_model_development`` (the UI opens on the runs, not on MLflow 3's
+GenAI overview), runs ``mlflow.source.git.commit`` (the Version column), datasets are logged
+inputs with their digest (the Dataset column), descriptions are ``mlflow.note.content``. Paths
+in tags and params are relative to the working folder where they lie under it
+(:func:`project_path`). A run that a command logs again with the same inputs (tag
+:data:`KEY_TAG`) is reused rather than duplicated (:func:`find_run`).
 """
 
 from __future__ import annotations
@@ -100,7 +108,18 @@ def named_lock(name: str):
     return FileLock(str(folder / f"{safe}.lock"))
 
 
-def _quiet() -> None:
+#: tag ``mlflow.experimentKind``: MLflow 3's UI opens experiments of this kind on their runs table
+EXPERIMENT_KIND = "custom_model_development"
+#: a run's inputs, hashed: a command run again on the same inputs finds and reuses its run
+KEY_TAG = "uavturb.key"
+#: the description MLflow's UI shows on a run's page (Markdown)
+NOTE_TAG = "mlflow.note.content"
+
+
+def quiet_mlflow() -> None:
+    """MLflow's and its database's INFO lines off (table creation, experiment creation), and its
+    artifact download bars (``\\r`` lines in log files)."""
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.ERROR)
 
@@ -137,7 +156,7 @@ def client():
     import mlflow
     from mlflow.exceptions import MlflowException
 
-    _quiet()
+    quiet_mlflow()
     uri = tracking_uri()
     if uri in _OPENED:
         return mlflow.MlflowClient(uri)
@@ -159,23 +178,25 @@ def client():
 
 
 def experiment_id(c: Any, name: str) -> str:
-    """The id of experiment ``name``, created if missing (safe when two processes race to create it)."""
+    """The id of experiment ``name``, created if missing (safe when two processes race to create it)
+    and tagged :data:`EXPERIMENT_KIND`."""
     from mlflow.exceptions import MlflowException
 
     exp = c.get_experiment_by_name(name)
-    if exp is not None:
-        return exp.experiment_id
-    with store_lock():
-        exp = c.get_experiment_by_name(name)
-        if exp is not None:
-            return exp.experiment_id
-        try:
-            return c.create_experiment(name)
-        except MlflowException:  # created by a server's other client meanwhile
+    if exp is None:
+        with store_lock():
             exp = c.get_experiment_by_name(name)
             if exp is None:
-                raise
-            return exp.experiment_id
+                try:
+                    c.create_experiment(name)
+                except MlflowException:  # created by a server's other client meanwhile
+                    pass
+                exp = c.get_experiment_by_name(name)
+                if exp is None:
+                    raise StoreError(f"MLflow store {tracking_uri()}: experiment {name!r} could not be created")
+    if exp.tags.get("mlflow.experimentKind") != EXPERIMENT_KIND:
+        c.set_experiment_tag(exp.experiment_id, "mlflow.experimentKind", EXPERIMENT_KIND)
+    return exp.experiment_id
 
 
 # --- which process keeps a run -------------------------------------------------------------
@@ -214,11 +235,11 @@ def process_alive(tags: dict[str, str]) -> bool | None:
 
 
 def run_tags(tags: dict[str, str] | None = None) -> dict[str, str]:
-    """Tags of a new run: MLflow's own context tags (user, source), ``git_commit``,
+    """Tags of a new run: MLflow's own context tags (user, source), :func:`source_tags`,
     :func:`process_tags`, then ``tags``."""
     from mlflow.tracking.context.registry import resolve_tags
 
-    return resolve_tags({"git_commit": git_commit(), **process_tags(), **(tags or {})})
+    return resolve_tags({**source_tags(), **process_tags(), **(tags or {})})
 
 
 def claim_run(c: Any, run_id: str) -> None:
@@ -267,20 +288,77 @@ def mark_stale_runs(c: Any) -> list[str]:
     return marked
 
 
+def source_tags() -> dict[str, str]:
+    """``mlflow.source.git.commit`` (when the package runs from a git checkout)."""
+    commit = git_commit()
+    return {"mlflow.source.git.commit": commit} if commit != "unknown" else {}
+
+
+def project_path(path: str | Path) -> str:
+    """``path`` relative to the working folder where it lies under it, else absolute."""
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(p)
+
+
+def input_key(**inputs: Any) -> str:
+    """A short hash of a run's inputs (the value of :data:`KEY_TAG`)."""
+    import hashlib
+    import json
+
+    return hashlib.sha256(json.dumps(inputs, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def find_run(mlflow_client, experiment_id: str, key: str, parent_run_id: str | None = None) -> Any | None:
+    """The latest live run of an experiment tagged :data:`KEY_TAG` = ``key`` (and child of ``parent_run_id``)."""
+    filt = f"tags.`{KEY_TAG}` = '{key}'"
+    if parent_run_id is not None:
+        filt += f" and tags.`mlflow.parentRunId` = '{parent_run_id}'"
+    runs = mlflow_client.search_runs([experiment_id], filter_string=filt, order_by=["attributes.start_time DESC"],
+                                     max_results=1)
+    return runs[0] if runs else None
+
+
+def log_dataset(mlflow_client, run_id: str, root: str | Path, digest: str, context: str = "training") -> None:
+    """The dataset folder as the run's input (name, digest, local source): the UI's Dataset column."""
+    import json
+
+    from mlflow.entities import Dataset, DatasetInput, InputTag
+
+    root = Path(root)
+    dataset = Dataset(name=root.parent.name if root.name == "pairs" else root.name, digest=digest[:36],
+                      source_type="local", source=json.dumps({"uri": project_path(root)}))
+    mlflow_client.log_inputs(run_id, datasets=[DatasetInput(dataset, [InputTag("mlflow.data.context", context)])])
+
+
 def log_run(experiment: str, *, run_name: str, params: dict[str, Any], metrics: dict[str, float],
             tags: dict[str, str] | None = None, artifacts: Path | None = None) -> str:
-    """One MLflow run with params, metrics, tags and a folder of artifacts; returns its id."""
-    c = client()
+    """One MLflow run with params, metrics, tags and a folder of artifacts; returns its id.
+
+    A run of the same experiment, name and params already logged is reused (its metrics
+    and artifacts written again), so a command run twice on the same inputs keeps one run.
+    """
     import time
 
-    from mlflow.entities import Metric, Param
+    from mlflow.entities import Metric, Param, RunTag
 
-    run = c.create_run(experiment_id(c, experiment), run_name=run_name, tags=run_tags(tags))
-    rid = run.info.run_id
+    c = client()
+    exp_id = experiment_id(c, experiment)
+    params = {k: str(v)[:500] for k, v in params.items()}
+    key = input_key(run_name=run_name, params=params)
+    previous = find_run(c, exp_id, key)
+    if previous is not None:
+        rid = previous.info.run_id
+        claim_run(c, rid)
+    else:
+        rid = c.create_run(exp_id, run_name=run_name, tags=run_tags({KEY_TAG: key})).info.run_id
     try:
         now = int(time.time() * 1000)
-        c.log_batch(rid, params=[Param(k, str(v)[:500]) for k, v in params.items()],
-                    metrics=[Metric(k, float(v), now, 0) for k, v in metrics.items() if v is not None])
+        c.log_batch(rid, params=[] if previous is not None else [Param(k, v) for k, v in params.items()],
+                    metrics=[Metric(k, float(v), now, 0) for k, v in metrics.items() if v is not None],
+                    tags=[RunTag(k, str(v)) for k, v in (tags or {}).items()])
         if artifacts is not None:
             c.log_artifacts(rid, str(artifacts))
     except BaseException as e:
@@ -288,3 +366,44 @@ def log_run(experiment: str, *, run_name: str, params: dict[str, Any], metrics: 
         raise
     close_run(c, rid)
     return rid
+
+
+#: MLflow UI's saved views: an experiment tag with this prefix holds a view of the runs table
+VIEW_TAG_PREFIX = "mlflow.sharedViewState."
+
+
+def save_view(mlflow_client, experiment_id: str, key: str, name: str, *, search_filter: str,
+              columns: list[str], order_by: str | None = None, ascending: bool = True) -> str:
+    """A saved view of the experiment's runs table (the UI's "Views" menu); returns its URL fragment.
+
+    Parameters
+    ----------
+    key : the view's share key (letters, digits, ``-``, ``_``)
+    name : the view's name in the UI
+    search_filter : MLflow search syntax; a filter also lists nested runs flat, not under their parent
+    columns : columns shown, in MLflow's canonical form (``metrics.`test/rmse_d```, ``tags.`seed```)
+    order_by : a column to sort by (canonical form)
+
+    Returns
+    -------
+    ``#/experiments/<id>/runs?workflowType=machine_learning&viewStateShareKey=<key>``: append it to
+    the UI's address. ``workflowType`` opens the model-training pages: MLflow 3.17's UI decides
+    between its GenAI and model-training pages by a switch of its own (stored in the browser), not
+    by the experiment's ``mlflow.experimentKind``, so a fresh browser opens on the GenAI overview.
+    """
+    import json
+    import time
+
+    state = {"searchFilter": search_filter, "orderByKey": order_by or "attributes.start_time",
+             "orderByAsc": ascending if order_by else False, "startTime": "ALL", "lifecycleFilter": "Active",
+             "modelVersionFilter": "All Runs", "datasetsFilter": [], "selectedColumns": list(columns),
+             "runsExpanded": {}, "runsPinned": [], "runsHidden": [], "viewMaximized": False, "runListHidden": False}
+    now = int(time.time() * 1000)
+    envelope = {"name": name, "createdAt": now, "updatedAt": now, "state": json.dumps(state)}
+    mlflow_client.set_experiment_tag(experiment_id, VIEW_TAG_PREFIX + key, json.dumps(envelope))
+    return f"#/experiments/{experiment_id}/runs?workflowType=machine_learning&viewStateShareKey={key}"
+
+
+def ui_url(fragment: str) -> str:
+    """The address of a UI page of :func:`save_view` on ``mlflow ui``'s default port (``make ui``)."""
+    return f"http://127.0.0.1:5000/{fragment}"

@@ -11,16 +11,24 @@ Stages (``cfg.stage``):
 
 Both stages keep the best checkpoint on the validation monitor (``val/loss`` resp.
 ``val/rmse_d``), then test it. Tracking: one MLflow run (Lightning's ``MLFlowLogger``, store
-from :func:`uavturb.tracking.tracking_uri`) holding the resolved config (flattened as params
-and as ``config.yaml``), tags ``git_commit``, ``data_hash`` and ``stage``, and the metrics.
+from :func:`uavturb.experiments.tracking.tracking_uri`) holding the resolved config (flattened as
+params and as ``config.yaml``), tags ``mlflow.source.git.commit``, ``data_hash`` and ``stage``, the
+dataset as the run's input (name and digest), and the metrics.
+
+Metric names keep like with like in MLflow's run table (:class:`StageMetricsLogger`): height runs
+log ``train/loss``, ``val/rmse_d`` [m], ``test/rmse_fa`` [N] ... and every ``*rmse_fa`` also as
+``*rmse_fa_1e-4N`` in the unit of the paper's Table 1 (N values of ~5e-4 read 0.001 in a
+three-decimal column); pre-training runs log theirs under ``pretrain/`` (``pretrain/test/loss``:
+the transcoder loss, not a height loss).
 
 Checkpoints: the best one is kept locally at
 ``<trainer.default_root_dir>/checkpoints/<run_id>/best-<epoch>.ckpt`` (``<run_id>`` the MLflow
 run id; a time stamp when tracking is off), logged to the run as the artifact
-``checkpoints/best.ckpt`` (:data:`CHECKPOINT_ARTIFACT`), and its absolute local path is the
-run's tag ``checkpoint``. Height runs also log ``plots/test_heights.png`` (predicted vs true
-height over test trajectories, :mod:`uavturb.training_plots`). ``last.ckpt`` beside it holds the
-latest epoch (tag ``checkpoint_dir``: the folder).
+``checkpoints/best.ckpt`` (:data:`CHECKPOINT_ARTIFACT`), and its local path (relative to the
+working folder where it lies under it) is the run's tag ``checkpoint``. Height runs also log
+the figure ``plots/test_heights.png`` (predicted vs true height over test trajectories,
+:mod:`uavturb.experiments.plots`). ``last.ckpt`` beside it holds the latest epoch (tag
+``checkpoint_dir``: the folder).
 
 Interruptions and resuming: the run is FINISHED when training and testing complete, KILLED when
 a signal stops it (:class:`uavturb.errors.Interrupted`), FAILED on an error; its tags ``host``,
@@ -28,10 +36,14 @@ a signal stops it (:class:`uavturb.errors.Interrupted`), FAILED on an error; its
 closing it (SIGKILL). ``train(cfg, resume=RUN_ID)`` (``uavturb train --resume RUN_ID``) continues
 such a run in the same MLflow run from its ``last.ckpt``, as Lightning's ``ckpt_path`` does.
 Bad config values and bad data fail before any run is opened.
+
+Output: on a terminal Lightning's progress bar; otherwise (a log file) one line per epoch on
+stderr (:func:`epoch_lines`). Lightning's notices (accelerator, tips) are left out.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
 from typing import Any
@@ -43,6 +55,31 @@ from uavturb.experiments.config import TrainConfig, to_flat_dict, validate
 
 #: MLflow artifact path of a run's best checkpoint (the local file: tag ``checkpoint``)
 CHECKPOINT_ARTIFACT = "checkpoints/best.ckpt"
+#: RMSE(f_a) is logged in N and, under this suffix, in the 1e-4 N of the paper's Table 1
+FA_SCALED_SUFFIX, FA_SCALE = "_1e-4N", 1e4
+
+
+def quiet_lightning() -> None:
+    """Lightning's per-run notices (accelerator, tips, checkpoint restores) and a torch deprecation off."""
+    import warnings
+
+    import lightning  # noqa: F401 - sets its loggers' levels on import; override them after
+
+    for name in ("lightning.pytorch", "lightning.fabric", "lightning"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
+
+
+def stage_metric_names(stage: str, metrics: dict[str, float]) -> dict[str, float]:
+    """Metric names as logged to MLflow (see the module docstring): ``pretrain/`` prefix, scaled f_a."""
+    out: dict[str, float] = {}
+    for k, v in metrics.items():
+        if stage == "pretrain" and k not in ("epoch", "step"):
+            k = f"pretrain/{k}"
+        out[k] = v
+        if k.endswith("rmse_fa"):
+            out[k + FA_SCALED_SUFFIX] = v * FA_SCALE
+    return out
 
 
 def _limit(x: float) -> int | float:
@@ -199,18 +236,20 @@ def _config_changes(cfg: DictConfig, run) -> dict[str, tuple[str, str]]:
     return changes
 
 
-def _open_run(cfg: DictConfig, data_hash: str, ckpt_root: Path, tags: dict[str, str] | None,
+def _open_run(cfg: DictConfig, data_root: Path, data_hash: str, ckpt_root: Path, tags: dict[str, str] | None,
               resume: str | None) -> tuple[Any, str, Path | None]:
     """Open (or, with ``resume``, re-open) the MLflow run: (client, run id, last checkpoint or None).
 
-    A new run gets the resolved config (params and ``config.yaml``), the tags ``git_commit``,
-    ``data_hash``, ``stage``, ``checkpoint_dir`` and :func:`uavturb.experiments.tracking.process_tags`.
+    A new run gets the resolved config (params and ``config.yaml``), the dataset as its input
+    (name, digest), a description, the tags ``mlflow.source.git.commit``, ``data_hash``, ``stage``,
+    ``checkpoint_dir`` and :func:`uavturb.experiments.tracking.process_tags`.
     A resumed one is marked RUNNING by this process, keeps its params, and records what changed
     in the tags ``resumed`` (how many times) and ``resume_changes``.
     """
     from mlflow.entities import Param
 
-    from uavturb.experiments.tracking import claim_run, client, experiment_id, run_tags
+    from uavturb.experiments.tracking import (NOTE_TAG, claim_run, client, experiment_id, log_dataset, project_path,
+                                              run_tags)
 
     c = client()
     if resume is not None:
@@ -224,20 +263,40 @@ def _open_run(cfg: DictConfig, data_hash: str, ckpt_root: Path, tags: dict[str, 
         return c, resume, last if last.is_file() else None
     exp_id = experiment_id(c, cfg.tracking.experiment)
     run = c.create_run(exp_id, run_name=_run_name(cfg),
-                       tags=run_tags({"data_hash": data_hash, "stage": cfg.stage, **(tags or {})}))
+                       tags=run_tags({"data_hash": data_hash, "stage": cfg.stage,
+                                      NOTE_TAG: _describe(cfg, data_root, data_hash), **(tags or {})}))
     run_id = run.info.run_id
     try:
         c.set_tag(run_id, "checkpoint_dir", str((ckpt_root / run_id).resolve()))
-        params = [Param(k, str("null" if v is None else v)[:250]) for k, v in to_flat_dict(cfg).items()]
+        flat = {k: str("null" if v is None else v)[:250] for k, v in to_flat_dict(cfg).items()}
+        if cfg.model.encoder_ckpt:
+            flat["model.encoder_ckpt"] = project_path(cfg.model.encoder_ckpt)
+        params = [Param(k, v) for k, v in flat.items()]
         for i in range(0, len(params), 100):
             c.log_batch(run_id, params=params[i:i + 100])
         c.log_text(run_id, OmegaConf.to_yaml(cfg, resolve=True), "config.yaml")
+        if data_root.is_dir():
+            log_dataset(c, run_id, data_root, data_hash, "pretraining" if cfg.stage == "pretrain" else "training")
     except BaseException as e:
         from uavturb.experiments.tracking import close_run
 
         close_run(c, run_id, e)
         raise
     return c, run_id, None
+
+
+def _describe(cfg: DictConfig, data_root: Path, data_hash: str) -> str:
+    """The run's description (MLflow's ``mlflow.note.content``, Markdown)."""
+    from uavturb.experiments.tracking import project_path
+
+    m = cfg.model
+    if cfg.stage == "pretrain":
+        what = f"Pre-training: depth encoder, depth → {m.pretraining} transcoder"
+    else:
+        what = (f"Height model: pre-training {m.pretraining}, {'GRU' if m.use_gru else 'no GRU'}"
+                + ("" if m.pretraining == "none" else f", {'fine-tuned' if m.finetune else 'frozen'} encoder"))
+    return (f"{what}. Data `{project_path(data_root)}` (digest `{data_hash}`), {cfg.trainer.max_epochs} epochs, "
+            f"seed {cfg.trainer.seed}.")
 
 
 def _logger(cfg: DictConfig, run_id: str | None):
@@ -248,8 +307,68 @@ def _logger(cfg: DictConfig, run_id: str | None):
 
     from uavturb.experiments.tracking import tracking_uri
 
-    return MLFlowLogger(experiment_name=cfg.tracking.experiment, run_name=_run_name(cfg), tracking_uri=tracking_uri(),
-                        run_id=run_id, log_model=False)
+    class StageMetricsLogger(MLFlowLogger):
+        """MLFlowLogger that logs the stage's metric names (:func:`stage_metric_names`)."""
+
+        def log_metrics(self, metrics, step=None):
+            super().log_metrics(stage_metric_names(cfg.stage, dict(metrics)), step)
+
+    return StageMetricsLogger(experiment_name=cfg.tracking.experiment, run_name=_run_name(cfg),
+                              tracking_uri=tracking_uri(), run_id=run_id, log_model=False)
+
+
+def epoch_lines(max_epochs: int):
+    """A Lightning callback printing one line per epoch to stderr: progress that reads well in a log file."""
+    import sys
+
+    from lightning.pytorch.callbacks import Callback
+
+    class EpochLines(Callback):
+        def __init__(self):
+            self.t0 = time.perf_counter()
+
+        def on_train_epoch_end(self, trainer, pl_module):
+            if not trainer.is_global_zero:
+                return
+            m = trainer.callback_metrics
+            shown = "  ".join(f"{k.removesuffix('_epoch')} {float(m[k]):.4g}" for k in sorted(m)
+                              if k == "train/loss_epoch" or k.startswith("val/"))
+            print(f"epoch {trainer.current_epoch + 1}/{max_epochs} ({time.perf_counter() - self.t0:.0f} s): {shown}",
+                  file=sys.stderr, flush=True)
+
+    return EpochLines()
+
+
+def _progress_callbacks(t) -> tuple[bool, list]:
+    """(enable Lightning's bar, extra callbacks): the bar on a terminal, :func:`epoch_lines` in a file."""
+    import sys
+
+    if not t.enable_progress_bar:
+        return False, []
+    if sys.stderr.isatty():
+        return True, []
+    return False, [epoch_lines(t.max_epochs)]
+
+
+def _check_system_metrics(cfg: DictConfig) -> None:
+    """``tracking.system_metrics`` needs psutil: fail before anything is logged."""
+    import importlib.util
+
+    if cfg.tracking.enabled and cfg.tracking.system_metrics and importlib.util.find_spec("psutil") is None:
+        raise InputError("tracking.system_metrics", "needs psutil: pip install 'uavturb[system-metrics]'")
+
+
+def _system_metrics(cfg: DictConfig, logger):
+    """MLflow's system-metrics monitor on the run (``tracking.system_metrics``), started; or None."""
+    if logger is None or not cfg.tracking.system_metrics:
+        return None
+    from mlflow.system_metrics.system_metrics_monitor import SystemMetricsMonitor
+
+    from uavturb.experiments.tracking import tracking_uri
+
+    monitor = SystemMetricsMonitor(logger.run_id, tracking_uri=tracking_uri())
+    monitor.start()
+    return monitor
 
 
 def _log_checkpoint(logger, best: str | None) -> None:
@@ -257,25 +376,27 @@ def _log_checkpoint(logger, best: str | None) -> None:
     import shutil
     import tempfile
 
+    from uavturb.experiments.tracking import project_path
+
     if not best:
         return
     folder, name = CHECKPOINT_ARTIFACT.rsplit("/", 1)
     client = logger.experiment
-    client.set_tag(logger.run_id, "checkpoint", str(Path(best).resolve()))
+    client.set_tag(logger.run_id, "checkpoint", project_path(best))
     with tempfile.TemporaryDirectory() as tmp:
         shutil.copyfile(best, Path(tmp) / name)
         client.log_artifact(logger.run_id, str(Path(tmp) / name), folder)
 
 
 def _log_height_plot(logger, module, dm, window: int) -> None:
-    """Predicted vs true height over the first test trajectories, as artifact ``plots/test_heights.png``."""
-    import tempfile
+    """Predicted vs true height over the first test trajectories, as the figure ``plots/test_heights.png``."""
+    import matplotlib.pyplot as plt
 
-    from uavturb.experiments.plots import plot_test_heights
+    from uavturb.experiments.plots import figure_test_heights
 
-    with tempfile.TemporaryDirectory() as tmp:
-        png = plot_test_heights(module, dm.sets["test"].folders, window, Path(tmp) / "test_heights.png")
-        logger.experiment.log_artifact(logger.run_id, str(png), "plots")
+    fig = figure_test_heights(module, dm.sets["test"].folders, window)
+    logger.experiment.log_figure(logger.run_id, fig, "plots/test_heights.png")
+    plt.close(fig)
 
 
 class _FirstEpoch:
@@ -326,6 +447,8 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     from uavturb.io.shards import dataset_hash
 
     cfg = validate(cfg)
+    _check_system_metrics(cfg)
+    quiet_lightning()
     if resume is not None and not cfg.tracking.enabled:
         raise InputError("--resume", "needs tracking.enabled=true (the run lives in MLflow)")
     if resume is not None and _is_rank_zero():  # a run that cannot be resumed fails before any work
@@ -345,7 +468,7 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     ckpt_root = Path(t.default_root_dir) / "checkpoints"
     client, run_id, last = None, None, None
     if cfg.tracking.enabled and _is_rank_zero():
-        client, run_id, last = _open_run(cfg, data_hash, ckpt_root, tags, resume)
+        client, run_id, last = _open_run(cfg, data_root, data_hash, ckpt_root, tags, resume)
     elif resume is not None:  # DDP ranks > 0: rank 0's run, found by the same command line's --resume
         last = ckpt_root / resume / LAST_CHECKPOINT
         last = last if last.is_file() else None
@@ -380,25 +503,34 @@ def _fit_and_test(cfg, module, dm, callbacks, monitor, client, run_id, last, ckp
     callbacks = [*callbacks, checkpoint, first.callback]
     if t.early_stopping_patience > 0:
         callbacks.append(EarlyStopping(monitor=monitor, mode="min", patience=t.early_stopping_patience))
+    progress_bar, progress_lines = _progress_callbacks(t)
+    callbacks.extend(progress_lines)
     trainer = L.Trainer(max_epochs=t.max_epochs, max_steps=t.max_steps, accelerator=t.accelerator,
                         devices=_devices(t.devices), strategy=t.strategy, num_nodes=t.num_nodes,
                         precision=t.precision, limit_train_batches=_limit(t.limit_train_batches),
                         limit_val_batches=_limit(t.limit_val_batches), limit_test_batches=_limit(t.limit_test_batches),
-                        log_every_n_steps=t.log_every_n_steps, enable_progress_bar=t.enable_progress_bar,
+                        log_every_n_steps=t.log_every_n_steps, enable_progress_bar=progress_bar,
                         default_root_dir=t.default_root_dir, deterministic=t.deterministic, callbacks=callbacks,
                         logger=logger if logger is not None else False, enable_model_summary=False)
     if resume is not None and trainer.is_global_zero:
         print(f"resuming run {resume} " + (f"from {last}" if last else f"from the start (no {LAST_CHECKPOINT} yet)"),
               file=sys.stderr, flush=True)
-    trainer.fit(module, datamodule=dm, ckpt_path=str(last) if last else None)
+    system = _system_metrics(cfg, logger) if logger is not None and trainer.is_global_zero else None
+    try:
+        trainer.fit(module, datamodule=dm, ckpt_path=str(last) if last else None)
+    finally:
+        if system is not None:
+            system.finish()
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     best = checkpoint.best_model_path or None
     tested = trainer.test(module, datamodule=dm, ckpt_path=best if best else None, verbose=False)
     for row in tested:
         metrics.update({k: float(v) for k, v in row.items()})
+    metrics.update({k + FA_SCALED_SUFFIX: v * FA_SCALE for k, v in list(metrics.items()) if k.endswith("rmse_fa")})
     if client is not None and trainer.is_global_zero:
         from uavturb.experiments.tracking import close_run
 
+        logger.experiment.set_tag(logger.run_id, "world_size", str(trainer.world_size))
         _log_checkpoint(logger, best)
         if cfg.stage == "height":
             _log_height_plot(logger, module, dm, cfg.data.window)

@@ -9,6 +9,40 @@ import numpy as np
 
 from uavturb.gap.locate import AXES, features
 
+#: units of the candidate drivers of :func:`uavturb.gap.locate.features` (plot axes)
+FEATURE_UNITS = {"d_down": "m", "d_up": "m", "v_x": "m/s", "v_y": "m/s", "v_z": "m/s", "v_Bx": "m/s", "v_By": "m/s",
+                 "v_Bz": "m/s", "speed": "m/s", "rotor_speed_sum": "rad/s", "rotor_speed_rate": "rad/s^2",
+                 "thrust_sum_omega2": "rad^2/s^2", "t": "s"}
+#: what "before" means in each plot: the two use different fits of the nominal model
+BEFORE_ALL = "before (nominal model, robust fit on all data)"
+BEFORE_HELDOUT = "before (nominal model fitted on the other folds)"
+
+
+def format_params(params: dict | None, stderr: dict | None = None) -> str:
+    """``mu = 1.9996 ± 0.0021, ...``: a value to the decimals of its standard error's two significant
+    digits; without one, four significant digits."""
+    if not params:
+        return "-"
+    out = []
+    for k, v in params.items():
+        se = (stderr or {}).get(k)
+        if se is not None and np.isfinite(se) and se > 0:
+            places = int(min(8, max(0, 1 - np.floor(np.log10(se)))))
+            out.append(f"{k} = {v:.{places}f} ± {se:.{places}f}")
+        else:
+            out.append(f"{k} = {v:.4g}")
+    return ", ".join(out)
+
+
+def format_effect(effect: dict) -> str:
+    """One named effect for people: ``ground_effect (mu = 1.9996 ± 0.0021)``."""
+    return f"{effect['name']} ({format_params(effect['params'], effect.get('stderr'))})"
+
+
+def _label(feature: str) -> str:
+    unit = FEATURE_UNITS.get(feature)
+    return f"{feature} [{unit}]" if unit else feature
+
 
 def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, segs, top_driver: str | None,
                 heldout_before, heldout_after) -> list[str]:
@@ -47,15 +81,15 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
         x = features(data)[top_driver]
         j = int(np.argmax(np.var(baseline_rs, axis=0)))
         fig, ax = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
-        for a, r, title in ((ax[0], baseline_rs, "before"), (ax[1], final_rs, "after")):
+        for a, r, title in ((ax[0], baseline_rs, BEFORE_ALL), (ax[1], final_rs, "after")):
             a.scatter(x, r[:, j], s=1, alpha=0.3)
             edges = np.unique(np.quantile(x, np.linspace(0, 1, 25)))
             idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
             cnt = np.maximum(np.bincount(idx), 1)
             a.plot(np.bincount(idx, weights=x) / cnt, np.bincount(idx, weights=r[:, j]) / cnt, "o-",
                    color="k", lw=1.5, ms=3, label="mean per quantile bin")
-            a.set_title(f"{title}: smoothed F_{AXES[j]} against {top_driver}")
-            a.set_xlabel(top_driver)
+            a.set_title(f"{title}: smoothed F_{AXES[j]}", fontsize=9)
+            a.set_xlabel(_label(top_driver))
             a.legend()
         ax[0].set_ylabel(f"F_{AXES[j]} [N]")
         fig.tight_layout()
@@ -74,7 +108,7 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
         ax = axes[0, c]
         m = hg == g
         order = np.argsort(ht[m])
-        for ho, label, color in ((heldout_before, "before", "tab:blue"), (heldout_after, "after", "tab:green")):
+        for ho, label, color in ((heldout_before, BEFORE_HELDOUT, "tab:blue"), (heldout_after, "after", "tab:green")):
             e2 = ho.err2[m][order]
             rms = np.sqrt(np.convolve(e2, np.ones(n) / n, "same"))
             ax.plot(ht[m][order], rms, color=color, lw=1,
@@ -110,7 +144,7 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
         L.append("| effect | parameters (± std. error) | held-out RMSE before → after [N] | z |")
         L.append("|---|---|---|---|")
         for e in report["effects"]:
-            ps = ", ".join(f"{k} = {v:.4g} ± {e['stderr'][k]:.2g}" for k, v in e["params"].items())
+            ps = format_params(e["params"], e["stderr"])
             L.append(f"| `{e['name']}` | {ps} | {e['heldout_rmse_before_N']:.4f} → {e['heldout_rmse_after_N']:.4f} | "
                      f"{e['z_heldout']:.1f} |")
         L.append("")
@@ -121,7 +155,7 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
         L.append("")
         L.append("## The simulator's own effects, refitted")
         for n, p in report["sim_effect_params"].items():
-            L.append(f"- `{n}`: simulator {p['sim']}, fitted {p['fitted']}")
+            L.append(f"- `{n}`: simulator {format_params(p['sim'])}, fitted {format_params(p['fitted'])}")
     L.append("")
     L.append("## Where the mismatch is")
     segs = report["mismatch"]["segments"]
@@ -131,7 +165,7 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
         L.append("")
         L.append("| recording | t start [s] | t end [s] | axis | RMS [N] |")
         L.append("|---|---|---|---|---|")
-        for s in segs[:15]:
+        for s in sorted(segs, key=lambda s: -s["rms_N"])[:15]:
             L.append(f"| {Path(s['recording']).name} | {s['t_start']:.2f} | {s['t_end']:.2f} | {s['axis']} | "
                      f"{s['rms_N']:.3f} |")
     L.append("")

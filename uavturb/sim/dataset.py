@@ -62,8 +62,8 @@ from typing import Any, Callable, Sequence
 from uavturb.errors import InputError
 from uavturb.io.publish import atomic_folder
 from uavturb.sim.flyers import resolve_controller
+from uavturb.progress import progress_bar, show_rate
 from uavturb.sim.presets import SimPreset, get_preset
-from uavturb.sim.progress import Progress
 from uavturb.sim.tasks import Task, parse_shard, plan_tasks
 from uavturb.sim.trajectory import RENDERERS, init_worker, work
 
@@ -171,7 +171,8 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     todo = [t for t in tasks if t.name not in metas]
     # scene-major order keeps each worker's renderer on one scene for several trajectories
     todo.sort(key=lambda t: (t.scene, t.k))
-    bar = Progress(f"generate sim ({p.name}{'' if n == 1 else f', shard {k}/{n}'})", len(todo)) if progress else None
+    bar = progress_bar(len(todo), f"generate sim ({p.name}{'' if n == 1 else f', shard {k}/{n}'})",
+                       "trajectories") if progress else None
     t0 = time.perf_counter()
     new: list[dict[str, Any]] = []
 
@@ -179,7 +180,8 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
         metas[meta["trajectory_id"]] = meta
         new.append(meta)
         if bar is not None:
-            bar.update(1, meta["stats"]["samples"])
+            show_rate(bar, sum(m["stats"]["samples"] for m in new), "samples")
+            bar.update(1)
         if on_trajectory is not None:
             on_trajectory(meta)
 

@@ -147,7 +147,7 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
     import json
 
     from uavturb.io import shards
-    from uavturb.sim.progress import Progress
+    from uavturb.progress import progress_bar, show_rate
     from uavturb.sim.tasks import scene_splits
 
     p = get_preset(preset, **overrides)
@@ -182,14 +182,21 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
         start, stop = c * p.pairs_chunk, min((c + 1) * p.pairs_chunk, p.pairs)
         jobs.append((c, start, stop, train[c % len(train)], str(out), p, int(seed)))
     todo = [j for j in jobs if not (chunks_dir / f"chunk_{j[0]:05d}").is_dir()]
-    bar = Progress(f"generate normals ({p.name})", len(todo)) if progress else None
+    bar = progress_bar(len(todo), f"generate normals ({p.name})", "chunks") if progress else None
     t0 = time.perf_counter()
+    pairs_done = 0
+
+    def tick(n: int) -> None:
+        nonlocal pairs_done
+        pairs_done += n
+        if bar is not None:
+            show_rate(bar, pairs_done, "pairs")
+            bar.update(1)
+
     try:
         if workers == 1 or len(todo) <= 1:
             for job in todo:
-                n = _chunk_pairs(job)
-                if bar is not None:
-                    bar.update(1, n)
+                tick(_chunk_pairs(job))
                 if on_chunk is not None:
                     on_chunk(job[0])
         else:
@@ -197,8 +204,7 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
 
             with mp.get_context("spawn").Pool(min(int(workers), len(todo))) as pool:
                 for n in pool.imap_unordered(_chunk_pairs, todo, chunksize=1):
-                    if bar is not None:
-                        bar.update(1, n)
+                    tick(n)
     finally:
         if bar is not None:
             bar.close()
@@ -352,12 +358,12 @@ def import_irs(root: str | Path, out: str | Path, size: int = 128, limit: int | 
     import tempfile
 
     from uavturb.io import shards
-    from uavturb.sim.progress import Progress
+    from uavturb.progress import progress_bar
 
     out = Path(out)
     total = len(irs_pairs(root)) if limit is None else min(limit, len(irs_pairs(root)))
     out.mkdir(parents=True, exist_ok=True)
-    bar = Progress("import IRS", total) if progress else None
+    bar = progress_bar(total, "import IRS", "pairs") if progress else None
     with tempfile.TemporaryDirectory(prefix=".irs-chunks.", dir=out) as tmp:
         files, D, N = [], [], []
 
@@ -368,7 +374,7 @@ def import_irs(root: str | Path, out: str | Path, size: int = 128, limit: int | 
             np.save(np_, np.stack(N))
             files.append((dp, np_))
             if bar is not None:
-                bar.update(len(D), len(D))
+                bar.update(len(D))
             D.clear()
             N.clear()
 

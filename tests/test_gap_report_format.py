@@ -1,0 +1,29 @@
+"""How the gap report and `uavturb gap` print their findings for people (formatting only)."""
+
+from __future__ import annotations
+
+from uavturb.gap.report import format_effect, format_params, write_markdown
+
+
+def test_effects_print_as_names_and_values_not_dicts():
+    e = {"name": "ground_effect", "params": {"mu": 1.999560421719929}, "stderr": {"mu": 0.0021344}}
+    assert format_effect(e) == "ground_effect (mu = 1.9996 ± 0.0021)"
+    assert format_params({"c_x": 0.5, "c_y": 0.25}) == "c_x = 0.5, c_y = 0.25"
+    assert format_params(None) == "-"
+
+
+def test_report_lists_segments_largest_first_and_params_readably(tmp_path):
+    segs = [{"recording": "a/hex_0", "t_start": t, "t_end": t + 1, "axis": "z", "rms_N": rms}
+            for t, rms in ((1.0, 0.2), (5.0, 0.9), (9.0, 0.5))]
+    report = {"recordings": ["a/hex_0"], "sim_effects": ["ground_effect"], "protocol": "2-fold",
+              "residual_source": "imu",
+              "baseline": {"heldout_rmse_N": 0.27, "rmse_N": 0.26}, "final": {"heldout_rmse_N": 0.08},
+              "noise": {"rms_N": 0.075}, "effects": [],
+              "sim_effect_params": {"ground_effect": {"sim": {"mu": 2.0}, "fitted": {"mu": 1.8712345}}},
+              "mismatch": {"segments": segs, "drivers": []}, "unexplained": {"rms_N": 0.01, "drivers": []}}
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert "(largest first)" in text
+    rows = [line for line in text.splitlines() if line.startswith("| hex_0 |")]
+    assert [float(r.split("|")[5]) for r in rows] == [0.9, 0.5, 0.2]
+    assert "simulator mu = 2, fitted mu = 1.871" in text and "{" not in text

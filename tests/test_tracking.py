@@ -1,0 +1,36 @@
+"""MLflow tracking helpers: a command run again on the same inputs reuses its run; project-relative paths."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mlflow
+
+from uavturb.experiments import tracking
+
+
+def test_log_run_reuses_the_run_of_the_same_inputs(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    (tmp_path / "report").mkdir()
+    (tmp_path / "report" / "report.md").write_text("# report\n")
+    args = dict(run_name="gap hex_0,hex_1", params={"recordings": ["a", "b"], "seed": 0},
+                tags={"effects": "ground_effect"}, artifacts=tmp_path / "report")
+    first = tracking.log_run("uavturb-gap", metrics={"gap/final_heldout_rmse_N": 0.08}, **args)
+    again = tracking.log_run("uavturb-gap", metrics={"gap/final_heldout_rmse_N": 0.07}, **args)
+    other = tracking.log_run("uavturb-gap", metrics={"gap/final_heldout_rmse_N": 0.09},
+                             **{**args, "params": {"recordings": ["a"], "seed": 0}})
+    client = mlflow.MlflowClient(uri)
+    exp = client.get_experiment_by_name("uavturb-gap")
+    assert again == first and other != first
+    assert sorted(r.info.run_id for r in client.search_runs([exp.experiment_id])) == sorted([first, other])
+    run = client.get_run(first)
+    assert run.data.metrics["gap/final_heldout_rmse_N"] == 0.07 and run.data.tags["effects"] == "ground_effect"
+    assert exp.tags["mlflow.experimentKind"] == tracking.EXPERIMENT_KIND
+
+
+def test_project_path(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert tracking.project_path(tmp_path / "runs" / "best.ckpt") == str(Path("runs") / "best.ckpt")
+    assert tracking.project_path("/elsewhere/x.ckpt") == "/elsewhere/x.ckpt"
