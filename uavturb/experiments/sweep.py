@@ -37,6 +37,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from uavturb.errors import InputError
 from uavturb.experiments.config import load_config
+from uavturb.experiments.executors import Job, RunsFailed, make_executor
 from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec
 from uavturb.experiments.train import CHECKPOINT_ARTIFACT, train
 
@@ -138,7 +139,8 @@ def _say(msg: str) -> None:
 
 def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | None = None,
           overrides: list[str] | None = None, experiment: str | None = None,
-          conf_dir: str | Path | None = None) -> dict[str, Any]:
+          conf_dir: str | Path | None = None, executor: str = "sequential", address: str | None = None,
+          max_retries: int = 1) -> dict[str, Any]:
     """Run (or resume) an ablation sweep.
 
     Parameters
@@ -149,6 +151,10 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     overrides : ``key=value`` config overrides for every run (after the preset's).
     experiment : MLflow experiment (default: the file's ``experiment``).
     conf_dir : the ``conf`` folder (default: the repository's).
+    executor : ``sequential`` (one run after another, here) or ``ray`` (Ray tasks;
+        :mod:`uavturb.experiments.executors`).
+    address : the Ray cluster (``--executor ray``; default: a local Ray instance).
+    max_retries : extra attempts of a run that fails.
 
     Returns
     -------
@@ -160,6 +166,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     Raises
     ------
     InputError : bad sweep file, unknown preset, bad override (before anything runs).
+    RunsFailed : some runs failed after their retries (the parent run is then FAILED).
     """
     from uavturb.experiments.compare import compare
 
@@ -195,6 +202,9 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
         cfg.tracking.run_name = run_name
         return cfg
 
+    ex = make_executor(executor, address=address, max_retries=max_retries)
+    for cfg in [*base_pretrain.values(), *base_height.values()]:
+        ex.check(cfg)  # e.g. the GPUs Ray is to reserve
     _quiet_lightning()
     sweep_hash = _spec_hash(sp, preset, overrides)
     store = _Store(experiment)
@@ -217,7 +227,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     total = sum(len(v) for v in todo.values()) + len(rows) * n_seeds
     done, t_run, n_run = 0, 0.0, 0
     results: list[dict[str, Any]] = []
-    pretrain_ckpt: dict[tuple[str, int], str] = {}
+    pretrain_ckpt: dict[tuple[str, int], Any] = {}  # a Job, or a finished run's checkpoint and run id
     cache = Path(next(iter(base_height.values())).trainer.default_root_dir) / "checkpoints" / "downloaded"
 
     def progress(label: str, reused: bool, dt: float, metrics: dict[str, float]) -> None:
@@ -230,45 +240,47 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
         eta = f"  (sweep ETA {t_run / n_run * (total - done):.0f} s)" if n_run and done < total else ""
         _say(f"[{done}/{total}] {label}: {took}  {shown}{eta}")
 
+    jobs: list[tuple[dict[str, Any], Job]] = []  # (result row to fill, its job) of the runs trained now
+
+    def job(label: str, cfg: DictConfig, tags: dict[str, str], encoder: Any = None) -> Job:
+        return Job(label, cfg, {"mlflow.parentRunId": parent_id, **tags, "sweep_hash": sweep_hash}, encoder,
+                   on_start=lambda: _say(f"[{done + 1}/{total}] {label} ..."),
+                   on_done=lambda out, dt: progress(label, False, dt, out["metrics"]))
+
     try:
-        for seed in range(n_seeds):
-            for v in todo[seed]:
-                t0, label = time.perf_counter(), f"pretrain {v} seed {seed}"
-                found = _find(children, pretrain=v, seed=str(seed))
-                ckpt = _checkpoint_of(found, cache) if found is not None else None
-                if ckpt is not None:
-                    pretrain_ckpt[(v, seed)] = ckpt
-                    progress(label, True, 0.0, dict(found.data.metrics))
-                    continue
-                _say(f"[{done + 1}/{total}] {label} ...")
-                out = train(for_run(base_pretrain[v], seed, label),
-                            tags={"mlflow.parentRunId": parent_id, "pretrain": v, "seed": str(seed),
-                                  "sweep_hash": sweep_hash})
-                if not out["checkpoint"]:
-                    raise InputError(label, "training produced no checkpoint")
-                pretrain_ckpt[(v, seed)] = out["checkpoint"]
-                progress(label, False, time.perf_counter() - t0, out["metrics"])
-            for row in rows:
-                t0, label = time.perf_counter(), f"{row.name} seed {seed}"
-                found = finished_row(row, seed)
-                if found is not None:
-                    results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
-                                    "metrics": dict(found.data.metrics),
-                                    "checkpoint": found.data.tags.get("checkpoint"), "reused": True})
-                    progress(label, True, 0.0, dict(found.data.metrics))
-                    continue
-                cfg = for_run(base_height[row.name], seed, label)
-                if variants[row.name] != "none":
-                    cfg.model.encoder_ckpt = pretrain_ckpt[(variants[row.name], seed)]
-                _say(f"[{done + 1}/{total}] {label} ...")
-                out = train(cfg, tags={"mlflow.parentRunId": parent_id, "ablation": row.name, "seed": str(seed),
-                                       "sweep_hash": sweep_hash})
-                results.append({"row": row.name, "seed": seed, "run_id": out["run_id"], "metrics": out["metrics"],
-                                "checkpoint": out["checkpoint"], "reused": False})
-                progress(label, False, time.perf_counter() - t0, out["metrics"])
-    except BaseException:
-        store.client.set_terminated(parent_id, status="KILLED")
+        with ex:
+            for seed in range(n_seeds):
+                for v in todo[seed]:
+                    label = f"pretrain {v} seed {seed}"
+                    found = _find(children, pretrain=v, seed=str(seed))
+                    ckpt = _checkpoint_of(found, cache) if found is not None else None
+                    if ckpt is not None:
+                        pretrain_ckpt[(v, seed)] = {"checkpoint": ckpt, "run_id": found.info.run_id}
+                        progress(label, True, 0.0, dict(found.data.metrics))
+                        continue
+                    pretrain_ckpt[(v, seed)] = ex.submit(train, job(label, for_run(base_pretrain[v], seed, label),
+                                                                    {"pretrain": v, "seed": str(seed)}))
+                for row in rows:
+                    label = f"{row.name} seed {seed}"
+                    found = finished_row(row, seed)
+                    if found is not None:
+                        results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
+                                        "metrics": dict(found.data.metrics),
+                                        "checkpoint": found.data.tags.get("checkpoint"), "reused": True})
+                        progress(label, True, 0.0, dict(found.data.metrics))
+                        continue
+                    encoder = pretrain_ckpt[(variants[row.name], seed)] if variants[row.name] != "none" else None
+                    results.append({"row": row.name, "seed": seed, "reused": False})
+                    jobs.append((results[-1], ex.submit(train, job(label, for_run(base_height[row.name], seed, label),
+                                                                   {"ablation": row.name, "seed": str(seed)},
+                                                                   encoder))))
+            ex.wait()
+    except BaseException as e:
+        store.client.set_terminated(parent_id, status="FAILED" if isinstance(e, RunsFailed) else "KILLED")
         raise
+    for res, j in jobs:
+        res.update(run_id=j.result["run_id"], metrics=j.result["metrics"], checkpoint=j.result["checkpoint"])
+    pretrain_ckpt = {k: (v.result if isinstance(v, Job) else v)["checkpoint"] for k, v in pretrain_ckpt.items()}
     table = compare(experiment=experiment, parent_run_id=parent_id, spec=spec_path, out=None)
     store.client.log_text(parent_id, table["markdown_text"], "table1.md")
     store.client.log_text(parent_id, table["csv_text"], "table1.csv")
