@@ -283,9 +283,12 @@ def test_generate_sim_on_ray_writes_the_same_arrays(ray_local, tmp_path):
     from uavturb.experiments.generate import generate_sim
     from uavturb.io import shards
 
+    from uavturb.cli import main
+
     small = dict(max_seconds=1.0, width=24, height=24, controller="geometric")
     generate_sim("tiny", tmp_path / "local", seed=0, **small)
-    generate_sim("tiny", tmp_path / "ray", seed=0, executor="ray", **small)
+    assert main(["generate", "sim", "--preset", "tiny", "--out", str(tmp_path / "ray"), "--executor", "ray",
+                 *[a for k, v in small.items() for a in ("--set", f"{k}={v}")]]) == 0
     a, b = shards.read_manifest(tmp_path / "local"), shards.read_manifest(tmp_path / "ray")
     assert a.splits == b.splits and a.config_hash == b.config_hash and sum(len(v) for v in a.splits.values()) == 3
     for split in shards.SPLITS:

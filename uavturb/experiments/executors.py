@@ -123,7 +123,7 @@ def _record_failure(cfg: DictConfig, tags: dict[str, str], since_ms: int, error:
     exp = client.get_experiment_by_name(cfg.tracking.experiment)
     if exp is None:
         return
-    match = " and ".join(f"tags.`{k}` = '{v}'" for k, v in tags.items() if k != "sweep_hash")
+    match = " and ".join(f"tags.`{k}` = '{v}'" for k, v in tags.items())
     runs = client.search_runs([exp.experiment_id], f"{match} and attributes.start_time >= {since_ms}",
                               max_results=10)
     if not runs and status == "FAILED":
@@ -137,10 +137,16 @@ def _record_failure(cfg: DictConfig, tags: dict[str, str], since_ms: int, error:
 
 
 def _quiet_worker() -> None:
+    """Lightning's per-run notices off in a worker too (as ``sweep._quiet_lightning`` does here)."""
+    import warnings
+
+    import lightning  # noqa: F401 - sets its loggers' levels on import; override them after
+
     for name in ("lightning.pytorch", "lightning.fabric", "lightning"):
         logging.getLogger(name).setLevel(logging.WARNING)
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.ERROR)
+    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
 
 
 def run_job(train_fn: Callable[..., dict[str, Any]], cfg: DictConfig, tags: dict[str, str],
@@ -152,12 +158,14 @@ def run_job(train_fn: Callable[..., dict[str, Any]], cfg: DictConfig, tags: dict
     """
     _quiet_worker()
     cfg = copy.deepcopy(cfg)
-    if encoder is not None:
-        cfg.model.encoder_ckpt = encoder_checkpoint(encoder, Path(cfg.trainer.default_root_dir) / "checkpoints"
-                                                    / "downloaded")
-    since_ms = int(time.time() * 1000) - 1000
+    since_ms = int(time.time() * 1000)  # MLflow clients stamp start_time with this machine's clock too
     try:
+        if encoder is not None:
+            cfg.model.encoder_ckpt = encoder_checkpoint(encoder, Path(cfg.trainer.default_root_dir) / "checkpoints"
+                                                        / "downloaded")
+        t0 = time.perf_counter()
         out = train_fn(cfg, tags=tags)
+        out = {**out, "seconds": time.perf_counter() - t0}  # the run's own time (a Ray task may have queued)
         if cfg.stage == "pretrain" and not out.get("checkpoint"):
             raise InputError(cfg.tracking.run_name or "pretrain", "training produced no checkpoint")
         return out
@@ -205,7 +213,7 @@ class Executor:
             raise InputError(*out["input_error"])
         job.state, job.result = "finished", out
         if job.on_done is not None:
-            job.on_done(out, time.perf_counter() - job.t0)
+            job.on_done(out, out.get("seconds", time.perf_counter() - job.t0))
 
     def _raise_failures(self) -> None:
         failed = [j for j in self.jobs if j.state == "failed"]
