@@ -104,7 +104,8 @@ def _attempts(root: Path, label: str) -> int:
 # ----------------------------------------------------------------------------------------------
 
 
-def test_task_resources_from_the_config():
+def test_task_resources_from_the_config(capsys):
+    from uavturb.cli import main
     from uavturb.experiments.config import load_config
 
     cfg = load_config(["trainer=cpu", "trainer.num_threads=3", "data.num_workers=2"])
@@ -125,6 +126,12 @@ def test_task_resources_from_the_config():
         executors.make_executor("dask")
     with pytest.raises(InputError, match="only with --executor ray"):
         executors.make_executor("sequential", address="auto")
+    # a config Ray cannot reserve fails in one line before anything runs (no MLflow experiment either)
+    assert main(["sweep", str(DEFAULT_SPEC), "--executor", "ray", "--experiment", "never-made",
+                 "trainer.accelerator=gpu", "trainer.devices=auto"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("uavturb sweep: error: trainer.devices: 'auto'")
+    assert mlflow.MlflowClient(tracking_uri()).get_experiment_by_name("never-made") is None
 
 
 @pytest.mark.parametrize("executor", ["sequential", "ray"])
