@@ -269,7 +269,7 @@ def test_cli_compare_without_store_is_one_line(tmp_path, store, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "nothing-here" in err
     # the old spelling still works, with one deprecation line
-    assert main(["compare", "--mlflow-experiment", "nothing-here"]) == 2
+    assert main(["compare", "--experiment", "nothing-here"]) == 2
     old = capsys.readouterr().err.splitlines()
     assert old[0] == "uavturb compare: --experiment is deprecated, use --mlflow-experiment" and old[1] == err.strip()
 

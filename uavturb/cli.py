@@ -115,6 +115,10 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--workers", type=int, default=1, help="processes, one renderer each (default 1)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--shard", default=None, metavar="K/N", help="only trajectories i with i %% N == K-1 (1 <= K <= N)")
+    g.add_argument("--executor", default="local", choices=["local", "ray"],
+                   help="this process or --workers processes (default), or one Ray task per trajectory")
+    g.add_argument("--address", default=None, help="Ray cluster for --executor ray (default: a local Ray "
+                                                    "instance with --workers CPUs)")
     g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="preset_set",
                    help="change a preset field, e.g. --set width=64 --set trajectories=4 (repeatable)")
     g = gsub.add_parser("normals", help="depth/normal pre-training pairs from training scenes, or from IRS")
@@ -170,6 +174,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
     _add_mlflow_experiment(s)
     s.add_argument("--config-dir", metavar="DIR", help=config_dir_help)
+    s.add_argument("--executor", default="sequential", choices=["sequential", "ray"],
+                   help="run the runs one after another here (default) or as Ray tasks")
+    s.add_argument("--address", default=None, help="Ray cluster to use with --executor ray (e.g. auto, "
+                                                    "ray://head:10001; default: a local Ray instance)")
+    s.add_argument("--max-retries", type=int, default=1, help="extra attempts of a run that fails (default 1)")
     s.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides for every run")
 
     s = sub.add_parser("compare", help="print Table 1 (mean +- std over seeds) from the MLflow store")
@@ -275,7 +284,8 @@ def _run(args: argparse.Namespace) -> int:
                   f"effects {args.effects}")
         elif args.what == "sim":
             print(generate.generate_sim(args.preset, args.out, workers=args.workers, seed=args.seed,
-                                         shard=args.shard, **generate.preset_overrides(args.preset_set)))
+                                         shard=args.shard, executor=args.executor, address=args.address,
+                                         **generate.preset_overrides(args.preset_set)))
         elif args.what == "normals":
             print(generate.generate_normals(args.preset, args.out, workers=args.workers, seed=args.seed,
                                              irs=args.irs, size=args.size, **generate.preset_overrides(args.preset_set)))
@@ -312,7 +322,8 @@ def _run(args: argparse.Namespace) -> int:
         from uavturb.experiments.sweep import sweep
 
         res = sweep(args.spec, preset=args.preset, seeds=args.seeds, overrides=args.overrides,
-                    experiment=args.mlflow_experiment, conf_dir=args.config_dir)
+                    experiment=args.mlflow_experiment, conf_dir=args.config_dir, executor=args.executor,
+                    address=args.address, max_retries=args.max_retries)
         print(res["table"])
     elif args.command == "compare":
         from uavturb.experiments.compare import compare

@@ -16,11 +16,64 @@ TARGETS: dict[str, str] = {
     "train": "training windows/s of the height model and the input overhead of the shard DataLoader",
     "infer": "exported streaming model on one CPU thread: per-frame latency (.pt2, ONNX) and batched throughput",
     "gap": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
+    "sweep": "the quick sweep one run after another and on a local Ray instance: wall times and their ratio",
 }
+
+
+def bench_sweep(seeds: int = 1) -> dict[str, float]:
+    """Wall time of the quick sweep (``sweeps/ablation.yaml --preset quick``) run one after another
+    and on a local Ray instance (all this machine's CPUs), in one call so the ratio is like for like.
+
+    Both sweeps use the same synthetic data (generated first, not timed) and a temporary MLflow
+    store (created first, not timed); Ray's start-up is timed. Also prints the largest difference
+    of a test metric between the two (same seeds: the same runs).
+    """
+    import os
+    import tempfile
+
+    import mlflow
+
+    from uavturb.experiments.config import load_config
+    from uavturb.experiments.sweep import sweep
+    from uavturb.experiments.sweep_spec import DEFAULT_SPEC
+    from uavturb.experiments.train import _prepare_data
+
+    out: dict[str, float] = {}
+    old = os.environ.get("MLFLOW_TRACKING_URI")
+    with tempfile.TemporaryDirectory(prefix="uavturb-bench-sweep-") as tmp:
+        os.environ["MLFLOW_TRACKING_URI"] = f"sqlite:///{tmp}/mlflow.db"
+        try:
+            data = [f"data.root={tmp}/sim", f"data.pairs_root={tmp}/pairs"]
+            for stage in ("pretrain", "height"):
+                _prepare_data(load_config(["data=synthetic", f"stage={stage}", *data]))
+            client = mlflow.MlflowClient(os.environ["MLFLOW_TRACKING_URI"])
+            metrics = {}
+            for executor in ("sequential", "ray"):
+                client.create_experiment(f"bench-{executor}", artifact_location=f"{tmp}/mlruns/{executor}")
+                t = time.perf_counter()
+                res = sweep(DEFAULT_SPEC, preset="quick", seeds=seeds, experiment=f"bench-{executor}",
+                            overrides=[*data, f"trainer.default_root_dir={tmp}/runs-{executor}"], executor=executor)
+                out[f"quick sweep, {executor} (s)"] = time.perf_counter() - t
+                metrics[executor] = {(r["row"], r["seed"]): r["metrics"] for r in res["runs"]}
+        finally:
+            if old is None:
+                os.environ.pop("MLFLOW_TRACKING_URI", None)
+            else:
+                os.environ["MLFLOW_TRACKING_URI"] = old
+    out["speed-up (sequential / ray)"] = out["quick sweep, sequential (s)"] / out["quick sweep, ray (s)"]
+    out["CPUs"] = float(os.cpu_count() or 1)
+    out["max relative difference of test metrics"] = max(
+        abs(m[k] - metrics["ray"][run][k]) / max(abs(m[k]), 1e-12)
+        for run, m in metrics["sequential"].items() for k in ("test/rmse_d", "test/rmse_fa"))
+    return out
 
 
 def bench(what: str) -> None:
     """``uavturb bench``: print the figures of one of :data:`TARGETS`."""
+    if what == "sweep":  # the quick sweep, sequential and on Ray (uavturb.experiments.executors)
+        for k, v in bench_sweep().items():
+            print(f"{k:<48}{v:>12.4g}")
+        return
     if what in ("train", "infer"):  # learning pipeline (uavturb.bench_learning)
         from uavturb.experiments import bench_learning
 

@@ -57,11 +57,25 @@ def preset_overrides(items: Sequence[str]) -> dict:
 
 
 def generate_sim(preset: str, out: str | Path, *, workers: int = 1, seed: int = 0, shard: str | None = None,
-                 **overrides) -> str:
-    """``uavturb generate sim``: training shards; ``overrides`` change preset fields. Returns the summary line."""
+                 executor: str = "local", address: str | None = None, **overrides) -> str:
+    """``uavturb generate sim``: training shards; ``overrides`` change preset fields. Returns the summary line.
+
+    ``executor="ray"``: one Ray task per trajectory, on the cluster at ``address`` or on a local
+    Ray instance with ``workers`` CPUs; the arrays are the same as with ``local``.
+    """
     from uavturb.sim import dataset
 
-    m = dataset.generate_sim(preset, out, workers=workers, seed=seed, shard=shard, **overrides)
+    if executor == "ray":
+        from uavturb.experiments.executors import ray_session
+
+        with ray_session(address, num_cpus=workers):
+            m = dataset.generate_sim(preset, out, workers=workers, seed=seed, shard=shard, executor="ray",
+                                     **overrides)
+    else:
+        if address:
+            raise InputError("--address", "only with --executor ray")
+        m = dataset.generate_sim(preset, out, workers=workers, seed=seed, shard=shard, executor=executor,
+                                 **overrides)
     return dataset.describe(m.root)
 
 

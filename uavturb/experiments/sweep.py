@@ -39,9 +39,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from uavturb.errors import InputError, Interrupted
 from uavturb.experiments.config import load_config
+from uavturb.experiments.executors import PRETRAIN_RUN, Job, make_executor
 from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec, resolve_spec
 from uavturb.experiments.tracking import NOTE_TAG, ui_url
-from uavturb.experiments.train import CHECKPOINT_ARTIFACT, train
+from uavturb.experiments.train import CHECKPOINT_ARTIFACT, quiet_lightning, train
 
 
 def _spec_name(path: Path) -> str:
@@ -201,7 +202,8 @@ def _say(msg: str) -> None:
 
 def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | None = None,
           overrides: list[str] | None = None, experiment: str | None = None,
-          conf_dir: str | Path | None = None) -> dict[str, Any]:
+          conf_dir: str | Path | None = None, executor: str = "sequential", address: str | None = None,
+          max_retries: int = 1) -> dict[str, Any]:
     """Run (or resume) an ablation sweep.
 
     Parameters
@@ -212,6 +214,10 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     overrides : ``key=value`` config overrides for every run (after the preset's).
     experiment : MLflow experiment (default: the file's ``experiment``).
     conf_dir : a user's config folder, searched before the shipped one.
+    executor : ``sequential`` (one run after another, here) or ``ray`` (Ray tasks;
+        :mod:`uavturb.experiments.executors`).
+    address : the Ray cluster (``--executor ray``; default: a local Ray instance).
+    max_retries : extra attempts of a run that fails.
 
     Returns
     -------
@@ -223,6 +229,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     Raises
     ------
     InputError : bad sweep file, unknown preset, bad override (before anything runs).
+    RunsFailed : some runs failed after their retries (the parent run is then FAILED).
     """
     from uavturb.experiments.compare import compare
     from uavturb.experiments.tracking import close_run
@@ -259,6 +266,10 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
         cfg.tracking.run_name = run_name
         return cfg
 
+    ex = make_executor(executor, address=address, max_retries=max_retries)
+    for cfg in [*base_pretrain.values(), *base_height.values()]:
+        ex.check(cfg)  # e.g. the GPUs Ray is to reserve
+    quiet_lightning()
     sweep_hash = _spec_hash(sp, preset, overrides)
     store = _Store(experiment)
     params = {"sweep_file": _spec_name(spec_path), "preset": preset, "overrides": json.dumps(overrides),
@@ -283,8 +294,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     total = sum(len(v) for v in todo.values()) + len(rows) * n_seeds
     done, t_run, n_run = 0, 0.0, 0
     results: list[dict[str, Any]] = []
-    pretrain_ckpt: dict[tuple[str, int], str] = {}
-    pretrain_run: dict[tuple[str, int], str] = {}
+    pretrain_ckpt: dict[tuple[str, int], Any] = {}  # a Job, or a finished run's checkpoint and run id
     cache = Path(next(iter(base_height.values())).trainer.default_root_dir) / "checkpoints" / "downloaded"
 
     def progress(label: str, reused: bool, dt: float, metrics: dict[str, float]) -> None:
@@ -298,56 +308,57 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
         eta = f"  (sweep ETA {t_run / n_run * (total - done):.0f} s)" if n_run and done < total else ""
         _say(f"[{done}/{total}] {label}: {took}  {shown}{eta}")
 
-    def run_child(cfg: DictConfig, label: str, tags: dict[str, str], resume: str | None) -> dict[str, Any]:
-        tags = {"mlflow.parentRunId": parent_id, **tags, "sweep_hash": sweep_hash}
-        _say(f"[{done + 1}/{total}] {label} ..." + (f" (resuming run {resume})" if resume else ""))
-        return train(cfg, tags=tags, resume=resume) if resume else train(cfg, tags=tags)
+    jobs: list[tuple[dict[str, Any], Job]] = []  # (result row to fill, its job) of the runs trained now
+
+    def job(label: str, cfg: DictConfig, tags: dict[str, str], resume: str | None, encoder: Any = None) -> Job:
+        def start() -> None:
+            _say(f"[{done + 1}/{total}] {label} ..." + (f" (resuming run {resume})" if resume else ""))
+
+        return Job(label, cfg, {"mlflow.parentRunId": parent_id, **tags, "sweep_hash": sweep_hash}, encoder,
+                   resume=resume, on_start=start, on_done=lambda out, dt: progress(label, False, dt, out["metrics"]))
 
     try:
-        for seed in range(n_seeds):
-            for v in todo[seed]:
-                t0, label = time.perf_counter(), f"pretrain {v} seed {seed}"
-                with _child_lock(parent_id, label):
-                    found, resume = _child_state(store, parent_id, lambda r: _checkpoint_of(r, cache) is not None,
-                                                 pretrain=v, seed=str(seed))
-                    if found is not None:
-                        pretrain_ckpt[(v, seed)] = _checkpoint_of(found, cache)
-                        pretrain_run[(v, seed)] = found.info.run_id
-                        progress(label, True, 0.0, dict(found.data.metrics))
-                        continue
-                    out = run_child(for_run(base_pretrain[v], seed, label), label, {"pretrain": v, "seed": str(seed),
-                                     NOTE_TAG: f"Pre-training for Table 1 (seed {seed}): depth encoder, "
-                                               f"depth → {v} transcoder."}, resume)
-                if not out["checkpoint"]:
-                    raise InputError(label, "training produced no checkpoint")
-                pretrain_ckpt[(v, seed)], pretrain_run[(v, seed)] = out["checkpoint"], out["run_id"]
-                progress(label, False, time.perf_counter() - t0, out["metrics"])
-            for row in rows:
-                t0, label = time.perf_counter(), f"{row.name} seed {seed}"
-                with _child_lock(parent_id, label):
-                    found, resume = _child_state(store, parent_id, has_metrics, ablation=row.name, seed=str(seed))
-                    if found is not None:
-                        results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
-                                        "metrics": dict(found.data.metrics),
-                                        "checkpoint": found.data.tags.get("checkpoint"), "reused": True})
-                        progress(label, True, 0.0, dict(found.data.metrics))
-                        continue
-                    cfg = for_run(base_height[row.name], seed, label)
-                    link: dict[str, str] = {}
-                    if variants[row.name] != "none":
-                        cfg.model.encoder_ckpt = pretrain_ckpt[(variants[row.name], seed)]
-                        link = {"pretrain_run_id": pretrain_run[(variants[row.name], seed)]}
-                    out = run_child(cfg, label, {"ablation": row.name, "seed": str(seed), **link,
-                                                 NOTE_TAG: _row_note(row, cfg, seed, link.get("pretrain_run_id"))},
-                                    resume)
-                results.append({"row": row.name, "seed": seed, "run_id": out["run_id"], "metrics": out["metrics"],
-                                "checkpoint": out["checkpoint"], "reused": False})
-                progress(label, False, time.perf_counter() - t0, out["metrics"])
+        with ex:
+            for seed in range(n_seeds):
+                for v in todo[seed]:
+                    label = f"pretrain {v} seed {seed}"
+                    with _child_lock(parent_id, label):
+                        found, resume = _child_state(store, parent_id, lambda r: _checkpoint_of(r, cache) is not None,
+                                                     pretrain=v, seed=str(seed))
+                        if found is not None:
+                            pretrain_ckpt[(v, seed)] = {"checkpoint": _checkpoint_of(found, cache),
+                                                        "run_id": found.info.run_id}
+                            progress(label, True, 0.0, dict(found.data.metrics))
+                            continue
+                        note = f"Pre-training for Table 1 (seed {seed}): depth encoder, depth → {v} transcoder."
+                        pretrain_ckpt[(v, seed)] = ex.submit(train, job(
+                            label, for_run(base_pretrain[v], seed, label),
+                            {"pretrain": v, "seed": str(seed), NOTE_TAG: note}, resume))
+                for row in rows:
+                    label = f"{row.name} seed {seed}"
+                    with _child_lock(parent_id, label):
+                        found, resume = _child_state(store, parent_id, has_metrics, ablation=row.name, seed=str(seed))
+                        if found is not None:
+                            results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
+                                            "metrics": dict(found.data.metrics),
+                                            "checkpoint": found.data.tags.get("checkpoint"), "reused": True})
+                            progress(label, True, 0.0, dict(found.data.metrics))
+                            continue
+                        cfg = for_run(base_height[row.name], seed, label)
+                        encoder = pretrain_ckpt[(variants[row.name], seed)] if variants[row.name] != "none" else None
+                        note = _row_note(row, cfg, seed, PRETRAIN_RUN if encoder is not None else None)
+                        results.append({"row": row.name, "seed": seed, "reused": False})
+                        jobs.append((results[-1], ex.submit(train, job(
+                            label, cfg, {"ablation": row.name, "seed": str(seed), NOTE_TAG: note}, resume, encoder))))
+            ex.wait()
     except BaseException as e:
         status = close_run(store.client, parent_id, e)
         if isinstance(e, Interrupted):
             e.notes.append(f"sweep parent run {parent_id} marked {status}; run the same command again to resume it")
         raise
+    for res, j in jobs:
+        res.update(run_id=j.result["run_id"], metrics=j.result["metrics"], checkpoint=j.result["checkpoint"])
+    pretrain_ckpt = {k: (v.result if isinstance(v, Job) else v)["checkpoint"] for k, v in pretrain_ckpt.items()}
     table = compare(experiment=experiment, parent_run_id=parent_id, spec=spec_path, out=None)
     store.client.log_text(parent_id, table["markdown_text"], "table1.md")
     store.client.log_text(parent_id, table["csv_text"], "table1.csv")

@@ -129,7 +129,8 @@ def _write_manifest(out: Path, tasks: Sequence[Task], metas: dict[str, dict[str,
 
 def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim", *, workers: int = 1,
                  seed: int = 0, shard: str | tuple[int, int] | None = None, progress: bool = True,
-                 on_trajectory: Callable[[dict[str, Any]], None] | None = None, **overrides: Any):
+                 on_trajectory: Callable[[dict[str, Any]], None] | None = None, executor: str = "local",
+                 **overrides: Any):
     """``uavturb generate sim``: write (or complete) a shard dataset.
 
     Parameters
@@ -142,6 +143,8 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     progress : print a progress line (samples/s, ETA) on stderr
     on_trajectory : called in this process with each new trajectory's meta (tests use it
         to interrupt a run)
+    executor : ``local`` (this process, or a Pool of ``workers`` processes) or ``ray`` (one
+        Ray task per trajectory on the Ray this process is connected to; ``workers`` unused)
     overrides : preset fields to change (``width=64``, ``trajectories=4``...; unknown keys fail)
 
     Returns
@@ -153,6 +156,8 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     p = get_preset(preset, **overrides)
     if int(workers) < 1:
         raise InputError("--workers", f"must be at least 1, got {workers}")
+    if executor not in ("local", "ray"):
+        raise InputError("--executor", f"unknown executor {executor!r}; choices: local, ray")
     k, n = parse_shard(shard)
     controller = resolve_controller(p.controller)
     config = dataset_config(p, seed, controller)
@@ -186,7 +191,11 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
             on_trajectory(meta)
 
     try:
-        _run_jobs([(t, p, int(seed), controller, str(out)) for t in todo], int(workers), str(out), chash, done)
+        jobs = [(t, p, int(seed), controller, str(out.resolve() if executor == "ray" else out)) for t in todo]
+        if executor == "ray":
+            _run_on_ray(jobs, chash, done)
+        else:
+            _run_jobs(jobs, int(workers), str(out), chash, done)
     except BaseException:  # Interrupted (SIGTERM, SIGINT) or an error: the workers are stopped by now
         _remove_unfinished(out, todo, created)
         raise
@@ -223,6 +232,33 @@ def _run_jobs(jobs: list, workers: int, out: str, chash: str, done: Callable[[di
                   initargs=(out, chash)) as pool:  # on an exception: pool.terminate()
         for meta in pool.imap_unordered(work, jobs, chunksize=1):
             done(meta)
+
+
+def _ray_work(job: tuple[Task, SimPreset, int, str, str], chash: str) -> dict[str, Any]:
+    """:func:`uavturb.sim.trajectory.work` as a Ray task (a worker process is reused: its renderers too)."""
+    init_worker(job[4], chash)
+    return work(job)
+
+
+def _run_on_ray(jobs: list[tuple[Task, SimPreset, int, str, str]], chash: str,
+                done: Callable[[dict[str, Any]], None]) -> None:
+    """One Ray task (1 CPU) per trajectory on the Ray this process is connected to (started if none).
+
+    Each trajectory's arrays depend only on its task, the preset and the seed, so the dataset is
+    the same as with the Pool; ``out`` must be on a file system every node shares.
+    """
+    import ray  # only with --executor ray
+
+    task = ray.remote(num_cpus=1)(_ray_work)
+    pending = [task.options(name=job[0].name).remote(job, chash) for job in jobs]
+    try:
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            done(ray.get(ready[0]))
+    except BaseException:
+        for ref in pending:
+            ray.cancel(ref)
+        raise
 
 
 def _init_pool_worker(out: str, chash: str) -> None:
