@@ -104,3 +104,61 @@ def test_physical_ranges_name_the_quantity_and_source():
     assert EFFECTS["motor_lag"].physical_range.violation({"tau": 0.015}, f) is None
     for spec in EFFECTS.values():  # every effect declares its range with a source and a manoeuvre
         assert spec.physical_range.source and spec.manoeuvre and spec.physical_range.lo < spec.physical_range.hi
+
+
+def _windy(k_d: float, c_d: float, wind=(-4.0, 0.0), speed: float = 1.0, seed: int = 1) -> GapData:
+    """A MoCap-only fixed-heading flight in a steady wind with drag on the airspeed (effects.md):
+    rotor drag ``k_d`` and body drag ``c_d`` act on ``v - v_wind``; velocities wander in every
+    horizontal direction at about ``speed`` m/s."""
+    rng = np.random.default_rng(seed)
+    K = 12000
+    t = np.arange(K) * 0.02  # 50 Hz, 240 s
+    v = np.zeros((K, 3))
+    v[:, 0] = speed * np.sin(0.11 * t) * np.cos(0.031 * t)
+    v[:, 1] = speed * np.cos(0.07 * t + 0.4) * np.sin(0.023 * t + 1.0)
+    R = quat.to_rotation_matrix(quat.from_euler(0.03 * np.sin(0.9 * t), 0.03 * np.cos(0.6 * t), np.full(K, 0.4)))
+    mass, k_T = 1.5, 8.5e-6
+    w = np.full((K, 6), np.sqrt(mass * GRAVITY / (6 * k_T))) + rng.normal(0, 5, (K, 6))
+    S = np.sum(w**2, 1)
+    va = v - np.array([*wind, 0.0])
+    va_b = np.einsum("kji,kj->ki", R, va)
+    va_b[:, 2] = 0.0
+    rotor = -k_d * np.sum(w, 1)[:, None] * np.einsum("kij,kj->ki", R, va_b)  # Wsum: sum of rotor speeds
+    body = -c_d * np.linalg.norm(va, axis=1)[:, None] * va
+    y = k_T * S[:, None] * R[:, :, 2] + rotor + body + rng.normal(0, 0.04, (K, 3))
+    return GapData(np.zeros(K, int), t, np.zeros((K, 3)), y, R, w, v, np.full(K, np.inf), np.full(K, np.inf), mass,
+                   0.1, ["windy"], "mocap", imu=np.zeros(K, bool), fits_bias=False)
+
+
+def test_drag_in_a_wind_reads_rotor_drag_body_drag_and_wind_speed_apart():
+    from uavturb.gap.decide import airspeed_drag
+
+    data = _windy(8.06e-5, 0.05)
+    fit = fit_model(data, {"wind", "rotor_drag"})
+    facts = flight_facts(data, fit.coef["k_T"])
+    assert fit.coef["k_d"] > 1.7 * 8.06e-5  # the isotropic fit blends body drag into k_d
+    entry = airspeed_drag(data, fit, facts)
+    assert entry is not None and entry["candidates"] == ["rotor_drag", "body_drag"]
+    reading = entry["if_drag_on_airspeed"]
+    assert reading["k_d"] == pytest.approx(8.06e-5, rel=0.1)
+    assert reading["c_d"] == pytest.approx(0.05, rel=0.2)
+    assert reading["wind_speed_m_s"] == pytest.approx(4.0, rel=0.1)
+    assert "along the push" in entry["why"] and entry["params_if_named"]["k_d"] == fit.coef["k_d"]
+
+
+def test_a_push_with_rotor_drag_alone_keeps_rotor_drag_named():
+    from uavturb.gap.decide import airspeed_drag
+
+    data = _windy(8.06e-5, 0.0)  # drag on the airspeed without body drag: the same in every direction
+    fit = fit_model(data, {"wind", "rotor_drag"})
+    assert fit.coef["k_d"] == pytest.approx(8.06e-5, rel=0.03)
+    assert airspeed_drag(data, fit, flight_facts(data, fit.coef["k_T"])) is None
+
+
+def test_drag_in_a_wind_on_a_nearly_still_flight_is_undecided():
+    from uavturb.gap.decide import airspeed_drag
+
+    data = _windy(8.06e-5, 0.05, speed=0.002)  # 2 mm/s: too still to resolve the drag along and across
+    fit = fit_model(data, {"wind", "rotor_drag"})
+    entry = airspeed_drag(data, fit, flight_facts(data, fit.coef["k_T"]))
+    assert entry is not None and entry["if_drag_on_airspeed"] is None and "cannot resolve" in entry["why"]

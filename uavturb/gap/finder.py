@@ -8,7 +8,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.gap import locate
-from uavturb.gap.decide import R2_AMBIGUOUS, ambiguity, bias_alike, flight_facts, surface_reach
+from uavturb.gap.decide import R2_AMBIGUOUS, airspeed_drag, ambiguity, bias_alike, flight_facts, surface_reach
 from uavturb.gap.design import GapData, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
@@ -208,6 +208,11 @@ def _decide(data: GapData, sel: Selection, offset: np.ndarray, candidates: list[
                 ambiguous.append(amb | {"params_if_named": params})
                 drop = s
                 break
+        if drop is None and "rotor_drag" in {s.name for s in steps}:
+            amb = airspeed_drag(data, final, facts, offset)
+            if amb is not None:
+                ambiguous.append(amb)
+                drop = next(s for s in steps if s.name == "rotor_drag")
         if drop is None:
             break
         steps.remove(drop)
