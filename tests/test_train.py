@@ -93,9 +93,12 @@ def test_pretrain_then_finetune_height(tmp_path, store):
     assert module.hparams.pretrained_from == pre["checkpoint"] and module.hparams.encoder_ckpt is None
 
 
-def test_optional_system_metrics(tmp_path, store):
-    """tracking.system_metrics=true: MLflow's system/* metrics on the run, or one line naming the key without psutil."""
+def test_optional_system_metrics(tmp_path, store, monkeypatch):
+    """tracking.system_metrics=true: MLflow's system/* metrics on the run, or one line naming the key without psutil
+    (psutil may come with Ray: once a test has imported ray, its vendored copy is importable)."""
     import importlib.util
+
+    monkeypatch.setenv("MLFLOW_SYSTEM_METRICS_SAMPLING_INTERVAL", "0.2")  # a smoke run is shorter than the 10 s default
 
     from uavturb.experiments.train import train
 
