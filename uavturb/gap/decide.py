@@ -247,8 +247,7 @@ def _drag_gains(x: list[np.ndarray], y: list[np.ndarray], cluster: np.ndarray) -
     return beta[idx], cov[np.ix_(idx, idx)]
 
 
-def airspeed_drag(data: GapData, fit: ModelFit, facts: FlightFacts, offset: np.ndarray | None = None
-                  ) -> dict | None:
+def airspeed_drag(data: GapData, fit: ModelFit, facts: FlightFacts) -> dict | None:
     """An ``ambiguous`` entry for rotor drag named beside a push, where its ``k_d`` may hold body
     drag on the airspeed (module docstring, point 4); None where the flights show it does not.
 
@@ -272,7 +271,7 @@ def airspeed_drag(data: GapData, fit: ModelFit, facts: FlightFacts, offset: np.n
     w = np.array([-u[1], u[0], 0.0])
     A, names = _columns(data, fit)
     col = unstack(A[:, names.index("k_d")])  # (K, 3) N per unit k_d, world
-    r = fit.residual(data) - (offset if offset is not None else 0.0) + k_d * col
+    r = fit.residual(data) + k_d * col
     cluster = data.group.astype(np.int64) * 10**7 + np.floor(data.t / DRAG_BLOCK_S).astype(np.int64)
     g, cov = _drag_gains([col @ u, col @ w], [r @ u, r @ w], cluster)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))

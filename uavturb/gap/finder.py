@@ -124,7 +124,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     quantum = max((rotor_quantum(r.rotors.speeds) for r in recordings), default=0.0)
     floor = rounding_floor(data, nominal.coef["k_T"], quantum)
     sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor)
-    sel, ambiguous, rejected = _decide(data, sel, offset, candidates)
+    sel, ambiguous, rejected = _decide(data, sel, candidates)
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
     rf = final.residual(data)
@@ -182,7 +182,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     return report, extras
 
 
-def _decide(data: GapData, sel: Selection, offset: np.ndarray, candidates: list[str]
+def _decide(data: GapData, sel: Selection, candidates: list[str]
             ) -> tuple[Selection, list[dict], list[dict]]:
     """Keep only what the data decide (:mod:`uavturb.gap.decide`): a chosen effect outside its
     physical range is rejected, one its data cannot tell from the other unknowns goes to
@@ -209,14 +209,14 @@ def _decide(data: GapData, sel: Selection, offset: np.ndarray, candidates: list[
                 drop = s
                 break
         if drop is None and "rotor_drag" in {s.name for s in steps}:
-            amb = airspeed_drag(data, final, facts, offset)
+            amb = airspeed_drag(data, final, facts)
             if amb is not None:
                 ambiguous.append(amb)
                 drop = next(s for s in steps if s.name == "rotor_drag")
         if drop is None:
             break
         steps.remove(drop)
-        sel = finish(data, sel.base, steps, offset=offset, tried=sel.tried)
+        sel = finish(data, sel.base, steps, tried=sel.tried)  # as select() fitted it: sim effects in the base
     final = sel.final
     facts = flight_facts(data, final.coef["k_T"])
     named = {a for entry in ambiguous for a in entry["candidates"]}
