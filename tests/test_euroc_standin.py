@@ -205,6 +205,12 @@ def test_flight_is_written_like_euroc(flight):
     truth = yaml.safe_load((flight / "truth.yaml").read_text())
     assert truth["kind"] == "euroc_room" and truth["stand_in"]["cam0"] == "euroc_cam0"
     assert truth["stand_in"]["landed_height_m"] == 0.16 and len(truth["stand_in"]["room"]["boxes"]) == 4
+    from uavturb.scene.heights import SurfaceIndex
+
+    centres = np.array([[(b[0] + b[1]) / 2, (b[2] + b[3]) / 2, 2.0] for b in EUROC_ROOM.boxes])
+    tops = np.array([b[4] for b in EUROC_ROOM.boxes])  # 0.75 (table), 0.45, 0.2, 0.6
+    assert np.allclose(SurfaceIndex(rec.points).d_down(centres), 2.0 - tops, atol=0.02)  # the cloud has the furniture
+    assert np.allclose(SurfaceIndex(rec.points).d_up(centres), 3.2 - 2.0, atol=0.02)  # and the 3.2 m ceiling
 
 
 def test_flown_flight_takes_off_cruises_and_lands(flight):

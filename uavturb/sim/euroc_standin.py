@@ -44,11 +44,13 @@ def landed_height() -> float:
     return round(least_body_height(EUROC_CAM0.name), 3)
 
 
-def reference(duration: float, seed: int, max_yaw_acc: float = 0.5):
-    """The flight plan (:func:`uavturb.sim.references.euroc_room` in :data:`~uavturb.sim.references.EUROC_ROOM`)."""
+def reference(duration: float, seed: int, max_yaw_acc: float = 0.5, room=None):
+    """The flight plan: :func:`uavturb.sim.references.euroc_room` in ``room`` (default
+    :data:`~uavturb.sim.references.EUROC_ROOM`), landed at :func:`landed_height`; ``max_yaw_acc`` rad/s^2."""
     from uavturb.sim.references import EUROC_ROOM, euroc_room
 
-    return euroc_room(duration, seed, room=EUROC_ROOM, rest_height=landed_height(), max_yaw_acc=max_yaw_acc)
+    return euroc_room(duration, seed, room=EUROC_ROOM if room is None else room, rest_height=landed_height(),
+                      max_yaw_acc=max_yaw_acc)
 
 
 def _same_geometry(a: Vehicle, b: Vehicle) -> bool:

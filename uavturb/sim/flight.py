@@ -154,16 +154,18 @@ class Truth:
 
 def room_mesh(room: Room = Room()):
     """Triangle mesh (``trimesh.Trimesh``) of a :class:`Room`: floor, walls, ceiling, and the table
-    as a solid box standing on the floor."""
+    and any further furniture as solid boxes standing on the floor."""
     import trimesh
 
     walls = trimesh.creation.box(extents=(room.size[0], room.size[1], room.ceiling))
     walls.apply_translation((0.0, 0.0, room.ceiling / 2))
     walls.invert()  # normals point into the room
-    (x0, x1, y0, y1), h = room.table_bounds, room.table_height
-    table = trimesh.creation.box(extents=(x1 - x0, y1 - y0, h))
-    table.apply_translation(((x0 + x1) / 2, (y0 + y1) / 2, h / 2))
-    return trimesh.util.concatenate([walls, table])
+    solids = []
+    for x0, x1, y0, y1, h in room.boxes:  # the table first, as it always was
+        box = trimesh.creation.box(extents=(x1 - x0, y1 - y0, h))
+        box.apply_translation(((x0 + x1) / 2, (y0 + y1) / 2, h / 2))
+        solids.append(box)
+    return trimesh.util.concatenate([walls, *solids])
 
 
 @lru_cache(maxsize=4)
@@ -339,14 +341,14 @@ def make_reference(kind: str = "excitation", duration: float = 60.0, seed: int =
     for a vehicle: yaw acceleration within its authority (0.7 x :func:`yaw_acc_limit`, at most
     1 rad/s^2), faster and larger roll/pitch excitation for agile vehicles (:func:`roll_acc_limit`),
     low hovers from one rotor radius up to 0.5 m, rest height 0.6 rotor radius (2 to 6 cm).
-    ``euroc_room`` is :func:`uavturb.sim.euroc_standin.reference` (its own room and landed height).
+    ``euroc_room`` is :func:`uavturb.sim.euroc_standin.reference` (its landed height).
     ``room``: default :func:`flight_room`."""
     room = flight_room(kind) if room is None else room
     yaw_acc = 0.5 if vehicle is None else float(np.clip(0.7 * yaw_acc_limit(vehicle), 0.1, 1.0))
     if kind == "euroc_room":
         from uavturb.sim import euroc_standin
 
-        return euroc_standin.reference(duration, seed, max_yaw_acc=yaw_acc)
+        return euroc_standin.reference(duration, seed, max_yaw_acc=yaw_acc, room=room)
     exc: dict[str, Any] = {}
     if vehicle is not None:  # agile vehicles are shaken faster (1 for the hexarotor, 2.5 for the quadrotor)
         agility = float(np.clip(np.sqrt(roll_acc_limit(vehicle) / 18.0), 1.0, 2.5))
