@@ -87,10 +87,11 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("generate", help="generate data")
     gsub = s.add_subparsers(dest="what", required=True, metavar="WHAT")
     g = gsub.add_parser("flight", help="a flight in the EuRoC layout with sensor noise and named effects")
-    g.add_argument("--vehicle", default="hex", help="preset (quad, hex) or vehicle.yaml")
+    g.add_argument("--vehicle", default="hex", help="preset (quad, hex), shipped (firefly) or vehicle.yaml")
     g.add_argument("--effects", default="none", help="NAME:param=value,... from effects.md (default none)")
     g.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
-    g.add_argument("--kind", default="mixed", choices=["excitation", "low_passes", "mixed"])
+    g.add_argument("--kind", default="mixed", choices=["excitation", "low_passes", "mixed", "euroc_room"],
+                   help="flight plan; euroc_room: a stand-in for EuRoC's Vicon-room flights with cam0")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--noise", default="realistic", choices=["realistic", "none"])
     g.add_argument("--out", required=True, help="recording folder to create")

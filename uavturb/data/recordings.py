@@ -13,7 +13,8 @@ world-z component of the residual force of the identified model
 Choices (ours):
 
 - **Frame times**: ``cam0/data.csv``'s timestamps when the recording lists frames, else every
-  ``frame_dt`` (default: the training data's 0.05 s, 20 Hz) over the span all streams cover.
+  ``frame_dt`` (default: ``cam0/sensor.yaml``'s ``rate_hz``, else the training data's 0.05 s,
+  20 Hz) over the span all streams cover.
 - **Image**: the network's square input of side ``image_size``. A ``cam0`` with another
   resolution is cropped to its largest centred square and scaled (intrinsics changed
   accordingly, no resampling of pixels: the cloud is projected straight at the target size).
@@ -94,17 +95,12 @@ def cam0_pose_in_body(rec: Recording) -> np.ndarray:
 
 def cam0_camera(rec: Recording, size: int) -> CameraModel:
     """``cam0`` cropped to its largest centred square and scaled to ``size`` px, posed in B
-    (:func:`cam0_pose_in_body`)."""
-    from uavturb.scene.projection import intrinsics_matrix
+    (:func:`cam0_pose_in_body`); the crop and scale of the simulator's calibrated cameras
+    (:func:`uavturb.sim.cameras.scaled_intrinsics`)."""
+    from uavturb.sim.cameras import scaled_intrinsics
 
     cam = rec.cam0
-    W, H = (int(v) for v in cam.resolution)
-    fu, fv, cu, cv = (float(v) for v in cam.intrinsics)
-    side = min(W, H)
-    x0, y0 = (W - side) / 2, (H - side) / 2
-    s = size / side
-    # pixel centres: u' + 0.5 = s (u - x0 + 0.5)
-    K = intrinsics_matrix(fu * s, fv * s, (cu - x0 + 0.5) * s - 0.5, (cv - y0 + 0.5) * s - 0.5)
+    K = scaled_intrinsics(cam.intrinsics, (int(cam.resolution[0]), int(cam.resolution[1])), size, size)
     return CameraModel(K, size, size, cam0_pose_in_body(rec), "cam0/sensor.yaml (centre square, scaled)")
 
 
@@ -176,7 +172,8 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     rec : recording with ground truth, rotor speeds and a point cloud
     vehicle : the identified model (``k_T``, ``k_M``, inertia) the residual is computed with
     image_size : side of the square depth images [px]
-    frame_dt : s, frame period where the recording lists no cam0 frames (default 0.05)
+    frame_dt : s, frame period where the recording lists no cam0 frames (default: cam0's
+        ``rate_hz``, else 0.05)
     yfov_deg, pitch_deg : the default camera's, where there is no cam0
     gt_window_s : s, longest averaging window of the ground-truth f_a
     progress : print frames/s to stderr
@@ -210,8 +207,9 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
         t_ns = np.asarray(rec.cam0.t_ns, np.int64)
         t_ns = t_ns[(t_ns >= t0) & (t_ns <= t1)]
         dt = float(np.median(np.diff(t_ns))) * 1e-9 if len(t_ns) > 1 else DEFAULT_FRAME_DT
-    else:
-        dt = float(DEFAULT_FRAME_DT if frame_dt is None else frame_dt)
+    else:  # cam0 described by its sensor.yaml alone: its own rate, where the caller gives none
+        own = 1.0 / float(rec.cam0.rate_hz) if rec.cam0 is not None and rec.cam0.rate_hz else DEFAULT_FRAME_DT
+        dt = float(own if frame_dt is None else frame_dt)
         if not dt > 0:
             raise InputError("frame_dt", f"must be positive, got {dt}")
         t_ns = np.arange(t0, t1 + 1, int(round(dt * 1e9)), dtype=np.int64)

@@ -369,9 +369,11 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
 
     Parameters
     ----------
-    vehicle : preset name, ``vehicle.yaml`` path or Vehicle (the simulated, true vehicle)
+    vehicle : preset name, ``vehicle.yaml`` path or Vehicle (the simulated, true vehicle; the shipped
+        ``firefly`` flies with RotorS's constants, :func:`uavturb.sim.euroc_standin.flyable`)
     effects : ``"wind:f_x=0.5,rotor_drag"`` or the parsed dict (``effects.md``)
-    duration : s; kind : flight kind (:data:`uavturb.sim.flight.KINDS`); seed : reference and noise
+    duration : s; kind : flight kind (:data:`uavturb.sim.flight.KINDS`; ``euroc_room`` adds EuRoC's
+        VI-sensor frame and cam0, :mod:`uavturb.sim.euroc_standin`); seed : reference and noise
     conditions : Conditions
     noise : SensorNoise (default realistic); ``accel_bias_walk`` sets its ``acc_random_walk``
     out : recording folder to write; overwrite : replace it
@@ -383,24 +385,32 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
     from uavturb.io.vehicle_file import preset
     from uavturb.io.writer import write_recording
     from uavturb.physics.effects import parse_effects
-    from uavturb.sim.flight import SensorNoise, make_reference, simulate_flight
+    from uavturb.sim import euroc_standin
+    from uavturb.sim.flight import SensorNoise, flight_room, make_reference, simulate_flight
 
-    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    stand_in = kind == euroc_standin.KIND
+    v = euroc_standin.flyable(preset(vehicle) if isinstance(vehicle, str) else vehicle)
+    v = euroc_standin.with_vi_sensor(v) if stand_in else v
+    room = flight_room(kind)
     eff = parse_effects(effects) if isinstance(effects, str) or effects is None else dict(effects)
     noise = SensorNoise() if noise is None else noise
     if conditions.accel_bias_walk > 0:
         noise = replace(noise, acc_random_walk=float(conditions.accel_bias_walk))
-    ref = make_reference(kind, duration, seed, v)
+    ref = make_reference(kind, duration, seed, v, room)
     if conditions.fixed_heading:
         ref = hold_heading(ref)
     wind = None
     if conditions.wind_speed is not None:
         eff = with_drag(eff)
         wind = np.array([conditions.wind_speed[0], conditions.wind_speed[1], 0.0])
-    rec, truth = simulate_flight(v, ref, duration=duration, effects=eff, noise=noise, seed=seed, wind=wind)
+    rec, truth = simulate_flight(v, ref, duration=duration, effects=eff, noise=noise, seed=seed, wind=wind,
+                                 room=room)
     w_max = v.max_rotor_speed or 2.5 * v.hover_speed()  # the controller's bound (sim.controller)
     out_c = condition(rec, truth, conditions, true_vehicle=v, effects=eff, seed=seed, w_max=w_max)
     out_c.truth = truth_document(v, eff, out_c.truth, seed=seed, kind=kind, duration=duration)
+    if stand_in:  # EuRoC's cam0, its T_BS relative to the recording's S
+        out_c.recording = euroc_standin.with_cam0(out_c.recording)
+        out_c.truth["stand_in"] = euroc_standin.truth_entry()
     out_c.extras[TRUTH_FILE] = ("# what the simulator knows and the recording does not (uavturb.sim.conditions)\n"
                                 + yaml.safe_dump(out_c.truth, sort_keys=False))
     if out is not None:

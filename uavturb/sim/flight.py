@@ -53,7 +53,15 @@ from uavturb.sim.references import (
 #: First timestamp [ns] of synthetic flights: the epoch of EuRoC's MH_01_easy (2014-06-24).
 EUROC_T0_NS = 1403636579758555392
 
-KINDS = ("excitation", "low_passes", "mixed")
+KINDS = ("excitation", "low_passes", "mixed", "euroc_room")
+
+
+def flight_room(kind: str) -> Room:
+    """The scene a flight kind is planned in: :data:`~uavturb.sim.references.EUROC_ROOM` for
+    ``euroc_room`` (:mod:`uavturb.sim.euroc_standin`), the default :class:`Room` otherwise."""
+    from uavturb.sim.references import EUROC_ROOM
+
+    return EUROC_ROOM if kind == "euroc_room" else Room()
 
 
 @dataclass(frozen=True)
@@ -146,16 +154,18 @@ class Truth:
 
 def room_mesh(room: Room = Room()):
     """Triangle mesh (``trimesh.Trimesh``) of a :class:`Room`: floor, walls, ceiling, and the table
-    as a solid box standing on the floor."""
+    and any further furniture as solid boxes standing on the floor."""
     import trimesh
 
     walls = trimesh.creation.box(extents=(room.size[0], room.size[1], room.ceiling))
     walls.apply_translation((0.0, 0.0, room.ceiling / 2))
     walls.invert()  # normals point into the room
-    (x0, x1, y0, y1), h = room.table_bounds, room.table_height
-    table = trimesh.creation.box(extents=(x1 - x0, y1 - y0, h))
-    table.apply_translation(((x0 + x1) / 2, (y0 + y1) / 2, h / 2))
-    return trimesh.util.concatenate([walls, table])
+    solids = []
+    for x0, x1, y0, y1, h in room.boxes:  # the table first, as it always was
+        box = trimesh.creation.box(extents=(x1 - x0, y1 - y0, h))
+        box.apply_translation(((x0 + x1) / 2, (y0 + y1) / 2, h / 2))
+        solids.append(box)
+    return trimesh.util.concatenate([walls, *solids])
 
 
 @lru_cache(maxsize=4)
@@ -326,12 +336,19 @@ def roll_acc_limit(vehicle: Vehicle, share: float = 0.3) -> float:
 
 
 def make_reference(kind: str = "excitation", duration: float = 60.0, seed: int = 0, vehicle: Vehicle | None = None,
-                   room: Room = Room()) -> Reference:
-    """The reference of a named flight kind (``excitation``, ``low_passes``, ``mixed``) for a vehicle:
-    yaw acceleration within its authority (0.7 x :func:`yaw_acc_limit`, at most 1 rad/s^2), faster
-    and larger roll/pitch excitation for agile vehicles (:func:`roll_acc_limit`), low hovers from
-    one rotor radius up to 0.5 m, rest height 0.6 rotor radius (2 to 6 cm)."""
+                   room: Room | None = None) -> Reference:
+    """The reference of a named flight kind (``excitation``, ``low_passes``, ``mixed``, ``euroc_room``)
+    for a vehicle: yaw acceleration within its authority (0.7 x :func:`yaw_acc_limit`, at most
+    1 rad/s^2), faster and larger roll/pitch excitation for agile vehicles (:func:`roll_acc_limit`),
+    low hovers from one rotor radius up to 0.5 m, rest height 0.6 rotor radius (2 to 6 cm).
+    ``euroc_room`` is :func:`uavturb.sim.euroc_standin.reference` (its landed height).
+    ``room``: default :func:`flight_room`."""
+    room = flight_room(kind) if room is None else room
     yaw_acc = 0.5 if vehicle is None else float(np.clip(0.7 * yaw_acc_limit(vehicle), 0.1, 1.0))
+    if kind == "euroc_room":
+        from uavturb.sim import euroc_standin
+
+        return euroc_standin.reference(duration, seed, max_yaw_acc=yaw_acc, room=room)
     exc: dict[str, Any] = {}
     if vehicle is not None:  # agile vehicles are shaken faster (1 for the hexarotor, 2.5 for the quadrotor)
         agility = float(np.clip(np.sqrt(roll_acc_limit(vehicle) / 18.0), 1.0, 2.5))
@@ -354,7 +371,7 @@ def make_reference(kind: str = "excitation", duration: float = 60.0, seed: int =
 
 def generate_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dict[str, float]] = "",
                     duration: float = 60.0, kind: str = "excitation", seed: int = 0, out: str | Path | None = None,
-                    noise: SensorNoise | None = None, overwrite: bool = False, room: Room = Room(),
+                    noise: SensorNoise | None = None, overwrite: bool = False, room: Room | None = None,
                     **simulate_kw: Any) -> Recording:
     """Simulate a named flight and, when ``out`` is given, write it as a recording folder.
 
@@ -363,23 +380,29 @@ def generate_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dic
     vehicle : preset name (``hex``, ``quad``), ``vehicle.yaml`` path, or Vehicle
     effects : ``"wind:f_x=0.5,ground_effect"`` (see ``parse_effects``) or the parsed dict
     duration : s
-    kind : ``excitation``, ``low_passes`` or ``mixed`` (see :mod:`uavturb.sim.references`)
+    kind : ``excitation``, ``low_passes``, ``mixed`` (see :mod:`uavturb.sim.references`) or
+        ``euroc_room`` (:mod:`uavturb.sim.euroc_standin`: EuRoC's VI-sensor and cam0 on the vehicle)
     seed : seeds the reference and the sensor noise
     out : recording folder to write (atomically, by ``write_recording``)
     noise : SensorNoise (default: realistic)
     overwrite : replace an existing ``out``
-    room : the scene
+    room : the scene (default :func:`flight_room`)
     simulate_kw : passed on to :func:`simulate_flight`
 
     Returns
     -------
     Recording (with ``path`` set when written).
     """
-    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    from uavturb.sim import euroc_standin
+
+    v = euroc_standin.flyable(preset(vehicle) if isinstance(vehicle, str) else vehicle)
+    v = euroc_standin.with_vi_sensor(v) if kind == "euroc_room" else v
+    room = flight_room(kind) if room is None else room
     eff = parse_effects(effects) if isinstance(effects, str) or effects is None else dict(effects)
     ref = make_reference(kind, duration, seed, v, room)
     rec, _ = simulate_flight(v, ref, duration=duration, effects=eff, room=room,
                              noise=SensorNoise() if noise is None else noise, seed=seed, **simulate_kw)
+    rec = euroc_standin.with_cam0(rec) if kind == "euroc_room" else rec
     if out is not None:
         from uavturb.io.writer import write_recording
 

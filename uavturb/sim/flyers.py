@@ -37,10 +37,32 @@ class Flight:
     info: dict[str, Any] = field(default_factory=dict)
 
 
-def _plan(scene, vehicle, task_seed: int, n_points: int, preset: SimPreset):
-    from uavturb.sim.planning import PlanConfig, plan_trajectory
+def plan_config(preset: SimPreset, n_points: int, rotor_radius: float):
+    """The :class:`~uavturb.sim.planning.PlanConfig` of a preset's trajectory with ``n_points`` points.
+
+    A camera that hangs under the body origin (0.13 m for ``euroc_cam0``) would look from under
+    the floor when landed at a few centimetres: the landed height and the lowest low hover become
+    at least :func:`uavturb.sim.cameras.least_body_height` (0.16 m for ``euroc_cam0``: the vehicle
+    stands on legs that tall). ``forward`` changes nothing.
+    """
+    from dataclasses import replace
+
+    from uavturb.sim.cameras import least_body_height
+    from uavturb.sim.planning import PlanConfig
 
     cfg = PlanConfig(**{**preset.plan, "n_points": int(n_points)})
+    floor = least_body_height(preset.camera)
+    if floor > 0:
+        lo, hi = cfg.low_heights
+        cfg = replace(cfg, rest_height=max(cfg.rest_for(rotor_radius), floor),
+                      low_heights=(max(lo, floor), max(hi, floor)))
+    return cfg
+
+
+def _plan(scene, vehicle, task_seed: int, n_points: int, preset: SimPreset):
+    from uavturb.sim.planning import plan_trajectory
+
+    cfg = plan_config(preset, n_points, vehicle.rotor_radius)
     return plan_trajectory(scene, task_seed, cfg, rotor_radius=vehicle.rotor_radius,
                            vehicle_radius=vehicle.arm_length + vehicle.rotor_radius)
 

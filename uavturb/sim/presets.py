@@ -72,6 +72,14 @@ class SimPreset:
         Vertical field of view.
     pitch_deg : float, deg
         Downward pitch of the forward camera relative to body +x.
+    camera : str
+        Camera of :mod:`uavturb.sim.cameras`: ``forward`` (default: at the body origin, ``yfov_deg``
+        and ``pitch_deg`` above) or a calibrated one (``euroc_cam0``: its intrinsics scaled to
+        ``width x height`` and its mount on the body; ``yfov_deg`` and ``pitch_deg`` then unused).
+        A camera hanging under the body origin raises the plan's landed and low-hover heights so
+        that it stays 3 cm over the surface (:func:`uavturb.sim.flyers.plan_config`: 0.16 m for
+        ``euroc_cam0``). The manifest's
+        config names it only when it is not ``forward`` (existing datasets keep their hash).
     normals : bool
         Also store camera-frame surface normals per sample.
     rgb : bool
@@ -111,6 +119,7 @@ class SimPreset:
     height: int = 128
     yfov_deg: float = 70.0
     pitch_deg: float = 20.0
+    camera: str = "forward"
     normals: bool = False
     rgb: bool = False
     vehicle: str = "quad"
@@ -122,9 +131,11 @@ class SimPreset:
     pairs_chunk: int = 256
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict of every field."""
+        """JSON-ready dict of every field (``camera`` left out when it is ``forward``)."""
         d = asdict(self)
         d["plan_points"] = [int(k) for k in self.plan_points]
+        if d["camera"] == "forward":  # the default camera leaves the config (and its hash) as before
+            del d["camera"]
         return d
 
     @classmethod
@@ -163,6 +174,10 @@ class SimPreset:
                 raise bad(key, f"must be positive, got {getattr(self, key)}")
         if not 0 < self.yfov_deg < 180:
             raise bad("yfov_deg", f"must be in (0, 180), got {self.yfov_deg}")
+        from uavturb.sim.cameras import CAMERA_NAMES
+
+        if self.camera not in CAMERA_NAMES:
+            raise bad("camera", f"unknown camera {self.camera!r} (known: {', '.join(CAMERA_NAMES)})")
         if self.controller not in ("auto", "mpc", "geometric"):
             raise bad("controller", f"expected auto, mpc or geometric, got {self.controller!r}")
         rec = 1.0 / self.camera_hz

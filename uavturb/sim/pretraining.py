@@ -13,7 +13,8 @@ Generated pairs (:func:`generate_normals`)
 Viewpoints are random in the rooms of the training scenes: position uniform over a room's
 free floor area (area-weighted choice of the room) at 0.05 m to 0.3 m under the ceiling,
 at least 0.1 m from any solid; yaw uniform; camera pitch uniform in [-10, 60] deg (down
-positive); roll normal with 5 deg standard deviation. A viewpoint whose median depth is
+positive); roll normal with 5 deg standard deviation; the preset's camera intrinsics (``yfov_deg``,
+or a calibrated camera's scaled to the image, ``camera``). A viewpoint whose median depth is
 under 0.3 m (a camera against a wall) is drawn again. Chunk ``c`` of ``pairs_chunk`` pairs
 comes from training scene ``c mod n_train`` with seed ``SeedSequence([seed, c])``, so the
 pairs depend on the seed only (not on workers). Chunks are written atomically under
@@ -69,8 +70,11 @@ def pairs_config(preset: SimPreset, seed: int) -> dict[str, Any]:
     """What fixes the generated pairs (stored, with its hash, in ``pairs/meta.json``)."""
     keys = ("n_scenes", "n_train", "n_val", "n_test", "split_seed", "width", "height", "yfov_deg", "pairs",
             "pairs_chunk")
-    return {"generator": "uavturb.sim.pretraining", "version": 1, "seed": int(seed),
+    conf = {"generator": "uavturb.sim.pretraining", "version": 1, "seed": int(seed),
             "preset": {"name": preset.name, **{k: getattr(preset, k) for k in keys}}}
+    if preset.camera != "forward":  # a calibrated camera's intrinsics (the forward camera keeps the old hash)
+        conf["preset"]["camera"] = preset.camera
+    return conf
 
 
 def random_viewpoints(scene, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -104,6 +108,7 @@ def _chunk_pairs(job: tuple[int, int, int, int, str, SimPreset, int]) -> int:
     c, start, stop, scene_index, root, preset, seed = job
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     from uavturb.scene.procedural import generate_scene
+    from uavturb.sim.cameras import preset_intrinsics
     from uavturb.sim.render import SceneRenderer
 
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), c]))
@@ -111,7 +116,8 @@ def _chunk_pairs(job: tuple[int, int, int, int, str, SimPreset, int]) -> int:
     n = stop - start
     depth = np.empty((n, preset.height, preset.width), np.float32)
     normals = np.empty((n, preset.height, preset.width, 3), np.float32)
-    with SceneRenderer(scene, preset.width, preset.height, preset.yfov_deg) as rend:
+    K = preset_intrinsics(preset.camera, preset.width, preset.height)  # None: yfov_deg's camera
+    with SceneRenderer(scene, preset.width, preset.height, preset.yfov_deg, K=K) as rend:
         for i in range(n):
             for _ in range(100):
                 T = random_viewpoints(scene, 1, rng)[0]

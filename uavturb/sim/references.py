@@ -9,16 +9,18 @@ from sums of sines, products with a smooth envelope, and piecewise "minimum-snap
 septic segments between waypoints (continuous up to the jerk, so references can be
 concatenated without jumps in the body-rate feed-forward).
 
-Three flight plans, all deterministic given a seed:
+Four flight plans, all deterministic given a seed:
 
 - :func:`excitation`: a rich flight for identification around a hover point;
 - :func:`low_passes`: take-off, low hovers over the floor and a table, passes over
   the table edge, landing (where ground effect matters);
 - :func:`mixed`: heading changes, ceiling approach, excitation and low passes in one
-  flight (a steady wind turns with the heading in B, an accelerometer bias does not).
+  flight (a steady wind turns with the heading in B, an accelerometer bias does not);
+- :func:`euroc_room`: a stand-in for EuRoC's Vicon-room flights (V1_01, V1_02): take-off from
+  the floor, flight 0.5-2 m over the floor and the furniture of :data:`EUROC_ROOM`, landing.
 
 The scene they are planned in is a :class:`Room` (floor at ``z = 0``, a ceiling, one
-table), the same one :mod:`uavturb.sim.flight` turns into a point cloud.
+table, optionally more furniture), the same one :mod:`uavturb.sim.flight` turns into a point cloud.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ class Room:
     table_center : (2,) m, table centre in world x, y
     table_size : (2,) m, table extent along world x and y
     table_height : float, m, height of the table top over the floor
+    furniture : further boxes standing on the floor, each ``(x_min, x_max, y_min, y_max, height)`` [m]
     """
 
     size: tuple[float, float] = (8.0, 6.0)
@@ -52,6 +55,12 @@ class Room:
     table_center: tuple[float, float] = (1.8, 0.9)
     table_size: tuple[float, float] = (1.2, 0.8)
     table_height: float = 0.75
+    furniture: tuple[tuple[float, float, float, float, float], ...] = ()
+
+    @property
+    def boxes(self) -> tuple[tuple[float, float, float, float, float], ...]:
+        """Every box on the floor, the table first: ``(x_min, x_max, y_min, y_max, height)`` [m]."""
+        return ((*self.table_bounds, self.table_height), *(tuple(float(v) for v in b) for b in self.furniture))
 
     @property
     def table_bounds(self) -> tuple[float, float, float, float]:
@@ -66,9 +75,23 @@ class Room:
         x, y = np.asarray(x, float), np.asarray(y, float)
         return (x >= x0 - margin) & (x <= x1 + margin) & (y >= y0 - margin) & (y <= y1 + margin)
 
-    def surface_below(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Height [m] of the surface under world points ``(x, y)``: the table top or the floor."""
-        return np.where(self.over_table(x, y), self.table_height, 0.0)
+    def surface_below(self, x: np.ndarray, y: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Height [m] of the surface under world points ``(x, y)``: the highest box top (the table's
+        or another piece of furniture's, each grown by ``margin`` [m]) or the floor."""
+        out = np.where(self.over_table(x, y, margin), self.table_height, 0.0)
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        for x0, x1, y0, y1, h in self.furniture:
+            inside = (x >= x0 - margin) & (x <= x1 + margin) & (y >= y0 - margin) & (y <= y1 + margin)
+            out = np.maximum(out, np.where(inside, float(h), 0.0))
+        return out
+
+
+#: A stand-in for EuRoC's Vicon room (V1_01_easy, V1_02_medium): a motion-capture room with a table and
+#: a few boxes and mats on the floor. Not a scan; sizes and layout are ours.
+EUROC_ROOM = Room(size=(8.0, 7.0), ceiling=3.2, table_center=(1.5, 1.0), table_size=(1.2, 0.8), table_height=0.75,
+                  furniture=((-2.2, -1.6, 0.8, 1.6, 0.45),  # a stack of boxes
+                             (-1.6, 0.2, -2.2, -1.2, 0.2),  # foam mats
+                             (1.0, 1.6, -2.4, -1.6, 0.6)))  # a crate
 
 
 # --- scalar signals with three derivatives ---------------------------------------------
@@ -726,3 +749,144 @@ def mixed(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_he
     _land(router, rng, rest_height)
     last = b.reference("passes", max(left, 0.0))
     return first.then(exc).then(last)
+
+
+# --- a stand-in for EuRoC's Vicon-room flights --------------------------------------------
+
+
+def _free_floor_point(rng: np.random.Generator, room: Room, keep_out: float, wall: float) -> np.ndarray:
+    """A random floor point (x, y) [m] at least ``keep_out`` from every box and ``wall`` from the walls."""
+    hx, hy = room.size[0] / 2 - wall, room.size[1] / 2 - wall
+    for _ in range(1000):
+        xy = rng.uniform([-hx, -hy], [hx, hy])
+        if room.surface_below(xy[0], xy[1], keep_out) == 0.0:
+            return xy
+    raise InputError("reference", "the room has no free floor away from its furniture")
+
+
+def _facing(yaw: float, a: np.ndarray, b: np.ndarray) -> float:
+    """The heading [rad] from ``a`` to ``b`` (x, y), unwrapped to within pi of ``yaw``; ``yaw``
+    when the two are within 10 cm."""
+    d = np.asarray(b[:2], float) - np.asarray(a[:2], float)
+    if np.hypot(*d) < 0.1:
+        return yaw
+    target = math.atan2(d[1], d[0])
+    return yaw + (target - yaw + math.pi) % (2 * math.pi) - math.pi
+
+
+def _leg(plan: _Plan, b: np.ndarray, room: Room, clearance: float, margin: float, speed: float,
+         phase: str) -> None:
+    """Fly from the plan's position to ``b`` [m] facing the way, never lower than ``clearance`` over
+    a box top within ``margin`` of the path: where the straight leg would be, climb first (and
+    descend at the end)."""
+    a = plan.p.copy()
+    s = np.linspace(0.0, 1.0, 61)
+    path = a[None, :] * (1 - s[:, None]) + np.asarray(b, float)[None, :] * s[:, None]
+    need = room.surface_below(path[:, 0], path[:, 1], margin) + clearance
+    yaw = _facing(plan.yaw, a, b)
+    if np.all(path[:, 2] >= need - 1e-9):
+        plan.move(b, yaw, speed, phase)
+        return
+    z = max(a[2], b[2], float(need.max()))
+    if a[2] < z - 1e-9:
+        plan.move((a[0], a[1], z), yaw, speed, phase)
+        yaw = None
+    plan.move((b[0], b[1], z), yaw, speed, phase)
+    if b[2] < z - 1e-9:
+        plan.move(b, None, speed, phase)
+
+
+def _waypoint(rng: np.random.Generator, room: Room, k: int, heights: tuple[float, float], top: float,
+              wall: float, inset: float = 0.15) -> np.ndarray:
+    """Cruise point ``k``: every other one over a random box (``inset`` inside its edges), the others
+    anywhere ``wall`` from the walls; ``heights`` [m] over the surface below, capped at ``top`` [m]."""
+    if k % 2 == 1:
+        x0, x1, y0, y1, _ = room.boxes[int(rng.integers(len(room.boxes)))]
+        xy = rng.uniform([x0 + inset, y0 + inset], [x1 - inset, y1 - inset])
+    else:
+        hx, hy = room.size[0] / 2 - wall, room.size[1] / 2 - wall
+        xy = rng.uniform([-hx, -hy], [hx, hy])
+    z = min(float(room.surface_below(xy[0], xy[1])) + rng.uniform(*heights), top)
+    return np.array([xy[0], xy[1], z])
+
+
+def _descend(plan: _Plan, xy: np.ndarray, rest_height: float, vertical_speed: float) -> None:
+    plan.move((xy[0], xy[1], rest_height), speed=vertical_speed, phase="landing")
+    plan.hold(1.0, "rest")
+
+
+def euroc_room(duration: float = 60.0, seed: int = 0, *, room: Room = EUROC_ROOM, rest_height: float = 0.16,
+               heights: tuple[float, float] = (0.6, 1.9), top: float = 2.0, clearance: float = 0.5,
+               margin: float = 0.35, speed: float = 1.2, vertical_speed: float = 0.4,
+               hold: tuple[float, float] = (0.5, 1.5), max_yaw_acc: float = 0.5, wall: float = 1.0,
+               keep_out: float = 0.6) -> Reference:
+    """A stand-in for EuRoC's Vicon-room flights: take-off from the floor, flight 0.5-2 m over the
+    floor and the furniture, landing on the floor.
+
+    1 s at rest on the floor (body origin ``rest_height`` over it; "at rest" is a hover there, the
+    dynamics have no contact), a vertical take-off at ``vertical_speed`` to the first cruise
+    height, cruise points in turn (every other one over a piece of furniture, at ``heights`` over
+    the surface below, at most ``top`` over the floor; a hover of ``hold`` at each, the last one
+    longer to end the flight at ``duration``; legs at ``speed``, facing the way, raised to
+    ``clearance`` over any box top within ``margin`` of the path), then a leg to a free floor
+    point, a vertical descent and 1 s at rest. Take-off and
+    landing points are ``keep_out`` from every box and ``wall`` from the walls. With the defaults
+    a flight is below 0.3 m for about 2-3 s at each end and 0.5-2 m over the surface below in
+    between (EuRoC's V1_01_easy flies 58.6 m in 144 s, 0.4 m/s on average; ``speed`` 0.9 m/s
+    peak gives about that).
+
+    Parameters
+    ----------
+    duration : s, the plan's length (it ends landed, after 1 s at rest)
+    seed : random seed
+    room : the scene (default :data:`EUROC_ROOM`)
+    rest_height : m, body origin over the floor when landed
+    heights : (2,) m, range of cruise heights over the surface below (drawn uniformly)
+    top : m, highest cruise point over the floor
+    clearance, margin : m, least height over a box top near a leg, and how near
+    speed, vertical_speed : m/s, peak speeds of legs and of take-off and landing
+    hold : (2,) s, range of hovers at the cruise points
+    max_yaw_acc : rad/s^2; wall, keep_out : m
+
+    Returns
+    -------
+    Reference named ``euroc_room``; ``notes`` lists the phases (``rest``, ``takeoff``, ``cruise``,
+    ``hover``, ``landing``).
+
+    Raises
+    ------
+    InputError : ``duration`` too short for take-off, one cruise point and landing (names the least
+        of 10 draws).
+    """
+    import copy
+
+    rng = np.random.default_rng([int(seed), 5])
+    start, land = _free_floor_point(rng, room, keep_out, wall), _free_floor_point(rng, room, keep_out, wall)
+    plan = _Plan(np.array([start[0], start[1], rest_height]), float(rng.uniform(-np.pi, np.pi)), speed=speed,
+                 yaw_acc=max_yaw_acc)
+    plan.hold(1.0, "rest")
+    first = min(rng.uniform(*heights), top)
+    plan.move((start[0], start[1], first), speed=vertical_speed, phase="takeoff")
+    plan.hold(rng.uniform(*hold), "hover")
+
+    def finish(p: _Plan) -> _Plan:
+        _leg(p, np.array([land[0], land[1], p.p[2]]), room, clearance, margin, speed, "cruise")
+        _descend(p, land, rest_height, vertical_speed)
+        return p
+
+    k, misses, least = 0, 0, math.inf
+    while misses < 10:  # cruise points while one of 10 draws still fits
+        trial = copy.deepcopy(plan)
+        _leg(trial, _waypoint(rng, room, k, heights, top, wall), room, clearance, margin, speed, "cruise")
+        trial.hold(rng.uniform(*hold), "hover")
+        end = finish(copy.deepcopy(trial)).t
+        if end > duration:
+            misses, least = misses + 1, min(least, end)
+            continue
+        plan, k, misses = trial, k + 1, 0
+    if k == 0:
+        least = int(math.ceil(least))
+        raise InputError("--duration", f"a euroc_room flight needs at least {least} s (take-off, one cruise "
+                                       f"point, landing), got {duration:g}")
+    plan.hold(duration - finish(copy.deepcopy(plan)).t, "hover")  # the time left: a longer last hover
+    return finish(plan).reference("euroc_room", duration)

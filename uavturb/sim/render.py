@@ -10,7 +10,8 @@ Nobody outside this module needs to know about G.
 
 Pixel ``(row i, col j)`` is centred at ``u = j``, ``v = i`` with the intrinsics of
 :attr:`SceneRenderer.K`: ``fx = fy = (H / 2) / tan(yfov / 2)``, ``cx = (W - 1) / 2``,
-``cy = (H - 1) / 2``.
+``cy = (H - 1) / 2``, or the calibrated ``K`` it is given (``SceneRenderer(..., K=...)``, a camera
+of :mod:`uavturb.sim.cameras`).
 
 - :meth:`SceneRenderer.depth` returns the **z-depth** (distance along the optical axis,
   not along the ray) in metres, ``0`` where nothing is hit within ``[znear, zfar]``.
@@ -193,6 +194,10 @@ class SceneRenderer:
         Clipping distances; surfaces beyond ``zfar`` read as no hit (depth 0).
     rgb : bool
         Also upload a coloured copy of the mesh for :meth:`rgb`.
+    K : (3, 3) float array, px, optional
+        Pinhole intrinsics (pixel centres at integer ``u, v``) instead of ``yfov_deg``'s symmetric
+        camera: a calibrated camera scaled to this image size
+        (:func:`uavturb.sim.cameras.scaled_intrinsics`). ``yfov_deg`` is then unused.
     """
 
     def __init__(
@@ -204,6 +209,7 @@ class SceneRenderer:
         znear: float = 0.05,
         zfar: float = 20.0,
         rgb: bool = False,
+        K: np.ndarray | None = None,
     ):
         from uavturb.scene.indoor import Scene
 
@@ -220,13 +226,20 @@ class SceneRenderer:
         self.width, self.height = int(width), int(height)
         self.yfov = float(np.deg2rad(yfov_deg))
         self.znear, self.zfar = float(znear), float(zfar)
-        f = (self.height / 2) / np.tan(self.yfov / 2)
-        #: (3, 3) intrinsics of the optical frame, pixel centres at integer (u, v)
-        self.K = np.array([[f, 0.0, (self.width - 1) / 2], [0.0, f, (self.height - 1) / 2], [0.0, 0.0, 1.0]])
-        # camera-frame ray directions (z = 1) of pixel centres, for orienting normals
-        u = np.arange(self.width) + 0.5 - self.width / 2
-        v = np.arange(self.height) + 0.5 - self.height / 2
-        uu, vv = np.meshgrid(u / f, v / f)
+        if K is None:
+            f = (self.height / 2) / np.tan(self.yfov / 2)
+            #: (3, 3) intrinsics of the optical frame, pixel centres at integer (u, v)
+            self.K = np.array([[f, 0.0, (self.width - 1) / 2], [0.0, f, (self.height - 1) / 2], [0.0, 0.0, 1.0]])
+            # camera-frame ray directions (z = 1) of pixel centres, for orienting normals
+            u = np.arange(self.width) + 0.5 - self.width / 2
+            v = np.arange(self.height) + 0.5 - self.height / 2
+            uu, vv = np.meshgrid(u / f, v / f)
+        else:
+            self.K = np.array(K, dtype=float)
+            if self.K.shape != (3, 3) or not np.all(np.isfinite(self.K)) or min(self.K[0, 0], self.K[1, 1]) <= 0:
+                raise InputError("K", "expected a (3, 3) pinhole matrix with positive focal lengths")
+            uu, vv = np.meshgrid((np.arange(self.width) - self.K[0, 2]) / self.K[0, 0],
+                                 (np.arange(self.height) - self.K[1, 2]) / self.K[1, 1])
         self._rays = np.stack([uu, vv, np.ones_like(uu)], axis=-1)
 
         tris, normals = _flat_copy(mesh)
@@ -249,8 +262,12 @@ class SceneRenderer:
             self._rgb_mesh = pyrender.Mesh([pyrender.Primitive(positions=tris, color_0=colours, material=material, mode=4)])
             self._rgb_mesh.is_visible = False
             self._scene.add(self._rgb_mesh)
-        cam = pyrender.PerspectiveCamera(yfov=self.yfov, znear=self.znear, zfar=self.zfar,
-                                         aspectRatio=self.width / self.height)
+        if K is None:
+            cam = pyrender.PerspectiveCamera(yfov=self.yfov, znear=self.znear, zfar=self.zfar,
+                                             aspectRatio=self.width / self.height)
+        else:  # pyrender's principal point counts from the image edge, ours from the first pixel's centre
+            cam = pyrender.IntrinsicsCamera(self.K[0, 0], self.K[1, 1], self.K[0, 2] + 0.5, self.K[1, 2] + 0.5,
+                                            znear=self.znear, zfar=self.zfar)
         self._cam_node = self._scene.add(cam, pose=np.eye(4))
         self._renderer = pyrender.OffscreenRenderer(self.width, self.height)
         inner = getattr(self._renderer, "_renderer", None)

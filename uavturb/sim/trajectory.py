@@ -38,14 +38,16 @@ class _RendererCache:
         self.renderer = None
 
     def get(self, scene_index: int, preset: SimPreset):
+        from uavturb.sim.cameras import preset_intrinsics
         from uavturb.sim.render import SceneRenderer
 
-        key = (scene_index, preset.width, preset.height, preset.yfov_deg, preset.rgb)
+        key = (scene_index, preset.width, preset.height, preset.yfov_deg, preset.rgb, preset.camera)
         if key != self.key:
             if self.renderer is not None:
                 self.renderer.close()
             self.renderer = SceneRenderer(_scene(scene_index), preset.width, preset.height, preset.yfov_deg,
-                                          rgb=preset.rgb)
+                                          rgb=preset.rgb, K=preset_intrinsics(preset.camera, preset.width,
+                                                                              preset.height))
             self.key = key
         return self.renderer
 
@@ -58,30 +60,42 @@ class _RendererCache:
 RENDERERS = _RendererCache()
 
 
+def camera_poses(state: np.ndarray, pitch_deg: float, mount: np.ndarray | None = None) -> np.ndarray:
+    """``T_WC`` (T, 4, 4) of the preset's camera at the states ``(T, 13)``: the forward camera of
+    :func:`uavturb.sim.render.camera_pose` pitched ``pitch_deg`` down, or the body mount ``T_BC``
+    (4, 4) of a calibrated camera (:func:`uavturb.sim.cameras.preset_mount`)."""
+    from uavturb.scene.projection import camera_pose_world
+    from uavturb.sim.render import camera_pose
+
+    if mount is not None:
+        return camera_pose_world(state[:, 3:7], state[:, :3], mount)
+    return np.stack([camera_pose(x[:3], x[3:7], pitch_deg) for x in state]) if len(state) else np.zeros((0, 4, 4))
+
+
 def below_out_of_view(state: np.ndarray, d: np.ndarray, depth: np.ndarray, K: np.ndarray,
-                      pitch_deg: float, tol: float = 0.05) -> np.ndarray:
+                      pitch_deg: float, tol: float = 0.05, mount: np.ndarray | None = None) -> np.ndarray:
     """Whether the surface point straight below the vehicle is out of the camera's view.
 
-    The point ``p - d e_z`` is projected with the camera pose of :func:`uavturb.sim.render.camera_pose`;
+    The point ``p - d e_z`` is projected with the camera pose of :func:`camera_poses`;
     it is *in view* when it lies in front of the camera, inside the image, and the rendered
     z-depth at its pixel matches its own within ``tol`` relative (+ 2 cm): not hidden.
 
     Parameters
     ----------
     state : (T, 13), d : (T,) m, depth : (T, H, W) m, K : (3, 3) intrinsics, pitch_deg : deg
+    mount : (4, 4) ``T_BC`` of a calibrated camera (``None``: the forward camera)
 
     Returns
     -------
     (T,) bool
     """
-    from uavturb.sim.render import camera_pose
-
     T, H, W = depth.shape
     out = np.ones(T, dtype=bool)
+    poses = camera_poses(state, pitch_deg, mount)
     for i in range(T):
         if not np.isfinite(d[i]):
             continue
-        Twc = camera_pose(state[i, :3], state[i, 3:7], pitch_deg)
+        Twc = poses[i]
         pc = Twc[:3, :3].T @ (state[i, :3] - np.array([0.0, 0.0, d[i]]) - Twc[:3, 3])
         if pc[2] <= 1e-3:
             continue
@@ -106,7 +120,7 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
     from uavturb.io.vehicle_file import preset as vehicle_preset
     from uavturb.physics.ground_effect import phi
     from uavturb.scene.queries import collides, height_below, inside_obstacle
-    from uavturb.sim.render import camera_pose
+    from uavturb.sim.cameras import preset_mount
 
     t_start, cpu_start = time.perf_counter(), time.process_time()
     scene = _scene(task.scene)
@@ -133,8 +147,10 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
     depth = np.empty((T, preset.height, preset.width), np.float32)
     normals = np.empty((T, preset.height, preset.width, 3), np.float32) if preset.normals else None
     rgb = np.empty((T, preset.height, preset.width, 3), np.uint8) if preset.rgb else None
+    mount = preset_mount(preset.camera)
+    poses = camera_poses(state, preset.pitch_deg, mount)
     for i in range(T):
-        Twc = camera_pose(state[i, :3], state[i, 3:7], preset.pitch_deg)
+        Twc = poses[i]
         if normals is not None:
             depth[i], normals[i] = rend.depth_and_normals(Twc)
         else:
@@ -142,7 +158,7 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
         if rgb is not None:
             rgb[i] = rend.rgb(Twc)
     t_rendered = time.perf_counter()
-    oov = below_out_of_view(state, d, depth, rend.K, preset.pitch_deg)
+    oov = below_out_of_view(state, d, depth, rend.K, preset.pitch_deg, mount=mount)
     surface = state[:, 2] - d  # m, height of the surface below
     lag = max(int(round(preset.camera_hz * SURFACE_MEMORY_S)), 1)
     changed = np.abs(surface - surface[np.maximum(np.arange(T) - lag, 0)]) > SURFACE_STEP
@@ -168,6 +184,9 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
             "k_T": k_T, "mu": mu, "rotor_radius": r, "camera": {"K": rend.K.tolist(), "pitch_deg": preset.pitch_deg,
                                                               "rate_hz": preset.camera_hz},
             "controller": controller, "stats": stats, "flight": fl.info}
+    if mount is not None:  # a calibrated camera: its name and pose on the body (T_BC, m)
+        meta["camera"].update(name=preset.camera, T_BC=mount.tolist())
+        del meta["camera"]["pitch_deg"]
     return arrays, meta
 
 
