@@ -14,7 +14,7 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.io import align, euroc_csv, ply, sensor_yaml
 from uavturb.io.recording import GroundTruth, Imu, Poses, Recording, Rotors
-from uavturb.io.vehicle_file import load_vehicle, preset
+from uavturb.io.vehicle_file import load_vehicle, named_vehicle
 from uavturb.physics import quaternion as quat
 from uavturb.physics.vehicle import Vehicle
 
@@ -181,7 +181,7 @@ def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None =
     yaml path or Vehicle) serves folders without a ``vehicle.yaml``."""
     from uavturb.io.consistency import check_recording
 
-    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     recs = [read_recording(p, vehicle=v, require_rotors=True) for p in paths]
     for r in recs:
         check_recording(r)

@@ -33,7 +33,7 @@ def save_vehicle(vehicle: Vehicle, path: str | Path) -> None:
 SHIPPED_DIR = Path(__file__).resolve().parents[1] / "presets"
 
 
-def preset(name: str) -> Vehicle:
+def named_vehicle(name: str) -> Vehicle:
     """A built-in vehicle by name (``quad``, ``hex``), a shipped vehicle file (``firefly``), or a
     ``vehicle.yaml`` path."""
     if name in PRESETS:

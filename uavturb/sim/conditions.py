@@ -380,12 +380,12 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
     -------
     Conditioned (``recording.path`` set when written).
     """
-    from uavturb.io.vehicle_file import preset
+    from uavturb.io.vehicle_file import named_vehicle
     from uavturb.io.writer import write_recording
     from uavturb.physics.effects import parse_effects
     from uavturb.sim.flight import SensorNoise, make_reference, simulate_flight
 
-    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     eff = parse_effects(effects) if isinstance(effects, str) or effects is None else dict(effects)
     noise = SensorNoise() if noise is None else noise
     if conditions.accel_bias_walk > 0:

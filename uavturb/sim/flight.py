@@ -27,7 +27,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
-from uavturb.io.vehicle_file import preset
+from uavturb.io.vehicle_file import named_vehicle
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import (
     GRAVITY,
@@ -375,7 +375,7 @@ def generate_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dic
     -------
     Recording (with ``path`` set when written).
     """
-    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     eff = parse_effects(effects) if isinstance(effects, str) or effects is None else dict(effects)
     ref = make_reference(kind, duration, seed, v, room)
     rec, _ = simulate_flight(v, ref, duration=duration, effects=eff, room=room,

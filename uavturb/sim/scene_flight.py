@@ -105,12 +105,12 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
         truncated at its first hit), ``collision_time`` (s or None), ``tracking_error`` (T,) m,
         ``solve_ms`` (controller update times), ``wall_s``, ``samples_per_s``, ``controller``.
     """
-    from uavturb.io.vehicle_file import preset
+    from uavturb.io.vehicle_file import named_vehicle
     from uavturb.physics.effects import DEFAULT_EFFECTS
     from uavturb.sim.closed_loop import CollisionWatch, initial_state, run_closed_loop
 
     wall0 = time.perf_counter()
-    veh = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    veh = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     if controller not in CONTROLLERS:
         raise InputError("controller", f"unknown controller '{controller}' (known: {', '.join(CONTROLLERS)})")
     effects = dict(DEFAULT_EFFECTS if effects is None else effects)
