@@ -1,5 +1,6 @@
-"""``vehicle.yaml`` files (``recordings.md``) and vehicles by name: built-in presets, files
-shipped with the package (``uavturb/presets/<name>.yaml``, e.g. EuRoC's ``firefly``) or a path."""
+"""``vehicle.yaml`` files (``recordings.md``) and vehicles by name (:func:`named_vehicle`): built-in
+ones (``quad``, ``hex``), files shipped with the package (``uavturb/presets/<name>.yaml``, e.g. EuRoC's
+``firefly``) or a path."""
 
 from __future__ import annotations
 
