@@ -10,19 +10,14 @@ import yaml
 
 from uavturb.errors import InputError
 from uavturb.io.publish import write_text_atomic
+from uavturb.io.yaml_mapping import read_yaml_mapping
 from uavturb.physics.vehicle import PRESETS, Vehicle
 
 
 def load_vehicle(path: str | Path) -> Vehicle:
     """Read and validate a ``vehicle.yaml``."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "file not found")
-    try:
-        d = yaml.safe_load(path.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as e:
-        raise InputError(path, f"not valid YAML ({type(e).__name__})") from None
-    return Vehicle.from_dict(d, where=path)
+    return Vehicle.from_dict(read_yaml_mapping(path, expected="a mapping of vehicle keys"), where=path)
 
 
 def save_vehicle(vehicle: Vehicle, path: str | Path) -> None:
