@@ -261,3 +261,19 @@ def test_sensor_yaml_missing_and_not_yaml(tmp_path):
     with pytest.raises(InputError, match="not valid YAML"):
         sensor_yaml.read_imu_yaml(write(tmp_path, "a: [1, 2\n", "sensor.yaml"))
     assert isinstance(sensor_yaml.read_camera_yaml(write(tmp_path, EUROC_CAM0, "c.yaml")), Camera)
+
+
+# --- YAML mappings (configs, vehicle.yaml, sensor.yaml, truth.yaml) ----------------------
+
+
+def test_yaml_mapping_reads_a_mapping_and_fails_in_one_line(tmp_path):
+    from uavturb.io.yaml_mapping import read_yaml_mapping
+
+    assert read_yaml_mapping(write(tmp_path, "a: 1\nb: [2.5, x]\n", "m.yaml")) == {"a": 1, "b": [2.5, "x"]}
+    assert read_yaml_mapping(write(tmp_path, "# only a comment\n", "empty.yaml")) == {}
+    with pytest.raises(InputError, match=r"gone.yaml: config file not found$"):
+        read_yaml_mapping(tmp_path / "gone.yaml", not_found="config file not found")
+    with pytest.raises(InputError, match=r"bad.yaml: not valid YAML \(ParserError\)$"):
+        read_yaml_mapping(write(tmp_path, "a: [1, 2\n", "bad.yaml"))
+    with pytest.raises(InputError, match=r"list.yaml: expected a mapping of vehicle keys$"):
+        read_yaml_mapping(write(tmp_path, "- 1\n- 2\n", "list.yaml"), expected="a mapping of vehicle keys")

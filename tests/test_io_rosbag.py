@@ -197,9 +197,9 @@ def test_import_euroc_bag_only_uses_the_presets_T_BS(tmp_path, capsys):
     """Without an ASL folder the shipped Firefly's T_BS applies: the bag's IMU in a EuRoC-like S
     (x up) reads +z in B; the same bag with its IMU in B stops with one line on T_BS."""
     from uavturb.cli import main
-    from uavturb.io.vehicle_file import preset
+    from uavturb.io.vehicle_file import named_vehicle
 
-    firefly = preset("firefly")
+    firefly = named_vehicle("firefly")
     R_BS = firefly.T_BS_matrix[:3, :3]
     np.testing.assert_allclose(R_BS @ [9.2, 0.0, -3.3], [0.0, -0.1, 9.8], atol=0.06)  # hover: S -> B is up
     write_bag(tmp_path / "V1.bag", imu_R=R_BS.T)

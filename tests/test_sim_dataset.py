@@ -11,7 +11,7 @@ import pytest
 
 from uavturb.errors import InputError
 from uavturb.io import shards
-from uavturb.io.vehicle_file import preset as vehicle_preset
+from uavturb.io.vehicle_file import named_vehicle
 from uavturb.physics.ground_effect import phi
 from uavturb.scene.procedural import generate_scene
 from uavturb.scene.queries import height_below, inside_obstacle
@@ -51,7 +51,7 @@ def test_samples_hold_known_answers(full):
     m, arrays = _arrays(full)
     assert m.counts["train"]["trajectories"] == m.counts["val"]["trajectories"] == 1
     assert m.image_size == (24, 24)
-    quad = vehicle_preset("quad")
+    quad = named_vehicle("quad")
     body = json.loads((full / "manifest.json").read_text())
     low = oov = n = 0
     for split in shards.SPLITS:

@@ -7,6 +7,7 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import Callable
 
 from uavturb.errors import Interrupted, UavturbError, raise_on_signals
 
@@ -52,11 +53,7 @@ def _add_mlflow_experiment(s: argparse.ArgumentParser) -> None:
                    help=argparse.SUPPRESS)
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="uavturb", description=__doc__.split("\n")[0] if __doc__ else None)
-    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
+def _add_identify(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("identify", help="identify k_T, k_M and inertia from flights (the paper's least squares)")
     s.add_argument("recordings", nargs="+", metavar="REC", help="recording folders (recordings.md layout)")
     s.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -64,6 +61,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="inertia model: J_x != J_y, the paper's J_x = J_y, or chosen by the data (default)")
     s.add_argument("--vehicle", help="vehicle.yaml or preset (quad, hex) for folders without one (raw EuRoC)")
 
+
+def _add_residuals(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("residuals", help="ground-truth turbulence: residual force of the identified model")
     s.add_argument("recording", metavar="REC")
     s.add_argument("--out", required=True, help="output file: .csv or .parquet")
@@ -75,6 +74,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="model constants: identified on this flight (default) or vehicle.yaml's")
     s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one")
 
+
+def _add_import_euroc(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("import-euroc", help="a raw EuRoC sequence (ROS bag, optionally its ASL folder) as a recording")
     s.add_argument("bag", metavar="BAG", help="the sequence's .bag (rotor speeds from /fcu/motor_speed)")
     s.add_argument("--asl", metavar="ASL_DIR", help="the sequence's ASL folder: ground truth, IMU, point cloud, cam0")
@@ -83,9 +84,20 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, metavar="REC", help="recording folder to create")
     s.add_argument("--overwrite", action="store_true")
 
-    sim_presets = _sim_presets()
+
+def _add_generate(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("generate", help="generate data")
     gsub = s.add_subparsers(dest="what", required=True, metavar="WHAT")
+    sim_presets = _sim_presets()
+    _add_generate_flight(gsub)
+    _add_generate_sim(gsub, sim_presets)
+    _add_generate_normals(gsub, sim_presets)
+    g = gsub.add_parser("merge", help="join the folders of `generate sim --shard` runs into one dataset")
+    g.add_argument("dirs", nargs="+", metavar="DIR")
+    g.add_argument("--out", required=True, metavar="DIR", help="merged dataset folder (may be one of DIR)")
+
+
+def _add_generate_flight(gsub: argparse._SubParsersAction) -> None:
     g = gsub.add_parser("flight", help="a flight in the EuRoC layout with sensor noise and named effects")
     g.add_argument("--vehicle", default="hex", help="preset (quad, hex), shipped (firefly) or vehicle.yaml")
     g.add_argument("--effects", default="none", help="NAME:param=value,... from effects.md (default none)")
@@ -97,7 +109,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--out", required=True, help="recording folder to create")
     r = g.add_argument_group("real recordings' troubles (truth in REC/truth.yaml)")
     r.add_argument("--no-imu", action="store_true", help="no imu0: motion capture only")
-    r.add_argument("--rate-hz", type=float, default=None, help="ground truth and rotors at this rate (IMU stays 200 Hz)")
+    r.add_argument("--rate-hz", type=float, default=None,
+                   help="ground truth and rotors at this rate (IMU stays 200 Hz)")
     r.add_argument("--jitter-ms", type=float, default=0.0, help="sampling-time jitter of those streams, +- ms")
     r.add_argument("--fixed-heading", action="store_true", help="the reference's yaw never changes")
     r.add_argument("--motor-commands", action="store_true",
@@ -110,6 +123,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="streams in a EuRoC-like sensor frame S (T_BS in vehicle.yaml, 10 cm lever arm)")
     r.add_argument("--mass-error", type=float, default=0.0, metavar="FRACTION",
                    help="vehicle.yaml's mass is the simulated one times 1 + FRACTION")
+
+
+def _add_generate_sim(gsub: argparse._SubParsersAction, sim_presets: str) -> None:
     g = gsub.add_parser("sim", help="training shards: simulated flights through procedural scenes (resumable)")
     g.add_argument("--preset", default="quick", help=f"{sim_presets} (default quick)")
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (manifest.json, traj_*/)")
@@ -122,6 +138,9 @@ def _parser() -> argparse.ArgumentParser:
                                                     "instance with --workers CPUs)")
     g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="preset_set",
                    help="change a preset field, e.g. --set width=64 --set trajectories=4 (repeatable)")
+
+
+def _add_generate_normals(gsub: argparse._SubParsersAction, sim_presets: str) -> None:
     g = gsub.add_parser("normals", help="depth/normal pre-training pairs from training scenes, or from IRS")
     g.add_argument("--preset", default="quick", help=f"{sim_presets} (default quick)")
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (the pairs go to DIR/pairs)")
@@ -131,10 +150,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--size", type=int, default=128, help="image side for --irs (default 128)")
     g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="preset_set",
                    help="change a preset field, e.g. --set width=64 --set pairs=200 (repeatable)")
-    g = gsub.add_parser("merge", help="join the folders of `generate sim --shard` runs into one dataset")
-    g.add_argument("dirs", nargs="+", metavar="DIR")
-    g.add_argument("--out", required=True, metavar="DIR", help="merged dataset folder (may be one of DIR)")
 
+
+def _add_gap(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("gap", help="sim-to-real gap finder: locate, name, fit and apply the physics left out")
     s.add_argument("recordings", nargs="+", metavar="REC", help="recording folders (recordings.md layout)")
     s.add_argument("--out", required=True, metavar="DIR", help="report folder (report.json, report.md, plots)")
@@ -148,6 +166,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--no-mlflow", action="store_true", help="do not log the run to MLflow")
     s.add_argument("--overwrite", action="store_true", help="replace a report folder that uavturb wrote")
 
+
+def _add_gap_proof(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("gap-proof", help="run the gap finder blind on flights with concealed effects; "
                                          "print the confusion table against PySINDy")
     s.add_argument("--out", default="gap_proof", help="folder for the flights and the table (default gap_proof)")
@@ -158,23 +178,29 @@ def _parser() -> argparse.ArgumentParser:
                    help="concealed effects, real recordings' troubles (conditions), or both (default)")
     s.add_argument("--seed", type=int, default=0)
 
-    config_dir_help = ("your own config folder, laid out like the shipped one (config.yaml, model/, data/, "
-                       "trainer/, experiment/); its files replace or add to the shipped ones")
+
+CONFIG_DIR_HELP = ("your own config folder, laid out like the shipped one (config.yaml, model/, data/, "
+                   "trainer/, experiment/); its files replace or add to the shipped ones")
+
+
+def _add_train(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("train", help="train one stage (pretrain or height) from conf/ with key=value overrides")
     s.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="e.g. model=none_gru trainer.max_epochs=3")
     s.add_argument("--experiment", help="a config bundle, conf/experiment/NAME.yaml (e.g. smoke)")
     s.add_argument("--resume", metavar="RUN_ID", help="continue an interrupted (or finished) run in the same MLflow "
                                                       "run from its last.ckpt; alone or with trainer.max_epochs=N, "
                                                       "the run's own config is used")
-    s.add_argument("--config-dir", metavar="DIR", help=config_dir_help)
+    s.add_argument("--config-dir", metavar="DIR", help=CONFIG_DIR_HELP)
 
+
+def _add_sweep(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("sweep", help="run an ablation sweep (sweeps/ablation.yaml: the paper's Table 1) in MLflow")
     s.add_argument("spec", metavar="SWEEP", help="a sweep file, or a shipped sweep's name (ablation)")
     s.add_argument("--preset", default="quick", help=f"preset of the sweep file (ablation: {_sweep_presets()}; "
                                                      "default quick)")
     s.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
     _add_mlflow_experiment(s)
-    s.add_argument("--config-dir", metavar="DIR", help=config_dir_help)
+    s.add_argument("--config-dir", metavar="DIR", help=CONFIG_DIR_HELP)
     s.add_argument("--executor", default="sequential", choices=["sequential", "ray"],
                    help="run the runs one after another here (default) or as Ray tasks")
     s.add_argument("--address", default=None, help="Ray cluster to use with --executor ray (e.g. auto, "
@@ -182,11 +208,15 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--max-retries", type=int, default=1, help="extra attempts of a run that fails (default 1)")
     s.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides for every run")
 
+
+def _add_compare(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("compare", help="print Table 1 (mean +- std over seeds) from the MLflow store")
     _add_mlflow_experiment(s)
     s.add_argument("--parent", default=None, metavar="RUN_ID", help="sweep parent run (default: the latest)")
     s.add_argument("--out", default="outputs", metavar="DIR", help="folder for table1.md and table1.csv")
 
+
+def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("evaluate", help="Table 2: the height model and the ground-effect law on EuRoC-layout flights")
     s.add_argument("recordings", nargs="+", metavar="REC", help="recording folders; the first identifies (alpha, beta)")
     s.add_argument("--run", required=True, metavar="RUN_ID", help="MLflow run of a height training")
@@ -198,6 +228,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--no-mlflow", action="store_true", help="do not log a child run")
     s.add_argument("--overwrite", action="store_true", help="replace an output folder that uavturb wrote")
 
+
+def _add_export(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("export", help="the run's model as a streaming .pt2 and ONNX, checked and logged to MLflow")
     s.add_argument("--run", required=True, metavar="RUN_ID", help="MLflow run of a height training")
     s.add_argument("--out", required=True, metavar="DIR", help="output folder (model.pt2, model.onnx, export.json)")
@@ -208,15 +240,28 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--overwrite", action="store_true", help="replace an output folder that uavturb wrote")
     s.add_argument("--no-mlflow", action="store_true", help="do not log the model to the run")
 
+
+def _add_bench(sub: argparse._SubParsersAction) -> None:
     from uavturb.experiments.benchmarks import TARGETS
 
     s = sub.add_parser("bench", help="benchmarks that print figures", formatter_class=argparse.RawTextHelpFormatter,
                        epilog="targets:\n" + "\n".join(f"  {k:<10}{v}" for k, v in TARGETS.items()))
     s.add_argument("what", choices=list(TARGETS), metavar="TARGET", help=" | ".join(TARGETS))
 
+
+def _add_demo(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("demo", help="the main job, end to end, on data the project generates")
     s.add_argument("--out", default="demo_out")
     s.add_argument("--seed", type=int, default=0)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="uavturb", description=__doc__.split("\n")[0] if __doc__ else None)
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add in (_add_identify, _add_residuals, _add_import_euroc, _add_generate, _add_gap, _add_gap_proof,
+                _add_train, _add_sweep, _add_compare, _add_evaluate, _add_export, _add_bench, _add_demo):
+        add(sub)  # in this order in --help
     return p
 
 
@@ -244,114 +289,172 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-def _run(args: argparse.Namespace) -> int:
-    if args.command == "identify":
-        from uavturb.experiments.identify import (
-            format_identification,
-            identify_recordings,
-        )
+# --- one handler a command: calls one library function and prints what it returns ----------------
 
-        ident = identify_recordings(args.recordings, model=args.model, vehicle=args.vehicle)
-        if args.json:
-            print(json.dumps(ident.to_dict()))
-        else:
-            print(format_identification(ident))
-    elif args.command == "residuals":
-        from uavturb.experiments.identify import residuals_to_file
 
-        res, path = residuals_to_file(args.recording, args.out, source=args.source,
-                                                derivative=args.derivative, params=args.params,
-                                                vehicle=args.vehicle)
-        print(f"wrote {path}: {len(res.t)} samples, source {res.source}, residual RMS {res.rmse:.4f} N")
-    elif args.command == "import-euroc":
-        from uavturb.io.euroc_import import import_euroc
+def _identify(args: argparse.Namespace) -> int:
+    from uavturb.experiments.identify import format_identification, identify_recordings
 
-        rec = import_euroc(args.bag, args.out, vehicle=args.vehicle, asl=args.asl,
-                                     rotor_speed_scale=args.rotor_speed_scale, overwrite=args.overwrite)
-        print(f"wrote {args.out}: {len(rec.ground_truth.t_ns)} ground-truth rows, {len(rec.rotors.t_ns)} rotor rows, "
-              f"imu {'yes' if rec.imu is not None else 'no'}, point cloud {'yes' if rec.points is not None else 'no'}")
-    elif args.command == "generate":
-        from uavturb.experiments import generate
-
-        if args.what == "flight":
-            rec = generate.generate_flight(vehicle=args.vehicle, effects=args.effects, duration=args.duration,
-                                            kind=args.kind, seed=args.seed, noise=args.noise, out=args.out,
-                                            no_imu=args.no_imu, rate_hz=args.rate_hz, jitter_ms=args.jitter_ms,
-                                            fixed_heading=args.fixed_heading, motor_commands=args.motor_commands,
-                                            wind_speed=args.wind_speed, accel_bias_walk=args.accel_bias_walk,
-                                            sensor_frame=args.sensor_frame, mass_error=args.mass_error)
-            gt = rec.ground_truth
-            print(f"wrote {args.out}: {len(gt)} ground-truth rows, {(gt.t_ns[-1] - gt.t_ns[0]) * 1e-9:.1f} s, "
-                  f"effects {args.effects}")
-        elif args.what == "sim":
-            print(generate.generate_sim(args.preset, args.out, workers=args.workers, seed=args.seed,
-                                         shard=args.shard, executor=args.executor, address=args.address,
-                                         **generate.preset_overrides(args.preset_set)))
-        elif args.what == "normals":
-            print(generate.generate_normals(args.preset, args.out, workers=args.workers, seed=args.seed,
-                                             irs=args.irs, size=args.size, **generate.preset_overrides(args.preset_set)))
-        elif args.what == "merge":
-            print(generate.generate_merge(args.dirs, args.out))
-    elif args.command == "gap":
-        from uavturb.experiments.gap_run import gap
-        from uavturb.gap.report import format_effect
-
-        report = gap(args.recordings, args.out, sim_effects=args.sim_effects, seed=args.seed, apply=args.apply,
-                     vehicle=args.vehicle, log_mlflow=not args.no_mlflow, physics_config=args.physics_config,
-                     overwrite=args.overwrite)
-        print(f"effects named: {', '.join(format_effect(e) for e in report['effects']) or 'none'}")
-        print(f"held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
-              f"{report['final']['heldout_rmse_N']:.4f} N ({report['protocol']}); report in {args.out}")
-    elif args.command == "gap-proof":
-        from uavturb.experiments.gap_proof import gap_proof
-
-        gap_proof(Path(args.out), duration=args.duration, seed=args.seed,
-                            singles=args.effects.split(",") if args.effects else None, pairs=not args.no_pairs, suite=args.suite)
-    elif args.command == "train":
-        from uavturb.experiments.config import load_config
-        from uavturb.experiments.train import resume_config, train
-
-        if args.resume:
-            out = train(resume_config(args.resume, args.overrides, args.experiment), resume=args.resume)
-        else:
-            out = train(load_config(args.overrides, experiment=args.experiment, conf_dir=args.config_dir))
-        if out.get("global_rank", 0) != 0:  # DDP: the other ranks say nothing
-            return 0
-        print(json.dumps({k: out[k] for k in ("stage", "run_id", "checkpoint", "data_hash", "start_epoch")}))
-        print("  ".join(f"{k} {v:.5g}" for k, v in sorted(out["metrics"].items()) if k.startswith("test/")))
-    elif args.command == "sweep":
-        from uavturb.experiments.sweep import sweep
-
-        res = sweep(args.spec, preset=args.preset, seeds=args.seeds, overrides=args.overrides,
-                    experiment=args.mlflow_experiment, conf_dir=args.config_dir, executor=args.executor,
-                    address=args.address, max_retries=args.max_retries)
-        print(res["table"])
-    elif args.command == "compare":
-        from uavturb.experiments.compare import compare
-
-        res = compare(experiment=args.mlflow_experiment, parent_run_id=args.parent, out=args.out)
-        print(res["table"])
-        print(f"wrote {res['markdown']} and {res['csv']}")
-    elif args.command == "evaluate":
-        from uavturb.experiments.evaluate import evaluate
-
-        evaluate(args.run, args.recordings, out=args.out, vehicle=args.vehicle, frame_dt=args.frame_dt,
-                 ge_fraction=args.ge_fraction, log=not args.no_mlflow, overwrite=args.overwrite)
-    elif args.command == "export":
-        from uavturb.experiments.export import export
-
-        res = export(args.run, args.out, data=args.data, alpha=args.alpha, beta=args.beta, overwrite=args.overwrite,
-                     log=not args.no_mlflow)
-        print(f"wrote {res['out']}: model.pt2, model.onnx (max abs difference {res['max_abs_diff']:.3g})")
-    elif args.command == "bench":
-        from uavturb.experiments.benchmarks import bench
-
-        bench(args.what)
-    elif args.command == "demo":
-        from uavturb.experiments.demo import run
-
-        run(Path(args.out), seed=args.seed)
+    ident = identify_recordings(args.recordings, model=args.model, vehicle=args.vehicle)
+    print(json.dumps(ident.to_dict()) if args.json else format_identification(ident))
     return 0
+
+
+def _residuals(args: argparse.Namespace) -> int:
+    from uavturb.experiments.identify import residuals_to_file
+
+    res, path = residuals_to_file(args.recording, args.out, source=args.source, derivative=args.derivative,
+                                  params=args.params, vehicle=args.vehicle)
+    print(f"wrote {path}: {len(res.t)} samples, source {res.source}, residual RMS {res.rmse:.4f} N")
+    return 0
+
+
+def _import_euroc(args: argparse.Namespace) -> int:
+    from uavturb.io.euroc_import import import_euroc
+
+    rec = import_euroc(args.bag, args.out, vehicle=args.vehicle, asl=args.asl,
+                       rotor_speed_scale=args.rotor_speed_scale, overwrite=args.overwrite)
+    print(f"wrote {args.out}: {len(rec.ground_truth.t_ns)} ground-truth rows, {len(rec.rotors.t_ns)} rotor rows, "
+          f"imu {'yes' if rec.imu is not None else 'no'}, point cloud {'yes' if rec.points is not None else 'no'}")
+    return 0
+
+
+def _generate_flight(args: argparse.Namespace) -> int:
+    from uavturb.experiments.generate import generate_flight_command
+
+    rec = generate_flight_command(vehicle=args.vehicle, effects=args.effects, duration=args.duration,
+                                  kind=args.kind, seed=args.seed, noise=args.noise, out=args.out,
+                                  no_imu=args.no_imu, rate_hz=args.rate_hz, jitter_ms=args.jitter_ms,
+                                  fixed_heading=args.fixed_heading, motor_commands=args.motor_commands,
+                                  wind_speed=args.wind_speed, accel_bias_walk=args.accel_bias_walk,
+                                  sensor_frame=args.sensor_frame, mass_error=args.mass_error)
+    gt = rec.ground_truth
+    print(f"wrote {args.out}: {len(gt)} ground-truth rows, {(gt.t_ns[-1] - gt.t_ns[0]) * 1e-9:.1f} s, "
+          f"effects {args.effects}")
+    return 0
+
+
+def _generate_sim(args: argparse.Namespace) -> int:
+    from uavturb.experiments.generate import generate_sim, preset_overrides
+
+    print(generate_sim(args.preset, args.out, workers=args.workers, seed=args.seed, shard=args.shard,
+                       executor=args.executor, address=args.address, **preset_overrides(args.preset_set)))
+    return 0
+
+
+def _generate_normals(args: argparse.Namespace) -> int:
+    from uavturb.experiments.generate import generate_normals, preset_overrides
+
+    print(generate_normals(args.preset, args.out, workers=args.workers, seed=args.seed, irs=args.irs,
+                           size=args.size, **preset_overrides(args.preset_set)))
+    return 0
+
+
+def _generate_merge(args: argparse.Namespace) -> int:
+    from uavturb.experiments.generate import generate_merge
+
+    print(generate_merge(args.dirs, args.out))
+    return 0
+
+
+def _gap(args: argparse.Namespace) -> int:
+    from uavturb.experiments.gap_run import gap
+    from uavturb.gap.report import format_effect
+
+    report = gap(args.recordings, args.out, sim_effects=args.sim_effects, seed=args.seed, apply=args.apply,
+                 vehicle=args.vehicle, log_mlflow=not args.no_mlflow, physics_config=args.physics_config,
+                 overwrite=args.overwrite)
+    print(f"effects named: {', '.join(format_effect(e) for e in report['effects']) or 'none'}")
+    print(f"held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
+          f"{report['final']['heldout_rmse_N']:.4f} N ({report['protocol']}); report in {args.out}")
+    return 0
+
+
+def _gap_proof(args: argparse.Namespace) -> int:
+    from uavturb.experiments.gap_proof import gap_proof
+
+    gap_proof(Path(args.out), duration=args.duration, seed=args.seed,
+              singles=args.effects.split(",") if args.effects else None, pairs=not args.no_pairs, suite=args.suite)
+    return 0
+
+
+def _train(args: argparse.Namespace) -> int:
+    from uavturb.experiments.config import load_config
+    from uavturb.experiments.train import resume_config, train
+
+    if args.resume:
+        out = train(resume_config(args.resume, args.overrides, args.experiment), resume=args.resume)
+    else:
+        out = train(load_config(args.overrides, experiment=args.experiment, conf_dir=args.config_dir))
+    if out.get("global_rank", 0) != 0:  # DDP: the other ranks say nothing
+        return 0
+    print(json.dumps({k: out[k] for k in ("stage", "run_id", "checkpoint", "data_hash", "start_epoch")}))
+    print("  ".join(f"{k} {v:.5g}" for k, v in sorted(out["metrics"].items()) if k.startswith("test/")))
+    return 0
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from uavturb.experiments.sweep import sweep
+
+    res = sweep(args.spec, preset=args.preset, seeds=args.seeds, overrides=args.overrides,
+                experiment=args.mlflow_experiment, conf_dir=args.config_dir, executor=args.executor,
+                address=args.address, max_retries=args.max_retries)
+    print(res["table"])
+    return 0
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from uavturb.experiments.compare import compare
+
+    res = compare(experiment=args.mlflow_experiment, parent_run_id=args.parent, out=args.out)
+    print(res["table"])
+    print(f"wrote {res['markdown']} and {res['csv']}")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from uavturb.experiments.evaluate import evaluate
+
+    evaluate(args.run, args.recordings, out=args.out, vehicle=args.vehicle, frame_dt=args.frame_dt,
+             ge_fraction=args.ge_fraction, log=not args.no_mlflow, overwrite=args.overwrite)
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from uavturb.experiments.export import export
+
+    res = export(args.run, args.out, data=args.data, alpha=args.alpha, beta=args.beta, overwrite=args.overwrite,
+                 log=not args.no_mlflow)
+    print(f"wrote {res['out']}: model.pt2, model.onnx (max abs difference {res['max_abs_diff']:.3g})")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from uavturb.experiments.benchmarks import bench
+
+    bench(args.what)
+    return 0
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from uavturb.experiments.demo import run
+
+    run(Path(args.out), seed=args.seed)
+    return 0
+
+
+#: command (and ``generate``'s WHAT) -> its handler
+HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
+    "identify": _identify, "residuals": _residuals, "import-euroc": _import_euroc,
+    "generate flight": _generate_flight, "generate sim": _generate_sim, "generate normals": _generate_normals,
+    "generate merge": _generate_merge, "gap": _gap, "gap-proof": _gap_proof, "train": _train, "sweep": _sweep,
+    "compare": _compare, "evaluate": _evaluate, "export": _export, "bench": _bench, "demo": _demo,
+}
+
+
+def _run(args: argparse.Namespace) -> int:
+    command = f"generate {args.what}" if args.command == "generate" else args.command
+    return HANDLERS[command](args)
 
 
 if __name__ == "__main__":

@@ -171,10 +171,9 @@ def bench_infer(model_dir: str | Path | None = None, *, size: int = 128, frames:
     -------
     dict of the printed figures.
     """
-    import onnxruntime as ort
     import torch
 
-    from uavturb.experiments.export import ONNX_FILE, PT2_FILE, export_streaming
+    from uavturb.experiments.export import export_streaming
     from uavturb.nn.streaming import StreamingHeightModel
     from uavturb.systems import HeightModule
 
@@ -187,53 +186,10 @@ def bench_infer(model_dir: str | Path | None = None, *, size: int = 128, frames:
         export_streaming(StreamingHeightModel(HeightModule(use_gru=use_gru).eval()).eval(), (size, size), 6,
                          model_dir)
         print(f"exported a fresh {size}x{size} model in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-    model_dir = Path(model_dir)
     threads = torch.get_num_threads()
     try:
         torch.set_num_threads(1)
-        program = torch.export.load(str(model_dir / PT2_FILE)).module()
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads, opts.inter_op_num_threads = 1, 1
-        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        sess = ort.InferenceSession(str(model_dir / ONNX_FILE), opts, providers=["CPUExecutionProvider"])
-        shapes = {i.name: i.shape for i in sess.get_inputs()}
-        H, W = shapes["depth"][2], shapes["depth"][3]
-        N = shapes["rotor_speeds"][1]
-        L, S = shapes["state"][0], shapes["state"][2]
-        rng = np.random.default_rng(0)
-
-        def inputs(B: int):
-            return (rng.uniform(0.3, 6.0, (B, 1, H, W)).astype(np.float32),
-                    np.full((B, N), 500.0, np.float32), np.zeros((L, B, S), np.float32))
-
-        d1, r1, s1 = inputs(1)
-        feeds = {"depth": d1, "rotor_speeds": r1, "state": s1}
-        state = {"onnx": s1, "pt2": torch.from_numpy(s1)}
-
-        def onnx_step():
-            feeds["state"] = state["onnx"]
-            state["onnx"] = sess.run(None, feeds)[2]
-
-        td, tr = torch.from_numpy(d1), torch.from_numpy(r1)
-
-        def pt2_step():
-            with torch.inference_mode():
-                state["pt2"] = program(td, tr, state["pt2"])[2]
-
-        lat = {"onnx": _latency(onnx_step, frames), "pt2": _latency(pt2_step, frames // 3)}
-        dB, rB, sB = inputs(batch)
-        fB = {"depth": dB, "rotor_speeds": rB, "state": sB}
-        tB = (torch.from_numpy(dB), torch.from_numpy(rB), torch.from_numpy(sB))
-
-        def onnx_batch():
-            sess.run(None, fB)
-
-        def pt2_batch():
-            with torch.inference_mode():
-                program(*tB)
-
-        thr = {"onnx": batch / np.median(_latency(onnx_batch, 10, 2)),
-               "pt2": batch / np.median(_latency(pt2_batch, 5, 1))}
+        lat, thr, (H, W, N, L, S) = _time_exported(Path(model_dir), frames, batch)
     finally:
         torch.set_num_threads(threads)
         if tmp is not None:
@@ -248,3 +204,59 @@ def bench_infer(model_dir: str | Path | None = None, *, size: int = 128, frames:
         _row(f"{label}: per-frame latency, batch 1, 90th percentile", p90, "ms")
         _row(f"{label}: batched throughput, batch {batch}", thr[name], "frames/s")
     return out
+
+
+def _time_exported(model_dir: Path, frames: int, batch: int
+                   ) -> tuple[dict[str, np.ndarray], dict[str, float], tuple[int, int, int, int, int]]:
+    """(per-frame latencies [s] of batch 1 with the state carried over, throughputs [frames/s] of ``batch``,
+    the model's (H, W, rotors, GRU layers, state size)) of ``model.onnx`` (ONNX Runtime) and ``model.pt2``
+    in ``model_dir``, on the threads torch and ONNX Runtime are given (one)."""
+    import onnxruntime as ort
+    import torch
+
+    from uavturb.experiments.export import ONNX_FILE, PT2_FILE
+
+    program = torch.export.load(str(model_dir / PT2_FILE)).module()
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads, opts.inter_op_num_threads = 1, 1
+    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    sess = ort.InferenceSession(str(model_dir / ONNX_FILE), opts, providers=["CPUExecutionProvider"])
+    shapes = {i.name: i.shape for i in sess.get_inputs()}
+    H, W = shapes["depth"][2], shapes["depth"][3]
+    N = shapes["rotor_speeds"][1]
+    L, S = shapes["state"][0], shapes["state"][2]
+    rng = np.random.default_rng(0)
+
+    def inputs(B: int):
+        return (rng.uniform(0.3, 6.0, (B, 1, H, W)).astype(np.float32),
+                np.full((B, N), 500.0, np.float32), np.zeros((L, B, S), np.float32))
+
+    d1, r1, s1 = inputs(1)
+    feeds = {"depth": d1, "rotor_speeds": r1, "state": s1}
+    state = {"onnx": s1, "pt2": torch.from_numpy(s1)}
+
+    def onnx_step():
+        feeds["state"] = state["onnx"]
+        state["onnx"] = sess.run(None, feeds)[2]
+
+    td, tr = torch.from_numpy(d1), torch.from_numpy(r1)
+
+    def pt2_step():
+        with torch.inference_mode():
+            state["pt2"] = program(td, tr, state["pt2"])[2]
+
+    lat = {"onnx": _latency(onnx_step, frames), "pt2": _latency(pt2_step, frames // 3)}
+    dB, rB, sB = inputs(batch)
+    fB = {"depth": dB, "rotor_speeds": rB, "state": sB}
+    tB = (torch.from_numpy(dB), torch.from_numpy(rB), torch.from_numpy(sB))
+
+    def onnx_batch():
+        sess.run(None, fB)
+
+    def pt2_batch():
+        with torch.inference_mode():
+            program(*tB)
+
+    thr = {"onnx": batch / np.median(_latency(onnx_batch, 10, 2)),
+           "pt2": batch / np.median(_latency(pt2_batch, 5, 1))}
+    return lat, thr, (H, W, N, L, S)

@@ -31,8 +31,7 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
     import os
     import tempfile
 
-    import mlflow
-
+    from uavturb.experiments import tracking
     from uavturb.experiments.config import load_config
     from uavturb.experiments.sweep import sweep
     from uavturb.experiments.sweep_spec import DEFAULT_SPEC
@@ -46,7 +45,7 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
             data = [f"data.root={tmp}/sim", f"data.pairs_root={tmp}/pairs"]
             for stage in ("pretrain", "height"):
                 _prepare_data(load_config(["data=synthetic", f"stage={stage}", *data]))
-            client = mlflow.MlflowClient(os.environ["MLFLOW_TRACKING_URI"])
+            client = tracking.client()
             metrics = {}
             for executor in ("sequential", "ray"):
                 client.create_experiment(f"bench-{executor}", artifact_location=f"{tmp}/mlruns/{executor}")

@@ -29,11 +29,11 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import yaml
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from uavturb.errors import InputError
+from uavturb.io.yaml_mapping import read_yaml_mapping
 from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
 
 #: the shipped config folder (package data)
@@ -253,16 +253,8 @@ def _merge(base: DictConfig, layer: Any, source: str) -> DictConfig:
         raise InputError(key, problem) from None
 
 
-def _read_yaml(path: Path) -> dict[str, Any]:
-    if not path.is_file():
-        raise InputError(path, "config file not found")
-    try:
-        d = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError:
-        raise InputError(path, "not valid YAML") from None
-    if not isinstance(d, dict):
-        raise InputError(path, "expected a mapping")
-    return d
+def _read_config_file(path: Path) -> dict[str, Any]:
+    return read_yaml_mapping(path, not_found="config file not found")
 
 
 def search_path(conf_dir: str | Path | None = None) -> list[Path]:
@@ -349,7 +341,7 @@ def load_config(overrides: list[str] | None = None, experiment: str | None = Non
             dotlist.append(item)
 
     top_path = _locate(dirs, "config.yaml") or dirs[0] / "config.yaml"
-    top = _read_yaml(top_path)
+    top = _read_config_file(top_path)
     defaults = _defaults(top, top_path)
     exp: dict[str, Any] = {}
     if experiment:
@@ -357,7 +349,7 @@ def load_config(overrides: list[str] | None = None, experiment: str | None = Non
         if exp_path is None:
             raise InputError("experiment", f"no experiment {experiment!r}; choices: "
                              f"{', '.join(_choices(dirs, 'experiment'))}")
-        exp = _read_yaml(exp_path)
+        exp = _read_config_file(exp_path)
         defaults.update(_defaults(exp, exp_path))
     defaults.update(group_choice)
 
@@ -366,7 +358,7 @@ def load_config(overrides: list[str] | None = None, experiment: str | None = Non
     for group in GROUPS:
         if group in defaults:
             path = _group_file(dirs, group, defaults[group])
-            cfg = _merge(cfg, {group: _read_yaml(path)}, str(path))
+            cfg = _merge(cfg, {group: _read_config_file(path)}, str(path))
     if exp:
         cfg = _merge(cfg, exp, f"experiment {experiment}")
     try:

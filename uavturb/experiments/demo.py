@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uavturb.experiments.generate import generate_flight, generate_normals, generate_sim
+from uavturb.experiments.generate import generate_flight_command, generate_normals, generate_sim
 from uavturb.experiments.identify import format_identification, identify_recordings
 from uavturb.io.reader import load_recordings
 from uavturb.physics import ground_effect as ge
@@ -138,8 +138,8 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     for k in range(2):
         path = out / "flights" / f"hex_ground_effect_{k}"
         if not (path / "mav0").is_dir():
-            generate_flight(vehicle="hex", effects=f"ground_effect:mu={TRUE_MU}", duration=FLIGHT_SECONDS,
-                                      kind="mixed", seed=seed + k, noise="realistic", out=path)
+            generate_flight_command(vehicle="hex", effects=f"ground_effect:mu={TRUE_MU}", duration=FLIGHT_SECONDS,
+                                    kind="mixed", seed=seed + k, noise="realistic", out=path)
         flights.append(path)
         _say(f"  {path}")
     summary["seconds"]["flights"] = time.perf_counter() - t

@@ -248,6 +248,88 @@ def _log(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]],
     return cid
 
 
+def _evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
+    """(vehicle, where its constants come from): identified on the first flight, else (said so) its
+    ``vehicle.yaml``'s constants."""
+    import sys
+
+    from uavturb.sysid.identification import identify
+
+    try:
+        ident = identify([first], first.vehicle)
+        veh = ident.apply(first.vehicle)
+        vehicle_source = f"identified on {first.name}"
+        if ident.fallbacks(first.vehicle):
+            vehicle_source += "; " + "; ".join(ident.fallbacks(first.vehicle))
+    except InputError as e:
+        if not first.vehicle.is_complete():
+            raise InputError(f"{first.path}/vehicle.yaml", f"cannot identify the vehicle ({e.problem}) and "
+                                                             "its constants are incomplete") from None
+        veh = first.vehicle
+        vehicle_source = f"{first.name}/vehicle.yaml (identification impossible: {e.problem})"
+    if progress:
+        print(f"vehicle constants: {vehicle_source}", file=sys.stderr)
+    return veh, vehicle_source
+
+
+def _fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: bool) -> tuple[Any, float]:
+    """(``(alpha, beta)`` fit by BFGS on the first flight's airborne frames with their true heights,
+    the ground-effect region's height [m])."""
+    import sys
+
+    from uavturb.physics.ground_effect import identify_alpha_beta
+
+    if not first.airborne.any():
+        raise InputError(str(path), "no airborne frame (rotor thrust >= 0.3 m g) to identify (alpha, beta) on")
+    air = first.airborne
+    fit = identify_alpha_beta(first.fa[air], first.d[air], first.sum_omega2[air])
+    h_ge = ground_effect_height(fit.beta, ge_fraction)
+    if progress:
+        print(f"(alpha, beta) by BFGS on {first.name}: alpha = {fit.alpha:.4g} N m^2/(rad/s)^2, beta = {fit.beta:.4g} "
+              f"m^2 (fit RMSE {fit.rmse:.4f} N, {fit.n} frames); ground-effect region d <= {h_ge:.3f} m "
+              f"(law >= {100 * ge_fraction:g} % of thrust)", file=sys.stderr)
+    return fit, h_ge
+
+
+def _flight_results(module: Any, seqs: Sequence[Any], fit: Any, h_ge: float
+                    ) -> tuple[list[FlightResult], list[tuple[str, dict[str, float]]]]:
+    """(per flight: the model's heights and the law on true and on predicted heights; the table's
+    rows, one a flight and ``Total`` pooling their samples)."""
+    results: list[FlightResult] = []
+    for seq in seqs:
+        d_hat = predict_heights(module, seq.depth)
+        ge = seq.airborne & np.isfinite(seq.d) & (seq.d <= h_ge)
+        results.append(FlightResult(seq.name, seq.t, seq.d, d_hat, seq.fa, fit.predict(seq.d, seq.sum_omega2),
+                                    fit.predict(d_hat, seq.sum_omega2), ge, seq.airborne))
+    rows = [(r.name, r.metrics()) for r in results]
+    cat = lambda k: np.concatenate([getattr(r, k) for r in results])  # noqa: E731
+    rows.append(("Total", _metrics(cat("fa"), cat("fa_phi"), cat("fa_model"), cat("d"), cat("d_hat"), cat("ge"),
+                                  cat("airborne"))))
+    return results, rows
+
+
+def _write_outputs(out: Path, overwrite: bool, rows: list[tuple[str, dict[str, float]]],
+                   results: list[FlightResult], info: dict[str, Any]) -> None:
+    """The output folder, published atomically: ``table.md``, ``table.csv``, ``evaluation.json``, and per
+    flight ``fa_<flight>.png`` and ``series_<flight>.csv``."""
+    h_ge = info["h_ge"]
+    with publish_folder(out, overwrite=overwrite, command="uavturb evaluate") as tmp:
+        (tmp / "table.md").write_text(
+            f"Table 2 (ours): (alpha, beta) identified on {info['identified_on']}; ground-effect (GE) frames: "
+            f"airborne (thrust >= 0.3 m g) with d <= {h_ge:.3f} m (law >= {100 * info['ge_fraction']:g} % of "
+            f"thrust); 'all': every airborne frame with a surface below.\n\n{format_table(rows, markdown=True)}\n")
+        with open(tmp / "table.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            keys = list(rows[0][1])
+            w.writerow(["flight", *keys])
+            for n, m in rows:
+                w.writerow([n, *(m[k] for k in keys)])
+        (tmp / "evaluation.json").write_text(json.dumps(info, indent=2, default=float))
+        for r in results:
+            plot_flight(r, tmp / f"fa_{_safe(r.name)}.png", h_ge)
+            (tmp / f"series_{_safe(r.name)}.csv").write_text(_series_csv(r))
+
+
 def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str | Path = "evaluation",
              checkpoint: str | Path | None = None, vehicle: str | None = None, image_size: int | None = None,
              frame_dt: float | None = None, yfov_deg: float | None = None, pitch_deg: float | None = None,
@@ -274,13 +356,9 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     dict: ``rows`` [(flight, metrics)] with ``Total`` last, ``alpha``, ``beta``, ``h_ge``,
     ``vehicle_source``, ``out``, ``mlflow_run`` (child run id or None), ``table`` (text).
     """
-    import sys
-
     from uavturb.data.recordings import recording_sequence
     from uavturb.experiments.export import load_height_module, run_and_output
     from uavturb.io.reader import load_recordings
-    from uavturb.physics.ground_effect import identify_alpha_beta
-    from uavturb.sysid.identification import identify
 
     if not recordings:
         raise InputError("REC", "at least one recording folder is needed")
@@ -296,45 +374,12 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     frame_dt = frame_dt if frame_dt is not None else cam.get("frame_dt")
 
     recs = load_recordings(recordings, vehicle)
-    first = recs[0]
-    try:
-        ident = identify([first], first.vehicle)
-        veh = ident.apply(first.vehicle)
-        vehicle_source = f"identified on {first.name}"
-        if ident.fallbacks(first.vehicle):
-            vehicle_source += "; " + "; ".join(ident.fallbacks(first.vehicle))
-    except InputError as e:
-        if not first.vehicle.is_complete():
-            raise InputError(f"{first.path}/vehicle.yaml", f"cannot identify the vehicle ({e.problem}) and "
-                                                             "its constants are incomplete") from None
-        veh = first.vehicle
-        vehicle_source = f"{first.name}/vehicle.yaml (identification impossible: {e.problem})"
-    if progress:
-        print(f"vehicle constants: {vehicle_source}", file=sys.stderr)
-
+    veh, vehicle_source = _evaluation_vehicle(recs[0], progress)
     seqs = [recording_sequence(r, veh, image_size=size, frame_dt=frame_dt, yfov_deg=yfov, pitch_deg=pitch,
                                progress=progress) for r in recs]
     s0 = seqs[0]
-    if not s0.airborne.any():
-        raise InputError(str(recs[0].path), "no airborne frame (rotor thrust >= 0.3 m g) to identify (alpha, beta) on")
-    air = s0.airborne
-    fit = identify_alpha_beta(s0.fa[air], s0.d[air], s0.sum_omega2[air])
-    h_ge = ground_effect_height(fit.beta, ge_fraction)
-    if progress:
-        print(f"(alpha, beta) by BFGS on {s0.name}: alpha = {fit.alpha:.4g} N m^2/(rad/s)^2, beta = {fit.beta:.4g} m^2 "
-              f"(fit RMSE {fit.rmse:.4f} N, {fit.n} frames); ground-effect region d <= {h_ge:.3f} m "
-              f"(law >= {100 * ge_fraction:g} % of thrust)", file=sys.stderr)
-
-    results: list[FlightResult] = []
-    for seq in seqs:
-        d_hat = predict_heights(module, seq.depth)
-        ge = seq.airborne & np.isfinite(seq.d) & (seq.d <= h_ge)
-        results.append(FlightResult(seq.name, seq.t, seq.d, d_hat, seq.fa, fit.predict(seq.d, seq.sum_omega2),
-                                    fit.predict(d_hat, seq.sum_omega2), ge, seq.airborne))
-    rows = [(r.name, r.metrics()) for r in results]
-    cat = lambda k: np.concatenate([getattr(r, k) for r in results])  # noqa: E731
-    rows.append(("Total", _metrics(cat("fa"), cat("fa_phi"), cat("fa_model"), cat("d"), cat("d_hat"), cat("ge"),
-                                  cat("airborne"))))
+    fit, h_ge = _fit_ground_effect_law(s0, recs[0].path, ge_fraction, progress)
+    results, rows = _flight_results(module, seqs, fit, h_ge)
     table = format_table(rows)
 
     info = {"run_id": run_id, "checkpoint": str(checkpoint) if checkpoint else None,
@@ -342,21 +387,7 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
             "alpha_beta_fit_rmse": fit.rmse, "identified_on": s0.name, "vehicle_constants": vehicle_source,
             "ge_fraction": ge_fraction, "h_ge": h_ge, "image_size": size, "camera": s0.camera.source,
             "rows": [{"flight": n, **m} for n, m in rows]}
-    with publish_folder(out, overwrite=overwrite, command="uavturb evaluate") as tmp:
-        (tmp / "table.md").write_text(
-            f"Table 2 (ours): (alpha, beta) identified on {s0.name}; ground-effect (GE) frames: airborne "
-            f"(thrust >= 0.3 m g) with d <= {h_ge:.3f} m (law >= {100 * ge_fraction:g} % of thrust); "
-            f"'all': every airborne frame with a surface below.\n\n{format_table(rows, markdown=True)}\n")
-        with open(tmp / "table.csv", "w", newline="") as f:
-            w = csv.writer(f)
-            keys = list(rows[0][1])
-            w.writerow(["flight", *keys])
-            for n, m in rows:
-                w.writerow([n, *(m[k] for k in keys)])
-        (tmp / "evaluation.json").write_text(json.dumps(info, indent=2, default=float))
-        for r in results:
-            plot_flight(r, tmp / f"fa_{_safe(r.name)}.png", h_ge)
-            (tmp / f"series_{_safe(r.name)}.csv").write_text(_series_csv(r))
+    _write_outputs(out, overwrite, rows, results, info)
 
     child = None
     if log and run_id is not None:

@@ -430,14 +430,7 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
         t0 = time.perf_counter()
         export_streaming(model, (H, W), n_rotors, tmp, properties)
         t_export = time.perf_counter() - t0
-        program = torch.export.load(str(tmp / PT2_FILE)).module()
-        step_pt2, step_onnx = torch_stepper(program), onnx_stepper(tmp / ONNX_FILE)
-        diff_pt2 = diff_onnx = 0.0
-        for seq in seqs:
-            ref = reference_outputs(module, seq, a, b)
-            s0 = np.zeros(model.state_shape(1), np.float32)
-            diff_pt2 = max(diff_pt2, max_abs_diff(ref, step_through(step_pt2, seq, s0)))
-            diff_onnx = max(diff_onnx, max_abs_diff(ref, step_through(step_onnx, seq, s0)))
+        diff_pt2, diff_onnx = _check_exported(tmp, module, model, seqs)
         worst = max(diff_pt2, diff_onnx)
         if verbose:
             frames = sum(len(s.depth) for s in seqs)
@@ -449,29 +442,51 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
             raise InputError(out, f"exported model differs from the Lightning module by {worst:.3g} "
                                   f"(> {tolerance:g}); nothing written")
         meta = {"run_id": run_id, "checkpoint": str(ckpt), "checkpoint_sha256": _sha256(ckpt), "out": str(out),
-                "inputs": {
-                    "depth": [-1, 1, int(H), int(W)], "rotor_speeds": [-1, int(n_rotors)],
-                    "state": [model.layers, -1, model.hidden]},
+                "inputs": {"depth": [-1, 1, int(H), int(W)], "rotor_speeds": [-1, int(n_rotors)],
+                           "state": [model.layers, -1, model.hidden]},
                 "outputs": {"height": [-1], "f_a": [-1], "state_out": [model.layers, -1, model.hidden]},
-                "units": UNITS,
-                "use_gru": model.use_gru, "alpha": a, "beta": b, "max_abs_diff": worst,
+                "units": UNITS, "use_gru": model.use_gru, "alpha": a, "beta": b, "max_abs_diff": worst,
                 "max_abs_diff_pt2": diff_pt2, "max_abs_diff_onnx": diff_onnx, "tolerance": tolerance,
                 "check_sequences": [s.name for s in seqs], "data": str(data)}
         (tmp / META_FILE).write_text(json.dumps(meta, indent=2))
     logged = None
     if log and run_id is not None:
-        seq = seqs[0]
-        example = {"depth": seq.depth[:2, None].astype(np.float32), "rotor_speeds": seq.rotor_speeds[:2],
-                   "state": np.zeros(model.state_shape(2), np.float32)}
-        logged = _log_to_mlflow(run_id, out, meta, example, signature(model, (H, W), n_rotors), registered_name)
-        if verbose:
-            reg = (f", registered as {registered_name} version {logged['registered_version']}"
-                   if logged["registered_version"] else "")
-            print(f"MLflow run {run_id}: model '{MODEL_NAME}' (ONNX, signature, input example){reg}"
-                  + (" -- the same export was logged before, nothing new" if logged["reused"] else ""))
+        logged = _log_export(run_id, out, meta, model, seqs[0], registered_name, verbose)
     return {"out": str(out), "max_abs_diff": worst, "max_abs_diff_pt2": diff_pt2, "max_abs_diff_onnx": diff_onnx,
             "alpha": a, "beta": b, "checkpoint": str(ckpt), "image_size": (int(H), int(W)),
             "state_shape": model.state_shape(1), "mlflow": logged}
+
+
+def _check_exported(folder: Path, module: Any, model: StreamingHeightModel,
+                    seqs: list[CheckSequence]) -> tuple[float, float]:
+    """(model.pt2, model.onnx): the largest absolute difference of each, run frame by frame with the state
+    carried over, to the Lightning module run on the whole sequence (heights, f_a, final state)."""
+    a, b = float(model.alpha), float(model.beta)
+    program = torch.export.load(str(folder / PT2_FILE)).module()
+    step_pt2, step_onnx = torch_stepper(program), onnx_stepper(folder / ONNX_FILE)
+    diff_pt2 = diff_onnx = 0.0
+    for seq in seqs:
+        ref = reference_outputs(module, seq, a, b)
+        s0 = np.zeros(model.state_shape(1), np.float32)
+        diff_pt2 = max(diff_pt2, max_abs_diff(ref, step_through(step_pt2, seq, s0)))
+        diff_onnx = max(diff_onnx, max_abs_diff(ref, step_through(step_onnx, seq, s0)))
+    return diff_pt2, diff_onnx
+
+
+def _log_export(run_id: str, out: Path, meta: dict[str, Any], model: StreamingHeightModel, seq: CheckSequence,
+                registered_name: str | None, verbose: bool) -> dict[str, Any]:
+    """:func:`_log_to_mlflow` with two frames of ``seq`` as the input example; says what it logged."""
+    H, W = seq.depth.shape[1:]
+    example = {"depth": seq.depth[:2, None].astype(np.float32), "rotor_speeds": seq.rotor_speeds[:2],
+               "state": np.zeros(model.state_shape(2), np.float32)}
+    logged = _log_to_mlflow(run_id, out, meta, example, signature(model, (H, W), seq.rotor_speeds.shape[1]),
+                            registered_name)
+    if verbose:
+        reg = (f", registered as {registered_name} version {logged['registered_version']}"
+               if logged["registered_version"] else "")
+        print(f"MLflow run {run_id}: model '{MODEL_NAME}' (ONNX, signature, input example){reg}"
+              + (" -- the same export was logged before, nothing new" if logged["reused"] else ""))
+    return logged
 
 
 def _sha256(path: Path) -> str:

@@ -20,13 +20,18 @@ def parse_wind_speed(text: str | None) -> tuple[float, float] | None:
     return vx, vy
 
 
-def generate_flight(*, vehicle: str = "hex", effects: str = "none", duration: float = 60.0, kind: str = "mixed",
-                    seed: int = 0, noise: str = "realistic", out: str | Path | None = None, no_imu: bool = False,
-                    rate_hz: float | None = None, jitter_ms: float = 0.0, fixed_heading: bool = False,
-                    motor_commands: bool = False, wind_speed: str | None = None, accel_bias_walk: float = 0.0,
-                    sensor_frame: str = "body", mass_error: float = 0.0) -> Recording:
+def generate_flight_command(*, vehicle: str = "hex", effects: str = "none", duration: float = 60.0,
+                            kind: str = "mixed", seed: int = 0, noise: str = "realistic",
+                            out: str | Path | None = None, no_imu: bool = False, rate_hz: float | None = None,
+                            jitter_ms: float = 0.0, fixed_heading: bool = False, motor_commands: bool = False,
+                            wind_speed: str | None = None, accel_bias_walk: float = 0.0, sensor_frame: str = "body",
+                            mass_error: float = 0.0) -> Recording:
     """``uavturb generate flight``: a simulated flight in the EuRoC layout, with the troubles of real
-    recordings asked for (:class:`uavturb.sim.conditions.Conditions`) and their truth in ``truth.yaml``."""
+    recordings asked for (:class:`uavturb.sim.conditions.Conditions`) and their truth in ``truth.yaml``.
+
+    Takes the command's arguments as text (``effects``, ``noise``, ``wind_speed``) and calls
+    :func:`uavturb.sim.conditions.generate_conditioned_flight`; the library's flight without the
+    troubles is :func:`uavturb.sim.flight.generate_flight`."""
     from uavturb.sim import flight
     from uavturb.sim.conditions import Conditions, generate_conditioned_flight
 

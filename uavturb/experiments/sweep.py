@@ -32,6 +32,7 @@ import copy
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -200,6 +201,191 @@ def _say(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+@dataclass
+class _Plan:
+    """A sweep resolved before anything runs: every run's config (a typo fails here)."""
+
+    spec_path: Path
+    spec: DictConfig
+    preset: str
+    seeds: int
+    overrides: list[str]
+    experiment: str
+    rows: list[Any]
+    base_height: dict[str, DictConfig]  # row name -> its height config
+    variants: dict[str, str]  # row name -> its model.pretraining ("none": from scratch)
+    base_pretrain: dict[str, DictConfig]  # pre-training variant -> its config
+
+    def for_run(self, base: DictConfig, seed: int, run_name: str) -> DictConfig:
+        """``base`` as the child ``run_name`` of seed ``seed``: seeded and tracked in the sweep's experiment."""
+        cfg = copy.deepcopy(base)
+        cfg.trainer.seed, cfg.tracking.experiment, cfg.tracking.enabled = seed, self.experiment, True
+        cfg.tracking.run_name = run_name
+        return cfg
+
+
+def _resolve_plan(spec: str | Path, preset: str, seeds: int | None, overrides: list[str] | None,
+                  experiment: str | None, conf_dir: str | Path | None) -> _Plan:
+    """Read the sweep file and resolve every run's config; raises :class:`InputError` before anything runs."""
+    spec_path = resolve_spec(spec)
+    sp = load_spec(spec_path)
+    if preset not in sp.presets:
+        raise InputError("--preset", f"no preset {preset!r} in {spec_path}; choices: {', '.join(sp.presets)}")
+    pre = sp.presets[preset]
+    n_seeds = int(seeds if seeds is not None else pre.seeds)
+    if n_seeds < 1:
+        raise InputError("--seeds", f"must be at least 1, got {n_seeds}")
+    overrides = list(overrides or [])
+    rows = list(sp.rows)
+    base_height = {r.name: load_config([f"model={r.model}", *pre.overrides, *pre.height, *r.overrides, *overrides],
+                                       conf_dir=conf_dir) for r in rows}
+    variants = {name: str(cfg.model.pretraining) for name, cfg in base_height.items()}
+    base_pretrain = {}
+    for v in sorted({v for v in variants.values() if v != "none"}):
+        if v not in sp.pretraining:
+            raise InputError(f"{spec_path}: pretraining", f"no bundle for model.pretraining={v}; "
+                             f"has {', '.join(sp.pretraining) or 'none'}")
+        base_pretrain[v] = load_config([*pre.overrides, *pre.pretrain, *overrides], experiment=sp.pretraining[v],
+                                       conf_dir=conf_dir)
+        base_pretrain[v].model.pretraining = v
+    return _Plan(spec_path, sp, preset, n_seeds, overrides, experiment or sp.experiment, rows, base_height,
+                 variants, base_pretrain)
+
+
+def _open_parent(plan: _Plan, store: _Store, sweep_hash: str) -> tuple[str, bool]:
+    """(parent run id, resumed): the sweep's parent run found or created, with its seed count and sweep file."""
+    params = {"sweep_file": _spec_name(plan.spec_path), "preset": plan.preset,
+              "overrides": json.dumps(plan.overrides), "rows": json.dumps([r.name for r in plan.rows])}
+    parent_id, resumed = store.parent(plan.spec.name, sweep_hash, plan.preset, params)
+    store.client.set_tag(parent_id, "seeds", str(plan.seeds))
+    store.client.log_text(parent_id, OmegaConf.to_yaml(plan.spec), "sweep.yaml")
+    _say(f"sweep {plan.spec.name} ({plan.preset}, {plan.seeds} seed(s), {len(plan.rows)} rows): MLflow experiment "
+         f"{plan.experiment!r}, parent run {parent_id}{' (resumed)' if resumed else ''}")
+    return parent_id, resumed
+
+
+def _has_final_metrics(run: Any) -> bool:
+    return all(k in run.data.metrics for k in FINAL_METRICS)
+
+
+class _Progress:
+    """``[done/total] label: took  metrics  (sweep ETA)`` lines on stderr, the ETA from the runs trained now."""
+
+    def __init__(self, total: int):
+        self.total, self.done, self.t_run, self.n_run = total, 0, 0.0, 0
+
+    def started(self, label: str, resume: str | None) -> None:
+        _say(f"[{self.done + 1}/{self.total}] {label} ..." + (f" (resuming run {resume})" if resume else ""))
+
+    def finished(self, label: str, reused: bool, dt: float, metrics: dict[str, float]) -> None:
+        self.done += 1
+        if not reused:
+            self.t_run, self.n_run = self.t_run + dt, self.n_run + 1
+        shown = "  ".join(f"{k} {metrics[k]:.4g}" for k in ("test/rmse_d", "test/rmse_fa_1e-4N", "test/loss")
+                          if k in metrics)
+        took = "already done" if reused else f"{dt:.0f} s"
+        eta = (f"  (sweep ETA {self.t_run / self.n_run * (self.total - self.done):.0f} s)"
+               if self.n_run and self.done < self.total else "")
+        _say(f"[{self.done}/{self.total}] {label}: {took}  {shown}{eta}")
+
+
+class _Children:
+    """The sweep's child runs: each reused where finished, else submitted to the executor."""
+
+    def __init__(self, plan: _Plan, store: _Store, parent_id: str, sweep_hash: str, ex: Any):
+        self.plan, self.store, self.parent_id, self.sweep_hash, self.ex = plan, store, parent_id, sweep_hash, ex
+        finished = store.finished_children(parent_id)
+
+        def finished_row(row: Any, seed: int) -> bool:
+            run = _find(finished, ablation=row.name, seed=str(seed))
+            return run is not None and _has_final_metrics(run)
+
+        # per seed, the pre-training variants the unfinished rows still need
+        self.todo = {seed: sorted({plan.variants[r.name] for r in plan.rows if not finished_row(r, seed)} - {"none"})
+                     for seed in range(plan.seeds)}
+        self.progress = _Progress(sum(len(v) for v in self.todo.values()) + len(plan.rows) * plan.seeds)
+        self.results: list[dict[str, Any]] = []
+        self.pretrain_ckpt: dict[tuple[str, int], Any] = {}  # a Job, or a finished run's checkpoint and run id
+        self.jobs: list[tuple[dict[str, Any], Job]] = []  # (result row to fill, its job) of the runs trained now
+        self.cache = (Path(next(iter(plan.base_height.values())).trainer.default_root_dir) / "checkpoints"
+                      / "downloaded")
+
+    def submit_all(self) -> None:
+        """Per seed: the pre-training variants still needed, then every row."""
+        for seed in range(self.plan.seeds):
+            for v in self.todo[seed]:
+                self.pretraining(v, seed)
+            for row in self.plan.rows:
+                self.height(row, seed)
+
+    def _job(self, label: str, cfg: DictConfig, tags: dict[str, str], resume: str | None,
+             encoder: Any = None) -> Job:
+        return Job(label, cfg, {"mlflow.parentRunId": self.parent_id, **tags, "sweep_hash": self.sweep_hash},
+                   encoder, resume=resume, on_start=lambda: self.progress.started(label, resume),
+                   on_done=lambda out, dt: self.progress.finished(label, False, dt, out["metrics"]))
+
+    def pretraining(self, v: str, seed: int) -> None:
+        """The pre-training run of variant ``v`` and ``seed``: its finished run's checkpoint, or a job."""
+        label = f"pretrain {v} seed {seed}"
+        with _child_lock(self.parent_id, label):
+            found, resume = _child_state(self.store, self.parent_id,
+                                         lambda r: _checkpoint_of(r, self.cache) is not None, pretrain=v,
+                                         seed=str(seed))
+            if found is not None:
+                self.pretrain_ckpt[(v, seed)] = {"checkpoint": _checkpoint_of(found, self.cache),
+                                                 "run_id": found.info.run_id}
+                self.progress.finished(label, True, 0.0, dict(found.data.metrics))
+                return
+            note = f"Pre-training for Table 1 (seed {seed}): depth encoder, depth → {v} transcoder."
+            self.pretrain_ckpt[(v, seed)] = self.ex.submit(train, self._job(
+                label, self.plan.for_run(self.plan.base_pretrain[v], seed, label),
+                {"pretrain": v, "seed": str(seed), NOTE_TAG: note}, resume))
+
+    def height(self, row: Any, seed: int) -> None:
+        """The Table 1 run of ``row`` and ``seed``: its finished run's result, or a job."""
+        label = f"{row.name} seed {seed}"
+        with _child_lock(self.parent_id, label):
+            found, resume = _child_state(self.store, self.parent_id, _has_final_metrics, ablation=row.name,
+                                         seed=str(seed))
+            if found is not None:
+                self.results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
+                                     "metrics": dict(found.data.metrics),
+                                     "checkpoint": found.data.tags.get("checkpoint"), "reused": True})
+                self.progress.finished(label, True, 0.0, dict(found.data.metrics))
+                return
+            cfg = self.plan.for_run(self.plan.base_height[row.name], seed, label)
+            variant = self.plan.variants[row.name]
+            encoder = self.pretrain_ckpt[(variant, seed)] if variant != "none" else None
+            note = _row_note(row, cfg, seed, PRETRAIN_RUN if encoder is not None else None)
+            self.results.append({"row": row.name, "seed": seed, "reused": False})
+            self.jobs.append((self.results[-1], self.ex.submit(train, self._job(
+                label, cfg, {"ablation": row.name, "seed": str(seed), NOTE_TAG: note}, resume, encoder))))
+
+    def collect(self) -> tuple[list[dict[str, Any]], dict[tuple[str, int], Any]]:
+        """(one result a row and seed, ``{(variant, seed): checkpoint}``) once the executor is done."""
+        for res, j in self.jobs:
+            res.update(run_id=j.result["run_id"], metrics=j.result["metrics"], checkpoint=j.result["checkpoint"])
+        pretrain = {k: (v.result if isinstance(v, Job) else v)["checkpoint"] for k, v in self.pretrain_ckpt.items()}
+        return self.results, pretrain
+
+
+def _finish_parent(plan: _Plan, store: _Store, parent_id: str, sweep_hash: str) -> tuple[dict[str, Any], str]:
+    """(Table 1 from :func:`uavturb.experiments.compare.compare`, the UI view's id): the table logged to the
+    parent run as artifacts and description, the parent closed, the view saved."""
+    from uavturb.experiments.compare import compare
+    from uavturb.experiments.tracking import close_run
+
+    table = compare(experiment=plan.experiment, parent_run_id=parent_id, spec=plan.spec_path, out=None)
+    store.client.log_text(parent_id, table["markdown_text"], "table1.md")
+    store.client.log_text(parent_id, table["csv_text"], "table1.csv")
+    store.client.set_tag(parent_id, NOTE_TAG, f"Sweep `{plan.spec.name}`, preset `{plan.preset}`, {plan.seeds} "
+                                              f"seed(s); one child run per row and seed.\n\n{table['markdown_text']}")
+    close_run(store.client, parent_id)
+    view = table1_view(store, plan.spec.name, plan.preset, sweep_hash)
+    _say(f"Table 1 in the MLflow UI: {ui_url(view)}")
+    return table, view
+
+
 def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | None = None,
           overrides: list[str] | None = None, experiment: str | None = None,
           conf_dir: str | Path | None = None, executor: str = "sequential", address: str | None = None,
@@ -231,144 +417,30 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     InputError : bad sweep file, unknown preset, bad override (before anything runs).
     RunsFailed : some runs failed after their retries (the parent run is then FAILED).
     """
-    from uavturb.experiments.compare import compare
     from uavturb.experiments.tracking import close_run
 
-    spec_path = resolve_spec(spec)
-    sp = load_spec(spec_path)
-    if preset not in sp.presets:
-        raise InputError("--preset", f"no preset {preset!r} in {spec_path}; choices: {', '.join(sp.presets)}")
-    pre = sp.presets[preset]
-    n_seeds = int(seeds if seeds is not None else pre.seeds)
-    if n_seeds < 1:
-        raise InputError("--seeds", f"must be at least 1, got {n_seeds}")
-    overrides = list(overrides or [])
-    experiment = experiment or sp.experiment
-
-    # resolve every config first: a typo fails before anything runs
-    rows = list(sp.rows)
-    base_height = {r.name: load_config([f"model={r.model}", *pre.overrides, *pre.height, *r.overrides, *overrides],
-                                       conf_dir=conf_dir) for r in rows}
-    variants = {name: str(cfg.model.pretraining) for name, cfg in base_height.items()}
-    needed = sorted({v for v in variants.values() if v != "none"})
-    base_pretrain = {}
-    for v in needed:
-        if v not in sp.pretraining:
-            raise InputError(f"{spec_path}: pretraining", f"no bundle for model.pretraining={v}; "
-                             f"has {', '.join(sp.pretraining) or 'none'}")
-        base_pretrain[v] = load_config([*pre.overrides, *pre.pretrain, *overrides], experiment=sp.pretraining[v],
-                                       conf_dir=conf_dir)
-        base_pretrain[v].model.pretraining = v
-
-    def for_run(base: DictConfig, seed: int, run_name: str) -> DictConfig:
-        cfg = copy.deepcopy(base)
-        cfg.trainer.seed, cfg.tracking.experiment, cfg.tracking.enabled = seed, experiment, True
-        cfg.tracking.run_name = run_name
-        return cfg
-
+    plan = _resolve_plan(spec, preset, seeds, overrides, experiment, conf_dir)
     ex = make_executor(executor, address=address, max_retries=max_retries)
-    for cfg in [*base_pretrain.values(), *base_height.values()]:
+    for cfg in [*plan.base_pretrain.values(), *plan.base_height.values()]:
         ex.check(cfg)  # e.g. the GPUs Ray is to reserve
     quiet_lightning()
-    sweep_hash = _spec_hash(sp, preset, overrides)
-    store = _Store(experiment)
-    params = {"sweep_file": _spec_name(spec_path), "preset": preset, "overrides": json.dumps(overrides),
-              "rows": json.dumps([r.name for r in rows])}
-    parent_id, resumed = store.parent(sp.name, sweep_hash, preset, params)
-    store.client.set_tag(parent_id, "seeds", str(n_seeds))
-    store.client.log_text(parent_id, OmegaConf.to_yaml(sp), "sweep.yaml")
-    children = store.finished_children(parent_id)
-    _say(f"sweep {sp.name} ({preset}, {n_seeds} seed(s), {len(rows)} rows): MLflow experiment {experiment!r}, "
-         f"parent run {parent_id}{' (resumed)' if resumed else ''}")
-
-    def has_metrics(run: Any) -> bool:
-        return all(k in run.data.metrics for k in FINAL_METRICS)
-
-    def finished_row(row: Any, seed: int) -> Any | None:
-        run = _find(children, ablation=row.name, seed=str(seed))
-        return run if run is not None and has_metrics(run) else None
-
-    # per seed, the pre-training variants the unfinished rows still need
-    todo = {seed: sorted({variants[r.name] for r in rows if finished_row(r, seed) is None} - {"none"})
-            for seed in range(n_seeds)}
-    total = sum(len(v) for v in todo.values()) + len(rows) * n_seeds
-    done, t_run, n_run = 0, 0.0, 0
-    results: list[dict[str, Any]] = []
-    pretrain_ckpt: dict[tuple[str, int], Any] = {}  # a Job, or a finished run's checkpoint and run id
-    cache = Path(next(iter(base_height.values())).trainer.default_root_dir) / "checkpoints" / "downloaded"
-
-    def progress(label: str, reused: bool, dt: float, metrics: dict[str, float]) -> None:
-        nonlocal done, t_run, n_run
-        done += 1
-        if not reused:
-            t_run, n_run = t_run + dt, n_run + 1
-        shown = "  ".join(f"{k} {metrics[k]:.4g}" for k in ("test/rmse_d", "test/rmse_fa_1e-4N", "test/loss")
-                          if k in metrics)
-        took = "already done" if reused else f"{dt:.0f} s"
-        eta = f"  (sweep ETA {t_run / n_run * (total - done):.0f} s)" if n_run and done < total else ""
-        _say(f"[{done}/{total}] {label}: {took}  {shown}{eta}")
-
-    jobs: list[tuple[dict[str, Any], Job]] = []  # (result row to fill, its job) of the runs trained now
-
-    def job(label: str, cfg: DictConfig, tags: dict[str, str], resume: str | None, encoder: Any = None) -> Job:
-        def start() -> None:
-            _say(f"[{done + 1}/{total}] {label} ..." + (f" (resuming run {resume})" if resume else ""))
-
-        return Job(label, cfg, {"mlflow.parentRunId": parent_id, **tags, "sweep_hash": sweep_hash}, encoder,
-                   resume=resume, on_start=start, on_done=lambda out, dt: progress(label, False, dt, out["metrics"]))
-
+    sweep_hash = _spec_hash(plan.spec, preset, plan.overrides)
+    store = _Store(plan.experiment)
+    parent_id, resumed = _open_parent(plan, store, sweep_hash)
+    children = _Children(plan, store, parent_id, sweep_hash, ex)
     try:
         with ex:
-            for seed in range(n_seeds):
-                for v in todo[seed]:
-                    label = f"pretrain {v} seed {seed}"
-                    with _child_lock(parent_id, label):
-                        found, resume = _child_state(store, parent_id, lambda r: _checkpoint_of(r, cache) is not None,
-                                                     pretrain=v, seed=str(seed))
-                        if found is not None:
-                            pretrain_ckpt[(v, seed)] = {"checkpoint": _checkpoint_of(found, cache),
-                                                        "run_id": found.info.run_id}
-                            progress(label, True, 0.0, dict(found.data.metrics))
-                            continue
-                        note = f"Pre-training for Table 1 (seed {seed}): depth encoder, depth → {v} transcoder."
-                        pretrain_ckpt[(v, seed)] = ex.submit(train, job(
-                            label, for_run(base_pretrain[v], seed, label),
-                            {"pretrain": v, "seed": str(seed), NOTE_TAG: note}, resume))
-                for row in rows:
-                    label = f"{row.name} seed {seed}"
-                    with _child_lock(parent_id, label):
-                        found, resume = _child_state(store, parent_id, has_metrics, ablation=row.name, seed=str(seed))
-                        if found is not None:
-                            results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
-                                            "metrics": dict(found.data.metrics),
-                                            "checkpoint": found.data.tags.get("checkpoint"), "reused": True})
-                            progress(label, True, 0.0, dict(found.data.metrics))
-                            continue
-                        cfg = for_run(base_height[row.name], seed, label)
-                        encoder = pretrain_ckpt[(variants[row.name], seed)] if variants[row.name] != "none" else None
-                        note = _row_note(row, cfg, seed, PRETRAIN_RUN if encoder is not None else None)
-                        results.append({"row": row.name, "seed": seed, "reused": False})
-                        jobs.append((results[-1], ex.submit(train, job(
-                            label, cfg, {"ablation": row.name, "seed": str(seed), NOTE_TAG: note}, resume, encoder))))
+            children.submit_all()
             ex.wait()
     except BaseException as e:
         status = close_run(store.client, parent_id, e)
         if isinstance(e, Interrupted):
             e.notes.append(f"sweep parent run {parent_id} marked {status}; run the same command again to resume it")
         raise
-    for res, j in jobs:
-        res.update(run_id=j.result["run_id"], metrics=j.result["metrics"], checkpoint=j.result["checkpoint"])
-    pretrain_ckpt = {k: (v.result if isinstance(v, Job) else v)["checkpoint"] for k, v in pretrain_ckpt.items()}
-    table = compare(experiment=experiment, parent_run_id=parent_id, spec=spec_path, out=None)
-    store.client.log_text(parent_id, table["markdown_text"], "table1.md")
-    store.client.log_text(parent_id, table["csv_text"], "table1.csv")
-    store.client.set_tag(parent_id, NOTE_TAG, f"Sweep `{sp.name}`, preset `{preset}`, {n_seeds} seed(s); "
-                                              f"one child run per row and seed.\n\n{table['markdown_text']}")
-    close_run(store.client, parent_id)
-    view = table1_view(store, sp.name, preset, sweep_hash)
-    _say(f"Table 1 in the MLflow UI: {ui_url(view)}")
-    return {"parent_run_id": parent_id, "experiment": experiment, "resumed": resumed, "runs": results,
-            "pretrain": pretrain_ckpt, "table": table["table"], "view": view}
+    results, pretrain = children.collect()
+    table, view = _finish_parent(plan, store, parent_id, sweep_hash)
+    return {"parent_run_id": parent_id, "experiment": plan.experiment, "resumed": resumed, "runs": results,
+            "pretrain": pretrain, "table": table["table"], "view": view}
 
 
 #: the columns of the UI's Table 1 view: the row, the seed, RMSE(d) [m] and RMSE(f_a) [1e-4 N], [N]

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Sequence
+from dataclasses import dataclass
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -101,28 +102,15 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
     paths = [str(r.path) if r.path else r.name for r in recordings]
 
-    # the simulator's model: nominal rigid body and thrust plus its own effects at its parameters;
-    # its thrust coefficient and bias are fitted robustly (a local mismatch must not bend them)
-    nominal = robust_nominal(data)
-    offset = _sim_offset(data, sim, nominal.coef["k_T"])
-    base_data = data.subset(np.ones(len(data), bool))
-    base_data.y = data.y - offset
-    baseline = robust_nominal(base_data)
-    baseline_ls = fit_model(base_data, set(), with_stderr=False)
-    r0 = baseline.residual(base_data)
+    base = _simulator_baseline(data, sim)
     protocol, fm = folds(data)
-    base_ho = heldout(data, frozenset(), fm, offset=offset)
-    segs, rs0, sigma = locate.segments(data, r0)
+    base_ho = heldout(data, frozenset(), fm, offset=base.offset)
+    segs, rs0, sigma = locate.segments(data, base.r0)
     drv = locate.drivers(data, rs0)
 
-    reach = {e: surface_reach(data, e) for e, spec in EFFECTS.items() if spec.surface is not None}
-    testable = {e for e in EFFECTS if e not in reach or reach[e].testable}
-    candidates = [e for e in EFFECTS if e not in sim and e in testable]
-    not_testable = [{"name": e, "why": r.why(), "to_separate": r.to_separate()}
-                    for e, r in reach.items() if not r.testable]
-    sim_fit_base = frozenset(e for e in sim if e in testable)
+    candidates, not_testable, sim_fit_base = _testable_candidates(data, sim)
     quantum = max((rotor_quantum(r.rotors.speeds) for r in recordings), default=0.0)
-    floor = rounding_floor(data, nominal.coef["k_T"], quantum)
+    floor = rounding_floor(data, base.nominal.coef["k_T"], quantum)
     sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor)
     sel, ambiguous, rejected = _decide(data, sel, candidates)
     final: ModelFit = sel.final
@@ -131,36 +119,23 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     _, rsf, _ = locate.segments(data, rf)
     n = max(3, int(round(0.5 / float(np.median(np.diff(data.t))))))
     beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / n)))
-    effects_out = []
-    for s in sel.steps:
-        params, se = final.effect_params(s.name)
-        effects_out.append({
-            "name": s.name, "params": params, "stderr": se,
-            "explanation": explanation(s.name, params, facts),
-            "heldout_rmse_before_N": s.heldout_before, "heldout_rmse_after_N": s.heldout_after,
-            "z_heldout": s.z,
-        })
-    sim_params = {}
-    for name, p in sim.items():
-        fitted = final.effect_params(name)[0] if name in final.effects else {}
-        sim_params[name] = {"sim": p, "fitted": fitted}
-    before_force = baseline.predict(base_data) + offset
     report = {
         "schema": SCHEMA,
         "recordings": paths,
         "sim_effects": list(sim),
         "protocol": protocol,
         "residual_source": data.source,
-        "baseline": {"rmse_N": baseline_ls.rmse, "heldout_rmse_N": base_ho.rmse,
-                     "robust_rmse_N": float(np.sqrt(np.mean(np.sum(r0**2, 1))))},
+        "baseline": {"rmse_N": base.least_squares.rmse, "heldout_rmse_N": base_ho.rmse,
+                     "robust_rmse_N": float(np.sqrt(np.mean(np.sum(base.r0**2, 1))))},
         "noise": {"sigma_N": [float(s) for s in sigma], "rms_N": float(np.sqrt(np.sum(sigma**2))),
                   "rotor_speed_quantum": quantum, "rounding_floor_N2": floor},
         # segments name their recording as given on the command line (gap-report.md: "path")
         "mismatch": {"segments": [{"recording": paths[s.group], "t_start": s.t_start, "t_end": s.t_end,
                                    "axis": s.axis, "rms_N": s.rms_N} for s in segs],
                      "drivers": drv},
-        "effects": effects_out,
-        "sim_effect_params": sim_params,
+        "effects": _effects_named(sel, final, facts),
+        "sim_effect_params": {name: {"sim": p, "fitted": final.effect_params(name)[0] if name in final.effects
+                                     else {}} for name, p in sim.items()},
         "nominal": {"thrust_coefficient": final.coef["k_T"], "thrust_coefficient_stderr": final.stderr.get("k_T"),
                     "accel_bias": [final.coef[f"b_{a}"] for a in "xyz"] if data.fits_bias else None,
                     "accel_bias_note": None if data.fits_bias else
@@ -173,13 +148,63 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                   "duration_s": facts.duration_s},
         "final": {"heldout_rmse_N": sel.final_heldout.rmse, "rmse_N": float(np.sqrt(np.mean(np.sum(rf**2, 1))))},
         "unexplained": {"rms_N": beyond, "drivers": locate.drivers(data, rsf)},
-        "open_loop": {"horizon_s": 0.5, "before_m": _open_loop(data, before_force),
+        "open_loop": {"horizon_s": 0.5, "before_m": _open_loop(data, base.force),
                       "after_m": _open_loop(data, final.predict(data))},
         "candidates_tried": sel.tried,
     }
-    extras = dict(data=data, r0=r0, rs0=rs0, rf=rf, rsf=rsf, segs=segs, drivers=drv, base_ho=base_ho,
+    extras = dict(data=data, r0=base.r0, rs0=rs0, rf=rf, rsf=rsf, segs=segs, drivers=drv, base_ho=base_ho,
                   final_ho=sel.final_heldout, final=final)
     return report, extras
+
+
+@dataclass
+class _Baseline:
+    """The simulator's model of the flights, before any effect is added."""
+
+    nominal: ModelFit  # rigid body and thrust, fitted robustly on the data alone
+    offset: np.ndarray  # (K, 3) N, the simulator's own effects at its parameters
+    least_squares: ModelFit  # the nominal model fitted by least squares on data - offset
+    r0: np.ndarray  # (K, 3) N, residual of the robust baseline
+    force: np.ndarray  # (K, 3) N, the baseline's force, offset included
+
+
+def _simulator_baseline(data: GapData, sim: dict[str, dict[str, float]]) -> _Baseline:
+    """The simulator's model: nominal rigid body and thrust plus its own effects at its parameters;
+    its thrust coefficient and bias are fitted robustly (a local mismatch must not bend them)."""
+    nominal = robust_nominal(data)
+    offset = _sim_offset(data, sim, nominal.coef["k_T"])
+    base_data = data.subset(np.ones(len(data), bool))
+    base_data.y = data.y - offset
+    baseline = robust_nominal(base_data)
+    baseline_ls = fit_model(base_data, set(), with_stderr=False)
+    return _Baseline(nominal, offset, baseline_ls, baseline.residual(base_data),
+                     baseline.predict(base_data) + offset)
+
+
+def _testable_candidates(data: GapData, sim: dict[str, dict[str, float]]
+                         ) -> tuple[list[str], list[dict[str, Any]], frozenset[str]]:
+    """(effects to try: not in the simulator and testable on these flights; the surface effects the flights
+    cannot test, with why and what would; the simulator's testable effects, fitted from the start)."""
+    reach = {e: surface_reach(data, e) for e, spec in EFFECTS.items() if spec.surface is not None}
+    testable = {e for e in EFFECTS if e not in reach or reach[e].testable}
+    candidates = [e for e in EFFECTS if e not in sim and e in testable]
+    not_testable = [{"name": e, "why": r.why(), "to_separate": r.to_separate()}
+                    for e, r in reach.items() if not r.testable]
+    return candidates, not_testable, frozenset(e for e in sim if e in testable)
+
+
+def _effects_named(sel: Selection, final: ModelFit, facts: Any) -> list[dict[str, Any]]:
+    """The report's ``effects``: each chosen effect's fitted parameters, explanation and held-out gain."""
+    effects_out = []
+    for s in sel.steps:
+        params, se = final.effect_params(s.name)
+        effects_out.append({
+            "name": s.name, "params": params, "stderr": se,
+            "explanation": explanation(s.name, params, facts),
+            "heldout_rmse_before_N": s.heldout_before, "heldout_rmse_after_N": s.heldout_after,
+            "z_heldout": s.z,
+        })
+    return effects_out
 
 
 def _decide(data: GapData, sel: Selection, candidates: list[str]

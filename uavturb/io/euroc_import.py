@@ -24,7 +24,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io.recording import Recording
-from uavturb.io.vehicle_file import preset
+from uavturb.io.vehicle_file import named_vehicle
 from uavturb.physics.vehicle import Vehicle
 
 VICON_YAML = "mav0/vicon0/sensor.yaml"
@@ -61,7 +61,7 @@ def import_euroc(bag: str | Path, out: str | Path, *, vehicle: str | Vehicle = "
     from uavturb.io.sensor_yaml import read_sensor_pose
     from uavturb.io.writer import write_recording
 
-    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     frame_source = f"vehicle '{vehicle}'" if isinstance(vehicle, str) else f"vehicle '{v.name}'"
     if asl is not None and (Path(asl) / VICON_YAML).is_file():
         v = v.with_params(T_BS=rotor_frame_from_vicon(read_sensor_pose(Path(asl) / VICON_YAML)))

@@ -17,20 +17,14 @@ from typing import Any
 import yaml
 
 from uavturb.errors import InputError
+from uavturb.io.yaml_mapping import read_yaml_mapping
 from uavturb.physics.effects import check_params, defaults
 
 
 def load_physics_config(path: str | Path) -> dict[str, Any]:
     """Read and validate a physics config; returns ``{"effects": {...}, "vehicle": {...}}``."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "file not found")
-    try:
-        d = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError:
-        raise InputError(path, "not valid YAML") from None
-    if not isinstance(d, dict):
-        raise InputError(path, "expected a mapping with 'effects'")
+    d = read_yaml_mapping(path, expected="a mapping with 'effects'")
     unknown = sorted(set(d) - {"effects", "vehicle", "source"})
     if unknown:
         raise InputError(path, f"unknown key(s) {', '.join(unknown)} (allowed: effects, vehicle, source)")

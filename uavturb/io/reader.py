@@ -13,8 +13,8 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io import align, euroc_csv, ply, sensor_yaml
-from uavturb.io.recording import GroundTruth, Imu, Poses, Recording, Rotors
-from uavturb.io.vehicle_file import load_vehicle, preset
+from uavturb.io.recording import Camera, GroundTruth, Imu, Poses, Recording, Rotors
+from uavturb.io.vehicle_file import load_vehicle, named_vehicle
 from uavturb.physics import quaternion as quat
 from uavturb.physics.vehicle import Vehicle
 
@@ -112,59 +112,13 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
         raise InputError(root, "recording folder not found")
     if not root.is_dir():
         raise InputError(root, "not a recording folder (it is a file)")
-
-    vehicle_file = root / VEHICLE_YAML
-    if vehicle_file.is_file():
-        vehicle = load_vehicle(vehicle_file)
-    elif vehicle is None:
-        raise InputError(vehicle_file, "file not found (a folder without one needs a vehicle given explicitly)")
-
-    gt_file = root / GROUNDTRUTH_CSV
-    t_gt, x, lines = euroc_csv.read_csv(gt_file, euroc_csv.GROUNDTRUTH_COLUMNS, "ground truth", return_lines=True)
-    gt = GroundTruth(t_ns=t_gt, p=x[:, 0:3], q=checked_quaternions(gt_file, x[:, 3:7], lines), v=x[:, 7:10],
-                     b_w=x[:, 10:13], b_a=x[:, 13:16])
-
-    imu = None
-    imu_file = root / IMU_CSV
-    if imu_file.is_file():
-        t, x = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU")
-        align.require_overlap(t_gt, t, imu_file)
-        imu = Imu(t_ns=t, gyro=x[:, 0:3], acc=x[:, 3:6], T_BS=np.eye(4))
-        if (root / IMU_YAML).is_file():
-            sensor = sensor_yaml.read_imu_yaml(root / IMU_YAML)
-            imu.T_BS, imu.rate_hz = sensor.T_BS, sensor.rate_hz
-    elif require_imu:
-        raise InputError(imu_file, "file not found (IMU data are required)")
-
-    rotors = None
-    rotors_file = root / ROTORS_CSV
-    if rotors_file.is_file():
-        t, x, lines = euroc_csv.read_csv(rotors_file, None, "rotor speed", return_lines=True)
-        check_rotor_speeds(rotors_file, x, vehicle, lines)
-        align.require_overlap(t_gt, t, rotors_file)
-        rotors = Rotors(t_ns=t, speeds=x * vehicle.rotor_speed_scale)
-    elif require_rotors:
-        raise InputError(rotors_file, "file not found (rotor speeds are required)")
-
-    points = None
-    if load_points and (root / POINTS_PLY).is_file():
-        points = ply.read_ply(root / POINTS_PLY)
-
-    cam0 = None
-    if (root / CAM_CSV).is_file() or (root / CAM_YAML).is_file():
-        cam0 = sensor_yaml.read_camera_yaml(root / CAM_YAML)
-        if (root / CAM_CSV).is_file():
-            t, files = euroc_csv.read_frame_list(root / CAM_CSV)
-            cam0.t_ns, cam0.files = t, files
-
-    vicon = None
-    vicon_file = root / VICON_CSV
-    if vicon_file.is_file():
-        t, x, lines = euroc_csv.read_csv(vicon_file, euroc_csv.VICON_COLUMNS, "vicon", return_lines=True)
-        vicon = Poses(t_ns=t, p=x[:, 0:3], q=checked_quaternions(vicon_file, x[:, 3:7], lines))
-
-    rec = Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors, points=points, cam0=cam0,
-                    vicon=vicon, path=root, frame="S")
+    vehicle = _folder_vehicle(root, vehicle)
+    gt = _read_ground_truth(root)
+    imu = _read_imu(root, gt.t_ns, required=require_imu)
+    rotors = _read_rotors(root, gt.t_ns, vehicle, required=require_rotors)
+    points = ply.read_ply(root / POINTS_PLY) if load_points and (root / POINTS_PLY).is_file() else None
+    rec = Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors, points=points, cam0=_read_camera(root),
+                    vicon=_read_vicon(root), path=root, frame="S")
     if frame == "S":
         return rec
     if frame != "B":
@@ -174,6 +128,74 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
     return to_body(rec)
 
 
+def _folder_vehicle(root: Path, vehicle: Vehicle | None) -> Vehicle:
+    """The folder's own ``vehicle.yaml``, else ``vehicle``; neither: :class:`InputError`."""
+    vehicle_file = root / VEHICLE_YAML
+    if vehicle_file.is_file():
+        return load_vehicle(vehicle_file)
+    if vehicle is None:
+        raise InputError(vehicle_file, "file not found (a folder without one needs a vehicle given explicitly)")
+    return vehicle
+
+
+def _read_ground_truth(root: Path) -> GroundTruth:
+    """``state_groundtruth_estimate0`` (required), its quaternions checked."""
+    gt_file = root / GROUNDTRUTH_CSV
+    t_gt, x, lines = euroc_csv.read_csv(gt_file, euroc_csv.GROUNDTRUTH_COLUMNS, "ground truth", return_lines=True)
+    return GroundTruth(t_ns=t_gt, p=x[:, 0:3], q=checked_quaternions(gt_file, x[:, 3:7], lines), v=x[:, 7:10],
+                       b_w=x[:, 10:13], b_a=x[:, 13:16])
+
+
+def _read_imu(root: Path, t_gt: np.ndarray, *, required: bool) -> Imu | None:
+    """``imu0`` with its ``sensor.yaml`` (pose, rate) when present; it must overlap the ground truth."""
+    imu_file = root / IMU_CSV
+    if not imu_file.is_file():
+        if required:
+            raise InputError(imu_file, "file not found (IMU data are required)")
+        return None
+    t, x = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU")
+    align.require_overlap(t_gt, t, imu_file)
+    imu = Imu(t_ns=t, gyro=x[:, 0:3], acc=x[:, 3:6], T_BS=np.eye(4))
+    if (root / IMU_YAML).is_file():
+        sensor = sensor_yaml.read_imu_yaml(root / IMU_YAML)
+        imu.T_BS, imu.rate_hz = sensor.T_BS, sensor.rate_hz
+    return imu
+
+
+def _read_rotors(root: Path, t_gt: np.ndarray, vehicle: Vehicle, *, required: bool) -> Rotors | None:
+    """``rotors0`` in rad/s (scaled by ``rotor_speed_scale``), checked against the vehicle; it must overlap
+    the ground truth."""
+    rotors_file = root / ROTORS_CSV
+    if not rotors_file.is_file():
+        if required:
+            raise InputError(rotors_file, "file not found (rotor speeds are required)")
+        return None
+    t, x, lines = euroc_csv.read_csv(rotors_file, None, "rotor speed", return_lines=True)
+    check_rotor_speeds(rotors_file, x, vehicle, lines)
+    align.require_overlap(t_gt, t, rotors_file)
+    return Rotors(t_ns=t, speeds=x * vehicle.rotor_speed_scale)
+
+
+def _read_camera(root: Path) -> Camera | None:
+    """``cam0``: its ``sensor.yaml`` and, when present, its frame list (frames not loaded)."""
+    if not ((root / CAM_CSV).is_file() or (root / CAM_YAML).is_file()):
+        return None
+    cam0 = sensor_yaml.read_camera_yaml(root / CAM_YAML)
+    if (root / CAM_CSV).is_file():
+        t, files = euroc_csv.read_frame_list(root / CAM_CSV)
+        cam0.t_ns, cam0.files = t, files
+    return cam0
+
+
+def _read_vicon(root: Path) -> Poses | None:
+    """``vicon0`` poses when present, their quaternions checked."""
+    vicon_file = root / VICON_CSV
+    if not vicon_file.is_file():
+        return None
+    t, x, lines = euroc_csv.read_csv(vicon_file, euroc_csv.VICON_COLUMNS, "vicon", return_lines=True)
+    return Poses(t_ns=t, p=x[:, 0:3], q=checked_quaternions(vicon_file, x[:, 3:7], lines))
+
+
 def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None = None) -> list[Recording]:
     """Read recording folders for physics (``identify``, ``residuals``, ``gap``, ``evaluate``): in
     the rotor frame B, rotor speeds required, and checked (:func:`uavturb.io.consistency.check_recording`:
@@ -181,7 +203,7 @@ def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None =
     yaml path or Vehicle) serves folders without a ``vehicle.yaml``."""
     from uavturb.io.consistency import check_recording
 
-    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     recs = [read_recording(p, vehicle=v, require_rotors=True) for p in paths]
     for r in recs:
         check_recording(r)

@@ -163,6 +163,40 @@ def read_rosbag(path: str | Path, vehicle: Vehicle, *, rotor_speed_scale: float 
     if scale != vehicle.rotor_speed_scale:
         vehicle = vehicle.with_params(rotor_speed_scale=scale)
 
+    data = _read_topics(path, motor_topic, imu_topic, vicon_topic)
+    t_v, p_v, q_v = data[vicon_topic]
+    if len(t_v) < 2:
+        raise InputError(path, f"topic '{vicon_topic}' has {len(t_v)} messages (ground truth needs at least 2)")
+    t_gt, p, q = _sorted_unique(t_v, p_v, q_v)
+    q = checked_quaternions(f"{path}:{vicon_topic}", q, unit="message")
+    zeros = np.zeros((len(t_gt), 3))
+    gt = GroundTruth(t_ns=t_gt, p=p, q=q, v=velocity_from_positions(t_gt, p, velocity_window_s), b_w=zeros,
+                     b_a=zeros.copy())
+
+    imu = None
+    if data[imu_topic][0]:
+        t, gyro, acc = _sorted_unique(*data[imu_topic])
+        align.require_overlap(t_gt, t, f"{path}:{imu_topic}", "the vicon stream")
+        imu = imu_to_body(Imu(t_ns=t, gyro=gyro, acc=acc, T_BS=np.eye(4)), vehicle.T_BS_matrix)
+
+    rotors = None
+    if data[motor_topic][0]:
+        lengths = {len(x) for x in data[motor_topic][1]}
+        if len(lengths) != 1:
+            raise InputError(f"{path}:{motor_topic}", f"motor arrays of different lengths {sorted(lengths)}")
+        t, raw_speeds = _sorted_unique(*data[motor_topic][:2])
+        check_rotor_speeds(f"{path}:{motor_topic}", raw_speeds, vehicle, unit="message")
+        align.require_overlap(t_gt, t, f"{path}:{motor_topic}", "the vicon stream")
+        rotors = Rotors(t_ns=t, speeds=raw_speeds * scale)
+
+    return Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors,
+                     vicon=Poses(t_ns=t_gt.copy(), p=p.copy(), q=q.copy()), path=path, frame="B")
+
+
+def _read_topics(path: Path, motor_topic: str, imu_topic: str, vicon_topic: str
+                 ) -> dict[str, tuple[list, list, list]]:
+    """The three topics' messages as lists, per topic ``(stamps [ns], a, b)``: motor arrays (``b`` empty);
+    gyroscope [rad/s] and accelerometer [m/s^2]; vicon positions [m] and quaternions w,x,y,z."""
     wanted = (motor_topic, imu_topic, vicon_topic)
     data: dict[str, tuple[list, list, list]] = {topic: ([], [], []) for topic in wanted}
     try:
@@ -191,34 +225,7 @@ def read_rosbag(path: str | Path, vehicle: Vehicle, *, rotor_speed_scale: float 
         raise InputError(path, f"not a readable ROS1 bag ({type(e).__name__}: {e})") from None
     except AttributeError as e:
         raise InputError(path, f"unexpected message layout ({e})") from None
-
-    t_v, p_v, q_v = data[vicon_topic]
-    if len(t_v) < 2:
-        raise InputError(path, f"topic '{vicon_topic}' has {len(t_v)} messages (ground truth needs at least 2)")
-    t_gt, p, q = _sorted_unique(t_v, p_v, q_v)
-    q = checked_quaternions(f"{path}:{vicon_topic}", q, unit="message")
-    zeros = np.zeros((len(t_gt), 3))
-    gt = GroundTruth(t_ns=t_gt, p=p, q=q, v=velocity_from_positions(t_gt, p, velocity_window_s), b_w=zeros,
-                     b_a=zeros.copy())
-
-    imu = None
-    if data[imu_topic][0]:
-        t, gyro, acc = _sorted_unique(*data[imu_topic])
-        align.require_overlap(t_gt, t, f"{path}:{imu_topic}", "the vicon stream")
-        imu = imu_to_body(Imu(t_ns=t, gyro=gyro, acc=acc, T_BS=np.eye(4)), vehicle.T_BS_matrix)
-
-    rotors = None
-    if data[motor_topic][0]:
-        lengths = {len(x) for x in data[motor_topic][1]}
-        if len(lengths) != 1:
-            raise InputError(f"{path}:{motor_topic}", f"motor arrays of different lengths {sorted(lengths)}")
-        t, raw_speeds = _sorted_unique(*data[motor_topic][:2])
-        check_rotor_speeds(f"{path}:{motor_topic}", raw_speeds, vehicle, unit="message")
-        align.require_overlap(t_gt, t, f"{path}:{motor_topic}", "the vicon stream")
-        rotors = Rotors(t_ns=t, speeds=raw_speeds * scale)
-
-    return Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors,
-                     vicon=Poses(t_ns=t_gt.copy(), p=p.copy(), q=q.copy()), path=path, frame="B")
+    return data
 
 
 def convert_rosbag(bag: str | Path, out: str | Path, vehicle: Vehicle, *, overwrite: bool = False,

@@ -19,6 +19,7 @@ import yaml
 from uavturb.errors import InputError
 from uavturb.io.euroc_csv import write_atomic
 from uavturb.io.recording import Camera
+from uavturb.io.yaml_mapping import parse_yaml_mapping
 
 IMU_NOISE_KEYS = ("gyroscope_noise_density", "gyroscope_random_walk",
                   "accelerometer_noise_density", "accelerometer_random_walk")
@@ -49,13 +50,7 @@ def _load(path: Path) -> dict[str, Any]:
     text = path.read_text(encoding="utf-8", errors="replace")
     # OpenCV-style files start with '%YAML:1.0', which is not a YAML 1.1 directive
     text = "\n".join("" if s.startswith("%YAML") else s for s in text.splitlines())
-    try:
-        d = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise InputError(path, f"not valid YAML ({type(e).__name__})") from None
-    if not isinstance(d, dict):
-        raise InputError(path, "expected a mapping of sensor keys")
-    return d
+    return parse_yaml_mapping(text, path, expected="a mapping of sensor keys")
 
 
 def _number(path: Path, d: dict, key: str, *, required: bool, positive: bool = True) -> float | None:

@@ -1,5 +1,6 @@
-"""``vehicle.yaml`` files (``recordings.md``) and vehicles by name: built-in presets, files
-shipped with the package (``uavturb/presets/<name>.yaml``, e.g. EuRoC's ``firefly``) or a path."""
+"""``vehicle.yaml`` files (``recordings.md``) and vehicles by name (:func:`named_vehicle`): built-in
+ones (``quad``, ``hex``), files shipped with the package (``uavturb/presets/<name>.yaml``, e.g. EuRoC's
+``firefly``) or a path."""
 
 from __future__ import annotations
 
@@ -9,19 +10,14 @@ import yaml
 
 from uavturb.errors import InputError
 from uavturb.io.publish import write_text_atomic
+from uavturb.io.yaml_mapping import read_yaml_mapping
 from uavturb.physics.vehicle import PRESETS, Vehicle
 
 
 def load_vehicle(path: str | Path) -> Vehicle:
     """Read and validate a ``vehicle.yaml``."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "file not found")
-    try:
-        d = yaml.safe_load(path.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as e:
-        raise InputError(path, f"not valid YAML ({type(e).__name__})") from None
-    return Vehicle.from_dict(d, where=path)
+    return Vehicle.from_dict(read_yaml_mapping(path, expected="a mapping of vehicle keys"), where=path)
 
 
 def save_vehicle(vehicle: Vehicle, path: str | Path) -> None:
@@ -33,7 +29,7 @@ def save_vehicle(vehicle: Vehicle, path: str | Path) -> None:
 SHIPPED_DIR = Path(__file__).resolve().parents[1] / "presets"
 
 
-def preset(name: str) -> Vehicle:
+def named_vehicle(name: str) -> Vehicle:
     """A built-in vehicle by name (``quad``, ``hex``), a shipped vehicle file (``firefly``), or a
     ``vehicle.yaml`` path."""
     if name in PRESETS:

@@ -62,6 +62,7 @@ import yaml
 from uavturb.errors import InputError
 from uavturb.io import align
 from uavturb.io.recording import GroundTruth, Recording, Rotors
+from uavturb.io.yaml_mapping import read_yaml_mapping
 from uavturb.physics import frames
 from uavturb.physics.dynamics import GRAVITY, IDX_W, dynamics_for, physical_params
 from uavturb.physics.effects import EFFECTS
@@ -354,10 +355,8 @@ def truth_document(true_vehicle: Vehicle, effects: dict[str, dict[str, float]], 
 
 def read_truth(path: str | Path) -> dict[str, Any]:
     """``truth.yaml`` of a generated recording folder."""
-    f = Path(path) / TRUTH_FILE
-    if not f.is_file():
-        raise InputError(f, "file not found (only recordings made by 'uavturb generate flight' carry one)")
-    return yaml.safe_load(f.read_text())
+    return read_yaml_mapping(Path(path) / TRUTH_FILE,
+                             not_found="file not found (only recordings made by 'uavturb generate flight' carry one)")
 
 
 def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dict[str, float]] = "",
@@ -382,14 +381,14 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
     -------
     Conditioned (``recording.path`` set when written).
     """
-    from uavturb.io.vehicle_file import preset
+    from uavturb.io.vehicle_file import named_vehicle
     from uavturb.io.writer import write_recording
     from uavturb.physics.effects import parse_effects
     from uavturb.sim import euroc_standin
     from uavturb.sim.flight import SensorNoise, flight_room, make_reference, simulate_flight
 
     stand_in = kind == euroc_standin.KIND
-    v = euroc_standin.flyable(preset(vehicle) if isinstance(vehicle, str) else vehicle)
+    v = euroc_standin.flyable(named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle)
     v = euroc_standin.with_vi_sensor(v) if stand_in else v
     room = flight_room(kind)
     eff = parse_effects(effects) if isinstance(effects, str) or effects is None else dict(effects)

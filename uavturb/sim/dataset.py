@@ -176,8 +176,30 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     todo = [t for t in tasks if t.name not in metas]
     # scene-major order keeps each worker's renderer on one scene for several trajectories
     todo.sort(key=lambda t: (t.scene, t.k))
-    bar = progress_bar(len(todo), f"generate sim ({p.name}{'' if n == 1 else f', shard {k}/{n}'})",
-                       "trajectories") if progress else None
+    label = f"generate sim ({p.name}{'' if n == 1 else f', shard {k}/{n}'})" if progress else None
+    try:
+        jobs = [(t, p, int(seed), controller, str(out.resolve() if executor == "ray" else out)) for t in todo]
+        new, wall = _generate_trajectories(jobs, executor, int(workers), out, chash, metas, label, on_trajectory)
+    except BaseException:  # Interrupted (SIGTERM, SIGINT) or an error: the workers are stopped by now
+        _remove_unfinished(out, todo, created)
+        raise
+    new_samples = sum(m["stats"]["samples"] for m in new)
+    throughput = {"this_run": {"trajectories": len(new), "samples": int(new_samples), "wall_s": wall,
+                               "samples_per_s": new_samples / wall if wall > 0 and new else None,
+                               "workers": int(workers), "worker_seconds": time_split(new)},
+                  "all_trajectories_worker_seconds": time_split(list(metas.values()))}
+    extra = {"throughput": throughput, "shard": f"{k}/{n}", "complete": len(metas) == len(all_tasks),
+             "expected_trajectories": len(all_tasks)}
+    return _write_manifest(out, tasks, metas, config, extra)
+
+
+def _generate_trajectories(jobs: list, executor: str, workers: int, out: Path, chash: str,
+                           metas: dict[str, dict[str, Any]], label: str | None,
+                           on_trajectory: Callable[[dict[str, Any]], None] | None
+                           ) -> tuple[list[dict[str, Any]], float]:
+    """(the new trajectories' metas, the wall time [s]): ``jobs`` run on Ray or here (:func:`_run_jobs`),
+    each finished one added to ``metas`` and shown on a progress bar ``label`` (None: none)."""
+    bar = progress_bar(len(jobs), label, "trajectories") if label is not None else None
     t0 = time.perf_counter()
     new: list[dict[str, Any]] = []
 
@@ -191,27 +213,14 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
             on_trajectory(meta)
 
     try:
-        jobs = [(t, p, int(seed), controller, str(out.resolve() if executor == "ray" else out)) for t in todo]
         if executor == "ray":
             _run_on_ray(jobs, chash, done)
         else:
-            _run_jobs(jobs, int(workers), str(out), chash, done)
-    except BaseException:  # Interrupted (SIGTERM, SIGINT) or an error: the workers are stopped by now
-        _remove_unfinished(out, todo, created)
-        raise
+            _run_jobs(jobs, workers, str(out), chash, done)
     finally:
         if bar is not None:
             bar.close()
-    wall = time.perf_counter() - t0
-    new_samples = sum(m["stats"]["samples"] for m in new)
-    throughput = {"this_run": {"trajectories": len(new), "samples": int(new_samples), "wall_s": wall,
-                               "samples_per_s": new_samples / wall if wall > 0 and new else None,
-                               "workers": int(workers), "worker_seconds": time_split(new)},
-                  "all_trajectories_worker_seconds": time_split(list(metas.values()))}
-    extra = {"throughput": throughput, "shard": f"{k}/{n}", "complete": len(metas) == len(all_tasks),
-             "expected_trajectories": len(all_tasks)}
-    return _write_manifest(out, tasks, metas, config, extra)
-
+    return new, time.perf_counter() - t0
 
 
 def _run_jobs(jobs: list, workers: int, out: str, chash: str, done: Callable[[dict[str, Any]], None]) -> None:

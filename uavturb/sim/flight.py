@@ -27,7 +27,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
-from uavturb.io.vehicle_file import preset
+from uavturb.io.vehicle_file import named_vehicle
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import (
     GRAVITY,
@@ -256,31 +256,79 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
                            control_dt=control_dt, record_dt=record_dt,
                            motor_tau=float(lag["tau"]) if lag is not None else 0.0, gains=gains,
                            feedforward=feedforward, settle=settle, wind=wind)
-    X, W_act, W_cmd, F_rec, DD, DU, SAT = (loop.x, loop.rotor_speeds, loop.rotor_commands, loop.force, loop.d_down,
-                                           loop.d_up, loop.saturated)
-    K = len(X)
+    K = len(loop.x)
+    dt_rec = rec_every * physics_dt
+    t_rec = np.arange(K) * dt_rec
+    f = _forces(vehicle, loop, effects, lag, t_rec, wind)
+    s = _sensor_readings(loop.x, f.specific_force, loop.rotor_commands, noise, seed, dt_rec)
+
+    t_ns = np.int64(t0_ns) + np.arange(K, dtype=np.int64) * np.int64(round(dt_rec * 1e9))
+    rec = Recording(
+        vehicle=vehicle,
+        ground_truth=GroundTruth(t_ns=t_ns, p=s.p, q=s.q, v=s.v, b_w=s.gyro_bias, b_a=s.acc_bias),
+        imu=Imu(t_ns=t_ns.copy(), gyro=s.gyro, acc=s.acc, T_BS=np.eye(4), rate_hz=1.0 / dt_rec),
+        rotors=Rotors(t_ns=t_ns.copy(), speeds=s.rotors),
+        points=np.array(points, dtype=float),
+    )
+    truth = Truth(t=t_rec, x=loop.x, effect_force=loop.force + f.lag_force, force=loop.force, lag_force=f.lag_force,
+                  forces=f.per_effect, rotor_speeds=loop.rotor_speeds, rotor_commands=loop.rotor_commands,
+                  thrust=f.thrust, specific_force=f.specific_force, d_down=loop.d_down, d_up=loop.d_up,
+                  reference=reference(t_rec), gyro_bias=s.gyro_bias, acc_bias=s.acc_bias, saturated=loop.saturated)
+    return rec, truth
+
+
+@dataclass
+class _Forces:
+    """Forces of a flown trajectory at the record times."""
+
+    thrust: np.ndarray  # (K,) N, total rotor thrust of the actual rotor speeds
+    specific_force: np.ndarray  # (K, 3) m/s^2 in B, what an ideal accelerometer reads
+    lag_force: np.ndarray  # (K, 3) N in W, thrust of actual minus commanded rotor speeds (motor lag)
+    per_effect: dict[str, np.ndarray]  # name -> (K, 3) N in W
+
+
+def _forces(vehicle: Vehicle, loop: Any, effects: dict[str, dict[str, float]], lag: dict[str, float] | None,
+            t_rec: np.ndarray, wind: np.ndarray | None) -> _Forces:
+    """Thrust, specific force and each effect's force along ``loop`` (the effects on the airspeed ``v - wind``)."""
+    X, W_act = loop.x, loop.rotor_speeds
     dyn = dynamics_for(vehicle)
     theta = physical_params(vehicle)
     k_T, r = float(vehicle.thrust_coefficient), float(vehicle.rotor_radius)
-
-    # --- what the sensors see ---------------------------------------------------------
-    t_rec = np.arange(K) * (rec_every * physics_dt)
     thrust, _ = dyn.thrust_torque(W_act, theta)
-    v_dot = dyn.xdot(X, W_act, theta, F_rec)[:, IDX_V]
+    v_dot = dyn.xdot(X, W_act, theta, loop.force)[:, IDX_V]
     spec_force = quat.rotate_inverse(X[:, IDX_Q], v_dot + GRAVITY * np.array([0.0, 0.0, 1.0]))
     z_b = quat.to_rotation_matrix(X[:, IDX_Q])[:, :, 2]
-    thrust_cmd, _ = dyn.thrust_torque(W_cmd, theta)
+    thrust_cmd, _ = dyn.thrust_torque(loop.rotor_commands, theta)
     lag_force = (thrust - thrust_cmd)[:, None] * z_b
     airspeed = X[:, IDX_V] - (0.0 if wind is None else np.asarray(wind, float))
-    inp = EffectInputs(q=X[:, IDX_Q], v=airspeed, rotor_speeds=W_act, k_T=k_T, rotor_radius=r, d_down=DD, d_up=DU,
-                       t=t_rec)
+    inp = EffectInputs(q=X[:, IDX_Q], v=airspeed, rotor_speeds=W_act, k_T=k_T, rotor_radius=r, d_down=loop.d_down,
+                       d_up=loop.d_up, t=t_rec)
     per_effect = {name: effect_force(name, params, inp) for name, params in effects.items()}
     if lag is not None:
         per_effect["motor_lag"] = lag_force
+    return _Forces(thrust, spec_force, lag_force, per_effect)
 
+
+@dataclass
+class _SensorReadings:
+    """What the sensors report at the record times: the true state with noise, biases and quantisation."""
+
+    p: np.ndarray  # (K, 3) m in W, motion capture position
+    q: np.ndarray  # (K, 4) quaternion w,x,y,z, B to W
+    v: np.ndarray  # (K, 3) m/s in W
+    gyro: np.ndarray  # (K, 3) rad/s in B
+    acc: np.ndarray  # (K, 3) m/s^2 in B
+    gyro_bias: np.ndarray  # (K, 3) rad/s
+    acc_bias: np.ndarray  # (K, 3) m/s^2
+    rotors: np.ndarray  # (K, N) rad/s, the commanded rotor speeds as reported (quantised)
+
+
+def _sensor_readings(X: np.ndarray, spec_force: np.ndarray, W_cmd: np.ndarray, noise: SensorNoise, seed: int,
+                     dt_rec: float) -> _SensorReadings:
+    """Sensor readings of states ``X`` (K, 13) sampled every ``dt_rec`` [s], seeded by ``seed``."""
+    K = len(X)
     rng = np.random.default_rng([int(seed), 7])
-    rate = 1.0 / (rec_every * physics_dt)
-    dt_rec = rec_every * physics_dt
+    rate = 1.0 / dt_rec
 
     def bias(b0: tuple[float, float, float], walk: float) -> np.ndarray:
         b = np.broadcast_to(np.asarray(b0, float), (K, 3)).copy()
@@ -301,19 +349,7 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
         q_meas = quat.normalize(quat.multiply(q_meas, np.concatenate([np.ones((K, 1)), half], axis=1)))
     v_meas = X[:, IDX_V] + rng.normal(0.0, noise.velocity_std, size=(K, 3))
     rotors = W_cmd if noise.rotor_quantum <= 0 else np.round(W_cmd / noise.rotor_quantum) * noise.rotor_quantum
-
-    t_ns = np.int64(t0_ns) + np.arange(K, dtype=np.int64) * np.int64(round(dt_rec * 1e9))
-    rec = Recording(
-        vehicle=vehicle,
-        ground_truth=GroundTruth(t_ns=t_ns, p=p_meas, q=q_meas, v=v_meas, b_w=b_w, b_a=b_a),
-        imu=Imu(t_ns=t_ns.copy(), gyro=gyro, acc=acc, T_BS=np.eye(4), rate_hz=rate),
-        rotors=Rotors(t_ns=t_ns.copy(), speeds=rotors),
-        points=np.array(points, dtype=float),
-    )
-    truth = Truth(t=t_rec, x=X, effect_force=F_rec + lag_force, force=F_rec, lag_force=lag_force, forces=per_effect,
-                  rotor_speeds=W_act, rotor_commands=W_cmd, thrust=thrust, specific_force=spec_force, d_down=DD,
-                  d_up=DU, reference=reference(t_rec), gyro_bias=b_w, acc_bias=b_a, saturated=SAT)
-    return rec, truth
+    return _SensorReadings(p_meas, q_meas, v_meas, gyro, acc, b_w, b_a, rotors)
 
 
 # --- one call: a named flight ----------------------------------------------------------
@@ -395,7 +431,7 @@ def generate_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dic
     """
     from uavturb.sim import euroc_standin
 
-    v = euroc_standin.flyable(preset(vehicle) if isinstance(vehicle, str) else vehicle)
+    v = euroc_standin.flyable(named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle)
     v = euroc_standin.with_vi_sensor(v) if kind == "euroc_room" else v
     room = flight_room(kind) if room is None else room
     eff = parse_effects(effects) if isinstance(effects, str) or effects is None else dict(effects)

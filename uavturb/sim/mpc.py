@@ -420,10 +420,10 @@ def benchmark(vehicle: Vehicle | str = "quad", seconds: float = 10.0, **options:
 
     Returns ``{"mean_ms", "median_ms", "p95_ms", "max_ms", "updates", "rms_error_m"}``.
     """
-    from uavturb.io.vehicle_file import preset
+    from uavturb.io.vehicle_file import named_vehicle
     from uavturb.sim.references import Constant, Waypoints
 
-    v = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     ref = Reference(Waypoints((0.0, 1.0, 3.0, 5.0), (0.0, 0.0, 1.0, 1.0)), Constant(0.0),
                     Waypoints((0.0, 1.0, 3.0), (1.0, 1.0, 1.3)), Constant(0.0), seconds, "bench")
     out = track(v, ref, seconds, **options)

@@ -153,7 +153,6 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
     import json
 
     from uavturb.io import shards
-    from uavturb.progress import progress_bar, show_rate
     from uavturb.sim.tasks import scene_splits
 
     p = get_preset(preset, **overrides)
@@ -171,6 +170,31 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
             return meta
         raise InputError(final, f"holds pairs of another config (hash {meta.get('config_hash')}, this run {chash}); "
                                 "use another --out")
+    chunks_dir = _chunks_folder(out, seed, chash)
+    train = scene_splits(p)["train"]
+    n_chunks = -(-p.pairs // p.pairs_chunk)
+    jobs = []
+    for c in range(n_chunks):
+        start, stop = c * p.pairs_chunk, min((c + 1) * p.pairs_chunk, p.pairs)
+        jobs.append((c, start, stop, train[c % len(train)], str(out), p, int(seed)))
+    todo = [j for j in jobs if not (chunks_dir / f"chunk_{j[0]:05d}").is_dir()]
+    wall = _render_chunks(todo, workers, f"generate normals ({p.name})" if progress else None, on_chunk)
+    new = sum(j[2] - j[1] for j in todo)
+    files = [(chunks_dir / f"chunk_{c:05d}" / "depth.npy", chunks_dir / f"chunk_{c:05d}" / "normals.npy")
+             for c in range(n_chunks)]
+    meta = {"source": "generated", "config": config, "config_hash": chash, "scenes": sorted(set(train)),
+            "split": "train", "throughput": {"pairs": new, "wall_s": wall,
+                                             "pairs_per_s": new / wall if wall > 0 and new else None}}
+    shards.write_pairs_chunks(out, files, meta)
+    shutil.rmtree(chunks_dir, ignore_errors=True)
+    return json.loads((final / shards.META).read_text())
+
+
+def _chunks_folder(out: Path, seed: int, chash: str) -> Path:
+    """The folder of finished chunks, ``out/<CHUNKS_DIR>``: created with this run's config, or left by an
+    interrupted run of the same config (one of another config: :class:`InputError`)."""
+    import json
+
     chunks_dir = out / CHUNKS_DIR
     chunks_dir.mkdir(parents=True, exist_ok=True)
     cfg_file = chunks_dir / "config.json"
@@ -181,14 +205,15 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
                                        "there; use another --out or delete that folder")
     else:
         write_text_atomic(cfg_file, json.dumps({"seed": int(seed), "config_hash": chash}))
-    train = scene_splits(p)["train"]
-    n_chunks = -(-p.pairs // p.pairs_chunk)
-    jobs = []
-    for c in range(n_chunks):
-        start, stop = c * p.pairs_chunk, min((c + 1) * p.pairs_chunk, p.pairs)
-        jobs.append((c, start, stop, train[c % len(train)], str(out), p, int(seed)))
-    todo = [j for j in jobs if not (chunks_dir / f"chunk_{j[0]:05d}").is_dir()]
-    bar = progress_bar(len(todo), f"generate normals ({p.name})", "chunks") if progress else None
+    return chunks_dir
+
+
+def _render_chunks(todo: list[tuple], workers: int, label: str | None, on_chunk: Any) -> float:
+    """Render the chunks ``todo`` here or in ``workers`` processes, with a progress bar ``label``
+    (None: none); returns the wall time [s]."""
+    from uavturb.progress import progress_bar, show_rate
+
+    bar = progress_bar(len(todo), label, "chunks") if label is not None else None
     t0 = time.perf_counter()
     pairs_done = 0
 
@@ -214,16 +239,7 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
     finally:
         if bar is not None:
             bar.close()
-    wall = time.perf_counter() - t0
-    new = sum(j[2] - j[1] for j in todo)
-    files = [(chunks_dir / f"chunk_{c:05d}" / "depth.npy", chunks_dir / f"chunk_{c:05d}" / "normals.npy")
-             for c in range(n_chunks)]
-    meta = {"source": "generated", "config": config, "config_hash": chash, "scenes": sorted(set(train)),
-            "split": "train", "throughput": {"pairs": new, "wall_s": wall,
-                                             "pairs_per_s": new / wall if wall > 0 and new else None}}
-    shards.write_pairs_chunks(out, files, meta)
-    shutil.rmtree(chunks_dir, ignore_errors=True)
-    return json.loads((final / shards.META).read_text())
+    return time.perf_counter() - t0
 
 
 # ----------------------------------------------------------------------------------------------

@@ -105,12 +105,11 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
         truncated at its first hit), ``collision_time`` (s or None), ``tracking_error`` (T,) m,
         ``solve_ms`` (controller update times), ``wall_s``, ``samples_per_s``, ``controller``.
     """
-    from uavturb.io.vehicle_file import preset
+    from uavturb.io.vehicle_file import named_vehicle
     from uavturb.physics.effects import DEFAULT_EFFECTS
-    from uavturb.sim.closed_loop import CollisionWatch, initial_state, run_closed_loop
 
     wall0 = time.perf_counter()
-    veh = preset(vehicle) if isinstance(vehicle, str) else vehicle
+    veh = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     if controller not in CONTROLLERS:
         raise InputError("controller", f"unknown controller '{controller}' (known: {', '.join(CONTROLLERS)})")
     effects = dict(DEFAULT_EFFECTS if effects is None else effects)
@@ -121,26 +120,9 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
     ref = planned.reference
     duration = float(ref.duration if duration is None else duration)
     ctrl, rate = make_controller(controller, veh, ref, control_rate, **(controller_options or {}))
-    cam_every = _ratio(physics_rate, camera_rate, "camera_rate")
-    ctrl_every = _ratio(physics_rate, rate, "control_rate")
-    dt = 1.0 / physics_rate
-    radius = veh.arm_length + veh.rotor_radius
-    rest = float(ref(0.0).p[2] - planned.points[0, 2])  # m, landed height of the start
-    half_h = float(np.clip(0.5 * rest, 0.005, 0.02))  # m, vertical half-extent in the collision check
-
-    x = initial_state(ref(0.0))
-    ctrl.reset(x)
-    # collision check in batches of the positions of every physics step (about 1 s of flight)
-    watch = CollisionWatch(lambda p: collides(scene, p, radius, half_h), int(round(physics_rate)), dt)
-    loop = run_closed_loop(veh, x, lambda x, t, force: ctrl.update(x, t), scene_heights(scene), effects=effects,
-                           n_steps=int(round(duration * physics_rate)), physics_dt=dt, control_every=ctrl_every,
-                           record_every=cam_every, watch=watch)
-    k = loop.count
-    collided, t_hit = loop.stop_time is not None, loop.stop_time
-    if collided and not loop.diverged:
-        k = min(k, int(np.ceil(t_hit * camera_rate - 1e-9)))  # frames strictly before the hit
-    if collided:
-        k = max(k - 1, 0)  # drop the last frame before the hit too: the vehicle was about to touch
+    loop = _fly_until_collision(scene, veh, planned, ctrl, effects, duration, physics_rate=physics_rate,
+                                control_rate=rate, camera_rate=camera_rate)
+    k, collided, t_hit = _frames_before_collision(loop, camera_rate)
     X, W, F_rec, DD, DU = loop.x[:k], loop.rotor_speeds[:k], loop.force[:k], loop.d_down[:k], loop.d_up[:k]
     t_ctrl, t_phys = loop.control_s, loop.physics_s
     t_out = np.arange(k) / camera_rate
@@ -156,4 +138,40 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
         "samples_per_s": k / wall if wall > 0 else float("inf"), "effects": effects,
     }
     return X, W, t_out, info
+
+
+def _fly_until_collision(scene: Scene, veh: Any, planned: PlannedTrajectory, ctrl: Any,
+                         effects: dict[str, dict[str, float]], duration: float, *, physics_rate: float,
+                         control_rate: float, camera_rate: float) -> Any:
+    """The closed loop of ``ctrl`` flying ``planned``'s reference [Hz rates], stopped at the first hit of the
+    scene (:func:`uavturb.sim.closed_loop.run_closed_loop`'s result, recorded at ``camera_rate``)."""
+    from uavturb.sim.closed_loop import CollisionWatch, initial_state, run_closed_loop
+
+    ref = planned.reference
+    cam_every = _ratio(physics_rate, camera_rate, "camera_rate")
+    ctrl_every = _ratio(physics_rate, control_rate, "control_rate")
+    dt = 1.0 / physics_rate
+    radius = veh.arm_length + veh.rotor_radius
+    rest = float(ref(0.0).p[2] - planned.points[0, 2])  # m, landed height of the start
+    half_h = float(np.clip(0.5 * rest, 0.005, 0.02))  # m, vertical half-extent in the collision check
+
+    x = initial_state(ref(0.0))
+    ctrl.reset(x)
+    # collision check in batches of the positions of every physics step (about 1 s of flight)
+    watch = CollisionWatch(lambda p: collides(scene, p, radius, half_h), int(round(physics_rate)), dt)
+    return run_closed_loop(veh, x, lambda x, t, force: ctrl.update(x, t), scene_heights(scene), effects=effects,
+                           n_steps=int(round(duration * physics_rate)), physics_dt=dt, control_every=ctrl_every,
+                           record_every=cam_every, watch=watch)
+
+
+def _frames_before_collision(loop: Any, camera_rate: float) -> tuple[int, bool, float | None]:
+    """(frames kept, collided, time of the hit [s] or None): a flight that hits the scene keeps the frames
+    strictly before the hit, less the last (the vehicle was about to touch)."""
+    k = loop.count
+    collided, t_hit = loop.stop_time is not None, loop.stop_time
+    if collided and not loop.diverged:
+        k = min(k, int(np.ceil(t_hit * camera_rate - 1e-9)))  # frames strictly before the hit
+    if collided:
+        k = max(k - 1, 0)  # drop the last frame before the hit too: the vehicle was about to touch
+    return k, collided, t_hit
 

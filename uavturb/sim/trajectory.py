@@ -117,14 +117,14 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
         when the preset asks for it)
     meta : the trajectory's metadata, with ``stats`` (counts and seconds)
     """
-    from uavturb.io.vehicle_file import preset as vehicle_preset
+    from uavturb.io.vehicle_file import named_vehicle
     from uavturb.physics.ground_effect import phi
     from uavturb.scene.queries import collides, height_below, inside_obstacle
     from uavturb.sim.cameras import preset_mount
 
     t_start, cpu_start = time.perf_counter(), time.process_time()
     scene = _scene(task.scene)
-    vehicle = vehicle_preset(preset.vehicle)
+    vehicle = named_vehicle(preset.vehicle)
     fl = FLYERS[controller](scene, vehicle, task.task_seed(seed), task.n_points, preset)
     state, w, t = np.asarray(fl.state, float), np.asarray(fl.rotor_speeds, float), np.asarray(fl.t, float)
     t_flown = time.perf_counter()

@@ -248,79 +248,112 @@ def assess(est: dict[str, Any], se: dict[str, Any], excitation: dict[str, AxisEx
         best = max((ex["roll"], ex["pitch"]), key=lambda e: min(e.rate_std / RATE_MIN, e.acc_std / ACC_MIN))
         ex["roll"] = ex["pitch"] = best
     j_max = mass * (arm_length + rotor_radius) ** 2  # kg m^2, all the mass at the propeller tips
-    out: dict[str, ParameterStatus] = {}
+    a = _Assessment(est, se, ex, conds, j_max, jx_equals_jy)
+    a.thrust()
+    a.roll_and_pitch()
+    a.yaw(rotor_radius)
+    a.accel_bias(has_imu)
+    return {name: a.out[name] for name in PARAMETERS}
 
-    def positive(f: _Findings, name: str, what: str) -> None:
-        if np.isfinite(est[name]) and not est[name] > 0:
-            f.add(IMPOSSIBLE, f"{what} {est[name]:.3g} is not positive")
 
-    def inertia_bound(f: _Findings, name: str) -> None:
-        if np.isfinite(est[name]) and est[name] > j_max:
-            f.add(IMPOSSIBLE, f"{est[name]:.3g} kg m^2 exceeds m (l + r)^2 = {j_max:.3g} kg m^2, the inertia of the "
-                              "whole mass at the propeller tips")
+@dataclass
+class _Assessment:
+    """The statuses of :func:`assess`, decided in order: a constant computed from others inherits
+    their reason, so those come first."""
 
-    f = _Findings()
-    _conditioning(f, est["k_T"], se["k_T"], conds, ["thrust"])
-    positive(f, "k_T", "the thrust coefficient")
-    out["k_T"] = f.status("k_T", est["k_T"], se["k_T"])
-    f = _Findings()
-    _inherit(f, "theta_0", out, ["k_T"])
-    out["theta_0"] = f.status("theta_0", est["theta_0"], se["theta_0"])
+    est: dict[str, Any]
+    se: dict[str, Any]
+    ex: dict[str, AxisExcitation]
+    conds: dict[str, float]
+    j_max: float  # kg m^2, the physical bound on an inertia
+    jx_equals_jy: bool
+    out: dict[str, ParameterStatus] = field(default_factory=dict)
 
-    for name, theta, axis in (("J_x", "theta_1", "roll"), ("J_y", None, "pitch")):
-        fits = ["roll", "pitch"] if jx_equals_jy else [axis]
-        if theta is not None:
+    def _decide(self, name: str, f: _Findings) -> None:
+        self.out[name] = f.status(name, self.est[name], self.se[name])
+
+    def _positive(self, f: _Findings, name: str, what: str) -> None:
+        if np.isfinite(self.est[name]) and not self.est[name] > 0:
+            f.add(IMPOSSIBLE, f"{what} {self.est[name]:.3g} is not positive")
+
+    def _inertia_bound(self, f: _Findings, name: str) -> None:
+        if np.isfinite(self.est[name]) and self.est[name] > self.j_max:
+            f.add(IMPOSSIBLE, f"{self.est[name]:.3g} kg m^2 exceeds m (l + r)^2 = {self.j_max:.3g} kg m^2, the "
+                              "inertia of the whole mass at the propeller tips")
+
+    def thrust(self) -> None:
+        """``k_T`` and ``theta_0 = k_T / m``."""
+        f = _Findings()
+        _conditioning(f, self.est["k_T"], self.se["k_T"], self.conds, ["thrust"])
+        self._positive(f, "k_T", "the thrust coefficient")
+        self._decide("k_T", f)
+        f = _Findings()
+        _inherit(f, "theta_0", self.out, ["k_T"])
+        self._decide("theta_0", f)
+
+    def roll_and_pitch(self) -> None:
+        """``theta_1 = l k_T / J_x``, ``J_x`` and ``J_y``."""
+        est, se, ex = self.est, self.se, self.ex
+        for name, theta, axis in (("J_x", "theta_1", "roll"), ("J_y", None, "pitch")):
+            fits = ["roll", "pitch"] if self.jx_equals_jy else [axis]
+            if theta is not None:
+                f = _Findings()
+                _not_excited(f, ex, [(axis, "rate"), (axis, "acc")])
+                _conditioning(f, est[theta], se[theta], self.conds, fits)
+                self._positive(f, theta, theta)
+                self._decide(theta, f)
             f = _Findings()
             _not_excited(f, ex, [(axis, "rate"), (axis, "acc")])
-            _conditioning(f, est[theta], se[theta], conds, fits)
-            positive(f, theta, theta)
-            out[theta] = f.status(theta, est[theta], se[theta])
+            _conditioning(f, est[name], se[name], self.conds, fits)
+            self._positive(f, name, "the inertia")
+            self._inertia_bound(f, name)
+            _inherit(f, name, self.out, ["k_T"])
+            self._decide(name, f)
+
+    def yaw(self, rotor_radius: float) -> None:
+        """``J_z`` (then the triangle inequality of the three inertias), ``theta_2 = k_M / J_z``,
+        ``theta_3 = J_z / J_x`` and ``k_M`` (at most ``k_T r``, ``rotor_radius`` r [m])."""
+        est, se, ex = self.est, self.se, self.ex
         f = _Findings()
-        _not_excited(f, ex, [(axis, "rate"), (axis, "acc")])
-        _conditioning(f, est[name], se[name], conds, fits)
-        positive(f, name, "the inertia")
-        inertia_bound(f, name)
-        _inherit(f, name, out, ["k_T"])
-        out[name] = f.status(name, est[name], se[name])
+        _not_excited(f, ex, [("yaw", "rate")])
+        _conditioning(f, est["J_z"], se["J_z"], self.conds, ["roll", "pitch"])
+        self._positive(f, "J_z", "the inertia")
+        self._inertia_bound(f, "J_z")
+        _inherit(f, "J_z", self.out, ["J_x", "J_y"])
+        self._decide("J_z", f)
+        _triangle(self.out, se)
 
-    f = _Findings()
-    _not_excited(f, ex, [("yaw", "rate")])
-    _conditioning(f, est["J_z"], se["J_z"], conds, ["roll", "pitch"])
-    positive(f, "J_z", "the inertia")
-    inertia_bound(f, "J_z")
-    _inherit(f, "J_z", out, ["J_x", "J_y"])
-    out["J_z"] = f.status("J_z", est["J_z"], se["J_z"])
-    _triangle(out, se)
+        f = _Findings()
+        _not_excited(f, ex, [("yaw", "acc")])
+        _conditioning(f, est["theta_2"], se["theta_2"], self.conds, ["yaw"])
+        self._positive(f, "theta_2", "theta_2")
+        self._decide("theta_2", f)
+        f = _Findings()
+        _not_excited(f, ex, [("yaw", "rate")])
+        _conditioning(f, est["theta_3"], se["theta_3"], {}, [])
+        _inherit(f, "theta_3", self.out, ["J_z", "J_x"])
+        self._decide("theta_3", f)
 
-    f = _Findings()
-    _not_excited(f, ex, [("yaw", "acc")])
-    _conditioning(f, est["theta_2"], se["theta_2"], conds, ["yaw"])
-    positive(f, "theta_2", "theta_2")
-    out["theta_2"] = f.status("theta_2", est["theta_2"], se["theta_2"])
-    f = _Findings()
-    _not_excited(f, ex, [("yaw", "rate")])
-    _conditioning(f, est["theta_3"], se["theta_3"], {}, [])
-    _inherit(f, "theta_3", out, ["J_z", "J_x"])
-    out["theta_3"] = f.status("theta_3", est["theta_3"], se["theta_3"])
+        f = _Findings()
+        _not_excited(f, ex, [("yaw", "rate"), ("yaw", "acc")])
+        _conditioning(f, est["k_M"], se["k_M"], self.conds, ["yaw"])
+        self._positive(f, "k_M", "the moment coefficient")
+        if est["k_M"] > 0 and est["k_T"] > 0 and est["k_M"] > est["k_T"] * rotor_radius:
+            f.add(IMPOSSIBLE, f"k_M {est['k_M']:.3g} exceeds k_T r = {est['k_T'] * rotor_radius:.3g}: a rotor whose "
+                              "drag torque exceeds thrust times radius")
+        _inherit(f, "k_M", self.out, ["theta_2", "J_z"])
+        self._decide("k_M", f)
 
-    f = _Findings()
-    _not_excited(f, ex, [("yaw", "rate"), ("yaw", "acc")])
-    _conditioning(f, est["k_M"], se["k_M"], conds, ["yaw"])
-    positive(f, "k_M", "the moment coefficient")
-    if est["k_M"] > 0 and est["k_T"] > 0 and est["k_M"] > est["k_T"] * rotor_radius:
-        f.add(IMPOSSIBLE, f"k_M {est['k_M']:.3g} exceeds k_T r = {est['k_T'] * rotor_radius:.3g}: a rotor whose drag "
-                          "torque exceeds thrust times radius")
-    _inherit(f, "k_M", out, ["theta_2", "J_z"])
-    out["k_M"] = f.status("k_M", est["k_M"], se["k_M"])
-
-    f = _Findings()
-    if not has_imu:
-        f.add(ABSENT, "the recording has no IMU (imu0), so no accelerometer and no bias to estimate")
-    elif np.any(~np.isfinite(se["accel_bias"])) or np.max(se["accel_bias"]) > BIAS_SE_MAX:
-        f.add(ILL_CONDITIONED, f"standard error {np.max(se['accel_bias']):.2g} m/s^2 (above {BIAS_SE_MAX:g})")
-    out["accel_bias"] = (f.status("accel_bias", est["accel_bias"], se["accel_bias"]) if has_imu
-                         else f.status("accel_bias", None, None))
-    return {name: out[name] for name in PARAMETERS}
+    def accel_bias(self, has_imu: bool) -> None:
+        """The accelerometer bias: absent without an IMU."""
+        se = self.se
+        f = _Findings()
+        if not has_imu:
+            f.add(ABSENT, "the recording has no IMU (imu0), so no accelerometer and no bias to estimate")
+        elif np.any(~np.isfinite(se["accel_bias"])) or np.max(se["accel_bias"]) > BIAS_SE_MAX:
+            f.add(ILL_CONDITIONED, f"standard error {np.max(se['accel_bias']):.2g} m/s^2 (above {BIAS_SE_MAX:g})")
+        self.out["accel_bias"] = (f.status("accel_bias", self.est["accel_bias"], se["accel_bias"]) if has_imu
+                                  else f.status("accel_bias", None, None))
 
 
 def _triangle(out: dict[str, ParameterStatus], se: dict[str, Any]) -> None:

@@ -248,6 +248,105 @@ def _fit_translation(rows: dict[str, np.ndarray], lag: int) -> dict[str, Any]:
             "bias_se": np.full(3, np.nan), "rms": fit.rms, "cond": fit.cond}
 
 
+def _usable_flights(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Vehicle | None, model: str,
+                    window_s: float) -> tuple[Vehicle, list[FlightData], list[str], list[np.ndarray]]:
+    """(vehicle, flight data, names, usable-row masks) of the flights, or :class:`InputError` when they
+    cannot identify anything (none given, no vehicle, an unknown model, under 50 usable samples)."""
+    if not recordings:
+        raise InputError("identify", "no recording given")
+    if vehicle is None:
+        if not isinstance(recordings[0], Recording):
+            raise InputError("identify", "a vehicle is needed with FlightData input")
+        vehicle = recordings[0].vehicle
+    if model not in ("auto", "general", "jx=jy"):
+        raise InputError("identify.model", f"unknown model '{model}' (allowed: auto, general, jx=jy)")
+    fds = [r if isinstance(r, FlightData) else flight_data(r, window_s=window_s) for r in recordings]
+    names = [str(r.path) if isinstance(r, Recording) and r.path else fd.name for r, fd in zip(recordings, fds)]
+    masks = [usable_mask(fd, vehicle) for fd in fds]
+    n = int(sum(m.sum() for m in masks))
+    if n < 50:
+        raise InputError(names[0], f"only {n} samples in free flight away from surfaces; cannot identify")
+    return vehicle, fds, names, masks
+
+
+def _columns(*cols: np.ndarray | None) -> np.ndarray:
+    """The regressor matrix of the columns given (``None``: a column left out)."""
+    return np.stack([c for c in cols if c is not None], 1)
+
+
+def _fit_rotation_axes(rows: dict[str, np.ndarray], gyro: bool, lag: int) -> tuple[Any, Any, Any]:
+    """Least-squares fits of ``w_dot_x``, ``w_dot_y``, ``w_dot_z`` per axis (the general model); without
+    yaw motion (``gyro`` false) the roll and pitch fits leave the gyroscopic column out."""
+    u, ww, dw, groups = rows["u"], rows["ww"], rows["dw"], rows["group"]
+    one = np.ones(len(dw))
+    fit_x = lstsq(_columns(u[:, 1], ww[:, 0] if gyro else None, one), dw[:, 0], lag=lag, groups=groups)
+    fit_y = lstsq(_columns(u[:, 2], ww[:, 1] if gyro else None, one), dw[:, 1], lag=lag, groups=groups)
+    fit_z = lstsq(np.stack([u[:, 3], ww[:, 2], one], 1), dw[:, 2], lag=lag, groups=groups)
+    return fit_x, fit_y, fit_z
+
+
+@dataclass
+class _Inertia:
+    """One inertia model's Monte Carlo draws of ``J_x``, ``J_y``, ``J_z`` [kg m^2] (NaN: not estimated),
+    and what its roll and pitch fits say."""
+
+    Jx: np.ndarray
+    Jy: np.ndarray
+    Jz: np.ndarray
+    bias_xy: tuple[float, float]  # rad/s^2, constant angular accelerations c_x, c_y
+    rms: dict[str, float]
+    conds: dict[str, float]
+    shares: tuple[float, float]  # roll, pitch: the share of w_dot the rotor column carries
+
+
+def _inertia_general(rows: dict[str, np.ndarray], fit_x: Any, fit_y: Any, gyro: bool, kT: np.ndarray, arm_length: float,
+                     rng: np.random.Generator, n_draws: int) -> _Inertia:
+    """``J_x != J_y``: ``J_x = l k_T / a_x``, ``J_y = l k_T / a_y``; ``J_z`` from the two gyroscopic
+    coefficients ``(J_y - J_z)/J_x`` and ``(J_z - J_x)/J_y``, inverse-variance weighted.
+    ``kT``: (n_draws,) draws of k_T [N/(rad/s)^2]; ``arm_length``: l [m]."""
+    u, dw = rows["u"], rows["dw"]
+    cx = rng.multivariate_normal(fit_x.coef, fit_x.cov, n_draws)
+    cy = rng.multivariate_normal(fit_y.coef, fit_y.cov, n_draws)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Jx, Jy = arm_length * kT / cx[:, 0], arm_length * kT / cy[:, 0]
+        Jz = np.full(n_draws, np.nan)
+        if gyro:
+            Jz1, Jz2 = Jy - cx[:, 1] * Jx, Jx + cy[:, 1] * Jy  # from (J_y - J_z)/J_x and (J_z - J_x)/J_y
+            v1, v2 = np.var(Jz1), np.var(Jz2)
+            Jz = (Jz1 / v1 + Jz2 / v2) / (1 / v1 + 1 / v2)
+    return _Inertia(Jx, Jy, Jz, (fit_x.coef[-1], fit_y.coef[-1]), {"roll": fit_x.rms, "pitch": fit_y.rms},
+                    {"roll": fit_x.cond, "pitch": fit_y.cond},
+                    (column_share(fit_x.coef[0], u[:, 1], dw[:, 0]), column_share(fit_y.coef[0], u[:, 2], dw[:, 1])))
+
+
+def _inertia_jx_equals_jy(rows: dict[str, np.ndarray], gyro: bool, kT: np.ndarray, arm_length: float, lag: int,
+                          rng: np.random.Generator, n_draws: int) -> _Inertia:
+    """The paper's ``J_x = J_y``: ``w_dot_x = th1 u_1 + (1 - th3) w_y w_z``, ``w_dot_y = th1 u_2 - (1 - th3) w_x w_z``
+    fitted jointly; ``J_z = J_x (1 - th3)``."""
+    u, ww, dw, groups = rows["u"], rows["ww"], rows["dw"], rows["group"]
+    K = len(dw)
+    one, zeros = np.ones(K), np.zeros(K)
+    A = np.block([[_columns(u[:, 1], ww[:, 0] if gyro else None, one, zeros)],
+                  [_columns(u[:, 2], -ww[:, 1] if gyro else None, zeros, one)]])
+    fit_xy = lstsq(A, np.concatenate([dw[:, 0], dw[:, 1]]), lag=lag, groups=np.concatenate([groups, groups + 1000]))
+    cxy = rng.multivariate_normal(fit_xy.coef, fit_xy.cov, n_draws)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Jx = Jy = arm_length * kT / cxy[:, 0]
+        Jz = Jx * (1.0 - cxy[:, 1]) if gyro else np.full(n_draws, np.nan)
+    return _Inertia(Jx, Jy, Jz, (fit_xy.coef[-2], fit_xy.coef[-1]), {"roll_pitch": fit_xy.rms},
+                    {"roll": fit_xy.cond, "pitch": fit_xy.cond},
+                    (column_share(fit_xy.coef[0], u[:, 1], dw[:, 0]), column_share(fit_xy.coef[0], u[:, 2], dw[:, 1])))
+
+
+def _median_and_se(draws: np.ndarray) -> tuple[float, float]:
+    """(median, half the 68 % interval) of the finite Monte Carlo draws; NaN with fewer than 10."""
+    draws = draws[np.isfinite(draws)]
+    if len(draws) < 10:
+        return float("nan"), float("nan")
+    lo, med, hi = np.percentile(draws, [15.87, 50.0, 84.13])
+    return float(med), float((hi - lo) / 2.0)
+
+
 def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Vehicle | None = None, *,
              model: str = "auto", window_s: float = 0.05, lag_s: float = 0.25, n_draws: int = 4000,
              seed: int = 0) -> Identification:
@@ -263,126 +362,52 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     lag_s : correlation length for the Newey-West standard errors [s]
     n_draws : Monte Carlo draws propagating the standard errors
     """
-    # the two inertia models and the Monte Carlo propagation read best in one place (~100 lines)
-    if not recordings:
-        raise InputError("identify", "no recording given")
-    if vehicle is None:
-        if not isinstance(recordings[0], Recording):
-            raise InputError("identify", "a vehicle is needed with FlightData input")
-        vehicle = recordings[0].vehicle
-    if model not in ("auto", "general", "jx=jy"):
-        raise InputError("identify.model", f"unknown model '{model}' (allowed: auto, general, jx=jy)")
-    fds = [r if isinstance(r, FlightData) else flight_data(r, window_s=window_s) for r in recordings]
-    names = [str(r.path) if isinstance(r, Recording) and r.path else fd.name for r, fd in zip(recordings, fds)]
-    masks = [usable_mask(fd, vehicle) for fd in fds]
-    n = int(sum(m.sum() for m in masks))
-    if n < 50:
-        raise InputError(names[0], f"only {n} samples in free flight away from surfaces; cannot identify")
+    vehicle, fds, names, masks = _usable_flights(recordings, vehicle, model, window_s)
     rows = _rows(fds, vehicle, masks)
     lag = max(1, int(round(lag_s / fds[0].dt)))
-    groups = rows["group"]
 
-    # --- translation: theta_0 and the accelerometer's z bias, jointly ---------------
+    # translation: theta_0 and the accelerometer's z bias, jointly
     tr = _fit_translation(rows, lag)
-    theta0, theta0_se = tr["theta0"], tr["theta0_se"]
-
-    # --- rotation ---------------------------------------------------------------------
+    # rotation: without yaw motion the gyroscopic columns (w_y w_z, w_x w_z) hold only noise: they are
+    # left out, and J_z (which only they carry) is not estimated
     ex = axis_excitation([fd.w for fd in fds], [fd.dw for fd in fds], masks, [fd.dt for fd in fds])
-    # without yaw motion the gyroscopic columns (w_y w_z, w_x w_z) hold only noise: they are left
-    # out, and J_z (which only they carry) is not estimated
     gyro = ex["yaw"].rate_std >= RATE_MIN
-    u, ww, dw = rows["u"], rows["ww"], rows["dw"]
-    one = np.ones(len(dw))
-
-    def columns(*cols: np.ndarray) -> np.ndarray:
-        return np.stack([c for c in cols if c is not None], 1)
-
-    fit_x = lstsq(columns(u[:, 1], ww[:, 0] if gyro else None, one), dw[:, 0], lag=lag, groups=groups)
-    fit_y = lstsq(columns(u[:, 2], ww[:, 1] if gyro else None, one), dw[:, 1], lag=lag, groups=groups)
-    fit_z = lstsq(np.stack([u[:, 3], ww[:, 2], one], 1), dw[:, 2], lag=lag, groups=groups)
-    a_x, a_y = fit_x.coef[0], fit_y.coef[0]
-    differ = abs(a_x - a_y) > 3.0 * np.hypot(fit_x.stderr[0], fit_y.stderr[0])
+    fit_x, fit_y, fit_z = _fit_rotation_axes(rows, gyro, lag)
+    differ = abs(fit_x.coef[0] - fit_y.coef[0]) > 3.0 * np.hypot(fit_x.stderr[0], fit_y.stderr[0])
     chosen = model if model != "auto" else ("general" if differ else "jx=jy")
 
+    # Monte Carlo: the draws of theta_0 and the yaw fit, then of the chosen model's roll and pitch fits
     rng = np.random.default_rng(seed)
     m, l = vehicle.mass, vehicle.arm_length
-    th0 = rng.normal(theta0, theta0_se, n_draws)
+    th0 = rng.normal(tr["theta0"], tr["theta0_se"], n_draws)
     kT = m * th0
     cz = rng.multivariate_normal(fit_z.coef, fit_z.cov, n_draws)
-    no_Jz = np.full(n_draws, np.nan)
+    J = (_inertia_general(rows, fit_x, fit_y, gyro, kT, l, rng, n_draws) if chosen == "general"
+         else _inertia_jx_equals_jy(rows, gyro, kT, l, lag, rng, n_draws))
     with np.errstate(divide="ignore", invalid="ignore"):
-        if chosen == "general":
-            cx = rng.multivariate_normal(fit_x.coef, fit_x.cov, n_draws)
-            cy = rng.multivariate_normal(fit_y.coef, fit_y.cov, n_draws)
-            Jx, Jy = l * kT / cx[:, 0], l * kT / cy[:, 0]
-            Jz = no_Jz
-            if gyro:
-                Jz1, Jz2 = Jy - cx[:, 1] * Jx, Jx + cy[:, 1] * Jy  # from (J_y - J_z)/J_x and (J_z - J_x)/J_y
-                v1, v2 = np.var(Jz1), np.var(Jz2)
-                Jz = (Jz1 / v1 + Jz2 / v2) / (1 / v1 + 1 / v2)
-            ang_bias = np.array([fit_x.coef[-1], fit_y.coef[-1], fit_z.coef[2]])
-            rms_r = {"roll": fit_x.rms, "pitch": fit_y.rms}
-            conds = {"roll": fit_x.cond, "pitch": fit_y.cond}
-            shares = (column_share(fit_x.coef[0], u[:, 1], dw[:, 0]), column_share(fit_y.coef[0], u[:, 2], dw[:, 1]))
-        else:
-            # the paper's model: w_dot_x = th1 u_1 + (1 - th3) w_y w_z, w_dot_y = th1 u_2 - (1 - th3) w_x w_z
-            K = len(dw)
-            zeros = np.zeros(K)
-            A = np.block([[columns(u[:, 1], ww[:, 0] if gyro else None, one, zeros)],
-                          [columns(u[:, 2], -ww[:, 1] if gyro else None, zeros, one)]])
-            fit_xy = lstsq(A, np.concatenate([dw[:, 0], dw[:, 1]]), lag=lag,
-                           groups=np.concatenate([groups, groups + 1000]))
-            cxy = rng.multivariate_normal(fit_xy.coef, fit_xy.cov, n_draws)
-            Jx = Jy = l * kT / cxy[:, 0]
-            Jz = Jx * (1.0 - cxy[:, 1]) if gyro else no_Jz
-            ang_bias = np.array([fit_xy.coef[-2], fit_xy.coef[-1], fit_z.coef[2]])
-            rms_r = {"roll_pitch": fit_xy.rms}
-            conds = {"roll": fit_xy.cond, "pitch": fit_xy.cond}
-            shares = (column_share(fit_xy.coef[0], u[:, 1], dw[:, 0]), column_share(fit_xy.coef[0], u[:, 2], dw[:, 1]))
-        kM = cz[:, 0] * Jz
-        theta_draws = [th0, l * kT / Jx, cz[:, 0], Jz / Jx]
+        kM = cz[:, 0] * J.Jz
+        theta_draws = [th0, l * kT / J.Jx, cz[:, 0], J.Jz / J.Jx]
+    theta, theta_se = zip(*(_median_and_se(d) for d in theta_draws))
+    theta = np.array([tr["theta0"], *theta[1:]])
+    theta_se = np.array([tr["theta0_se"], *theta_se[1:]])
+    inertia, inertia_se = zip(*(_median_and_se(d) for d in (J.Jx, J.Jy, J.Jz)))
+    kM_est, kM_se = _median_and_se(kM)
 
-    def est(draws: np.ndarray) -> tuple[float, float]:
-        draws = draws[np.isfinite(draws)]
-        if len(draws) < 10:
-            return float("nan"), float("nan")
-        lo, med, hi = np.percentile(draws, [15.87, 50.0, 84.13])
-        return float(med), float((hi - lo) / 2.0)
-
-    theta, theta_se = zip(*(est(d) for d in theta_draws))
-    inertia, inertia_se = zip(*(est(d) for d in (Jx, Jy, Jz)))
-    kM_est, kM_se = est(kM)
-
-    share = {"roll": shares[0], "pitch": shares[1], "yaw": column_share(fit_z.coef[0], u[:, 3], dw[:, 2])}
+    share = {"roll": J.shares[0], "pitch": J.shares[1],
+             "yaw": column_share(fit_z.coef[0], rows["u"][:, 3], rows["dw"][:, 2])}
     ex = {a: AxisExcitation(e.rate_std, e.acc_std, share[a]) for a, e in ex.items()}
-    conds = {"thrust": tr["cond"], **conds, "yaw": fit_z.cond}
-    theta_all = np.array([theta0, *theta[1:]])
-    theta_se_all = np.array([theta0_se, *theta_se[1:]])
-    values = {"k_T": float(m * theta0), "k_M": kM_est, "J_x": inertia[0], "J_y": inertia[1], "J_z": inertia[2],
-              **{f"theta_{i}": float(theta_all[i]) for i in range(4)}, "accel_bias": tr["bias"]}
-    errors = {"k_T": float(m * theta0_se), "k_M": kM_se, "J_x": inertia_se[0], "J_y": inertia_se[1],
-              "J_z": inertia_se[2], **{f"theta_{i}": float(theta_se_all[i]) for i in range(4)},
+    conds = {"thrust": tr["cond"], **J.conds, "yaw": fit_z.cond}
+    values = {"k_T": float(m * tr["theta0"]), "k_M": kM_est, "J_x": inertia[0], "J_y": inertia[1],
+              "J_z": inertia[2], **{f"theta_{i}": float(theta[i]) for i in range(4)}, "accel_bias": tr["bias"]}
+    errors = {"k_T": float(m * tr["theta0_se"]), "k_M": kM_se, "J_x": inertia_se[0], "J_y": inertia_se[1],
+              "J_z": inertia_se[2], **{f"theta_{i}": float(theta_se[i]) for i in range(4)},
               "accel_bias": tr["bias_se"]}
     status = assess(values, errors, ex, conds, has_imu=tr["has_imu"], mass=m, arm_length=l,
                     rotor_radius=vehicle.rotor_radius, jx_equals_jy=chosen == "jx=jy")
     return Identification(
-        mass=m,
-        thrust_coefficient=values["k_T"],
-        thrust_coefficient_se=errors["k_T"],
-        moment_coefficient=kM_est,
-        moment_coefficient_se=kM_se,
-        inertia=np.array(inertia),
-        inertia_se=np.array(inertia_se),
-        theta=theta_all,
-        theta_se=theta_se_all,
-        accel_bias=tr["bias"] if tr["has_imu"] else None,
-        angular_bias=ang_bias,
-        model=chosen,
-        n_samples=n,
-        rms={"thrust": tr["rms"], **rms_r, "yaw": fit_z.rms},
-        recordings=names,
-        status=status,
-        excitation=ex,
-        conditions={k: float(v) for k, v in conds.items()},
-        accel_bias_se=tr["bias_se"],
-    )
+        mass=m, thrust_coefficient=values["k_T"], thrust_coefficient_se=errors["k_T"], moment_coefficient=kM_est,
+        moment_coefficient_se=kM_se, inertia=np.array(inertia), inertia_se=np.array(inertia_se), theta=theta,
+        theta_se=theta_se, accel_bias=tr["bias"] if tr["has_imu"] else None,
+        angular_bias=np.array([*J.bias_xy, fit_z.coef[2]]), model=chosen, n_samples=int(sum(mk.sum() for mk in masks)),
+        rms={"thrust": tr["rms"], **J.rms, "yaw": fit_z.rms}, recordings=names, status=status, excitation=ex,
+        conditions={k: float(v) for k, v in conds.items()}, accel_bias_se=tr["bias_se"])
