@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import mlflow
+import pytest
 
 from uavturb.experiments import tracking
 
@@ -34,3 +35,37 @@ def test_project_path(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert tracking.project_path(tmp_path / "runs" / "best.ckpt") == str(Path("runs") / "best.ckpt")
     assert tracking.project_path("/elsewhere/x.ckpt") == "/elsewhere/x.ckpt"
+
+
+def test_a_write_that_collides_with_another_process_is_retried_once_it_exists():
+    from mlflow.exceptions import MlflowException
+
+    from uavturb.experiments.tracking import CONFLICT_ATTEMPTS, on_conflict_retry
+
+    calls = []
+
+    def collides_once(key, value):
+        calls.append((key, value))
+        if len(calls) == 1:
+            raise MlflowException("(sqlite3.IntegrityError) UNIQUE constraint failed: experiment_tags.key")
+        return value
+
+    assert on_conflict_retry(collides_once, "k", value=3) == 3 and calls == [("k", 3), ("k", 3)]
+
+    def broken():
+        calls.append("broken")
+        raise MlflowException("no such experiment")
+
+    calls.clear()
+    with pytest.raises(MlflowException, match="no such experiment"):
+        on_conflict_retry(broken)
+    assert calls == ["broken"]  # other errors are not retried
+
+    def always():
+        calls.append("always")
+        raise MlflowException("UNIQUE constraint failed: datasets.dataset_uuid")
+
+    calls.clear()
+    with pytest.raises(MlflowException):
+        on_conflict_retry(always)
+    assert len(calls) == CONFLICT_ATTEMPTS

@@ -195,7 +195,7 @@ def experiment_id(c: Any, name: str) -> str:
                 if exp is None:
                     raise StoreError(f"MLflow store {tracking_uri()}: experiment {name!r} could not be created")
     if exp.tags.get("mlflow.experimentKind") != EXPERIMENT_KIND:
-        c.set_experiment_tag(exp.experiment_id, "mlflow.experimentKind", EXPERIMENT_KIND)
+        on_conflict_retry(c.set_experiment_tag, exp.experiment_id, "mlflow.experimentKind", EXPERIMENT_KIND)
     return exp.experiment_id
 
 
@@ -321,6 +321,32 @@ def find_run(mlflow_client, experiment_id: str, key: str, parent_run_id: str | N
     return runs[0] if runs else None
 
 
+#: attempts of a store write that another process's identical write can collide with
+CONFLICT_ATTEMPTS = 5
+
+
+def on_conflict_retry(write: Any, *args: Any, **kwargs: Any) -> Any:
+    """``write(*args, **kwargs)``, again when it collides with the same write of another process.
+
+    Writes that insert a row keyed by its content (an experiment tag, a dataset) fail with a
+    UNIQUE-constraint error when two processes make them at the same instant (two sweeps saving
+    their Table 1 view, two Ray tasks logging one dataset to a server); the second attempt then
+    finds the row and updates or links it. Other errors are raised at once.
+    """
+    import time
+
+    from mlflow.exceptions import MlflowException
+
+    for attempt in range(CONFLICT_ATTEMPTS):
+        try:
+            return write(*args, **kwargs)
+        except MlflowException as e:
+            if "UNIQUE constraint" not in str(e) and "IntegrityError" not in str(e) or attempt == CONFLICT_ATTEMPTS - 1:
+                raise
+            time.sleep(0.05 * (attempt + 1))
+    return None
+
+
 def log_dataset(mlflow_client, run_id: str, root: str | Path, digest: str, context: str = "training") -> None:
     """The dataset folder as the run's input (name, digest, local source): the UI's Dataset column."""
     import json
@@ -330,7 +356,8 @@ def log_dataset(mlflow_client, run_id: str, root: str | Path, digest: str, conte
     root = Path(root)
     dataset = Dataset(name=root.parent.name if root.name == "pairs" else root.name, digest=digest[:36],
                       source_type="local", source=json.dumps({"uri": project_path(root)}))
-    mlflow_client.log_inputs(run_id, datasets=[DatasetInput(dataset, [InputTag("mlflow.data.context", context)])])
+    on_conflict_retry(mlflow_client.log_inputs, run_id,
+                      datasets=[DatasetInput(dataset, [InputTag("mlflow.data.context", context)])])
 
 
 def log_run(experiment: str, *, run_name: str, params: dict[str, Any], metrics: dict[str, float],
@@ -400,7 +427,7 @@ def save_view(mlflow_client, experiment_id: str, key: str, name: str, *, search_
              "runsExpanded": {}, "runsPinned": [], "runsHidden": [], "viewMaximized": False, "runListHidden": False}
     now = int(time.time() * 1000)
     envelope = {"name": name, "createdAt": now, "updatedAt": now, "state": json.dumps(state)}
-    mlflow_client.set_experiment_tag(experiment_id, VIEW_TAG_PREFIX + key, json.dumps(envelope))
+    on_conflict_retry(mlflow_client.set_experiment_tag, experiment_id, VIEW_TAG_PREFIX + key, json.dumps(envelope))
     return f"#/experiments/{experiment_id}/runs?workflowType=machine_learning&viewStateShareKey={key}"
 
 

@@ -278,9 +278,12 @@ def _open_run(cfg: DictConfig, data_root: Path, data_hash: str, ckpt_root: Path,
         if data_root.is_dir():
             log_dataset(c, run_id, data_root, data_hash, "pretraining" if cfg.stage == "pretrain" else "training")
     except BaseException as e:
+        from uavturb.errors import Interrupted
         from uavturb.experiments.tracking import close_run
 
-        close_run(c, run_id, e)
+        status = close_run(c, run_id, e)
+        if isinstance(e, Interrupted):  # stopped while the run was being opened: nothing trained yet
+            e.notes.append(f"run {run_id} marked {status}; continue it with `uavturb train --resume {run_id}`")
         raise
     return c, run_id, None
 
