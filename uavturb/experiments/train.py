@@ -374,6 +374,18 @@ def _system_metrics(cfg: DictConfig, logger):
     return monitor
 
 
+def _finish_system_metrics(monitor) -> None:
+    """Stop MLflow's monitor; a run it logged nothing for (shorter than its sampling interval, or
+    its thread gave up on a busy store) gets one sample taken now, so the run shows its system
+    metrics whatever its length."""
+    logged = monitor._logging_step > 0  # MLflow's monitor has no public count of what it logged
+    monitor.finish()
+    if not logged:
+        monitor.collect_metrics()
+        monitor.publish_metrics(monitor.aggregate_metrics())
+        monitor.mlflow_logger.flush()
+
+
 def _log_checkpoint(logger, best: str | None) -> None:
     """The best checkpoint as artifact :data:`CHECKPOINT_ARTIFACT`; its local path as tag ``checkpoint``."""
     import shutil
@@ -523,7 +535,7 @@ def _fit_and_test(cfg, module, dm, callbacks, monitor, client, run_id, last, ckp
         trainer.fit(module, datamodule=dm, ckpt_path=str(last) if last else None)
     finally:
         if system is not None:
-            system.finish()
+            _finish_system_metrics(system)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     best = checkpoint.best_model_path or None
     tested = trainer.test(module, datamodule=dm, ckpt_path=best if best else None, verbose=False)
