@@ -337,14 +337,14 @@ def on_conflict_retry(write: Any, *args: Any, **kwargs: Any) -> Any:
 
     from mlflow.exceptions import MlflowException
 
-    for attempt in range(CONFLICT_ATTEMPTS):
+    for attempt in range(CONFLICT_ATTEMPTS - 1):
         try:
             return write(*args, **kwargs)
         except MlflowException as e:
-            if "UNIQUE constraint" not in str(e) and "IntegrityError" not in str(e) or attempt == CONFLICT_ATTEMPTS - 1:
+            if "UNIQUE constraint" not in str(e) and "IntegrityError" not in str(e):
                 raise
             time.sleep(0.05 * (attempt + 1))
-    return None
+    return write(*args, **kwargs)  # the last attempt: its error, whatever it is, is the caller's
 
 
 def log_dataset(mlflow_client, run_id: str, root: str | Path, digest: str, context: str = "training") -> None:

@@ -155,22 +155,9 @@ def replace_folder(tmp: Path, folder: Path) -> None:
 def write_text_atomic(path: str | Path, text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary file in the same folder and a rename
     (parents created; an unwritable place is one :class:`InputError` line)."""
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as e:
-        raise InputError(path, f"cannot be written ({e.strerror or e})") from None
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        usual_mode(Path(tmp))
-        os.replace(tmp, path)
-    except OSError as e:
-        raise InputError(path, f"cannot be written ({e.strerror or e})") from None
-    finally:
-        Path(tmp).unlink(missing_ok=True)
-    return path
+    with publish_file(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
 
 
 @contextlib.contextmanager
