@@ -92,3 +92,23 @@ def test_phi_gradient_finite_at_clip():
     f = phi_alpha_beta(d, torch.full((3,), 9e4), 6.8125e-11, 1.25e-5)
     f.sum().backward()
     assert torch.isfinite(d.grad).all() and d.grad[0] == 0 and (d.grad[1:] < 0).all()
+
+
+def test_phi_slope_is_the_laws_derivative_and_zero_where_clipped():
+    """The slope equals autograd's derivative of the law (and a finite difference), 0 where the paper's
+    clip holds the law constant and where there is no surface below."""
+    from uavturb.nn import phi_alpha_beta_slope
+
+    alpha, beta = 8.54858e-6 * 1.25e-3, 1.25e-3  # the hexarotor, mu = 2, r = 0.1 m
+    d = torch.tensor([0.02, 0.16, 0.25, 0.355, 1.0, float("inf")], dtype=torch.float64, requires_grad=True)
+    S = torch.full((6,), 6 * 413.0**2, dtype=torch.float64)
+    phi_alpha_beta(d, S, alpha, beta).sum().backward()
+    slope = phi_alpha_beta_slope(d.detach(), S, alpha, beta)
+    torch.testing.assert_close(slope[:5], d.grad[:5])
+    assert slope[0] == 0 and slope[5] == 0  # clipped (d^2 <= beta); no surface
+    # known answer at 0.16 m: -2 alpha S d / (d^2 - beta)^2
+    assert float(slope[1]) == pytest.approx(-2 * alpha * 6 * 413.0**2 * 0.16 / (0.16**2 - beta) ** 2, rel=1e-12)
+    h = 1e-6
+    fd = (phi_alpha_beta(torch.tensor(0.25 + h, dtype=torch.float64), S[:1], alpha, beta)
+          - phi_alpha_beta(torch.tensor(0.25 - h, dtype=torch.float64), S[:1], alpha, beta)) / (2 * h)
+    assert float(slope[2]) == pytest.approx(float(fd), rel=1e-6)

@@ -108,6 +108,41 @@ def test_height_module_metrics_names():
     assert {"val/loss", "val/rmse_d", "val/rmse_fa"} <= set(logged)
 
 
+def test_law_weighted_loss_known_answer():
+    """``law_weighted``: squared errors weighted by ``1 + (phi'/g_ref)^2``, normalised by the weights;
+    ``height``: the plain mean; the weights come from the true heights (1 where the law is clipped)."""
+    from uavturb.nn import phi_alpha_beta_slope
+
+    alpha, beta = 1.0686e-8, 1.25e-3
+    module = HeightModule(alpha=alpha, beta=beta, loss="law_weighted", law_weight_ref=2.0)
+    d_true = torch.tensor([[0.02, 0.16, 0.30, 1.20]])
+    d_hat = d_true + torch.tensor([[0.05, 0.01, -0.02, 0.10]])
+    S = torch.full((1, 4), 6 * 413.0**2)
+    g = phi_alpha_beta_slope(d_true, S, alpha, beta)[0]
+    w = 1 + (g / 2.0) ** 2
+    assert w[0] == 1 and w[1] > 9 and w[3] < 1.001  # clipped; near the floor; far from it
+    e2 = torch.tensor([0.05, 0.01, 0.02, 0.10]) ** 2
+    torch.testing.assert_close(module.height_loss(d_hat, d_true, S), (w * e2).sum() / w.sum())
+    plain = HeightModule(alpha=alpha, beta=beta)
+    torch.testing.assert_close(plain.height_loss(d_hat, d_true, S), e2.mean())
+    last = HeightModule(alpha=alpha, beta=beta, loss="law_weighted", loss_frames="last")
+    torch.testing.assert_close(last.height_loss(d_hat, d_true, S), e2[-1])  # one frame: its own weight cancels
+    with pytest.raises(InputError, match="model.loss"):
+        HeightModule(loss="fa")
+    with pytest.raises(InputError, match="model.law_weight_ref"):
+        HeightModule(loss="law_weighted", law_weight_ref=0.0)
+
+
+def test_config_losses_are_the_modules():
+    import dataclasses
+
+    from uavturb.experiments.config import ModelConfig
+    from uavturb.systems.height import LOSSES
+
+    field = {f.name: f for f in dataclasses.fields(ModelConfig)}["loss"]
+    assert tuple(field.metadata["allowed"].choices) == LOSSES
+
+
 def test_freeze_then_finetune(tmp_path):
     module = HeightModule(lr_head=1e-3, lr_encoder=1e-4)
     enc0 = {k: v.clone() for k, v in module.encoder.state_dict().items()}

@@ -140,6 +140,9 @@ class ModelConfig:
     alpha: float = allowed(ALPHA_PAPER, ge=0)                # ground-effect law f_a = alpha S / (d^2 - beta)
     beta: float = allowed(BETA_PAPER, ge=0)                  # m^2
     loss_frames: str = allowed("all", choices=("all", "last"))  # frames of a window the height loss uses
+    loss: str = allowed("height", choices=("height", "law_weighted"))  # systems.height.LOSSES: the paper's height MSE, or ours
+    #                                     weighted by the law's slope at the true height (systems/height.py)
+    law_weight_ref: float = allowed(1.0, **_POSITIVE)        # N/m, g_ref of loss=law_weighted
 
 
 @dataclass

@@ -141,7 +141,8 @@ def _build(cfg: DictConfig):
     module = HeightModule(use_gru=m.use_gru, embed_dim=m.embed_dim, encoder_hidden=m.encoder_hidden,
                           gru_hidden=m.gru_hidden, gru_layers=m.gru_layers, mlp_hidden=m.mlp_hidden,
                           max_depth=m.max_depth, lr_head=m.lr_head, lr_encoder=m.lr_encoder, alpha=m.alpha,
-                          beta=m.beta, loss_frames=m.loss_frames, encoder_ckpt=encoder_ckpt)
+                          beta=m.beta, loss_frames=m.loss_frames, encoder_ckpt=encoder_ckpt,
+                          loss=m.loss, law_weight_ref=m.law_weight_ref)
     dm = ShardWindowsDataModule(d.root, window=d.window, stride=d.stride, eval_stride=d.eval_stride,
                                 batch_size=d.batch_size, num_workers=d.num_workers, image_size=d.image_size,
                                 seed=cfg.trainer.seed)  # seeds differ in batch order too, not only in init

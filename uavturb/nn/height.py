@@ -95,3 +95,30 @@ def phi_alpha_beta(d: torch.Tensor, sum_omega2: torch.Tensor, alpha: float, beta
     f = alpha * sum_omega2.to(d.dtype) / safe
     f = torch.where(clipped, torch.full_like(f, CLIP_FORCE_N), f)
     return torch.where(far, torch.zeros_like(f), f)
+
+
+def phi_alpha_beta_slope(d: torch.Tensor, sum_omega2: torch.Tensor, alpha: float, beta: float) -> torch.Tensor:
+    """``d phi / d d`` [N/m] of :func:`phi_alpha_beta`: ``-2 alpha sum(Omega^2) d / (d^2 - beta)^2``.
+
+    What a height error costs in ``f_a``: to first order ``f_a(d_hat) - f_a(d) = slope * (d_hat - d)``.
+    The paper's clip applies here as in :func:`phi_alpha_beta`: where ``d^2 <= beta`` the clipped law
+    is constant, so its slope is 0; so it is where ``d`` is infinite (no surface below).
+
+    Parameters
+    ----------
+    d : (...) heights over the surface below [m].
+    sum_omega2 : (...) ``sum_i Omega_i^2`` [rad^2/s^2], broadcastable with ``d``.
+    alpha : float
+        N m^2/(rad/s)^2.
+    beta : float
+        m^2.
+
+    Returns
+    -------
+    (...) slope [N/m] (negative: the force falls with height), dtype of ``d``.
+    """
+    d2 = d * d
+    dead = (d2 <= beta) | torch.isinf(d2)
+    safe = torch.where(dead, torch.ones_like(d2), d2 - beta)
+    slope = -2.0 * alpha * sum_omega2.to(d.dtype) * torch.where(dead, torch.zeros_like(d), d) / (safe * safe)
+    return torch.where(dead, torch.zeros_like(slope), slope)

@@ -2,8 +2,19 @@
 
     e_t = Enc(D_t);  h_t = GRU(e_t, h_{t-1});  d_t = Pred(h_t);  f_a,t = phi(d_t, Omega_t)
 
-Loss: ``L1 = ||d_t - d*_t||^2`` (mean squared error over the window's frames, or over its
-last frame only: ``loss_frames``). Metrics, on the **last frame of each window** (the frame
+Loss (``loss``):
+
+- ``height`` (the paper's): ``L1 = ||d_t - d*_t||^2``, the mean squared error over the window's
+  frames, or over its last frame only (``loss_frames``).
+- ``law_weighted`` (ours, beyond the paper): the same squared errors weighted by what they cost
+  in ``f_a``, ``w_t = 1 + (phi'(d*_t, Omega_t) / g_ref)^2`` with ``phi'`` the law's slope in height
+  at the frame's true height and rotor speeds (:func:`uavturb.nn.height.phi_alpha_beta_slope`,
+  the paper's clip applied as in ``f_a``: slope 0 where the law is clipped) and ``g_ref =
+  law_weight_ref`` [N/m]; ``L = sum(w e^2) / sum(w)`` over the frames the loss uses, so the
+  loss stays in m^2 and its scale (hence the learning rate) is that of ``height``. To first order
+  ``phi' e`` is the frame's ``f_a`` error: a frame where a centimetre of height costs
+  ``0.01 g_ref`` newtons counts twice as much as one far from any surface, and near the floor
+  (the hexarotor at 0.16 m: ``phi' ~ 10 N/m``) about 100 times. Metrics, on the **last frame of each window** (the frame
 predicted with ``H`` frames of memory), torchmetrics RMSE: ``{train,val,test}/rmse_d`` [m]
 and ``{train,val,test}/rmse_fa`` [N] with ``f_a`` from
 :func:`uavturb.nn.height.phi_alpha_beta` at the frame's rotor speeds; plus ``*/loss``.
@@ -24,10 +35,11 @@ from torchmetrics import MeanSquaredError
 
 from uavturb.errors import InputError
 from uavturb.nn.encoder import DepthEncoder
-from uavturb.nn.height import HeightHead, phi_alpha_beta
+from uavturb.nn.height import HeightHead, phi_alpha_beta, phi_alpha_beta_slope
 from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
 
 STAGES = ("train", "val", "test")
+LOSSES = ("height", "law_weighted")  # the paper's height loss; ours weighted by the law's slope
 
 
 def load_encoder_state(path: str | Path) -> dict[str, torch.Tensor]:
@@ -67,6 +79,10 @@ class HeightModule(L.LightningModule):
         m^2, ground-effect law.
     loss_frames : "all" | "last"
         Frames of each window the loss uses.
+    loss : "height" | "law_weighted"
+        The paper's height loss, or ours weighted by the law's sensitivity (module docstring).
+    law_weight_ref : float
+        N/m, ``g_ref`` of ``law_weighted``.
     encoder_ckpt : str or None
         Pre-training checkpoint to initialise the encoder from. It is read once here; the
         saved hyper-parameters record it as ``pretrained_from`` and set ``encoder_ckpt`` to
@@ -78,10 +94,15 @@ class HeightModule(L.LightningModule):
     def __init__(self, use_gru: bool = True, embed_dim: int = 50, encoder_hidden: int = 128, gru_hidden: int = 50,
                  gru_layers: int = 2, mlp_hidden: int = 50, max_depth: float = 10.0, lr_head: float = 1e-6,
                  lr_encoder: float = 1e-6, alpha: float = ALPHA_PAPER, beta: float = BETA_PAPER,
-                 loss_frames: str = "all", encoder_ckpt: str | None = None, pretrained_from: str | None = None):
+                 loss_frames: str = "all", encoder_ckpt: str | None = None, pretrained_from: str | None = None,
+                 loss: str = "height", law_weight_ref: float = 1.0):
         super().__init__()
         if loss_frames not in ("all", "last"):
             raise InputError("model.loss_frames", f"must be all or last, not {loss_frames!r}")
+        if loss not in LOSSES:
+            raise InputError("model.loss", f"must be one of {', '.join(LOSSES)}, not {loss!r}")
+        if not law_weight_ref > 0:
+            raise InputError("model.law_weight_ref", f"must be positive (N/m), got {law_weight_ref}")
         self.save_hyperparameters(logger=False)  # train() logs the resolved config once
         self.encoder = DepthEncoder(embed_dim=embed_dim, hidden=encoder_hidden, max_depth=max_depth)
         self.head = HeightHead(embed_dim=embed_dim, hidden=gru_hidden, num_layers=gru_layers, mlp_hidden=mlp_hidden,
@@ -118,13 +139,24 @@ class HeightModule(L.LightningModule):
         """``f_a`` [N] from heights [m] and ``sum Omega^2`` [rad^2/s^2] with this module's alpha, beta."""
         return phi_alpha_beta(d, sum_omega2, self.hparams.alpha, self.hparams.beta)
 
+    def loss_weights(self, d_true: torch.Tensor, sum_omega2: torch.Tensor) -> torch.Tensor:
+        """``w = 1 + (phi'(d*, Omega) / g_ref)^2`` [-] of the ``law_weighted`` loss, shape of ``d_true``."""
+        slope = phi_alpha_beta_slope(d_true, sum_omega2, self.hparams.alpha, self.hparams.beta)
+        return 1.0 + (slope / self.hparams.law_weight_ref) ** 2
+
+    def height_loss(self, d_hat: torch.Tensor, d_true: torch.Tensor, sum_omega2: torch.Tensor) -> torch.Tensor:
+        """The training loss [m^2] of ``(B, T)`` predicted and true heights (module docstring)."""
+        if self.hparams.loss_frames == "last":
+            d_hat, d_true, sum_omega2 = d_hat[:, -1], d_true[:, -1], sum_omega2[:, -1]
+        if self.hparams.loss == "height":
+            return F.mse_loss(d_hat, d_true)
+        w = self.loss_weights(d_true, sum_omega2).detach()
+        return (w * (d_hat - d_true) ** 2).sum() / w.sum()
+
     def _step(self, batch: dict[str, torch.Tensor], stage: str) -> torch.Tensor:
         d_hat, _ = self(batch["depth"])
         d_true = batch["d"]
-        if self.hparams.loss_frames == "last":
-            loss = F.mse_loss(d_hat[:, -1], d_true[:, -1])
-        else:
-            loss = F.mse_loss(d_hat, d_true)
+        loss = self.height_loss(d_hat, d_true, batch["sum_omega2"])
         d_last = d_hat[:, -1].detach()
         fa_hat = self.predict_fa(d_last, batch["sum_omega2"][:, -1])
         bs = d_hat.shape[0]
