@@ -324,3 +324,15 @@ def test_sim_shards_through_cam0(tmp_path):
         k = len(tr.t) // 2
         ref = r.depth(camera_pose_world(tr.state[k, 3:7], tr.state[k, :3], cameras.body_mount("euroc_cam0")))
     assert np.array_equal(ref, tr.depth[k])
+    # evaluate reads the camera from the manifest, and a recording without cam0 is seen through it
+    from types import SimpleNamespace
+
+    from uavturb.data.recordings import camera_for
+    from uavturb.experiments.evaluate import _dataset_camera
+
+    cam = _dataset_camera(SimpleNamespace(data=SimpleNamespace(params={"data.root": str(tmp_path / "eu")})))
+    assert cam["camera"] == "euroc_cam0" and cam["image_size"] == 24 and cam["frame_dt"] == pytest.approx(0.05)
+    no_cam0 = SimpleNamespace(cam0=None)
+    model = camera_for(no_cam0, 24, camera=cam["camera"])
+    assert np.allclose(model.K, cameras.EUROC_CAM0.K(24, 24)) and np.allclose(model.T_BS, cameras.body_mount("euroc_cam0"))
+    assert camera_for(no_cam0, 24, 70.0, 20.0, camera="forward").source.startswith("default forward camera")

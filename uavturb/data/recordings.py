@@ -18,8 +18,9 @@ Choices (ours):
 - **Image**: the network's square input of side ``image_size``. A ``cam0`` with another
   resolution is cropped to its largest centred square and scaled (intrinsics changed
   accordingly, no resampling of pixels: the cloud is projected straight at the target size).
-- **No cam0** (flights from ``uavturb generate flight``): a forward camera at the body
-  origin, looking along body +x pitched down by ``pitch_deg`` with vertical field of view
+- **No cam0** (flights from ``uavturb generate flight``): the training data's camera when it
+  was rendered through a registered one (``--set camera=euroc_cam0``: :func:`registry_camera`),
+  else a forward camera at the body origin, looking along body +x pitched down by ``pitch_deg`` with vertical field of view
   ``yfov_deg`` -- the camera of the training shards (their manifest's ``pitch_deg`` and
   ``yfov_deg``, read by :mod:`uavturb.evaluate`: 20 deg and 70 deg for the simulator's
   shards; default :mod:`uavturb.data.synthetic`'s 45 deg and 70 deg).
@@ -104,12 +105,26 @@ def cam0_camera(rec: Recording, size: int) -> CameraModel:
     return CameraModel(K, size, size, cam0_pose_in_body(rec), "cam0/sensor.yaml (centre square, scaled)")
 
 
-def camera_for(rec: Recording, size: int, yfov_deg: float | None = None, pitch_deg: float | None = None) -> CameraModel:
-    """The recording's ``cam0`` when it has one, else :func:`forward_camera`."""
+def registry_camera(name: str, size: int) -> CameraModel:
+    """A camera of :mod:`uavturb.sim.cameras` (not ``forward``) at ``size`` px, on its vehicle's body
+    (:func:`uavturb.sim.cameras.body_mount`): the camera a simulator preset rendered its data with."""
+    from uavturb.sim.cameras import body_mount, camera_spec
+
+    return CameraModel(camera_spec(name).K(size, size), size, size, body_mount(name),
+                       f"{name} (the training data's camera, uavturb.sim.cameras)")
+
+
+def camera_for(rec: Recording, size: int, yfov_deg: float | None = None, pitch_deg: float | None = None,
+               camera: str | None = None) -> CameraModel:
+    """The recording's ``cam0`` when it has one, else the registered ``camera`` (the training data's,
+    :func:`registry_camera`) when one is named, else :func:`forward_camera`."""
     from uavturb.data import synthetic
+    from uavturb.sim.cameras import FORWARD
 
     if rec.cam0 is not None:
         return cam0_camera(rec, size)
+    if camera is not None and camera != FORWARD:
+        return registry_camera(camera, size)
     return forward_camera(size, synthetic.YFOV_DEG if yfov_deg is None else yfov_deg,
                           synthetic.PITCH_DEG if pitch_deg is None else pitch_deg)
 
@@ -164,7 +179,7 @@ def box_average(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray, width: floa
 
 def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 128, frame_dt: float | None = None,
                        yfov_deg: float | None = None, pitch_deg: float | None = None, gt_window_s: float = 0.05,
-                       progress: bool = False) -> RecordingSequence:
+                       camera: str | None = None, progress: bool = False) -> RecordingSequence:
     """A recording as depth frames, true heights and ground-truth ``f_a`` (see the module docstring).
 
     Parameters
@@ -175,6 +190,8 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     frame_dt : s, frame period where the recording lists no cam0 frames (default: cam0's
         ``rate_hz``, else 0.05)
     yfov_deg, pitch_deg : the default camera's, where there is no cam0
+    camera : a camera of :mod:`uavturb.sim.cameras` to use where there is no cam0 (the training
+        data's, when it was rendered through one; default: the forward camera)
     gt_window_s : s, longest averaging window of the ground-truth f_a
     progress : print frames/s to stderr
 
@@ -222,7 +239,7 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     fa = box_average(fd.t, res.force[:, 2], t, min(dt, gt_window_s))
     d = SurfaceIndex(rec.points).d_down(p)
 
-    camera = camera_for(rec, image_size, yfov_deg, pitch_deg)
+    camera = camera_for(rec, image_size, yfov_deg, pitch_deg, camera)
     cloud = prepare_cloud(rec.points)
     T_WC = camera_pose_world(q, p, camera.T_BS)
     depth = np.empty((len(t_ns), camera.height, camera.width), np.float32)
@@ -273,6 +290,6 @@ def read_sequences(paths: list[str | Path], vehicle: Vehicle, **kw) -> list[Reco
 
 
 __all__ = ["CameraModel", "RecordingSequence", "RecordingWindowsDataset", "box_average", "camera_for",
-           "cam0_camera", "cam0_pose_in_body", "forward_camera", "read_sequences", "recording_sequence", "DEFAULT_FRAME_DT",
+           "cam0_camera", "cam0_pose_in_body", "registry_camera", "forward_camera", "read_sequences", "recording_sequence", "DEFAULT_FRAME_DT",
            "AIRBORNE_THRUST_FRACTION"]
 

@@ -106,7 +106,8 @@ def ground_effect_height(beta: float, fraction: float = GE_FRACTION) -> float:
 
 
 def _dataset_camera(run) -> dict[str, Any]:
-    """``image_size``, ``yfov_deg``, ``pitch_deg``, ``frame_dt`` of the run's training data (what is known)."""
+    """``image_size``, ``yfov_deg``, ``pitch_deg``, ``camera`` (a registered camera's name), ``frame_dt``
+    of the run's training data (what is known)."""
     from uavturb.io import shards
 
     out: dict[str, Any] = {}
@@ -128,6 +129,8 @@ def _dataset_camera(run) -> dict[str, Any]:
                 for k in ("yfov_deg", "pitch_deg"):
                     if k in conf:
                         out[k] = float(conf[k])
+                if conf.get("camera"):
+                    out["camera"] = str(conf["camera"])
                 if conf.get("dt"):
                     out["frame_dt"] = float(conf["dt"])
                 if conf.get("camera_hz"):
@@ -376,7 +379,7 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     recs = load_recordings(recordings, vehicle)
     veh, vehicle_source = _evaluation_vehicle(recs[0], progress)
     seqs = [recording_sequence(r, veh, image_size=size, frame_dt=frame_dt, yfov_deg=yfov, pitch_deg=pitch,
-                               progress=progress) for r in recs]
+                               camera=cam.get("camera"), progress=progress) for r in recs]
     s0 = seqs[0]
     fit, h_ge = _fit_ground_effect_law(s0, recs[0].path, ge_fraction, progress)
     results, rows = _flight_results(module, seqs, fit, h_ge)
