@@ -72,7 +72,7 @@ def test_table2_on_flights_where_the_law_is_exact(setup):
     table = list(csv.DictReader(open(out / "table.csv")))
     assert [r["flight"] for r in table] == ["hex_0", "hex_1", "Total"]
     assert float(table[2]["rmse_fa"]) == pytest.approx(rows["Total"]["rmse_fa"])
-    assert (out / "table.md").read_text().count("\n| ") == 4  # header + 3 rows
+    assert (out / "table.md").read_text().count("\n| ") == 4 + 4  # header + 3 rows; bands: header + 3 bands
     # the model's f_a is the identified law on the predicted heights
     s = np.genfromtxt(out / "series_hex_1.csv", delimiter=",", names=True)
     r1 = res["results"][1]
@@ -166,6 +166,32 @@ def test_grounded_frames_are_left_out():
     assert m["rmse_fa_phi"] == pytest.approx(np.sqrt(0.01 / 2)) and m["rmse_fa_phi_all"] == pytest.approx(0.1 / 3**0.5)
 
 
+def test_height_bands_known_answer():
+    """Bands cut at the law's 5 % and 2 % of thrust; per band the law's and the model's errors, the height
+    bias and the band's share of the squared f_a error."""
+    from uavturb.experiments.evaluate import band_edges, band_metrics
+
+    beta = 1.25e-3
+    edges = band_edges(beta, 0.01)
+    h5, h2, h1 = (ground_effect_height(beta, f) for f in (0.05, 0.02, 0.01))
+    assert [(lo, hi) for lo, hi, _ in edges] == [(0.0, h5), (h5, h2), (h2, h1)]
+    assert "law >= 5 % of thrust" in edges[0][2] and "law 1-2 % of thrust" in edges[2][2]
+    assert len(band_edges(beta, 0.03)) == 2  # the 2 % band lies outside a 3 % region
+    d = np.array([0.15, 0.16, 0.2, 0.3, 1.0])
+    d_hat = d + np.array([0.01, -0.01, 0.02, 0.0, 0.5])
+    fa = np.array([1.0, 1.0, 0.4, 0.1, 0.0])
+    fa_model = fa + np.array([0.3, -0.1, 0.2, 0.0, 0.1])
+    ge = d <= h1
+    a = FlightResult("a", np.arange(3.0), d[:3], d_hat[:3], fa[:3], fa[:3], fa_model[:3], ge[:3], ge[:3] | True)
+    b = FlightResult("b", np.arange(2.0), d[3:], d_hat[3:], fa[3:], fa[3:] + 0.05, fa_model[3:], ge[3:], ge[3:] | True)
+    bands = band_metrics([a, b], beta, 0.01)
+    assert [x["n"] for x in bands] == [2, 1, 1]  # 0.15 and 0.16 | 0.2 | 0.3; 1.0 m is outside the region
+    assert bands[0]["rmse_fa"] == pytest.approx(np.sqrt((0.09 + 0.01) / 2))
+    assert bands[0]["bias_d"] == pytest.approx(0.0) and bands[1]["bias_d"] == pytest.approx(0.02)
+    assert bands[2]["rmse_fa_phi"] == pytest.approx(0.05) and bands[2]["rmse_fa"] == 0.0
+    assert [x["share_sq_fa"] for x in bands] == pytest.approx([0.1 / 0.14, 0.04 / 0.14, 0.0])
+
+
 def test_box_average():
     t = np.arange(0, 1, 0.01)
     x = np.where(t < 0.5, 1.0, 3.0)
@@ -198,3 +224,47 @@ def test_table2_with_realistic_sensor_noise(setup, tmp_path):
     for _, m in res["rows"]:
         # 1 mm MoCap noise on heights of ~6 cm, where the law is steep, dominates
         assert m["rmse_fa_phi"] < 0.1 * m["rms_fa_gt"]
+
+
+def test_table2_over_runs(setup, tmp_path):
+    """Several runs on the same flights: per run what ``evaluate`` gives for it alone, summarised per row
+    (the runs' name here) over its seeds, with the ratio and the height bands; one folder, published whole."""
+    from uavturb.experiments.evaluate_runs import evaluate_runs
+
+    root, rid, _, flights = setup
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        rid2 = tiny_height_run(root / "second", use_gru=True, keep="tag", steps=4)[0]
+    out = tmp_path / "seeds"
+    res = evaluate_runs([rid, rid2], flights, out=out, frame_dt=0.1, progress=False)
+    alone = evaluate(rid2, flights, out=tmp_path / "alone", frame_dt=0.1, progress=False, log=False)
+    assert res["runs"][1]["total"] == pytest.approx(dict(alone["rows"])["Total"])
+    (row,) = res["rows"]
+    assert row["row"] == "height-none-gru" and row["n"] == 2
+    totals = [r["total"] for r in res["runs"]]
+    ratios = [t["rmse_fa"] / t["rmse_fa_phi"] for t in totals]
+    assert row["ratio"] == pytest.approx(np.mean(ratios)) and row["ratio_std"] == pytest.approx(np.std(ratios, ddof=1))
+    assert row["ratio_max"] == pytest.approx(max(ratios))
+    assert row["rmse_fa"] == pytest.approx(np.mean([t["rmse_fa"] for t in totals]))
+    assert sum(b["n"] for b in row["bands"]) == totals[0]["n_ge"]
+    assert sum(b["share_sq_fa"] for b in res["runs"][0]["bands"]) == pytest.approx(1.0)
+    files = sorted(p.name for p in out.iterdir())
+    assert {"summary.md", "summary.json", "bands.png"} <= set(files) and len([f for f in files if "seed" in f]) == 0
+    assert len([p for p in out.iterdir() if p.is_dir()]) == 2
+    assert (out / "summary.md").read_text().count("| height-none-gru | 2 |") == 1
+    assert all(r["mlflow_run"] for r in res["runs"])
+    with pytest.raises(InputError, match="twice"):
+        evaluate_runs([rid, rid], flights, out=tmp_path / "twice", progress=False, log=False)
+    assert not (tmp_path / "twice").exists()
+
+
+def test_evaluate_cli_needs_runs_or_a_sweep(setup, tmp_path, capsys):
+    from uavturb.cli import main
+
+    _, rid, _, flights = setup
+    assert main(["evaluate", str(flights[0]), "--out", str(tmp_path / "a")]) == 2
+    assert main(["evaluate", str(flights[0]), "--run", rid, "--rows", "x", "--out", str(tmp_path / "b")]) == 2
+    assert main(["evaluate", str(flights[0]), "--sweep", "nope", "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and "--run" in err[0] and "--rows" in err[1] and "no run 'nope'" in err[2]
+    assert not any((tmp_path / x).exists() for x in "abc")

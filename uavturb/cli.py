@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-from uavturb.errors import Interrupted, UavturbError, raise_on_signals
+from uavturb.errors import InputError, Interrupted, UavturbError, raise_on_signals
 
 
 def _version() -> str:
@@ -219,7 +219,10 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
 def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("evaluate", help="Table 2: the height model and the ground-effect law on EuRoC-layout flights")
     s.add_argument("recordings", nargs="+", metavar="REC", help="recording folders; the first identifies (alpha, beta)")
-    s.add_argument("--run", required=True, metavar="RUN_ID", help="MLflow run of a height training")
+    s.add_argument("--run", action="append", metavar="RUN_ID",
+                   help="MLflow run of a height training (repeat for several: Table 2 over seeds)")
+    s.add_argument("--sweep", metavar="PARENT_RUN_ID", help="every finished height run of this ablation sweep")
+    s.add_argument("--rows", help="with --sweep: only these rows, comma-separated (e.g. depth/finetune,normals/finetune)")
     s.add_argument("--out", default="evaluation", metavar="DIR", help="folder for table.md/csv and plots")
     s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one (raw EuRoC)")
     s.add_argument("--frame-dt", type=float, default=None, help="frame period [s] without cam0 frames (0.05)")
@@ -414,9 +417,19 @@ def _compare(args: argparse.Namespace) -> int:
 
 def _evaluate(args: argparse.Namespace) -> int:
     from uavturb.experiments.evaluate import evaluate
+    from uavturb.experiments.evaluate_runs import evaluate_runs, sweep_runs
 
-    evaluate(args.run, args.recordings, out=args.out, vehicle=args.vehicle, frame_dt=args.frame_dt,
-             ge_fraction=args.ge_fraction, log=not args.no_mlflow, overwrite=args.overwrite)
+    if (args.sweep is None) == (args.run is None):
+        raise InputError("--run", "give one or more --run RUN_ID, or --sweep PARENT_RUN_ID")
+    if args.rows is not None and args.sweep is None:
+        raise InputError("--rows", "selects rows of a --sweep")
+    if args.sweep is None and len(args.run) == 1:
+        evaluate(args.run[0], args.recordings, out=args.out, vehicle=args.vehicle, frame_dt=args.frame_dt,
+                 ge_fraction=args.ge_fraction, log=not args.no_mlflow, overwrite=args.overwrite)
+        return 0
+    runs = args.run if args.sweep is None else sweep_runs(args.sweep, args.rows.split(",") if args.rows else None)
+    evaluate_runs(runs, args.recordings, out=args.out, vehicle=args.vehicle, frame_dt=args.frame_dt,
+                  ge_fraction=args.ge_fraction, log=not args.no_mlflow, overwrite=args.overwrite)
     return 0
 
 

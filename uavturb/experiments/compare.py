@@ -26,7 +26,7 @@ METRICS = ("test/rmse_d", "test/rmse_fa")
 FA_SCALE = 1e4  # the paper prints RMSE(f_a) in units of 1e-4 N
 
 
-def _search(client, exp_id: str, filter_string: str, order_by: list[str] | None = None) -> list[Any]:
+def search_all_runs(client, exp_id: str, filter_string: str, order_by: list[str] | None = None) -> list[Any]:
     out, token = [], None
     while True:
         page = client.search_runs([exp_id], filter_string=filter_string, order_by=order_by, max_results=1000,
@@ -181,7 +181,7 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
         raise InputError("--mlflow-experiment",
                          f"no MLflow experiment {experiment!r} in {uri} (run `uavturb sweep` first)")
     if parent_run_id is None:
-        parents = _search(client, exp.experiment_id, "tags.sweep_hash LIKE '%' and tags.sweep LIKE '%'",
+        parents = search_all_runs(client, exp.experiment_id, "tags.sweep_hash LIKE '%' and tags.sweep LIKE '%'",
                           ["attributes.start_time DESC"])
         parent_run_id = parents[0].info.run_id if parents else None
     if parent_run_id is not None:
@@ -192,7 +192,7 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
         filt = f"tags.`mlflow.parentRunId` = '{parent_run_id}' and attributes.status = 'FINISHED'"
     else:
         filt = "attributes.status = 'FINISHED'"
-    runs = [r for r in _search(client, exp.experiment_id, filt) if "ablation" in r.data.tags]
+    runs = [r for r in search_all_runs(client, exp.experiment_id, filt) if "ablation" in r.data.tags]
     rows = table_rows(runs, list(sp.rows))
     if not rows:
         raise InputError("--mlflow-experiment", f"no finished ablation run with {', '.join(METRICS)} in experiment "

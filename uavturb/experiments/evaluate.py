@@ -46,6 +46,9 @@ from uavturb.errors import InputError
 from uavturb.io.publish import publish_folder
 
 GE_FRACTION = 0.01
+#: lower bounds of the law's share of thrust that cut the ground-effect frames into height bands
+#: (:func:`band_metrics`): nearest the floor first
+BAND_FRACTIONS = (0.05, 0.02)
 
 
 @dataclass
@@ -105,7 +108,7 @@ def ground_effect_height(beta: float, fraction: float = GE_FRACTION) -> float:
     return float(np.sqrt(beta * (1.0 + 1.0 / fraction)))
 
 
-def _dataset_camera(run) -> dict[str, Any]:
+def dataset_camera(run) -> dict[str, Any]:
     """``image_size``, ``yfov_deg``, ``pitch_deg``, ``camera`` (a registered camera's name), ``frame_dt``
     of the run's training data (what is known)."""
     from uavturb.io import shards
@@ -138,6 +141,64 @@ def _dataset_camera(run) -> dict[str, Any]:
         except InputError:
             pass
     return out
+
+
+def camera_settings(run: Any, *, image_size: int | None = None, yfov_deg: float | None = None,
+                    pitch_deg: float | None = None, frame_dt: float | None = None) -> dict[str, Any]:
+    """Keyword arguments of :func:`uavturb.data.recordings.recording_sequence` for a run's model:
+    those given, else its training data's (:func:`dataset_camera`): ``image_size`` (default 128),
+    ``yfov_deg``, ``pitch_deg``, ``camera``, ``frame_dt``."""
+    cam = dataset_camera(run)
+    return {"image_size": int(image_size or cam.get("image_size", 128)),
+            "yfov_deg": yfov_deg if yfov_deg is not None else cam.get("yfov_deg"),
+            "pitch_deg": pitch_deg if pitch_deg is not None else cam.get("pitch_deg"),
+            "camera": cam.get("camera"), "frame_dt": frame_dt if frame_dt is not None else cam.get("frame_dt")}
+
+
+def band_edges(beta: float, ge_fraction: float = GE_FRACTION) -> list[tuple[float, float, str]]:
+    """``(d_low, d_high, label)`` [m] of the ground-effect region's height bands: where the law
+    ``beta / (d^2 - beta)`` is at least 5 % of the thrust, 2-5 %, then down to ``ge_fraction``
+    (bands that ``ge_fraction`` already excludes are left out)."""
+    fractions = [f for f in BAND_FRACTIONS if f > ge_fraction] + [ge_fraction]
+    out, low, upper = [], 0.0, None
+    for f in fractions:
+        high = ground_effect_height(beta, f)
+        share = f">= {100 * f:g} %" if upper is None else f"{100 * f:g}-{100 * upper:g} %"
+        out.append((low, high, f"{low:.3f}-{high:.3f} m (law {share} of thrust)"))
+        low, upper = high, f
+    return out
+
+
+def band_metrics(results: Sequence["FlightResult"], beta: float, ge_fraction: float = GE_FRACTION
+                 ) -> list[dict[str, Any]]:
+    """Where the error comes from: the ground-effect frames of all flights by height band (:func:`band_edges`).
+
+    Per band: ``n``, ``rmse_fa_phi``, ``rmse_fa`` [N], ``rmse_d`` and ``bias_d`` (mean predicted
+    minus true height) [m], and ``share_sq_fa``: the band's part of the total squared f_a error.
+    """
+    cat = lambda k: np.concatenate([getattr(r, k) for r in results])  # noqa: E731
+    ge, d, d_hat, fa, fa_phi, fa_model = cat("ge"), cat("d"), cat("d_hat"), cat("fa"), cat("fa_phi"), cat("fa_model")
+    total = float(np.sum((fa_model[ge] - fa[ge]) ** 2))
+    out = []
+    for low, high, label in band_edges(beta, ge_fraction):
+        m = ge & (d > low) & (d <= high)
+        sq = float(np.sum((fa_model[m] - fa[m]) ** 2))
+        out.append({"band": label, "d_low": low, "d_high": high, "n": int(m.sum()),
+                    "rmse_fa_phi": _rmse(fa_phi[m], fa[m]), "rmse_fa": _rmse(fa_model[m], fa[m]),
+                    "rmse_d": _rmse(d_hat[m], d[m]),
+                    "bias_d": float(np.mean(d_hat[m] - d[m])) if m.any() else float("nan"),
+                    "share_sq_fa": sq / total if total > 0 else float("nan")})
+    return out
+
+
+def format_bands(bands: list[dict[str, Any]]) -> str:
+    """The bands of :func:`band_metrics` as a markdown table."""
+    lines = ["| height band | frames | RMSE(f_a,phi) [N] | RMSE(f_a) [N] | RMSE(d) [m] | bias(d) [m] | "
+             "share of f_a error |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for b in bands:
+        lines.append(f"| {b['band']} | {b['n']} | {b['rmse_fa_phi']:.4f} | {b['rmse_fa']:.4f} | {b['rmse_d']:.4f} | "
+                     f"{b['bias_d']:+.4f} | {100 * b['share_sq_fa']:.0f} % |")
+    return "\n".join(lines)
 
 
 def format_table(rows: list[tuple[str, dict[str, float]]], markdown: bool = False) -> str:
@@ -201,11 +262,11 @@ def _series_csv(res: FlightResult) -> str:
     return buf.getvalue()
 
 
-def _safe(name: str) -> str:
+def safe_filename(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
 
 
-def _log(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]], params: dict[str, Any]) -> str:
+def log_evaluation(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]], params: dict[str, Any]) -> str:
     """A child run of the training run: params, Table 2's Total as ``eval/<metric>``, the folder as artifacts.
 
     Per-flight figures stay in the artifacts (``evaluation/table.csv``): one metric column per
@@ -251,7 +312,7 @@ def _log(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]],
     return cid
 
 
-def _evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
+def evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
     """(vehicle, where its constants come from): identified on the first flight, else (said so) its
     ``vehicle.yaml``'s constants."""
     import sys
@@ -275,7 +336,7 @@ def _evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
     return veh, vehicle_source
 
 
-def _fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: bool) -> tuple[Any, float]:
+def fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: bool) -> tuple[Any, float]:
     """(``(alpha, beta)`` fit by BFGS on the first flight's airborne frames with their true heights,
     the ground-effect region's height [m])."""
     import sys
@@ -294,7 +355,7 @@ def _fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: 
     return fit, h_ge
 
 
-def _flight_results(module: Any, seqs: Sequence[Any], fit: Any, h_ge: float
+def flight_results(module: Any, seqs: Sequence[Any], fit: Any, h_ge: float
                     ) -> tuple[list[FlightResult], list[tuple[str, dict[str, float]]]]:
     """(per flight: the model's heights and the law on true and on predicted heights; the table's
     rows, one a flight and ``Total`` pooling their samples)."""
@@ -311,26 +372,26 @@ def _flight_results(module: Any, seqs: Sequence[Any], fit: Any, h_ge: float
     return results, rows
 
 
-def _write_outputs(out: Path, overwrite: bool, rows: list[tuple[str, dict[str, float]]],
-                   results: list[FlightResult], info: dict[str, Any]) -> None:
-    """The output folder, published atomically: ``table.md``, ``table.csv``, ``evaluation.json``, and per
-    flight ``fa_<flight>.png`` and ``series_<flight>.csv``."""
+def write_evaluation(folder: Path, rows: list[tuple[str, dict[str, float]]], results: list[FlightResult],
+                     info: dict[str, Any]) -> None:
+    """Into an existing ``folder``: ``table.md`` (with the height bands), ``table.csv``,
+    ``evaluation.json``, and per flight ``fa_<flight>.png`` and ``series_<flight>.csv``."""
     h_ge = info["h_ge"]
-    with publish_folder(out, overwrite=overwrite, command="uavturb evaluate") as tmp:
-        (tmp / "table.md").write_text(
-            f"Table 2 (ours): (alpha, beta) identified on {info['identified_on']}; ground-effect (GE) frames: "
-            f"airborne (thrust >= 0.3 m g) with d <= {h_ge:.3f} m (law >= {100 * info['ge_fraction']:g} % of "
-            f"thrust); 'all': every airborne frame with a surface below.\n\n{format_table(rows, markdown=True)}\n")
-        with open(tmp / "table.csv", "w", newline="") as f:
-            w = csv.writer(f)
-            keys = list(rows[0][1])
-            w.writerow(["flight", *keys])
-            for n, m in rows:
-                w.writerow([n, *(m[k] for k in keys)])
-        (tmp / "evaluation.json").write_text(json.dumps(info, indent=2, default=float))
-        for r in results:
-            plot_flight(r, tmp / f"fa_{_safe(r.name)}.png", h_ge)
-            (tmp / f"series_{_safe(r.name)}.csv").write_text(_series_csv(r))
+    (folder / "table.md").write_text(
+        f"Table 2 (ours): (alpha, beta) identified on {info['identified_on']}; ground-effect (GE) frames: "
+        f"airborne (thrust >= 0.3 m g) with d <= {h_ge:.3f} m (law >= {100 * info['ge_fraction']:g} % of "
+        f"thrust); 'all': every airborne frame with a surface below.\n\n{format_table(rows, markdown=True)}\n\n"
+        f"Where the error comes from (GE frames of all flights by true height):\n\n{format_bands(info['bands'])}\n")
+    with open(folder / "table.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        keys = list(rows[0][1])
+        w.writerow(["flight", *keys])
+        for n, m in rows:
+            w.writerow([n, *(m[k] for k in keys)])
+    (folder / "evaluation.json").write_text(json.dumps(info, indent=2, default=float))
+    for r in results:
+        plot_flight(r, folder / f"fa_{safe_filename(r.name)}.png", h_ge)
+        (folder / f"series_{safe_filename(r.name)}.csv").write_text(_series_csv(r))
 
 
 def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str | Path = "evaluation",
@@ -370,31 +431,28 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     out = Path(out)
     run = run_and_output(run_id, checkpoint, out, overwrite)
     module = load_height_module(run_id, checkpoint)
-    cam = _dataset_camera(run)
-    size = int(image_size or cam.get("image_size", 128))
-    yfov = yfov_deg if yfov_deg is not None else cam.get("yfov_deg")
-    pitch = pitch_deg if pitch_deg is not None else cam.get("pitch_deg")
-    frame_dt = frame_dt if frame_dt is not None else cam.get("frame_dt")
+    settings = camera_settings(run, image_size=image_size, yfov_deg=yfov_deg, pitch_deg=pitch_deg, frame_dt=frame_dt)
+    size = settings["image_size"]
 
     recs = load_recordings(recordings, vehicle)
-    veh, vehicle_source = _evaluation_vehicle(recs[0], progress)
-    seqs = [recording_sequence(r, veh, image_size=size, frame_dt=frame_dt, yfov_deg=yfov, pitch_deg=pitch,
-                               camera=cam.get("camera"), progress=progress) for r in recs]
+    veh, vehicle_source = evaluation_vehicle(recs[0], progress)
+    seqs = [recording_sequence(r, veh, **settings, progress=progress) for r in recs]
     s0 = seqs[0]
-    fit, h_ge = _fit_ground_effect_law(s0, recs[0].path, ge_fraction, progress)
-    results, rows = _flight_results(module, seqs, fit, h_ge)
+    fit, h_ge = fit_ground_effect_law(s0, recs[0].path, ge_fraction, progress)
+    results, rows = flight_results(module, seqs, fit, h_ge)
     table = format_table(rows)
 
     info = {"run_id": run_id, "checkpoint": str(checkpoint) if checkpoint else None,
             "recordings": [str(r.path) for r in recs], "alpha": fit.alpha, "beta": fit.beta,
             "alpha_beta_fit_rmse": fit.rmse, "identified_on": s0.name, "vehicle_constants": vehicle_source,
             "ge_fraction": ge_fraction, "h_ge": h_ge, "image_size": size, "camera": s0.camera.source,
-            "rows": [{"flight": n, **m} for n, m in rows]}
-    _write_outputs(out, overwrite, rows, results, info)
+            "rows": [{"flight": n, **m} for n, m in rows], "bands": band_metrics(results, fit.beta, ge_fraction)}
+    with publish_folder(out, overwrite=overwrite, command="uavturb evaluate") as tmp:
+        write_evaluation(tmp, rows, results, info)
 
     child = None
     if log and run_id is not None:
-        child = _log(run_id, out, rows, {"alpha": fit.alpha, "beta": fit.beta, "h_ge": h_ge,
+        child = log_evaluation(run_id, out, rows, {"alpha": fit.alpha, "beta": fit.beta, "h_ge": h_ge,
                                          "ge_fraction": ge_fraction, "identified_on": s0.name,
                                          "recordings": ",".join(r.name for r in recs), "image_size": size,
                                          "vehicle_constants": vehicle_source})
