@@ -112,9 +112,9 @@ def test_sweep_runs_rows_times_seeds_reusing_pretraining(tmp_path, store, monkey
             assert cfg.model.encoder_ckpt == expected, t
             assert cfg.model.lr_head == 1e-3 and cfg.trainer.max_epochs == 10  # the quick preset
 
-    # the store: 12 nested height children with tags and final metrics, 4 pre-training children
+    # the store: a nested height child per row and seed with tags and final metrics, 4 pre-training children
     height = [r for r in runs.values() if "ablation" in r.data.tags]
-    assert len(height) == 12 and len(runs) == 16
+    assert len(ROWS) == 7 and len(height) == 2 * len(ROWS) and len(runs) == 2 * len(ROWS) + 4
     for r in height:
         d, fa = known_rmse(r.data.tags["ablation"], int(r.data.tags["seed"]))
         assert r.data.metrics["test/rmse_d"] == pytest.approx(d) and r.data.metrics["test/rmse_fa"] == pytest.approx(fa)
@@ -157,10 +157,10 @@ def test_interrupted_sweep_resumes_without_redoing_finished_runs(tmp_path, store
     assert res["parent_run_id"] == parent.info.run_id and res["resumed"]
     assert [t["ablation"] for _, t in second.calls] == ROWS[4:]  # nothing finished is trained again
     assert sum(r["reused"] for r in res["runs"]) == 4
-    # the remaining rows got the pre-training checkpoint of the interrupted sweep, downloaded
-    (ckpt,) = {cfg.model.encoder_ckpt for cfg, _ in second.calls}
+    # the remaining normals rows got the pre-training checkpoint of the interrupted sweep, downloaded
+    (ckpt,) = {cfg.model.encoder_ckpt for cfg, t in second.calls if t["ablation"].startswith("normals/")}
     assert Path(ckpt).read_text() == f"pretrain {normals.info.run_id}" and ckpt != normals.data.tags["checkpoint"]
-    assert len(_children(store, parent.info.run_id)) == 8
+    assert len(_children(store, parent.info.run_id)) == 2 + len(ROWS)
 
     # a third call does nothing at all; a second seed adds only that seed's runs
     third = FakeTrain(tmp_path)
@@ -168,8 +168,8 @@ def test_interrupted_sweep_resumes_without_redoing_finished_runs(tmp_path, store
     sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
     assert third.calls == []
     sweep(DEFAULT_SPEC, preset="quick", seeds=2, experiment=store[1])
-    assert len(third.calls) == 8 and {t["seed"] for _, t in third.calls} == {"1"}
-    assert len(_children(store, parent.info.run_id)) == 16
+    assert len(third.calls) == 2 + len(ROWS) and {t["seed"] for _, t in third.calls} == {"1"}
+    assert len(_children(store, parent.info.run_id)) == 2 * (2 + len(ROWS))
 
 
 def test_a_sweep_rerun_resumes_its_interrupted_child_in_place(tmp_path, store, monkeypatch):

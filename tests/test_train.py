@@ -58,6 +58,11 @@ def test_tiny_height_training_learns_and_logs(tmp_path, store):
     # f_a also in the paper's 1e-4 N, so that a three-decimal column shows it
     assert run.data.metrics["test/rmse_fa_1e-4N"] == pytest.approx(1e4 * run.data.metrics["test/rmse_fa"])
     assert run.data.params["model.use_gru"] == "True" and run.data.params["data.window"] == "4"
+    # alpha, beta unset: the synthetic data's law (the paper's quadrotor, mu = 2), logged as numbers
+    from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
+
+    assert float(run.data.params["model.beta"]) == pytest.approx(BETA_PAPER, rel=1e-9)
+    assert float(run.data.params["model.alpha"]) == pytest.approx(ALPHA_PAPER, rel=1e-9)
     assert "config.yaml" in [a.path for a in client.list_artifacts(out["run_id"])]
     assert [a.path for a in client.list_artifacts(out["run_id"], "checkpoints")] == ["checkpoints/best.ckpt"]
     assert [a.path for a in client.list_artifacts(out["run_id"], "plots")] == ["plots/test_heights.png"]
@@ -75,6 +80,25 @@ def test_tiny_height_training_learns_and_logs(tmp_path, store):
         torch.testing.assert_close(module(x)[0], module2(x)[0], rtol=0, atol=0)
     state = torch.load(out["checkpoint"], map_location="cpu", weights_only=True)["state_dict"]
     torch.testing.assert_close(module.state_dict()["head.mlp.0.weight"], state["head.mlp.0.weight"])
+
+
+def test_ground_effect_law_of_the_training_data(tmp_path):
+    """``model.alpha, beta`` default to the law the shards were made with: the simulator's hexarotor with
+    mu = 2 gives beta = 2 * 0.1^2 / 16 and alpha = k_T beta; a folder without shards gives None."""
+    from uavturb.data.datamodules import ground_effect_law
+    from uavturb.physics.vehicle import HEXAROTOR
+    from uavturb.sim import dataset
+
+    dataset.generate_sim("tiny", tmp_path / "hex", seed=0, progress=False, vehicle="hex", width=16, height=16,
+                         controller="geometric", trajectories=3)
+    alpha, beta = ground_effect_law(tmp_path / "hex")
+    assert beta == pytest.approx(2.0 * 0.1**2 / 16, rel=1e-12)
+    assert alpha == pytest.approx(HEXAROTOR.thrust_coefficient * beta, rel=1e-12)
+    assert ground_effect_law(tmp_path / "nothing") is None
+    with pytest.raises(InputError, match="model.alpha"):
+        from uavturb.experiments.train import _resolve_ground_effect_law
+
+        _resolve_ground_effect_law(load_config(["model.alpha=1e-9"]), tmp_path / "hex")
 
 
 def test_pretrain_then_finetune_height(tmp_path, store):

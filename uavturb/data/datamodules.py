@@ -141,6 +141,27 @@ class ShardWindowsDataModule(L.LightningDataModule):
         return _loader(self.sets["test"], self.batch_size, self.num_workers, False)
 
 
+def ground_effect_law(root: str | Path) -> tuple[float, float] | None:
+    """``(alpha, beta)`` of the law the dataset's ``f_a`` was made with [N m^2/(rad/s)^2, m^2], from its
+    first training trajectory's ``meta.json`` (``k_T``, ``mu``, ``rotor_radius``: the simulator's and
+    the synthetic generator's): ``beta = mu r^2 / 16``, ``alpha = k_T beta`` (the paper's identification
+    form of the Cheeseman-Bennett law). ``None`` where the dataset does not say (no manifest, no
+    training trajectory, no ground effect)."""
+    try:
+        folders = shards.read_manifest(root).folders("train")
+        meta = shards.read_meta(folders[0]) if folders else {}
+    except InputError:
+        return None
+    try:
+        k_T, mu, r = (float(meta[k]) for k in ("k_T", "mu", "rotor_radius"))
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (k_T > 0 and mu > 0 and r > 0):
+        return None
+    beta = mu * r * r / 16.0
+    return k_T * beta, beta
+
+
 class PairsDataset(Dataset):
     """(depth, target) pre-training pairs of a pairs folder, memory-mapped once per process.
 

@@ -34,7 +34,6 @@ from omegaconf.errors import OmegaConfBaseException
 
 from uavturb.errors import InputError
 from uavturb.io.yaml_mapping import read_yaml_mapping
-from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
 
 #: the shipped config folder (package data)
 CONF_DIR = Path(str(resources.files("uavturb") / "conf"))
@@ -137,8 +136,9 @@ class ModelConfig:
     lam: float = allowed(10000.0, ge=0)                      # paper: lambda = 10,000
     lr_head: float = allowed(1e-6, **_POSITIVE)              # paper: 1e-6
     lr_encoder: float = allowed(1e-6, **_POSITIVE)           # paper: "the same optimizer configuration"
-    alpha: float = allowed(ALPHA_PAPER, ge=0)                # ground-effect law f_a = alpha S / (d^2 - beta)
-    beta: float = allowed(BETA_PAPER, ge=0)                  # m^2
+    alpha: float | None = allowed(None, ge=0)  # ground-effect law f_a = alpha S / (d^2 - beta) [N m^2/(rad/s)^2]
+    beta: float | None = allowed(None, ge=0)   # m^2; both None: the training data's law (its k_T, mu, r), else
+    #                                            the paper's quadrotor (ALPHA_PAPER, BETA_PAPER)
     loss_frames: str = allowed("all", choices=("all", "last"))  # frames of a window the height loss uses
     loss: str = allowed("height", choices=("height", "law_weighted"))  # systems.height.LOSSES: the paper's height MSE, or ours
     #                                     weighted by the law's slope at the true height (systems/height.py)

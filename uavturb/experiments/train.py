@@ -115,6 +115,21 @@ def _prepare_data(cfg: DictConfig) -> Path:
     return root
 
 
+def _resolve_ground_effect_law(cfg: DictConfig, data_root: Path) -> None:
+    """Fill ``model.alpha`` and ``model.beta`` left unset: the law the training data's ``f_a`` was
+    made with (:func:`uavturb.data.datamodules.ground_effect_law`), else the paper's quadrotor's.
+    The run then logs the values it trained with (the law-weighted loss and ``f_a`` metrics use them)."""
+    from uavturb.data.datamodules import ground_effect_law
+    from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
+
+    m = cfg.model
+    if (m.alpha is None) != (m.beta is None):
+        raise InputError("model.alpha", "set model.alpha and model.beta together, or neither (the data's law)")
+    if m.alpha is None:
+        law = ground_effect_law(data_root) if cfg.stage == "height" else None
+        m.alpha, m.beta = law if law is not None else (ALPHA_PAPER, BETA_PAPER)
+
+
 def _build(cfg: DictConfig):
     """(module, datamodule, callbacks, monitor) of the configured stage."""
     from uavturb.data.datamodules import PairsDataModule, ShardWindowsDataModule
@@ -478,6 +493,7 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
         torch.set_num_threads(t.num_threads)
     L.seed_everything(t.seed, workers=True, verbose=False)
     data_root = _prepare_data(cfg)
+    _resolve_ground_effect_law(cfg, data_root)
     data_hash = dataset_hash(data_root) if data_root.is_dir() else "missing"
     module, dm, callbacks, monitor = _build(cfg)
     dm.setup("fit")  # bad data fails here, before a run is opened
