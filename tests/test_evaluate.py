@@ -72,7 +72,7 @@ def test_table2_on_flights_where_the_law_is_exact(setup):
     table = list(csv.DictReader(open(out / "table.csv")))
     assert [r["flight"] for r in table] == ["hex_0", "hex_1", "Total"]
     assert float(table[2]["rmse_fa"]) == pytest.approx(rows["Total"]["rmse_fa"])
-    assert (out / "table.md").read_text().count("\n| ") == 4 + 4  # header + 3 rows; bands: header + 3 bands
+    assert (out / "table.md").read_text().count("\n| ") == 4 + 5  # header + 3 rows; bands: header + 4 bands
     # the model's f_a is the identified law on the predicted heights
     s = np.genfromtxt(out / "series_hex_1.csv", delimiter=",", names=True)
     r1 = res["results"][1]
@@ -173,10 +173,10 @@ def test_height_bands_known_answer():
 
     beta = 1.25e-3
     edges = band_edges(beta, 0.01)
-    h5, h2, h1 = (ground_effect_height(beta, f) for f in (0.05, 0.02, 0.01))
-    assert [(lo, hi) for lo, hi, _ in edges] == [(0.0, h5), (h5, h2), (h2, h1)]
-    assert "law >= 5 % of thrust" in edges[0][2] and "law 1-2 % of thrust" in edges[2][2]
-    assert len(band_edges(beta, 0.03)) == 2  # the 2 % band lies outside a 3 % region
+    h20, h5, h2, h1 = (ground_effect_height(beta, f) for f in (0.2, 0.05, 0.02, 0.01))
+    assert [(lo, hi) for lo, hi, _ in edges] == [(0.0, h20), (h20, h5), (h5, h2), (h2, h1)]
+    assert "law >= 20 % of thrust" in edges[0][2] and "law 1-2 % of thrust" in edges[3][2]
+    assert len(band_edges(beta, 0.03)) == 3  # the 2 % band lies outside a 3 % region
     d = np.array([0.15, 0.16, 0.2, 0.3, 1.0])
     d_hat = d + np.array([0.01, -0.01, 0.02, 0.0, 0.5])
     fa = np.array([1.0, 1.0, 0.4, 0.1, 0.0])
@@ -185,7 +185,8 @@ def test_height_bands_known_answer():
     a = FlightResult("a", np.arange(3.0), d[:3], d_hat[:3], fa[:3], fa[:3], fa_model[:3], ge[:3], ge[:3] | True)
     b = FlightResult("b", np.arange(2.0), d[3:], d_hat[3:], fa[3:], fa[3:] + 0.05, fa_model[3:], ge[3:], ge[3:] | True)
     bands = band_metrics([a, b], beta, 0.01)
-    assert [x["n"] for x in bands] == [2, 1, 1]  # 0.15 and 0.16 | 0.2 | 0.3; 1.0 m is outside the region
+    assert [x["n"] for x in bands] == [0, 2, 1, 1]  # none under 8.7 cm | 0.15, 0.16 | 0.2 | 0.3; 1 m: outside
+    bands = bands[1:]
     assert bands[0]["rmse_fa"] == pytest.approx(np.sqrt((0.09 + 0.01) / 2))
     assert bands[0]["bias_d"] == pytest.approx(0.0) and bands[1]["bias_d"] == pytest.approx(0.02)
     assert bands[2]["rmse_fa_phi"] == pytest.approx(0.05) and bands[2]["rmse_fa"] == 0.0

@@ -1,4 +1,4 @@
-"""MLflow's UI on a sweep's store, in headless Chromium: Table 1's view lists the six rows with
+"""MLflow's UI on a sweep's store, in headless Chromium: Table 1's view lists the rows (the six of the paper and ours) with
 readable RMSE(d) and RMSE(f_a). Loopback only: the server listens on 127.0.0.1 on a free port."""
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def test_table1_view_in_the_mlflow_ui(tmp_path, monkeypatch):
         os.killpg(server.pid, signal.SIGTERM)
         server.wait(timeout=60)
 
-    assert "Table 1 (ablation, quick)" in text and "6 | matching runs" in text
+    assert "Table 1 (ablation, quick)" in text and "7 | matching runs" in text
     header = text[text.index("| Run Name |"):]
     for column in ("test/rmse_d", "test/rmse_fa", "test/rmse_fa_1e-4N", "ablation", "seed"):
         assert f"| {column} |" in header, column

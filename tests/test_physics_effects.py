@@ -108,3 +108,22 @@ def test_bfgs_recovers_alpha_beta():
     assert fit.k_T() == pytest.approx(k_T, rel=0.03)
     beta = mu * r**2 / 16
     assert fit.beta == pytest.approx(beta, rel=0.03) and fit.alpha == pytest.approx(k_T * beta, rel=0.03)
+
+
+def test_alpha_beta_standard_errors_match_the_scatter_of_repeated_fits():
+    """The stated standard errors are the spread of the estimates over fresh noise (white noise here), and
+    flights that stay at one height do not separate alpha from beta: no standard error is claimed."""
+    k_T, mu, r = 8.54858e-6, 2.0, 0.1
+    fits = []
+    for seed in range(30):
+        rng = np.random.default_rng(seed)
+        d = rng.uniform(0.16, 0.6, 600)
+        S = rng.uniform(0.9, 1.1, 600) * 6 * 535.0**2
+        fits.append(ge.identify_alpha_beta(ge.phi(d, k_T * S, mu, r) + rng.normal(0, 0.02, 600), d, S))
+    beta = np.array([f.beta for f in fits])
+    stated = np.median([f.stderr_beta for f in fits])
+    assert 0.7 < np.std(beta, ddof=1) / stated < 1.4
+    assert np.mean(np.abs(beta - mu * r**2 / 16) < 2 * np.array([f.stderr_beta for f in fits])) > 0.85
+    flat = ge.identify_alpha_beta(np.full(50, 0.7) + np.random.default_rng(1).normal(0, 0.01, 50), np.full(50, 0.16),
+                                  np.full(50, 1.7e6))
+    assert np.isnan(flat.stderr_beta) and np.isnan(flat.stderr_alpha)

@@ -48,7 +48,7 @@ from uavturb.io.publish import publish_folder
 GE_FRACTION = 0.01
 #: lower bounds of the law's share of thrust that cut the ground-effect frames into height bands
 #: (:func:`band_metrics`): nearest the floor first
-BAND_FRACTIONS = (0.05, 0.02)
+BAND_FRACTIONS = (0.2, 0.05, 0.02)
 
 
 @dataclass
@@ -157,8 +157,8 @@ def camera_settings(run: Any, *, image_size: int | None = None, yfov_deg: float 
 
 def band_edges(beta: float, ge_fraction: float = GE_FRACTION) -> list[tuple[float, float, str]]:
     """``(d_low, d_high, label)`` [m] of the ground-effect region's height bands: where the law
-    ``beta / (d^2 - beta)`` is at least 5 % of the thrust, 2-5 %, then down to ``ge_fraction``
-    (bands that ``ge_fraction`` already excludes are left out)."""
+    ``beta / (d^2 - beta)`` is at least 20 % of the thrust, 5-20 %, 2-5 %, then down to
+    ``ge_fraction`` (bands that ``ge_fraction`` already excludes are left out)."""
     fractions = [f for f in BAND_FRACTIONS if f > ge_fraction] + [ge_fraction]
     out, low, upper = [], 0.0, None
     for f in fractions:
@@ -349,8 +349,9 @@ def fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: b
     fit = identify_alpha_beta(first.fa[air], first.d[air], first.sum_omega2[air])
     h_ge = ground_effect_height(fit.beta, ge_fraction)
     if progress:
-        print(f"(alpha, beta) by BFGS on {first.name}: alpha = {fit.alpha:.4g} N m^2/(rad/s)^2, beta = {fit.beta:.4g} "
-              f"m^2 (fit RMSE {fit.rmse:.4f} N, {fit.n} frames); ground-effect region d <= {h_ge:.3f} m "
+        print(f"(alpha, beta) by BFGS on {first.name}: alpha = {fit.alpha:.4g} +- {fit.stderr_alpha:.2g} N m^2/(rad/s)^2, "
+              f"beta = {fit.beta:.4g} +- {fit.stderr_beta:.2g} m^2 (fit RMSE {fit.rmse:.4f} N, {fit.n} frames); "
+              f"ground-effect region d <= {h_ge:.3f} m "
               f"(law >= {100 * ge_fraction:g} % of thrust)", file=sys.stderr)
     return fit, h_ge
 
@@ -444,7 +445,8 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
 
     info = {"run_id": run_id, "checkpoint": str(checkpoint) if checkpoint else None,
             "recordings": [str(r.path) for r in recs], "alpha": fit.alpha, "beta": fit.beta,
-            "alpha_beta_fit_rmse": fit.rmse, "identified_on": s0.name, "vehicle_constants": vehicle_source,
+            "alpha_beta_fit_rmse": fit.rmse, "alpha_stderr": fit.stderr_alpha, "beta_stderr": fit.stderr_beta,
+            "identified_on": s0.name, "vehicle_constants": vehicle_source,
             "ge_fraction": ge_fraction, "h_ge": h_ge, "image_size": size, "camera": s0.camera.source,
             "rows": [{"flight": n, **m} for n, m in rows], "bands": band_metrics(results, fit.beta, ge_fraction)}
     with publish_folder(out, overwrite=overwrite, command="uavturb evaluate") as tmp:

@@ -116,7 +116,8 @@ def format_summary(rows: list[dict[str, Any]], info: dict[str, Any]) -> str:
     """``summary.md``: Table 2 per row over seeds, then the height bands per row."""
     lines = [f"Table 2 over seeds on {', '.join(info['flights'])} ({info['n_ge']} ground-effect frames: airborne, "
              f"d <= {info['h_ge']:.3f} m, law >= {100 * info['ge_fraction']:g} % of thrust); (alpha, beta) identified "
-             f"on {info['identified_on']}; mean ± std over seeds. The paper, on EuRoC: RMSE(f_a) 0.4082 N, "
+             f"on {info['identified_on']} (beta = {info['beta']:.3g} ± {info['beta_stderr']:.2g} m^2); mean ± std over "
+             f"seeds. The paper, on EuRoC: RMSE(f_a) 0.4082 N, "
              f"RMSE(f_a,phi) 0.2433 N, ratio {PAPER_RATIO:.2f}.", "",
              "| row | seeds | RMSE(f_a,phi) [N] | RMSE(f_a) [N] | ratio RMSE(f_a)/RMSE(f_a,phi) | worst seed's ratio "
              "| RMSE(d) [m] |", "|---|---:|---:|---:|---:|---:|---:|"]
@@ -216,7 +217,8 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
                 folder = ev.safe_filename(label.replace("/", "_").replace(" ", "-"))
                 info = {"run_id": run.info.run_id, "row": row, "label": label,
                         "recordings": [str(r.path) for r in recs], "alpha": fit.alpha, "beta": fit.beta,
-                        "alpha_beta_fit_rmse": fit.rmse, "identified_on": seqs[0].name,
+                        "alpha_beta_fit_rmse": fit.rmse, "alpha_stderr": fit.stderr_alpha,
+                        "beta_stderr": fit.stderr_beta, "identified_on": seqs[0].name,
                         "vehicle_constants": vehicle_source, "ge_fraction": ge_fraction, "h_ge": h_ge,
                         "image_size": settings["image_size"], "camera": seqs[0].camera.source,
                         "rows": [{"flight": n, **m} for n, m in table], "bands": bands}
@@ -228,7 +230,7 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
         rows = summarise(per_run)
         info = {"flights": [r.name for r in recs], "n_ge": int(per_run[0]["total"]["n_ge"]), "h_ge": h_ge,
                 "ge_fraction": ge_fraction, "identified_on": recs[0].name, "alpha": fit.alpha, "beta": fit.beta,
-                "vehicle_constants": vehicle_source}
+                "alpha_stderr": fit.stderr_alpha, "beta_stderr": fit.stderr_beta, "vehicle_constants": vehicle_source}
         summary = format_summary(rows, info)
         (tmp / "summary.md").write_text(summary)
         (tmp / "summary.json").write_text(json.dumps({**info, "rows": rows, "runs": [

@@ -95,12 +95,19 @@ class GroundEffectFit:
         N, root mean square of the fit residual
     n : int
         samples used
+    stderr_alpha, stderr_beta : float
+        Standard errors [same units] from the fit's Jacobian, ``sigma^2 (J^T J)^-1`` with the
+        residual variance ``sigma^2`` (white, independent residuals: a lower bound where they
+        are correlated in time); ``nan`` when the flights do not separate ``alpha`` from
+        ``beta`` (all at one height: only ``alpha / (d^2 - beta)`` is seen)
     """
 
     alpha: float
     beta: float
     rmse: float
     n: int
+    stderr_alpha: float = float("nan")
+    stderr_beta: float = float("nan")
 
     def mu(self, r: float) -> float:
         """``mu = 16 beta / r^2`` for rotor radius ``r`` [m]."""
@@ -158,5 +165,26 @@ def identify_alpha_beta(f_a: np.ndarray, d: np.ndarray, sum_omega2: np.ndarray) 
     z0 = np.array([0.0, np.log(b0 / (d2min - b0))])
     res = minimize(loss, z0, method="BFGS", options={"gtol": 1e-12, "maxiter": 500})
     alpha, beta = unpack(res.x)
-    rmse = float(np.sqrt(np.mean((f_a - alpha * S / (d2 - beta)) ** 2)))
-    return GroundEffectFit(alpha=float(alpha), beta=float(beta), rmse=rmse, n=int(ok.sum()))
+    resid = f_a - alpha * S / (d2 - beta)
+    rmse = float(np.sqrt(np.mean(resid**2)))
+    se_alpha, se_beta = _alpha_beta_stderr(resid, d2, S, alpha, beta)
+    return GroundEffectFit(alpha=float(alpha), beta=float(beta), rmse=rmse, n=int(ok.sum()), stderr_alpha=se_alpha,
+                           stderr_beta=se_beta)
+
+
+def _alpha_beta_stderr(resid: np.ndarray, d2: np.ndarray, S: np.ndarray, alpha: float, beta: float
+                       ) -> tuple[float, float]:
+    """Standard errors of ``(alpha, beta)`` of ``f = alpha S / (d^2 - beta)`` from the Jacobian at the fit,
+    ``nan`` where it is singular (every sample at one height)."""
+    n = len(resid)
+    if n <= 2:
+        return float("nan"), float("nan")
+    J = np.stack([S / (d2 - beta), alpha * S / (d2 - beta) ** 2], axis=1)
+    scale = np.array([max(abs(alpha), 1e-300), max(abs(beta), 1e-300)])
+    Js = J * scale  # relative parameters: a well-scaled J^T J
+    JtJ = Js.T @ Js
+    if np.linalg.cond(JtJ) > 1e12:
+        return float("nan"), float("nan")
+    cov = np.linalg.inv(JtJ) * float(resid @ resid) / (n - 2)
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0)) * scale
+    return float(se[0]), float(se[1])
