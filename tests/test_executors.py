@@ -176,7 +176,7 @@ def test_a_run_that_always_fails_ends_failed_and_a_rerun_trains_only_it(ray_loca
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert "Traceback" not in "\n".join(err)
-    assert err[-1].startswith("uavturb sweep: error: 2 of 8 runs failed after 3 attempt(s), 2 skipped (their "
+    assert err[-1].startswith(f"uavturb sweep: error: 2 of {2 + len(ROWS)} runs failed after 3 attempt(s), 2 skipped (their "
                               "pre-training failed): pretrain normals seed 0, none/GRU seed 0; first error: "
                               "RuntimeError: injected failure of pretrain normals seed 0, attempt 3"), err[-1]
     client = mlflow.MlflowClient(tracking_uri())
@@ -200,7 +200,7 @@ def test_a_run_that_always_fails_ends_failed_and_a_rerun_trains_only_it(ray_loca
                                                                         "normals/frozen"]
     kids = _children(parent.info.run_id, experiment)
     after = {_key(r): r.info.run_id for r in kids if r.info.status == "FINISHED"}
-    assert len(after) == 8 and all(after[k] == v for k, v in before.items())
+    assert len(after) == 2 + len(ROWS) and all(after[k] == v for k, v in before.items())
     assert _attempts(tmp_path, "depth/frozen seed 0") == 1 and _attempts(tmp_path, "pretrain depth seed 0") == 1
     assert client.get_run(parent.info.run_id).info.status == "FINISHED"
 
@@ -265,8 +265,8 @@ def test_ray_sweep_through_an_mlflow_server_matches_the_sequential_sweep(ray_loc
 
     a = {_key(r): r for r in _children(seq["parent_run_id"], "equiv", file_store)}
     b = {_key(r): r for r in _children(on_ray["parent_run_id"], "equiv", url)}
-    assert len(b) == 8 and a.keys() == b.keys()  # every child once, the same tags
-    assert len(_children(on_ray["parent_run_id"], "equiv", url)) == 8
+    assert len(b) == 2 + len(ROWS) and a.keys() == b.keys()  # every child once, the same tags
+    assert len(_children(on_ray["parent_run_id"], "equiv", url)) == 2 + len(ROWS)
     for k in a:
         assert b[k].info.status == "FINISHED"
         ma, mb = a[k].data.metrics, b[k].data.metrics
@@ -278,8 +278,8 @@ def test_ray_sweep_through_an_mlflow_server_matches_the_sequential_sweep(ray_loc
     direct = {_key(r) for r in _children(on_ray["parent_run_id"], "equiv", server_db)}
     assert direct == set(a)
     assert all(r.info.artifact_uri.startswith("mlflow-artifacts:") for r in b.values())
-    assert len(list(artifacts.rglob("best.ckpt"))) == 8
-    assert len(_children(seq["parent_run_id"], "equiv", file_store)) == 8  # nothing went to the file store
+    assert len(list(artifacts.rglob("best.ckpt"))) == 2 + len(ROWS)
+    assert len(_children(seq["parent_run_id"], "equiv", file_store)) == 2 + len(ROWS)  # nothing went to the file store
 
 
 # ----------------------------------------------------------------------------------------------

@@ -109,14 +109,14 @@ def summarise(per_run: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def _pm(mean: float, std: float, fmt: str) -> str:
-    return f"{mean:{fmt}}" if not np.isfinite(std) else f"{mean:{fmt}} ± {std:{fmt}}"
+    return f"{mean:{fmt}}" if not np.isfinite(std) else f"{mean:{fmt}} ± {std:{fmt.lstrip('+')}}"
 
 
 def format_summary(rows: list[dict[str, Any]], info: dict[str, Any]) -> str:
     """``summary.md``: Table 2 per row over seeds, then the height bands per row."""
     lines = [f"Table 2 over seeds on {', '.join(info['flights'])} ({info['n_ge']} ground-effect frames: airborne, "
              f"d <= {info['h_ge']:.3f} m, law >= {100 * info['ge_fraction']:g} % of thrust); (alpha, beta) identified "
-             f"on {info['identified_on']} (beta = {info['beta']:.3g} ± {info['beta_stderr']:.2g} m^2); mean ± std over "
+             f"on {info['identified_on']} (beta = {info['beta']:.3g} ± {info['beta_stderr']:.2g} m^2, noise only); mean ± std over "
              f"seeds. The paper, on EuRoC: RMSE(f_a) 0.4082 N, "
              f"RMSE(f_a,phi) 0.2433 N, ratio {PAPER_RATIO:.2f}.", "",
              "| row | seeds | RMSE(f_a,phi) [N] | RMSE(f_a) [N] | ratio RMSE(f_a)/RMSE(f_a,phi) | worst seed's ratio "
