@@ -175,5 +175,5 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     print()
     _say(f"done in {summary['seconds']['total'] / 60:.1f} min; summary {out / 'summary.json'}")
     _say("browse every run: `make ui` (or .venv/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db), then open "
-         f"{ui_url(res['view'])} (Table 1: the six rows with test/rmse_d [m] and test/rmse_fa_1e-4N)")
+         f"{ui_url(res['view'])} (Table 1: the seven rows with test/rmse_d [m] and test/rmse_fa_1e-4N)")
     return summary
