@@ -92,6 +92,7 @@ def test_table2_on_flights_where_the_law_is_exact(setup):
     assert [c.info.run_id for c in children] == [res["mlflow_run"]]
     info = json.loads((out / "evaluation.json").read_text())
     assert info["identified_on"] == "hex_0" and "identified on hex_0" in info["vehicle_constants"]
+    assert info["law_check"] is None and 0 < info["beta_stderr"] < 0.05 * info["beta"]  # flights at many heights
 
 
 def _S(flight, result):
@@ -269,3 +270,16 @@ def test_evaluate_cli_needs_runs_or_a_sweep(setup, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and "--run" in err[0] and "--rows" in err[1] and "no run 'nope'" in err[2]
     assert not any((tmp_path / x).exists() for x in "abc")
+
+
+def test_a_law_that_contradicts_the_vehicle_is_flagged():
+    """alpha / beta is the thrust coefficient in the paper's form: a fit 4.8 times off (the stand-in
+    flights' identification: beta steepened after k_T took the law's far tail) is flagged, one within
+    the tolerance is not."""
+    from uavturb.experiments.evaluate import law_consistency
+    from uavturb.physics.ground_effect import GroundEffectFit
+
+    k_T = 8.54858e-6
+    assert law_consistency(GroundEffectFit(alpha=1.1 * k_T * 1.25e-3, beta=1.25e-3, rmse=0.02, n=100), k_T) is None
+    msg = law_consistency(GroundEffectFit(alpha=9.02e-9, beta=5.04e-3, rmse=0.02, n=100), k_T)
+    assert msg is not None and "0.21 times the vehicle's" in msg and "not reliable" in msg

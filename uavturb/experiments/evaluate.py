@@ -36,6 +36,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -315,7 +316,6 @@ def log_evaluation(run_id: str, folder: Path, results: list[tuple[str, dict[str,
 def evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
     """(vehicle, where its constants come from): identified on the first flight, else (said so) its
     ``vehicle.yaml``'s constants."""
-    import sys
 
     from uavturb.sysid.identification import identify
 
@@ -339,7 +339,6 @@ def evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
 def fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: bool) -> tuple[Any, float]:
     """(``(alpha, beta)`` fit by BFGS on the first flight's airborne frames with their true heights,
     the ground-effect region's height [m])."""
-    import sys
 
     from uavturb.physics.ground_effect import identify_alpha_beta
 
@@ -354,6 +353,24 @@ def fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: b
               f"ground-effect region d <= {h_ge:.3f} m "
               f"(law >= {100 * ge_fraction:g} % of thrust)", file=sys.stderr)
     return fit, h_ge
+
+
+#: the law's own k_T (alpha / beta) may differ from the vehicle's by this factor before it is flagged
+LAW_K_T_TOLERANCE = 1.25
+
+
+def law_consistency(fit: Any, k_T: float) -> str | None:
+    """A warning when the fitted law contradicts the vehicle: the paper's form has ``alpha = k_T beta``,
+    so ``alpha / beta`` must be the thrust coefficient; ``None`` when it agrees within a factor
+    :data:`LAW_K_T_TOLERANCE`. Where it does not, ``alpha`` and ``beta`` traded off against each
+    other (flights at few heights) or the identified ``k_T`` took part of the law (its far tail is
+    nearly a constant share of thrust), and ``mu = 16 beta / r^2`` is not to be read off."""
+    ratio = fit.k_T() / k_T
+    if 1 / LAW_K_T_TOLERANCE <= ratio <= LAW_K_T_TOLERANCE:
+        return None
+    return (f"the fitted law implies k_T = alpha / beta = {fit.k_T():.3g} N/(rad/s)^2, {ratio:.2f} times the vehicle's "
+            f"{k_T:.3g}: alpha and beta are traded off (few heights, or the identified k_T absorbed the law's far tail); "
+            f"the law still scores RMSE(f_a,phi), but its beta (hence mu and the ground-effect region) is not reliable")
 
 
 def flight_results(module: Any, seqs: Sequence[Any], fit: Any, h_ge: float
@@ -382,7 +399,8 @@ def write_evaluation(folder: Path, rows: list[tuple[str, dict[str, float]]], res
         f"Table 2 (ours): (alpha, beta) identified on {info['identified_on']}; ground-effect (GE) frames: "
         f"airborne (thrust >= 0.3 m g) with d <= {h_ge:.3f} m (law >= {100 * info['ge_fraction']:g} % of "
         f"thrust); 'all': every airborne frame with a surface below.\n\n{format_table(rows, markdown=True)}\n\n"
-        f"Where the error comes from (GE frames of all flights by true height):\n\n{format_bands(info['bands'])}\n")
+        f"Where the error comes from (GE frames of all flights by true height):\n\n{format_bands(info['bands'])}\n"
+        + (f"\nWarning: {info['law_check']}.\n" if info.get("law_check") else ""))
     with open(folder / "table.csv", "w", newline="") as f:
         w = csv.writer(f)
         keys = list(rows[0][1])
@@ -440,13 +458,16 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     seqs = [recording_sequence(r, veh, **settings, progress=progress) for r in recs]
     s0 = seqs[0]
     fit, h_ge = fit_ground_effect_law(s0, recs[0].path, ge_fraction, progress)
+    law_check = law_consistency(fit, veh.thrust_coefficient)
+    if law_check and progress:
+        print(f"warning: {law_check}", file=sys.stderr)
     results, rows = flight_results(module, seqs, fit, h_ge)
     table = format_table(rows)
 
     info = {"run_id": run_id, "checkpoint": str(checkpoint) if checkpoint else None,
             "recordings": [str(r.path) for r in recs], "alpha": fit.alpha, "beta": fit.beta,
             "alpha_beta_fit_rmse": fit.rmse, "alpha_stderr": fit.stderr_alpha, "beta_stderr": fit.stderr_beta,
-            "identified_on": s0.name, "vehicle_constants": vehicle_source,
+            "law_check": law_check, "identified_on": s0.name, "vehicle_constants": vehicle_source,
             "ge_fraction": ge_fraction, "h_ge": h_ge, "image_size": size, "camera": s0.camera.source,
             "rows": [{"flight": n, **m} for n, m in rows], "bands": band_metrics(results, fit.beta, ge_fraction)}
     with publish_folder(out, overwrite=overwrite, command="uavturb evaluate") as tmp:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -133,6 +134,8 @@ def format_summary(rows: list[dict[str, Any]], info: dict[str, Any]) -> str:
             lines.append(f"| {r['row']} | {b['band']} | {b['n']} | {b['rmse_fa_phi']:.4f} | "
                          f"{_pm(b['rmse_fa'], b['rmse_fa_std'], '.4f')} | {_pm(b['bias_d'], b['bias_d_std'], '+.4f')} | "
                          f"{100 * b['share_sq_fa']:.0f} % |")
+    if info.get("law_check"):
+        lines += ["", f"Warning: {info['law_check']}."]
     return "\n".join(lines) + "\n"
 
 
@@ -212,13 +215,16 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
                 seqs = seqs_by_camera[key]
                 if fit is None:  # the law depends on the first flight's frames, not on the camera
                     fit, h_ge = ev.fit_ground_effect_law(seqs[0], recs[0].path, ge_fraction, progress)
+                    law_check = ev.law_consistency(fit, veh.thrust_coefficient)
+                    if law_check and progress:
+                        print(f"warning: {law_check}", file=sys.stderr)
                 results, table = ev.flight_results(load_height_module(run.info.run_id), seqs, fit, h_ge)
                 bands = ev.band_metrics(results, fit.beta, ge_fraction)
                 folder = ev.safe_filename(label.replace("/", "_").replace(" ", "-"))
                 info = {"run_id": run.info.run_id, "row": row, "label": label,
                         "recordings": [str(r.path) for r in recs], "alpha": fit.alpha, "beta": fit.beta,
                         "alpha_beta_fit_rmse": fit.rmse, "alpha_stderr": fit.stderr_alpha,
-                        "beta_stderr": fit.stderr_beta, "identified_on": seqs[0].name,
+                        "beta_stderr": fit.stderr_beta, "law_check": law_check, "identified_on": seqs[0].name,
                         "vehicle_constants": vehicle_source, "ge_fraction": ge_fraction, "h_ge": h_ge,
                         "image_size": settings["image_size"], "camera": seqs[0].camera.source,
                         "rows": [{"flight": n, **m} for n, m in table], "bands": bands}
@@ -230,7 +236,8 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
         rows = summarise(per_run)
         info = {"flights": [r.name for r in recs], "n_ge": int(per_run[0]["total"]["n_ge"]), "h_ge": h_ge,
                 "ge_fraction": ge_fraction, "identified_on": recs[0].name, "alpha": fit.alpha, "beta": fit.beta,
-                "alpha_stderr": fit.stderr_alpha, "beta_stderr": fit.stderr_beta, "vehicle_constants": vehicle_source}
+                "alpha_stderr": fit.stderr_alpha, "beta_stderr": fit.stderr_beta, "law_check": law_check,
+                "vehicle_constants": vehicle_source}
         summary = format_summary(rows, info)
         (tmp / "summary.md").write_text(summary)
         (tmp / "summary.json").write_text(json.dumps({**info, "rows": rows, "runs": [
