@@ -183,9 +183,8 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
     dict: ``rows`` (:func:`summarise`), ``runs`` (per run: ``run_id``, ``row``, ``label``, ``total``,
     ``bands``, ``mlflow_run``), ``summary`` (markdown text), ``out``.
     """
-    from uavturb.data.recordings import recording_sequence
     from uavturb.experiments import evaluate as ev
-    from uavturb.experiments.export import get_run, load_height_module
+    from uavturb.experiments.export import get_run
     from uavturb.io.reader import load_recordings
 
     ge_fraction = ev.GE_FRACTION if ge_fraction is None else ge_fraction
@@ -201,57 +200,96 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
     labels = [_label(r) for r in runs]
     if len({lab for _, lab in labels}) < len(labels):
         raise InputError("--run", "the same run (row and seed) is given twice")
-    recs = load_recordings(recordings, vehicle)
-    veh, vehicle_source = ev.evaluation_vehicle(recs[0], progress)
-    seqs_by_camera: dict[str, list[Any]] = {}
-    per_run, fit = [], None
+    flights = _SharedFlights(load_recordings(recordings, vehicle), ge_fraction, progress)
+    per_run = []
     with publish_folder(out, overwrite=overwrite, command="uavturb evaluate") as tmp:
         with progress_bar(len(runs), "evaluate runs", "runs", disable=not progress) as bar:
             for run, (row, label) in zip(runs, labels):
-                settings = ev.camera_settings(run, frame_dt=frame_dt)
-                key = json.dumps(settings, sort_keys=True)
-                if key not in seqs_by_camera:
-                    seqs_by_camera[key] = [recording_sequence(r, veh, **settings, progress=progress) for r in recs]
-                seqs = seqs_by_camera[key]
-                if fit is None:  # the law depends on the first flight's frames, not on the camera
-                    fit, h_ge = ev.fit_ground_effect_law(seqs[0], recs[0].path, ge_fraction, progress)
-                    law_check = ev.law_consistency(fit, veh.thrust_coefficient)
-                    if law_check and progress:
-                        print(f"warning: {law_check}", file=sys.stderr)
-                results, table = ev.flight_results(load_height_module(run.info.run_id), seqs, fit, h_ge)
-                bands = ev.band_metrics(results, fit.beta, ge_fraction)
-                folder = ev.safe_filename(label.replace("/", "_").replace(" ", "-"))
-                info = {"run_id": run.info.run_id, "row": row, "label": label,
-                        "recordings": [str(r.path) for r in recs], "alpha": fit.alpha, "beta": fit.beta,
-                        "alpha_beta_fit_rmse": fit.rmse, "alpha_stderr": fit.stderr_alpha,
-                        "beta_stderr": fit.stderr_beta, "law_check": law_check, "identified_on": seqs[0].name,
-                        "vehicle_constants": vehicle_source, "ge_fraction": ge_fraction, "h_ge": h_ge,
-                        "image_size": settings["image_size"], "camera": seqs[0].camera.source,
-                        "rows": [{"flight": n, **m} for n, m in table], "bands": bands}
-                (tmp / folder).mkdir()
-                ev.write_evaluation(tmp / folder, table, results, info)
-                per_run.append({"run_id": run.info.run_id, "row": row, "label": label, "folder": folder,
-                                "total": table[-1][1], "bands": bands, "table": table})
+                per_run.append(_evaluate_run(run, row, label, flights, frame_dt, tmp))
                 bar.update(1)
-        rows = summarise(per_run)
-        info = {"flights": [r.name for r in recs], "n_ge": int(per_run[0]["total"]["n_ge"]), "h_ge": h_ge,
-                "ge_fraction": ge_fraction, "identified_on": recs[0].name, "alpha": fit.alpha, "beta": fit.beta,
-                "alpha_stderr": fit.stderr_alpha, "beta_stderr": fit.stderr_beta, "law_check": law_check,
-                "vehicle_constants": vehicle_source}
-        summary = format_summary(rows, info)
-        (tmp / "summary.md").write_text(summary)
-        (tmp / "summary.json").write_text(json.dumps({**info, "rows": rows, "runs": [
-            {k: r[k] for k in ("run_id", "row", "label", "folder", "total", "bands")} for r in per_run]},
-            indent=2, default=float))
-        plot_bands(rows, tmp / "bands.png")
+        rows, summary = _write_summary(tmp, per_run, flights)
     for r in per_run:
         r["mlflow_run"] = None
         if log:
-            r["mlflow_run"] = ev.log_evaluation(r["run_id"], out / r["folder"], r["table"], {
-                "alpha": fit.alpha, "beta": fit.beta, "h_ge": h_ge, "ge_fraction": ge_fraction,
-                "identified_on": recs[0].name, "recordings": ",".join(x.name for x in recs),
-                "vehicle_constants": vehicle_source})
+            r["mlflow_run"] = ev.log_evaluation(r["run_id"], out / r["folder"], r["table"], flights.params())
     if progress:
         print(summary)
         print(f"wrote {out}/summary.md, summary.json, bands.png and a folder per run")
     return {"rows": rows, "runs": per_run, "summary": summary, "out": str(out)}
+
+
+class _SharedFlights:
+    """What every run's evaluation shares: the flights, the vehicle identified on the first, the depth
+    frames per camera (projected once) and the ground-effect law fitted on the first flight."""
+
+    def __init__(self, recs: list[Any], ge_fraction: float, progress: bool):
+        from uavturb.experiments import evaluate as ev
+
+        self.recs, self.ge_fraction, self.progress = recs, ge_fraction, progress
+        self.vehicle, self.vehicle_source = ev.evaluation_vehicle(recs[0], progress)
+        self._by_camera: dict[str, list[Any]] = {}
+        self.fit = self.h_ge = self.law_check = None
+
+    def sequences(self, settings: dict[str, Any]) -> list[Any]:
+        """The flights' frames through the camera ``settings``; the law fitted on the first call."""
+        from uavturb.data.recordings import recording_sequence
+        from uavturb.experiments import evaluate as ev
+
+        key = json.dumps(settings, sort_keys=True)
+        if key not in self._by_camera:
+            self._by_camera[key] = [recording_sequence(r, self.vehicle, **settings, progress=self.progress)
+                                    for r in self.recs]
+        seqs = self._by_camera[key]
+        if self.fit is None:  # the law depends on the first flight's frames, not on the camera
+            self.fit, self.h_ge = ev.fit_ground_effect_law(seqs[0], self.recs[0].path, self.ge_fraction, self.progress)
+            self.law_check = ev.law_consistency(self.fit, self.vehicle.thrust_coefficient)
+            if self.law_check and self.progress:
+                print(f"warning: {self.law_check}", file=sys.stderr)
+        return seqs
+
+    def info(self) -> dict[str, Any]:
+        """The law and where it comes from, for the output files."""
+        f = self.fit
+        return {"recordings": [str(r.path) for r in self.recs], "alpha": f.alpha, "beta": f.beta,
+                "alpha_beta_fit_rmse": f.rmse, "alpha_stderr": f.stderr_alpha, "beta_stderr": f.stderr_beta,
+                "law_check": self.law_check, "identified_on": self.recs[0].name,
+                "vehicle_constants": self.vehicle_source, "ge_fraction": self.ge_fraction, "h_ge": self.h_ge}
+
+    def params(self) -> dict[str, Any]:
+        """The MLflow params of each run's evaluation (as ``uavturb evaluate`` logs them)."""
+        return {"alpha": self.fit.alpha, "beta": self.fit.beta, "h_ge": self.h_ge, "ge_fraction": self.ge_fraction,
+                "identified_on": self.recs[0].name, "recordings": ",".join(r.name for r in self.recs),
+                "vehicle_constants": self.vehicle_source}
+
+
+def _evaluate_run(run: Any, row: str, label: str, flights: _SharedFlights, frame_dt: float | None, tmp: Path
+                  ) -> dict[str, Any]:
+    """One run's Table 2 into ``tmp/<label>/`` (as ``uavturb evaluate`` writes it); its figures."""
+    from uavturb.experiments import evaluate as ev
+    from uavturb.experiments.export import load_height_module
+
+    settings = ev.camera_settings(run, frame_dt=frame_dt)
+    seqs = flights.sequences(settings)
+    results, table = ev.flight_results(load_height_module(run.info.run_id), seqs, flights.fit, flights.h_ge)
+    bands = ev.band_metrics(results, flights.fit.beta, flights.ge_fraction)
+    folder = ev.safe_filename(label.replace("/", "_").replace(" ", "-"))
+    info = {"run_id": run.info.run_id, "row": row, "label": label, **flights.info(),
+            "image_size": settings["image_size"], "camera": seqs[0].camera.source,
+            "rows": [{"flight": n, **m} for n, m in table], "bands": bands}
+    (tmp / folder).mkdir()
+    ev.write_evaluation(tmp / folder, table, results, info)
+    return {"run_id": run.info.run_id, "row": row, "label": label, "folder": folder, "total": table[-1][1],
+            "bands": bands, "table": table}
+
+
+def _write_summary(tmp: Path, per_run: list[dict[str, Any]], flights: _SharedFlights
+                   ) -> tuple[list[dict[str, Any]], str]:
+    """``summary.md``, ``summary.json`` and ``bands.png`` into ``tmp``; (rows, summary text)."""
+    rows = summarise(per_run)
+    info = {"flights": [r.name for r in flights.recs], "n_ge": int(per_run[0]["total"]["n_ge"]), **flights.info()}
+    summary = format_summary(rows, info)
+    (tmp / "summary.md").write_text(summary)
+    runs = [{k: r[k] for k in ("run_id", "row", "label", "folder", "total", "bands")} for r in per_run]
+    (tmp / "summary.json").write_text(json.dumps({**info, "rows": rows, "runs": runs}, indent=2, default=float))
+    plot_bands(rows, tmp / "bands.png")
+    return rows, summary
