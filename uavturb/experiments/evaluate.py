@@ -316,7 +316,6 @@ def log_evaluation(run_id: str, folder: Path, results: list[tuple[str, dict[str,
 def evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
     """(vehicle, where its constants come from): identified on the first flight, else (said so) its
     ``vehicle.yaml``'s constants."""
-
     from uavturb.sysid.identification import identify
 
     try:
@@ -339,7 +338,6 @@ def evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
 def fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: bool) -> tuple[Any, float]:
     """(``(alpha, beta)`` fit by BFGS on the first flight's airborne frames with their true heights,
     the ground-effect region's height [m])."""
-
     from uavturb.physics.ground_effect import identify_alpha_beta
 
     if not first.airborne.any():
@@ -371,6 +369,45 @@ def law_consistency(fit: Any, k_T: float) -> str | None:
     return (f"the fitted law implies k_T = alpha / beta = {fit.k_T():.3g} N/(rad/s)^2, {ratio:.2f} times the vehicle's "
             f"{k_T:.3g}: alpha and beta are traded off (few heights, or the identified k_T absorbed the law's far tail); "
             f"the law still scores RMSE(f_a,phi), but its beta (hence mu and the ground-effect region) is not reliable")
+
+
+@dataclass(frozen=True)
+class EvaluationLaw:
+    """What every run of an evaluation is scored with: the flights, the vehicle identified on the
+    first, the ground-effect law fitted on the first flight's true heights and its check against
+    the vehicle (:func:`law_consistency`)."""
+
+    recordings: list[Any]
+    vehicle_source: str
+    fit: Any
+    h_ge: float
+    law_check: str | None
+    ge_fraction: float
+
+    def info(self) -> dict[str, Any]:
+        """The law and where it comes from, for ``evaluation.json`` and ``summary.json``."""
+        f = self.fit
+        return {"recordings": [str(r.path) for r in self.recordings], "alpha": f.alpha, "beta": f.beta,
+                "alpha_beta_fit_rmse": f.rmse, "alpha_stderr": f.stderr_alpha, "beta_stderr": f.stderr_beta,
+                "law_check": self.law_check, "identified_on": self.recordings[0].name,
+                "vehicle_constants": self.vehicle_source, "ge_fraction": self.ge_fraction, "h_ge": self.h_ge}
+
+    def params(self) -> dict[str, Any]:
+        """The MLflow params of an evaluation's child run."""
+        return {"alpha": self.fit.alpha, "beta": self.fit.beta, "h_ge": self.h_ge, "ge_fraction": self.ge_fraction,
+                "identified_on": self.recordings[0].name,
+                "recordings": ",".join(r.name for r in self.recordings), "vehicle_constants": self.vehicle_source}
+
+
+def evaluation_law(recs: Sequence[Any], first: Any, vehicle: Any, vehicle_source: str, ge_fraction: float,
+                   progress: bool) -> EvaluationLaw:
+    """:func:`fit_ground_effect_law` on ``first`` (the first flight's sequence) and :func:`law_consistency`
+    against ``vehicle``, warned on stderr when it fails."""
+    fit, h_ge = fit_ground_effect_law(first, recs[0].path, ge_fraction, progress)
+    law_check = law_consistency(fit, vehicle.thrust_coefficient)
+    if law_check and progress:
+        print(f"warning: {law_check}", file=sys.stderr)
+    return EvaluationLaw(list(recs), vehicle_source, fit, h_ge, law_check, ge_fraction)
 
 
 def flight_results(module: Any, seqs: Sequence[Any], fit: Any, h_ge: float
@@ -456,29 +493,20 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     recs = load_recordings(recordings, vehicle)
     veh, vehicle_source = evaluation_vehicle(recs[0], progress)
     seqs = [recording_sequence(r, veh, **settings, progress=progress) for r in recs]
-    s0 = seqs[0]
-    fit, h_ge = fit_ground_effect_law(s0, recs[0].path, ge_fraction, progress)
-    law_check = law_consistency(fit, veh.thrust_coefficient)
-    if law_check and progress:
-        print(f"warning: {law_check}", file=sys.stderr)
+    law = evaluation_law(recs, seqs[0], veh, vehicle_source, ge_fraction, progress)
+    fit, h_ge = law.fit, law.h_ge
     results, rows = flight_results(module, seqs, fit, h_ge)
     table = format_table(rows)
 
-    info = {"run_id": run_id, "checkpoint": str(checkpoint) if checkpoint else None,
-            "recordings": [str(r.path) for r in recs], "alpha": fit.alpha, "beta": fit.beta,
-            "alpha_beta_fit_rmse": fit.rmse, "alpha_stderr": fit.stderr_alpha, "beta_stderr": fit.stderr_beta,
-            "law_check": law_check, "identified_on": s0.name, "vehicle_constants": vehicle_source,
-            "ge_fraction": ge_fraction, "h_ge": h_ge, "image_size": size, "camera": s0.camera.source,
-            "rows": [{"flight": n, **m} for n, m in rows], "bands": band_metrics(results, fit.beta, ge_fraction)}
+    info = {"run_id": run_id, "checkpoint": str(checkpoint) if checkpoint else None, **law.info(),
+            "image_size": size, "camera": seqs[0].camera.source, "rows": [{"flight": n, **m} for n, m in rows],
+            "bands": band_metrics(results, fit.beta, ge_fraction)}
     with publish_folder(out, overwrite=overwrite, command="uavturb evaluate") as tmp:
         write_evaluation(tmp, rows, results, info)
 
     child = None
     if log and run_id is not None:
-        child = log_evaluation(run_id, out, rows, {"alpha": fit.alpha, "beta": fit.beta, "h_ge": h_ge,
-                                         "ge_fraction": ge_fraction, "identified_on": s0.name,
-                                         "recordings": ",".join(r.name for r in recs), "image_size": size,
-                                         "vehicle_constants": vehicle_source})
+        child = log_evaluation(run_id, out, rows, {**law.params(), "image_size": size})
     if progress:
         print(table)
         print(f"wrote {out}/table.md, table.csv, fa_*.png" + (f"; MLflow child run {child}" if child else ""))

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -211,7 +210,7 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
     for r in per_run:
         r["mlflow_run"] = None
         if log:
-            r["mlflow_run"] = ev.log_evaluation(r["run_id"], out / r["folder"], r["table"], flights.params())
+            r["mlflow_run"] = ev.log_evaluation(r["run_id"], out / r["folder"], r["table"], flights.law.params())
     if progress:
         print(summary)
         print(f"wrote {out}/summary.md, summary.json, bands.png and a folder per run")
@@ -220,7 +219,8 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
 
 class _SharedFlights:
     """What every run's evaluation shares: the flights, the vehicle identified on the first, the depth
-    frames per camera (projected once) and the ground-effect law fitted on the first flight."""
+    frames per camera (projected once) and the law (:class:`~uavturb.experiments.evaluate.EvaluationLaw`,
+    fitted on the first call of :meth:`sequences`)."""
 
     def __init__(self, recs: list[Any], ge_fraction: float, progress: bool):
         from uavturb.experiments import evaluate as ev
@@ -228,7 +228,7 @@ class _SharedFlights:
         self.recs, self.ge_fraction, self.progress = recs, ge_fraction, progress
         self.vehicle, self.vehicle_source = ev.evaluation_vehicle(recs[0], progress)
         self._by_camera: dict[str, list[Any]] = {}
-        self.fit = self.h_ge = self.law_check = None
+        self.law: Any = None
 
     def sequences(self, settings: dict[str, Any]) -> list[Any]:
         """The flights' frames through the camera ``settings``; the law fitted on the first call."""
@@ -240,26 +240,10 @@ class _SharedFlights:
             self._by_camera[key] = [recording_sequence(r, self.vehicle, **settings, progress=self.progress)
                                     for r in self.recs]
         seqs = self._by_camera[key]
-        if self.fit is None:  # the law depends on the first flight's frames, not on the camera
-            self.fit, self.h_ge = ev.fit_ground_effect_law(seqs[0], self.recs[0].path, self.ge_fraction, self.progress)
-            self.law_check = ev.law_consistency(self.fit, self.vehicle.thrust_coefficient)
-            if self.law_check and self.progress:
-                print(f"warning: {self.law_check}", file=sys.stderr)
+        if self.law is None:  # the law depends on the first flight's frames, not on the camera
+            self.law = ev.evaluation_law(self.recs, seqs[0], self.vehicle, self.vehicle_source, self.ge_fraction,
+                                         self.progress)
         return seqs
-
-    def info(self) -> dict[str, Any]:
-        """The law and where it comes from, for the output files."""
-        f = self.fit
-        return {"recordings": [str(r.path) for r in self.recs], "alpha": f.alpha, "beta": f.beta,
-                "alpha_beta_fit_rmse": f.rmse, "alpha_stderr": f.stderr_alpha, "beta_stderr": f.stderr_beta,
-                "law_check": self.law_check, "identified_on": self.recs[0].name,
-                "vehicle_constants": self.vehicle_source, "ge_fraction": self.ge_fraction, "h_ge": self.h_ge}
-
-    def params(self) -> dict[str, Any]:
-        """The MLflow params of each run's evaluation (as ``uavturb evaluate`` logs them)."""
-        return {"alpha": self.fit.alpha, "beta": self.fit.beta, "h_ge": self.h_ge, "ge_fraction": self.ge_fraction,
-                "identified_on": self.recs[0].name, "recordings": ",".join(r.name for r in self.recs),
-                "vehicle_constants": self.vehicle_source}
 
 
 def _evaluate_run(run: Any, row: str, label: str, flights: _SharedFlights, frame_dt: float | None, tmp: Path
@@ -270,10 +254,11 @@ def _evaluate_run(run: Any, row: str, label: str, flights: _SharedFlights, frame
 
     settings = ev.camera_settings(run, frame_dt=frame_dt)
     seqs = flights.sequences(settings)
-    results, table = ev.flight_results(load_height_module(run.info.run_id), seqs, flights.fit, flights.h_ge)
-    bands = ev.band_metrics(results, flights.fit.beta, flights.ge_fraction)
+    law = flights.law
+    results, table = ev.flight_results(load_height_module(run.info.run_id), seqs, law.fit, law.h_ge)
+    bands = ev.band_metrics(results, law.fit.beta, law.ge_fraction)
     folder = ev.safe_filename(label.replace("/", "_").replace(" ", "-"))
-    info = {"run_id": run.info.run_id, "row": row, "label": label, **flights.info(),
+    info = {"run_id": run.info.run_id, "row": row, "label": label, **law.info(),
             "image_size": settings["image_size"], "camera": seqs[0].camera.source,
             "rows": [{"flight": n, **m} for n, m in table], "bands": bands}
     (tmp / folder).mkdir()
@@ -286,7 +271,7 @@ def _write_summary(tmp: Path, per_run: list[dict[str, Any]], flights: _SharedFli
                    ) -> tuple[list[dict[str, Any]], str]:
     """``summary.md``, ``summary.json`` and ``bands.png`` into ``tmp``; (rows, summary text)."""
     rows = summarise(per_run)
-    info = {"flights": [r.name for r in flights.recs], "n_ge": int(per_run[0]["total"]["n_ge"]), **flights.info()}
+    info = {"flights": [r.name for r in flights.recs], "n_ge": int(per_run[0]["total"]["n_ge"]), **flights.law.info()}
     summary = format_summary(rows, info)
     (tmp / "summary.md").write_text(summary)
     runs = [{k: r[k] for k in ("run_id", "row", "label", "folder", "total", "bands")} for r in per_run]
