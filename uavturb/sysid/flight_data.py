@@ -41,7 +41,8 @@ class FlightData:
     rotor_speeds : (K, N) rad/s
     dv : (K, 3) m/s^2, smoothed derivative of ``v``
     dw : (K, 3) rad/s^2, smoothed derivative of ``w``
-    d_down, d_up : (K,) m or None, heights to the surfaces below and above (``inf``: none)
+    d_down, d_up : (K,) m or None, heights of the rotor plane (``vehicle.rotor_plane_z`` above the body
+        origin) over the surface below and to the surface above (``inf``: none)
     window : int, Savitzky-Golay window [samples]
     """
 
@@ -144,5 +145,7 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         from uavturb.scene.heights import SurfaceIndex
 
         index = SurfaceIndex(rec.points)
-        d_down, d_up = index.d_down(p), index.d_up(p)
+        # surface effects depend on the rotor plane's height, not the body origin's (recordings.md)
+        rotor_plane = rec.vehicle.rotor_plane_positions(p, quat.to_rotation_matrix(q))
+        d_down, d_up = index.d_down(rotor_plane), index.d_up(rotor_plane)
     return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window)
