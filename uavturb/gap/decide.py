@@ -51,6 +51,8 @@ ANISOTROPY_Z = 3.0
 #: s, the blocks whose residuals are taken as correlated within and independent between
 #: (cluster-robust standard errors of the along/across drag)
 DRAG_BLOCK_S = 1.0
+#: share of the weight an effect's force must reach where it acts to be a discovery (practical size)
+PRACTICAL_SHARE = 0.005
 #: s of flight within reach of a surface needed to test its law
 MIN_NEAR_S = 2.0
 #: deg of heading change under which a body-fixed and a world-fixed force look alike
@@ -79,7 +81,8 @@ def flight_facts(data: GapData, k_T: float) -> FlightFacts:
     return FlightFacts(mass=data.mass, rotor_count=n, rotor_radius=data.rotor_radius, k_T=k_T,
                        wsum_hover=wsum_hover,
                        speed_p90=float(np.percentile(np.linalg.norm(data.v[:, :2], axis=1), 90)),
-                       heading_span_deg=heading_span_deg(data), has_imu=bool(data.fits_bias),
+                       heading_span_deg=heading_span_deg(data), has_imu=data.has_imu,
+                       bias_anchored=data.has_imu and not data.fits_bias, arm_length=data.arm_length,
                        d_down_min=float(d_down.min()) if len(d_down) else float("inf"),
                        d_up_min=float(d_up.min()) if len(d_up) else float("inf"), duration_s=duration)
 
@@ -117,6 +120,29 @@ def surface_reach(data: GapData, name: str) -> Reach:
     near_s = float(near.sum()) * dt
     closest = float(np.min(d[np.isfinite(d)])) if np.any(np.isfinite(d)) else float("inf")
     return Reach(name, near_s >= MIN_NEAR_S, reach, near_s, closest)
+
+
+def effect_size(data: GapData, fit: ModelFit, effect: str) -> float:
+    """N, the 95th percentile over the samples of the norm of the force ``fit`` gives ``effect``:
+    its size where it acts (a ground effect acts near the floor only)."""
+    zeroed = ModelFit(fit.effects, dict(fit.nonlinear), dict(fit.coef), fit.stderr, fit.rmse)
+    if effect in zeroed.nonlinear:
+        zeroed.nonlinear[effect] = 0.0
+    for i in effect_columns(list(zeroed.coef), effect):
+        zeroed.coef[list(zeroed.coef)[i]] = 0.0
+    force = fit.predict(data) - zeroed.predict(data)
+    return float(np.percentile(np.linalg.norm(force, axis=1), 95))
+
+
+def too_small(data: GapData, fit: ModelFit, effect: str) -> str | None:
+    """None when the effect's force reaches :data:`PRACTICAL_SHARE` of the weight where it acts, else
+    why it is no discovery (a push a thousandth of the weight is none, however significant)."""
+    size = effect_size(data, fit, effect)
+    weight = data.mass * GRAVITY
+    if size >= PRACTICAL_SHARE * weight:
+        return None
+    return (f"its force reaches only {size:.3g} N where it acts ({100 * size / weight:.2g} % of the weight; "
+            f"{100 * PRACTICAL_SHARE:.1f} % needed to matter in a simulator)")
 
 
 def _scaled(A: np.ndarray) -> np.ndarray:
