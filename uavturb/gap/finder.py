@@ -16,6 +16,7 @@ from uavturb.gap.decide import (
     bias_alike,
     flight_facts,
     surface_reach,
+    thrust_tilt_alike,
     too_small,
 )
 from uavturb.gap.design import GapData, apply_thrust_levels, gap_data, rotor_quantum, rounding_floor
@@ -292,6 +293,11 @@ def _decide(data: GapData, sel: Selection, candidates: list[str]
                 ambiguous.append(amb | {"params_if_named": params})
                 drop = s
                 break
+        if drop is None and "wind" in {s.name for s in steps}:
+            amb = thrust_tilt_alike(data, final, facts)
+            if amb is not None:
+                ambiguous.append(amb)
+                drop = next(s for s in steps if s.name == "wind")
         if drop is None and "rotor_drag" in {s.name for s in steps}:
             amb = airspeed_drag(data, final, facts)
             if amb is not None:
