@@ -96,6 +96,9 @@ def test_takeoff_and_landing_give_two_intervals_at_the_true_times():
     assert found[0].t_start == 0.0 and found[1].t_end == t[-1]
     assert found[0].why.startswith("on the landing gear: height 0.0")
     assert "thrust 6" in found[0].why and "% of the weight" in found[0].why
+    entry = found[1].to_report("flights/takeoff")
+    assert entry == {"recording": "flights/takeoff", "t_start": round(found[1].t_start, 3), "t_end": round(t[-1], 3),
+                     "why": found[1].why}
 
 
 def test_a_low_hover_at_the_landed_height_plus_25_mm_is_in_the_air():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.ndimage import uniform_filter1d
 
 from uavturb.errors import InputError
 from uavturb.gap.locate import noise_sigma
@@ -97,6 +98,8 @@ def test_the_lag_of_rotor_telemetry_at_3_hz_comes_out_60_ms(reference):
     assert lag.resolvable and lag.why == ""
     assert abs(lag.lag_s - 0.06) < 0.015 and 0 < lag.stderr_s < 0.015
     assert lag.r2 > 0.8 and lag.gain > 0 and 150 < lag.updates < 200
+    assert lag.describe("rotors0") == (f"rotors0 late by {1e3 * lag.lag_s:.0f} ± {1e3 * lag.stderr_s:.0f} ms "
+                                       f"(r2 {lag.r2:.2f}, {lag.updates} updates)")
 
 
 def test_a_lag_counts_the_wait_for_the_next_row(reference):
@@ -121,6 +124,7 @@ def test_a_lag_is_not_resolvable_where_the_signal_does_not_vary_or_is_later_than
     flat = held(t, np.arange(0, 60, 1 / 3), 14.7 + rng.normal(0, 0.01, 180))  # stuck telemetry
     lag = estimate_lag(t, ref, t, flat)
     assert not lag.resolvable and "explains only" in lag.why
+    assert lag.describe("rotors0").startswith("rotors0: delay not resolvable: the signal explains only")
     late = estimate_lag(t, ref, t, _late_held_signal(t, 0.35, 3.0, seed=5, on_rows=True))
     assert not late.resolvable and "longest searched (0.200 s)" in late.why
     few = estimate_lag(t[:40], ref[:40], t[:40], flat[:40])
@@ -156,3 +160,13 @@ def test_noise_from_updates_takes_the_inputs_updates_and_keeps_recordings_apart(
     assert noise_from_updates(t, shifted, group, inputs) == pytest.approx([0.2] * 3, rel=0.1)
     with pytest.raises(InputError, match="residual"):
         noise_from_updates(t[:2], r[:2])
+
+
+def test_noise_from_updates_spans_the_window_of_a_filter():
+    """White noise of sigma 1 averaged over 10 rows: sigma 1/sqrt(10), correlated over 10 rows."""
+    t = np.arange(0, 120, ROW_S)
+    r = uniform_filter1d(np.random.default_rng(10).normal(0, 1, (len(t), 3)), 10, axis=0)
+    # neighbours share 9 of their 10 draws: their difference is that of two draws over 10, so 0.1
+    assert noise_from_updates(t, r) == pytest.approx([0.1] * 3, rel=0.1)
+    spanned = noise_from_updates(t, r, min_step_s=10 * ROW_S)
+    assert spanned == pytest.approx([1 / np.sqrt(10)] * 3, rel=0.1)

@@ -48,6 +48,11 @@ class ContactInterval:
     why: str
     group: int = 0
 
+    def to_report(self, recording: str) -> dict:
+        """The entry of ``report.json``'s ``ground_contact`` (``gap-report.md``)."""
+        return {"recording": recording, "t_start": round(self.t_start, 3), "t_end": round(self.t_end, 3),
+                "why": self.why}
+
 
 @dataclass(frozen=True)
 class ContactLimits:

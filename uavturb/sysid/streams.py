@@ -175,6 +175,13 @@ class Lag:
     why: str
     updates: int
 
+    def describe(self, name: str = "the signal") -> str:
+        """One line for reports, e.g. ``rotor speeds late by 60 ± 3 ms (r2 0.94, 179 updates)``."""
+        if not self.resolvable:
+            return f"{name}: delay not resolvable: {self.why}"
+        return (f"{name} late by {1e3 * self.lag_s:.0f} ± {1e3 * self.stderr_s:.0f} ms "
+                f"(r2 {self.r2:.2f}, {self.updates} updates)")
+
 
 def _line_sse(W: np.ndarray, X: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Weighted least-squares SSE of ``y ≈ a + b x`` for each row of ``X`` and each weight row.
@@ -286,7 +293,7 @@ def _lag_why(lag: float, stderr: float, gain: float, r2: float, lags: np.ndarray
 
 
 def noise_from_updates(t: np.ndarray, r: np.ndarray, group: np.ndarray | None = None,
-                       update: np.ndarray | None = None) -> np.ndarray:
+                       update: np.ndarray | None = None, *, min_step_s: float = 0.0) -> np.ndarray:
     """Per-axis white-noise level of a residual from differences between consecutive updates.
 
     First differences of all rows of a sample-and-held residual are mostly exact zeros, so their
@@ -295,6 +302,11 @@ def noise_from_updates(t: np.ndarray, r: np.ndarray, group: np.ndarray | None = 
     independent draws of the noise differ: ``sigma = 1.4826 MAD(diff) / sqrt(2)``. Differences
     over more than three times the median update step (gaps, dropped updates) are left out, so
     that slow changes of the residual do not pass for noise.
+
+    A residual that went through a filter (derivatives smoothed over a window) is correlated
+    over that window, and differences of its neighbouring rows are too small in the same way:
+    ``min_step_s`` (the filter's window) thins the updates so that the differences span at least
+    that long.
 
     The result is the noise of one update. A mean over ``n`` rows that hold ``n_u`` updates has a
     noise of ``sigma / sqrt(n_u)``, not ``sigma / sqrt(n)``.
@@ -306,6 +318,7 @@ def noise_from_updates(t: np.ndarray, r: np.ndarray, group: np.ndarray | None = 
     group : (K,) int recording index, or None for one recording
     update : (K,) bool, rows where the inputs changed; default: rows where ``r`` changed
         (:func:`update_mask`, per recording)
+    min_step_s : s, the shortest time between the updates differenced (0: consecutive updates)
 
     Returns
     -------
@@ -325,6 +338,7 @@ def noise_from_updates(t: np.ndarray, r: np.ndarray, group: np.ndarray | None = 
         upd = update_mask(r2[rows]) if update is None else np.asarray(update, bool)[rows]
         upd[0] = True
         u = rows[upd]
+        u = u[_spaced(t[u], min_step_s)] if min_step_s > 0 else u
         diffs.append(np.diff(r2[u], axis=0))
         steps.append(np.diff(t[u]))
     d, dt = np.concatenate(diffs), np.concatenate(steps)
@@ -335,3 +349,13 @@ def noise_from_updates(t: np.ndarray, r: np.ndarray, group: np.ndarray | None = 
     mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
     sigma = MAD_TO_SIGMA * mad / np.sqrt(2.0)
     return sigma if r.ndim > 1 else sigma[:1]
+
+
+def _spaced(t: np.ndarray, min_step_s: float) -> np.ndarray:
+    """Indices into increasing ``t`` [s], from the first, each at least ``min_step_s`` after the last picked."""
+    picks = [0]
+    while True:
+        j = int(np.searchsorted(t, t[picks[-1]] + min_step_s - 1e-12))
+        if j >= len(t):
+            return np.asarray(picks, int)
+        picks.append(j)
