@@ -23,6 +23,7 @@ from uavturb.gap.design import GapData, apply_thrust_levels, gap_data, rotor_qua
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.nominal import ThrustLevels
+from uavturb.gap.preparation import contact_masks, prepared
 from uavturb.gap.selection import Selection, finish, folds, heldout, select
 from uavturb.gap.uncertainty import error_budget, honest_stderr
 from uavturb.physics.dynamics import GRAVITY
@@ -33,7 +34,6 @@ from uavturb.physics.effects import (
     defaults,
     total_force,
 )
-from uavturb.sysid.flight_data import flight_data
 
 SCHEMA = "uavturb.gap/1"
 
@@ -107,13 +107,14 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
 def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0) -> tuple[dict, dict]:
     np.random.seed(seed)
     vehicle = recordings[0].vehicle
-    fds = [flight_data(r) for r in recordings]
+    paths = [str(r.path) if r.path else r.name for r in recordings]
+    recordings, fds, held = prepared(recordings, paths)
+    contact, contact_report = contact_masks(fds, vehicle.mass, vehicle.thrust_coefficient, paths)
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient,
-                    arm_length=vehicle.arm_length)
+                    arm_length=vehicle.arm_length, exclude=contact)
     if len(data) < 200:
         raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
     levels = apply_thrust_levels(data, vehicle.thrust_coefficient)
-    paths = [str(r.path) if r.path else r.name for r in recordings]
 
     base = _simulator_baseline(data, sim)
     protocol, fm = folds(data)
@@ -151,6 +152,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                                      else {}} for name, p in sim.items()},
         "nominal": _nominal(data, final, levels),
         "ambiguous": ambiguous,
+        "ground_contact": contact_report,
+        "streams": held,
         "rejected": rejected,
         "not_testable": not_testable,
         "facts": {"heading_span_deg": facts.heading_span_deg, "speed_p90_m_s": facts.speed_p90,
