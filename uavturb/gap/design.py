@@ -210,7 +210,7 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
 def apply_thrust_levels(data: GapData, k_T_guess: float | None) -> ThrustLevels:
     """Measure each recording's thrust level far from surfaces (:func:`uavturb.gap.nominal.thrust_levels`)
     and, where they differ, give each row its recording's level (``data.level``)."""
-    reach = max(e.surface_reach(data.rotor_radius, share=0.005) for e in EFFECTS.values() if e.surface)
+    reach = max(e.surface_reach(data.rotor_radius) for e in EFFECTS.values() if e.surface)
     far = (data.d_down > reach) & (data.d_up > reach)
     y_thrust = np.einsum("ki,ki->k", data.y, data.R[:, :, 2])
     levels = thrust_levels(data.group, data.t, y_thrust, data.S, far, data.names)
