@@ -23,7 +23,7 @@ import numpy as np
 from uavturb.io.recording import Recording, Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.physics.constants import GRAVITY
-from uavturb.sysid.contact import ground_contact
+from uavturb.sysid.contact import ContactLimits, ground_contact
 from uavturb.sysid.flight_data import FlightData, flight_data
 from uavturb.sysid.streams import estimate_lag, needed_rate_hz, slow_for, stream_updates
 
@@ -31,6 +31,11 @@ from uavturb.sysid.streams import estimate_lag, needed_rate_hz, slow_for, stream
 MOTOR_LAG_S = 0.02
 #: s, time to cross the height range where a ground effect changes (0.1 m at 0.5 m/s)
 SURFACE_CROSSING_S = 0.2
+#: contact thresholds (:class:`~uavturb.sysid.contact.ContactLimits`'s defaults). A hover close to the
+#: floor also reads a thrust 5-10 % under the weight (the ground effect itself), so a still vehicle at the
+#: lowest height a recording reaches is left out even then: losing a second of the lowest hover costs
+#: less than counting the floor's reaction as aerodynamics
+CONTACT_LIMITS = ContactLimits()
 #: s, smallest delay of the rotor telemetry worth taking out
 MIN_DELAY_S = 0.01
 
@@ -95,7 +100,8 @@ def contact_masks(fds: Sequence[FlightData], mass: float, k_T: float | None, pat
         S = np.sum(fd.rotor_speeds**2, axis=1)
         thrust = k_T * S if k_T else S / np.median(S) * mass * GRAVITY
         d_down = fd.d_down if fd.d_down is not None and np.any(np.isfinite(fd.d_down)) else None
-        mask, intervals = ground_contact(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass, d_down=d_down)
+        mask, intervals = ground_contact(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass, d_down=d_down,
+                                         limits=CONTACT_LIMITS)
         masks.append(mask)
         report += [iv.to_report(path) for iv in intervals]
     return masks, report
