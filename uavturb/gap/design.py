@@ -36,7 +36,8 @@ from uavturb.sysid.flight_data import FlightData
 
 #: nonlinear parameter of each effect whose law is not linear in it, with its search bounds
 #: (from the registry)
-NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items() if e.search is not None}
+NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items()
+             if e.search is not None and e.fitted_by_finder}
 
 
 @dataclass
