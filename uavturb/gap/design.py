@@ -39,7 +39,8 @@ from uavturb.sysid.flight_data import FlightData
 
 #: nonlinear parameter of each effect whose law is not linear in it, with its search bounds
 #: (from the registry)
-NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items() if e.search is not None}
+NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items()
+             if e.search is not None and e.fitted_by_finder}
 
 
 @dataclass
@@ -227,6 +228,17 @@ def surface_ratio(d: np.ndarray, coeff: float, r: float) -> np.ndarray:
     return np.where(np.isfinite(g), g, 0.0)
 
 
+def surface_law_extra(data: GapData, name: str, value: float) -> np.ndarray:
+    """(K,) -, the extra thrust per unit thrust, ``T_IGE/T_OGE - 1``, of the surface law ``name`` of the
+    registry at its parameter ``value``, at each row's height to its surface (its ``ratio``; 0 where the
+    law does not hold, under its pole, as the paper clips the ground effect)."""
+    spec = EFFECTS[name]
+    d = data.d_down if spec.surface == "d_down" else data.d_up
+    ratio = spec.ratio(d, value, data.rotor_radius, arm_length=data.arm_length,
+                       rotor_count=data.rotor_speeds.shape[1])
+    return np.where(np.isfinite(ratio), ratio - 1.0, 0.0)
+
+
 def lagged_S(data: GapData, tau: float) -> np.ndarray:
     """``sum(w_lag^2)`` on the rows of ``data`` (lag run on the contiguous flights)."""
     return data.S_lag(tau)
@@ -260,10 +272,9 @@ def dependent_columns(data: GapData, effects: set[str], nonlinear: dict[str, flo
     zb = data.R[:, :, 2]
     S = (lagged_S(data, nonlinear["tau"]) if "motor_lag" in effects else data.S) * data.thrust_level
     surf = np.zeros(K)
-    if "ground_effect" in effects:
-        surf += surface_ratio(data.d_down, nonlinear["mu"], data.rotor_radius)
-    if "ceiling_effect" in effects:
-        surf += surface_ratio(data.d_up, nonlinear["kappa"], data.rotor_radius)
+    for name in sorted(effects):
+        if EFFECTS[name].surface is not None:
+            surf += surface_law_extra(data, name, nonlinear[EFFECTS[name].params[0]])
     thrust = S[:, None] * zb
     thrust[:, 2] += S * surf
     cols, names = [thrust], ["k_T"]
