@@ -43,6 +43,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io.recording import Recording
+from uavturb.physics import quaternion as quat
 from uavturb.physics.vehicle import Vehicle
 from uavturb.progress import progress_bar
 
@@ -237,7 +238,8 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     q = align.interpolate_quaternions(fd.t_ns, fd.q, t_ns)
     rotors = align.interpolate(fd.t_ns, fd.rotor_speeds, t_ns)
     fa = box_average(fd.t, res.force[:, 2], t, min(dt, gt_window_s))
-    d = SurfaceIndex(rec.points).d_down(p)
+    # the law's height: the rotor plane's over the surface below (recordings.md, "Heights over surfaces")
+    d = SurfaceIndex(rec.points).d_down(rec.vehicle.rotor_plane_positions(p, quat.to_rotation_matrix(q)))
 
     camera = camera_for(rec, image_size, yfov_deg, pitch_deg, camera)
     cloud = prepare_cloud(rec.points)

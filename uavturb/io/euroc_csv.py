@@ -40,6 +40,8 @@ VICON_HEADER = (
 )
 #: ``mav0/cam0/data.csv`` (timestamp, file name).
 CAMERA_HEADER = "#timestamp [ns],filename"
+BATTERY_HEADER = "#timestamp [ns],voltage [V],current [A]"
+BATTERY_VOLTAGE_HEADER = "#timestamp [ns],voltage [V]"
 
 GROUNDTRUTH_COLUMNS = 17
 IMU_COLUMNS = 7

@@ -13,7 +13,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io import align, euroc_csv, ply, sensor_yaml
-from uavturb.io.recording import Camera, GroundTruth, Imu, Poses, Recording, Rotors
+from uavturb.io.recording import Battery, Camera, GroundTruth, Imu, Poses, Recording, Rotors
 from uavturb.io.vehicle_file import load_vehicle, named_vehicle
 from uavturb.physics import quaternion as quat
 from uavturb.physics.vehicle import Vehicle
@@ -29,6 +29,7 @@ CAM_CSV = "mav0/cam0/data.csv"
 CAM_YAML = "mav0/cam0/sensor.yaml"
 CAM_DATA = "mav0/cam0/data"
 VICON_CSV = "mav0/vicon0/data.csv"
+BATTERY_CSV = "mav0/battery0/data.csv"
 
 #: A quaternion whose norm differs from 1 by more than this is an error, not rounding.
 QUATERNION_NORM_TOLERANCE = 1e-2
@@ -97,7 +98,7 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
     -------
     Recording
         Ground truth always; ``imu``, ``rotors`` (rad/s, scaled by ``rotor_speed_scale``),
-        ``points``, ``cam0`` (frames listed, not loaded) and ``vicon`` when present.
+        ``points``, ``cam0`` (frames listed, not loaded), ``vicon`` and ``battery`` when present.
 
     Raises
     ------
@@ -118,7 +119,7 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
     rotors = _read_rotors(root, gt.t_ns, vehicle, required=require_rotors)
     points = ply.read_ply(root / POINTS_PLY) if load_points and (root / POINTS_PLY).is_file() else None
     rec = Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors, points=points, cam0=_read_camera(root),
-                    vicon=_read_vicon(root), path=root, frame="S")
+                    vicon=_read_vicon(root), battery=_read_battery(root), path=root, frame="S")
     if frame == "S":
         return rec
     if frame != "B":
@@ -194,6 +195,21 @@ def _read_vicon(root: Path) -> Poses | None:
         return None
     t, x, lines = euroc_csv.read_csv(vicon_file, euroc_csv.VICON_COLUMNS, "vicon", return_lines=True)
     return Poses(t_ns=t, p=x[:, 0:3], q=checked_quaternions(vicon_file, x[:, 3:7], lines))
+
+
+def _read_battery(root: Path) -> Battery | None:
+    """``battery0`` when present: voltage [V] and, in a third column, current [A]."""
+    battery_file = root / BATTERY_CSV
+    if not battery_file.is_file():
+        return None
+    t, x = euroc_csv.read_csv(battery_file, None, "battery")
+    if x.shape[1] > 2:
+        raise InputError(battery_file, f"has {x.shape[1] + 1} columns; expected timestamp, voltage [V] "
+                                       "and optionally current [A]")
+    if np.any(x[:, 0] <= 0):
+        k = int(np.argmax(x[:, 0] <= 0))
+        raise InputError(battery_file, f"row {k + 1}: battery voltage {x[k, 0]:.6g} V is not positive")
+    return Battery(t_ns=t, voltage=x[:, 0], current=x[:, 1] if x.shape[1] == 2 else None)
 
 
 def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None = None) -> list[Recording]:

@@ -60,6 +60,18 @@ class Rotors:
 
 
 @dataclass
+class Battery:
+    """``mav0/battery0``: battery voltage and, where logged, current (``recordings.md``)."""
+
+    t_ns: np.ndarray  # (N,) int64 ns
+    voltage: np.ndarray  # (N,) V
+    current: np.ndarray | None = None  # (N,) A, None when the file has no current column
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+
+@dataclass
 class Camera:
     """``mav0/cam0``: pinhole intrinsics, pose on the body, and the frame list."""
 
@@ -103,6 +115,7 @@ class Recording:
     points: np.ndarray | None = None  # (P, 3) float, scene points in W [m]
     cam0: Camera | None = None
     vicon: Poses | None = None
+    battery: Battery | None = None
     path: Path | None = None
     frame: str = "B"
 

@@ -15,6 +15,7 @@ from uavturb.errors import InputError
 from uavturb.io import euroc_csv, ply, sensor_yaml
 from uavturb.io.publish import publish_folder
 from uavturb.io.reader import (
+    BATTERY_CSV,
     CAM_CSV,
     CAM_DATA,
     CAM_YAML,
@@ -59,6 +60,13 @@ def _write_streams(rec: Recording, root: Path) -> None:
         if len(rec.cam0.files):  # a camera without frames is described by its sensor.yaml alone
             euroc_csv.write_frame_list(root / CAM_CSV, rec.cam0.t_ns, rec.cam0.files)
         (root / CAM_DATA).mkdir(parents=True, exist_ok=True)
+    if rec.battery is not None:
+        b = rec.battery
+        if b.current is None:
+            euroc_csv.write_csv(root / BATTERY_CSV, euroc_csv.BATTERY_VOLTAGE_HEADER, b.t_ns, b.voltage[:, None])
+        else:
+            euroc_csv.write_csv(root / BATTERY_CSV, euroc_csv.BATTERY_HEADER, b.t_ns,
+                                np.column_stack([b.voltage, b.current]))
     if rec.vicon is not None:
         euroc_csv.write_csv(root / VICON_CSV, euroc_csv.VICON_HEADER, rec.vicon.t_ns,
                             np.hstack([rec.vicon.p, rec.vicon.q]))

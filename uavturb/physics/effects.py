@@ -185,6 +185,8 @@ class FlightFacts:
     has_imu : an accelerometer was recorded (so an accelerometer bias exists)
     d_down_min, d_up_min : m, closest approach to the surface below / above (inf: none known)
     duration_s : s, flight time analysed
+    bias_anchored : the accelerometer bias was measured against motion capture (not fitted)
+    arm_length : m, centre to rotor hub (sizes the airframe for physical ranges)
     """
 
     mass: float
@@ -198,6 +200,8 @@ class FlightFacts:
     d_down_min: float
     d_up_min: float
     duration_s: float
+    bias_anchored: bool = False
+    arm_length: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -276,9 +280,20 @@ class EffectSpec:
         return rotor_radius / 4.0 * float(np.sqrt(self.physical_range.hi / rho))
 
 
+def body_drag_max(f: FlightFacts) -> float:
+    """kg/m, the largest plausible quadratic drag coefficient of the airframe: ``0.5 rho C_D A`` with
+    ``rho = 1.2`` kg/m^3, ``C_D = 1.5`` and ``A = (2 (arm_length + r))^2`` m^2 (the square spanned by
+    the rotor tips: no frontal area is larger); 1 kg/m where the arm length is unknown."""
+    if not np.isfinite(f.arm_length):
+        return 1.0
+    return 0.5 * 1.2 * 1.5 * (2.0 * (f.arm_length + f.rotor_radius)) ** 2
+
+
 def _heading_clause(f: FlightFacts) -> str:
     if not f.has_imu:
         return "these recordings have no accelerometer, so it is no sensor bias"
+    if f.bias_anchored:
+        return "the accelerometer's bias was measured against the motion capture, so it is no sensor bias"
     if f.heading_span_deg >= 30.0:
         return (f"it stays fixed in the world while the heading changed by {f.heading_span_deg:.0f} deg, "
                 "so it is no accelerometer bias")
@@ -358,9 +373,11 @@ EFFECTS: dict[str, EffectSpec] = {
                    _explain_rotor_drag, manoeuvre="fly at several horizontal speeds in different directions"),
         EffectSpec("body_drag", ("c_d",), ("kg/m",), (0.05,), body_drag_force, True,
                    "quadratic parasitic drag of the airframe",
-                   PhysicalRange("c_d [kg/m]", 1e-3, 1.0, lambda p, f: p["c_d"],
-                                 "0.5 rho C_D A with air at 1.2 kg/m^3, C_D 0.5-1.5 and a frontal area "
-                                 "of 0.01-1 m^2"),
+                   PhysicalRange("c_d over the airframe's largest plausible body drag [-]", 2e-3, 1.0,
+                                 lambda p, f: p["c_d"] / body_drag_max(f),
+                                 "0.5 rho C_D A with air at 1.2 kg/m^3, C_D up to 1.5 and at most the square "
+                                 "spanned by the rotor tips, (2 (arm_length + r))^2, as frontal area (1 kg/m where "
+                                 "the arm length is unknown)"),
                    _explain_body_drag, manoeuvre="fly faster: a quadratic drag parts from linear laws at speed"),
         EffectSpec("wind", ("f_x", "f_y"), ("N", "N"), (0.3, 0.0), wind_force, True,
                    "a steady horizontal push",

@@ -26,7 +26,10 @@ from uavturb.physics.constants import GRAVITY
 
 REQUIRED_KEYS = ("mass", "rotor_count", "arm_length", "rotor_angles_deg", "rotor_directions", "rotor_radius")
 OPTIONAL_KEYS = ("name", "thrust_coefficient", "moment_coefficient", "inertia", "rotor_speed_scale", "max_rotor_speed",
-                 "T_BS")
+                 "rotor_speed_source", "rotor_plane_z", "T_BS")
+
+#: what ``rotors0`` holds (``recordings.md``): the flight controller's commands, or speeds the ESCs measured
+ROTOR_SPEED_SOURCES = ("commanded", "measured")
 
 #: ``T_BS`` rotation blocks whose ``R R^T`` differs from the identity by more than this are not
 #: rotations (EuRoC prints them to 5 decimals: about 1e-5 off).
@@ -60,6 +63,13 @@ class Vehicle:
         rad/s per unit of the ``rotors0`` values (raw EuRoC motor commands need one).
     max_rotor_speed : float or None
         rad/s, actuator bound used by controllers.
+    rotor_speed_source : str
+        ``"commanded"`` (default: the flight controller's commands) or ``"measured"`` (ESC
+        telemetry). A measured speed already shows the battery's sag (``effects.md``).
+    rotor_plane_z : float
+        m, height of the rotor discs' plane above the body origin along ``z_B`` (negative: below
+        it; ``recordings.md``, "Heights over surfaces"). Surface effects use the rotor plane's
+        height, :meth:`rotor_plane_positions`.
     T_BS : 4x4 tuple of tuples of float, or None
         Pose of the sensor frame S (the ground truth's and the IMU's frame) in the rotor frame
         B: ``x_B = T_BS x_S`` (rotation ``R_BS``, translation ``t_BS`` [m] = the origin of S in
@@ -77,6 +87,8 @@ class Vehicle:
     inertia: tuple[float, float, float] | None = None
     rotor_speed_scale: float = 1.0
     max_rotor_speed: float | None = None
+    rotor_speed_source: str = "commanded"
+    rotor_plane_z: float = 0.0
     T_BS: tuple[tuple[float, ...], ...] | None = None
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
@@ -120,6 +132,23 @@ class Vehicle:
         """Whether S = B (no ``T_BS``, or an identity one)."""
         return self.T_BS is None or np.array_equal(np.asarray(self.T_BS, dtype=float), np.eye(4))
 
+    def rotor_plane_positions(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Centre of the rotor plane in W [m]: ``p + rotor_plane_z R e_z``.
+
+        Parameters
+        ----------
+        p : (K, 3) or (3,) m, position of the body origin in W
+        R : (K, 3, 3) or (3, 3), body-to-world rotations
+
+        Returns
+        -------
+        Same shape as ``p``; ``p`` itself (not a copy) when ``rotor_plane_z`` is 0.
+        """
+        if self.rotor_plane_z == 0.0:
+            return p
+        R = np.asarray(R, dtype=float)
+        return np.asarray(p, dtype=float) + self.rotor_plane_z * R[..., :, 2]
+
     def hover_speed(self) -> float:
         """Rotor speed [rad/s] at which all rotors together carry the weight."""
         if self.thrust_coefficient is None:
@@ -150,9 +179,14 @@ class Vehicle:
             d["inertia"] = [float(j) for j in self.inertia]
         if self.T_BS is not None:
             d["T_BS"] = [[float(x) for x in row] for row in self.T_BS]
+        # keys at their defaults are left out, so files written before they existed stay the same
+        if self.rotor_speed_source == "commanded":
+            d.pop("rotor_speed_source")
+        if self.rotor_plane_z == 0.0:
+            d.pop("rotor_plane_z")
         order = ["name", "mass", "rotor_count", "arm_length", "rotor_angles_deg", "rotor_directions",
                  "rotor_radius", "thrust_coefficient", "moment_coefficient", "inertia",
-                 "rotor_speed_scale", "max_rotor_speed", "T_BS"]
+                 "rotor_speed_scale", "max_rotor_speed", "rotor_speed_source", "rotor_plane_z", "T_BS"]
         return {k: d[k] for k in order if d.get(k) is not None}
 
     @classmethod
@@ -204,6 +238,14 @@ class Vehicle:
             if any(j <= 0 for j in inertia):
                 raise InputError(where, "key 'inertia' must hold positive values")
             kwargs["inertia"] = tuple(inertia)
+        if d.get("rotor_plane_z") is not None:
+            kwargs["rotor_plane_z"] = number("rotor_plane_z", positive=False)
+        if d.get("rotor_speed_source") is not None:
+            source = d["rotor_speed_source"]
+            if source not in ROTOR_SPEED_SOURCES:
+                raise InputError(where, f"key 'rotor_speed_source' must be one of {', '.join(ROTOR_SPEED_SOURCES)}, "
+                                        f"got {str(source)[:40]!r}")
+            kwargs["rotor_speed_source"] = source
         if d.get("T_BS") is not None:
             kwargs["T_BS"] = checked_transform(d["T_BS"], where)
         name = d.get("name") or Path(str(where)).parent.name or "vehicle"

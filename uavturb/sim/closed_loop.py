@@ -192,6 +192,14 @@ class CollisionWatch:
         return None, False
 
 
+def rotor_plane(vehicle: Vehicle, x: np.ndarray) -> np.ndarray:
+    """(3,) m, centre of the rotor plane in W of state ``x`` (13,): where surface heights are measured
+    (``recordings.md``, "Heights over surfaces"); the body origin when ``rotor_plane_z`` is 0."""
+    if vehicle.rotor_plane_z == 0.0:
+        return x[0:3]
+    return vehicle.rotor_plane_positions(x[0:3], quat.to_rotation_matrix(x[IDX_Q]))
+
+
 def initial_state(sp0: Setpoint) -> np.ndarray:
     """(13,) state at rest on the first set-point, level, with its heading."""
     x = np.zeros(N_STATE)
@@ -241,7 +249,7 @@ def run_closed_loop(vehicle: Vehicle, x0: np.ndarray, pilot: Pilot, heights: Hei
             if rec.stop_time is not None:
                 break
         if i % control_every == 0:
-            held.refresh(x[0:3])
+            held.refresh(rotor_plane(vehicle, x))
             t1 = clock()
             w_cmd = pilot(x, t, F)
             t_ctrl += clock() - t1
@@ -249,7 +257,7 @@ def run_closed_loop(vehicle: Vehicle, x0: np.ndarray, pilot: Pilot, heights: Hei
             if i == 0 or motor_tau <= 0:
                 w_act = w_cmd.copy()
         t1 = clock()
-        dd, du = held.at(x[2])
+        dd, du = held.at(rotor_plane(vehicle, x)[2])
         F = force_of(x, w_act, t, dd, du)
         if i % record_every == 0:
             rec.x[k], rec.rotor_speeds[k], rec.rotor_commands[k] = x, w_act, w_cmd
