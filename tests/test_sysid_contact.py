@@ -129,6 +129,13 @@ def test_a_recording_that_never_lands_gives_no_interval():
     z = z + 0.5  # flies 0.5 m and more above anything
     mask, found = ground_contact(t, z, v, tilt, thrust, MASS)
     assert found == [] and not mask.any()
+    # a steady hover alone, its thrust read 20 % low and taken as given: only d_down can tell
+    t, z, v, tilt, thrust, _, _ = flight([("hover", 10.0)], seed=8)
+    z = z + 0.6
+    _, by_z = ground_contact(t, z, v, tilt, 0.8 * thrust, MASS, calibrate=False)
+    assert len(by_z) == 1  # the lowest height it reached looks like a landed height
+    _, by_d_down = ground_contact(t, z, v, tilt, 0.8 * thrust, MASS, d_down=z + 0.05, calibrate=False)
+    assert by_d_down == []
 
 
 def test_touch_and_go_in_the_middle_is_caught():

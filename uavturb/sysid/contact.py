@@ -69,6 +69,8 @@ class ContactLimits:
     window_s : s, the window of the speed median and the tilt range
     margin_s : s, added on each side of a contact interval (lift-off and touch-down transients)
     min_s : s, shortest contact kept (before margins)
+    gear_max_m : m, with ``d_down``: the highest a resting rotor plane sits over the surface (its
+        landing gear); a recording whose lowest ``d_down`` is higher never landed
     """
 
     height_tol_m: float = 0.015
@@ -80,6 +82,7 @@ class ContactLimits:
     window_s: float = 0.3
     margin_s: float = 0.2
     min_s: float = 0.2
+    gear_max_m: float = 0.5
 
 
 def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.ndarray, thrust: np.ndarray,
@@ -156,6 +159,8 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
     if len(u) < 5:
         return out, []
     h0 = float(np.min(median_filter(rec.h[u], 5, mode="nearest"))) if landed is None else float(landed)
+    if rotor_plane and landed is None and h0 > lim.gear_max_m:
+        return out, []  # never within landing-gear height of a surface
     rest_u, speed_u = _resting_updates(rec, u, h0, lim)
     is_u = np.zeros(n, bool)
     is_u[u] = True
