@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from scipy.signal import lfilter
 
 from uavturb.errors import InputError
 from uavturb.physics import ground_effect as ge
@@ -145,34 +146,57 @@ def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray
     """Actual rotor speeds under first-order lag ``tau dw/dt = w_cmd - w``.
 
     Exact discretisation for commands held between samples (zero-order hold), started at
-    ``w(t_0) = w_cmd(t_0)``.
+    ``w(t_0) = w_cmd(t_0)``: ``w_k = a_k w_{k-1} + (1 - a_k) w_cmd_{k-1}``, ``a_k = exp(-dt_k / tau)``.
 
     Parameters
     ----------
     t : (K,) s, increasing
     w_cmd : (K, N) rad/s, the recorded (commanded) speeds
     tau : s, time constant (0 returns the commands)
+
+    Notes
+    -----
+    The recurrence runs as a scipy filter (C speed) on each stretch between dropouts (steps over
+    :data:`LAG_GAP` times the median step; the lag restarts from the command after one, as it has
+    long settled). On a stretch whose steps are jittered by less than :data:`LAG_JITTER` of their
+    mean the filter uses the mean step: the error is of the order of the jitter times the lag's own
+    small effect. Stretches jittered more run the exact loop over time.
     """
     w_cmd = np.asarray(w_cmd, float)
-    if tau <= 0:
+    if tau <= 0 or len(w_cmd) < 2:
         return w_cmd.copy()
-    dt = np.diff(np.asarray(t, float), prepend=t[0])
-    a = np.exp(-dt / tau)  # (K,)
+    t = np.asarray(t, float)
+    dt = np.diff(t)
+    breaks = np.flatnonzero(dt > LAG_GAP * float(np.median(dt))) + 1
+    out = np.empty_like(w_cmd)
+    for a, b in zip(np.r_[0, breaks], np.r_[breaks, len(t)]):
+        out[a:b] = _lag_stretch(t[a:b], w_cmd[a:b], tau)
+    return out
+
+
+#: a step over this many median steps is a dropout (the lag restarts from the command after it)
+LAG_GAP = 3.0
+#: relative spread of the steps under which a stretch is filtered with its mean step
+LAG_JITTER = 0.25
+
+
+def _lag_stretch(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray:
+    """:func:`lag_rotor_speeds` on one stretch without dropouts."""
     out = np.empty_like(w_cmd)
     out[0] = w_cmd[0]
-    # w_k = a_k w_{k-1} + (1 - a_k) w_cmd_{k-1}: a linear recurrence, run as a scipy filter
-    # when the step is uniform, else as a loop over time (vectorised over rotors).
-    if np.allclose(dt[1:], dt[1:].mean(), rtol=1e-6, atol=0):
-        from scipy.signal import lfilter
-
-        ak = float(a[1])
-        u = np.vstack([w_cmd[:1], w_cmd[:-1]])  # input delayed by one sample
-        zi = ak * w_cmd[0]
-        y, _ = lfilter([1 - ak], [1, -ak], u[1:], axis=0, zi=np.atleast_2d(zi))
+    if len(t) < 2:
+        return out
+    dt = np.diff(t)
+    mean = float(dt.mean())
+    if float(np.std(dt)) <= LAG_JITTER * mean:
+        ak = float(np.exp(-mean / tau))
+        # w_k = a w_{k-1} + (1 - a) w_cmd_{k-1}: the input delayed by one sample
+        y, _ = lfilter([1 - ak], [1, -ak], w_cmd[:-1], axis=0, zi=np.atleast_2d(ak * w_cmd[0]))
         out[1:] = y
         return out
+    a = np.exp(-dt / tau)
     for k in range(1, len(w_cmd)):
-        out[k] = a[k] * out[k - 1] + (1 - a[k]) * w_cmd[k - 1]
+        out[k] = a[k - 1] * out[k - 1] + (1 - a[k - 1]) * w_cmd[k - 1]
     return out
 
 
