@@ -67,7 +67,7 @@ def _sim_offset(data: GapData, sim: dict[str, dict[str, float]], k_T: float) -> 
                          rotor_radius=full.rotor_radius, d_down=full.d_down[m], d_up=full.d_up[m], t=full.t[m],
                          R=full.R[m])
         out[m] = total_force(sim, x)
-    return out if data.rows is None else out[data.rows]
+    return out if data.rows is None else data.gather(out)
 
 
 def _open_loop(data: GapData, force: np.ndarray, horizon_s: float = 0.5, stride_s: float = 0.5) -> float:
