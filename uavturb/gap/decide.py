@@ -114,11 +114,18 @@ class Reach:
         return f"hover {where} at several heights below {self.reach_m:.2f} m for a few seconds each"
 
 
+def surface_geometry(data: GapData) -> dict:
+    """What surface laws that use the rotor spacing need (none where the arm length is unknown)."""
+    if not np.isfinite(data.arm_length):
+        return {}
+    return {"arm_length": data.arm_length, "rotor_count": data.rotor_speeds.shape[1]}
+
+
 def surface_reach(data: GapData, name: str) -> Reach:
     """Can the surface law ``name`` be tested on ``data``? (module docstring, point 1)"""
     spec = EFFECTS[name]
     d = data.d_down if spec.surface == "d_down" else data.d_up
-    reach = spec.surface_reach(data.rotor_radius)
+    reach = spec.surface_reach(data.rotor_radius, **surface_geometry(data))
     near = np.isfinite(d) & (d <= reach)
     dt = float(np.median(np.diff(data.t))) if len(data) > 1 else 0.0
     near_s = float(near.sum()) * dt

@@ -44,7 +44,7 @@ NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items()
 
 
 #: Hz, the rate the gap finder analyses at (block means of faster recordings; :func:`gap_data`)
-RATE_HZ = 50.0
+RATE_HZ = 25.0
 
 
 @dataclass
@@ -259,7 +259,7 @@ def block_means(full: GapData, keep: np.ndarray, n: int) -> GapData:
     them): ``y``, positions, velocities, attitudes' columns and heights averaged, rotor speeds as the
     root mean square (so ``sum(w^2)`` is the mean of the samples'), times as the mean. The model is
     linear in its regressors for given nonlinear parameters, and every regressor changes slowly
-    against ``n`` samples (a block is 20 ms at the default 50 Hz), so the fit on block means is the
+    against ``n`` samples (a block is 40 ms at the default 25 Hz), so the fit on block means is the
     fit on the samples with the white noise averaged; motor lag is filtered on the contiguous samples
     and averaged over each block (:meth:`GapData.S_lag`)."""
     idx = np.flatnonzero(keep)
@@ -290,7 +290,9 @@ def block_means(full: GapData, keep: np.ndarray, n: int) -> GapData:
 def apply_thrust_levels(data: GapData, k_T_guess: float | None) -> ThrustLevels:
     """Measure each recording's thrust level far from surfaces (:func:`uavturb.gap.nominal.thrust_levels`)
     and, where they differ, give each row its recording's level (``data.level``)."""
-    reach = max(e.surface_reach(data.rotor_radius) for e in EFFECTS.values() if e.surface)
+    geometry = {} if not np.isfinite(data.arm_length) else {"arm_length": data.arm_length,
+                                                             "rotor_count": data.rotor_speeds.shape[1]}
+    reach = max(e.surface_reach(data.rotor_radius, **geometry) for e in EFFECTS.values() if e.surface)
     far = (data.d_down > reach) & (data.d_up > reach)
     y_thrust = np.einsum("ki,ki->k", data.y, data.R[:, :, 2])
     levels = thrust_levels(data.group, data.t, y_thrust, data.S, far, data.names)

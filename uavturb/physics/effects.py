@@ -319,13 +319,32 @@ class EffectSpec:
     ratio: Callable[..., np.ndarray] | None = None
     fitted_by_finder: bool = True
 
-    def surface_reach(self, rotor_radius: float, share: float = 0.01) -> float:
+    def surface_reach(self, rotor_radius: float, share: float = 0.01, **geometry) -> float:
         """m, the height under which this surface law, at the top of its physical range, adds at
-        least ``share`` of the thrust: flights that never come closer cannot decide it."""
+        least ``share`` of the thrust: flights that never come closer cannot decide it.
+
+        Cheeseman-Bennett shapes (ground, ceiling) in closed form; any other law by bisection on its
+        ``ratio`` with ``geometry`` (``arm_length``, ``rotor_count``; the closed form where the law
+        cannot be evaluated without them)."""
         if self.surface is None:
             return float("inf")
         rho = share / (1.0 + share)  # rho/(1-rho) = share
-        return rotor_radius / 4.0 * float(np.sqrt(self.physical_range.hi / rho))
+        closed = rotor_radius / 4.0 * float(np.sqrt(self.physical_range.hi / rho))
+        if self.ratio is None or self.ratio.__name__ == "_cheeseman_bennett_ratio":
+            return closed
+        if not geometry:
+            return closed
+        lo, hi = np.log(rotor_radius / 4.0), np.log(1000.0 * rotor_radius)
+
+        def extra(z: float) -> float:
+            return float(self.ratio(np.array([np.exp(z)]), self.physical_range.hi, rotor_radius, **geometry)[0]) - 1.0
+
+        if not np.isfinite(extra(hi)):
+            return closed
+        for _ in range(60):  # the law falls with height: the highest height where it still adds ``share``
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if not np.isfinite(extra(mid)) or extra(mid) >= share else (lo, mid)
+        return float(np.exp(hi))
 
 
 def body_drag_max(f: FlightFacts) -> float:

@@ -95,13 +95,21 @@ def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
     stream's rows, the repeats are dropped, so that derivatives and interpolation work between real
     updates instead of on steps. Streams that update on every row are returned as they are."""
     gt, rotors = rec.ground_truth, rec.rotors
-    m = update_mask(np.hstack([gt.p, gt.q, gt.v]))
+    m = _updates(np.hstack([gt.p, gt.q, gt.v]))
     if 1.0 - m.mean() > HELD_SHARE:
         gt = GroundTruth(t_ns=gt.t_ns[m], p=gt.p[m], q=gt.q[m], v=gt.v[m], b_w=gt.b_w[m], b_a=gt.b_a[m])
-    m = update_mask(rotors.speeds)
+    m = _updates(rotors.speeds)
     if 1.0 - m.mean() > HELD_SHARE:
         rotors = Rotors(t_ns=rotors.t_ns[m], speeds=rotors.speeds[m])
     return gt, rotors
+
+
+def _updates(values: np.ndarray) -> np.ndarray:
+    """The update rows of a stream, and its last row: a held value still holds until the stream ends
+    (a rotor speed held constant through a still hover covers the hover)."""
+    m = update_mask(values)
+    m[-1] = True
+    return m
 
 
 def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
