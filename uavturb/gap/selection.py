@@ -164,6 +164,24 @@ def _signed_ok(fit: ModelFit, name: str, z_min: float) -> bool:
     return max(zs) > z_min
 
 
+def _same_physics(a: str, b: str) -> bool:
+    """Two laws of one physics (``EffectSpec.alternative_to``): at most one of them is named."""
+    return EFFECTS[a].alternative_to == b or EFFECTS[b].alternative_to == a
+
+
+def _standard_law(best: tuple, passed: dict[str, tuple], z_improve: float, tried: dict, step: int) -> tuple:
+    """``best``, unless it is an alternative law (``alternative_to``) that does not beat the standard law
+    of its physics on the held-out data beyond noise (``z > z_improve``): then the standard law, which
+    ``effects.md`` names (a better law "may be named instead" only where it fits better)."""
+    c, ho, _ = best
+    standard = EFFECTS[c].alternative_to
+    if standard is None or standard not in passed:
+        return best
+    z = improvement_z(passed[standard][1], ho)
+    tried[c][f"step{step}_z_over_{standard}"] = z
+    return best if z >= z_improve else passed[standard]
+
+
 def select(data: GapData, candidates: list[str], base: frozenset[str] = frozenset(), *, z_improve: float = 4.0,
            z_min: float = 4.0, lag: int = 50, max_effects: int = 4, offset: np.ndarray | None = None,
            thrust_floor: float = 0.0) -> Selection:
@@ -185,6 +203,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
     remaining = [c for c in candidates if c not in current]
     while remaining and len(steps) < max_effects:
         best = None  # the best held-out fit among the candidates that pass the guards
+        passed: dict[str, tuple] = {}
         for c in remaining:
             ho = heldout(data, current | {c}, fm, offset=offset)
             t = improvement_z(cur_ho, ho)
@@ -197,9 +216,10 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
                 continue
             if best is None or ho.rmse < best[1].rmse:
                 best = (c, ho, t)
+            passed[c] = (c, ho, t)
         if best is None:
             break
-        c, ho, t = best
+        c, ho, t = _standard_law(best, passed, z_improve, tried, len(steps) + 1)
         fit = fit_model(full, current | {c}, lag=lag)
         if not _signed_ok(fit, c, z_min):
             tried[c]["rejected"] = 1.0
@@ -208,7 +228,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         steps.append(Step(c, cur_ho.rmse, ho.rmse, t, fit))
         current = current | {c}
         cur_ho = ho
-        remaining.remove(c)
+        remaining = [r for r in remaining if r != c and not _same_physics(r, c)]
 
     # backward check: drop an effect whose removal does not hurt significantly
     changed = True
