@@ -106,7 +106,8 @@ def improvement_z(before: HeldOut, after: HeldOut, block_s: tuple[float, ...] = 
     """Significance of the held-out squared-error reduction from ``before`` to ``after``
     (same test rows): ``z = sum(|e_b|^2 - |e_a|^2) / (2 sqrt(sum_blocks (sum e_a . delta)^2))``,
     ``delta = e_b - e_a`` (module docstring); the smallest ``z`` over the block lengths
-    ``block_s`` [s] (at least 8 blocks each)."""
+    ``block_s`` [s] (at least :data:`MIN_BLOCKS` blocks each; shorter blocks where the held-out part is
+    too short for any of them)."""
     eb, ea = before.resid, after.resid
     delta = eb - ea
     gain = float(np.sum(eb**2) - np.sum(ea**2))
@@ -114,14 +115,22 @@ def improvement_z(before: HeldOut, after: HeldOut, block_s: tuple[float, ...] = 
     t = before.t if before.t is not None else np.zeros(len(eb))
     g = before.group if before.group is not None else np.zeros(len(eb), int)
     zs = []
-    for L in block_s:
+    span = sum(float(np.ptp(t[g == k])) for k in np.unique(g)) if len(t) else 0.0
+    # a short held-out part (the last 30 % of an 18 s take-off) has fewer than MIN_BLOCKS blocks of
+    # every length: its blocks are then as long as MIN_BLOCKS of them allow
+    lengths = [L for L in block_s if span / L >= MIN_BLOCKS] or ([span / MIN_BLOCKS] if span > 0 else [])
+    for L in lengths:
         labels = g.astype(np.int64) * 10**7 + np.floor(t / L).astype(np.int64)
         _, inv = np.unique(labels, return_inverse=True)
-        if inv.max(initial=0) + 1 < 8:
+        if inv.max(initial=0) + 1 < MIN_BLOCKS:
             continue
         spread = 2.0 * float(np.sqrt(np.sum(np.bincount(inv, weights=u_k) ** 2)))
         zs.append(gain / spread if spread > 0 else (0.0 if gain <= 0 else float(np.inf)))
     return min(zs) if zs else 0.0
+
+
+#: blocks the spread of a held-out gain needs at least
+MIN_BLOCKS = 8
 
 
 @dataclass
