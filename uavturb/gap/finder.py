@@ -270,6 +270,8 @@ def _budget(data: GapData, final: ModelFit, name: str) -> dict[str, dict[str, fl
 def not_pinned(data: GapData, final: ModelFit, name: str) -> str | None:
     """Why ``name`` is no discovery when none of its parameters stands :data:`HONEST_Z` honest standard
     errors from zero (the spread between recordings or blocks counted), else None."""
+    if not EFFECTS[name].absent_at_zero:
+        return None
     params, _ = final.effect_params(name)
     se = honest_stderr(_budget(data, final, name))
     z = max((abs(v) / se[k] if se[k] > 0 else np.inf) for k, v in params.items())

@@ -303,6 +303,8 @@ class EffectSpec:
     alternative_to : another law of the same physics (``ground_effect_multirotor`` for ``ground_effect``):
         the finder names at most one of them, the alternative only where it beats the other on
         held-out data beyond noise
+    absent_at_zero : parameters all zero mean no effect (False for the multirotor law, whose rotor images
+        act at ``K_b = 0``): only then does a parameter within noise of zero say the effect is not there
     """
 
     name: str
@@ -322,6 +324,7 @@ class EffectSpec:
     ratio: Callable[..., np.ndarray] | None = None
     fitted_by_finder: bool = True
     alternative_to: str | None = None
+    absent_at_zero: bool = True
 
     def surface_reach(self, rotor_radius: float, share: float = 0.01, **geometry) -> float:
         """m, the height under which this surface law, at the top of its physical range, adds at
@@ -460,7 +463,7 @@ EFFECTS: dict[str, EffectSpec] = {
                    PhysicalRange("K_b", 0.0, 6.0, lambda p, f: p["K_b"], _MULTIROTOR_RANGE_SOURCE),
                    _explain_ground_multirotor, search=(0.01, 20.0), along_thrust=True, surface="d_down",
                    manoeuvre="hover over the floor at several heights from one to ten rotor radii",
-                   ratio=_multirotor_ratio, alternative_to="ground_effect"),
+                   ratio=_multirotor_ratio, alternative_to="ground_effect", absent_at_zero=False),
         EffectSpec("ceiling_effect", ("kappa",), ("-",), (2.0,), ceiling_effect_force, False,
                    "ceiling effect: suction towards the surface above",
                    PhysicalRange("kappa", 0.25, 12.0, lambda p, f: p["kappa"], _SURFACE_RANGE_SOURCE),
