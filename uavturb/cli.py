@@ -73,6 +73,7 @@ def _add_residuals(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--params", default="identified", choices=["identified", "nominal"],
                    help="model constants: identified on this flight (default) or vehicle.yaml's")
     s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 
 
 def _add_import_euroc(sub: argparse._SubParsersAction) -> None:
@@ -214,6 +215,7 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
     _add_mlflow_experiment(s)
     s.add_argument("--parent", default=None, metavar="RUN_ID", help="sweep parent run (default: the latest)")
     s.add_argument("--out", default="outputs", metavar="DIR", help="folder for table1.md and table1.csv")
+    s.add_argument("--overwrite", action="store_true", help="replace table1.md and table1.csv there")
 
 
 def _add_evaluate(sub: argparse._SubParsersAction) -> None:
@@ -307,7 +309,7 @@ def _residuals(args: argparse.Namespace) -> int:
     from uavturb.experiments.identify import residuals_to_file
 
     res, path = residuals_to_file(args.recording, args.out, source=args.source, derivative=args.derivative,
-                                  params=args.params, vehicle=args.vehicle)
+                                  params=args.params, vehicle=args.vehicle, overwrite=args.overwrite)
     print(f"wrote {path}: {len(res.t)} samples, source {res.source}, residual RMS {res.rmse:.4f} N")
     return 0
 
@@ -409,7 +411,8 @@ def _sweep(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from uavturb.experiments.compare import compare
 
-    res = compare(experiment=args.mlflow_experiment, parent_run_id=args.parent, out=args.out)
+    res = compare(experiment=args.mlflow_experiment, parent_run_id=args.parent, out=args.out,
+                  overwrite=args.overwrite)
     print(res["table"])
     print(f"wrote {res['markdown']} and {res['csv']}")
     return 0
