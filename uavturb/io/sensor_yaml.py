@@ -19,7 +19,7 @@ import yaml
 from uavturb.errors import InputError
 from uavturb.io.euroc_csv import write_atomic
 from uavturb.io.recording import Camera
-from uavturb.io.yaml_mapping import parse_yaml_mapping
+from uavturb.io.yaml_mapping import parse_yaml_mapping, read_yaml_text
 
 IMU_NOISE_KEYS = ("gyroscope_noise_density", "gyroscope_random_walk",
                   "accelerometer_noise_density", "accelerometer_random_walk")
@@ -45,9 +45,7 @@ class ImuSensor:
 
 
 def _load(path: Path) -> dict[str, Any]:
-    if not path.is_file():
-        raise InputError(path, "file not found")
-    text = path.read_text(encoding="utf-8", errors="replace")
+    text = read_yaml_text(path)
     # OpenCV-style files start with '%YAML:1.0', which is not a YAML 1.1 directive
     text = "\n".join("" if s.startswith("%YAML") else s for s in text.splitlines())
     return parse_yaml_mapping(text, path, expected="a mapping of sensor keys")
