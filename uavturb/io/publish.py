@@ -254,7 +254,7 @@ def _put_in_place(tmp: Path, out: Path, before: str) -> None:
                 _rename_noreplace(tmp, out)
         except OSError as e:
             if e.errno in (errno.EEXIST, errno.ENOTEMPTY, errno.ENOTDIR, errno.EISDIR):
-                raise InputError(out, f"was created or filled while this command ran (by you or another uavturb "
+                raise InputError(out, "was created or filled while this command ran (by you or another uavturb "
                                       "command); it is not replaced and this result was not kept") from None
             raise
         return
