@@ -292,6 +292,37 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"uavturb {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # noqa: BLE001 - the last guard: one line, never a traceback
+        if os.environ.get("UAVTURB_TRACEBACK"):
+            raise
+        line, code = _last_guard(e)
+        print(f"uavturb {args.command}: error: {line}", file=sys.stderr)
+        return code
+
+
+def _last_guard(e: Exception) -> tuple[str, int]:
+    """The one line (and exit status) of an error no library function turned into an InputError:
+    2 for what the machine or the input ran into, 1 for a defect of uavturb (with where it happened)."""
+    import errno
+    import traceback
+
+    from uavturb.errors import shorten
+
+    if isinstance(e, MemoryError):
+        return "out of memory: an input (or the work it asks for) is larger than this machine can hold", 2
+    if isinstance(e, RecursionError):
+        return "an input is nested too deeply to be read", 2
+    if isinstance(e, UnicodeDecodeError):
+        return shorten(f"an input is not UTF-8 text ({e.reason} at byte {e.start})", 300), 2
+    if isinstance(e, OSError):
+        where = e.filename or "a file"
+        if e.errno == errno.ENOSPC:
+            return shorten(f"{where}: no space left on the device; free some space and run the command again", 400), 2
+        return shorten(f"{where}: {e.strerror or type(e).__name__}", 400), 2
+    frame = traceback.extract_tb(e.__traceback__)[-1] if e.__traceback__ else None
+    at = f" at {Path(frame.filename).name}:{frame.lineno}" if frame else ""
+    return shorten(f"internal error ({type(e).__name__}: {e}){at}; set UAVTURB_TRACEBACK=1 to see the traceback "
+                   "and please report it", 600), 1
 
 
 # --- one handler a command: calls one library function and prints what it returns ----------------
