@@ -157,6 +157,9 @@ def _check_columns(path: Path, rows: _Block, n_cols: int | None) -> int:
     found = int(np.searchsorted(rows.commas, rows.ends[0])) + 1
     if found > MAX_COLUMNS:  # checked on the first row, before anything is sized by it
         raise InputError(path, f"line {rows.lines[0]}: {found} columns, more than {MAX_COLUMNS} (the limit of a row)")
+    long = np.flatnonzero(rows.ends - rows.starts > MAX_LINE_BYTES)
+    if len(long):
+        raise InputError(path, f"line {rows.lines[long[0]]} is longer than {MAX_LINE_BYTES} bytes (the limit of a line)")
     counts = np.diff(np.searchsorted(rows.commas, rows.ends), prepend=0) + 1
     expected = found if n_cols is None else n_cols
     bad = np.flatnonzero(counts != expected)
