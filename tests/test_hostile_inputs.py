@@ -231,3 +231,22 @@ def test_the_last_guard_turns_any_failure_into_one_line(monkeypatch, capsys):
         assert main(["identify", "x"]) == code
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith(f"uavturb identify: error: {text}"), err
+
+
+# --- links out of the recording folder ---------------------------------------------------------
+
+
+def test_a_stream_linked_out_of_the_recording_is_followed_only_when_asked(rec, tmp_path, monkeypatch):
+    outside = tmp_path / "elsewhere.csv"
+    (rec / GROUNDTRUTH_CSV).rename(outside)
+    (rec / GROUNDTRUTH_CSV).symlink_to(outside)
+    _refused(read_recording, rec, match=r"data.csv: is a link out of the recording folder \(to .*elsewhere.csv\); "
+                                        "it is not followed unless you set UAVTURB_FOLLOW_LINKS=1")
+    monkeypatch.setenv("UAVTURB_FOLLOW_LINKS", "1")
+    assert len(read_recording(rec).ground_truth.t_ns) == 400
+    monkeypatch.delenv("UAVTURB_FOLLOW_LINKS")
+    inside = rec / "gt_copy.csv"  # a link that stays inside the folder is fine
+    outside.rename(inside)
+    (rec / GROUNDTRUTH_CSV).unlink()
+    (rec / GROUNDTRUTH_CSV).symlink_to(inside)
+    assert len(read_recording(rec).ground_truth.t_ns) == 400
