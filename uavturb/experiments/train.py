@@ -217,7 +217,9 @@ def run_config(run_id: str) -> DictConfig:
             path = c.download_artifacts(run_id, "config.yaml", tmp)
         except Exception:  # noqa: BLE001 - MlflowException or OSError: the artifact is gone
             raise InputError("--resume", f"run {run_id} has no readable config.yaml artifact") from None
-        return validate(OmegaConf.load(path))
+        from uavturb.io.yaml_mapping import read_yaml_mapping
+
+        return validate(OmegaConf.create(read_yaml_mapping(path)))  # within the YAML bounds: runs can be shared
 
 
 def resume_config(run_id: str, overrides: list[str] | None = None, experiment: str | None = None) -> DictConfig:
