@@ -98,7 +98,8 @@ def _pid_alive(pid: int) -> bool:
 def clean_stale(target: Path) -> list[Path]:
     """Remove the temporary entries beside ``target`` that a killed command of this host left;
     returns them. A ``.old`` folder whose content was never put back (the command was killed
-    between moving the old result away and putting the new one in place) is restored first."""
+    between moving the old result away and putting the new one in place) is restored first; one
+    that holds anything uavturb did not write is left where it is."""
     host = _owner().split("-")[0]
     pattern = _temp_pattern(target.name)
     removed = []
@@ -114,6 +115,8 @@ def clean_stale(target: Path) -> list[Path]:
         if m.group(3) == ".old" and kept.is_dir() and not target.exists():
             with contextlib.suppress(OSError):
                 _rename_noreplace(kept, target)
+        if m.group(3) == ".old" and kept.is_dir() and any(kept.iterdir()) and _foreign(kept) is not None:
+            continue
         if entry.is_dir() and not entry.is_symlink():
             shutil.rmtree(entry, ignore_errors=True)
         else:
@@ -285,8 +288,7 @@ def atomic_folder(folder: str | Path) -> Iterator[Path]:
     chunks); user-named outputs go through :func:`publish_folder`."""
     folder = Path(folder)
     folder.parent.mkdir(parents=True, exist_ok=True)
-    clean_stale(folder)
-    tmp = _temp_folder(folder, ".tmp")
+    tmp = _temp_folder(folder, ".tmp")  # no clean_stale: called once per item of large trees
     try:
         yield tmp
         replace_folder(tmp, folder)
