@@ -73,6 +73,7 @@ def _add_residuals(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--params", default="identified", choices=["identified", "nominal"],
                    help="model constants: identified on this flight (default) or vehicle.yaml's")
     s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 
 
 def _add_import_euroc(sub: argparse._SubParsersAction) -> None:
@@ -214,6 +215,7 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
     _add_mlflow_experiment(s)
     s.add_argument("--parent", default=None, metavar="RUN_ID", help="sweep parent run (default: the latest)")
     s.add_argument("--out", default="outputs", metavar="DIR", help="folder for table1.md and table1.csv")
+    s.add_argument("--overwrite", action="store_true", help="replace table1.md and table1.csv there")
 
 
 def _add_evaluate(sub: argparse._SubParsersAction) -> None:
@@ -290,6 +292,37 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"uavturb {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # noqa: BLE001 - the last guard: one line, never a traceback
+        if os.environ.get("UAVTURB_TRACEBACK"):
+            raise
+        line, code = _last_guard(e)
+        print(f"uavturb {args.command}: error: {line}", file=sys.stderr)
+        return code
+
+
+def _last_guard(e: Exception) -> tuple[str, int]:
+    """The one line (and exit status) of an error no library function turned into an InputError:
+    2 for what the machine or the input ran into, 1 for a defect of uavturb (with where it happened)."""
+    import errno
+    import traceback
+
+    from uavturb.errors import shorten
+
+    if isinstance(e, MemoryError):
+        return "out of memory: an input (or the work it asks for) is larger than this machine can hold", 2
+    if isinstance(e, RecursionError):
+        return "an input is nested too deeply to be read", 2
+    if isinstance(e, UnicodeDecodeError):
+        return shorten(f"an input is not UTF-8 text ({e.reason} at byte {e.start})", 300), 2
+    if isinstance(e, OSError):
+        where = e.filename or "a file"
+        if e.errno == errno.ENOSPC:
+            return shorten(f"{where}: no space left on the device; free some space and run the command again", 400), 2
+        return shorten(f"{where}: {e.strerror or type(e).__name__}", 400), 2
+    frame = traceback.extract_tb(e.__traceback__)[-1] if e.__traceback__ else None
+    at = f" at {Path(frame.filename).name}:{frame.lineno}" if frame else ""
+    return shorten(f"internal error ({type(e).__name__}: {e}){at}; set UAVTURB_TRACEBACK=1 to see the traceback "
+                   "and please report it", 600), 1
 
 
 # --- one handler a command: calls one library function and prints what it returns ----------------
@@ -307,7 +340,7 @@ def _residuals(args: argparse.Namespace) -> int:
     from uavturb.experiments.identify import residuals_to_file
 
     res, path = residuals_to_file(args.recording, args.out, source=args.source, derivative=args.derivative,
-                                  params=args.params, vehicle=args.vehicle)
+                                  params=args.params, vehicle=args.vehicle, overwrite=args.overwrite)
     print(f"wrote {path}: {len(res.t)} samples, source {res.source}, residual RMS {res.rmse:.4f} N")
     return 0
 
@@ -409,7 +442,8 @@ def _sweep(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from uavturb.experiments.compare import compare
 
-    res = compare(experiment=args.mlflow_experiment, parent_run_id=args.parent, out=args.out)
+    res = compare(experiment=args.mlflow_experiment, parent_run_id=args.parent, out=args.out,
+                  overwrite=args.overwrite)
     print(res["table"])
     print(f"wrote {res['markdown']} and {res['csv']}")
     return 0

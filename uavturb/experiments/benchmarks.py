@@ -17,7 +17,47 @@ TARGETS: dict[str, str] = {
     "infer": "exported streaming model on one CPU thread: per-frame latency (.pt2, ONNX) and batched throughput",
     "gap": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
     "sweep": "the quick sweep one run after another and on a local Ray instance: wall times and their ratio",
+    "readers": "a 1M-row ground-truth CSV read in a fresh process: seconds and peak memory against the file's size",
 }
+
+_READ_CHILD = """
+import sys, time
+from uavturb.io import euroc_csv
+t = time.perf_counter()
+if sys.argv[1] != "-":
+    euroc_csv.read_csv(sys.argv[1], euroc_csv.GROUNDTRUTH_COLUMNS, "ground truth")
+peak_kb = open("/proc/self/status").read().split("VmHWM:")[1].split()[0]  # this process's peak RSS
+print(time.perf_counter() - t, peak_kb)
+"""
+
+
+def bench_readers(rows: int = 1_000_000) -> dict[str, float]:
+    """Read a ground-truth CSV of ``rows`` rows (17 columns, written first, not timed) in a fresh
+    process: wall time and the process's peak resident memory (the kernel's ``VmHWM``) above what
+    its imports take, against the file's size and the arrays returned."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    from uavturb.io import euroc_csv
+
+    rng = np.random.default_rng(0)
+    t_ns = 1403636579763555584 + np.arange(rows, dtype=np.int64) * 5_000_000
+    values = rng.normal(size=(rows, euroc_csv.GROUNDTRUTH_COLUMNS - 1))
+    with tempfile.TemporaryDirectory(prefix="uavturb-bench-readers-") as tmp:
+        path = Path(tmp) / "data.csv"
+        euroc_csv.write_csv(path, euroc_csv.GROUNDTRUTH_HEADER, t_ns, values, fmt="%.9g")
+        del values
+        peaks = []
+        for arg in (str(path), "-"):  # the read, then the imports alone
+            out = subprocess.run([sys.executable, "-c", _READ_CHILD, arg], capture_output=True, text=True, check=True,
+                                 env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}).stdout.split()
+            peaks.append((float(out[1]) / 1024, float(out[0])))
+        size = path.stat().st_size / 2**20
+    return {"rows": float(rows), "file (MB)": size, "arrays returned (MB)": rows * 17 * 8 / 2**20,
+            "read (s)": peaks[0][1], "peak memory above imports (MB)": peaks[0][0] - peaks[1][0],
+            "peak memory / file size": (peaks[0][0] - peaks[1][0]) / size}
 
 
 def bench_sweep(seeds: int = 1) -> dict[str, float]:
@@ -69,6 +109,10 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
 
 def bench(what: str) -> None:
     """``uavturb bench``: print the figures of one of :data:`TARGETS`."""
+    if what == "readers":  # bounded CSV reader (uavturb.io.euroc_csv)
+        for k, v in bench_readers().items():
+            print(f"{k:<48}{v:>12.4g}")
+        return
     if what == "sweep":  # the quick sweep, sequential and on Ray (uavturb.experiments.executors)
         for k, v in bench_sweep().items():
             print(f"{k:<48}{v:>12.4g}")

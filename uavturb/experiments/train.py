@@ -217,7 +217,9 @@ def run_config(run_id: str) -> DictConfig:
             path = c.download_artifacts(run_id, "config.yaml", tmp)
         except Exception:  # noqa: BLE001 - MlflowException or OSError: the artifact is gone
             raise InputError("--resume", f"run {run_id} has no readable config.yaml artifact") from None
-        return validate(OmegaConf.load(path))
+        from uavturb.io.yaml_mapping import read_yaml_mapping
+
+        return validate(OmegaConf.create(read_yaml_mapping(path)))  # within the YAML bounds: runs can be shared
 
 
 def resume_config(run_id: str, overrides: list[str] | None = None, experiment: str | None = None) -> DictConfig:
@@ -484,8 +486,13 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
         raise InputError("--resume", "needs tracking.enabled=true (the run lives in MLflow)")
     if resume is not None and _is_rank_zero():  # a run that cannot be resumed fails before any work
         from uavturb.experiments.tracking import client
+        from uavturb.io.checkpoint import read_checkpoint
 
-        _config_changes(cfg, _resumable_run(client(), resume))
+        run = _resumable_run(client(), resume)
+        _config_changes(cfg, run)
+        last = Path(run.data.tags["checkpoint_dir"]) / LAST_CHECKPOINT
+        if last.is_file():  # a poisoned or broken checkpoint is refused before the run is touched
+            read_checkpoint(last)
     t = cfg.trainer
     if t.num_threads > 0:
         import torch
@@ -549,13 +556,13 @@ def _fit_and_test(cfg, module, dm, callbacks, monitor, client, run_id, last, ckp
               file=sys.stderr, flush=True)
     system = _system_metrics(cfg, logger) if logger is not None and trainer.is_global_zero else None
     try:
-        trainer.fit(module, datamodule=dm, ckpt_path=str(last) if last else None)
+        trainer.fit(module, datamodule=dm, ckpt_path=str(last) if last else None, weights_only=True)
     finally:
         if system is not None:
             _finish_system_metrics(system)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     best = checkpoint.best_model_path or None
-    tested = trainer.test(module, datamodule=dm, ckpt_path=best if best else None, verbose=False)
+    tested = trainer.test(module, datamodule=dm, ckpt_path=best if best else None, verbose=False, weights_only=True)
     for row in tested:
         metrics.update({k: float(v) for k, v in row.items()})
     metrics.update({k + FA_SCALED_SUFFIX: v * FA_SCALE for k, v in list(metrics.items()) if k.endswith("rmse_fa")})
