@@ -250,6 +250,17 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("bench", help="benchmarks that print figures", formatter_class=argparse.RawTextHelpFormatter,
                        epilog="targets:\n" + "\n".join(f"  {k:<10}{v}" for k, v in TARGETS.items()))
     s.add_argument("what", choices=list(TARGETS), metavar="TARGET", help=" | ".join(TARGETS))
+    g = s.add_argument_group("TARGET gpu")
+    g.add_argument("--device", choices=["cuda", "cpu"], help="cuda (default; refused where none is seen) or cpu "
+                                                             "(the same measurement, small)")
+    g.add_argument("--size", type=int, help="image side in px (default 128 on cuda, 32 on cpu)")
+    g.add_argument("--batch-size", type=int, help="windows or pairs per batch (default 16)")
+    g.add_argument("--workers", type=int, help="DataLoader workers (default data=shards_gpu's; 0 on cpu)")
+    g.add_argument("--steps", type=int, help="timed batches per epoch (default 100 on cuda, 4 on cpu)")
+    g.add_argument("--epochs", type=int, help="epochs per measurement, the first one warm-up (default 3)")
+    g.add_argument("--precision", dest="precisions", type=lambda x: tuple(x.split(",")),
+                   help="trainer.precision values, comma-separated (default 32-true,bf16-mixed)")
+    g.add_argument("--cpu-threads", type=int, help="torch threads of the CPU reference (default 2)")
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
@@ -445,7 +456,9 @@ def _export(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     from uavturb.experiments.benchmarks import bench
 
-    bench(args.what)
+    from uavturb.experiments.benchmarks import GPU_OPTIONS
+
+    bench(args.what, {k: getattr(args, k) for k in GPU_OPTIONS})
     return 0
 
 

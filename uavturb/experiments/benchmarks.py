@@ -17,7 +17,11 @@ TARGETS: dict[str, str] = {
     "infer": "exported streaming model on one CPU thread: per-frame latency (.pt2, ONNX) and batched throughput",
     "gap": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
     "sweep": "the quick sweep one run after another and on a local Ray instance: wall times and their ratio",
+    "gpu": "both training stages on a CUDA device at 128 px, fp32 and bf16-mixed: windows/s, epoch times, GPU\n"
+           "          memory, DataLoader share, 500 pre-training epochs vs 2 CPU cores (--device cpu: small, on the CPU)",
 }
+#: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`)
+GPU_OPTIONS = ("device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
 
 
 def bench_sweep(seeds: int = 1) -> dict[str, float]:
@@ -67,8 +71,21 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
     return out
 
 
-def bench(what: str) -> None:
-    """``uavturb bench``: print the figures of one of :data:`TARGETS`."""
+def bench(what: str, options: dict | None = None) -> None:
+    """``uavturb bench``: print the figures of one of :data:`TARGETS`.
+
+    ``options``: keyword arguments of the target ``gpu`` (:data:`GPU_OPTIONS`); InputError for other targets.
+    """
+    from uavturb.errors import InputError
+
+    options = {k: v for k, v in (options or {}).items() if v is not None}
+    if what == "gpu":  # both training stages on a CUDA device (uavturb.experiments.bench_gpu)
+        from uavturb.experiments.bench_gpu import bench_gpu
+
+        bench_gpu(**options)
+        return
+    if options:
+        raise InputError("--" + next(iter(options)).replace("_", "-"), "only with TARGET gpu")
     if what == "sweep":  # the quick sweep, sequential and on Ray (uavturb.experiments.executors)
         for k, v in bench_sweep().items():
             print(f"{k:<48}{v:>12.4g}")
