@@ -223,24 +223,9 @@ def bench_gpu(device: str = "cuda", *, size: int | None = None, batch_size: int 
     ------
     InputError : ``device`` is cuda and no CUDA device is seen, or a size, count or precision is bad.
     """
-    from uavturb.experiments.accelerators import check_trainer_device, cuda_device_count, no_cuda_reason
-    from uavturb.experiments.config import PRECISIONS as ALLOWED
+    from uavturb.experiments.accelerators import check_trainer_device
 
-    if device not in DEVICE_DEFAULTS:
-        raise InputError("--device", f"{device!r}: choose cuda or cpu")
-    if device == "cuda" and cuda_device_count() == 0:
-        raise InputError("--device", f"no CUDA device is seen ({no_cuda_reason()}); run this on a CUDA machine, "
-                                     "or add --device cpu for the same measurement, small, on the CPU")
-    size = size or DEVICE_DEFAULTS[device]["size"]
-    steps = steps or DEVICE_DEFAULTS[device]["steps"]
-    workers = workers if workers is not None else DEVICE_DEFAULTS[device]["workers"]
-    for name, value, low in (("--size", size, 8), ("--steps", steps, 2), ("--epochs", epochs, 2),
-                             ("--batch-size", batch_size, 1), ("--cpu-threads", cpu_threads, 1)):
-        if value < low:
-            raise InputError(name, f"{value} is too small; at least {low}")
-    bad = [p for p in precisions if p not in ALLOWED]
-    if bad:
-        raise InputError("--precision", f"{bad[0]!r}: one of {', '.join(ALLOWED)}")
+    size, steps, workers = _settings(device, size, steps, workers, epochs, batch_size, cpu_threads, precisions)
     on_cuda = device == "cuda"
     out: dict[str, Any] = {"device": _device_line(device), "figures": {}, "cpu": {}, "skipped": {}}
     with tempfile.TemporaryDirectory(prefix="uavturb-bench-gpu-") as tmp:
@@ -260,15 +245,48 @@ def bench_gpu(device: str = "cuda", *, size: int | None = None, batch_size: int 
         if on_cuda:
             print(f"bench gpu: CPU reference, {cpu_threads} threads ...", file=sys.stderr, flush=True)
             out["cpu"] = _cpu_reference(data, size, batch_size, cpu_steps, cpu_threads, Path(tmp) / "runs-cpu")
-        else:
-            out["cpu"] = {s: f for (s, p), f in out["figures"].items() if p == precisions[0]}
+        else:  # the float32 row (else the first precision measured) is the reference
+            measured = list(dict.fromkeys(p for _, p in out["figures"]))
+            ref = "32-true" if "32-true" in measured else next(iter(measured), None)
+            out["cpu"] = {s: f for (s, p), f in out["figures"].items() if p == ref}
+    _add_projections(out)
+    _print(out, size, batch_size, workers, cpu_threads, on_cuda)
+    return out
+
+
+def _settings(device: str, size: int | None, steps: int | None, workers: int | None, epochs: int, batch_size: int,
+              cpu_threads: int, precisions: tuple[str, ...]) -> tuple[int, int, int | None]:
+    """(size, steps, workers) of :func:`bench_gpu`, the device's defaults filled in; InputError naming the
+    option that is bad, or ``--device`` where no CUDA device is seen."""
+    from uavturb.experiments.accelerators import cuda_device_count, no_cuda_reason
+    from uavturb.experiments.config import PRECISIONS as ALLOWED
+
+    if device not in DEVICE_DEFAULTS:
+        raise InputError("--device", f"{device!r}: choose cuda or cpu")
+    if device == "cuda" and cuda_device_count() == 0:
+        raise InputError("--device", f"no CUDA device is seen ({no_cuda_reason()}); run this on a CUDA machine, "
+                                     "or add --device cpu for the same measurement, small, on the CPU")
+    size = size or DEVICE_DEFAULTS[device]["size"]
+    steps = steps or DEVICE_DEFAULTS[device]["steps"]
+    workers = workers if workers is not None else DEVICE_DEFAULTS[device]["workers"]
+    for name, value, low in (("--size", size, 8), ("--steps", steps, 2), ("--epochs", epochs, 2),
+                             ("--batch-size", batch_size, 1), ("--cpu-threads", cpu_threads, 1),
+                             ("--workers", 0 if workers is None else workers, 0)):
+        if value < low:
+            raise InputError(name, f"{value} is too small; at least {low}")
+    bad = [p for p in precisions if p not in ALLOWED]
+    if bad or not precisions:
+        raise InputError("--precision", f"{bad[0] if bad else ''!r}: one of {', '.join(ALLOWED)}")
+    return size, steps, workers
+
+
+def _add_projections(out: dict[str, Any]) -> None:
+    """``paper_epoch_s``, ``speedup_vs_cpu`` and (pretrain) ``paper_500_epochs_h`` into every figures dict."""
     for stage, f in [*((s, f) for (s, _), f in out["figures"].items()), *out["cpu"].items()]:
         f["paper_epoch_s"] = _paper_epoch_s(stage, f["samples_per_s"])
         f["speedup_vs_cpu"] = f["samples_per_s"] / out["cpu"][stage]["samples_per_s"]
         if stage == "pretrain":
             f["paper_500_epochs_h"] = PAPER_PRETRAIN_EPOCHS * f["paper_epoch_s"] / 3600
-    _print(out, size, batch_size, workers, cpu_threads, on_cuda)
-    return out
 
 
 #: (key, label, unit) of the printed rows
