@@ -174,6 +174,14 @@ def test_bf16_mixed_training_on_the_cpu_reloads_and_exports_like_float32(tmp_pat
                  log=False, verbose=False)
     assert res["max_abs_diff"] <= 1e-5 and res["image_size"] == (16, 16)
 
+    # the DataLoaders train() builds pin memory as the config says (the CPU: no)
+    from uavturb.experiments.train import build_stage
+
+    for extra, pinned in (([], False), (["data.pin_memory=true"], True)):
+        _, dm, _, _ = build_stage(load_config(_tiny(tmp_path, "trainer=cpu", *extra)), tmp_path / "sim")
+        dm.setup("fit")
+        assert dm.train_dataloader().pin_memory is pinned and dm.test_dataloader().pin_memory is pinned
+
 
 def test_a_gpu_written_pretraining_checkpoint_initialises_an_encoder_on_the_cpu(tmp_path):
     from uavturb.systems import HeightModule, TranscoderModule

@@ -18,7 +18,7 @@ TARGETS: dict[str, str] = {
     "gap": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
     "sweep": "the quick sweep one run after another and on a local Ray instance: wall times and their ratio",
     "gpu": "both training stages on a CUDA device at 128 px, fp32 and bf16-mixed: windows/s, epoch times, GPU\n"
-           "          memory, DataLoader share, 500 pre-training epochs vs 2 CPU cores (--device cpu: small, on the CPU)",
+           "            memory, DataLoader share, 500 pre-training epochs vs 2 CPU cores (--device cpu: small, on the CPU)",
 }
 #: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`)
 GPU_OPTIONS = ("device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
