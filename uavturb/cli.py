@@ -454,11 +454,9 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from uavturb.experiments.benchmarks import bench
+    from uavturb.experiments.benchmarks import GPU_OPTIONS, bench_target
 
-    from uavturb.experiments.benchmarks import GPU_OPTIONS
-
-    bench(args.what, {k: getattr(args, k) for k in GPU_OPTIONS})
+    bench_target(args.what, {k: getattr(args, k) for k in GPU_OPTIONS})
     return 0
 
 

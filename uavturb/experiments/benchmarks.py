@@ -14,14 +14,12 @@ TARGETS: dict[str, str] = {
     "flights": "MPC update times (mean, median, p95) and closed-loop tracking error on reference flights",
     "generate": "simulator throughput on the quick preset: samples/s and the control/physics/render split",
     "train": "training windows/s of the height model and the input overhead of the shard DataLoader",
+    "gpu": "both training stages on a CUDA device at 128 px, fp32 and bf16-mixed: windows/s, epoch times, GPU\n"
+           "            memory, DataLoader share, 500 pre-training epochs vs 2 CPU cores (--device cpu: small, on the CPU)",
     "infer": "exported streaming model on one CPU thread: per-frame latency (.pt2, ONNX) and batched throughput",
     "gap": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
     "sweep": "the quick sweep one run after another and on a local Ray instance: wall times and their ratio",
-    "gpu": "both training stages on a CUDA device at 128 px, fp32 and bf16-mixed: windows/s, epoch times, GPU\n"
-           "            memory, DataLoader share, 500 pre-training epochs vs 2 CPU cores (--device cpu: small, on the CPU)",
 }
-#: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`)
-GPU_OPTIONS = ("device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
 
 
 def bench_sweep(seeds: int = 1) -> dict[str, float]:
@@ -71,21 +69,8 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
     return out
 
 
-def bench(what: str, options: dict | None = None) -> None:
-    """``uavturb bench``: print the figures of one of :data:`TARGETS`.
-
-    ``options``: keyword arguments of the target ``gpu`` (:data:`GPU_OPTIONS`); InputError for other targets.
-    """
-    from uavturb.errors import InputError
-
-    options = {k: v for k, v in (options or {}).items() if v is not None}
-    if what == "gpu":  # both training stages on a CUDA device (uavturb.experiments.bench_gpu)
-        from uavturb.experiments.bench_gpu import bench_gpu
-
-        bench_gpu(**options)
-        return
-    if options:
-        raise InputError("--" + next(iter(options)).replace("_", "-"), "only with TARGET gpu")
+def bench(what: str) -> None:
+    """``uavturb bench``: print the figures of one of :data:`TARGETS`."""
     if what == "sweep":  # the quick sweep, sequential and on Ray (uavturb.experiments.executors)
         for k, v in bench_sweep().items():
             print(f"{k:<48}{v:>12.4g}")
@@ -136,3 +121,27 @@ def bench(what: str, options: dict | None = None) -> None:
         print(f"{'RK4 step, one state (us)':<40}{single * 1e6:>12.2f}")
         print(f"{'x_dot over 100k states (us/state)':<40}{mapped * 1e6:>12.3f}")
 
+
+#: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`)
+GPU_OPTIONS = ("device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
+
+
+def bench_target(what: str, options: dict | None = None) -> None:
+    """``uavturb bench TARGET [options]``: :func:`bench`, or for ``gpu`` its measurement with ``options``
+    (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`, None = default).
+
+    Raises
+    ------
+    InputError : an option given to a target other than ``gpu``, or a bad option of ``gpu``.
+    """
+    from uavturb.errors import InputError
+
+    options = {k: v for k, v in (options or {}).items() if v is not None}
+    if what == "gpu":  # both training stages on a CUDA device (uavturb.experiments.bench_gpu)
+        from uavturb.experiments.bench_gpu import bench_gpu
+
+        bench_gpu(**options)
+        return
+    if options:
+        raise InputError("--" + next(iter(options)).replace("_", "-"), "only with TARGET gpu")
+    bench(what)
