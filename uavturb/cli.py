@@ -130,7 +130,7 @@ def _add_generate_sim(gsub: argparse._SubParsersAction, sim_presets: str) -> Non
     g = gsub.add_parser("sim", help="training shards: simulated flights through procedural scenes (resumable)")
     g.add_argument("--preset", default="quick", help=f"{sim_presets} (default quick)")
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (manifest.json, traj_*/)")
-    g.add_argument("--workers", type=int, default=1, help="processes, one renderer each (default 1)")
+    g.add_argument("--workers", type=int, metavar="N", default=1, help="processes, one renderer each (default 1)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--shard", default=None, metavar="K/N", help="only trajectories i with i %% N == K-1 (1 <= K <= N)")
     g.add_argument("--executor", default="local", choices=["local", "ray"],
@@ -145,10 +145,10 @@ def _add_generate_normals(gsub: argparse._SubParsersAction, sim_presets: str) ->
     g = gsub.add_parser("normals", help="depth/normal pre-training pairs from training scenes, or from IRS")
     g.add_argument("--preset", default="quick", help=f"{sim_presets} (default quick)")
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (the pairs go to DIR/pairs)")
-    g.add_argument("--workers", type=int, default=1)
+    g.add_argument("--workers", type=int, metavar="N", default=1)
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--irs", default=None, metavar="IRS_DIR", help="convert the IRS dataset instead of rendering")
-    g.add_argument("--size", type=int, default=128, help="image side for --irs (default 128)")
+    g.add_argument("--size", type=int, metavar="N", default=128, help="image side for --irs (default 128)")
     g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="preset_set",
                    help="change a preset field, e.g. --set width=64 --set pairs=200 (repeatable)")
 
@@ -252,6 +252,17 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("bench", help="benchmarks that print figures", formatter_class=argparse.RawTextHelpFormatter,
                        epilog="targets:\n" + "\n".join(f"  {k:<10}{v}" for k, v in TARGETS.items()))
     s.add_argument("what", choices=list(TARGETS), metavar="TARGET", help=" | ".join(TARGETS))
+    g = s.add_argument_group("TARGET gpu")
+    g.add_argument("--device", choices=["cuda", "cpu"], help="cuda (default; refused where none is seen) or cpu "
+                                                             "(the same measurement, small)")
+    g.add_argument("--size", type=int, metavar="N", help="image side in px (default 128 on cuda, 32 on cpu)")
+    g.add_argument("--batch-size", type=int, metavar="N", help="windows or pairs per batch (default 16)")
+    g.add_argument("--workers", type=int, metavar="N", help="DataLoader workers (default data=shards_gpu's; 0 on cpu)")
+    g.add_argument("--steps", type=int, metavar="N", help="timed batches per epoch (default 100 on cuda, 4 on cpu)")
+    g.add_argument("--epochs", type=int, metavar="N", help="epochs per measurement, the first one warm-up (default 3)")
+    g.add_argument("--precision", dest="precisions", type=lambda x: tuple(x.split(",")), metavar="P[,P...]",
+                   help="trainer.precision values, comma-separated (default 32-true,bf16-mixed)")
+    g.add_argument("--cpu-threads", type=int, metavar="N", help="torch threads of the CPU reference (default 2)")
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
@@ -477,9 +488,9 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from uavturb.experiments.benchmarks import bench
+    from uavturb.experiments.benchmarks import GPU_OPTIONS, bench_target
 
-    bench(args.what)
+    bench_target(args.what, {k: getattr(args, k) for k in GPU_OPTIONS})
     return 0
 
 

@@ -14,6 +14,8 @@ TARGETS: dict[str, str] = {
     "flights": "MPC update times (mean, median, p95) and closed-loop tracking error on reference flights",
     "generate": "simulator throughput on the quick preset: samples/s and the control/physics/render split",
     "train": "training windows/s of the height model and the input overhead of the shard DataLoader",
+    "gpu": "both training stages on a CUDA device at 128 px, fp32 and bf16-mixed: windows/s, epoch times, GPU\n"
+           "            memory, DataLoader share, 500 pre-training epochs vs 2 CPU cores (--device cpu: small, on the CPU)",
     "infer": "exported streaming model on one CPU thread: per-frame latency (.pt2, ONNX) and batched throughput",
     "gap": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
     "sweep": "the quick sweep one run after another and on a local Ray instance: wall times and their ratio",
@@ -163,3 +165,27 @@ def bench(what: str) -> None:
         print(f"{'RK4 step, one state (us)':<40}{single * 1e6:>12.2f}")
         print(f"{'x_dot over 100k states (us/state)':<40}{mapped * 1e6:>12.3f}")
 
+
+#: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`)
+GPU_OPTIONS = ("device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
+
+
+def bench_target(what: str, options: dict | None = None) -> None:
+    """``uavturb bench TARGET [options]``: :func:`bench`, or for ``gpu`` its measurement with ``options``
+    (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`, None = default).
+
+    Raises
+    ------
+    InputError : an option given to a target other than ``gpu``, or a bad option of ``gpu``.
+    """
+    from uavturb.errors import InputError
+
+    options = {k: v for k, v in (options or {}).items() if v is not None}
+    if what == "gpu":  # both training stages on a CUDA device (uavturb.experiments.bench_gpu)
+        from uavturb.experiments.bench_gpu import bench_gpu
+
+        bench_gpu(**options)
+        return
+    if options:
+        raise InputError("--" + next(iter(options)).replace("_", "-"), "only with TARGET gpu")
+    bench(what)

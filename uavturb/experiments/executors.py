@@ -238,6 +238,12 @@ class SequentialExecutor(Executor):
 
     name = "sequential"
 
+    def check(self, cfg: DictConfig) -> None:
+        """The runs train here: this machine must have the device they ask for (a GPU, bf16)."""
+        from uavturb.experiments.accelerators import check_trainer_device
+
+        check_trainer_device(cfg.trainer)
+
     def submit(self, train_fn: Callable[..., dict[str, Any]], job: Job) -> Job:
         self.jobs.append(job)
         encoder = job.encoder

@@ -130,7 +130,8 @@ def run_checkpoint(run_id: str) -> Path:
 
 
 def load_height_module(run_id: str | None = None, checkpoint: str | Path | None = None):
-    """A :class:`~uavturb.systems.HeightModule` in eval mode on the CPU, from a run or a file."""
+    """A :class:`~uavturb.systems.HeightModule` in eval mode, float32 on the CPU, from a run or a file
+    (a checkpoint written on a GPU, or in bf16, loads the same)."""
     from uavturb.systems import HeightModule
 
     path = Path(checkpoint) if checkpoint is not None else run_checkpoint(run_id)
@@ -141,7 +142,7 @@ def load_height_module(run_id: str | None = None, checkpoint: str | Path | None 
         raise
     except Exception as e:  # noqa: BLE001 - any unreadable checkpoint is bad input
         raise InputError(path, f"not a HeightModule checkpoint ({type(e).__name__}: {str(e)[:200]})") from None
-    return module.eval()
+    return module.float().eval()  # float32 on the CPU, whatever device and precision it was trained with
 
 
 # --- real sequences to check against -----------------------------------------------------
