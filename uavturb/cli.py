@@ -252,6 +252,9 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("bench", help="benchmarks that print figures", formatter_class=argparse.RawTextHelpFormatter,
                        epilog="targets:\n" + "\n".join(f"  {k:<10}{v}" for k, v in TARGETS.items()))
     s.add_argument("what", choices=list(TARGETS), metavar="TARGET", help=" | ".join(TARGETS))
+    gp = s.add_argument_group("TARGET gap")
+    gp.add_argument("recordings", nargs="*", metavar="REC", help="recordings to analyse (default: two generated flights)")
+    gp.add_argument("--minutes", type=float, help="length of each generated flight (default 5)")
     g = s.add_argument_group("TARGET gpu")
     g.add_argument("--device", choices=["cuda", "cpu"], help="cuda (default; refused where none is seen) or cpu "
                                                              "(the same measurement, small)")
@@ -488,9 +491,9 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from uavturb.experiments.benchmarks import GPU_OPTIONS, bench_target
+    from uavturb.experiments.benchmarks import BENCH_OPTIONS, bench_target
 
-    bench_target(args.what, {k: getattr(args, k) for k in GPU_OPTIONS})
+    bench_target(args.what, {k: getattr(args, k) for k in BENCH_OPTIONS})
     return 0
 
 

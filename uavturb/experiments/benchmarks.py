@@ -17,7 +17,8 @@ TARGETS: dict[str, str] = {
     "gpu": "both training stages on a CUDA device at 128 px, fp32 and bf16-mixed: windows/s, epoch times, GPU\n"
            "            memory, DataLoader share, 500 pre-training epochs vs 2 CPU cores (--device cpu: small, on the CPU)",
     "infer": "exported streaming model on one CPU thread: per-frame latency (.pt2, ONNX) and batched throughput",
-    "gap": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
+    "gap": "the gap finder's seconds and peak memory per hour of 200 Hz flight (RECORDINGS, or two generated flights)",
+    "gap-proof": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
     "sweep": "the quick sweep one run after another and on a local Ray instance: wall times and their ratio",
     "readers": "a 1M-row ground-truth CSV read in a fresh process: seconds and peak memory against the file's size",
 }
@@ -143,7 +144,7 @@ def bench(what: str) -> None:
 
         for k, v in heights.benchmark().items():
             print(f"{k:<40}{v:>12.4g}")
-    elif what == "gap":
+    elif what == "gap-proof":
         from uavturb.experiments.gap_proof import gap_proof
 
         gap_proof(Path("gap_proof"))
@@ -167,7 +168,7 @@ def bench(what: str) -> None:
 
 
 #: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`)
-GPU_OPTIONS = ("device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
+BENCH_OPTIONS = ("recordings", "minutes", "device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
 
 
 def bench_target(what: str, options: dict | None = None) -> None:
@@ -180,7 +181,14 @@ def bench_target(what: str, options: dict | None = None) -> None:
     """
     from uavturb.errors import InputError
 
-    options = {k: v for k, v in (options or {}).items() if v is not None}
+    options = {k: v for k, v in (options or {}).items() if v is not None and v != []}
+    if what == "gap":  # speed and memory of the gap finder (uavturb.experiments.bench_gap)
+        from uavturb.experiments.bench_gap import bench_gap
+
+        bench_gap(options.pop("recordings", ()), **options)
+        return
+    options.pop("recordings", None)
+    options.pop("minutes", None)
     if what == "gpu":  # both training stages on a CUDA device (uavturb.experiments.bench_gpu)
         from uavturb.experiments.bench_gpu import bench_gpu
 
