@@ -205,13 +205,9 @@ def check_output_folder(out: str | Path, *, overwrite: bool, hint: str = OVERWRI
             raise InputError(out, why)
         if not overwrite:
             raise InputError(out, f"already exists{hint}")
-    parent = out.absolute().parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise InputError(parent, "is not a folder: cannot create the output below it")
-    if not os.access(parent, os.W_OK | os.X_OK) or (out.is_dir() and not os.access(out, os.W_OK | os.X_OK)):
-        raise InputError(parent if not out.is_dir() else out, "is not writable")
+    _existing_parent(out)
+    if out.is_dir() and not os.access(out, os.W_OK | os.X_OK):
+        raise InputError(out, "is not writable")
     return out
 
 
@@ -328,6 +324,13 @@ def check_output_file(path: str | Path, *, overwrite: bool, hint: str = OVERWRIT
         raise InputError(path, "is a folder, not a file")
     if os.path.lexists(path) and not overwrite:
         raise InputError(path, f"already exists{hint}")
+    _existing_parent(path)
+    return path
+
+
+def _existing_parent(path: Path) -> Path:
+    """The nearest existing folder above ``path`` (where the output will be created), checked to be a
+    writable folder."""
     parent = path.absolute().parent
     while not parent.exists():
         parent = parent.parent
@@ -335,7 +338,7 @@ def check_output_file(path: str | Path, *, overwrite: bool, hint: str = OVERWRIT
         raise InputError(parent, "is not a folder: cannot create the output below it")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(parent, "is not writable")
-    return path
+    return parent
 
 
 def write_text_atomic(path: str | Path, text: str, *, overwrite: bool = True, hint: str = OVERWRITE_HINT) -> Path:
