@@ -239,7 +239,7 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "src"}
     keep = cat.pop("keep")
     full = GapData(**cat, mass=mass, rotor_radius=rotor_radius, names=[f.name for f in flights],
-                   source="+".join(sorted({p["src"] for p in parts})), flights=flights,
+                   source="+".join(sorted({p["src"] for p in parts})),
                    fits_bias=bool(np.any(cat["imu"])) and not anchor_bias, arm_length=arm_length)
     full.anchored = anchored
     n = block_size(full, rate_hz)
