@@ -199,7 +199,11 @@ def write_csv_log(rec: Recording, path: Path, *, world: str = "enu", body: str =
     names = list(cols)
     table = np.column_stack([cols[n] for n in names])
     sep = {"space": " ", "tab": "\t"}.get(delimiter, delimiter)
-    lines = ([sep.join(names)] if header else []) + [sep.join(repr(float(x)) for x in row) for row in table]
+    text = [[repr(float(x)) for x in row] for row in table]
+    if time_unit == "ns":  # integer nanoseconds, as loggers write them
+        for row, t in zip(text, t_all):
+            row[0] = str(int(t))
+    lines = ([sep.join(names)] if header else []) + [sep.join(row) for row in text]
     Path(path).write_text("\n".join(lines) + "\n")
 
     def ref(*ns: str):

@@ -313,17 +313,18 @@ def main(argv: list[str] | None = None) -> int:
             args.overrides = [*args.overrides, *extra]
         else:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    name = f"import {args.what}" if args.command == "import" else args.command
     try:
         with raise_on_signals():  # SIGTERM (kill, scancel, time limits), SIGINT: clean up, one line, 128 + signum
             return _run(args)
     except UavturbError as e:
-        print(f"uavturb {args.command}: error: {e}", file=sys.stderr)
+        print(f"uavturb {name}: error: {e}", file=sys.stderr)
         return 2
     except Interrupted as e:
-        print(f"uavturb {args.command}: {e.message()}", file=sys.stderr, flush=True)
+        print(f"uavturb {name}: {e.message()}", file=sys.stderr, flush=True)
         return e.exit_status
     except KeyboardInterrupt:
-        print(f"uavturb {args.command}: interrupted", file=sys.stderr)
+        print(f"uavturb {name}: interrupted", file=sys.stderr)
         return 130
 
 

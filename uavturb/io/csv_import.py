@@ -50,7 +50,10 @@ def _time_rows(table: Table, m: CsvMap) -> _Rows:
     t = table.values["time.column"] * m.time_ns_per_unit
     finite = np.isfinite(t)
     idx = np.flatnonzero(finite)
-    t_ns = np.rint(t[idx]).astype(np.int64)
+    if "time.column" in table.integers:  # integer times (ns, µs) exactly, beyond float64's digits
+        t_ns = table.integers["time.column"][idx] * int(m.time_ns_per_unit)
+    else:
+        t_ns = np.rint(t[idx]).astype(np.int64)
     running = np.maximum.accumulate(t_ns) if len(t_ns) else t_ns
     increasing = np.concatenate([[True], t_ns[1:] > running[:-1]]) if len(t_ns) else np.zeros(0, bool)
     rows = _Rows(t_ns=t_ns[increasing], keep=idx[increasing])
@@ -104,7 +107,7 @@ def _ground_truth(table: Table, m: CsvMap, rows: _Rows, world: str, body: str, l
     return GroundTruth(t_ns=t_ns, p=p, q=q, v=v, b_w=zeros, b_a=zeros.copy())
 
 
-def _rotors(table: Table, m: CsvMap, rows: _Rows, vehicle: Vehicle, left_out: list[str],
+def _rotors(table: Table, m: CsvMap, rows: _Rows, vehicle: Vehicle, battery: Battery | None, left_out: list[str],
             notes: list[str]) -> Rotors | None:
     if m.rotors is None:
         return None
@@ -114,9 +117,7 @@ def _rotors(table: Table, m: CsvMap, rows: _Rows, vehicle: Vehicle, left_out: li
                                  f"has rotor_count {vehicle.rotor_count}")
     order = list(m.motor_order or range(len(keys)))
     x = _stack(table, rows, [keys[i] for i in order])  # vehicle.yaml order
-    volt = table.values["battery.voltage"][rows.keep] * m.voltage_scale if m.voltage is not None else None
-    need_v = m.thrust_map is not None and m.thrust_map.needs_voltage
-    ok = _finite_rows(np.column_stack([x, volt]) if need_v else x, "rotor", left_out)
+    ok = _finite_rows(x, "rotor", left_out)
     x, t_ns = x[ok], rows.t_ns[ok]
     if m.rotor_unit == "rpm":
         w = rpm_to_rad_s(x)
@@ -126,7 +127,12 @@ def _rotors(table: Table, m: CsvMap, rows: _Rows, vehicle: Vehicle, left_out: li
         if vehicle.thrust_coefficient is None:
             raise InputError("vehicle.yaml", "thrust_coefficient: required to turn rotor commands into rotor "
                                              "speeds through the map's thrust_map (w = sqrt(f / k_T))")
-        w, negative = m.thrust_map.rotor_speeds(x, volt[ok][:, None] if need_v else None, vehicle.thrust_coefficient)
+        volt = None
+        if m.thrust_map.needs_voltage:  # the battery's voltage [V] at the rotor rows, interpolated
+            if battery is None:
+                raise InputError(m.path, "rotors.thrust_map uses the battery voltage but no row holds one")
+            volt = np.interp(t_ns.astype(np.float64), battery.t_ns.astype(np.float64), battery.voltage)[:, None]
+        w, negative = m.thrust_map.rotor_speeds(x, volt, vehicle.thrust_coefficient)
         if negative:
             notes.append(f"{negative} negative thrusts of the thrust map read as rotors at rest")
     return Rotors(t_ns=t_ns, speeds=w) if len(t_ns) >= 2 else None
@@ -162,11 +168,12 @@ def _build(table: Table, m: CsvMap, rows: _Rows, vehicle: Vehicle, world: str, b
     left_out: list[str] = list(rows.left_out)
     notes: list[str] = []
     gt = _ground_truth(table, m, rows, world, body, left_out)
-    rotors = _rotors(table, m, rows, vehicle, left_out, notes)
+    battery = _battery(table, m, rows, left_out)
+    rotors = _rotors(table, m, rows, vehicle, battery, left_out, notes)
     if rotors is not None:
         vehicle = vehicle.with_params(rotor_speed_source=m.rotor_source)
     rec = Recording(vehicle=vehicle, ground_truth=gt, imu=_imu(table, m, rows, body, left_out), rotors=rotors,
-                    battery=_battery(table, m, rows, left_out), frame="B")
+                    battery=battery, frame="B")
     return rec, left_out, notes
 
 
@@ -193,7 +200,7 @@ def import_csv(log: str | Path, map_file: str | Path, out: str | Path, *, vehicl
     v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     if rotor_plane_z is not None:
         v = v.with_params(rotor_plane_z=float(rotor_plane_z))
-    table = read_table(log, m.columns(), delimiter=m.delimiter, header=m.header)
+    table = read_table(log, m.columns(), delimiter=m.delimiter, header=m.header, exact=("time.column",))
     rows = _time_rows(table, m)
     rec, left_out, notes = _build(table, m, rows, v, m.world, m.body)
     order = list(m.motor_order or range(len(m.rotors or ())))

@@ -32,6 +32,7 @@ class Table:
     """The requested columns of a CSV file."""
 
     values: dict[str, np.ndarray]  # map key -> (N,) float64, NaN where empty or nan
+    integers: dict[str, np.ndarray]  # map key -> (N,) int64, for exact keys whose every field is an integer
     lines: np.ndarray  # (N,) int, 1-based line number of each row
     names: list[str]  # header texts ([] without a header)
     truncated: int = 0  # last rows left out because they were cut short
@@ -76,8 +77,11 @@ def _resolve(wanted: dict[str, str | int], names: list[str], n_fields: int, path
 
 
 def read_table(path: str | Path, wanted: dict[str, str | int], *, delimiter: str | None = ",",
-               header: str = "auto") -> Table:
+               header: str = "auto", exact: tuple[str, ...] = ()) -> Table:
     """Read the columns ``wanted`` (map key -> header text or 0-based index) of the CSV file ``path``.
+
+    ``exact``: keys whose fields, when all are integers, are also kept as ``int64`` (timestamps in
+    ns or µs beyond float64's 15-16 digits).
 
     Raises
     ------
@@ -89,14 +93,16 @@ def read_table(path: str | Path, wanted: dict[str, str | int], *, delimiter: str
     if not path.is_file():
         raise InputError(path, "file not found")
     with open(path, encoding="utf-8", errors="replace", newline=None) as f:
-        return _read(f, path, wanted, delimiter, header)
+        return _read(f, path, wanted, delimiter, header, exact)
 
 
-def _read(f: TextIO, path: Path, wanted: dict[str, str | int], delimiter: str | None, header: str) -> Table:
+def _read(f: TextIO, path: Path, wanted: dict[str, str | int], delimiter: str | None, header: str,
+          exact: tuple[str, ...]) -> Table:
     names: list[str] = []
     cols: dict[str, int] | None = None
     n_fields = 0
     rows: dict[str, list[float]] = {k: [] for k in wanted}
+    texts: dict[str, list[str]] = {k: [] for k in exact}
     lines: list[int] = []
     pending: tuple[int, list[str]] | None = None  # a short row, an error unless it is the last line
     skipped = 0
@@ -133,11 +139,20 @@ def _read(f: TextIO, path: Path, wanted: dict[str, str | int], delimiter: str | 
             raise InputError(path, f"line {number} has {len(fields)} fields, expected {n_fields}")
         for key, i in cols.items():
             rows[key].append(_number(fields[i], path, number, key))
+        for key in exact:
+            texts[key].append(fields[cols[key]])
         lines.append(number)
     if not lines:
         raise InputError(path, "no data rows")
     return Table(values={k: np.asarray(v, dtype=np.float64) for k, v in rows.items()},
+                 integers={k: np.asarray(v, dtype=np.int64) for k, v in texts.items() if _all_integers(v)},
                  lines=np.asarray(lines), names=names, truncated=int(pending is not None), skipped_comments=skipped)
+
+
+def _all_integers(texts: list[str]) -> bool:
+    """Every text an integer that fits int64 (19 digits: nanoseconds since 1970)."""
+    return all((t.isdigit() or (t[:1] in "+-" and t[1:].isdigit())) and len(t) <= 20 and abs(int(t)) < 2**63
+               for t in texts)
 
 
 def _number(text: str, path: Path, line: int, key: str) -> float:

@@ -99,9 +99,7 @@ def check_conventions(rec: Recording, conventions: dict[str, str], choices: dict
         raise InputError(where, f"rotor column {rotor_column(c)} (vehicle rotor {c}): "
                                 + e.problem.split(" ", 2)[2]) from None
     try:
-        angle = check_thrust_axis(rec)
-        check_vertical_response(rec)
-        return angle
+        return _checks(rec)
     except InputError as e:
         problem = e.problem.split(": ", 1)[1] if e.problem.startswith("T_BS:") else e.problem
     agree = _agreeing_conventions(conventions, choices, rebuild)
@@ -110,6 +108,16 @@ def check_conventions(rec: Recording, conventions: dict[str, str], choices: dict
     hint = ("; the data agree with " + " or ".join(", ".join(f"{k}: {v}" for k, v in a.items() if v != conventions[k])
                                                     for a in agree)) if agree else ""
     raise InputError(where, f"{named} looks wrong: {problem.split('; set T_BS', 1)[0]}{hint}")
+
+
+def _checks(rec: Recording) -> float:
+    """The thrust axis from the IMU (where there is one) and from the ground truth's attitude and motion
+    (a world turned upside down shows there, not in the IMU), then the vertical response."""
+    angle = check_thrust_axis(rec)
+    if rec.imu is not None:
+        check_thrust_axis(replace(rec, imu=None))
+    check_vertical_response(rec)
+    return angle
 
 
 def _agreeing_conventions(conventions: dict[str, str], choices: dict[str, tuple[str, ...]],
@@ -125,9 +133,7 @@ def _agreeing_conventions(conventions: dict[str, str], choices: dict[str, tuple[
     agree = []
     for combo in combos:
         try:
-            other = rebuild(combo)
-            check_thrust_axis(other)
-            check_vertical_response(other)
+            _checks(rebuild(combo))
         except InputError:
             continue
         agree.append(combo)
