@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io import align
 from uavturb.io.csv_map import CsvMap, load_csv_map
 from uavturb.io.csv_table import Table, read_table
 from uavturb.io.differentiate import derivative
@@ -134,7 +135,7 @@ def _rotors(table: Table, m: CsvMap, rows: _Rows, vehicle: Vehicle, battery: Bat
             volt = np.interp(t_ns.astype(np.float64), battery.t_ns.astype(np.float64), battery.voltage)[:, None]
         w, negative = m.thrust_map.rotor_speeds(x, volt, vehicle.thrust_coefficient)
         if negative:
-            notes.append(f"{negative} negative thrusts of the thrust map read as rotors at rest")
+            notes.append(f"{negative} rotor commands off or below the thrust map read as rotors at rest")
     return Rotors(t_ns=t_ns, speeds=w) if len(t_ns) >= 2 else None
 
 
@@ -151,15 +152,30 @@ def _battery(table: Table, m: CsvMap, rows: _Rows, left_out: list[str]) -> Batte
     return Battery(t_ns=rows.t_ns[ok], voltage=volt[ok], current=None if cur is None else cur[ok])
 
 
-def _imu(table: Table, m: CsvMap, rows: _Rows, body: str, left_out: list[str]) -> Imu | None:
+def _imu(table: Table, m: CsvMap, rows: _Rows, gt: GroundTruth, world: str, body: str,
+         left_out: list[str]) -> Imu | None:
+    """The IMU in B. An accelerometer logged in the world frame (``imu.acc_frame: world``, e.g. a
+    Crazyflie's ``stateEstimate.a*``: specific force rotated into the world) is rotated back into B
+    with the ground truth's attitude at its rows (slerp; rows outside the ground truth's span left out)."""
     if m.gyro is None:
         return None
     x = _stack(table, rows, _group(m, "imu.gyro") + _group(m, "imu.acc"))
     ok = _finite_rows(x, "imu", left_out)
+    t_ns = rows.t_ns
+    if m.acc_frame == "world":
+        inside = (t_ns >= gt.t_ns[0]) & (t_ns <= gt.t_ns[-1])
+        if (ok & ~inside).sum():
+            left_out.append(f"{int((ok & ~inside).sum())} imu rows outside the ground truth's time span")
+        ok &= inside
     if ok.sum() < 2:
         return None
-    return Imu(t_ns=rows.t_ns[ok], gyro=body_vectors(x[ok, :3] * m.gyro_scale, body),  # rad/s, B
-               acc=body_vectors(x[ok, 3:] * m.acc_scale, body), T_BS=np.eye(4))  # m/s^2, specific force in B
+    gyro = body_vectors(x[ok, :3] * m.gyro_scale, body)  # rad/s, B
+    if m.acc_frame == "world":
+        q_WB = align.interpolate_quaternions(gt.t_ns, gt.q, t_ns[ok])
+        acc = quat.rotate_inverse(q_WB, world_vectors(x[ok, 3:] * m.acc_scale, world))  # m/s^2, R_WB^T a_W
+    else:
+        acc = body_vectors(x[ok, 3:] * m.acc_scale, body)  # m/s^2, specific force in B
+    return Imu(t_ns=t_ns[ok], gyro=gyro, acc=acc, T_BS=np.eye(4))
 
 
 def _build(table: Table, m: CsvMap, rows: _Rows, vehicle: Vehicle, world: str, body: str
@@ -172,7 +188,7 @@ def _build(table: Table, m: CsvMap, rows: _Rows, vehicle: Vehicle, world: str, b
     rotors = _rotors(table, m, rows, vehicle, battery, left_out, notes)
     if rotors is not None:
         vehicle = vehicle.with_params(rotor_speed_source=m.rotor_source)
-    rec = Recording(vehicle=vehicle, ground_truth=gt, imu=_imu(table, m, rows, body, left_out), rotors=rotors,
+    rec = Recording(vehicle=vehicle, ground_truth=gt, imu=_imu(table, m, rows, gt, world, body, left_out), rotors=rotors,
                     battery=battery, frame="B")
     return rec, left_out, notes
 

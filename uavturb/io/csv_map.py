@@ -13,7 +13,7 @@ A column is named by its header text (``"x[m]"``) or by its 0-based index (``3``
     # or  euler: {columns: [roll, pitch, yaw], unit: deg, sequence: zyx}
     rotors: {columns: [m1, m2, m3, m4], unit: command, motor_order: [0, 1, 2, 3], thrust_map: {...}}
     battery: {voltage: "Vbat[V]", voltage_unit: V, current: null, current_unit: A}
-    imu: {gyro: [wx, wy, wz], gyro_unit: rad/s, acc: [ax, ay, az], acc_unit: m/s^2}
+    imu: {gyro: [wx, wy, wz], gyro_unit: rad/s, acc: [ax, ay, az], acc_unit: m/s^2, acc_frame: body}
     delimiter: ","                                # , | ; | tab | space
     header: auto                                  # auto | true | false
 """
@@ -38,6 +38,7 @@ SPEED_UNITS = {"m/s": 1.0, "cm/s": 1e-2, "mm/s": 1e-3}
 ANGLE_UNITS = {"rad": 1.0, "deg": 0.017453292519943295}
 RATE_UNITS = {"rad/s": 1.0, "deg/s": 0.017453292519943295}
 ACC_UNITS = {"m/s^2": 1.0, "g": 9.80665}
+ACC_FRAMES = ("body", "world")
 ROTOR_UNITS = ("rpm", "rad/s", "command")
 ROTOR_SOURCES = ("commanded", "measured")
 VOLTAGE_UNITS = {"V": 1.0, "mV": 1e-3}
@@ -81,6 +82,7 @@ class CsvMap:
     gyro_scale: float = 1.0
     acc: tuple[Column, Column, Column] | None = None
     acc_scale: float = 1.0
+    acc_frame: str = "body"
     delimiter: str | None = ","
     header: str = "auto"
 
@@ -185,9 +187,10 @@ def load_csv_map(path: str | Path) -> CsvMap:
                   current=b.column("current", required=False),
                   current_scale=CURRENT_UNITS[b.choice("current_unit", CURRENT_UNITS, "A")])
     if "imu" in d:
-        m = _Keys(d["imu"], "imu", ("gyro", "gyro_unit", "acc", "acc_unit"), path)
+        m = _Keys(d["imu"], "imu", ("gyro", "gyro_unit", "acc", "acc_unit", "acc_frame"), path)
         kw.update(gyro=m.columns("gyro", 3), gyro_scale=RATE_UNITS[m.choice("gyro_unit", RATE_UNITS, "rad/s")],
-                  acc=m.columns("acc", 3), acc_scale=ACC_UNITS[m.choice("acc_unit", ACC_UNITS, "m/s^2")])
+                  acc=m.columns("acc", 3), acc_scale=ACC_UNITS[m.choice("acc_unit", ACC_UNITS, "m/s^2")],
+                  acc_frame=m.choice("acc_frame", ACC_FRAMES, "body"))
     if kw.get("thrust_map") is not None and kw["thrust_map"].needs_voltage and kw.get("voltage") is None:
         raise top.fail("rotors", "thrust_map uses the battery voltage (terms with j > 0): map battery.voltage")
     return CsvMap(**kw)

@@ -11,12 +11,14 @@ The map (YAML, key ``thrust_map`` of a CSV map, or the file of ``uavturb import 
 
     type: polynomial                # the only type
     unit: g                         # of the polynomial's value: N (default) or g (gram-force, 9.80665e-3 N)
+    newtons_per_unit: 0.00981       # optional, instead of unit's factor (a source that used g = 9.81 m/s^2)
     command_range: [0, 1]           # raw command values that map to u = 0 and u = 1 (PWM: [1000, 2000])
     voltage_scale: 4.2              # v = battery voltage [V] / voltage_scale (default 1: v in volts)
     terms: [[0, 0, 11.09], [1, 0, -39.08], [0, 1, -9.53], [2, 0, 20.57], [1, 1, 38.43]]
                                     # [i, j, c]: thrust = sum of c u^i v^j
 
-A negative thrust from the map (a stopped motor below the map's range) is a rotor at rest (0 rad/s).
+A command at or below the low end of ``command_range`` (``u <= 0``: motors off, a disarmed PWM) and a
+negative thrust from the map are rotors at rest (0 rad/s): a polynomial's intercept is no thrust.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from uavturb.errors import InputError
 #: N per gram-force (standard gravity)
 GRAM_FORCE = 9.80665e-3
 THRUST_UNITS = {"N": 1.0, "g": GRAM_FORCE}
-KEYS = ("type", "unit", "command_range", "voltage_scale", "terms")
+KEYS = ("type", "unit", "newtons_per_unit", "command_range", "voltage_scale", "terms")
 MAX_POWER = 6
 
 
@@ -50,6 +52,7 @@ class ThrustMap:
     unit: str = "N"
     command_range: tuple[float, float] = (0.0, 1.0)
     voltage_scale: float = 1.0
+    newtons_per_unit: float | None = None  # N per unit of the polynomial; None: the unit's
 
     @property
     def needs_voltage(self) -> bool:
@@ -72,11 +75,14 @@ class ThrustMap:
         lo_hi = d.get("command_range", [0.0, 1.0])
         if not isinstance(lo_hi, list) or len(lo_hi) != 2 or not all(map(_finite, lo_hi)) or lo_hi[1] == lo_hi[0]:
             raise InputError(where, f"{prefix}.command_range: expected two different numbers, got {lo_hi!r}"[:200])
+        newtons = d.get("newtons_per_unit")
+        if newtons is not None and (not _finite(newtons) or newtons <= 0):
+            raise InputError(where, f"{prefix}.newtons_per_unit: expected a positive number, got {newtons!r}"[:200])
         scale = d.get("voltage_scale", 1.0)
         if not _finite(scale) or scale <= 0:
             raise InputError(where, f"{prefix}.voltage_scale: expected a positive number, got {scale!r}"[:200])
         return cls(terms=_terms(d.get("terms"), where, prefix), unit=unit, command_range=(float(lo_hi[0]), float(lo_hi[1])),
-                   voltage_scale=float(scale))
+                   voltage_scale=float(scale), newtons_per_unit=None if newtons is None else float(newtons))
 
     def thrust(self, command: np.ndarray, voltage: np.ndarray | None) -> np.ndarray:
         """Thrust per rotor [N], shape of ``command``; ``voltage`` [V] broadcasts against it (``(N, 1)``)."""
@@ -86,13 +92,16 @@ class ThrustMap:
         f = np.zeros_like(u)
         for i, j, c in self.terms:
             f = f + c * u**i * (v**j if j else 1.0)
-        return f * THRUST_UNITS[self.unit]
+        return f * (THRUST_UNITS[self.unit] if self.newtons_per_unit is None else self.newtons_per_unit)
 
     def rotor_speeds(self, command: np.ndarray, voltage: np.ndarray | None, k_T: float) -> tuple[np.ndarray, int]:
-        """``(w [rad/s] = sqrt(max(f, 0) / k_T), number of values whose thrust was negative)``."""
+        """``(w [rad/s] = sqrt(f / k_T), number of values read as rotors at rest)``: 0 where the command is at
+        or below the range's low end (motors off) or the thrust is negative."""
+        lo, hi = self.command_range
+        u = (np.asarray(command, dtype=np.float64) - lo) / (hi - lo)
         f = self.thrust(command, voltage)
-        negative = int(np.count_nonzero(f < 0))
-        return np.sqrt(np.maximum(f, 0.0) / k_T), negative
+        rest = (u <= 0) | (f < 0)
+        return np.where(rest, 0.0, np.sqrt(np.where(rest, 0.0, f) / k_T)), int(np.count_nonzero(rest))
 
 
 def _terms(value: Any, where: str | Path, prefix: str) -> tuple[tuple[int, int, float], ...]:

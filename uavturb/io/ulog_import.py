@@ -188,7 +188,7 @@ def _rotors(log: _Log, vehicle: Vehicle, order: Sequence[int], source: str, thru
         volt = np.interp(t.astype(np.float64), battery.t_ns.astype(np.float64), battery.voltage)[:, None]  # V
     w, negative = thrust_map.rotor_speeds(u, volt, vehicle.thrust_coefficient)
     if negative:
-        log.notes.append(f"{negative} negative thrusts of the thrust map read as rotors at rest")
+        log.notes.append(f"{negative} rotor commands off or below the thrust map read as rotors at rest")
     return Rotors(t_ns=t, speeds=w), "commanded"
 
 
