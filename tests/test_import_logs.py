@@ -5,6 +5,7 @@ key or column; a frame that contradicts the data is caught at import."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -104,7 +105,8 @@ def test_thrust_map_known_answers():
     # u = 0.5, v = 3.78 / 4.2 = 0.9: 1 + 2 * 0.45 + 3 * 0.25 = 2.65 g
     assert tm.thrust(np.array([1500.0]), np.array([3.78]))[0] == pytest.approx(2.65 * GRAM_FORCE)
     w, negative = tm.rotor_speeds(np.array([1500.0, 0.0]), np.array([3.78, 3.78]), 1e-8)
-    assert w[0] == pytest.approx(np.sqrt(2.65 * GRAM_FORCE / 1e-8)) and negative == 0
+    assert w[0] == pytest.approx(np.sqrt(2.65 * GRAM_FORCE / 1e-8))
+    assert w[1] == 0 and negative == 1  # a command below the range (PWM 0): motor off
 
 
 # --- CSV round trips -----------------------------------------------------------------------------------
@@ -371,3 +373,57 @@ def test_input_error_is_the_failure_type(tmp_path, flight):
     m["battery"]["voltage_unit"] = "kV"
     with pytest.raises(InputError, match="battery.voltage_unit: unknown value 'kV'"):
         import_csv(tmp_path / "log.csv", write_map(m, tmp_path / "map.yaml"), tmp_path / "rec", vehicle=flight.vehicle)
+
+
+# --- the documented Neural-Swarm map, on a flight the test writes in that layout -------------------------
+
+NS_HEADER = ("# time[ms],x[m],y[m],z[m],vx[m/s],vy[m/s],vz[m/s],ax[m/s^2],ay[m/s^2],az[m/s^2],qx,qy,qz,qw,"
+             "u1[N],u2[N],u3[N],u4[N],u1[PWM],u2[PWM],u3[PWM],u4[PWM],Vbat[V],thrust_des[g],torquex[Nm],"
+             "torquey[Nm],torquez[Nm],wx[rad/s],wy[rad/s],wz[rad/s]")
+
+
+def _pwm_for_thrust(f_g, vbat, C):
+    """The PWM (/ 65536) whose thrust [g] the map C00..C11 gives: the root of C20 p^2 + (C10 + C11 v) p + ... in [0, 1]."""
+    v = vbat / 4.2
+    a, b, c = C[3], C[1] + C[4] * v, C[0] + C[2] * v - f_g
+    return (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
+
+
+def test_neural_swarm_map_reads_that_layout(tmp_path):
+    docs = Path(__file__).resolve().parents[1] / "docs" / "maps"
+    m = yaml.safe_load((docs / "neural_swarm.yaml").read_text())
+    C = [t[2] for t in m["rotors"]["thrust_map"]["terms"]]
+    rec = _from_boot(generate_flight(vehicle=str(docs / "crazyflie21.yaml"), effects="none", duration=10.0,
+                                     kind="mixed", seed=2))
+    rec = replace(rec, points=flat_floor(rec.ground_truth.p, 0.0))
+    write_recording(rec, tmp_path / "original")
+    gt, imu, n = rec.ground_truth, rec.imu, len(rec.ground_truth)
+    assert np.array_equal(imu.t_ns, gt.t_ns) and np.array_equal(rec.rotors.t_ns, gt.t_ns)  # one row each, as logged
+    vbat = np.linspace(3.9, 3.6, n)
+    f_g = rec.vehicle.thrust_coefficient * rec.rotors.speeds**2 / 0.00981  # grams, as the repository converts
+    pwm = _pwm_for_thrust(f_g, vbat[:, None], C)
+    acc_world = quat.rotate(gt.q, imu.acc)  # the firmware logs the specific force in the world frame
+    cols = [gt.t_ns // 1000, gt.p, gt.v, acc_world, gt.q[:, [1, 2, 3, 0]], f_g * 0.00981, pwm, vbat,
+            f_g.sum(axis=1), np.zeros((n, 3)), imu.gyro]
+    table = np.column_stack([np.asarray(c, dtype=np.float64).reshape(n, -1) for c in cols])
+    np.savetxt(tmp_path / "cf50_00.csv", table, delimiter=",", header=NS_HEADER[2:], fmt="%.18e")
+    _, summary = import_csv(tmp_path / "cf50_00.csv", docs / "neural_swarm.yaml", tmp_path / "rec",
+                            vehicle=str(docs / "crazyflie21.yaml"), floor_z=0.0)
+    back = read_recording(tmp_path / "rec")
+    np.testing.assert_allclose(back.rotors.speeds, rec.rotors.speeds, rtol=1e-9)
+    np.testing.assert_allclose(back.imu.acc, imu.acc, atol=1e-9)
+    assert back.vehicle.rotor_plane_z == -0.025 and back.vehicle.rotor_speed_source == "commanded"
+    ref, got = identify_recordings([tmp_path / "original"]).to_dict(), identify_recordings([tmp_path / "rec"]).to_dict()
+    assert got["thrust_coefficient"] == pytest.approx(ref["thrust_coefficient"], rel=1e-6)
+    np.testing.assert_allclose(got["accel_bias"], ref["accel_bias"], atol=1e-6)
+
+
+def test_thrust_map_rest_and_newtons_per_unit():
+    tm = ThrustMap.from_dict({"unit": "g", "newtons_per_unit": 0.00981, "terms": [[0, 0, 2.5], [1, 0, 10.0]]}, "m")
+    w, rest = tm.rotor_speeds(np.array([0.0, -0.1, 0.5]), None, 1e-8)
+    assert rest == 2 and w[0] == 0 and w[1] == 0  # motors off: the intercept (2.5 g) is no thrust
+    assert w[2] == pytest.approx(np.sqrt(7.5 * 0.00981 / 1e-8))
+    with pytest.raises(InputError, match="thrust_map.newtons_per_unit: expected a positive number"):
+        ThrustMap.from_dict({"newtons_per_unit": -1, "terms": [[1, 0, 1.0]]}, "m")
+    with pytest.raises(InputError, match=r"thrust_map.terms\[0\]: expected \[i, j, c\]"):
+        ThrustMap.from_dict({"terms": [[1, 0]]}, "m")
