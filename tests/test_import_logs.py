@@ -427,3 +427,59 @@ def test_thrust_map_rest_and_newtons_per_unit():
         ThrustMap.from_dict({"newtons_per_unit": -1, "terms": [[1, 0, 1.0]]}, "m")
     with pytest.raises(InputError, match=r"thrust_map.terms\[0\]: expected \[i, j, c\]"):
         ThrustMap.from_dict({"terms": [[1, 0]]}, "m")
+
+
+def test_a_dead_rotor_column_is_named_by_its_log_column(tmp_path, capsys, flight):
+    dead = replace(flight, rotors=replace(flight.rotors, speeds=flight.rotors.speeds * [1, 1, 0, 1]))
+    m = write_csv_log(dead, tmp_path / "log.csv", motor_order=PERMUTED)  # vehicle rotor 2 is log column m4
+    vehicle = tmp_path / "vehicle.yaml"
+    vehicle.write_text(yaml.safe_dump(flight.vehicle.to_dict()))
+    _import_fails(tmp_path, capsys, _csv_argv(tmp_path, m, vehicle),
+                  "rotor column 'm4' (vehicle rotor 2) is 0 throughout the flight")
+
+
+# --- the gap finder: the same report from the original and from its imports ----------------------------
+
+
+def _gap_summary(path, out):
+    from uavturb.experiments.gap_run import gap
+
+    r = gap([path], out, sim_effects="none", log_mlflow=False)
+    return r["nominal"], {e["name"]: e["params"] for e in r["effects"]}
+
+
+def test_gap_same_report_through_a_ned_csv(tmp_path, flight):
+    m = write_csv_log(flight, tmp_path / "log.csv", world="ned", body="frd", time_unit="ns", motor_order=PERMUTED)
+    import_csv(tmp_path / "log.csv", write_map(m, tmp_path / "map.yaml"), tmp_path / "rec", vehicle=flight.vehicle,
+               floor_z=0.0)
+    ref_nominal, ref_effects = _gap_summary(flight.path, tmp_path / "gap0")
+    nominal, effects = _gap_summary(tmp_path / "rec", tmp_path / "gap1")
+    assert effects == ref_effects
+    for key in ("thrust_coefficient", "accel_bias"):
+        np.testing.assert_allclose(nominal[key], ref_nominal[key], rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_gap_names_the_same_wind_through_ulog_and_every_csv_convention(tmp_path):
+    """A 45 s flight in a steady wind (the gap finder names it): the same effect and parameters from the
+    original, its ULog and its CSVs in NED/FRD, ENU/FLU and north-east-up."""
+    rec = _from_boot(generate_flight(vehicle="hex", effects="wind:f_x=0.2,f_y=-0.15", duration=45.0, kind="mixed",
+                                     seed=32))
+    rec = replace(rec, points=flat_floor(rec.ground_truth.p, 0.0))
+    write_recording(rec, tmp_path / "original")
+    _, ref = _gap_summary(tmp_path / "original", tmp_path / "gap_original")
+    assert list(ref) == ["wind"] and ref["wind"]["f_x"] == pytest.approx(0.2, rel=0.15)
+    write_px4_log(rec, tmp_path / "log.ulg", motor_order=[3, 0, 5, 1, 2, 4])
+    paths = []
+    for world, body in (("ned", "frd"), ("enu", "flu"), ("neu", "frd")):
+        m = write_csv_log(rec, tmp_path / f"{world}.csv", world=world, body=body, time_unit="us", rotor_unit="rpm")
+        import_csv(tmp_path / f"{world}.csv", write_map(m, tmp_path / f"{world}.yaml"), tmp_path / world,
+                   vehicle=rec.vehicle, floor_z=0.0)
+        paths.append(tmp_path / world)
+    import_ulog(tmp_path / "log.ulg", tmp_path / "ulog", vehicle=rec.vehicle, floor_z=0.0,
+                motor_order=[3, 0, 5, 1, 2, 4])
+    for path in [*paths, tmp_path / "ulog"]:
+        _, got = _gap_summary(path, tmp_path / f"gap_{path.name}")
+        assert list(got) == ["wind"], path.name
+        for k, v in ref["wind"].items():
+            assert got["wind"][k] == pytest.approx(v, rel=0.01, abs=1e-3), (path.name, k)

@@ -15,6 +15,7 @@ Sample-and-hold repeats and gaps (dropouts) are kept as they are: no resampling,
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
@@ -93,11 +94,11 @@ def check_conventions(rec: Recording, conventions: dict[str, str], choices: dict
     try:
         check_rotor_columns(rec)
     except InputError as e:
-        if rotor_column is None:
+        found = re.match(r"column w_(\d+) (.*)", e.problem)
+        if rotor_column is None or found is None:
             raise
-        c = int(e.problem.split("column w_", 1)[1].split(" ", 1)[0])
-        raise InputError(where, f"rotor column {rotor_column(c)} (vehicle rotor {c}): "
-                                + e.problem.split(" ", 2)[2]) from None
+        c = int(found.group(1))
+        raise InputError(where, f"rotor column {rotor_column(c)} (vehicle rotor {c}) {found.group(2)}") from None
     try:
         return _checks(rec)
     except InputError as e:
