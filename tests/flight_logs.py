@@ -86,12 +86,14 @@ ESC_REPORT = [("uint64_t", "timestamp"), ("uint32_t", "esc_errorcount"), ("int32
 
 
 def px4_topics(rec: Recording, *, motor_order: Sequence[int] | None = None, rotors: str = "esc",
-               thrust_per_command: float | None = None) -> list[Topic]:
+               thrust_per_command: float | None = None, imu: str = "sensor_combined",
+               invalid_rows: Sequence[int] = ()) -> list[Topic]:
     """The PX4 topics of a recording (in B): NED/FRD, µs, float32 as PX4 logs them.
 
     ``rotors``: ``esc`` (``esc_status`` rpm, log index ``motor_order[i]`` holds vehicle rotor ``i``) or
     ``outputs`` (``actuator_outputs`` = PWM in [1000, 2000], thrust = ``thrust_per_command * u`` [N] with
-    ``u`` = (PWM - 1000) / 1000).
+    ``u`` = (PWM - 1000) / 1000). ``imu``: ``sensor_combined`` or ``vehicle_imu`` (integrated over each
+    sample's interval); ``invalid_rows``: local-position rows flagged ``xy_valid = false``.
     """
     gt = rec.ground_truth
     n_rot = rec.vehicle.rotor_count
@@ -103,11 +105,21 @@ def px4_topics(rec: Recording, *, motor_order: Sequence[int] | None = None, roto
     lp = Topic("vehicle_local_position", [("uint64_t", "timestamp"), ("float", "x"), ("float", "y"), ("float", "z"),
                                           ("float", "vx"), ("float", "vy"), ("float", "vz"), ("bool", "xy_valid"),
                                           ("bool", "z_valid"), ("bool", "v_xy_valid"), ("bool", "v_z_valid")],
-               [(int(t), *map(float, p[k]), *map(float, v[k]), True, True, True, True) for k, t in enumerate(t_gt)])
+               [(int(t), *map(float, p[k]), *map(float, v[k]), k not in invalid_rows, True, True, True)
+                for k, t in enumerate(t_gt)])
     att = Topic("vehicle_attitude", [("uint64_t", "timestamp"), ("float[4]", "q")],
                 [(int(t), *map(float, q[k])) for k, t in enumerate(t_gt)])
     topics = [lp, att]
-    if rec.imu is not None:
+    if rec.imu is not None and imu == "vehicle_imu":
+        g, a = body_vectors(rec.imu.gyro, "frd"), body_vectors(rec.imu.acc, "frd")
+        t_imu = to_us(rec.imu.t_ns)
+        dt = np.diff(t_imu, prepend=t_imu[0] - (t_imu[1] - t_imu[0]))  # µs
+        topics.append(Topic("vehicle_imu", [("uint64_t", "timestamp"), ("float[3]", "delta_angle"),
+                                            ("float[3]", "delta_velocity"), ("uint16_t", "delta_angle_dt"),
+                                            ("uint16_t", "delta_velocity_dt")],
+                            [(int(t), *map(float, g[k] * dt[k] * 1e-6), *map(float, a[k] * dt[k] * 1e-6), int(dt[k]),
+                              int(dt[k])) for k, t in enumerate(t_imu)]))
+    elif rec.imu is not None:
         g, a = body_vectors(rec.imu.gyro, "frd"), body_vectors(rec.imu.acc, "frd")  # FLU -> FRD: the same map
         topics.append(Topic("sensor_combined", [("uint64_t", "timestamp"), ("float[3]", "gyro_rad"),
                                                 ("float[3]", "accelerometer_m_s2")],

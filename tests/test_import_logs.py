@@ -483,3 +483,14 @@ def test_gap_names_the_same_wind_through_ulog_and_every_csv_convention(tmp_path)
         assert list(got) == ["wind"], path.name
         for k, v in ref["wind"].items():
             assert got["wind"][k] == pytest.approx(v, rel=0.01, abs=1e-3), (path.name, k)
+
+
+def test_ulog_vehicle_imu_and_invalid_positions(tmp_path, flight):
+    write_px4_log(flight, tmp_path / "log.ulg", imu="vehicle_imu", invalid_rows=range(100, 110))
+    _, summary = import_ulog(tmp_path / "log.ulg", tmp_path / "rec", vehicle=flight.vehicle)
+    back = read_recording(tmp_path / "rec")
+    np.testing.assert_allclose(back.imu.gyro, flight.imu.gyro, atol=1e-5)  # delta angle / dt, float32
+    np.testing.assert_allclose(back.imu.acc, flight.imu.acc, atol=1e-4)
+    assert len(back.ground_truth) == len(flight.ground_truth) - 10
+    assert "10 vehicle_local_position rows invalid or outside the attitudes" in summary.line()
+    assert "sensor_combined" not in summary.line()
