@@ -166,7 +166,7 @@ def write_csv_log(rec: Recording, path: Path, *, world: str = "enu", body: str =
                   order: str = "wxyz", time_unit: str = "s", rotor_unit: str = "rad/s",
                   motor_order: Sequence[int] | None = None, header: bool = True, delimiter: str = ",",
                   use_indices: bool = False, thrust_map: dict | None = None, velocity: bool = True,
-                  euler_unit: str = "deg", sequence: str = "zyx") -> dict:
+                  euler_unit: str = "deg", sequence: str = "zyx", direction: str = "body_to_world") -> dict:
     """Write the recording's ground truth, rotors, IMU and battery (all on the ground truth's rows; other
     streams' rows hold nan where they have no sample) as one CSV; returns the map (a dict) describing it."""
     gt = rec.ground_truth
@@ -183,6 +183,7 @@ def write_csv_log(rec: Recording, path: Path, *, world: str = "enu", body: str =
 
     put(["px", "py", "pz"], gt.t_ns, world_vectors_from_recording(gt.p, world))
     q = attitude_from_recording(gt.q, "ned" if world == "neu" else world, body)
+    q = quat.conjugate(q) if direction == "world_to_body" else q
     if attitude == "quaternion":
         q_cols = ["qw", "qx", "qy", "qz"] if order == "wxyz" else ["qx", "qy", "qz", "qw"]
         put(q_cols, gt.t_ns, q if order == "wxyz" else q[:, [1, 2, 3, 0]])
@@ -226,7 +227,7 @@ def write_csv_log(rec: Recording, path: Path, *, world: str = "enu", body: str =
                "position": {"columns": ref("px", "py", "pz"), "unit": "m"}, "delimiter": delimiter,
                "header": header}
     if attitude == "quaternion":
-        m["quaternion"] = {"columns": ref(*q_cols), "order": order}
+        m["quaternion"] = {"columns": ref(*q_cols), "order": order, "direction": direction}
     else:
         m["euler"] = {"columns": ref("roll", "pitch", "yaw"), "unit": euler_unit, "sequence": sequence}
     if velocity:

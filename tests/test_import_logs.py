@@ -118,6 +118,8 @@ CSV_CASES = {
                                                       motor_order=PERMUTED),
     "neu-frd-quat-xyzw-ms-rpm-semicolon": dict(world="neu", body="frd", order="xyzw", time_unit="ms",
                                                rotor_unit="rpm", delimiter=";", motor_order=PERMUTED),
+    "ned-flu-quat-world_to_body-s-tab": dict(world="ned", body="flu", direction="world_to_body", time_unit="s",
+                                             delimiter="tab"),
     "enu-frd-euler-xyz-rad-ns-space-novelocity": dict(world="enu", body="frd", attitude="euler", euler_unit="rad",
                                                       sequence="xyz", time_unit="ns", delimiter="space"),
 }
@@ -189,6 +191,15 @@ def test_csv_nan_rows_before_arming_truncated_row_and_repeats(tmp_path, flight):
     assert len(back.ground_truth) == len(flight.ground_truth)  # + 1 repeat - 1 truncated
     k = np.searchsorted(back.ground_truth.t_ns, flight.ground_truth.t_ns[100])
     np.testing.assert_array_equal(back.ground_truth.p[k + 1], back.ground_truth.p[k])  # the repeat kept as it is
+
+
+def test_csv_from_a_spreadsheet_bom_quotes_crlf(tmp_path, flight):
+    m = write_csv_log(flight, tmp_path / "log.csv", time_unit="ns")
+    lines = (tmp_path / "log.csv").read_text().splitlines()
+    header = ",".join(f'"{n}"' for n in lines[0].split(","))
+    (tmp_path / "log.csv").write_bytes(("\ufeff" + "\r\n".join([header] + lines[1:]) + "\r\n").encode("utf-8"))
+    import_csv(tmp_path / "log.csv", write_map(m, tmp_path / "map.yaml"), tmp_path / "rec", vehicle=flight.vehicle)
+    np.testing.assert_array_equal(read_recording(tmp_path / "rec").ground_truth.p, flight.ground_truth.p)
 
 
 def test_csv_floor_and_rotor_plane(tmp_path, flight):

@@ -10,6 +10,7 @@ the map names are converted to numbers (other columns may hold anything, text in
 * Lines starting with ``#`` after the header, and blank lines, are skipped.
 * A last line with fewer fields than the header (a logger stopped mid-write) is left out and
   counted; such a line anywhere else is an error naming it.
+* Fields may be quoted (``"x[m]"``); a UTF-8 byte-order mark (spreadsheets write one) is dropped.
 * Empty fields and ``nan`` read as NaN (the importer leaves those rows out of the stream and counts them).
 """
 
@@ -40,7 +41,9 @@ class Table:
 
 
 def _split(line: str, delimiter: str | None) -> list[str]:
-    return [f.strip() for f in (line.split() if delimiter is None else line.split(delimiter))]
+    """Fields of a line, blanks and surrounding double quotes removed (no quoted delimiters: flight logs
+    have none)."""
+    return [f.strip().strip('"').strip() for f in (line.split() if delimiter is None else line.split(delimiter))]
 
 
 def _is_number(text: str) -> bool:
@@ -92,7 +95,7 @@ def read_table(path: str | Path, wanted: dict[str, str | int], *, delimiter: str
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file not found")
-    with open(path, encoding="utf-8", errors="replace", newline=None) as f:
+    with open(path, encoding="utf-8-sig", errors="replace", newline=None) as f:  # -sig: a spreadsheet's BOM
         return _read(f, path, wanted, delimiter, header, exact)
 
 
