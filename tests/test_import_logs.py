@@ -505,3 +505,17 @@ def test_ulog_vehicle_imu_and_invalid_positions(tmp_path, flight):
     assert len(back.ground_truth) == len(flight.ground_truth) - 10
     assert "10 vehicle_local_position rows invalid or outside the attitudes" in summary.line()
     assert "sensor_combined" not in summary.line()
+
+
+def test_ulog_cut_short_still_imports_what_it_holds(tmp_path, capsys, flight):
+    write_px4_log(flight, tmp_path / "log.ulg")
+    data = (tmp_path / "log.ulg").read_bytes()
+    (tmp_path / "cut.ulg").write_bytes(data[: int(len(data) * 0.6)])  # the logger stopped mid-message
+    vehicle = tmp_path / "vehicle.yaml"
+    vehicle.write_text(yaml.safe_dump(flight.vehicle.to_dict()))
+    assert main(["import", "ulog", str(tmp_path / "cut.ulg"), "--vehicle", str(vehicle), "--out",
+                 str(tmp_path / "rec")]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1 and out[0].startswith(f"wrote {tmp_path / 'rec'}")
+    back = read_recording(tmp_path / "rec")
+    assert 0.4 * len(flight.ground_truth) < len(back.ground_truth) < 0.8 * len(flight.ground_truth)

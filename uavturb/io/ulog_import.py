@@ -25,6 +25,8 @@ in the summary). Logging dropouts stay gaps in the streams.
 
 from __future__ import annotations
 
+import contextlib
+import io
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
@@ -71,11 +73,15 @@ def _load(path: Path) -> _Log:
 
     if not path.is_file():
         raise InputError(path, "file not found")
+    said = io.StringIO()  # pyulog prints its warnings (a corrupt file): they become one note
     try:
-        ulog = ULog(str(path), message_name_filter_list=list(TOPICS), disable_str_exceptions=True)
+        with contextlib.redirect_stdout(said):
+            ulog = ULog(str(path), message_name_filter_list=list(TOPICS), disable_str_exceptions=True)
     except Exception as e:  # pyulog raises many kinds on a file that is not a ULog
         raise InputError(path, f"not a readable ULog file ({type(e).__name__}: {str(e)[:80]})") from None
     log = _Log(path=path, topics={})
+    if said.getvalue().strip():
+        log.notes.append("pyulog: " + said.getvalue().strip().splitlines()[0][:120])
     for topic in TOPICS:
         instances = sorted((d for d in ulog.data_list if d.name == topic), key=lambda d: d.multi_id)
         if not instances:
