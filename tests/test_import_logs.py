@@ -197,7 +197,8 @@ def test_csv_from_a_spreadsheet_bom_quotes_crlf(tmp_path, flight):
     m = write_csv_log(flight, tmp_path / "log.csv", time_unit="ns")
     lines = (tmp_path / "log.csv").read_text().splitlines()
     header = ",".join(f'"{n}"' for n in lines[0].split(","))
-    (tmp_path / "log.csv").write_bytes(("\ufeff" + "\r\n".join([header] + lines[1:]) + "\r\n").encode("utf-8"))
+    text = "\r\n".join(["# written by a logger v1.2", header] + lines[1:]) + "\r\n"
+    (tmp_path / "log.csv").write_bytes(("\ufeff" + text).encode("utf-8"))
     import_csv(tmp_path / "log.csv", write_map(m, tmp_path / "map.yaml"), tmp_path / "rec", vehicle=flight.vehicle)
     np.testing.assert_array_equal(read_recording(tmp_path / "rec").ground_truth.p, flight.ground_truth.p)
 

@@ -5,7 +5,7 @@ Self-contained and bounded, for files of unknown origin: lines are read one at a
 the map names are converted to numbers (other columns may hold anything, text included).
 
 * Header: ``auto`` (default) takes the first non-blank line as the column names when it is not all
-  numbers; a leading ``#`` is dropped (``# time[ms],x[m]``, EuRoC's ``#timestamp [ns]``). ``true``
+  numbers (``#`` lines of one field before it are comments); a leading ``#`` is dropped (``# time[ms],x[m]``, EuRoC's ``#timestamp [ns]``). ``true``
   always, ``false`` never (columns are then named by their 0-based index only).
 * Lines starting with ``#`` after the header, and blank lines, are skipped.
 * A last line with fewer fields than the header (a logger stopped mid-write) is left out and
@@ -120,6 +120,9 @@ def _read(f: TextIO, path: Path, wanted: dict[str, str | int], delimiter: str | 
             continue
         if cols is None:
             fields = _split(text.lstrip("#"), delimiter)
+            if text.startswith("#") and len(fields) < 2:  # a comment before the header ("# logger v1.2")
+                skipped += 1
+                continue
             if len(fields) > MAX_COLUMNS:
                 raise InputError(path, f"line {number} has {len(fields)} columns (more than {MAX_COLUMNS}): "
                                        "not a flight log CSV")
@@ -134,7 +137,7 @@ def _read(f: TextIO, path: Path, wanted: dict[str, str | int], delimiter: str | 
             continue
         if pending is not None:
             raise InputError(path, f"line {pending[0]} has {len(pending[1])} fields, expected {n_fields}")
-        fields = _split(text, delimiter)
+        fields = text.split() if delimiter is None else text.split(delimiter)  # stripped only where read
         if len(fields) != n_fields:
             if len(fields) < n_fields:
                 pending = (number, fields)
@@ -143,7 +146,7 @@ def _read(f: TextIO, path: Path, wanted: dict[str, str | int], delimiter: str | 
         for key, i in cols.items():
             rows[key].append(_number(fields[i], path, number, key))
         for key in exact:
-            texts[key].append(fields[cols[key]])
+            texts[key].append(fields[cols[key]].strip().strip('"'))
         lines.append(number)
     if not lines:
         raise InputError(path, "no data rows")
@@ -159,9 +162,14 @@ def _all_integers(texts: list[str]) -> bool:
 
 
 def _number(text: str, path: Path, line: int, key: str) -> float:
-    if not text:
-        return float("nan")
+    """The field as a float (``float`` itself ignores surrounding blanks); quoted or empty fields handled."""
     try:
         return float(text)
     except ValueError:
-        raise InputError(path, f"line {line}: {text[:40]!r} (map key {key}) is not a number") from None
+        bare = text.strip().strip('"').strip()
+    if not bare:
+        return float("nan")
+    try:
+        return float(bare)
+    except ValueError:
+        raise InputError(path, f"line {line}: {bare[:40]!r} (map key {key}) is not a number") from None
