@@ -20,7 +20,7 @@ from uavturb.io.csv_import import import_csv
 from uavturb.io.log_import import flat_floor
 from uavturb.io.reader import read_recording
 from uavturb.io.recording import Battery
-from uavturb.io.thrust_map import GRAM_FORCE, ThrustMap
+from uavturb.io.thrust_map import GRAM_FORCE, ThrustMap, held_voltage
 from uavturb.io.ulog_import import import_ulog
 from uavturb.io.writer import write_recording
 from uavturb.physics import quaternion as quat
@@ -152,6 +152,8 @@ def test_csv_thrust_map_commands_with_battery_voltage(tmp_path, flight):
     back = read_recording(tmp_path / "rec")
     np.testing.assert_array_equal(back.rotors.t_ns, flight.rotors.t_ns)  # the battery's rows interpolated
     np.testing.assert_allclose(back.rotors.speeds, flight.rotors.speeds, rtol=1e-12)
+    held = np.all(np.diff(flight.rotors.speeds, axis=0) == 0, axis=1)  # sample-and-hold, kept bit for bit
+    np.testing.assert_array_equal(np.all(np.diff(back.rotors.speeds, axis=0) == 0, axis=1), held)
     assert "rotors 2401 rows (commanded, from command)" in summary.line()
     del m["battery"]
     with pytest.raises(InputError, match="rotors: thrust_map uses the battery voltage .* map battery.voltage"):
@@ -407,13 +409,14 @@ def test_neural_swarm_map_reads_that_layout(tmp_path):
     C = [t[2] for t in m["rotors"]["thrust_map"]["terms"]]
     rec = _from_boot(generate_flight(vehicle=str(docs / "crazyflie21.yaml"), effects="none", duration=10.0,
                                      kind="mixed", seed=2))
-    rec = replace(rec, points=flat_floor(rec.ground_truth.p, 0.0))
+    vbat = np.linspace(3.9, 3.6, len(rec.ground_truth))  # V
+    rec = replace(rec, points=flat_floor(rec.ground_truth.p, 0.0),
+                  battery=Battery(t_ns=rec.ground_truth.t_ns, voltage=vbat))
     write_recording(rec, tmp_path / "original")
     gt, imu, n = rec.ground_truth, rec.imu, len(rec.ground_truth)
     assert np.array_equal(imu.t_ns, gt.t_ns) and np.array_equal(rec.rotors.t_ns, gt.t_ns)  # one row each, as logged
-    vbat = np.linspace(3.9, 3.6, n)
     f_g = rec.vehicle.thrust_coefficient * rec.rotors.speeds**2 / 0.00981  # grams, as the repository converts
-    pwm = _pwm_for_thrust(f_g, vbat[:, None], C)
+    pwm = _pwm_for_thrust(f_g, held_voltage(rec.rotors.speeds, vbat)[:, None], C)  # a held command stays held
     acc_world = quat.rotate(gt.q, imu.acc)  # the firmware logs the specific force in the world frame
     cols = [gt.t_ns // 1000, gt.p, gt.v, acc_world, gt.q[:, [1, 2, 3, 0]], f_g * 0.00981, pwm, vbat,
             f_g.sum(axis=1), np.zeros((n, 3)), imu.gyro]
@@ -426,8 +429,12 @@ def test_neural_swarm_map_reads_that_layout(tmp_path):
     np.testing.assert_allclose(back.imu.acc, imu.acc, atol=1e-9)
     assert back.vehicle.rotor_plane_z == -0.025 and back.vehicle.rotor_speed_source == "commanded"
     ref, got = identify_recordings([tmp_path / "original"]).to_dict(), identify_recordings([tmp_path / "rec"]).to_dict()
-    assert got["thrust_coefficient"] == pytest.approx(ref["thrust_coefficient"], rel=1e-6)
-    np.testing.assert_allclose(got["accel_bias"], ref["accel_bias"], atol=1e-6)
+    held = np.all(np.diff(rec.rotors.speeds, axis=0) == 0, axis=1)
+    assert held.mean() > 0.5  # the simulator's commands are held between updates, and stay held
+    np.testing.assert_array_equal(np.all(np.diff(back.rotors.speeds, axis=0) == 0, axis=1), held)
+    assert got["n_samples"] == ref["n_samples"]
+    assert got["thrust_coefficient"] == pytest.approx(ref["thrust_coefficient"], rel=1e-9)
+    np.testing.assert_allclose(got["accel_bias"], ref["accel_bias"], atol=1e-9)
 
 
 def test_thrust_map_rest_and_newtons_per_unit():

@@ -29,7 +29,7 @@ from uavturb.io.log_frames import BODIES, RECORDING_WORLD, WORLDS, attitude_to_r
 from uavturb.io.log_import import ImportSummary, check_conventions, finish_import
 from uavturb.io.reader import checked_quaternions
 from uavturb.io.recording import Battery, GroundTruth, Imu, Recording, Rotors
-from uavturb.io.thrust_map import rpm_to_rad_s
+from uavturb.io.thrust_map import held_voltage, rpm_to_rad_s
 from uavturb.io.vehicle_file import named_vehicle
 from uavturb.physics import quaternion as quat
 from uavturb.physics.vehicle import Vehicle
@@ -133,6 +133,7 @@ def _rotors(table: Table, m: CsvMap, rows: _Rows, vehicle: Vehicle, battery: Bat
             if battery is None:
                 raise InputError(m.path, "rotors.thrust_map uses the battery voltage but no row holds one")
             volt = np.interp(t_ns.astype(np.float64), battery.t_ns.astype(np.float64), battery.voltage)[:, None]
+            volt = held_voltage(x, volt)  # held commands keep their voltage: their speeds repeat bit for bit
         w, negative = m.thrust_map.rotor_speeds(x, volt, vehicle.thrust_coefficient)
         if negative:
             notes.append(f"{negative} rotor commands off or below the thrust map read as rotors at rest")

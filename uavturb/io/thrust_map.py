@@ -17,6 +17,10 @@ The map (YAML, key ``thrust_map`` of a CSV map, or the file of ``uavturb import 
     terms: [[0, 0, 11.09], [1, 0, -39.08], [0, 1, -9.53], [2, 0, 20.57], [1, 1, 38.43]]
                                     # [i, j, c]: thrust = sum of c u^i v^j
 
+Sample-and-hold: where a logger repeats the last commands (every column bit-identical to the previous
+row's), the voltage of the row that brought them is held too (:func:`held_voltage`), so the speeds repeat
+bit for bit and the tools that find held streams see the commands' updates, not the battery's.
+
 A command at or below the low end of ``command_range`` (``u <= 0``: motors off, a disarmed PWM) and a
 negative thrust from the map are rotors at rest (0 rad/s): a polynomial's intercept is no thrust.
 """
@@ -118,6 +122,16 @@ def _terms(value: Any, where: str | Path, prefix: str) -> tuple[tuple[int, int, 
                                     f"and a finite coefficient, got {term!r}"[:200])
         out.append((int(term[0]), int(term[1]), float(term[2])))
     return tuple(out)
+
+
+def held_voltage(command: np.ndarray, voltage: np.ndarray) -> np.ndarray:
+    """``voltage`` (N,) or (N, 1) [V] held over the rows whose commands ``(N, K)`` repeat the previous
+    row's exactly: each row gets the voltage of the last row whose commands changed."""
+    c = np.asarray(command)
+    update = np.ones(len(c), bool)
+    update[1:] = np.any(c[1:] != c[:-1], axis=1)
+    last = np.maximum.accumulate(np.where(update, np.arange(len(c)), 0))
+    return np.asarray(voltage)[last]
 
 
 def rpm_to_rad_s(rpm: np.ndarray) -> np.ndarray:

@@ -38,7 +38,7 @@ from uavturb.io.log_frames import BODIES, RECORDING_WORLD, WORLDS, attitude_to_r
     world_vectors
 from uavturb.io.log_import import ImportSummary, check_conventions, finish_import
 from uavturb.io.recording import Battery, GroundTruth, Imu, Recording, Rotors
-from uavturb.io.thrust_map import ThrustMap, rpm_to_rad_s
+from uavturb.io.thrust_map import ThrustMap, held_voltage, rpm_to_rad_s
 from uavturb.io.vehicle_file import named_vehicle
 from uavturb.io.yaml_mapping import read_yaml_mapping
 from uavturb.physics import quaternion as quat
@@ -192,6 +192,7 @@ def _rotors(log: _Log, vehicle: Vehicle, order: Sequence[int], source: str, thru
         if battery is None:
             raise InputError(log.path, "the thrust map uses the battery voltage but the log has no battery_status")
         volt = np.interp(t.astype(np.float64), battery.t_ns.astype(np.float64), battery.voltage)[:, None]  # V
+        volt = held_voltage(u, volt)  # held outputs keep their voltage: their speeds repeat bit for bit
     w, negative = thrust_map.rotor_speeds(u, volt, vehicle.thrust_coefficient)
     if negative:
         log.notes.append(f"{negative} rotor commands off or below the thrust map read as rotors at rest")
