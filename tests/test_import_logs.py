@@ -288,6 +288,7 @@ def _import_fails(tmp_path, capsys, argv, match):
     lines = [x for x in err.splitlines() if x.strip()]
     assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
     assert match in lines[0], lines[0]
+    assert lines[0].startswith(f"uavturb import {argv[1]}: error: "), lines[0]
     assert not (tmp_path / "rec").exists()
     return lines[0]
 
