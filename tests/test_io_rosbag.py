@@ -171,7 +171,7 @@ def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
     raw = read_recording(tmp_path / "asl", vehicle=rec.vehicle, frame="S")
     assert np.mean(raw.imu.acc[:, 0]) > 8.0  # EuRoC-like: x_S points up
 
-    assert main(["import-euroc", str(tmp_path / "V1_01.bag"), "--asl", str(tmp_path / "asl"), "--vehicle", "firefly",
+    assert main(["import", "euroc", str(tmp_path / "V1_01.bag"), "--asl", str(tmp_path / "asl"), "--vehicle", "firefly",
                  "--rotor-speed-scale", "4.0", "--out", str(tmp_path / "V1_01")]) == 0
     back = read_recording(tmp_path / "V1_01", require_rotors=True)
     assert back.vehicle.name == "firefly" and back.vehicle.rotor_count == 6
@@ -187,7 +187,7 @@ def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
 
     # bag whose motors lie outside the ASL folder's time span: one line, nothing written
     write_bag(tmp_path / "late.bag", motor_offset_ns=10**12)
-    assert main(["import-euroc", str(tmp_path / "late.bag"), "--asl", str(tmp_path / "asl"),
+    assert main(["import", "euroc", str(tmp_path / "late.bag"), "--asl", str(tmp_path / "asl"),
                  "--out", str(tmp_path / "late")]) == 2
     err = capsys.readouterr().err
     assert "late.bag" in err and "overlap" in err and not (tmp_path / "late").exists()
@@ -203,7 +203,7 @@ def test_import_euroc_bag_only_uses_the_presets_T_BS(tmp_path, capsys):
     R_BS = firefly.T_BS_matrix[:3, :3]
     np.testing.assert_allclose(R_BS @ [9.2, 0.0, -3.3], [0.0, -0.1, 9.8], atol=0.06)  # hover: S -> B is up
     write_bag(tmp_path / "V1.bag", imu_R=R_BS.T)
-    assert main(["import-euroc", str(tmp_path / "V1.bag"), "--out", str(tmp_path / "V1")]) == 0
+    assert main(["import", "euroc", str(tmp_path / "V1.bag"), "--out", str(tmp_path / "V1")]) == 0
     back = read_recording(tmp_path / "V1", require_rotors=True)
     assert back.vehicle.T_BS == firefly.T_BS
     raw = read_recording(tmp_path / "V1", frame="S")
@@ -211,7 +211,7 @@ def test_import_euroc_bag_only_uses_the_presets_T_BS(tmp_path, capsys):
     assert np.mean(back.imu.acc[:, 2]) > 9.5  # physics sees +z_B
 
     write_bag(tmp_path / "flat.bag")  # IMU already in B: the Firefly's T_BS turns it sideways
-    assert main(["import-euroc", str(tmp_path / "flat.bag"), "--out", str(tmp_path / "flat")]) == 2
+    assert main(["import", "euroc", str(tmp_path / "flat.bag"), "--out", str(tmp_path / "flat")]) == 2
     err = capsys.readouterr().err.strip()
     assert "vehicle 'firefly': T_BS: the mean specific force in flight points" in err and "\n" not in err
     assert not (tmp_path / "flat").exists()

@@ -76,14 +76,49 @@ def _add_residuals(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 
 
-def _add_import_euroc(sub: argparse._SubParsersAction) -> None:
-    s = sub.add_parser("import-euroc", help="a raw EuRoC sequence (ROS bag, optionally its ASL folder) as a recording")
+def _euroc_arguments(s: argparse.ArgumentParser) -> None:
     s.add_argument("bag", metavar="BAG", help="the sequence's .bag (rotor speeds from /fcu/motor_speed)")
     s.add_argument("--asl", metavar="ASL_DIR", help="the sequence's ASL folder: ground truth, IMU, point cloud, cam0")
     s.add_argument("--vehicle", default="firefly", help="shipped vehicle (firefly), preset or vehicle.yaml")
     s.add_argument("--rotor-speed-scale", type=float, default=None, help="rad/s per unit of /fcu/motor_speed")
     s.add_argument("--out", required=True, metavar="REC", help="recording folder to create")
     s.add_argument("--overwrite", action="store_true")
+
+
+def _log_arguments(s: argparse.ArgumentParser) -> None:
+    """Options shared by `import ulog` and `import csv`."""
+    s.add_argument("--vehicle", required=True, help="vehicle.yaml (rotor geometry in its own order) or preset")
+    s.add_argument("--out", required=True, metavar="REC", help="recording folder to create")
+    s.add_argument("--floor-z", type=float, default=None, metavar="Z",
+                   help="height [m] of a flat floor in the recording's world (z up), written as pointcloud0 "
+                        "(default: no point cloud)")
+    s.add_argument("--rotor-plane-z", type=float, default=None, metavar="Z",
+                   help="height [m] of the rotor plane above the body origin (default: vehicle.yaml's)")
+    s.add_argument("--overwrite", action="store_true", help="replace an output folder that uavturb wrote")
+
+
+def _add_import(sub: argparse._SubParsersAction) -> None:
+    s = sub.add_parser("import", help="a flight log (EuRoC bag, PX4 ULog, any CSV with a map) as a recording")
+    isub = s.add_subparsers(dest="what", required=True, metavar="WHAT")
+    _euroc_arguments(isub.add_parser("euroc", help="a raw EuRoC sequence (ROS bag, optionally its ASL folder)"))
+    u = isub.add_parser("ulog", help="a PX4 log (.ulg), read with pyulog")
+    u.add_argument("log", metavar="LOG.ulg")
+    _log_arguments(u)
+    u.add_argument("--motor-order", default=None, metavar="I,J,...",
+                   help="vehicle.yaml rotor i is ESC / actuator output I_i (default 0,1,2,...)")
+    u.add_argument("--rotors", default="auto", choices=["auto", "esc", "outputs"],
+                   help="rotor speeds from esc_status rpm (measured) or actuator_outputs through --thrust-map "
+                        "(commanded); auto: ESC rpm where the log has any")
+    u.add_argument("--thrust-map", default=None, metavar="FILE.yaml",
+                   help="thrust per rotor as a polynomial in the output and the battery voltage (README)")
+    c = isub.add_parser("csv", help="any logger's CSV file, described by a map (README: the map's keys)")
+    c.add_argument("log", metavar="LOG.csv")
+    c.add_argument("--map", required=True, metavar="MAP.yaml", help="which columns hold what, units and frames")
+    _log_arguments(c)
+
+
+def _add_import_euroc(sub: argparse._SubParsersAction) -> None:
+    _euroc_arguments(sub.add_parser("import-euroc", help="old spelling of `import euroc`"))
 
 
 def _add_generate(sub: argparse._SubParsersAction) -> None:
@@ -278,7 +313,7 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="uavturb", description=__doc__.split("\n")[0] if __doc__ else None)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for add in (_add_identify, _add_residuals, _add_import_euroc, _add_generate, _add_gap, _add_gap_proof,
+    for add in (_add_identify, _add_residuals, _add_import, _add_import_euroc, _add_generate, _add_gap, _add_gap_proof,
                 _add_train, _add_sweep, _add_compare, _add_evaluate, _add_export, _add_bench, _add_demo):
         add(sub)  # in this order in --help
     return p
@@ -294,17 +329,18 @@ def main(argv: list[str] | None = None) -> int:
             args.overrides = [*args.overrides, *extra]
         else:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    name = f"import {args.what}" if args.command == "import" else args.command
     try:
         with raise_on_signals():  # SIGTERM (kill, scancel, time limits), SIGINT: clean up, one line, 128 + signum
             return _run(args)
     except UavturbError as e:
-        print(f"uavturb {args.command}: error: {e}", file=sys.stderr)
+        print(f"uavturb {name}: error: {e}", file=sys.stderr)
         return 2
     except Interrupted as e:
-        print(f"uavturb {args.command}: {e.message()}", file=sys.stderr, flush=True)
+        print(f"uavturb {name}: {e.message()}", file=sys.stderr, flush=True)
         return e.exit_status
     except KeyboardInterrupt:
-        print(f"uavturb {args.command}: interrupted", file=sys.stderr)
+        print(f"uavturb {name}: interrupted", file=sys.stderr)
         return 130
     except Exception as e:  # noqa: BLE001 - the last guard: one line, never a traceback
         if os.environ.get("UAVTURB_TRACEBACK"):
@@ -362,10 +398,37 @@ def _residuals(args: argparse.Namespace) -> int:
 def _import_euroc(args: argparse.Namespace) -> int:
     from uavturb.io.euroc_import import import_euroc
 
+    if args.command == "import-euroc":
+        print("uavturb import-euroc: deprecated spelling, use `uavturb import euroc`", file=sys.stderr)
     rec = import_euroc(args.bag, args.out, vehicle=args.vehicle, asl=args.asl,
                        rotor_speed_scale=args.rotor_speed_scale, overwrite=args.overwrite)
     print(f"wrote {args.out}: {len(rec.ground_truth.t_ns)} ground-truth rows, {len(rec.rotors.t_ns)} rotor rows, "
           f"imu {'yes' if rec.imu is not None else 'no'}, point cloud {'yes' if rec.points is not None else 'no'}")
+    return 0
+
+
+def _import_ulog(args: argparse.Namespace) -> int:
+    from uavturb.io.ulog_import import import_ulog
+
+    order = None
+    if args.motor_order is not None:
+        try:
+            order = [int(x) for x in args.motor_order.split(",")]
+        except ValueError:
+            raise InputError("--motor-order", f"expected indices separated by commas, got {args.motor_order!r}")
+    _, summary = import_ulog(args.log, args.out, vehicle=args.vehicle, motor_order=order, rotors=args.rotors,
+                             thrust_map=args.thrust_map, floor_z=args.floor_z, rotor_plane_z=args.rotor_plane_z,
+                             overwrite=args.overwrite)
+    print(summary.line())
+    return 0
+
+
+def _import_csv(args: argparse.Namespace) -> int:
+    from uavturb.io.csv_import import import_csv
+
+    _, summary = import_csv(args.log, args.map, args.out, vehicle=args.vehicle, floor_z=args.floor_z,
+                            rotor_plane_z=args.rotor_plane_z, overwrite=args.overwrite)
+    print(summary.line())
     return 0
 
 
@@ -506,7 +569,8 @@ def _demo(args: argparse.Namespace) -> int:
 
 #: command (and ``generate``'s WHAT) -> its handler
 HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
-    "identify": _identify, "residuals": _residuals, "import-euroc": _import_euroc,
+    "identify": _identify, "residuals": _residuals, "import-euroc": _import_euroc, "import euroc": _import_euroc,
+    "import ulog": _import_ulog, "import csv": _import_csv,
     "generate flight": _generate_flight, "generate sim": _generate_sim, "generate normals": _generate_normals,
     "generate merge": _generate_merge, "gap": _gap, "gap-proof": _gap_proof, "train": _train, "sweep": _sweep,
     "compare": _compare, "evaluate": _evaluate, "export": _export, "bench": _bench, "demo": _demo,
@@ -514,7 +578,7 @@ HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 
 def _run(args: argparse.Namespace) -> int:
-    command = f"generate {args.what}" if args.command == "generate" else args.command
+    command = f"{args.command} {args.what}" if args.command in ("generate", "import") else args.command
     return HANDLERS[command](args)
 
 

@@ -92,6 +92,43 @@ def check_thrust_axis(rec: Recording) -> float:
     return angle
 
 
+#: below this correlation between vertical acceleration and vertical thrust the world's z looks inverted
+MIN_VERTICAL_CORRELATION = -0.2
+
+
+def check_vertical_response(rec: Recording) -> float:
+    """Correlation of the vertical acceleration with the vertical thrust in flight; raises when it is
+    clearly negative (at most :data:`MIN_VERTICAL_CORRELATION`).
+
+    A vehicle speeds its rotors up to climb: ``d v_z/dt`` (ground truth, W) rises with
+    ``(R_WB e_z)_z sum(w_i^2)``. A world whose z axis points down (NED positions read as z-up) while
+    the attitude is turned with it passes :func:`check_thrust_axis` at hover, but accelerates down
+    when the thrust rises. ``nan`` when there are no rotor speeds or too few rows to tell.
+
+    Raises
+    ------
+    InputError
+        ``<rec>/mav0/state_groundtruth_estimate0/data.csv: the vehicle accelerates down when its
+        rotors speed up ...``
+    """
+    gt = rec.ground_truth
+    if rec.rotors is None or len(rec.rotors) < MIN_FLIGHT_ROWS or len(gt) < MIN_FLIGHT_ROWS:
+        return float("nan")
+    t = (gt.t_ns - gt.t_ns[0]) * 1e-9
+    a_z = derivative(t, gt.v[:, 2], MOCAP_DERIVATIVE_WINDOW_S)  # m/s^2, W
+    S = align.interpolate(rec.rotors.t_ns, np.sum(rec.rotors.speeds**2, axis=1), gt.t_ns)
+    thrust_z = quat.to_rotation_matrix(gt.q)[:, 2, 2] * S  # vertical thrust / k_T
+    rows = in_flight(rec, gt.t_ns) & np.isfinite(a_z) & np.isfinite(thrust_z)
+    if rows.sum() < MIN_FLIGHT_ROWS or np.std(a_z[rows]) == 0 or np.std(thrust_z[rows]) == 0:
+        return float("nan")
+    r = float(np.corrcoef(a_z[rows], thrust_z[rows])[0, 1])
+    if r <= MIN_VERTICAL_CORRELATION:
+        raise InputError(_where(rec, "mav0/state_groundtruth_estimate0/data.csv"),
+                         f"the vehicle accelerates down when its rotors speed up (correlation {r:.2f} between "
+                         f"vertical acceleration and vertical thrust): the world's z axis looks inverted")
+    return r
+
+
 def check_rotor_columns(rec: Recording) -> None:
     """No rotor column is zero, or constant, in flight while the other rotors vary.
 

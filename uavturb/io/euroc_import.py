@@ -1,4 +1,4 @@
-"""``uavturb import-euroc``: a raw EuRoC sequence (its ROS bag, optionally its ASL folder) as a
+"""``uavturb import euroc``: a raw EuRoC sequence (its ROS bag, optionally its ASL folder) as a
 recording folder of ``recordings.md``.
 
 Frames. EuRoC's ground truth (``state_groundtruth_estimate0``) and IMU are in its body frame,
@@ -43,7 +43,7 @@ def rotor_frame_from_vicon(T_S_vicon: np.ndarray) -> tuple[tuple[float, ...], ..
 def import_euroc(bag: str | Path, out: str | Path, *, vehicle: str | Vehicle = "firefly",
                  asl: str | Path | None = None, rotor_speed_scale: float | None = None,
                  overwrite: bool = False) -> Recording:
-    """``uavturb import-euroc``: a raw EuRoC sequence as a recording folder of ``recordings.md``.
+    """``uavturb import euroc``: a raw EuRoC sequence as a recording folder of ``recordings.md``.
 
     The bag gives the rotor speeds (``/fcu/motor_speed``), and, without ``asl``, the IMU and the
     Vicon ground truth. With ``asl`` (the sequence's ASL folder, ``mav0/`` inside), its

@@ -1,0 +1,277 @@
+"""``uavturb import ulog``: a PX4 log (ULog, ``.ulg``) as a recording folder of ``recordings.md``, read
+with pyulog (PX4's maintained reader).
+
+Topics (PX4 uORB messages; timestamps in microseconds since boot):
+
+* ``vehicle_local_position``: ``x, y, z`` [m], ``vx, vy, vz`` [m/s] in NED; rows flagged invalid
+  (``xy_valid``, ``z_valid``, ``v_xy_valid``, ``v_z_valid``) are left out and counted. Its times are the
+  ground truth's.
+* ``vehicle_attitude``: ``q[4]`` (w, x, y, z), FRD body to NED; interpolated (slerp) onto the local
+  position's times, inside its own time span.
+* ``sensor_combined`` (``gyro_rad[3]`` [rad/s], ``accelerometer_m_s2[3]`` [m/s^2], FRD), else
+  ``vehicle_imu`` (``delta_angle[3]`` / ``delta_angle_dt``, ``delta_velocity[3]`` / ``delta_velocity_dt``):
+  ``imu0``.
+* ``esc_status`` (``esc[i].esc_rpm``): measured rotor speeds (``rotor_speed_source: measured``; the
+  sign, a reversed rotation on some ESCs, is dropped); else ``actuator_outputs`` (``output[i]``) through
+  a thrust map (:mod:`uavturb.io.thrust_map`, ``--thrust-map``): commanded ones.
+* ``battery_status``: ``voltage_v`` [V], ``current_a`` [A] as ``battery0`` (rows with no voltage left out).
+
+Frames (:mod:`uavturb.io.log_frames`): NED becomes the recording's NWU world (x north, y west, z up)
+and FRD its FLU body frame B, both by a half turn about x. Motor order: PX4 numbers the motors of an
+airframe its own way; ``motor_order`` (vehicle rotor ``i`` is ESC / output ``motor_order[i]``) maps them
+to ``vehicle.yaml``'s order. Multi-instance topics: the lowest instance is read (the others are named
+in the summary). Logging dropouts stay gaps in the streams.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from uavturb.errors import InputError
+from uavturb.io.log_frames import BODIES, RECORDING_WORLD, WORLDS, attitude_to_recording, body_vectors, \
+    world_vectors
+from uavturb.io.log_import import ImportSummary, check_conventions, finish_import
+from uavturb.io.recording import Battery, GroundTruth, Imu, Recording, Rotors
+from uavturb.io.thrust_map import ThrustMap, held_voltage, rpm_to_rad_s
+from uavturb.io.vehicle_file import named_vehicle
+from uavturb.io.yaml_mapping import read_yaml_mapping
+from uavturb.physics import quaternion as quat
+from uavturb.physics.vehicle import Vehicle
+
+TOPICS = ("vehicle_local_position", "vehicle_attitude", "sensor_combined", "vehicle_imu", "esc_status",
+          "actuator_outputs", "battery_status")
+ROTOR_SOURCES = ("auto", "esc", "outputs")
+
+
+@dataclass
+class _Log:
+    """The topics of one ULog: ``{topic: (t_ns (N,), fields {name: (N,) array})}``, lowest instance."""
+
+    path: Path
+    topics: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]]
+    notes: list[str] = field(default_factory=list)
+    left_out: list[str] = field(default_factory=list)
+
+    def get(self, topic: str, *names: str) -> np.ndarray:
+        """``(N, len(names))`` float64 columns of ``topic``; a missing field names topic and field."""
+        t, data = self.topics[topic]
+        missing = [n for n in names if n not in data]
+        if missing:
+            raise InputError(self.path, f"topic {topic} has no field '{missing[0]}'")
+        return np.column_stack([np.asarray(data[n], dtype=np.float64) for n in names])
+
+
+def _load(path: Path) -> _Log:
+    """Read the topics of :data:`TOPICS` with pyulog; their times sorted, repeated times dropped."""
+    from pyulog import ULog
+
+    if not path.is_file():
+        raise InputError(path, "file not found")
+    said = io.StringIO()  # pyulog prints its warnings (a corrupt file): they become one note
+    try:
+        with contextlib.redirect_stdout(said):
+            ulog = ULog(str(path), message_name_filter_list=list(TOPICS), disable_str_exceptions=True)
+    except Exception as e:  # pyulog raises many kinds on a file that is not a ULog
+        raise InputError(path, f"not a readable ULog file ({type(e).__name__}: {str(e)[:80]})") from None
+    log = _Log(path=path, topics={})
+    if said.getvalue().strip():
+        log.notes.append("pyulog: " + said.getvalue().strip().splitlines()[0][:120])
+    for topic in TOPICS:
+        instances = sorted((d for d in ulog.data_list if d.name == topic), key=lambda d: d.multi_id)
+        if not instances:
+            continue
+        d = instances[0]
+        if len(instances) > 1:
+            log.notes.append(f"{topic} instance {d.multi_id} of {len(instances)}")
+        t_us = np.asarray(d.data["timestamp"], dtype=np.int64)
+        order = np.argsort(t_us, kind="stable")
+        t_us = t_us[order]
+        keep = np.concatenate([[True], np.diff(t_us) > 0]) & (t_us > 0)
+        log.topics[topic] = (t_us[keep] * 1000, {k: np.asarray(v)[order][keep] for k, v in d.data.items()})
+    if ulog.dropouts:
+        total = sum(int(x.duration) for x in ulog.dropouts)
+        log.notes.append(f"{len(ulog.dropouts)} logging dropouts ({total} ms) kept as gaps")
+    if ulog.file_corruption:
+        log.notes.append("the file is partly corrupt (pyulog skipped what it could not read)")
+    return log
+
+
+def _ground_truth(log: _Log, world: str, body: str) -> GroundTruth:
+    for topic in ("vehicle_local_position", "vehicle_attitude"):
+        if topic not in log.topics:
+            raise InputError(log.path, f"no {topic} messages: the ground truth needs position and attitude")
+    t_p = log.topics["vehicle_local_position"][0]
+    xyz = log.get("vehicle_local_position", "x", "y", "z", "vx", "vy", "vz")
+    flags = [f for f in ("xy_valid", "z_valid", "v_xy_valid", "v_z_valid")
+             if f in log.topics["vehicle_local_position"][1]]
+    valid = np.all(np.isfinite(xyz), axis=1)
+    if flags:
+        valid &= np.all(log.get("vehicle_local_position", *flags) != 0, axis=1)
+    t_q = log.topics["vehicle_attitude"][0]
+    q = log.get("vehicle_attitude", "q[0]", "q[1]", "q[2]", "q[3]")  # w, x, y, z, FRD to NED
+    q_ok = np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0.5)
+    t_q, q = t_q[q_ok], q[q_ok]
+    if len(t_q) < 2:
+        raise InputError(log.path, "topic vehicle_attitude holds fewer than 2 valid attitudes")
+    valid &= (t_p >= t_q[0]) & (t_p <= t_q[-1])
+    if (~valid).sum():
+        log.left_out.append(f"{int((~valid).sum())} vehicle_local_position rows invalid or outside the attitudes")
+    if valid.sum() < 2:
+        raise InputError(log.path, "topic vehicle_local_position holds fewer than 2 valid rows with an attitude")
+    t = t_p[valid]
+    q_log = quat.slerp((t_q - t_q[0]) * 1e-9, q, (t - t_q[0]) * 1e-9)
+    zeros = np.zeros((len(t), 3))
+    return GroundTruth(t_ns=t, p=world_vectors(xyz[valid, :3], world), q=attitude_to_recording(q_log, world, body),
+                       v=world_vectors(xyz[valid, 3:], world), b_w=zeros, b_a=zeros.copy())  # m, m/s in W
+
+
+def _imu(log: _Log, body: str) -> Imu | None:
+    if "sensor_combined" in log.topics:
+        t = log.topics["sensor_combined"][0]
+        x = log.get("sensor_combined", "gyro_rad[0]", "gyro_rad[1]", "gyro_rad[2]", "accelerometer_m_s2[0]",
+                    "accelerometer_m_s2[1]", "accelerometer_m_s2[2]")
+    elif "vehicle_imu" in log.topics:
+        t = log.topics["vehicle_imu"][0]
+        da = log.get("vehicle_imu", "delta_angle[0]", "delta_angle[1]", "delta_angle[2]", "delta_angle_dt")
+        dv = log.get("vehicle_imu", "delta_velocity[0]", "delta_velocity[1]", "delta_velocity[2]",
+                     "delta_velocity_dt")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = np.hstack([da[:, :3] / (da[:, 3:] * 1e-6), dv[:, :3] / (dv[:, 3:] * 1e-6)])  # rad/s, m/s^2
+    else:
+        return None
+    ok = np.all(np.isfinite(x), axis=1)
+    if (~ok).sum():
+        log.left_out.append(f"{int((~ok).sum())} imu rows with nan")
+    if ok.sum() < 2:
+        return None
+    return Imu(t_ns=t[ok], gyro=body_vectors(x[ok, :3], body), acc=body_vectors(x[ok, 3:], body), T_BS=np.eye(4))
+
+
+def _battery(log: _Log) -> Battery | None:
+    if "battery_status" not in log.topics:
+        return None
+    t, data = log.topics["battery_status"]
+    volt = log.get("battery_status", "voltage_v")[:, 0]  # V
+    cur = log.get("battery_status", "current_a")[:, 0] if "current_a" in data else None  # A
+    ok = np.isfinite(volt) & (volt > 0) & (np.isfinite(cur) if cur is not None else True)
+    if (~ok).sum():
+        log.left_out.append(f"{int((~ok).sum())} battery_status rows without a voltage")
+    if ok.sum() < 2:
+        return None
+    return Battery(t_ns=t[ok], voltage=volt[ok], current=None if cur is None else cur[ok])
+
+
+def _rotors(log: _Log, vehicle: Vehicle, order: Sequence[int], source: str, thrust_map: ThrustMap | None,
+            battery: Battery | None) -> tuple[Rotors | None, str]:
+    """Rotor speeds [rad/s] in ``vehicle.yaml`` order and their source (``measured`` / ``commanded``)."""
+    has_esc = "esc_status" in log.topics
+    if has_esc and source in ("auto", "esc"):
+        t = log.topics["esc_status"][0]
+        rpm = log.get("esc_status", *(f"esc[{i}].esc_rpm" for i in order))
+        if source == "esc" or np.any(rpm != 0):
+            return Rotors(t_ns=t, speeds=rpm_to_rad_s(rpm)), "measured"
+    if source == "esc":
+        raise InputError(log.path, "no esc_status messages (rotor speeds measured by the ESCs)")
+    if "actuator_outputs" not in log.topics:
+        raise InputError(log.path, "no rotor speeds: neither esc_status rpm nor actuator_outputs in the log")
+    if thrust_map is None:
+        raise InputError("--thrust-map", f"{log.path} has no esc_status rpm: its actuator_outputs become rotor "
+                                         "speeds through a thrust map (give --thrust-map FILE.yaml)")
+    if vehicle.thrust_coefficient is None:
+        raise InputError("vehicle.yaml", "thrust_coefficient: required to turn actuator_outputs into rotor speeds")
+    t = log.topics["actuator_outputs"][0]
+    u = log.get("actuator_outputs", *(f"output[{i}]" for i in order))
+    volt = None
+    if thrust_map.needs_voltage:
+        if battery is None:
+            raise InputError(log.path, "the thrust map uses the battery voltage but the log has no battery_status")
+        volt = np.interp(t.astype(np.float64), battery.t_ns.astype(np.float64), battery.voltage)[:, None]  # V
+        volt = held_voltage(u, volt)  # held outputs keep their voltage: their speeds repeat bit for bit
+    w, negative = thrust_map.rotor_speeds(u, volt, vehicle.thrust_coefficient)
+    if negative:
+        log.notes.append(f"{negative} rotor commands off or below the thrust map read as rotors at rest")
+    return Rotors(t_ns=t, speeds=w), "commanded"
+
+
+def _parse_motor_order(motor_order: Sequence[int] | None, n: int) -> list[int]:
+    order = list(range(n)) if motor_order is None else [int(i) for i in motor_order]
+    if len(order) != n or len(set(order)) != n or min(order) < 0 or max(order) >= 16:
+        raise InputError("--motor-order", f"expected {n} different indices 0..15 (vehicle rotor i is ESC / output "
+                                          f"motor_order[i]), got {list(motor_order or [])}")
+    return order
+
+
+def _build(log: _Log, vehicle: Vehicle, order: list[int], source: str, thrust_map: ThrustMap | None,
+           world: str = "ned", body: str = "frd") -> Recording:
+    battery = _battery(log)
+    rotors, speed_source = _rotors(log, vehicle, order, source, thrust_map, battery)
+    return Recording(vehicle=vehicle.with_params(rotor_speed_source=speed_source),
+                     ground_truth=_ground_truth(log, world, body), imu=_imu(log, body), rotors=rotors,
+                     battery=battery, frame="B")
+
+
+def import_ulog(log_file: str | Path, out: str | Path, *, vehicle: str | Vehicle,
+                motor_order: Sequence[int] | None = None, rotors: str = "auto",
+                thrust_map: str | Path | ThrustMap | None = None, floor_z: float | None = None,
+                rotor_plane_z: float | None = None, overwrite: bool = False) -> tuple[Recording, ImportSummary]:
+    """``uavturb import ulog LOG.ulg --vehicle VEHICLE --out REC``.
+
+    Parameters
+    ----------
+    log_file : the ``.ulg`` file
+    out : recording folder to create
+    vehicle : ``vehicle.yaml`` path, preset or Vehicle (rotor geometry in its own order)
+    motor_order : vehicle rotor ``i`` is ESC / actuator output ``motor_order[i]`` (default ``0..N-1``)
+    rotors : ``auto`` (ESC rpm where the log has any, else actuator outputs), ``esc`` or ``outputs``
+    thrust_map : YAML file (or ThrustMap) turning actuator outputs into thrust (:mod:`uavturb.io.thrust_map`)
+    floor_z : m, height of a flat floor in W (z up; PX4's local origin is where the EKF started,
+        usually on the ground: 0) written as ``pointcloud0``; ``None``: no point cloud
+    rotor_plane_z : m, overrides the vehicle's ``rotor_plane_z``
+    overwrite : replace an existing ``out`` (one uavturb wrote)
+
+    Returns
+    -------
+    The recording (in B, ``path`` = ``out``) and the summary of the import.
+    """
+    if rotors not in ROTOR_SOURCES:
+        raise InputError("--rotors", f"unknown value {rotors!r} (known: {', '.join(ROTOR_SOURCES)})")
+    v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
+    if rotor_plane_z is not None:
+        v = v.with_params(rotor_plane_z=float(rotor_plane_z))
+    order = _parse_motor_order(motor_order, v.rotor_count)
+    if thrust_map is not None and not isinstance(thrust_map, ThrustMap):
+        thrust_map = ThrustMap.from_dict(read_yaml_mapping(thrust_map), thrust_map, prefix="thrust map")
+    log = _load(Path(log_file))
+    rec = _build(log, v, order, rotors, thrust_map)
+    check_conventions(rec, {"world": "ned", "body": "frd"}, {"world": WORLDS, "body": BODIES},
+                      f"{log.path}:vehicle_attitude",
+                      rebuild=lambda c: _build(replace(log, notes=[], left_out=[]), v, order, rotors, thrust_map,
+                                               c["world"], c["body"]),
+                      rotor_column=lambda i: f"esc/output {order[i]}")
+    rec = finish_import(rec, out, floor_z=floor_z, overwrite=overwrite)
+    return rec, _summary(rec, log, Path(out))
+
+
+def _summary(rec: Recording, log: _Log, out: Path) -> ImportSummary:
+    s = ImportSummary(out=out, left_out=list(log.left_out), notes=list(log.notes))
+    s.streams["ground truth"] = f"{len(rec.ground_truth)} rows (world {RECORDING_WORLD['ned']})"
+    s.streams["rotors"] = f"{len(rec.rotors)} rows ({rec.vehicle.rotor_speed_source}, from " \
+                          f"{'esc_status' if rec.vehicle.rotor_speed_source == 'measured' else 'actuator_outputs'})"
+    for name, stream in (("imu", rec.imu), ("battery", rec.battery)):
+        s.streams[name] = "none" if stream is None else f"{len(stream)} rows"
+    s.streams["floor"] = "none" if rec.points is None else f"z = {rec.points[0, 2]:g} m"
+    lacking: list[Any] = [t for t in TOPICS if t not in log.topics]
+    if "sensor_combined" in log.topics or "vehicle_imu" not in log.topics:
+        lacking = [t for t in lacking if t != "vehicle_imu"]
+    if "vehicle_imu" in log.topics:
+        lacking = [t for t in lacking if t != "sensor_combined"]
+    if rec.vehicle.rotor_speed_source == "measured":
+        lacking = [t for t in lacking if t != "actuator_outputs"]
+    s.lacks = lacking
+    return s
