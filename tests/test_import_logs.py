@@ -407,7 +407,11 @@ def _pwm_for_thrust(f_g, vbat, C):
 def test_neural_swarm_map_reads_that_layout(tmp_path):
     docs = Path(__file__).resolve().parents[1] / "docs" / "maps"
     m = yaml.safe_load((docs / "neural_swarm.yaml").read_text())
-    C = [t[2] for t in m["rotors"]["thrust_map"]["terms"]]
+    assert [t[2] for t in m["rotors"]["thrust_map"]["terms"]] == [None] * 5  # the dataset's own values go there
+    C = [11.0, -39.0, -9.5, 20.5, 38.5]  # a thrust fit of the same form, made up for the test [g]
+    for term, c in zip(m["rotors"]["thrust_map"]["terms"], C):
+        term[2] = c
+    (tmp_path / "map.yaml").write_text(yaml.safe_dump(m))
     rec = _from_boot(generate_flight(vehicle=str(docs / "crazyflie21.yaml"), effects="none", duration=10.0,
                                      kind="mixed", seed=2))
     vbat = np.linspace(3.9, 3.6, len(rec.ground_truth))  # V
@@ -423,7 +427,7 @@ def test_neural_swarm_map_reads_that_layout(tmp_path):
             f_g.sum(axis=1), np.zeros((n, 3)), imu.gyro]
     table = np.column_stack([np.asarray(c, dtype=np.float64).reshape(n, -1) for c in cols])
     np.savetxt(tmp_path / "cf50_00.csv", table, delimiter=",", header=NS_HEADER[2:], fmt="%.18e")
-    _, summary = import_csv(tmp_path / "cf50_00.csv", docs / "neural_swarm.yaml", tmp_path / "rec",
+    _, summary = import_csv(tmp_path / "cf50_00.csv", tmp_path / "map.yaml", tmp_path / "rec",
                             vehicle=str(docs / "crazyflie21.yaml"), floor_z=0.0)
     back = read_recording(tmp_path / "rec")
     np.testing.assert_allclose(back.rotors.speeds, rec.rotors.speeds, rtol=1e-9)
