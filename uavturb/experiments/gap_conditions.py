@@ -117,7 +117,7 @@ CONDITIONS: tuple[Condition, ...] = (
 )
 
 
-def _truth(recording_truths: list[dict]) -> tuple[dict, set[str]]:
+def true_effects(recording_truths: list[dict]) -> tuple[dict, set[str]]:
     """Every effect's true parameters in the vocabulary's laws (mean over the flights) and every
     effect in the physics that the recordings can show (``invisible_effects`` left out)."""
     eq = [t["equivalent_effects"] for t in recording_truths]
@@ -190,7 +190,7 @@ def run_conditions(out: Path, *, duration: float = 60.0, seed: int = 0, progress
             recs = [with_hidden_bias(r) for r in recs]
         report, ex = analyse(recs, {}, seed=seed)
         secs = time.perf_counter() - t0
-        known, physics = _truth(truths)
+        known, physics = true_effects(truths)
         targets = {n: known[n] for n in cond.targets}
         contact = contact_intervals(paths, truths)
         state, errors = verdict(targets, physics, report, known, look_alikes=cond.look_alikes, contact=contact)
