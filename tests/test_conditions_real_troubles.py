@@ -214,3 +214,16 @@ def test_bad_real_trouble_options_give_one_line(tmp_path, capsys, args, named):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and named in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_two_flights_at_one_fixed_heading(tmp_path, capsys):
+    yaws = []
+    for seed in (1, 2):
+        out = tmp_path / f"rec{seed}"
+        assert main(["generate", "flight", "--kind", "excitation", "--duration", "3", "--seed", str(seed), "--out",
+                     str(out), "--fixed-heading", "--heading-deg", "60", "--noise", "none"]) == 0
+        yaws.append(quat.yaw_of(read_recording(out).ground_truth.q))
+    for yaw in yaws:
+        np.testing.assert_allclose(np.degrees(yaw), 60.0, atol=0.5)
+    assert main(["generate", "flight", "--duration", "2", "--out", str(tmp_path / "bad"), "--heading-deg", "60"]) == 2
+    assert "--heading-deg" in capsys.readouterr().err

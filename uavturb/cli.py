@@ -113,6 +113,8 @@ def _add_generate_flight(gsub: argparse._SubParsersAction) -> None:
                    help="ground truth and rotors at this rate (IMU stays 200 Hz)")
     r.add_argument("--jitter-ms", type=float, default=0.0, help="sampling-time jitter of those streams, +- ms")
     r.add_argument("--fixed-heading", action="store_true", help="the reference's yaw never changes")
+    r.add_argument("--heading-deg", type=float, default=None, metavar="DEG",
+                   help="with --fixed-heading: the heading held (default the reference's initial one)")
     r.add_argument("--motor-commands", action="store_true",
                    help="rotors0 holds commands u in [0,1]; true speed w = a + b u; rotor_speed_scale exact at hover")
     r.add_argument("--wind-speed", metavar="VX,VY", default=None,
@@ -356,7 +358,7 @@ def _generate_flight(args: argparse.Namespace) -> int:
                                   thrust_level=args.thrust_level, thrust_tilt_deg=args.thrust_tilt_deg,
                                   thrust_tilt_azimuth_deg=args.thrust_tilt_azimuth_deg,
                                   rotor_plane_z=args.rotor_plane_z, measured_rotors=args.measured_rotors,
-                                  battery_voltage=args.battery_voltage)
+                                  battery_voltage=args.battery_voltage, heading_deg=args.heading_deg)
     gt = rec.ground_truth
     print(f"wrote {args.out}: {len(gt)} ground-truth rows, {(gt.t_ns[-1] - gt.t_ns[0]) * 1e-9:.1f} s, "
           f"effects {args.effects}")

@@ -29,7 +29,8 @@ def generate_flight_command(*, vehicle: str = "hex", effects: str = "none", dura
                             position_hold_hz: float | None = None, rotor_hold_hz: float | None = None,
                             rotor_delay_s: float = 0.0, thrust_level: float = 1.0, thrust_tilt_deg: float = 0.0,
                             thrust_tilt_azimuth_deg: float = 0.0, rotor_plane_z: float = 0.0,
-                            measured_rotors: bool = False, battery_voltage: float | None = None) -> Recording:
+                            measured_rotors: bool = False, battery_voltage: float | None = None,
+                            heading_deg: float | None = None) -> Recording:
     """``uavturb generate flight``: a simulated flight in the EuRoC layout, with the troubles of real
     recordings asked for (:class:`uavturb.sim.conditions.Conditions`) and their truth in ``truth.yaml``.
 
@@ -43,6 +44,7 @@ def generate_flight_command(*, vehicle: str = "hex", effects: str = "none", dura
         raise InputError("--noise", f"unknown value '{noise}' (allowed: realistic, none)")
     sensor_noise = flight.SensorNoise() if noise == "realistic" else flight.SensorNoise.none()
     cond = Conditions(no_imu=no_imu, rate_hz=rate_hz, jitter_ms=jitter_ms, fixed_heading=fixed_heading,
+                      heading_deg=heading_deg,
                       motor_commands=motor_commands, wind_speed=parse_wind_speed(wind_speed),
                       accel_bias_walk=accel_bias_walk, sensor_frame=sensor_frame, mass_error=mass_error,
                       ground_contact_s=ground_contact_s, position_hold_hz=position_hold_hz,

@@ -14,8 +14,9 @@ against it:
     with independent jitter: every row is the (noisy) state *at its own timestamp* (states
     interpolated linearly, attitudes by slerp, from the 200 Hz record; rotor commands held, as
     a flight controller holds them). Timestamps are exact; the sampling is irregular.
-``fixed_heading``
-    the reference's yaw is held at its initial value (a flight that never turns).
+``fixed_heading``, ``heading_deg``
+    the reference's yaw is held at its initial value, or at ``heading_deg`` [deg] when given (a
+    flight that never turns; two flights at one heading).
 ``motor_commands``
     ``rotors0`` holds normalised motor commands ``u`` in [0, 1] instead of speeds; the vehicle's
     true speed is the affine thrust curve ``w = a + b u`` [rad/s] (:class:`MotorCurve`: ``a`` an
@@ -155,6 +156,7 @@ class Conditions:
     rate_hz: float | None = None
     jitter_ms: float = 0.0
     fixed_heading: bool = False
+    heading_deg: float | None = None
     motor_commands: bool = False
     wind_speed: tuple[float, float] | None = None
     accel_bias_walk: float = 0.0
@@ -190,6 +192,8 @@ class Conditions:
             raise InputError("--sensor-frame", f"unknown frame '{self.sensor_frame}' (allowed: {', '.join(SENSOR_FRAMES)})")
         if not -0.5 < self.mass_error < 0.5:
             raise InputError("--mass-error", f"must be a fraction in (-0.5, 0.5), got {self.mass_error}")
+        if self.heading_deg is not None and (not self.fixed_heading or not np.isfinite(self.heading_deg)):
+            raise InputError("--heading-deg", f"needs --fixed-heading and a finite angle, got {self.heading_deg}")
         if self.no_imu and self.accel_bias_walk > 0:
             raise InputError("--accel-bias-walk", "needs an IMU (it cannot be combined with --no-imu)")
         if self.wind_speed is not None and (len(self.wind_speed) != 2 or not np.all(np.isfinite(self.wind_speed))):
@@ -227,9 +231,10 @@ class Conditions:
 # --- before the simulation: the reference and the physics ------------------------------------------
 
 
-def hold_heading(reference: Reference) -> Reference:
-    """``reference`` with its yaw held at its initial value [rad] (yaw rate and acceleration zero)."""
-    yaw0 = float(reference.yaw.derivs(np.zeros(1))[0, 0])
+def hold_heading(reference: Reference, yaw: float | None = None) -> Reference:
+    """``reference`` with its yaw held at ``yaw`` [rad], default its initial value (yaw rate and
+    acceleration zero)."""
+    yaw0 = float(reference.yaw.derivs(np.zeros(1))[0, 0]) if yaw is None else float(yaw)
     return replace(reference, yaw=Constant(yaw0), name=f"{reference.name}, fixed heading")
 
 
@@ -614,7 +619,7 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
         noise = replace(noise, acc_random_walk=float(conditions.accel_bias_walk))
     ref = make_reference(kind, duration, seed, v, room)
     if conditions.fixed_heading:
-        ref = hold_heading(ref)
+        ref = hold_heading(ref, None if conditions.heading_deg is None else np.radians(conditions.heading_deg))
     wind = None
     if conditions.wind_speed is not None:
         eff = with_drag(eff)
