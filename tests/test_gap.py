@@ -74,9 +74,12 @@ def test_ground_effect_named_with_two_recordings_and_applied(tmp_path, flights):
     mu = report["effects"][names.index("ground_effect")]["params"]["mu"]
     assert mu == pytest.approx(2.0, rel=0.15)
     assert report["mismatch"]["drivers"][0]["feature"] == "d_down"
-    # the largest located segment is the take-off over the floor, on z
+    # the largest located segment is the take-off over the floor, on z; the simulator's vehicle waits still
+    # at its lowest height with the thrust under the weight before it: ground contact for the finder
+    # (nothing tells it from resting on the landing gear), left out and listed
     top = report["mismatch"]["segments"][0]
-    assert top["axis"] == "z" and top["t_start"] < 1.0
+    contact = [c for c in report["ground_contact"] if c["t_start"] < 1.0]
+    assert top["axis"] == "z" and top["t_start"] < (contact[0]["t_end"] + 1.0 if contact else 1.0)
     cfg = load_physics_config(conf)
     assert cfg["effects"]["ground_effect"]["mu"] == pytest.approx(mu)
     assert report["open_loop"]["after_m"] <= report["open_loop"]["before_m"]

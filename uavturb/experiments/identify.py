@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Sequence
 
@@ -49,6 +50,19 @@ def format_identification(ident: Identification) -> str:
     return "\n".join(lines)
 
 
+def _identified_for_forces(ident: Identification, vehicle: Vehicle) -> Vehicle:
+    """The vehicle with the identified constants; where the flight cannot determine a rotational one
+    (``k_M``, inertia) and vehicle.yaml has none, the forces are still computed (torques ``nan``):
+    the residual force needs only ``k_T``."""
+    try:
+        return ident.apply(vehicle)
+    except InputError:
+        k_T = ident._pick("k_T", float(ident.thrust_coefficient), vehicle.thrust_coefficient)
+        print(f"uavturb residuals: torques left out (nan): {', '.join(ident.not_identified)} not determined by "
+              "this flight and not in vehicle.yaml", file=sys.stderr)
+        return vehicle.with_params(thrust_coefficient=k_T, moment_coefficient=None, inertia=None)
+
+
 def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto", derivative: str = "savgol",
                       params: str = "identified", vehicle: str | Vehicle | None = None) -> tuple[Residuals, Path]:
     """``uavturb residuals``: the residual force series of one flight, written to CSV or Parquet."""
@@ -59,7 +73,7 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
         raise InputError(out.parent, "output folder does not exist")
     (rec,) = load_recordings([path], vehicle)
     if params == "identified":
-        v = identify([rec], rec.vehicle).apply(rec.vehicle)
+        v = _identified_for_forces(identify([rec], rec.vehicle), rec.vehicle)
     elif params == "nominal":
         v = rec.vehicle
         if not v.is_complete():

@@ -51,6 +51,12 @@ ANISOTROPY_Z = 3.0
 #: s, the blocks whose residuals are taken as correlated within and independent between
 #: (cluster-robust standard errors of the along/across drag)
 DRAG_BLOCK_S = 1.0
+#: deg, the largest tilt between the thrust axis and the recorded attitude taken as plausible: motor
+#: mounts, frame flex and an attitude estimate's levelling leave 1-2 deg (the 1-1.5 deg pushes of real
+#: indoor sessions); a larger tilt makes a vehicle drift visibly in hover and is trimmed out in tuning
+TILT_MAX_DEG = 3.0
+#: share of the weight an effect's force must reach where it acts to be a discovery (practical size)
+PRACTICAL_SHARE = 0.005
 #: s of flight within reach of a surface needed to test its law
 MIN_NEAR_S = 2.0
 #: deg of heading change under which a body-fixed and a world-fixed force look alike
@@ -79,7 +85,8 @@ def flight_facts(data: GapData, k_T: float) -> FlightFacts:
     return FlightFacts(mass=data.mass, rotor_count=n, rotor_radius=data.rotor_radius, k_T=k_T,
                        wsum_hover=wsum_hover,
                        speed_p90=float(np.percentile(np.linalg.norm(data.v[:, :2], axis=1), 90)),
-                       heading_span_deg=heading_span_deg(data), has_imu=bool(data.fits_bias),
+                       heading_span_deg=heading_span_deg(data), has_imu=data.has_imu,
+                       bias_anchored=data.has_imu and not data.fits_bias, arm_length=data.arm_length,
                        d_down_min=float(d_down.min()) if len(d_down) else float("inf"),
                        d_up_min=float(d_up.min()) if len(d_up) else float("inf"), duration_s=duration)
 
@@ -117,6 +124,30 @@ def surface_reach(data: GapData, name: str) -> Reach:
     near_s = float(near.sum()) * dt
     closest = float(np.min(d[np.isfinite(d)])) if np.any(np.isfinite(d)) else float("inf")
     return Reach(name, near_s >= MIN_NEAR_S, reach, near_s, closest)
+
+
+def effect_size(data: GapData, fit: ModelFit, effect: str) -> float:
+    """N, the 99th percentile over the samples of the norm of the force ``fit`` gives ``effect``:
+    its size where it acts (a ground effect acts near the floor only, a motor lag in thrust steps:
+    on the lag flights of the tests its force is 0.004 N at the median, 0.23 N at the 99th percentile)."""
+    zeroed = ModelFit(fit.effects, dict(fit.nonlinear), dict(fit.coef), fit.stderr, fit.rmse)
+    if effect in zeroed.nonlinear:
+        zeroed.nonlinear[effect] = 0.0
+    for i in effect_columns(list(zeroed.coef), effect):
+        zeroed.coef[list(zeroed.coef)[i]] = 0.0
+    force = fit.predict(data) - zeroed.predict(data)
+    return float(np.percentile(np.linalg.norm(force, axis=1), 99))
+
+
+def too_small(data: GapData, fit: ModelFit, effect: str) -> str | None:
+    """None when the effect's force reaches :data:`PRACTICAL_SHARE` of the weight where it acts, else
+    why it is no discovery (a push a thousandth of the weight is none, however significant)."""
+    size = effect_size(data, fit, effect)
+    weight = data.mass * GRAVITY
+    if size >= PRACTICAL_SHARE * weight:
+        return None
+    return (f"its force reaches only {size:.3g} N where it acts ({100 * size / weight:.2g} % of the weight; "
+            f"{100 * PRACTICAL_SHARE:.1f} % needed to matter in a simulator)")
 
 
 def _scaled(A: np.ndarray) -> np.ndarray:
@@ -224,6 +255,42 @@ def bias_alike(data: GapData, effect: str) -> float:
     own = effect_columns(names, effect)
     nb = bias_count(data)
     return collinearity(A[:, own], A[:, 1:1 + nb])
+
+
+def thrust_tilt_alike(data: GapData, fit: ModelFit, facts: FlightFacts) -> dict | None:
+    """An ``ambiguous`` entry for a named ``wind`` that a tilt of the thrust axis explains as well
+    (``effects.md``, look-alikes), else None.
+
+    A thrust axis tilted by ``delta`` from the recorded attitude gives a horizontal force
+    ``T delta`` along the body's x/y axes (columns ``T R e_x``, ``T R e_y``): it turns with the body
+    and scales with the thrust, while a wind's push stays fixed in the world. Where the push's
+    columns are a combination of the tilt's and the fit's other columns (uncentred R^2 above
+    :data:`R2_AMBIGUOUS`: a fixed heading and a steady thrust), the data cannot tell them apart; the
+    tilt it would take is ``atan(push / T_hover)``. A tilt beyond :data:`TILT_MAX_DEG` is no
+    plausible reading, and the push stays named."""
+    if "wind" not in fit.effects:
+        return None
+    wind, _ = fit.effect_params("wind")
+    push = float(np.hypot(wind["f_x"], wind["f_y"]))
+    tilt = float(np.degrees(np.arctan2(push, data.mass * GRAVITY)))
+    if tilt > TILT_MAX_DEG:
+        return None
+    A, names = _columns(data, fit)
+    T = fit.coef["k_T"] * data.S * data.thrust_level  # N
+    tilt_cols = np.stack([(T[:, None] * data.R[:, :, j]).T.reshape(-1) for j in (0, 1)], axis=1)
+    own = effect_columns(names, "wind")
+    rest = [i for i in range(A.shape[1]) if i not in own]
+    r2 = collinearity(A[:, own], np.hstack([tilt_cols, A[:, rest]]))
+    if r2 < R2_AMBIGUOUS:
+        return None
+    return {"candidates": ["wind", "thrust_axis_tilt"],
+            "why": (f"a steady push of {push:.3g} N ({100 * push / (data.mass * GRAVITY):.2g} % of the weight) is also what "
+                    f"a thrust axis tilted by {tilt:.2f} deg from the recorded attitude gives; the heading changed by "
+                    f"{facts.heading_span_deg:.0f} deg and the thrust stayed steady, so the two look alike "
+                    f"(R^2 = {r2:.3f}); indoors the tilt is the likelier reading"),
+            "to_separate": "fly the same pattern at two or more headings 90 deg apart (a tilt turns with the body, "
+                           "a wind does not), or check the thrust axis against the attitude on a bench",
+            "params_if_named": wind, "thrust_axis_tilt_deg": tilt, "r2": round(r2, 4)}
 
 
 def _drag_gains(x: list[np.ndarray], y: list[np.ndarray], cluster: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -28,6 +28,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scipy.signal import savgol_filter
+
+from uavturb.gap.nominal import ThrustLevels, anchored_bias, thrust_levels
 from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
@@ -36,7 +39,8 @@ from uavturb.sysid.flight_data import FlightData
 
 #: nonlinear parameter of each effect whose law is not linear in it, with its search bounds
 #: (from the registry)
-NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items() if e.search is not None}
+NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items()
+             if e.search is not None and e.fitted_by_finder}
 
 
 @dataclass
@@ -52,9 +56,18 @@ class GapData:
     R : (K, 3, 3) body to world
     rotor_speeds : (K, N) rad/s (recorded)
     v : (K, 3) m/s in W
-    d_down, d_up : (K,) m (``inf`` where no surface / no point cloud)
+    d_down, d_up : (K,) m, rotor plane to the surfaces (``inf`` where no surface / no point cloud)
     mass, rotor_radius : kg, m
     names : recording names
+    imu : (K,) bool, rows whose force comes from an accelerometer
+    fits_bias : the model has accelerometer-bias columns (False where the bias was anchored
+        against motion capture, :mod:`uavturb.gap.nominal`, or there is no IMU)
+    level : (K,) -, thrust level of each row's recording (:func:`uavturb.gap.nominal.thrust_levels`;
+        None: all 1)
+    contiguous : the flights before rows were dropped (motor lag needs contiguous rows), and
+    rows : (K,) int, the indices of these rows in ``contiguous``
+    anchored : ``{recording name: AnchoredBias}``, accelerometer biases measured against motion capture
+    arm_length : m, the vehicle's arm (sizes the airframe for physical ranges; nan: unknown)
     """
 
     group: np.ndarray
@@ -73,6 +86,11 @@ class GapData:
     flights: list[FlightData] = field(default_factory=list, repr=False)
     imu: np.ndarray | None = None
     fits_bias: bool = True
+    level: np.ndarray | None = None
+    contiguous: "GapData | None" = field(default=None, repr=False)
+    rows: np.ndarray | None = None
+    anchored: dict = field(default_factory=dict, repr=False)
+    arm_length: float = float("nan")
     _lag_cache: dict = field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
@@ -82,8 +100,21 @@ class GapData:
     def S(self) -> np.ndarray:
         return np.sum(self.rotor_speeds**2, axis=1)
 
+    @property
+    def thrust_level(self) -> np.ndarray:
+        """(K,) -, each row's thrust level (ones where recordings share one thrust coefficient)."""
+        return np.ones(len(self)) if self.level is None else self.level
+
+    @property
+    def has_imu(self) -> bool:
+        """Some rows come from an accelerometer (so an accelerometer bias exists)."""
+        return bool(self.imu is not None and np.any(self.imu))
+
     def S_lag(self, tau: float) -> np.ndarray:
-        """``sum(w_lag^2)`` with rotor speeds lagging the records by ``tau`` [s] (per recording)."""
+        """``sum(w_lag^2)`` with rotor speeds lagging the records by ``tau`` [s] (per recording),
+        computed on the contiguous flights when these rows are a subset of them."""
+        if self.contiguous is not None:
+            return self.contiguous.S_lag(tau)[self.rows]
         key = round(float(tau), 9)
         if key not in self._lag_cache:
             out = np.empty(len(self))
@@ -96,44 +127,67 @@ class GapData:
         return self._lag_cache[key]
 
     def subset(self, mask: np.ndarray) -> "GapData":
+        """The rows where ``mask`` holds; they keep a reference to the contiguous flights."""
+        rows = np.flatnonzero(mask) if self.rows is None else self.rows[mask]
         return GapData(self.group[mask], self.t[mask], self.p[mask], self.y[mask], self.R[mask], self.rotor_speeds[mask],
                        self.v[mask], self.d_down[mask], self.d_up[mask], self.mass, self.rotor_radius,
                        self.names, self.source, self.flights,
-                       None if self.imu is None else self.imu[mask], self.fits_bias)
+                       None if self.imu is None else self.imu[mask], self.fits_bias,
+                       None if self.level is None else self.level[mask],
+                       self if self.contiguous is None else self.contiguous, rows, self.anchored, self.arm_length)
 
 
 def _smooth_height(t: np.ndarray, z: np.ndarray, window_s: float) -> np.ndarray:
     """``z`` [m] through a quadratic Savitzky-Golay filter of ``window_s`` [s]."""
-    from scipy.signal import savgol_filter
-
     dt = float(np.median(np.diff(t)))
     n = max(5, int(round(window_s / dt)) | 1)
     return savgol_filter(z, n, 2, mode="interp") if len(z) > n else z
 
 
+def _in_flight(fd: FlightData, mass: float, k_T_guess: float | None, min_thrust_ratio: float,
+               exclude: np.ndarray | None) -> np.ndarray:
+    """(K,) bool: rows away from the derivative filter's edges whose rotors carry more than
+    ``min_thrust_ratio`` of the weight, outside ``exclude`` (ground contact)."""
+    S = np.sum(fd.rotor_speeds**2, axis=1)
+    keep = np.ones(len(fd), bool)
+    keep[: fd.window] = keep[-fd.window:] = False
+    thr = (k_T_guess * S) if k_T_guess else (S / np.median(S) * mass * GRAVITY)
+    keep &= thr > min_thrust_ratio * mass * GRAVITY
+    if exclude is not None:
+        keep &= ~exclude
+    return keep
+
+
 def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, source: str = "auto",
              min_thrust_ratio: float = 0.3, k_T_guess: float | None = None,
-             height_window_s: float = 0.3) -> GapData:
+             height_window_s: float = 0.3, exclude: list[np.ndarray] | None = None,
+             anchor_bias: bool = True, arm_length: float = float("nan")) -> GapData:
     """Stack flights into :class:`GapData`, keeping samples in flight (not resting on a surface).
 
-    Rows at the derivative filter's edges and rows whose rotors carry less than
-    ``min_thrust_ratio`` of the weight (resting, contact forces) are left out. Heights over and
-    under surfaces use the body height smoothed over ``height_window_s`` [s]. Motor lag needs
-    contiguous rows: the lag filter runs on each flight before rows are dropped.
+    Rows at the derivative filter's edges, rows whose rotors carry less than
+    ``min_thrust_ratio`` of the weight and the rows of ``exclude`` (one ``(K,)`` mask per flight:
+    ground contact) are left out. Heights over and under surfaces use the rotor plane's height
+    smoothed over ``height_window_s`` [s]. Motor lag needs contiguous rows: the lag filter runs on
+    each flight before rows are dropped (:attr:`GapData.contiguous`).
+
+    With ``anchor_bias`` (default), the accelerometer bias of a flight with an IMU is measured
+    against its motion capture (:func:`uavturb.gap.nominal.anchored_bias`) and taken off the
+    accelerometer, so the model fits no bias that could trade with the thrust coefficient; the
+    biases are in :attr:`GapData.anchored`.
     """
-    parts = []
+    parts, anchored = [], {}
     for g, fd in enumerate(flights):
         use_imu = fd.acc is not None and source in ("auto", "imu")
         R = quat.to_rotation_matrix(fd.q)
+        keep = _in_flight(fd, mass, k_T_guess, min_thrust_ratio, None if exclude is None else exclude[g])
         if use_imu:
-            y = mass * np.einsum("kij,kj->ki", R, fd.acc)
+            acc = fd.acc
+            if anchor_bias:
+                anchored[fd.name] = anchored_bias(fd.t, R, fd.acc, fd.dv, keep)
+                acc = fd.acc - anchored[fd.name].b
+            y = mass * np.einsum("kij,kj->ki", R, acc)
         else:
             y = mass * (fd.dv + np.array([0.0, 0.0, GRAVITY]))
-        S = np.sum(fd.rotor_speeds**2, axis=1)
-        keep = np.ones(len(fd), bool)
-        keep[: fd.window] = keep[-fd.window:] = False
-        thr = (k_T_guess * S) if k_T_guess else (S / np.median(S) * mass * GRAVITY)
-        keep &= thr > min_thrust_ratio * mass * GRAVITY
         inf = np.full(len(fd), np.inf)
         # heights with the position noise taken out: MoCap noise is white, the body's height
         # changes slowly, and the surface laws are steep near a surface (1 mm at 6 cm over the
@@ -147,14 +201,25 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
                           src="imu" if use_imu else "mocap"))
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "src"}
     keep = cat.pop("keep")
-    data = GapData(**cat, mass=mass, rotor_radius=rotor_radius, names=[f.name for f in flights],
+    full = GapData(**cat, mass=mass, rotor_radius=rotor_radius, names=[f.name for f in flights],
                    source="+".join(sorted({p["src"] for p in parts})), flights=flights,
-                   fits_bias=bool(np.any(cat["imu"])))
-    # motor lag is computed on the full, contiguous flights and then subset with the same mask
-    full = data
-    data = full.subset(keep)
-    data._full, data._keep = full, keep  # type: ignore[attr-defined]
-    return data
+                   fits_bias=bool(np.any(cat["imu"])) and not anchor_bias, arm_length=arm_length)
+    full.anchored = anchored
+    return full.subset(keep)
+
+
+def apply_thrust_levels(data: GapData, k_T_guess: float | None) -> ThrustLevels:
+    """Measure each recording's thrust level far from surfaces (:func:`uavturb.gap.nominal.thrust_levels`)
+    and, where they differ, give each row its recording's level (``data.level``)."""
+    reach = max(e.surface_reach(data.rotor_radius) for e in EFFECTS.values() if e.surface)
+    far = (data.d_down > reach) & (data.d_up > reach)
+    y_thrust = np.einsum("ki,ki->k", data.y, data.R[:, :, 2])
+    levels = thrust_levels(data.group, data.t, y_thrust, data.S, far, data.names)
+    if levels.differ:
+        data.level = levels.level[data.group]
+        if data.contiguous is not None:
+            data.contiguous.level = levels.level[data.contiguous.group]
+    return levels
 
 
 def surface_ratio(d: np.ndarray, coeff: float, r: float) -> np.ndarray:
@@ -163,12 +228,20 @@ def surface_ratio(d: np.ndarray, coeff: float, r: float) -> np.ndarray:
     return np.where(np.isfinite(g), g, 0.0)
 
 
+def surface_law_extra(data: GapData, name: str, value: float) -> np.ndarray:
+    """(K,) -, the extra thrust per unit thrust, ``T_IGE/T_OGE - 1``, of the surface law ``name`` of the
+    registry at its parameter ``value``, at each row's height to its surface (its ``ratio``; 0 where the
+    law does not hold, under its pole, as the paper clips the ground effect)."""
+    spec = EFFECTS[name]
+    d = data.d_down if spec.surface == "d_down" else data.d_up
+    ratio = spec.ratio(d, value, data.rotor_radius, arm_length=data.arm_length,
+                       rotor_count=data.rotor_speeds.shape[1])
+    return np.where(np.isfinite(ratio), ratio - 1.0, 0.0)
+
+
 def lagged_S(data: GapData, tau: float) -> np.ndarray:
     """``sum(w_lag^2)`` on the rows of ``data`` (lag run on the contiguous flights)."""
-    full = getattr(data, "_full", None)
-    if full is None:
-        return data.S_lag(tau)
-    return full.S_lag(tau)[data._keep]  # type: ignore[attr-defined]
+    return data.S_lag(tau)
 
 
 #: coefficients whose regressor depends on the nonlinear parameters (``mu``, ``kappa``, ``tau``)
@@ -197,12 +270,11 @@ def dependent_columns(data: GapData, effects: set[str], nonlinear: dict[str, flo
     surface effects (``k_T``) and, with ``battery_sag``, its decay (``k_T*s``). ``(3K, 1 or 2)``."""
     K = len(data)
     zb = data.R[:, :, 2]
-    S = lagged_S(data, nonlinear["tau"]) if "motor_lag" in effects else data.S
+    S = (lagged_S(data, nonlinear["tau"]) if "motor_lag" in effects else data.S) * data.thrust_level
     surf = np.zeros(K)
-    if "ground_effect" in effects:
-        surf += surface_ratio(data.d_down, nonlinear["mu"], data.rotor_radius)
-    if "ceiling_effect" in effects:
-        surf += surface_ratio(data.d_up, nonlinear["kappa"], data.rotor_radius)
+    for name in sorted(effects):
+        if EFFECTS[name].surface is not None:
+            surf += surface_law_extra(data, name, nonlinear[EFFECTS[name].params[0]])
     thrust = S[:, None] * zb
     thrust[:, 2] += S * surf
     cols, names = [thrust], ["k_T"]

@@ -9,11 +9,23 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.gap import locate
-from uavturb.gap.decide import R2_AMBIGUOUS, airspeed_drag, ambiguity, bias_alike, flight_facts, surface_reach
-from uavturb.gap.design import GapData, gap_data, rotor_quantum, rounding_floor
+from uavturb.gap.decide import (
+    R2_AMBIGUOUS,
+    airspeed_drag,
+    ambiguity,
+    bias_alike,
+    flight_facts,
+    surface_reach,
+    thrust_tilt_alike,
+    too_small,
+)
+from uavturb.gap.design import GapData, apply_thrust_levels, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
+from uavturb.gap.nominal import ThrustLevels
+from uavturb.gap.preparation import contact_masks, prepared
 from uavturb.gap.selection import Selection, finish, folds, heldout, select
+from uavturb.gap.uncertainty import error_budget, honest_stderr
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
     DEFAULT_EFFECTS,
@@ -22,7 +34,6 @@ from uavturb.physics.effects import (
     defaults,
     total_force,
 )
-from uavturb.sysid.flight_data import flight_data
 
 SCHEMA = "uavturb.gap/1"
 
@@ -47,7 +58,7 @@ def _sim_offset(data: GapData, sim: dict[str, dict[str, float]], k_T: float) -> 
     """Force [N] of the simulator's own effects at the simulator's parameters, on ``data``'s rows."""
     if not sim:
         return np.zeros((len(data), 3))
-    full, keep = data._full, data._keep  # type: ignore[attr-defined]
+    full = data if data.contiguous is None else data.contiguous
     out = np.zeros((len(full), 3))
     for g in np.unique(full.group):
         m = full.group == g
@@ -55,7 +66,7 @@ def _sim_offset(data: GapData, sim: dict[str, dict[str, float]], k_T: float) -> 
                          rotor_radius=full.rotor_radius, d_down=full.d_down[m], d_up=full.d_up[m], t=full.t[m],
                          R=full.R[m])
         out[m] = total_force(sim, x)
-    return out[keep]
+    return out if data.rows is None else out[data.rows]
 
 
 def _open_loop(data: GapData, force: np.ndarray, horizon_s: float = 0.5, stride_s: float = 0.5) -> float:
@@ -96,11 +107,14 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
 def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0) -> tuple[dict, dict]:
     np.random.seed(seed)
     vehicle = recordings[0].vehicle
-    fds = [flight_data(r) for r in recordings]
-    data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient)
+    paths = [str(r.path) if r.path else r.name for r in recordings]
+    recordings, fds, held = prepared(recordings, paths)
+    contact, contact_report = contact_masks(fds, vehicle.mass, vehicle.thrust_coefficient, paths)
+    data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient,
+                    arm_length=vehicle.arm_length, exclude=contact)
     if len(data) < 200:
         raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
-    paths = [str(r.path) if r.path else r.name for r in recordings]
+    levels = apply_thrust_levels(data, vehicle.thrust_coefficient)
 
     base = _simulator_baseline(data, sim)
     protocol, fm = folds(data)
@@ -108,7 +122,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     segs, rs0, sigma = locate.segments(data, base.r0)
     drv = locate.drivers(data, rs0)
 
-    candidates, not_testable, sim_fit_base = _testable_candidates(data, sim)
+    candidates, not_testable, sim_fit_base = _testable_candidates(data, sim, measured_rotor_speeds(recordings))
     quantum = max((rotor_quantum(r.rotors.speeds) for r in recordings), default=0.0)
     floor = rounding_floor(data, base.nominal.coef["k_T"], quantum)
     sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor)
@@ -133,14 +147,13 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "mismatch": {"segments": [{"recording": paths[s.group], "t_start": s.t_start, "t_end": s.t_end,
                                    "axis": s.axis, "rms_N": s.rms_N} for s in segs],
                      "drivers": drv},
-        "effects": _effects_named(sel, final, facts),
+        "effects": _effects_named(data, sel, final, facts),
         "sim_effect_params": {name: {"sim": p, "fitted": final.effect_params(name)[0] if name in final.effects
                                      else {}} for name, p in sim.items()},
-        "nominal": {"thrust_coefficient": final.coef["k_T"], "thrust_coefficient_stderr": final.stderr.get("k_T"),
-                    "accel_bias": [final.coef[f"b_{a}"] for a in "xyz"] if data.fits_bias else None,
-                    "accel_bias_note": None if data.fits_bias else
-                    "no IMU in these recordings: no accelerometer, so no accelerometer bias was estimated"},
+        "nominal": _nominal(data, final, levels),
         "ambiguous": ambiguous,
+        "ground_contact": contact_report,
+        "streams": held,
         "rejected": rejected,
         "not_testable": not_testable,
         "facts": {"heading_span_deg": facts.heading_span_deg, "speed_p90_m_s": facts.speed_p90,
@@ -181,28 +194,80 @@ def _simulator_baseline(data: GapData, sim: dict[str, dict[str, float]]) -> _Bas
                      baseline.predict(base_data) + offset)
 
 
-def _testable_candidates(data: GapData, sim: dict[str, dict[str, float]]
+def measured_rotor_speeds(recordings: Sequence) -> bool:
+    """Whether the recordings' rotor speeds are measured by the ESCs (``vehicle.yaml``'s
+    ``rotor_speed_source``), not commanded."""
+    return any(r.vehicle.rotor_speed_source == "measured" for r in recordings)
+
+
+def _testable_candidates(data: GapData, sim: dict[str, dict[str, float]], measured: bool = False
                          ) -> tuple[list[str], list[dict[str, Any]], frozenset[str]]:
-    """(effects to try: not in the simulator and testable on these flights; the surface effects the flights
-    cannot test, with why and what would; the simulator's testable effects, fitted from the start)."""
-    reach = {e: surface_reach(data, e) for e, spec in EFFECTS.items() if spec.surface is not None}
-    testable = {e for e in EFFECTS if e not in reach or reach[e].testable}
-    candidates = [e for e in EFFECTS if e not in sim and e in testable]
+    """(effects to try: not in the simulator and testable on these flights; the effects the flights
+    cannot test, with why and what would; the simulator's testable effects, fitted from the start).
+
+    Surface effects need flights within their reach; ``battery_sag`` needs commanded rotor speeds
+    (``effects.md``: a measured rotor speed already shows the battery's sag). Laws the finder's model
+    cannot fit (``fitted_by_finder`` False) are left to the surface curve."""
+    fitted = [e for e, spec in EFFECTS.items() if spec.fitted_by_finder]
+    reach = {e: surface_reach(data, e) for e in fitted if EFFECTS[e].surface is not None}
+    testable = {e for e in fitted if e not in reach or reach[e].testable}
     not_testable = [{"name": e, "why": r.why(), "to_separate": r.to_separate()}
                     for e, r in reach.items() if not r.testable]
+    if measured:
+        testable.discard("battery_sag")
+        not_testable.append({"name": "battery_sag",
+                             "why": "the rotor speeds are measured (rotor_speed_source: measured): a measured speed "
+                                    "already shows the battery's sag, so there is no sag left to find",
+                             "to_separate": "record the commanded rotor speeds instead"})
+    candidates = [e for e in EFFECTS if e not in sim and e in testable]
     return candidates, not_testable, frozenset(e for e in sim if e in testable)
 
 
-def _effects_named(sel: Selection, final: ModelFit, facts: Any) -> list[dict[str, Any]]:
-    """The report's ``effects``: each chosen effect's fitted parameters, explanation and held-out gain."""
+def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels) -> dict[str, Any]:
+    """The report's ``nominal``: the thrust coefficient (one per recording where their levels differ,
+    with the spread), and the accelerometer bias as measured against motion capture."""
+    k_T = final.coef["k_T"]
+    out: dict[str, Any] = {
+        "thrust_coefficient": k_T, "thrust_coefficient_stderr": final.stderr.get("k_T"),
+        "thrust_levels_differ": levels.differ, "thrust_level_note": levels.why,
+        "thrust_level_spread_percent": levels.spread_percent,
+        "thrust_coefficient_per_recording": {n: k_T * float(lv) for n, lv in zip(data.names, levels.level)},
+        "thrust_coefficient_far_from_surfaces": {n: (float(k), float(se)) for n, k, se in
+                                                 zip(data.names, levels.k_T, levels.stderr)},
+    }
+    if data.fits_bias:
+        out["accel_bias"] = [final.coef[f"b_{a}"] for a in "xyz"]
+        out["accel_bias_note"] = "fitted with the model"
+    elif data.anchored:
+        b = np.array([a.b for a in data.anchored.values()])
+        out["accel_bias"] = [float(x) for x in b.mean(axis=0)]
+        out["accel_bias_per_recording"] = {n: {"b": a.b.tolist(), "stderr": a.stderr.tolist()}
+                                           for n, a in data.anchored.items()}
+        out["accel_bias_note"] = ("measured against motion capture (mean of a_imu - R^T (dv/dt + g e_z) in flight, "
+                                  "body frame), not fitted: it cannot trade with the thrust coefficient or a law "
+                                  "along the thrust")
+    else:
+        out["accel_bias"] = None
+        out["accel_bias_note"] = "no IMU in these recordings: no accelerometer, so no accelerometer bias was estimated"
+    return out
+
+
+def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any) -> list[dict[str, Any]]:
+    """The report's ``effects``: each chosen effect's fitted parameters with honest errors
+    (:mod:`uavturb.gap.uncertainty`: sample, height reference, between recordings or blocks), the
+    explanation and the held-out gain."""
     effects_out = []
     for s in sel.steps:
-        params, se = final.effect_params(s.name)
+        params, _ = final.effect_params(s.name)
+        surface = EFFECTS[s.name].surface is not None
+        budget = error_budget(data, final, s.name,
+                              can_test=(lambda d, n=s.name: surface_reach(d, n).testable) if surface else
+                              (lambda d: True))
         effects_out.append({
-            "name": s.name, "params": params, "stderr": se,
+            "name": s.name, "params": params, "stderr": honest_stderr(budget),
             "explanation": explanation(s.name, params, facts),
             "heldout_rmse_before_N": s.heldout_before, "heldout_rmse_after_N": s.heldout_after,
-            "z_heldout": s.z,
+            "z_heldout": s.z, "error_budget": budget,
         })
     return effects_out
 
@@ -223,7 +288,7 @@ def _decide(data: GapData, sel: Selection, candidates: list[str]
         drop = None
         for s in steps:
             params, _ = final.effect_params(s.name)
-            bad = EFFECTS[s.name].physical_range.violation(params, facts)
+            bad = EFFECTS[s.name].physical_range.violation(params, facts) or too_small(data, final, s.name)
             if bad is not None:
                 rejected.append({"name": s.name, "params": params, "why": bad})
                 drop = s
@@ -233,6 +298,11 @@ def _decide(data: GapData, sel: Selection, candidates: list[str]
                 ambiguous.append(amb | {"params_if_named": params})
                 drop = s
                 break
+        if drop is None and "wind" in {s.name for s in steps}:
+            amb = thrust_tilt_alike(data, final, facts)
+            if amb is not None:
+                ambiguous.append(amb)
+                drop = next(s for s in steps if s.name == "wind")
         if drop is None and "rotor_drag" in {s.name for s in steps}:
             amb = airspeed_drag(data, final, facts)
             if amb is not None:

@@ -70,7 +70,7 @@ class ModelFit:
 
 
 def _nl_values(nonlinear: dict[str, float]) -> dict[str, float]:
-    out = {"mu": 0.0, "kappa": 0.0, "tau": 0.0}
+    out = {spec[0]: 0.0 for spec in NONLINEAR.values()}
     for effect, value in nonlinear.items():
         out[NONLINEAR[effect][0]] = value
     return out

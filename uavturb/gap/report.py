@@ -205,7 +205,7 @@ def _undecided_lines(report: dict) -> list[str]:
             L.append(f"- `{r['name']}`: {r['why']}. To test it: {r['to_separate']}.")
     nominal = report.get("nominal", {})
     if nominal.get("accel_bias_note"):
-        L += ["", nominal["accel_bias_note"].capitalize() + "."]
+        L += ["", "Accelerometer bias: " + nominal["accel_bias_note"] + "."]
     return L
 
 

@@ -40,6 +40,7 @@ class EffectInputs:
     d_down, d_up : (K,) m, ``inf`` where there is no surface
     t : (K,) s since the recording's start
     R : (K, 3, 3) body-to-world rotations; computed from ``q`` when not given
+    arm_length : m, centre to each rotor hub (laws that use the rotor spacing; None where unknown)
     """
 
     q: np.ndarray | None
@@ -51,6 +52,7 @@ class EffectInputs:
     d_up: np.ndarray | None = None
     t: np.ndarray | None = None
     R: np.ndarray | None = field(default=None, repr=False)
+    arm_length: float | None = None
 
     def __post_init__(self) -> None:
         if self.R is None:
@@ -90,6 +92,20 @@ def _surface_force(d: np.ndarray, thrust: np.ndarray, coeff: float, r: float) ->
 def ground_effect_force(x: EffectInputs, mu: float) -> np.ndarray:
     """Cheeseman-Bennett ground effect: ``F = e_z T rho/(1-rho)``, ``rho = mu (r/(4 d_down))^2``."""
     return _surface_force(x.need("ground_effect", "d_down"), x.thrust, mu, x.rotor_radius)
+
+
+def ground_effect_multirotor_force(x: EffectInputs, K_b: float) -> np.ndarray:
+    """Sanchez-Cuevas et al.'s multirotor ground effect: ``F = e_z T (T_IGE/T_OGE - 1)`` with the ratio of
+    :func:`uavturb.physics.ground_effect.multirotor_thrust_ratio` at ``d_down`` (rotor spacing from
+    ``arm_length`` and the rotor count); :data:`~uavturb.physics.ground_effect.CLIP_FORCE_N` at and
+    under the law's pole, as the Cheeseman-Bennett law is clipped."""
+    d = x.need("ground_effect_multirotor", "d_down")
+    arm = float(x.need("ground_effect_multirotor", "arm_length"))
+    spacing, opposite = ge.rotor_spacing(arm, np.shape(x.rotor_speeds)[1])
+    ratio = ge.multirotor_thrust_ratio(d, K_b, x.rotor_radius, spacing, opposite)
+    out = np.zeros((len(d), 3))
+    out[:, 2] = np.where(np.isnan(ratio), ge.CLIP_FORCE_N, x.thrust * (np.nan_to_num(ratio, nan=1.0) - 1.0))
+    return out
 
 
 def ceiling_effect_force(x: EffectInputs, kappa: float) -> np.ndarray:
@@ -185,6 +201,8 @@ class FlightFacts:
     has_imu : an accelerometer was recorded (so an accelerometer bias exists)
     d_down_min, d_up_min : m, closest approach to the surface below / above (inf: none known)
     duration_s : s, flight time analysed
+    bias_anchored : the accelerometer bias was measured against motion capture (not fitted)
+    arm_length : m, centre to rotor hub (sizes the airframe for physical ranges)
     """
 
     mass: float
@@ -198,6 +216,8 @@ class FlightFacts:
     d_down_min: float
     d_up_min: float
     duration_s: float
+    bias_anchored: bool = False
+    arm_length: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -250,6 +270,12 @@ class EffectSpec:
     surface : ``"d_down"`` / ``"d_up"`` for surface effects (they need flights near that surface)
     positive : the parameters are positive by physics
     manoeuvre : str, the flight that excites this effect apart from the others (for ``ambiguous``)
+    ratio : surface laws only: ``(d, param, r, **geometry) -> T_IGE/T_OGE`` [-], the thrust per rotor
+        speed squared over its value far from the surface at rotor-plane height ``d`` [m] (``nan``
+        where the law does not hold); ``geometry`` holds ``arm_length`` [m] and ``rotor_count``
+        (laws that do not need them ignore them). Used by :mod:`uavturb.gap.surface_curve`.
+    fitted_by_finder : the gap finder's model (:mod:`uavturb.gap.design`) fits this effect; False for
+        laws it cannot fit yet (they are fitted to the measured surface curve only)
     """
 
     name: str
@@ -266,6 +292,8 @@ class EffectSpec:
     surface: str | None = None
     positive: bool = True
     manoeuvre: str = ""
+    ratio: Callable[..., np.ndarray] | None = None
+    fitted_by_finder: bool = True
 
     def surface_reach(self, rotor_radius: float, share: float = 0.01) -> float:
         """m, the height under which this surface law, at the top of its physical range, adds at
@@ -276,9 +304,20 @@ class EffectSpec:
         return rotor_radius / 4.0 * float(np.sqrt(self.physical_range.hi / rho))
 
 
+def body_drag_max(f: FlightFacts) -> float:
+    """kg/m, the largest plausible quadratic drag coefficient of the airframe: ``0.5 rho C_D A`` with
+    ``rho = 1.2`` kg/m^3, ``C_D = 1.5`` and ``A = (2 (arm_length + r))^2`` m^2 (the square spanned by
+    the rotor tips: no frontal area is larger); 1 kg/m where the arm length is unknown."""
+    if not np.isfinite(f.arm_length):
+        return 1.0
+    return 0.5 * 1.2 * 1.5 * (2.0 * (f.arm_length + f.rotor_radius)) ** 2
+
+
 def _heading_clause(f: FlightFacts) -> str:
     if not f.has_imu:
         return "these recordings have no accelerometer, so it is no sensor bias"
+    if f.bias_anchored:
+        return "the accelerometer's bias was measured against the motion capture, so it is no sensor bias"
     if f.heading_span_deg >= 30.0:
         return (f"it stays fixed in the world while the heading changed by {f.heading_span_deg:.0f} deg, "
                 "so it is no accelerometer bias")
@@ -291,6 +330,25 @@ def _explain_ground(p: dict, f: FlightFacts) -> str:
     return (f"Extra lift near the surface below follows the Cheeseman-Bennett law with mu = {p['mu']:.3g} "
             f"(+{100 * rho / (1 - rho):.1f} % thrust at two rotor radii; these flights came within "
             f"{f.d_down_min:.2f} m of it). Switch ground_effect on in the simulator.")
+
+
+def _explain_ground_multirotor(p: dict, f: FlightFacts) -> str:
+    return (f"Extra lift near the surface below follows Sanchez-Cuevas et al.'s multirotor law (the images of "
+            f"all rotors and the lift of the body in their meeting flows) with body-lift coefficient "
+            f"K_b = {p['K_b']:.3g}; these flights came within {f.d_down_min:.2f} m of it. Model the ground "
+            f"effect with this law rather than the single-rotor Cheeseman-Bennett law.")
+
+
+def _cheeseman_bennett_ratio(d: np.ndarray, mu: float, r: float, **geometry) -> np.ndarray:
+    """``T_IGE/T_OGE`` of the Cheeseman-Bennett law (``geometry`` unused)."""
+    return ge.thrust_ratio(d, mu, r)
+
+
+def _multirotor_ratio(d: np.ndarray, K_b: float, r: float, *, arm_length: float, rotor_count: int,
+                      **_) -> np.ndarray:
+    """``T_IGE/T_OGE`` of Sanchez-Cuevas et al.'s law for the vehicle's rotor spacing."""
+    spacing, opposite = ge.rotor_spacing(arm_length, rotor_count)
+    return ge.multirotor_thrust_ratio(d, K_b, r, spacing, opposite)
 
 
 def _explain_ceiling(p: dict, f: FlightFacts) -> str:
@@ -336,6 +394,11 @@ def _explain_motor_lag(p: dict, f: FlightFacts) -> str:
 _SURFACE_RANGE_SOURCE = ("Cheeseman & Bennett 1955 give mu = 1 for one rotor; 1-3 fits most small "
                          "multirotors (effects.md), up to ~6 with rotor interaction (Sanchez-Cuevas et al. 2017)")
 
+_MULTIROTOR_RANGE_SOURCE = ("Sanchez-Cuevas, Heredia & Ollero 2017 (Int. J. Aerospace Eng., doi 10.1155/2017/1823056) "
+                            "fit K_b to their quadrotor's measured curve; implementations quote 0.5-2. Far from the "
+                            "ground the body term is K_b times the rotors' images: at K_b = 6 the body would lift "
+                            "six times more than all rotors' images together")
+
 EFFECTS: dict[str, EffectSpec] = {
     e.name: e
     for e in [
@@ -343,12 +406,20 @@ EFFECTS: dict[str, EffectSpec] = {
                    "Cheeseman-Bennett ground effect: extra lift near the surface below",
                    PhysicalRange("mu", 0.25, 12.0, lambda p, f: p["mu"], _SURFACE_RANGE_SOURCE),
                    _explain_ground, search=(0.05, 40.0), along_thrust=True, surface="d_down",
-                   manoeuvre="hover over the floor at several heights within a few rotor radii"),
+                   manoeuvre="hover over the floor at several heights within a few rotor radii",
+                   ratio=_cheeseman_bennett_ratio),
+        EffectSpec("ground_effect_multirotor", ("K_b",), ("-",), (1.0,), ground_effect_multirotor_force, False,
+                   "Sanchez-Cuevas et al. 2017 multirotor ground effect: images of all rotors plus body lift",
+                   PhysicalRange("K_b", 0.0, 6.0, lambda p, f: p["K_b"], _MULTIROTOR_RANGE_SOURCE),
+                   _explain_ground_multirotor, search=(0.01, 20.0), along_thrust=True, surface="d_down",
+                   manoeuvre="hover over the floor at several heights from one to ten rotor radii",
+                   ratio=_multirotor_ratio),
         EffectSpec("ceiling_effect", ("kappa",), ("-",), (2.0,), ceiling_effect_force, False,
                    "ceiling effect: suction towards the surface above",
                    PhysicalRange("kappa", 0.25, 12.0, lambda p, f: p["kappa"], _SURFACE_RANGE_SOURCE),
                    _explain_ceiling, search=(0.05, 40.0), along_thrust=True, surface="d_up",
-                   manoeuvre="hover under the ceiling at several distances within a few rotor radii"),
+                   manoeuvre="hover under the ceiling at several distances within a few rotor radii",
+                   ratio=_cheeseman_bennett_ratio),
         EffectSpec("rotor_drag", ("k_d",), ("N s^2/m",), (8.06e-5,), rotor_drag_force, True,
                    "rotor drag (blade flapping, induced drag), linear in body-horizontal speed",
                    PhysicalRange("drag per unit mass at hover, k_d Wsum_hover / m [1/s]", 0.005, 1.5,
@@ -358,9 +429,11 @@ EFFECTS: dict[str, EffectSpec] = {
                    _explain_rotor_drag, manoeuvre="fly at several horizontal speeds in different directions"),
         EffectSpec("body_drag", ("c_d",), ("kg/m",), (0.05,), body_drag_force, True,
                    "quadratic parasitic drag of the airframe",
-                   PhysicalRange("c_d [kg/m]", 1e-3, 1.0, lambda p, f: p["c_d"],
-                                 "0.5 rho C_D A with air at 1.2 kg/m^3, C_D 0.5-1.5 and a frontal area "
-                                 "of 0.01-1 m^2"),
+                   PhysicalRange("c_d over the airframe's largest plausible body drag [-]", 2e-3, 1.0,
+                                 lambda p, f: p["c_d"] / body_drag_max(f),
+                                 "0.5 rho C_D A with air at 1.2 kg/m^3, C_D up to 1.5 and at most the square "
+                                 "spanned by the rotor tips, (2 (arm_length + r))^2, as frontal area (1 kg/m where "
+                                 "the arm length is unknown)"),
                    _explain_body_drag, manoeuvre="fly faster: a quadratic drag parts from linear laws at speed"),
         EffectSpec("wind", ("f_x", "f_y"), ("N", "N"), (0.3, 0.0), wind_force, True,
                    "a steady horizontal push",

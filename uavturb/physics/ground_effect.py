@@ -55,6 +55,99 @@ def force_ratio(d: np.ndarray, mu: float, r: float) -> np.ndarray:
     return np.where(np.asarray(d, float) <= min_height(mu, r), np.nan, out)
 
 
+def thrust_ratio(d: np.ndarray, mu: float, r: float) -> np.ndarray:
+    """Cheeseman-Bennett ``T_IGE / T_OGE = 1 / (1 - rho)`` [-], ``rho = mu (r / (4 d))^2``.
+
+    Parameters
+    ----------
+    d : (K,) rotor-plane height over the surface below [m] (``inf`` where none: ratio 1)
+    mu : coefficient [-]
+    r : rotor radius [m]
+
+    Returns
+    -------
+    (K,) thrust per rotor speed squared over its value far from the surface; ``nan`` where the law
+    is clipped (``d <= r sqrt(mu) / 4``, :func:`min_height`).
+    """
+    return 1.0 + force_ratio(d, mu, r)
+
+
+def rotor_spacing(arm_length: float, rotor_count: int) -> tuple[float, float]:
+    """Distances [m] the multirotor law (:func:`multirotor_thrust_ratio`) needs, for ``rotor_count``
+    rotors evenly spaced on a circle of radius ``arm_length`` [m] around the centre.
+
+    Returns
+    -------
+    spacing : between the centres of adjacent rotors, ``2 l sin(pi / n)`` (``sqrt(2) l`` on a quadrotor)
+    opposite : between the centres of opposite rotors, ``2 l`` (Sanchez-Cuevas et al.'s ``b``)
+    """
+    if arm_length <= 0 or rotor_count < 2:
+        raise InputError("ground effect", f"arm_length must be > 0 m and rotor_count >= 2, got {arm_length} "
+                                          f"and {rotor_count}")
+    return 2.0 * arm_length * float(np.sin(np.pi / rotor_count)), 2.0 * arm_length
+
+
+def _image_term(z: np.ndarray, r: float, s: float) -> np.ndarray:
+    """``r^2 z / sqrt((s^2 + 4 z^2)^3)`` [-]: twice the upwash a rotor's ground image at horizontal
+    distance ``s`` [m] induces at a rotor ``z`` [m] over the ground, per its own induced velocity."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        return r**2 * z / np.sqrt((s**2 + 4.0 * z**2) ** 3)
+
+
+def multirotor_terms(z: np.ndarray, r: float, spacing: float, opposite: float) -> tuple[np.ndarray, np.ndarray]:
+    """The two parts of Sanchez-Cuevas et al.'s denominator: ``(rotors, body)`` with
+    ``T_IGE / T_OGE = 1 / (1 - rotors - K_b body)`` (see :func:`multirotor_thrust_ratio`).
+
+    ``rotors = (r/(4z))^2 + r^2 z/sqrt((d^2+4z^2)^3) + (r^2 z/2)/sqrt((2d^2+4z^2)^3)``: the rotor's own
+    image, the two adjacent rotors' images (at ``d``) and the diagonal one's (at ``sqrt(2) d``);
+    ``body = 2 r^2 z / sqrt((b^2+4z^2)^3)``. Both 0 where ``z`` is infinite.
+    """
+    z = np.asarray(z, dtype=float)
+    far = ~np.isfinite(z)
+    zz = np.where(far, 1.0, z)
+    with np.errstate(divide="ignore"):
+        rotors = (r / (4.0 * zz)) ** 2 + _image_term(zz, r, spacing) + 0.5 * _image_term(zz, r, np.sqrt(2.0) * spacing)
+    body = 2.0 * _image_term(zz, r, opposite)
+    return np.where(far, 0.0, rotors), np.where(far, 0.0, body)
+
+
+def multirotor_thrust_ratio(z: np.ndarray, K_b: float, r: float, spacing: float, opposite: float) -> np.ndarray:
+    """Sanchez-Cuevas, Heredia & Ollero's multirotor ground effect, ``T_IGE / T_OGE`` [-].
+
+    Source: P. Sanchez-Cuevas, G. Heredia, A. Ollero, "Characterization of the Aerodynamic Ground Effect
+    and Its Influence in Multirotor Control", Int. J. Aerospace Eng. 2017, article 1823056 (doi
+    10.1155/2017/1823056), their quadrotor ground-effect model (section "ground effect in multirotors";
+    quoted as eq. 7 by Kan et al., IEEE RA-L 2019)::
+
+        T_IGE/T_OGE = 1 / (1 - (R/(4z))^2 - R^2 z/sqrt((d^2+4z^2)^3) - (R^2 z/2)/sqrt((2d^2+4z^2)^3)
+                             - 2 R^2 z K_b/sqrt((b^2+4z^2)^3))
+
+    Cheeseman & Bennett's method of images extended to the images of the other three rotors of an
+    X quadrotor (two adjacent at ``d``, one diagonal at ``sqrt(2) d``) and to the lift of the body
+    in the flows of the rotors meeting under it (the "fountain"), weighted by the empirical body-lift
+    coefficient ``K_b``. Far from the ground it behaves as Cheeseman-Bennett with
+    ``mu = 4 (1 + K_b)``; near it, it rises less steeply than Cheeseman-Bennett for the same far
+    reach. The paper writes it for quadrotors: other rotor counts use the same terms with
+    ``d`` the adjacent spacing (:func:`rotor_spacing`), an approximation.
+
+    Parameters
+    ----------
+    z : (K,) height of the rotor plane over the ground [m] (``inf`` where none: ratio 1)
+    K_b : body-lift coefficient [-], fitted (implementations of the paper use 0.5-2)
+    r : rotor radius ``R`` [m]
+    spacing : distance between the centres of adjacent rotors ``d`` [m]
+    opposite : distance between the centres of opposite rotors ``b`` [m] (``2 l`` for arm length ``l``)
+
+    Returns
+    -------
+    (K,) ratio; ``nan`` at and under the pole (denominator <= 0), where the law does not hold.
+    """
+    rotors, body = multirotor_terms(z, r, spacing, opposite)
+    den = 1.0 - rotors - K_b * body
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0.0, 1.0 / den, np.nan)
+
+
 def phi(d: np.ndarray, thrust: np.ndarray, mu: float, r: float) -> np.ndarray:
     """Cheeseman-Bennett force [N] along world ``+z``.
 

@@ -10,6 +10,8 @@ Derivatives are local quadratic fits over a window given in seconds
 timestamps too); the window holds at least 5 samples, so at 50 Hz a 0.05 s window becomes
 0.1 s. The same filter smooths regressors, so that fits compare like with like. Streams at
 other rates (rotor speeds at 50 Hz, jittered) are interpolated linearly at their true times.
+Streams a logger writes faster than they update (sample-and-hold repeats) are read on their
+updates (:func:`held_updates`).
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io.differentiate import local_quadratic
-from uavturb.io.recording import Recording
+from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.physics import quaternion as quat
+from uavturb.sysid.streams import update_mask
 
 
 @dataclass
@@ -82,6 +85,25 @@ class FlightData:
                           pick(self.d_down), pick(self.d_up), self.window)
 
 
+#: share of repeated rows above which a stream is read on its updates only (sample-and-hold loggers)
+HELD_SHARE = 0.2
+
+
+def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
+    """The ground truth and rotor speeds on their updates (``recordings.md``: "what a stream really holds
+    is its updates"): where a logger repeats the last value in more than :data:`HELD_SHARE` of a
+    stream's rows, the repeats are dropped, so that derivatives and interpolation work between real
+    updates instead of on steps. Streams that update on every row are returned as they are."""
+    gt, rotors = rec.ground_truth, rec.rotors
+    m = update_mask(np.hstack([gt.p, gt.q, gt.v]))
+    if 1.0 - m.mean() > HELD_SHARE:
+        gt = GroundTruth(t_ns=gt.t_ns[m], p=gt.p[m], q=gt.q[m], v=gt.v[m], b_w=gt.b_w[m], b_a=gt.b_a[m])
+    m = update_mask(rotors.speeds)
+    if 1.0 - m.mean() > HELD_SHARE:
+        rotors = Rotors(t_ns=rotors.t_ns[m], speeds=rotors.speeds[m])
+    return gt, rotors
+
+
 def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
                 time_base: str = "auto") -> FlightData:
     """Put a recording's streams on one time base.
@@ -98,13 +120,13 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
 
     rec = to_body(rec)  # no-op for the readers' recordings, already in B
     where = rec.path or rec.name
-    gt = rec.ground_truth
     if rec.rotors is None:
         raise InputError(f"{where}/mav0/rotors0/data.csv", "rotor speeds are needed but the recording has none")
+    gt, rotors = held_updates(rec)
     use_imu = rec.imu is not None and time_base in ("auto", "imu")
     if time_base == "imu" and rec.imu is None:
         raise InputError(f"{where}/mav0/imu0/data.csv", "file not found (time_base=imu)")
-    streams = [("mav0/state_groundtruth_estimate0/data.csv", gt.t_ns), ("mav0/rotors0/data.csv", rec.rotors.t_ns)]
+    streams = [("mav0/state_groundtruth_estimate0/data.csv", gt.t_ns), ("mav0/rotors0/data.csv", rotors.t_ns)]
     if use_imu:
         streams.append(("mav0/imu0/data.csv", rec.imu.t_ns))
     start = max(int(s[1][0]) for s in streams)
@@ -124,7 +146,7 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     q = align.interpolate_quaternions(gt.t_ns, gt.q, t_ns)
     b_w = align.interpolate(gt.t_ns, gt.b_w, t_ns)
     b_a = align.interpolate(gt.t_ns, gt.b_a, t_ns)
-    rotor = align.interpolate(rec.rotors.t_ns, rec.rotors.speeds, t_ns)
+    rotor = align.interpolate(rotors.t_ns, rotors.speeds, t_ns)
     t = (t_ns - rec.t0_ns) * 1e-9
 
     if use_imu:

@@ -109,7 +109,8 @@ def residual_forces(rec: Recording | FlightData, vehicle: Vehicle, *, source: st
     Parameters
     ----------
     rec : recording, or its aligned :class:`FlightData`
-    vehicle : vehicle with known (identified) ``k_T``, ``k_M`` and inertia
+    vehicle : vehicle with known (identified) ``k_T``, ``k_M`` and inertia; with ``k_T`` alone the
+        forces are computed and the torques are ``nan``
     source : ``auto`` (IMU where present), ``imu`` or ``mocap``
     derivative : ``savgol`` or ``forward`` (the paper's one-step arg-min), for MoCap
     window_s : derivative filter window [s]
@@ -123,9 +124,14 @@ def residual_forces(rec: Recording | FlightData, vehicle: Vehicle, *, source: st
         raise InputError("residuals.derivative", f"unknown derivative '{derivative}' (allowed: savgol, forward)")
     if source == "imu" and fd.acc is None:
         raise InputError(f"{fd.name}/mav0/imu0/data.csv", "an IMU stream is needed for source=imu")
-    theta = physical_params(vehicle)
-    m, J = vehicle.mass, np.asarray(vehicle.inertia, float)
-    T, tau = dynamics_for(vehicle).thrust_torque(fd.rotor_speeds, theta)
+    m = vehicle.mass
+    rotational = vehicle.inertia is not None and vehicle.moment_coefficient is not None
+    if rotational:
+        T, tau = dynamics_for(vehicle).thrust_torque(fd.rotor_speeds, physical_params(vehicle))
+    elif vehicle.thrust_coefficient is not None:  # forces only: torques unknown (nan)
+        T = vehicle.thrust_coefficient * np.sum(fd.rotor_speeds**2, axis=1)
+    else:
+        raise InputError(vehicle.name, "thrust_coefficient is unknown (identify it or give it in vehicle.yaml)")
     R = quat.to_rotation_matrix(fd.q)
     thrust_world = T[:, None] * R[:, :, 2]
     if source == "imu":
@@ -140,8 +146,11 @@ def residual_forces(rec: Recording | FlightData, vehicle: Vehicle, *, source: st
             dv = fd.dv
         force = m * (dv + GRAVITY * E_Z) - thrust_world
         f_body = np.einsum("kji,kj->ki", R, force)
-    w = fd.w
-    torque = J * fd.dw + np.cross(w, J * w) - tau
+    if rotational:
+        J, w = np.asarray(vehicle.inertia, float), fd.w
+        torque = J * fd.dw + np.cross(w, J * w) - tau
+    else:
+        torque = np.full((len(fd.t), 3), np.nan)
     return Residuals(t=fd.t, force=force, force_body=f_body, torque=torque, thrust=T,
                      sum_omega2=np.sum(fd.rotor_speeds**2, axis=1), source=source, data=fd)
 

@@ -1,0 +1,128 @@
+"""The nominal model's unknowns cannot swallow an effect (gap/nominal.py), and stated errors are honest
+(gap/uncertainty.py): known answers on data the tests make."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from uavturb.gap.design import GapData, apply_thrust_levels
+from uavturb.gap.fit import fit_model
+from uavturb.gap.nominal import anchored_bias, block_mean_and_se, thrust_levels
+from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr
+from uavturb.physics import quaternion as quat
+from uavturb.physics.dynamics import GRAVITY
+from uavturb.physics.ground_effect import force_ratio
+
+MASS, K_T, R_ROTOR = 1.5, 8.5e-6, 0.1
+
+
+def test_block_mean_and_se_counts_blocks_not_samples():
+    rng = np.random.default_rng(0)
+    labels = np.repeat(np.arange(50), 100)  # 50 blocks of 100 identical-offset samples
+    x = np.repeat(rng.normal(0, 1.0, 50), 100) + rng.normal(0, 0.01, 5000)
+    mean, se = block_mean_and_se(x, labels)
+    assert se[0] == pytest.approx(1.0 / np.sqrt(50), rel=0.25)  # sample-wise it would be 1/sqrt(5000)
+
+
+def test_anchored_bias_is_what_the_imu_reads_beyond_the_motion_capture():
+    rng = np.random.default_rng(1)
+    K = 6000
+    t = np.arange(K) * 0.005
+    R = quat.to_rotation_matrix(quat.from_euler(0.1 * np.sin(t), 0.1 * np.cos(0.7 * t), 0.3 * t))
+    dv = np.stack([np.sin(t), np.cos(1.3 * t), 0.5 * np.sin(0.4 * t)], axis=1)
+    bias = np.array([0.15, -0.10, 0.65])  # a z bias of the size that swallowed k_T on real flights
+    acc = np.einsum("kji,kj->ki", R, dv + [0, 0, GRAVITY]) + bias + rng.normal(0, 0.05, (K, 3))
+    dv_noisy = dv + rng.normal(0, 0.2, (K, 3))  # differentiated motion capture is noisier
+    found = anchored_bias(t, R, acc, dv_noisy, np.ones(K, bool))
+    np.testing.assert_allclose(found.b, bias, atol=0.02)
+    assert np.all(found.stderr < 0.01) and found.n == K
+
+
+def _levels_data(levels=(1.0, 1.04), seconds=60.0, seed=2):
+    rng = np.random.default_rng(seed)
+    parts = []
+    for g, level in enumerate(levels):
+        K = int(seconds * 100)
+        t = np.arange(K) * 0.01
+        w = np.full((K, 4), 600.0) * (1 + 0.05 * np.sin(0.8 * t))[:, None] + rng.normal(0, 3, (K, 4))
+        S = np.sum(w**2, 1)
+        yz = level * K_T * S + rng.normal(0, 0.05, K)
+        parts.append((np.full(K, g), t, yz, S))
+    group, t, yz, S = (np.concatenate(x) for x in zip(*parts))
+    return group, t, yz, S
+
+
+def test_thrust_levels_found_where_recordings_differ_and_not_otherwise():
+    group, t, yz, S = _levels_data((1.0, 1.04))
+    far = np.ones(len(t), bool)
+    lv = thrust_levels(group, t, yz, S, far, ["a", "b"])
+    assert lv.differ and lv.level[1] / lv.level[0] == pytest.approx(1.04, rel=2e-3)
+    assert lv.spread_percent == pytest.approx(4.0, abs=0.2) and "each gets its own" in lv.why
+    group, t, yz, S = _levels_data((1.0, 1.0))
+    same = thrust_levels(group, t, yz, S, far, ["a", "b"])
+    assert not same.differ and np.all(same.level == 1.0) and "one thrust coefficient" in same.why
+    # a recording never far from the surfaces cannot be measured: one thrust coefficient
+    lone = thrust_levels(group, t, yz, S, group == 0, ["a", "b"])
+    assert not lone.differ and np.isnan(lone.k_T[1])
+
+
+def _ground_flights(mus=(2.0, 2.0), levels=(1.0, 1.0), seconds=40.0, seed=3, noise=0.03,
+                    tops=(1.4, 1.4)) -> GapData:
+    """Two recordings of a vehicle climbing and sinking over the floor (rotor plane 0.12-1.5 m), with a
+    Cheeseman-Bennett ground effect of ``mus`` and thrust levels ``levels``; motion capture only."""
+    rng = np.random.default_rng(seed)
+    cols = {k: [] for k in ("group", "t", "y", "R", "w", "v", "d")}
+    for g, (mu, level, top) in enumerate(zip(mus, levels, tops)):
+        K = int(seconds * 100)
+        t = np.arange(K) * 0.01
+        d = 0.12 + top * (0.5 - 0.5 * np.cos(2 * np.pi * t / 10.0)) ** 2
+        R = quat.to_rotation_matrix(quat.from_euler(0.02 * np.sin(t), 0.02 * np.cos(t), np.zeros(K)))
+        w = np.full((K, 6), np.sqrt(MASS * GRAVITY / (6 * K_T))) * (1 + 0.03 * np.sin(1.7 * t))[:, None]
+        S = np.sum(w**2, 1)
+        thrust = level * K_T * S
+        y = thrust[:, None] * R[:, :, 2]
+        y[:, 2] += thrust * force_ratio(d, mu, R_ROTOR)
+        y += rng.normal(0, noise, y.shape)
+        for k, x in zip(cols, (np.full(K, g), t, y, R, w, np.zeros((K, 3)), d)):
+            cols[k].append(x)
+    c = {k: np.concatenate(v) for k, v in cols.items()}
+    K = len(c["t"])
+    return GapData(c["group"], c["t"], np.zeros((K, 3)), c["y"], c["R"], c["w"], c["v"], c["d"], np.full(K, np.inf),
+                   MASS, R_ROTOR, ["a", "b"], "mocap", imu=np.zeros(K, bool), fits_bias=False)
+
+
+def test_a_thrust_level_between_recordings_does_not_move_mu():
+    data = _ground_flights(levels=(1.0, 1.04), tops=(1.4, 1.0))  # the stronger recording flies lower
+    pooled = fit_model(data, {"ground_effect"}).nonlinear["ground_effect"]
+    levels = apply_thrust_levels(data, K_T)
+    assert levels.differ
+    own = fit_model(data, {"ground_effect"}).nonlinear["ground_effect"]
+    assert own == pytest.approx(2.0, rel=0.03)
+    assert abs(pooled - 2.0) > abs(own - 2.0)
+
+
+def test_honest_errors_cover_the_spread_between_recordings():
+    """Two sessions whose ground effect differs (mu 1.6 and 2.4): the sample error is tiny, the stated
+    one covers each recording's own fit within about two of it."""
+    data = _ground_flights(mus=(1.6, 2.4))
+    final = fit_model(data, {"ground_effect"})
+    budget = error_budget(data, final, "ground_effect")["mu"]
+    se = honest_stderr({"mu": budget})["mu"]
+    mu = final.nonlinear["ground_effect"]
+    assert budget["sample"] < 0.25 * np.std([1.6, 2.4], ddof=1) and budget["fits"] == 2
+    assert budget["limited_by"] == "between_recordings" and se == pytest.approx(np.std([1.6, 2.4], ddof=1), rel=0.1)
+    for g, truth in enumerate((1.6, 2.4)):
+        alone = fit_model(data.subset(data.group == g), {"ground_effect"}).nonlinear["ground_effect"]
+        assert alone == pytest.approx(truth, rel=0.05) and abs(alone - mu) < 2.0 * se
+    assert budget["height_reference"] > 0  # a centimetre of height moves mu
+    assert HEIGHT_REFERENCE_M == 0.01
+
+
+def test_one_recording_gets_a_block_jackknife():
+    data = _ground_flights(mus=(2.0,), seconds=50.0).subset(np.ones(5000, bool))
+    data = data.subset(data.group == 0)
+    final = fit_model(data, {"ground_effect"})
+    budget = error_budget(data, final, "ground_effect")["mu"]
+    assert "between_blocks" in budget and np.isfinite(budget["between_blocks"]) and budget["fits"] == 5
+    assert final.nonlinear["ground_effect"] == pytest.approx(2.0, abs=3 * budget["stderr"])

@@ -1,0 +1,213 @@
+"""The measured surface curve (uavturb.gap.surface_curve) and the multirotor ground-effect law, on
+hover samples made from known laws (no recorded data)."""
+
+import numpy as np
+import pytest
+
+from uavturb.errors import InputError
+from uavturb.gap import design
+from uavturb.gap.surface_curve import (
+    LAW_FITS_CHI2_DOF,
+    fit_law,
+    measured_curve,
+    plot_surface_curve,
+    surface_curve_report,
+    surface_figure,
+)
+from uavturb.physics import ground_effect as ge
+from uavturb.physics.effects import EFFECTS, EffectInputs, effect_force
+
+R = 0.0231  # m, Crazyflie rotor radius
+ARM = 0.046  # m
+GEOMETRY = {"arm_length": ARM, "rotor_count": 4}
+NEAR = np.linspace(0.03, 0.12, 10)  # m, rotor-plane hover heights near the floor
+FAR = np.array([0.6, 0.8])  # m, far from it (> 10 r)
+
+
+def cheeseman_bennett(mu):
+    return lambda d: ge.thrust_ratio(d, mu, R)
+
+
+def multirotor(K_b):
+    return lambda d: ge.multirotor_thrust_ratio(d, K_b, R, *ge.rotor_spacing(ARM, 4))
+
+
+def hovers(law, *, levels=(1.0,), height_offsets=None, heights=None, seed=0, noise=0.01, rate=100.0, hold_s=5.0):
+    """Hover samples: each recording (thrust level ``levels[g]``, height reference off by
+    ``height_offsets[g]`` [m]) holds every height for ``hold_s`` s at ``rate`` Hz, with slow
+    (0.5 s correlated) relative thrust noise ``noise`` and a 2 mm height wobble. Returns
+    ``(d, thrust_needed, thrust_modelled, group, t)``."""
+    rng = np.random.default_rng(seed)
+    heights = np.r_[NEAR, FAR] if heights is None else heights
+    offsets = height_offsets or [0.0] * len(levels)
+    out = [[], [], [], [], []]
+    for g, (level, off) in enumerate(zip(levels, offsets)):
+        t0 = 0.0
+        for h in heights:
+            n = int(hold_s * rate)
+            t = t0 + np.arange(n) / rate
+            t0 = t[-1] + 2.0
+            d = h + 0.002 * np.sin(2 * np.pi * 0.3 * t)  # the recorded height
+            w = int(0.5 * rate)
+            slow = np.convolve(rng.normal(0, noise, n + w - 1), np.ones(w) / np.sqrt(w), "valid")
+            modelled = np.full(n, 0.32)  # N, k_T sum(w^2)
+            needed = modelled * level * law(d + off) * (1 + slow)  # the true height is d + off
+            for lst, x in zip(out, (d, needed, modelled, np.full(n, g), t)):
+                lst.append(x)
+    return [np.concatenate(x) for x in out]
+
+
+def curve_of(samples, **kw):
+    d, need, model, g, t = samples
+    return measured_curve(d, need, model, g, hover=np.ones(len(d), bool), t=t, r=R, **kw)
+
+
+def test_multirotor_ratio_hand_computed():
+    # r = 0.1 m, adjacent rotors 0.3 m apart, opposite ones 0.4 m, rotors 0.1 m over the ground, K_b = 1:
+    # 1 - (0.1/0.4)^2 - 0.01*0.1/0.13^1.5 - 0.005*0.1/0.22^1.5 - 2*0.01*0.1/0.2^1.5
+    # = 1 - 0.0625 - 0.0213346 - 0.0048455 - 0.0223607 = 0.8889592
+    assert ge.multirotor_thrust_ratio(np.array([0.1]), 1.0, 0.1, 0.3, 0.4)[0] == pytest.approx(1 / 0.8889592, rel=1e-6)
+    spacing, opposite = ge.rotor_spacing(0.046, 4)
+    assert spacing == pytest.approx(0.046 * np.sqrt(2)) and opposite == pytest.approx(0.092)
+    assert ge.rotor_spacing(0.2, 6)[0] == pytest.approx(0.2)  # a hexarotor's neighbours: one arm apart
+    # far away it acts as Cheeseman-Bennett with mu = 4 (1 + K_b); no surface: 1; under the pole: nan
+    z = 200 * R
+    far = multirotor(2.0)(np.array([z, np.inf, 0.2 * R]))
+    assert far[0] - 1 == pytest.approx(ge.thrust_ratio(z, 12.0, R) - 1, rel=2e-3)
+    assert far[1] == 1.0 and np.isnan(far[2])
+    with pytest.raises(InputError):
+        ge.rotor_spacing(0.0, 4)
+
+
+def test_multirotor_effect_is_one_registry_entry_the_finder_fits():
+    """Declared once: the finder's design reads the law's ``ratio`` from the registry (no code of its own)."""
+    spec = EFFECTS["ground_effect_multirotor"]
+    assert spec.params == ("K_b",) and spec.surface == "d_down" and spec.along_thrust and spec.ratio is not None
+    assert spec.fitted_by_finder and design.NONLINEAR["ground_effect_multirotor"] == ("K_b", 0.01, 20.0)
+    K = 4
+    d = np.array([0.05, 0.08, 0.2, np.inf])
+    data = design.GapData(np.zeros(K, int), np.arange(K) * 0.01, np.zeros((K, 3)), np.zeros((K, 3)),
+                          np.tile(np.eye(3), (K, 1, 1)), np.full((K, 4), 2000.0), np.zeros((K, 3)), d,
+                          np.full(K, np.inf), 0.032, R, ["synthetic"], "mocap", arm_length=ARM, fits_bias=False)
+    A, names = design.design(data, {"ground_effect_multirotor"}, {"K_b": 1.5})
+    thrust_z = A[2 * K:, names.index("k_T")]  # rows: x of all samples, then y, then z
+    np.testing.assert_allclose(thrust_z, 4 * 2000.0**2 * multirotor(1.5)(d), rtol=1e-12)
+    assert "Sanchez-Cuevas" in spec.physical_range.source and spec.physical_range.violation({"K_b": 7.0}, None)
+    K = 3
+    x = EffectInputs(q=np.tile([1.0, 0, 0, 0], (K, 1)), v=np.zeros((K, 3)), rotor_speeds=np.full((K, 4), 2000.0),
+                     k_T=2e-8, rotor_radius=R, d_down=np.array([0.05, 0.1, np.inf]), arm_length=ARM)
+    F = effect_force("ground_effect_multirotor", {"K_b": 1.5}, x)
+    T = 2e-8 * 4 * 2000.0**2
+    assert np.allclose(F[:, :2], 0) and np.allclose(F[:, 2], T * (multirotor(1.5)(x.d_down) - 1))
+    x.arm_length = None
+    with pytest.raises(InputError, match="arm_length"):
+        effect_force("ground_effect_multirotor", {"K_b": 1.5}, x)
+
+
+def test_cheeseman_bennett_curve_recovered_across_thrust_levels():
+    samples = hovers(cheeseman_bennett(3.0), levels=(1.0, 1.04))
+    curve = curve_of(samples)
+    assert curve.levels[1] / curve.levels[0] == pytest.approx(1.04, abs=0.003)  # the 4 % level is normalised out
+    assert curve.far_m == pytest.approx(10 * R) and not curve.notes
+    assert len(curve.bins) >= 8 and all(b.n >= 30 and b.recordings == (0, 1) for b in curve.bins)
+    d, y, se = curve.columns()
+    assert np.all(np.abs(y - cheeseman_bennett(3.0)(d)) < 4 * se)  # each bin within its error of the truth
+    fit = fit_law(curve, "ground_effect", R)
+    assert abs(fit.value - 3.0) < 2 * fit.stderr and fit.stderr < 0.3
+    assert fit.law_fits and 0.2 < fit.chi2_dof < 2.0 and fit.in_range
+    assert "chi^2/dof" in fit.why and "fits the measured curve" in fit.why
+
+
+def test_multirotor_curve_rejects_cheeseman_bennett():
+    curve = curve_of(hovers(multirotor(2.0), levels=(1.0, 0.97), seed=3))
+    cb = fit_law(curve, "ground_effect", R)
+    mr = fit_law(curve, "ground_effect_multirotor", R, **GEOMETRY)
+    assert not cb.law_fits and cb.chi2_dof > 5 * LAW_FITS_CHI2_DOF and "does not fit" in cb.why
+    assert mr.law_fits and abs(mr.value - 2.0) < 2 * mr.stderr
+    report = surface_curve_report(curve, {"ground_effect": cb, "ground_effect_multirotor": mr})
+    assert report["law"] == "ground_effect_multirotor" and report["law_fits"] is True  # the better law by default
+    assert report["surface"] == "ground" and report["params"] == {"K_b": mr.value}
+    assert set(report["bins"][0]) >= {"d_m", "n", "ratio", "stderr", "law"}
+    assert [b["law"] for b in report["bins"]] == pytest.approx(list(mr.values))
+    alt = report["alternatives"][0]
+    assert alt["law"] == "ground_effect" and alt["law_fits"] is False and alt["chi2_dof"] == cb.chi2_dof
+    chosen = surface_curve_report(curve, {"ground_effect": cb, "ground_effect_multirotor": mr}, "ground_effect")
+    assert chosen["law_fits"] is False and chosen["why"] == cb.why
+
+
+def test_free_level_absorbs_a_normalisation_that_still_feels_the_floor():
+    # normalised at 0.30-0.32 m, where this law still adds 0.4 %: a fixed level pulls K_b down, a free one does not
+    samples = hovers(multirotor(2.0), levels=(1.0,), heights=np.r_[NEAR, 0.3, 0.32], seed=1, hold_s=20.0)
+    curve = curve_of(samples, far_m=0.25)
+    free = fit_law(curve, "ground_effect_multirotor", R, free_level=True, **GEOMETRY)
+    fixed = fit_law(curve, "ground_effect_multirotor", R, **GEOMETRY)
+    true_level = 1 / np.mean(multirotor(2.0)(np.array([0.3, 0.32])))
+    assert abs(free.value - 2.0) < 2 * free.stderr and abs(free.level - true_level) < 3 * free.level_stderr
+    assert fixed.value < 1.85 and fixed.level == 1.0
+    assert "far level" in free.why and "far level" not in fixed.why
+
+
+def test_errors_cover_the_spread_between_recordings():
+    # three sessions whose height references are off by -4, 0 and +4 mm: same law, different curves
+    offsets = [-0.004, 0.0, 0.004]
+    samples = hovers(cheeseman_bennett(3.0), levels=(1.0, 1.02, 0.98), height_offsets=offsets, seed=7)
+    curve = curve_of(samples)
+    d, ratio, group = curve.d, curve.ratio, curve.group
+    low = curve.bins[0]
+    in_bin = (d >= low.lo) & (d <= low.hi)
+    means = [np.mean(ratio[in_bin & (group == g)]) for g in range(3)]
+    assert low.stderr >= np.std(means, ddof=1) / np.sqrt(3) * 0.999  # at least the recordings' standard error
+    assert all(b.stderr_level > 0 for b in curve.bins)  # each recording's normalisation is uncertain too
+    joint = fit_law(curve, "ground_effect", R)
+    # the recordings' offsets move all their bins together: the spread of single recordings sets the error
+    assert joint.stderr == joint.spread_between > joint.stderr_jackknife > joint.stderr_fit
+    for g in range(3):
+        m = samples[3] == g
+        alone = fit_law(curve_of([x[m] for x in samples]), "ground_effect", R)
+        assert abs(alone.value - joint.value) < 2 * joint.stderr, (g, alone.value, joint.value, joint.stderr)
+
+
+def test_recording_that_never_goes_far_is_left_out():
+    a = hovers(cheeseman_bennett(3.0), levels=(1.0,), seed=1)
+    b = hovers(cheeseman_bennett(3.0), levels=(1.1,), heights=NEAR, seed=2)  # never above 10 r
+    d, need, model, g, t = (np.concatenate([x, y]) for x, y in zip(a, b))
+    g[len(a[0]):] = 1
+    curve = measured_curve(d, need, model, g, hover=np.ones(len(d), bool), t=t, r=R, names=["high", "low"])
+    assert list(curve.levels) == [0] and len(curve.notes) == 1
+    assert curve.notes[0].startswith("low left out") and "0.231 m" in curve.notes[0]
+    assert all(b.recordings == (0,) for b in curve.bins)
+    assert "low left out" in surface_curve_report(curve, {"ground_effect": fit_law(curve, "ground_effect", R)})[
+        "notes"][0]
+
+
+def test_hover_mask_and_fixed_edges():
+    d, need, model, g, t = hovers(cheeseman_bennett(3.0), levels=(1.0,), seed=4)
+    hover = d > 0.05  # the lowest hovers are not "hover-like" here
+    edges = np.array([0.05, 0.08, 0.1, 0.13])
+    curve = measured_curve(d, need, model, g, hover=hover, t=t, r=R, bins=edges)
+    assert [(b.lo, b.hi) for b in curve.bins] == [(0.05, 0.08), (0.08, 0.1), (0.1, 0.13)]
+    assert sum(b.n for b in curve.bins) == np.sum(hover & (d <= 0.13))
+
+
+def test_plot_written_with_units(tmp_path):
+    samples = hovers(cheeseman_bennett(3.0), levels=(1.0,), seed=6)
+    curve = curve_of(samples)
+    fits = {n: fit_law(curve, n, R, **GEOMETRY) for n in ("ground_effect", "ground_effect_multirotor")}
+    name = plot_surface_curve(tmp_path, curve, fits)
+    assert (tmp_path / name).stat().st_size > 10_000
+    ax = surface_figure(curve, fits).axes[0]
+    assert "[m]" in ax.get_xlabel() and "[-]" in ax.get_ylabel()
+    assert len(ax.get_lines()) >= 3  # both laws and the line at 1
+
+
+def test_bad_inputs():
+    d, need, model, g, t = hovers(cheeseman_bennett(3.0), levels=(1.0,))
+    with pytest.raises(InputError, match="thrust_needed"):
+        measured_curve(d, need[:-1], model, g, hover=np.ones(len(d), bool), t=t, r=R)
+    with pytest.raises(InputError, match="block_s"):
+        measured_curve(d, need, model, g, hover=np.ones(len(d), bool), t=t, r=R, block_s=0.0)
+    curve = curve_of([d, need, model, g, t])
+    with pytest.raises(InputError, match="no surface law"):
+        fit_law(curve, "rotor_drag", R)
+    empty = measured_curve(d, need, model, g, hover=np.zeros(len(d), bool), t=t, r=R)
+    assert empty.bins == [] and surface_curve_report(empty, {}) is None

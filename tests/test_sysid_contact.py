@@ -1,0 +1,213 @@
+"""Ground contact on synthetic take-offs and landings with known contact times."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from uavturb.errors import InputError
+from uavturb.physics.dynamics import GRAVITY
+from uavturb.sysid.contact import ContactLimits, ground_contact
+from uavturb.sysid.streams import update_mask
+
+MASS = 1.5  # kg
+Z_LAND = 0.013  # m, height of the body origin when resting on the gear
+
+
+def _smootherstep(tau):
+    """Position, velocity and acceleration shapes of a move with zero speed and acceleration at both ends."""
+    s = tau**3 * (10 - 15 * tau + 6 * tau**2)
+    ds = 30 * tau**2 * (1 - tau) ** 2
+    dds = 60 * tau * (1 - tau) * (1 - 2 * tau)
+    return s, ds, dds
+
+
+def flight(phases, *, rate=100.0, seed=0, z_noise=0.001, floor=0.0):
+    """A vertical flight from ``phases``; returns (t, z, v, tilt_deg, thrust, contact truth, floor height).
+
+    Phases: ``("ground", seconds, thrust ratio at start, at end)`` resting on the gear;
+    ``("move", seconds, dz)`` a smooth climb (or descent) of ``dz`` m; ``("hover", seconds)``;
+    ``("floor", height)`` the surface under the vehicle from here on (a table: ``z`` rests higher).
+    In the air the thrust is exactly ``m (g + z'')``; on the ground the ratio given.
+    """
+    rng = np.random.default_rng(seed)
+    cols = {k: [] for k in ("z", "v", "a", "ratio", "contact", "floor")}
+    z = Z_LAND + floor
+    for ph in phases:
+        if ph[0] == "floor":
+            floor = ph[1]
+            continue
+        n = int(round(ph[1] * rate))
+        tau = np.arange(n) / n
+        zz, vz, az, ratio = np.full(n, z), np.zeros(n), np.zeros(n), np.full(n, np.nan)
+        if ph[0] == "ground":
+            ratio = ph[2] + (ph[3] - ph[2]) * tau
+        elif ph[0] == "move":
+            s, ds, dds = _smootherstep(tau)
+            zz, vz, az = z + ph[2] * s, ph[2] * ds / ph[1], ph[2] * dds / ph[1] ** 2
+            z += ph[2]
+        for key, val in zip(cols, (zz, vz, az, ratio, np.full(n, ph[0] == "ground"), np.full(n, floor))):
+            cols[key].append(val)
+    c = {k: np.concatenate(v) for k, v in cols.items()}
+    k = len(c["z"])
+    t = np.arange(k) / rate
+    air = ~c["contact"]
+    thrust = np.where(air, MASS * (GRAVITY + c["a"]), c["ratio"] * MASS * GRAVITY)
+    tilt = np.abs(np.where(air, 1.0, 0.5) + rng.normal(0, 0.2, k))  # deg
+    v = np.column_stack([rng.normal(0, 0.005, (k, 2)), c["v"] + rng.normal(0, 0.005, k)])
+    return t, c["z"] + rng.normal(0, z_noise, k), v, tilt, thrust, c["contact"], c["floor"]
+
+
+def truth_intervals(t, contact, margin=0.2):
+    d = np.diff(np.r_[0, contact.astype(int), 0])
+    return [(t[a] - margin, t[b - 1] + margin) for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1))]
+
+
+def assert_matches(intervals, t, contact, tol=0.3):
+    truth = truth_intervals(t, contact)
+    got = [(c.t_start, c.t_end) for c in intervals]
+    assert len(got) == len(truth), (got, truth)
+    for (a, b), (ta, tb) in zip(got, truth):
+        assert abs(a - max(ta, t[0])) < tol and abs(b - min(tb, t[-1])) < tol, (got, truth)
+
+
+TAKEOFF_LANDING = [("ground", 3.0, 0.6, 0.6), ("ground", 0.67, 0.6, 1.0), ("move", 2.0, 0.3), ("hover", 4.0),
+                   ("move", 2.0, -0.3), ("ground", 0.5, 1.0, 0.6), ("ground", 2.0, 0.6, 0.6)]
+
+
+def sample_and_hold(t, arrays, rate_hz, seed=1):
+    """Arrays as a logger writes them: updated at ``rate_hz`` (jittered), repeated in between."""
+    rng = np.random.default_rng(seed)
+    upd = np.cumsum(rng.uniform(0.8, 1.2, int(t[-1] * rate_hz) + 2) / rate_hz)
+    rows = np.unique(np.searchsorted(t, upd[upd < t[-1]]))
+    is_u = np.zeros(len(t), bool)
+    is_u[np.r_[0, rows]] = True
+    held = np.maximum.accumulate(np.where(is_u, np.arange(len(t)), 0))
+    return [a[held] for a in arrays]
+
+
+def test_takeoff_and_landing_give_two_intervals_at_the_true_times():
+    t, z, v, tilt, thrust, contact, _ = flight(TAKEOFF_LANDING)
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS)
+    assert_matches(found, t, contact)
+    # the fit keeps the hover and the climb, leaves out every row of true contact
+    assert mask[contact].all()
+    assert not mask[(t > 5.0) & (t < 10.0)].any()
+    assert found[0].t_start == 0.0 and found[1].t_end == t[-1]
+    assert found[0].why.startswith("on the landing gear: height 0.0")
+    assert "thrust 6" in found[0].why and "% of the weight" in found[0].why
+    entry = found[1].to_report("flights/takeoff")
+    assert entry == {"recording": "flights/takeoff", "t_start": round(found[1].t_start, 3), "t_end": round(t[-1], 3),
+                     "why": found[1].why}
+
+
+def test_a_low_hover_at_the_landed_height_plus_25_mm_is_in_the_air():
+    phases = [("ground", 3.0, 0.6, 0.6), ("ground", 0.67, 0.6, 1.0), ("move", 1.5, 0.025), ("hover", 5.0),
+              ("move", 1.5, 0.3), ("hover", 2.0), ("move", 2.0, -0.325), ("ground", 0.5, 1.0, 0.6),
+              ("ground", 2.0, 0.6, 0.6)]
+    t, z, v, tilt, thrust, contact, _ = flight(phases, seed=3)
+    low_hover = (t > 5.2) & (t < 10.1)
+    for k_T_error in (1.0, 0.8, 1.2):  # the thrust guessed 20 % low or high
+        mask, found = ground_contact(t, z, v, tilt, thrust * k_T_error, MASS)
+        assert_matches(found, t, contact)
+        assert not mask[low_hover].any()
+
+
+def test_a_low_hover_is_not_contact_even_where_the_thrust_reads_low_and_is_taken_as_given():
+    """Ground effect: the rotors' modelled thrust reads 80 % of the weight in a hover 25 mm up."""
+    phases = [("ground", 2.0, 0.6, 0.6), ("ground", 0.67, 0.6, 1.0), ("move", 1.5, 0.025), ("hover", 5.0)]
+    t, z, v, tilt, thrust, contact, _ = flight(phases, seed=4)
+    mask, found = ground_contact(t, z, v, tilt, 0.8 * thrust, MASS, calibrate=False)
+    # the thrust never reads the weight, so only the height tells the lift-off: the slow climb
+    # (3 cm/s at most) counts as resting until it is 1.5 cm up, about 0.8 s after lift-off
+    assert len(found) == 1 and 2.67 + 0.2 < found[0].t_end < 2.67 + 0.2 + 1.0
+    assert not mask[t > 4.0].any()
+
+
+def test_a_recording_that_never_lands_gives_no_interval():
+    t, z, v, tilt, thrust, _, _ = flight([("hover", 3.0), ("move", 2.0, 0.4), ("hover", 5.0), ("move", 2.0, -0.3)])
+    z = z + 0.5  # flies 0.5 m and more above anything
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS)
+    assert found == [] and not mask.any()
+    # a steady hover alone, its thrust read 20 % low and taken as given: only d_down can tell
+    t, z, v, tilt, thrust, _, _ = flight([("hover", 10.0)], seed=8)
+    z = z + 0.6
+    _, by_z = ground_contact(t, z, v, tilt, 0.8 * thrust, MASS, calibrate=False)
+    assert len(by_z) == 1  # the lowest height it reached looks like a landed height
+    _, by_d_down = ground_contact(t, z, v, tilt, 0.8 * thrust, MASS, d_down=z + 0.05, calibrate=False)
+    assert by_d_down == []
+
+
+def test_touch_and_go_in_the_middle_is_caught():
+    phases = TAKEOFF_LANDING[:4] + [("move", 2.0, -0.3), ("ground", 1.5, 0.7, 0.7), ("ground", 0.4, 0.7, 1.0),
+                                    ("move", 2.0, 0.3), ("hover", 2.0)] + TAKEOFF_LANDING[4:]
+    t, z, v, tilt, thrust, contact, _ = flight(phases, seed=5)
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS)
+    assert len(found) == 3
+    assert_matches(found, t, contact)
+
+
+def test_noise_and_held_rows_do_not_break_it():
+    """State updated at 9 Hz in 50 Hz rows, thrust from rotor speeds updated at 3 Hz, z noise 1 mm."""
+    t, z, v, tilt, thrust, contact, _ = flight(TAKEOFF_LANDING, rate=50.0, seed=6)
+    z_h, v_h, tilt_h = sample_and_hold(t, [z, v, tilt], 9.0)
+    (thrust_h,) = sample_and_hold(t, [thrust], 3.0, seed=2)
+    assert np.mean(np.diff(z_h) == 0) > 0.75
+    mask, found = ground_contact(t, z_h, v_h, tilt_h, thrust_h, MASS)
+    assert_matches(found, t, contact)
+
+
+def test_held_positions_do_not_make_a_slow_climb_look_still():
+    """A climb at 4 cm/s logged at 5 Hz in 50 Hz rows, velocity differenced from the logged rows:
+    zero on the repeats, so over all rows the vehicle looks still; on its updates it moves."""
+    t = np.arange(0, 6, 0.02)
+    (z,) = sample_and_hold(t, [Z_LAND + np.where(t < 2, 0.0, 0.04 * (t - 2))], 5.0)  # sits 2 s, then climbs
+    v = np.column_stack([np.zeros_like(t), np.zeros_like(t), np.gradient(z, t)])
+    assert np.median(np.abs(v[t > 2.5, 2])) == 0.0
+    thrust = np.where(t < 2, 0.6, 0.9) * MASS * GRAVITY  # reads low: only stillness can tell
+    limits = ContactLimits(still_mps=0.03, height_tol_m=0.1, margin_s=0.0)
+    args = (t, z, v, np.full_like(t, 0.5), thrust, MASS)
+    mask, found = ground_contact(*args, update=update_mask(z), calibrate=False, limits=limits)
+    assert len(found) == 1 and found[0].t_end < 2.4
+    assert not mask[t > 2.5].any()
+    every_row, _ = ground_contact(*args, update=np.ones(len(t), bool), calibrate=False, limits=limits)
+    assert every_row[(t > 2.5) & (t < 3.5)].all()  # the failure the updates avoid
+
+
+def test_rotor_plane_heights_find_a_landing_on_a_table():
+    """d_down tells a landing on a 0.5 m table, which the body height alone cannot."""
+    phases = TAKEOFF_LANDING[:4] + [("move", 2.0, 0.3), ("floor", 0.5), ("hover", 2.0), ("move", 2.0, -0.1)]
+    phases += TAKEOFF_LANDING[5:]
+    t, z, v, tilt, thrust, contact, floor = flight(phases, seed=7)
+    d_down = z - floor + 0.05  # rotor plane 5 cm above the body origin
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down)
+    assert_matches(found, t, contact)
+    assert "rotor-plane height" in found[1].why
+    _, by_z = ground_contact(t, z, v, tilt, thrust, MASS)
+    assert len(by_z) == 1
+
+
+def test_recordings_are_judged_apart():
+    t, z, v, tilt, thrust, contact, _ = flight(TAKEOFF_LANDING)
+    t2, z2, v2, tilt2, thrust2, _, _ = flight([("hover", 6.0)], seed=2)
+    cat = [np.concatenate(p) for p in ((t, t2), (z, z2 + 1.0), (v, v2), (tilt, tilt2), (thrust, thrust2))]
+    group = np.r_[np.zeros(len(t), int), np.ones(len(t2), int)]
+    mask, found = ground_contact(*cat, MASS, group=group)
+    assert [c.group for c in found] == [0, 0]
+    assert_matches(found, t, contact)
+    assert not mask[group == 1].any()
+
+
+def test_a_landed_height_given_is_used():
+    t, z, v, tilt, thrust, contact, _ = flight(TAKEOFF_LANDING)
+    _, found = ground_contact(t, z, v, tilt, thrust, MASS, landed_height=Z_LAND)
+    assert_matches(found, t, contact)
+    assert "the landed height given, 0.013 m" in found[0].why
+    _, none = ground_contact(t, z, v, tilt, thrust, MASS, landed_height=Z_LAND - 0.05)
+    assert none == []
+
+
+def test_rows_of_other_lengths_are_refused():
+    t, z, v, tilt, thrust, _, _ = flight(TAKEOFF_LANDING)
+    with pytest.raises(InputError, match="thrust"):
+        ground_contact(t, z, v, tilt, thrust[:-1], MASS)

@@ -1,0 +1,127 @@
+"""What the recordings really hold, before any fit (``recordings.md``: streams that update slowly or
+late, ground contact).
+
+- **Streams**: each stream's rows and updates (:func:`uavturb.sysid.streams.stream_updates`); the
+  physics reads held streams on their updates (:func:`uavturb.sysid.flight_data.held_updates`), and
+  the report says where a stream updates too slowly for what was asked (:func:`stream_limits`).
+- **Late rotor telemetry**: measured rotor speeds (ESC telemetry, ``rotor_speed_source: measured``)
+  arrive 40-80 ms late on real logs. Their delay against the thrust the motion capture or the IMU
+  says was needed is estimated (:func:`uavturb.sysid.streams.estimate_lag`) and, where resolved,
+  taken out of the rotor timestamps (:func:`delay_corrected`). Commanded speeds are left alone: their
+  lag behind the rotors is the ``motor_lag`` effect, which the finder tests.
+- **Ground contact**: rows where the floor carries the vehicle (:func:`uavturb.sysid.contact.ground_contact`)
+  are left out of every fit and listed in the report.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Sequence
+
+import numpy as np
+
+from uavturb.io.recording import Recording, Rotors
+from uavturb.physics import quaternion as quat
+from uavturb.physics.constants import GRAVITY
+from uavturb.sysid.contact import ContactLimits, ground_contact
+from uavturb.sysid.flight_data import FlightData, flight_data
+from uavturb.sysid.streams import estimate_lag, needed_rate_hz, slow_for, stream_updates
+
+#: s, motor time constant a motor_lag test must resolve (effects.md: 12.5-25 ms)
+MOTOR_LAG_S = 0.02
+#: s, time to cross the height range where a ground effect changes (0.1 m at 0.5 m/s)
+SURFACE_CROSSING_S = 0.2
+#: contact thresholds (:class:`~uavturb.sysid.contact.ContactLimits`'s defaults). A hover close to the
+#: floor also reads a thrust 5-10 % under the weight (the ground effect itself), so a still vehicle at the
+#: lowest height a recording reaches is left out even then: losing a second of the lowest hover costs
+#: less than counting the floor's reaction as aerodynamics
+CONTACT_LIMITS = ContactLimits()
+#: s, smallest delay of the rotor telemetry worth taking out
+MIN_DELAY_S = 0.01
+
+
+def needed_thrust(fd: FlightData, mass: float) -> np.ndarray:
+    """(K,) N, the force along the body z axis the rotors must make: ``m a_z`` (IMU) or
+    ``m (R^T (v_dot + g e_z))_z`` (motion capture)."""
+    if fd.acc is not None:
+        return mass * fd.acc[:, 2]
+    R = quat.to_rotation_matrix(fd.q)
+    return mass * np.einsum("ki,ki->k", R[:, :, 2], fd.dv + np.array([0.0, 0.0, GRAVITY]))
+
+
+def delay_corrected(rec: Recording, fd: FlightData) -> tuple[Recording, dict[str, Any] | None]:
+    """``rec`` with its measured rotor speeds' delay taken out of their timestamps, and what was found
+    (None for commanded speeds)."""
+    if rec.vehicle.rotor_speed_source != "measured" or rec.rotors is None:
+        return rec, None
+    t_sig = rec.seconds(rec.rotors.t_ns)
+    signal = np.sum(rec.rotors.speeds**2, axis=1)
+    lag = estimate_lag(fd.t, needed_thrust(fd, rec.vehicle.mass), t_sig, signal)
+    found = {"stream": "rotors0", "lag_s": lag.lag_s, "stderr_s": lag.stderr_s, "r2": lag.r2,
+             "resolvable": lag.resolvable, "describe": lag.describe("rotors0 (measured rotor speeds)")}
+    if not lag.resolvable or lag.lag_s < max(MIN_DELAY_S, 2.0 * lag.stderr_s):
+        found["applied"] = False
+        return rec, found
+    shift = int(round(lag.lag_s * 1e9))
+    found["applied"] = True
+    return dataclasses.replace(rec, rotors=Rotors(t_ns=rec.rotors.t_ns - shift, speeds=rec.rotors.speeds)), found
+
+
+def stream_limits(rec: Recording) -> tuple[list[str], list[str]]:
+    """(one line per stream: rows and updates; sentences where a stream updates too slowly for the
+    ground effect or a motor lag)."""
+    streams = {"state_groundtruth_estimate0": (rec.ground_truth.t_ns, rec.ground_truth.p)}
+    if rec.rotors is not None:
+        streams["rotors0"] = (rec.rotors.t_ns, rec.rotors.speeds)
+    if rec.imu is not None:
+        streams["imu0"] = (rec.imu.t_ns, rec.imu.acc)
+    lines, limits = [], []
+    for name, (t, x) in streams.items():
+        u = stream_updates(f"{rec.name}/{name}", t, x)
+        lines.append(u.describe())
+        if name == "state_groundtruth_estimate0":
+            why = slow_for(u, needed_rate_hz(SURFACE_CROSSING_S), "a surface effect (heights crossed in 0.2 s)")
+        elif name == "rotors0":
+            why = slow_for(u, needed_rate_hz(MOTOR_LAG_S), f"a motor lag of {1e3 * MOTOR_LAG_S:.0f} ms")
+        else:
+            why = None
+        if why:
+            limits.append(why)
+    return lines, limits
+
+
+def contact_masks(fds: Sequence[FlightData], mass: float, k_T: float | None, paths: Sequence[str]
+                  ) -> tuple[list[np.ndarray], list[dict[str, Any]]]:
+    """Per flight, the rows where the floor carries the vehicle, and the report's ``ground_contact``."""
+    masks, report = [], []
+    for fd, path in zip(fds, paths):
+        R = quat.to_rotation_matrix(fd.q)
+        tilt = np.degrees(np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0)))
+        S = np.sum(fd.rotor_speeds**2, axis=1)
+        thrust = k_T * S if k_T else S / np.median(S) * mass * GRAVITY
+        d_down = fd.d_down if fd.d_down is not None and np.any(np.isfinite(fd.d_down)) else None
+        mask, intervals = ground_contact(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass, d_down=d_down,
+                                         limits=CONTACT_LIMITS)
+        masks.append(mask)
+        report += [iv.to_report(path) for iv in intervals]
+    return masks, report
+
+
+def prepared(recordings: Sequence[Recording], paths: Sequence[str]
+             ) -> tuple[list[Recording], list[FlightData], dict[str, Any]]:
+    """The recordings with late telemetry corrected, their flight data, and what was found
+    (``streams``, ``stream_limits``, ``delays``)."""
+    recs, fds, delays, lines, limits = [], [], [], [], []
+    for rec in recordings:
+        fd = flight_data(rec)
+        rec2, found = delay_corrected(rec, fd)
+        if found is not None:
+            delays.append(found)
+            if found["applied"]:
+                fd = flight_data(rec2)
+        recs.append(rec2)
+        fds.append(fd)
+        ln, lim = stream_limits(rec)
+        lines += ln
+        limits += lim
+    return recs, fds, {"streams": lines, "stream_limits": limits, "delays": delays}

@@ -1,0 +1,584 @@
+"""The measured surface curve of ``gap-report.md``: thrust ratio ``T_IGE/T_OGE`` against rotor-plane height.
+
+For each hover-like sample the rotors must be making ``thrust_needed`` [N] (the measured force along
+the body z axis); the nominal model says ``thrust_modelled = k_T,rec sum(w^2)`` [N], with each
+recording's own thrust coefficient. Their ratio, normalised per recording by its median far from the
+surface, is the extra thrust per rotor speed squared the surface gives (``effects.md``, "Surface effects
+on real vehicles"). It is binned in the rotor-plane height ``d`` (``recordings.md``, "Heights over
+surfaces") and the surface laws of the effect registry (their ``ratio``) are fitted to the bins.
+
+Choices (each stated where it is made):
+
+- **Far from the surface** (normalisation): ``d > far_m``; by default ``far_m = FAR_RADII r``
+  (10 rotor radii: Cheeseman-Bennett at ``mu = 3`` adds 0.2 % there; a multirotor law with a strong body
+  term can still add ~1 %, which a free level in :func:`fit_law` absorbs). Without ``r``, the top of the
+  flights: ``FAR_SHARE`` of the highest hover height of all recordings. A recording with fewer than
+  :data:`MIN_FAR` samples above ``far_m`` cannot be normalised: it is left out, with a note.
+- **Bins** (near range ``d <= far_m``, where the laws are steep): adaptive, consecutive in height, each
+  with at least :data:`MIN_BIN_N` samples and :data:`MIN_BLOCKS` time blocks (about
+  ``n / MAX_BINS`` samples each), or the edges given.
+- **Honest errors**: a bin's standard error is the larger of the cluster-robust one over time blocks of
+  ``block_s`` within each recording (samples in one hover are not independent) and, where two or more
+  recordings contribute, the standard error of the recordings' mean (sessions, batteries, height
+  references differ). A law is compared with each bin's mean ratio through its own mean over the bin's
+  samples (a bin spanning several heights has a mean ratio above the law at its mean height). A law's
+  parameter error is the larger of the fit's (scaled by ``sqrt(chi2/dof)`` where that exceeds 1; the
+  fit uses the bins' full covariance, in which a recording's normalisation error is shared by all its
+  bins) and, with two or more recordings, the standard deviation of the values fitted to each
+  recording alone, because a recording's offset moves all its bins together, which per-bin errors do
+  not show, and ``gap-report.md`` asks that each recording's own fit land within about two errors of
+  the joint value; with one recording, a jackknife over time blocks.
+- **A law fits** where ``chi2/dof <`` :data:`LAW_FITS_CHI2_DOF` (3): with honest errors the right law
+  gives ``chi2/dof`` about 1 (standard deviation ``sqrt(2/dof)``, 0.5 at 8 dof), so 3 is four such
+  deviations above it, and a p-value under 1 % from 5 dof on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from scipy.linalg import cholesky, solve_triangular
+from scipy.optimize import least_squares
+from scipy.stats import chi2 as chi2_dist
+
+from uavturb.errors import InputError
+from uavturb.physics.effects import EFFECTS
+
+#: default far height in rotor radii (normalisation above it)
+FAR_RADII = 10.0
+#: without a rotor radius: far = this share of the highest hover height over all recordings
+FAR_SHARE = 0.5
+#: samples above ``far_m`` a recording needs to be normalised
+MIN_FAR = 30
+#: samples and time blocks each adaptive bin needs; bins aimed at
+MIN_BIN_N, MIN_BLOCKS, MAX_BINS = 30, 3, 12
+#: samples a recording needs in a bin for its mean to count in the between-recording error
+MIN_RECORDING_N = 5
+#: chi^2/dof under which a law's shape fits the bins (module docstring)
+LAW_FITS_CHI2_DOF = 3.0
+#: slices of each bin's height range at which a law is evaluated when fitting (:class:`_BinnedLaw`)
+_SUB_BINS = 64
+#: residual [standard errors] given to a bin where a law does not hold (its pole), to steer fits away
+_POLE_RESIDUAL = 1e3
+
+
+@dataclass(frozen=True)
+class SurfaceBin:
+    """One height bin. ``lo``, ``hi``, ``d_m`` [m] (edges, mean rotor-plane height); ``ratio`` (mean) and
+    ``stderr`` [-], the whole error; ``stderr_level`` [-] its part from the recordings' normalisation,
+    shared with the other bins of the same recordings; ``n`` samples, ``blocks`` time blocks,
+    ``recordings`` (group ids contributing)."""
+
+    lo: float
+    hi: float
+    d_m: float
+    n: int
+    ratio: float
+    stderr: float
+    blocks: int
+    recordings: tuple[int, ...]
+    stderr_level: float = 0.0
+
+
+@dataclass
+class SurfaceCurve:
+    """The measured curve: bins, how it was normalised, and the samples behind it (for jackknives).
+
+    Attributes
+    ----------
+    bins : list of SurfaceBin, by height
+    far_m : m, normalisation height; levels : {group: median raw ratio above far_m}
+    notes : sentences on what was left out and why
+    level_error : {group: relative standard error of its level} (cluster-robust over time blocks, times
+        ``sqrt(pi/2)`` for a median)
+    d, ratio, group, block : (M,) the near samples used (m, normalised ratio, recording, time block)
+    edges : (B+1,) m, bin edges
+    """
+
+    bins: list[SurfaceBin]
+    far_m: float
+    levels: dict[int, float]
+    notes: list[str]
+    level_error: dict[int, float]
+    d: np.ndarray = field(repr=False)
+    ratio: np.ndarray = field(repr=False)
+    group: np.ndarray = field(repr=False)
+    block: np.ndarray = field(repr=False)
+    edges: np.ndarray = field(repr=False)
+
+    def columns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(d_m, ratio, stderr)`` of the bins, each ``(B,)``."""
+        return (np.array([b.d_m for b in self.bins]), np.array([b.ratio for b in self.bins]),
+                np.array([b.stderr for b in self.bins]))
+
+
+def _check_inputs(d, thrust_needed, thrust_modelled, group, hover, t):
+    arrays = {"d": d, "thrust_needed": thrust_needed, "thrust_modelled": thrust_modelled, "group": group,
+              "hover": hover}
+    if t is not None:
+        arrays["t"] = t
+    out = {k: np.asarray(v) for k, v in arrays.items()}
+    K = len(out["d"])
+    for k, v in out.items():
+        if v.ndim != 1 or len(v) != K:
+            raise InputError("surface curve", f"'{k}' must have shape ({K},) like 'd', got {v.shape}")
+    return out
+
+
+def _far_height(d: np.ndarray, ok: np.ndarray, far_m: float | None, r: float | None) -> float:
+    if far_m is not None:
+        return float(far_m)
+    if r is not None:
+        return FAR_RADII * float(r)
+    finite = d[ok & np.isfinite(d)]
+    return FAR_SHARE * float(finite.max()) if len(finite) else np.inf
+
+
+def _normalise(raw, d, ok, group, block, far_m, names) -> tuple[dict[int, float], dict[int, float], list[str]]:
+    """Median raw ratio above ``far_m`` per recording, its relative standard error, and notes for
+    recordings that never went far."""
+    levels, errors, notes = {}, {}, []
+    for g in np.unique(group[ok]):
+        far = ok & (group == g) & (d > far_m)
+        if far.sum() < MIN_FAR:
+            name = names[g] if names is not None else f"recording {g}"
+            notes.append(f"{name} left out: it hovered above {far_m:.3f} m (far from the surface) in only "
+                         f"{int(far.sum())} samples (needs {MIN_FAR}), so its thrust level cannot be normalised")
+            continue
+        levels[int(g)] = float(np.median(raw[far]))
+        _, se, _, _ = _bin_stats(raw[far], group[far], block[far])
+        errors[int(g)] = float(np.nan_to_num(se) * np.sqrt(np.pi / 2) / levels[int(g)])
+    return levels, errors, notes
+
+
+def _blocks(group: np.ndarray, t: np.ndarray | None, block_s: float) -> np.ndarray:
+    """Cluster ids: time blocks of ``block_s`` [s] within each recording (the recording without ``t``)."""
+    if t is None:
+        return group.astype(np.int64)
+    out = np.empty(len(group), np.int64)
+    for g in np.unique(group):
+        m = group == g
+        out[m] = np.floor((t[m] - t[m].min()) / block_s).astype(np.int64)
+    return group.astype(np.int64) * 10_000_000 + out
+
+
+def _adaptive_edges(d: np.ndarray, block: np.ndarray) -> np.ndarray:
+    """Consecutive height bins with at least ``MIN_BIN_N`` samples and ``MIN_BLOCKS`` blocks each."""
+    order = np.argsort(d, kind="stable")
+    ds, bs = d[order], block[order]
+    target = max(MIN_BIN_N, int(np.ceil(len(ds) / MAX_BINS)))
+    cuts, start, seen = [], 0, set()
+    for i in range(len(ds)):
+        seen.add(int(bs[i]))
+        if i + 1 - start >= target and len(seen) >= MIN_BLOCKS and i + 1 < len(ds) and ds[i + 1] > ds[i]:
+            cuts.append(i + 1)
+            start, seen = i + 1, set()
+    if cuts and (len(ds) - cuts[-1] < target or len(set(bs[cuts[-1]:].tolist())) < MIN_BLOCKS):
+        cuts.pop()  # too little left: the remainder joins the last bin
+    inner = [0.5 * (ds[c - 1] + ds[c]) for c in cuts]
+    return np.array([ds[0], *inner, ds[-1]], float)
+
+
+def _bin_of(d: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Bin index of each height (-1 outside ``[edges[0], edges[-1]]``)."""
+    idx = np.searchsorted(edges, d, side="right") - 1
+    idx[d == edges[-1]] = len(edges) - 2
+    return np.where((d < edges[0]) | (d > edges[-1]), -1, idx)
+
+
+def _bin_stats(x: np.ndarray, group: np.ndarray, block: np.ndarray) -> tuple[float, float, int, tuple[int, ...]]:
+    """``(mean, stderr, blocks, recordings)`` of one bin's ratios (module docstring, honest errors)."""
+    n, mean = len(x), float(np.mean(x))
+    e = x - mean
+    ub, inv = np.unique(block, return_inverse=True)
+    se_c = np.nan
+    if len(ub) >= 2:
+        sums = np.bincount(inv, weights=e)
+        se_c = float(np.sqrt(len(ub) / (len(ub) - 1) * np.sum(sums**2)) / n)
+    recs = [int(g) for g in np.unique(group) if np.sum(group == g) >= MIN_RECORDING_N]
+    se_b = np.nan
+    if len(recs) >= 2:
+        means = np.array([np.mean(x[group == g]) for g in recs])
+        se_b = float(np.std(means, ddof=1) / np.sqrt(len(recs)))
+    se = np.nanmax([se_c, se_b]) if np.isfinite([se_c, se_b]).any() else np.nan
+    return mean, float(se), len(ub), tuple(int(g) for g in np.unique(group))
+
+
+def measured_curve(d, thrust_needed, thrust_modelled, group, *, hover, far_m: float | None = None,
+                   bins=None, block_s: float = 1.0, t=None, r: float | None = None,
+                   names: list[str] | None = None) -> SurfaceCurve:
+    """Bin the measured thrust ratio in rotor-plane height (module docstring for every choice).
+
+    Parameters
+    ----------
+    d : (K,) rotor-plane height over the surface below [m] (``inf`` where none)
+    thrust_needed : (K,) N, measured force along the body z axis the rotors must be making
+    thrust_modelled : (K,) N, ``k_T,rec sum(w^2)`` with each recording's own thrust coefficient
+    group : (K,) int, recording index
+    hover : (K,) bool, hover-like samples to use (small acceleration and tilt, in the air)
+    far_m : m, normalisation height (default ``FAR_RADII r``, or ``FAR_SHARE`` of the top height)
+    bins : None (adaptive), an int (that many quantile bins) or (B+1,) edges [m]
+    block_s : s, time blocks for the cluster-robust errors
+    t : (K,) s, time (without it each recording is one cluster)
+    r : m, rotor radius (for the default ``far_m``)
+    names : recording names for the notes
+    """
+    a = _check_inputs(d, thrust_needed, thrust_modelled, group, hover, t)
+    d, need, model = (a[k].astype(float) for k in ("d", "thrust_needed", "thrust_modelled"))
+    group, hover = a["group"].astype(np.int64), a["hover"].astype(bool)
+    tt = a["t"].astype(float) if t is not None else None
+    if block_s <= 0:
+        raise InputError("surface curve", f"block_s must be positive, got {block_s}")
+    ok = hover & np.isfinite(need) & np.isfinite(model) & (model > 0) & ~np.isnan(d) & (d > 0)
+    far = _far_height(d, ok, far_m, r)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        raw = need / model
+    blocks = _blocks(group, tt, block_s)
+    levels, level_error, notes = _normalise(raw, d, ok, group, blocks, far, names)
+    near = ok & np.isin(group, list(levels)) & np.isfinite(d) & (d <= far)
+    ratio = raw[near] / np.array([levels[int(g)] for g in group[near]])
+    dn, gn, bn = d[near], group[near], blocks[near]
+    if len(dn) < MIN_BIN_N:
+        notes.append(f"only {len(dn)} hover samples under {far:.3f} m: no surface curve")
+        return SurfaceCurve([], far, levels, notes, level_error, dn, ratio, gn, bn, np.array([]))
+    if bins is None:
+        edges = _adaptive_edges(dn, bn)
+    elif np.ndim(bins) == 0:
+        edges = np.unique(np.quantile(dn, np.linspace(0, 1, int(bins) + 1)))
+    else:
+        edges = np.asarray(bins, float)
+    idx = _bin_of(dn, edges)
+    out = []
+    for k in range(len(edges) - 1):
+        m = idx == k
+        if m.sum() < 2:
+            continue
+        mean, se, nb, recs = _bin_stats(ratio[m], gn[m], bn[m])
+        share = np.array([np.mean(gn[m] == g) for g in recs])
+        se_level = mean * float(np.sqrt(np.sum((share * np.array([level_error[g] for g in recs])) ** 2)))
+        out.append(SurfaceBin(float(edges[k]), float(edges[k + 1]), float(np.mean(dn[m])), int(m.sum()), mean,
+                              float(np.hypot(se, se_level)), nb, recs, se_level))
+    return SurfaceCurve(out, far, levels, notes, level_error, dn, ratio, gn, bn, edges)
+
+
+@dataclass
+class LawFit:
+    """A surface law fitted to the bins of a :class:`SurfaceCurve`.
+
+    Attributes
+    ----------
+    law : effect name; param : its parameter's name
+    value : fitted value; stderr : its honest error, ``max(stderr_fit, spread_between)`` with two or more
+        recordings (``max(stderr_fit, stderr_jackknife)`` with one): what a recording's own fit may
+        differ from ``value`` by (``gap-report.md``: an error bar covers the spread between recordings);
+        with many recordings it exceeds the standard error of the joint value (``stderr_jackknife``)
+    stderr_fit : from the weighted fit (scaled by ``sqrt(chi2/dof)`` where > 1)
+    stderr_jackknife : standard error of the joint value, jackknife over recordings (over time blocks
+        with one recording); nan where it cannot be formed
+    spread_between : standard deviation of the values fitted to each recording alone (same bins; nan
+        with one recording)
+    level, level_stderr : the far level (1, or fitted with ``free_level``)
+    chi2, dof, chi2_dof, p_value : goodness of fit over the bins used
+    values : (B,) the law's ratio in each bin (averaged over the bin's samples where the curve has them)
+    law_fits : ``chi2_dof < LAW_FITS_CHI2_DOF``; in_range : the value lies in the effect's physical range
+    why : one sentence with the numbers; evaluate : ``d [m] -> ratio`` with the fitted values (plots)
+    """
+
+    law: str
+    param: str
+    value: float
+    stderr: float
+    stderr_fit: float
+    stderr_jackknife: float
+    spread_between: float
+    level: float
+    level_stderr: float
+    chi2: float
+    dof: int
+    chi2_dof: float
+    p_value: float
+    values: np.ndarray
+    law_fits: bool
+    in_range: bool
+    why: str
+    evaluate: Callable[[np.ndarray], np.ndarray] = field(repr=False)
+
+
+class _BinnedLaw:
+    """A law's ratio averaged over each bin's samples (exact against the bin's mean ratio, whatever the
+    spread of heights in it); at the bins' mean heights where the curve holds no samples. For speed the
+    samples of each bin are grouped in :data:`_SUB_BINS` equal slices of its height range and the law is
+    evaluated at each slice's mean height, weighted by its count."""
+
+    def __init__(self, curve: SurfaceCurve, spec, r: float, geometry: dict, free_level: bool):
+        self.curve, self.spec, self.r, self.geometry, self.free_level = curve, spec, r, geometry, free_level
+        self.idx = _bin_of(curve.d, curve.edges) if len(curve.d) else np.array([], int)
+        lo_edges = curve.edges[:-1]
+        self.bin_k = np.array([int(np.searchsorted(lo_edges, b.lo, side="right") - 1) for b in curve.bins], int)
+        if len(curve.d):
+            nb = len(curve.edges) - 1
+            inside = self.idx >= 0
+            k = np.where(inside, self.idx, 0)
+            width = np.maximum(np.diff(curve.edges)[k], 1e-12)
+            frac = np.clip((curve.d - curve.edges[k]) / width, 0.0, 1.0 - 1e-9)
+            self.sub = np.where(inside, k * _SUB_BINS + (frac * _SUB_BINS).astype(int), -1)
+            n = np.bincount(self.sub[inside], minlength=nb * _SUB_BINS)
+            sums = np.bincount(self.sub[inside], weights=curve.d[inside], minlength=nb * _SUB_BINS)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                self.sub_d = np.where(n > 0, sums / np.maximum(n, 1), np.nan)
+            self.sub_bin = np.arange(nb * _SUB_BINS) // _SUB_BINS
+
+    def at(self, d: np.ndarray, z: np.ndarray) -> np.ndarray:
+        level = z[1] if self.free_level else 1.0
+        return level * self.spec.ratio(np.asarray(d, float), float(z[0]), self.r, **self.geometry)
+
+    def bins(self, z: np.ndarray) -> np.ndarray:
+        """(B,) the law in each bin, over all its samples."""
+        return self.over(None)(z)
+
+    def over(self, use: np.ndarray | None) -> Callable[[np.ndarray], np.ndarray]:
+        """``z -> (B,)`` the law in each bin over the samples where ``use`` (all where None)."""
+        if not len(self.curve.d):
+            return lambda z: self.at(self.curve.columns()[0], z)
+        sel = self.sub >= 0 if use is None else (self.sub >= 0) & use
+        counts = np.bincount(self.sub[sel], minlength=len(self.sub_d))
+        present = counts > 0
+        nb = len(self.curve.edges) - 1
+        n = np.bincount(self.sub_bin, weights=counts, minlength=nb)
+
+        def law(z: np.ndarray) -> np.ndarray:
+            vals = np.zeros(len(self.sub_d))
+            vals[present] = self.at(self.sub_d[present], z)
+            sums = np.bincount(self.sub_bin, weights=counts * vals, minlength=nb)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                return (sums / n)[self.bin_k]
+        return law
+
+
+def _weighted_fit(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, se: np.ndarray, spec,
+                  free_level: bool, chol: np.ndarray | None = None):
+    """Least squares of ``(y - model(z)) / se`` over the law's search bounds (bins where ``y`` is finite),
+    or of ``chol^-1 (y - model(z))`` with ``chol`` the Cholesky factor of the covariance of those bins;
+    a grid picks the start. Returns ``(z, whitened residuals, jacobian)``."""
+    lo, hi = spec.search
+    ok = np.isfinite(y)
+
+    def resid(z: np.ndarray) -> np.ndarray:
+        m = model(z)[ok]
+        raw = np.where(np.isfinite(m), y[ok] - m, _POLE_RESIDUAL * se[ok])
+        return raw / se[ok] if chol is None else solve_triangular(chol, raw, lower=True)
+
+    grid = np.concatenate([np.linspace(lo, hi, 41), np.geomspace(max(lo, 1e-3), hi, 41)])
+    level0 = 1.0
+    if free_level:  # the level that matches the upper half of the bins at the grid's middle value
+        far = ok & (np.arange(len(y)) >= len(y) // 2)
+        level0 = float(np.clip(np.median(y[far] / model(np.array([np.median(grid), 1.0]))[far]), 0.6, 1.4))
+    costs = [np.sum(resid(np.array([p, level0])) ** 2) for p in grid]
+    z0 = np.array([grid[int(np.argmin(costs))], level0])[: 2 if free_level else 1]
+    bounds = ([lo, 0.5], [hi, 1.5]) if free_level else ([lo], [hi])
+    z0 = np.clip(z0, np.array(bounds[0]) + 1e-9, np.array(bounds[1]) - 1e-9)
+    sol = least_squares(resid, z0, bounds=bounds, x_scale="jac")
+    return sol.x, resid(sol.x), sol.jac
+
+
+def _units(curve: SurfaceCurve) -> tuple[np.ndarray, np.ndarray]:
+    """``(label per sample, units)``: the recordings, or with a single recording up to 10 chunks of its
+    time blocks."""
+    recs = np.unique(curve.group)
+    if len(recs) >= 2:
+        return curve.group, recs
+    ub = np.unique(curve.block)
+    chunks = np.array_split(ub, max(1, min(10, len(ub))))
+    labels = np.zeros(len(curve.block), np.int64)
+    for i, c in enumerate(chunks):
+        labels[np.isin(curve.block, c)] = i
+    return labels, np.arange(len(chunks))
+
+
+def _rebin(curve: SurfaceCurve, law: _BinnedLaw, use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(ratio, stderr)`` of each bin (same edges) from the samples where ``use``, the errors as
+    :func:`measured_curve` gives them (level errors included); nan where a bin has under 2 samples."""
+    out = np.full((2, len(law.bin_k)), np.nan)
+    for i, k in enumerate(law.bin_k):
+        m = use & (law.idx == k)
+        if m.sum() < 2:
+            continue
+        mean, se, _, recs = _bin_stats(curve.ratio[m], curve.group[m], curve.block[m])
+        share = np.array([np.mean(curve.group[m] == g) for g in recs])
+        level = mean * float(np.sqrt(np.sum((share * np.array([curve.level_error.get(g, 0.0) for g in recs])) ** 2)))
+        out[:, i] = mean, np.hypot(se, level)
+    return out[0], out[1]
+
+
+def _refit(curve: SurfaceCurve, law: _BinnedLaw, keep_bins: np.ndarray, se: np.ndarray | None, free_level: bool,
+           use: np.ndarray) -> float:
+    """The law's parameter fitted to the bins rebinned (same edges) from the samples where ``use``, weighted
+    by ``se`` (by their own errors where None); nan with too few bins."""
+    means, own = _rebin(curve, law, use)
+    weights = own if se is None else se
+    means = np.where(keep_bins & np.isfinite(weights) & (weights > 0), means, np.nan)
+    if np.isfinite(means).sum() < (3 if free_level else 2):
+        return float("nan")
+    return float(_weighted_fit(law.over(use), means, weights, law.spec, free_level)[0][0])
+
+
+def _resampled(curve: SurfaceCurve, law: _BinnedLaw, keep_bins: np.ndarray, se: np.ndarray, free_level: bool
+               ) -> tuple[float, float]:
+    """``(jackknife standard error of the parameter, standard deviation of single-recording values)``:
+    leave out each recording in turn (each of up to 10 chunks of time blocks with one recording) and
+    refit; and, with two or more recordings, fit each recording alone. nan where they cannot be formed."""
+    if len(curve.d) == 0:
+        return float("nan"), float("nan")
+    labels, units = _units(curve)
+    loo = np.array([_refit(curve, law, keep_bins, se, free_level, labels != u) for u in units])
+    loo = loo[np.isfinite(loo)]
+    se_jack = (float(np.sqrt((len(loo) - 1) / len(loo) * np.sum((loo - loo.mean()) ** 2))) if len(loo) >= 2
+               else float("nan"))
+    if len(np.unique(curve.group)) < 2:
+        return se_jack, float("nan")
+    alone = np.array([_refit(curve, law, keep_bins, None, free_level, curve.group == g) for g in units])
+    alone = alone[np.isfinite(alone)]
+    return se_jack, float(np.std(alone, ddof=1)) if len(alone) >= 2 else float("nan")
+
+
+def _bin_covariance(curve: SurfaceCurve, binned: _BinnedLaw) -> np.ndarray:
+    """(B, B) covariance of the bins' ratios: each bin's own error (``stderr`` less its level part) on the
+    diagonal, plus the normalisation errors the bins of one recording share:
+    ``sum_g (share_bg ratio_b e_g)(share_b'g ratio_b' e_g)`` with ``e_g`` the recording's relative level error."""
+    _, y, se = curve.columns()
+    own = np.array([b.stderr**2 - b.stderr_level**2 for b in curve.bins])
+    cov = np.diag(np.maximum(own, 1e-12 * se**2))
+    if not len(curve.d) or not curve.level_error:
+        return cov
+    for g, err in curve.level_error.items():
+        mine = curve.group == g
+        share = np.array([np.mean(mine[binned.idx == k]) if np.any(binned.idx == k) else 0.0 for k in binned.bin_k])
+        col = share * y * err
+        cov += np.outer(col, col)
+    return cov
+
+
+def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False, **geometry) -> LawFit:
+    """Weighted least squares (weights ``1/stderr^2``) of a surface law's ``T_IGE/T_OGE`` to the bins.
+
+    Parameters
+    ----------
+    curve : the measured curve
+    law : effect name with a ``ratio`` (``ground_effect``, ``ground_effect_multirotor``)
+    r : m, rotor radius
+    free_level : also fit the far level (the curve's normalisation height may still feel the surface)
+    geometry : ``arm_length`` [m], ``rotor_count`` (laws that use the rotor spacing)
+    """
+    spec = EFFECTS.get(law)
+    if spec is None or spec.ratio is None or spec.search is None:
+        known = ", ".join(n for n, e in EFFECTS.items() if e.ratio is not None)
+        raise InputError("surface curve", f"'{law}' is no surface law with a thrust ratio (known: {known})")
+    d, y, se = curve.columns()
+    keep = np.isfinite(se) & (se > 0)
+    npar = 2 if free_level else 1
+    if keep.sum() < npar + 1:
+        raise InputError("surface curve", f"{int(keep.sum())} bins with errors: too few to fit {law}")
+    binned = _BinnedLaw(curve, spec, r, geometry, free_level)
+    chol = cholesky(_bin_covariance(curve, binned)[np.ix_(keep, keep)], lower=True)
+    z, res, J = _weighted_fit(binned.bins, np.where(keep, y, np.nan), se, spec, free_level, chol)
+    chi2, dof = float(np.sum(res**2)), int(keep.sum()) - npar
+    chi2_dof = chi2 / dof if dof > 0 else float("nan")
+    try:
+        cov = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        cov = np.full((npar, npar), np.nan)
+    se_fit = np.sqrt(np.maximum(np.diag(cov), 0.0)) * (np.sqrt(max(chi2_dof, 1.0)) if np.isfinite(chi2_dof) else 1.0)
+    se_jack, spread = _resampled(curve, binned, keep, se, free_level)
+    between = len(np.unique(curve.group)) >= 2
+    stderr = float(np.nanmax([se_fit[0], spread if between else se_jack]))
+    in_range = spec.physical_range.violation({spec.params[0]: float(z[0])}, None) is None
+    fit = LawFit(law, spec.params[0], float(z[0]), stderr, float(se_fit[0]), se_jack, float(spread),
+                 float(z[1]) if free_level else 1.0, float(se_fit[1]) if free_level else 0.0, chi2, dof, chi2_dof,
+                 float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan"), binned.bins(z),
+                 bool(np.isfinite(chi2_dof) and chi2_dof < LAW_FITS_CHI2_DOF), in_range, "",
+                 lambda dd: binned.at(dd, z))
+    fit.why = _why(fit, d[keep], res, spec)
+    return fit
+
+
+def _why(fit: LawFit, d: np.ndarray, res: np.ndarray, spec) -> str:
+    worst = int(np.argmax(np.abs(res)))
+    verdict = ("its shape fits the measured curve" if fit.law_fits else
+               "its shape does not fit the measured curve")
+    level = "" if fit.level == 1.0 else f" and a far level of {fit.level:.4f}"
+    rng = "" if fit.in_range else (f"; {fit.param} lies outside its physical range "
+                                   f"[{spec.physical_range.lo:.3g}, {spec.physical_range.hi:.3g}]")
+    return (f"{fit.law} with {fit.param} = {fit.value:.3g} ± {fit.stderr:.2g}{level} gives chi^2/dof = "
+            f"{fit.chi2_dof:.2f} over {len(d)} bins ({fit.dof} dof; a fitting law gives about 1, the threshold is "
+            f"{LAW_FITS_CHI2_DOF:g}): {verdict} (largest miss {abs(res[worst]):.1f} standard errors at "
+            f"{d[worst]:.3f} m){rng}.")
+
+
+def surface_curve_report(curve: SurfaceCurve, fits: dict[str, LawFit], chosen: str | None = None) -> dict | None:
+    """``report.json``'s ``surface_curve`` (``gap-report.md``), for the law ``chosen`` (default: the lowest
+    ``chi2/dof``), with the other laws under ``alternatives``; None where there are no bins."""
+    if not curve.bins:
+        return None
+    if not fits:
+        raise InputError("surface curve", "no law was fitted to the surface curve")
+    chosen = chosen if chosen is not None else min(fits, key=lambda k: fits[k].chi2_dof)
+    if chosen not in fits:
+        raise InputError("surface curve", f"'{chosen}' was not fitted (fitted: {', '.join(fits)})")
+    fit = fits[chosen]
+
+    def law_entry(lf: LawFit) -> dict:
+        params = {lf.param: lf.value} | ({} if lf.level == 1.0 else {"level": lf.level})
+        stderr = {lf.param: lf.stderr} | ({} if lf.level == 1.0 else {"level": lf.level_stderr})
+        return {"law": lf.law, "params": params, "stderr": stderr, "chi2_dof": lf.chi2_dof, "dof": lf.dof,
+                "p_value": lf.p_value, "law_fits": lf.law_fits, "in_range": lf.in_range, "why": lf.why,
+                "values": [float(v) for v in lf.values]}
+
+    bins = [{"d_m": b.d_m, "n": b.n, "ratio": b.ratio, "stderr": b.stderr, "law": float(v), "lo_m": b.lo,
+             "hi_m": b.hi, "blocks": b.blocks, "recordings": list(b.recordings)}
+            for b, v in zip(curve.bins, fit.values)]
+    head = law_entry(fit)
+    return {"surface": "ground", "bins": bins, "law_fits": fit.law_fits, "why": fit.why, "law": chosen,
+            "params": head["params"], "stderr": head["stderr"], "chi2_dof": fit.chi2_dof, "dof": fit.dof,
+            "far_m": curve.far_m, "notes": list(curve.notes),
+            "alternatives": [law_entry(lf) for name, lf in fits.items() if name != chosen]}
+
+
+def plot_surface_curve(folder: Path, curve: SurfaceCurve, fits: dict[str, LawFit]) -> str:
+    """``folder/surface_curve.png``: measured ratio against rotor-plane height with error bars and counts,
+    and each fitted law; returns the file name."""
+    import matplotlib.pyplot as plt
+
+    fig = surface_figure(curve, fits)
+    name = "surface_curve.png"
+    fig.savefig(Path(folder) / name, dpi=100)
+    plt.close(fig)
+    return name
+
+
+def surface_figure(curve: SurfaceCurve, fits: dict[str, LawFit]):
+    """The matplotlib figure of :func:`plot_surface_curve` (Agg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d, y, se = curve.columns()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.errorbar(d, y, yerr=se, fmt="o", color="k", ms=4, capsize=3, label="measured (± 1 standard error)")
+    for x, yy, b in zip(d, y, curve.bins):
+        ax.annotate(f"n={b.n}", (x, yy), textcoords="offset points", xytext=(0, 8), ha="center", fontsize=7)
+    if len(d):
+        grid = np.linspace(min(b.lo for b in curve.bins), max(b.hi for b in curve.bins), 300)
+        for name, lf in fits.items():
+            ax.plot(grid, lf.evaluate(grid), lw=1.2,
+                    label=f"{name}: {lf.param} = {lf.value:.3g}, chi²/dof = {lf.chi2_dof:.2f}")
+    ax.axhline(1.0, color="0.6", lw=0.8, ls="--")
+    ax.set_xlabel("rotor-plane height over the ground d [m]")
+    ax.set_ylabel("thrust ratio T_IGE / T_OGE [-]")
+    ax.set_title("Measured ground-effect curve and surface laws")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,243 @@
+"""Ground contact: the rows of a recording where the floor carries the vehicle.
+
+Recordings often start and end with the vehicle on its landing gear, rotors spinning, and
+may touch down in between (touch-and-go). There the floor pushes up with whatever the rotors
+do not carry, a force no aerodynamic law explains, so those rows must be left out of every
+fit (``recordings.md``, "Streams that may be missing"; ``gap-report.md``, ``ground_contact``).
+
+Height, stillness, attitude and thrust tell it together. The vehicle rests at its landed
+height (the lowest height the recording reaches, or one given), within a small tolerance;
+it is still and level and its attitude steady; and its rotors carry less than its weight
+(once they carry more, it lifts off). Thrust guesses from rotor speeds can be 10-20 % off
+(unknown ``k_T``), so the thrust is first scaled so that it carries the weight in the air,
+and height and stillness decide first: a hover a few centimetres above the landed height is
+in the air however low its thrust reads (ground effect). Stillness is judged on the rows where
+the state updated (:func:`uavturb.sysid.streams.update_mask`): held positions must not make a
+flying vehicle look still. Each contact interval is widened by a margin on either side so that
+the transients of lift-off and touch-down are left out too.
+
+Times are seconds since the recording's first ground-truth row; heights metres; speeds m/s;
+forces newtons; angles degrees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
+
+from uavturb.errors import InputError
+from uavturb.physics.dynamics import GRAVITY
+from uavturb.sysid.streams import update_mask, updates_only
+
+
+@dataclass
+class ContactInterval:
+    """A stretch of a recording where the floor carries the vehicle (margins included).
+
+    Attributes
+    ----------
+    t_start, t_end : s since the recording's first ground-truth row
+    why : str, one sentence with the numbers that tell it
+    group : int, index of the recording
+    """
+
+    t_start: float
+    t_end: float
+    why: str
+    group: int = 0
+
+    def to_report(self, recording: str) -> dict:
+        """The entry of ``report.json``'s ``ground_contact`` (``gap-report.md``)."""
+        return {"recording": recording, "t_start": round(self.t_start, 3), "t_end": round(self.t_end, 3),
+                "why": self.why}
+
+
+@dataclass(frozen=True)
+class ContactLimits:
+    """Thresholds of :func:`ground_contact`.
+
+    Attributes
+    ----------
+    height_tol_m : m, how far above the landed height a resting vehicle may read
+    still_mps : m/s, the largest speed (median over ``window_s``) of a resting vehicle
+    level_deg : deg, the largest tilt of a resting vehicle
+    steady_deg : deg, the largest change of tilt over ``window_s`` of a resting vehicle
+    thrust_ratio : a contact interval's median thrust must be below this share of the weight
+    air_m : m, rows this far above the landed height are in the air (they scale the thrust)
+    window_s : s, the window of the speed median and the tilt range
+    margin_s : s, added on each side of a contact interval (lift-off and touch-down transients)
+    min_s : s, shortest contact kept (before margins)
+    gear_max_m : m, with ``d_down``: the highest a resting rotor plane sits over the surface (its
+        landing gear); a recording whose lowest ``d_down`` is higher never landed
+    """
+
+    height_tol_m: float = 0.015
+    still_mps: float = 0.05
+    level_deg: float = 10.0
+    steady_deg: float = 2.0
+    thrust_ratio: float = 0.95
+    air_m: float = 0.1
+    window_s: float = 0.3
+    margin_s: float = 0.2
+    min_s: float = 0.2
+    gear_max_m: float = 0.5
+
+
+def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.ndarray, thrust: np.ndarray,
+                   mass: float, *, d_down: np.ndarray | None = None, group: np.ndarray | None = None,
+                   update: np.ndarray | None = None, landed_height: float | None = None, calibrate: bool = True,
+                   limits: ContactLimits | None = None) -> tuple[np.ndarray, list[ContactInterval]]:
+    """Rows where the floor carries the vehicle, and the contact intervals with why.
+
+    Parameters
+    ----------
+    t : (K,) s since each recording's first ground-truth row, increasing within a recording
+    z : (K,) m, height of the body origin in W (as logged: repeats of held rows included)
+    v : (K, 3) m/s, velocity in W
+    tilt_deg : (K,) deg, angle between the body's z axis and the vertical
+    thrust : (K,) N, modelled thrust along z_B, e.g. ``k_T sum(w^2)`` with a guessed ``k_T``
+    mass : kg
+    d_down : (K,) m, rotor-plane height over the surface below (``inf``: none); used instead of
+        ``z`` for the landed height where given
+    group : (K,) int, recording index (each recording has its own landed height)
+    update : (K,) bool, rows where the state updated; default where ``z`` or ``v`` changed
+    landed_height : m, the resting height (of ``d_down`` where given, else of ``z``); default
+        the lowest the recording reaches
+    calibrate : scale the thrust so that its vertical part carries the weight in the air
+        (median over rows ``air_m`` above the landed height); else use it as given
+    limits : ContactLimits, thresholds
+
+    Returns
+    -------
+    mask : (K,) bool, True on rows to leave out (contact, margins included)
+    intervals : list of ContactInterval, in recording and time order
+    """
+    lim = limits or ContactLimits()
+    t, z, v = np.asarray(t, float), np.asarray(z, float), np.asarray(v, float)
+    k = len(t)
+    h = np.asarray(z if d_down is None else d_down, float)
+    arrays = dict(z=z, tilt_deg=tilt_deg, thrust=thrust, d_down=d_down, group=group, update=update)
+    bad = [n for n, a in arrays.items() if a is not None and len(a) != k] + (["v"] if np.shape(v) != (k, 3) else [])
+    if bad:
+        raise InputError("ground_contact", f"{', '.join(bad)} must have one row per time ({k} rows)")
+    group = np.zeros(k, int) if group is None else np.asarray(group)
+    mask = np.zeros(k, bool)
+    intervals: list[ContactInterval] = []
+    for g in np.unique(group):
+        rows = np.flatnonzero(group == g)
+        upd = (update_mask(np.column_stack([z[rows], v[rows]])) if update is None
+               else np.asarray(update, bool)[rows].copy())
+        rec = _Recording(t[rows], h[rows], v[rows], np.asarray(tilt_deg, float)[rows],
+                         np.asarray(thrust, float)[rows], upd)
+        m, found = _contact_in(rec, mass, landed_height, calibrate, lim, d_down is not None)
+        mask[rows] = m
+        intervals += [ContactInterval(a, b, why, int(g)) for a, b, why in found]
+    return mask, intervals
+
+
+@dataclass
+class _Recording:
+    """One recording's rows: t [s], h [m], v [m/s] (n, 3), tilt [deg], thrust [N], update (bool)."""
+
+    t: np.ndarray
+    h: np.ndarray
+    v: np.ndarray
+    tilt: np.ndarray
+    thrust: np.ndarray
+    update: np.ndarray
+
+
+def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: bool, lim: ContactLimits,
+                rotor_plane: bool) -> tuple[np.ndarray, list[tuple[float, float, str]]]:
+    """Contact rows (margins included) and ``(t_start, t_end, why)`` of one recording."""
+    n = len(rec.t)
+    out = np.zeros(n, bool)
+    rec.update[0] = True
+    u = np.flatnonzero(rec.update & np.isfinite(rec.h))
+    if len(u) < 5:
+        return out, []
+    h0 = float(np.min(median_filter(rec.h[u], 5, mode="nearest"))) if landed is None else float(landed)
+    if rotor_plane and landed is None and h0 > lim.gear_max_m:
+        return out, []  # never within landing-gear height of a surface
+    rest_u, speed_u = _resting_updates(rec, u, h0, lim)
+    is_u = np.zeros(n, bool)
+    is_u[u] = True
+    last = np.maximum.accumulate(np.where(is_u, np.arange(n), -1))
+    pos = np.searchsorted(u, last)  # the update each row holds (rows before the first finite one: none)
+    resting = (last >= 0) & np.isfinite(rec.h) & rest_u[np.minimum(pos, len(u) - 1)]
+    weight = mass * GRAVITY
+    scale = _thrust_scale(rec, h0, weight, lim) if calibrate else 1.0
+    tu, thrust_u = updates_only(rec.t, rec.thrust)  # a held thrust is late by half its update step
+    ratio = _window_median(rec.t, np.interp(rec.t, tu, thrust_u) * scale / weight, lim.window_s)
+    resting &= ratio < 1.0  # once the rotors carry the weight, it lifts off
+    found = []
+    for a, b in _runs(resting):
+        if rec.t[b - 1] - rec.t[a] < lim.min_s or np.median(ratio[a:b]) >= lim.thrust_ratio:
+            continue
+        out |= (rec.t >= rec.t[a] - lim.margin_s) & (rec.t <= rec.t[b - 1] + lim.margin_s)
+        core = slice(a, b)
+        found.append(_why(rec, core, h0, landed is not None, rotor_plane, float(np.max(speed_u[pos[core]])),
+                          float(np.median(ratio[core])), scale, lim))
+    return out, [(float(rec.t[a]), float(rec.t[b - 1]), _joined_why(found, rec.t[a], rec.t[b - 1]))
+                 for a, b in _runs(out)]
+
+
+def _joined_why(found: list[tuple[float, float, str]], t0: float, t1: float) -> str:
+    """The sentences of the contact cores inside ``[t0, t1]``, joined (several merge where margins overlap)."""
+    return "; ".join(w for a, b, w in found if a >= t0 - 1e-9 and b <= t1 + 1e-9)
+
+
+def _resting_updates(rec: _Recording, u: np.ndarray, h0: float, lim: ContactLimits) -> tuple[np.ndarray, np.ndarray]:
+    """On the update rows ``u``: whether the vehicle rests (height, stillness, attitude), and the
+    speed [m/s] (median over ``window_s``)."""
+    tu = rec.t[u]
+    step = float(np.median(np.diff(tu))) if len(tu) > 1 else 1.0
+    nw = max(3, int(round(lim.window_s / step)) | 1)
+    speed = median_filter(np.linalg.norm(rec.v[u], axis=1), nw, mode="nearest")
+    tilt = rec.tilt[u]
+    swing = maximum_filter1d(tilt, nw, mode="nearest") - minimum_filter1d(tilt, nw, mode="nearest")
+    at_rest = ((np.abs(rec.h[u] - h0) <= lim.height_tol_m) & (speed < lim.still_mps) & (tilt < lim.level_deg)
+               & (swing < lim.steady_deg))
+    return at_rest, speed
+
+
+def _thrust_scale(rec: _Recording, h0: float, weight: float, lim: ContactLimits) -> float:
+    """Factor that makes the thrust's vertical part carry the weight in the air (median), or 1.
+
+    Rows ``air_m`` above the landed height count as in the air; where there are fewer than 10,
+    rows above three height tolerances; where still too few, no scaling.
+    """
+    vertical = rec.thrust * np.cos(np.radians(rec.tilt))
+    for above in (lim.air_m, 3 * lim.height_tol_m):
+        air = np.isfinite(rec.h) & (rec.h > h0 + above) & (vertical > 0)
+        if air.sum() >= 10:
+            return float(weight / np.median(vertical[air]))
+    return 1.0
+
+
+def _window_median(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray:
+    """Running median of ``x`` over about ``window_s`` [s] of rows."""
+    step = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    return median_filter(x, max(1, int(round(window_s / step)) | 1), mode="nearest")
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` row indices of the runs of True in ``mask``."""
+    d = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def _why(rec: _Recording, core: slice, h0: float, given: bool, rotor_plane: bool, speed: float, ratio: float,
+         scale: float, lim: ContactLimits) -> tuple[float, float, str]:
+    """``(t_start, t_end, sentence)`` of one contact core (margins not included in the times)."""
+    h = rec.h[core]
+    name = "rotor-plane height" if rotor_plane else "height"
+    ref = (f"the landed height given, {h0:.3f} m" if given
+           else f"within {100 * lim.height_tol_m:.1f} cm of the lowest the recording reached, {h0:.3f} m")
+    scaled = f" (thrust scaled by {scale:.2f} so that it carries the weight in the air)" if abs(scale - 1) > 0.02 else ""
+    why = (f"on the landing gear: {name} {np.min(h):.3f}-{np.max(h):.3f} m ({ref}), speed under {speed:.2f} m/s, "
+           f"level within {np.max(rec.tilt[core]):.0f} deg and thrust {100 * ratio:.0f} % of the weight{scaled}: "
+           f"the floor carries the rest ({lim.margin_s:.1f} s margins either side)")
+    return float(rec.t[core.start]), float(rec.t[core.stop - 1]), why
