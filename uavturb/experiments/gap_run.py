@@ -11,6 +11,7 @@ from typing import Sequence
 from uavturb.errors import InputError
 from uavturb.gap.finder import analyse, parse_sim_effects
 from uavturb.gap.report import write_json, write_markdown, write_plots
+from uavturb.gap.surface_curve import plot_surface_curve
 from uavturb.io.physics_config import load_physics_config, write_physics_config
 from uavturb.io.publish import check_output_folder, publish_folder
 
@@ -43,6 +44,8 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
         top = ex["drivers"][0]["feature"] if ex["drivers"] else None
         plots = write_plots(tmp, ex["data"], ex["r0"], ex["rs0"], ex["rf"], ex["rsf"], ex["segs"], top,
                             ex["base_ho"], ex["final_ho"])
+        if report["surface_curve"] is not None:
+            plots.append(plot_surface_curve(tmp, ex["curve"], ex["curve_fits"]))
         if apply is not None:
             fitted = {e["name"]: e["params"] for e in report["effects"]}
             for n, p in report["sim_effect_params"].items():

@@ -25,6 +25,7 @@ from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.nominal import ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared
 from uavturb.gap.selection import Selection, finish, folds, heldout, select
+from uavturb.gap.surface_curve import finder_surface_curve
 from uavturb.gap.uncertainty import error_budget, honest_stderr
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
@@ -133,6 +134,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     _, rsf, _ = locate.segments(data, rf)
     n = max(3, int(round(0.5 / float(np.median(np.diff(data.t))))))
     beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / n)))
+    curve_report, curve, curve_fits = finder_surface_curve(data, final)
     report = {
         "schema": SCHEMA,
         "recordings": paths,
@@ -153,6 +155,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "nominal": _nominal(data, final, levels),
         "ambiguous": ambiguous,
         "ground_contact": contact_report,
+        "surface_curve": curve_report,
         "streams": held,
         "rejected": rejected,
         "not_testable": not_testable,
@@ -166,7 +169,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "candidates_tried": sel.tried,
     }
     extras = dict(data=data, r0=base.r0, rs0=rs0, rf=rf, rsf=rsf, segs=segs, drivers=drv, base_ho=base_ho,
-                  final_ho=sel.final_heldout, final=final)
+                  final_ho=sel.final_heldout, final=final, curve=curve, curve_fits=curve_fits)
     return report, extras
 
 

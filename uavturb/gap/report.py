@@ -150,7 +150,14 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
         L.append("")
         for e in report["effects"]:
             L.append(f"- **{e['name']}**: {e['explanation']}")
+            for k, b in (e.get("error_budget") or {}).items():
+                terms = ", ".join(f"{t.replace('_', ' ')} {v:.3g}" for t, v in b.items()
+                                  if t not in ("stderr", "limited_by", "fits") and v is not None and np.isfinite(v))
+                L.append(f"  - error of {k}: ± {b['stderr']:.3g}, limited by {b['limited_by'].replace('_', ' ')} "
+                         f"({terms})")
     L += _undecided_lines(report)
+    L += _surface_curve_lines(report.get("surface_curve"))
+    L += _recording_lines(report)
     if report["sim_effect_params"]:
         L.append("")
         L.append("## The simulator's own effects, refitted")
@@ -185,6 +192,44 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
     for p in plots:
         L.append(f"![{p}]({p})")
     (folder / "report.md").write_text("\n".join(L) + "\n")
+
+
+def _surface_curve_lines(curve: dict | None) -> list[str]:
+    """The measured surface curve beside the named law, and whether the law's shape fits it."""
+    if not curve:
+        return []
+    L = ["", "## Measured surface curve",
+         f"Thrust per rotor speed squared over its value far from the floor (above {curve['far_m']:.2f} m), by the "
+         f"rotor plane's height; law: `{curve['law']}` ({format_params(curve['params'], curve['stderr'])} fitted to the "
+         f"curve, chi^2/dof = {curve['chi2_dof']:.2f}). {'The law fits the curve' if curve['law_fits'] else 'The law does not fit the curve'}: "
+         f"{curve['why']}", "", "| rotor-plane height [m] | samples | measured ratio | ± | law |", "|---|---|---|---|---|"]
+    for b in curve["bins"]:
+        L.append(f"| {b['d_m']:.3f} | {b['n']} | {b['ratio']:.4f} | {b['stderr']:.4f} | {b['law']:.4f} |")
+    for alt in curve.get("alternatives", []):
+        L.append(f"\nAlternative `{alt['law']}`: {format_params(alt['params'], alt['stderr'])}, chi^2/dof = "
+                 f"{alt['chi2_dof']:.2f} ({'fits' if alt['law_fits'] else 'does not fit'}).")
+    for note in curve.get("notes", []):
+        L.append(f"\nNote: {note}")
+    return L
+
+
+def _recording_lines(report: dict) -> list[str]:
+    """Ground contact left out, what each stream holds, late streams, thrust levels."""
+    L: list[str] = []
+    if report.get("ground_contact"):
+        L += ["", "## Left out: ground contact"]
+        L += [f"- {Path(c['recording']).name} {c['t_start']:.2f}-{c['t_end']:.2f} s: {c['why']}"
+              for c in report["ground_contact"]]
+    streams = report.get("streams") or {}
+    if streams:
+        L += ["", "## What the streams hold"] + [f"- {line}" for line in streams.get("streams", [])]
+        L += [f"- **Too slow**: {why}" for why in streams.get("stream_limits", [])]
+        L += [f"- {d['describe']}{' (taken out of the timestamps)' if d.get('applied') else ''}"
+              for d in streams.get("delays", [])]
+    nominal = report.get("nominal", {})
+    if nominal.get("thrust_level_note"):
+        L += ["", f"Thrust levels: {nominal['thrust_level_note']}."]
+    return L
 
 
 def _undecided_lines(report: dict) -> list[str]:

@@ -45,6 +45,9 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
 from uavturb.errors import InputError
+from uavturb.gap.design import GapData, dependent_columns
+from uavturb.gap.fit import ModelFit, _nl_values
+from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import EFFECTS
 
 #: default far height in rotor radii (normalisation above it)
@@ -582,3 +585,78 @@ def surface_figure(curve: SurfaceCurve, fits: dict[str, LawFit]):
     ax.legend(fontsize=7)
     fig.tight_layout()
     return fig
+
+
+def law_in_bins(curve: SurfaceCurve, law: str, value: float, r: float, **geometry) -> np.ndarray:
+    """(B,) the surface law ``law`` at its parameter ``value`` in each bin of ``curve`` (averaged over the
+    bin's samples, as :func:`fit_law` compares it)."""
+    return _BinnedLaw(curve, EFFECTS[law], r, geometry, False).bins(np.array([float(value), 1.0]))
+
+
+#: m/s^2 and deg: hover-like samples for the measured curve (the law is a steady-flow law)
+HOVER_ACCELERATION = 1.5
+HOVER_TILT_DEG = 15.0
+#: largest difference [share of thrust] between the named law and the measured ratio in a bin for the
+#: report to call them in agreement
+AGREEMENT = 0.02
+
+
+def finder_surface_curve(data: GapData, final: ModelFit) -> tuple[dict | None, SurfaceCurve | None,
+                                                                  dict[str, LawFit]]:
+    """The ``surface_curve`` of a gap report (``gap-report.md``), measured on the finder's samples.
+
+    The thrust the rotors must make is the measured force along the body z axis less every force of
+    ``final`` (a :class:`~uavturb.gap.fit.ModelFit`) that is not a surface law; the modelled thrust is
+    ``k_T`` times each recording's thrust level and (lagged) ``sum(w^2)``. Every surface law of the
+    registry that acts below is fitted to the bins; the bins' ``law`` is the law ``final`` names, at the
+    finder's value (where it names one), else the best-fitting law.
+    """
+    if not np.any(np.isfinite(data.d_down)):
+        return None, None, {}
+    surface = {e for e in final.effects if EFFECTS[e].surface == "d_down"}
+    rest = ModelFit(final.effects - surface, {e: v for e, v in final.nonlinear.items() if e not in surface},
+                    final.coef, final.stderr, final.rmse)
+    zb = data.R[:, :, 2]
+    D, _ = dependent_columns(data, set(rest.effects), _nl_values(rest.nonlinear))
+    thrust_direction = D[:, 0].reshape(3, -1).T  # (K, 3): S_eff R e_z, the k_T column without surface laws
+    modelled = final.coef["k_T"] * np.einsum("ki,ki->k", thrust_direction, zb)  # (K,) N along z_B
+    needed = modelled + np.einsum("ki,ki->k", data.y - rest.predict(data), zb)
+    acc = data.y / data.mass - np.array([0.0, 0.0, GRAVITY])
+    hover = (np.linalg.norm(acc, axis=1) < HOVER_ACCELERATION) & (zb[:, 2] > np.cos(np.radians(HOVER_TILT_DEG)))
+    try:
+        curve = measured_curve(data.d_down, needed, modelled, data.group, hover=hover, t=data.t,
+                               r=data.rotor_radius, names=data.names)
+    except InputError:
+        return None, None, {}
+    if not curve.bins:
+        return None, curve, {}
+    geometry = {"arm_length": data.arm_length, "rotor_count": data.rotor_speeds.shape[1]}
+    fits = {}
+    for name, spec in EFFECTS.items():
+        if spec.surface == "d_down" and spec.ratio is not None:
+            try:
+                fits[name] = fit_law(curve, name, data.rotor_radius, **geometry)
+            except (InputError, ValueError, np.linalg.LinAlgError):
+                continue
+    if not fits:
+        return None, curve, {}
+    named = sorted(surface)
+    chosen = named[0] if named and named[0] in fits else None
+    report = surface_curve_report(curve, fits, chosen)
+    if named:
+        p = EFFECTS[named[0]].params[0]
+        value = final.nonlinear[named[0]]
+        # normalised as the measured curve is, by the law's value far from the floor (the finder's k_T
+        # carries the law's far tail)
+        far_d = data.d_down[hover & (data.d_down > curve.far_m) & np.isfinite(data.d_down)]
+        far = float(np.nanmean(EFFECTS[named[0]].ratio(far_d, value, data.rotor_radius, **geometry))) \
+            if len(far_d) else 1.0
+        law = law_in_bins(curve, named[0], value, data.rotor_radius, **geometry) / far
+        for b, v in zip(report["bins"], law):
+            b["law_fitted_to_curve"], b["law"] = b["law"], float(v)
+        worst = float(np.nanmax(np.abs([b["ratio"] - b["law"] for b in report["bins"]])))
+        report["named"] = {"law": named[0], "params": {p: final.nonlinear[named[0]]},
+                           "largest_difference": worst, "agrees": worst <= AGREEMENT}
+        report["why"] += (f" The named {named[0]} at the finder's {p} = {final.nonlinear[named[0]]:.3g} differs from "
+                          f"the measured ratio by at most {100 * worst:.1f} % of thrust in a bin.")
+    return report, curve, fits
