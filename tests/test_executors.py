@@ -306,3 +306,29 @@ def test_generate_sim_on_ray_writes_the_same_arrays(ray_local, tmp_path):
     assert json.loads((tmp_path / "ray" / "manifest.json").read_text())["complete"] is True
     with pytest.raises(InputError, match="only with --executor ray"):
         generate_sim("tiny", tmp_path / "x", address="auto", **small)
+
+
+@pytest.mark.slow
+def test_a_local_ray_instance_listens_on_loopback_only(tmp_path):
+    """``--executor ray`` without ``--address``: the local instance's GCS port is bound to 127.0.0.1."""
+    code = """
+import ray
+from uavturb.experiments.executors import ray_session
+with ray_session(None, num_cpus=1):
+    host, port = ray.get_runtime_context().gcs_address.rsplit(":", 1)
+    listening = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for row in open(table).read().splitlines()[1:]:
+            local, state = row.split()[1], row.split()[3]
+            if state == "0A" and int(local.rsplit(":", 1)[1], 16) == int(port):
+                listening.add(local.rsplit(":", 1)[0])
+    print(host, sorted(listening))
+"""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    env.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env,
+                         cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-2000:]
+    host, listening = res.stdout.strip().splitlines()[-1].split(" ", 1)
+    assert host == "127.0.0.1"
+    assert listening in ("['0100007F']", "['0000000000000000FFFF00000100007F']"), listening  # 127.0.0.1, v4 or v6

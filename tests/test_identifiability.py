@@ -158,8 +158,10 @@ def test_identify_json_carries_the_status(fixed_heading, tmp_path, capsys):
     assert p["accel_bias"] == {"value": None, "stderr": None, "identifiable": False, "reason": "absent",
                                "why": p["accel_bias"]["why"]}
     assert set(out["not_identified"]) == {*YAW, "accel_bias"}
-    # residuals need J_z: the vehicle.yaml has none, so one line says what would determine it
-    assert main(["residuals", str(path), "--out", str(tmp_path / "r.csv")]) == 2
+    # residual forces need only k_T: without J_z (vehicle.yaml has none) the torques are left out, and
+    # one line says which constants are missing
+    assert main(["residuals", str(path), "--out", str(tmp_path / "r.csv")]) == 0
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "yaw" in err and "vehicle.yaml" in err
-    assert not (tmp_path / "r.csv").exists()
+    assert len(err.splitlines()) == 1 and "J_z" in err and "torques left out" in err and "vehicle.yaml" in err
+    table = np.genfromtxt(tmp_path / "r.csv", delimiter=",", names=True)
+    assert np.all(np.isnan(table["tau_Bz_N_m"])) and np.all(np.isfinite(table["F_z_N"]))

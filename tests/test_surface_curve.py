@@ -211,3 +211,15 @@ def test_bad_inputs():
         fit_law(curve, "rotor_drag", R)
     empty = measured_curve(d, need, model, g, hover=np.zeros(len(d), bool), t=t, r=R)
     assert empty.bins == [] and surface_curve_report(empty, {}) is None
+
+
+def test_reach_of_a_law_is_where_it_adds_one_percent_at_the_top_of_its_range():
+    """The reach (a surface effect is tested only below it) is computed from each law's own ratio: the
+    multirotor law's long tail reaches twice as far as Cheeseman-Bennett's (13 r against 8.7 r)."""
+    spec = EFFECTS["ground_effect_multirotor"]
+    reach = spec.surface_reach(R, arm_length=ARM, rotor_count=4)
+    top = spec.physical_range.hi
+    assert spec.ratio(np.array([reach]), top, R, arm_length=ARM, rotor_count=4)[0] - 1 == pytest.approx(0.01, rel=1e-3)
+    cb = EFFECTS["ground_effect"]
+    assert cb.ratio(np.array([cb.surface_reach(R)]), cb.physical_range.hi, R)[0] - 1 == pytest.approx(0.01, rel=1e-6)
+    assert reach > 1.4 * cb.surface_reach(R)

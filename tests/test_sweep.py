@@ -236,6 +236,13 @@ def test_compare_means_and_stds_from_logged_runs(tmp_path, store):
     md = Path(res["markdown"]).read_text()
     assert md.count("\n| ") == 4 and "| normals | finetune | 3 | 0.320 ± 0.020 | 6.00 ± 1.00 | 0.3184 | 6.357 |" in md
     assert sorted(p.name for p in (tmp_path / "tables").iterdir()) == ["table1.csv", "table1.md"]
+    # the tables are replaced only with overwrite (checked before any query)
+    (tmp_path / "tables" / "table1.md").write_text("my edits")
+    with pytest.raises(InputError, match=r"table1.md: already exists \(use --overwrite to replace it\)"):
+        compare(experiment=store[1], out=tmp_path / "tables")
+    assert (tmp_path / "tables" / "table1.md").read_text() == "my edits"
+    assert compare(experiment=store[1], out=tmp_path / "tables", overwrite=True)["markdown"] == res["markdown"]
+    assert (tmp_path / "tables" / "table1.md").read_text() == md
 
     # an explicit parent; a missing experiment names it
     assert compare(experiment=store[1], parent_run_id=old, out=None)["rows"][0]["rmse_d_mean"] == 9.0

@@ -73,6 +73,7 @@ def _add_residuals(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--params", default="identified", choices=["identified", "nominal"],
                    help="model constants: identified on this flight (default) or vehicle.yaml's")
     s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 
 
 def _add_import_euroc(sub: argparse._SubParsersAction) -> None:
@@ -151,7 +152,7 @@ def _add_generate_sim(gsub: argparse._SubParsersAction, sim_presets: str) -> Non
     g = gsub.add_parser("sim", help="training shards: simulated flights through procedural scenes (resumable)")
     g.add_argument("--preset", default="quick", help=f"{sim_presets} (default quick)")
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (manifest.json, traj_*/)")
-    g.add_argument("--workers", type=int, default=1, help="processes, one renderer each (default 1)")
+    g.add_argument("--workers", type=int, metavar="N", default=1, help="processes, one renderer each (default 1)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--shard", default=None, metavar="K/N", help="only trajectories i with i %% N == K-1 (1 <= K <= N)")
     g.add_argument("--executor", default="local", choices=["local", "ray"],
@@ -166,10 +167,10 @@ def _add_generate_normals(gsub: argparse._SubParsersAction, sim_presets: str) ->
     g = gsub.add_parser("normals", help="depth/normal pre-training pairs from training scenes, or from IRS")
     g.add_argument("--preset", default="quick", help=f"{sim_presets} (default quick)")
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (the pairs go to DIR/pairs)")
-    g.add_argument("--workers", type=int, default=1)
+    g.add_argument("--workers", type=int, metavar="N", default=1)
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--irs", default=None, metavar="IRS_DIR", help="convert the IRS dataset instead of rendering")
-    g.add_argument("--size", type=int, default=128, help="image side for --irs (default 128)")
+    g.add_argument("--size", type=int, metavar="N", default=128, help="image side for --irs (default 128)")
     g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="preset_set",
                    help="change a preset field, e.g. --set width=64 --set pairs=200 (repeatable)")
 
@@ -236,6 +237,7 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
     _add_mlflow_experiment(s)
     s.add_argument("--parent", default=None, metavar="RUN_ID", help="sweep parent run (default: the latest)")
     s.add_argument("--out", default="outputs", metavar="DIR", help="folder for table1.md and table1.csv")
+    s.add_argument("--overwrite", action="store_true", help="replace table1.md and table1.csv there")
 
 
 def _add_evaluate(sub: argparse._SubParsersAction) -> None:
@@ -272,6 +274,20 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("bench", help="benchmarks that print figures", formatter_class=argparse.RawTextHelpFormatter,
                        epilog="targets:\n" + "\n".join(f"  {k:<10}{v}" for k, v in TARGETS.items()))
     s.add_argument("what", choices=list(TARGETS), metavar="TARGET", help=" | ".join(TARGETS))
+    gp = s.add_argument_group("TARGET gap")
+    gp.add_argument("recordings", nargs="*", metavar="REC", help="recordings to analyse (default: two generated flights)")
+    gp.add_argument("--minutes", type=float, help="length of each generated flight (default 5)")
+    g = s.add_argument_group("TARGET gpu")
+    g.add_argument("--device", choices=["cuda", "cpu"], help="cuda (default; refused where none is seen) or cpu "
+                                                             "(the same measurement, small)")
+    g.add_argument("--size", type=int, metavar="N", help="image side in px (default 128 on cuda, 32 on cpu)")
+    g.add_argument("--batch-size", type=int, metavar="N", help="windows or pairs per batch (default 16)")
+    g.add_argument("--workers", type=int, metavar="N", help="DataLoader workers (default data=shards_gpu's; 0 on cpu)")
+    g.add_argument("--steps", type=int, metavar="N", help="timed batches per epoch (default 100 on cuda, 4 on cpu)")
+    g.add_argument("--epochs", type=int, metavar="N", help="epochs per measurement, the first one warm-up (default 3)")
+    g.add_argument("--precision", dest="precisions", type=lambda x: tuple(x.split(",")), metavar="P[,P...]",
+                   help="trainer.precision values, comma-separated (default 32-true,bf16-mixed)")
+    g.add_argument("--cpu-threads", type=int, metavar="N", help="torch threads of the CPU reference (default 2)")
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
@@ -312,6 +328,37 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"uavturb {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # noqa: BLE001 - the last guard: one line, never a traceback
+        if os.environ.get("UAVTURB_TRACEBACK"):
+            raise
+        line, code = _last_guard(e)
+        print(f"uavturb {args.command}: error: {line}", file=sys.stderr)
+        return code
+
+
+def _last_guard(e: Exception) -> tuple[str, int]:
+    """The one line (and exit status) of an error no library function turned into an InputError:
+    2 for what the machine or the input ran into, 1 for a defect of uavturb (with where it happened)."""
+    import errno
+    import traceback
+
+    from uavturb.errors import shorten
+
+    if isinstance(e, MemoryError):
+        return "out of memory: an input (or the work it asks for) is larger than this machine can hold", 2
+    if isinstance(e, RecursionError):
+        return "an input is nested too deeply to be read", 2
+    if isinstance(e, UnicodeDecodeError):
+        return shorten(f"an input is not UTF-8 text ({e.reason} at byte {e.start})", 300), 2
+    if isinstance(e, OSError):
+        where = e.filename or "a file"
+        if e.errno == errno.ENOSPC:
+            return shorten(f"{where}: no space left on the device; free some space and run the command again", 400), 2
+        return shorten(f"{where}: {e.strerror or type(e).__name__}", 400), 2
+    frame = traceback.extract_tb(e.__traceback__)[-1] if e.__traceback__ else None
+    at = f" at {Path(frame.filename).name}:{frame.lineno}" if frame else ""
+    return shorten(f"internal error ({type(e).__name__}: {e}){at}; set UAVTURB_TRACEBACK=1 to see the traceback "
+                   "and please report it", 600), 1
 
 
 # --- one handler a command: calls one library function and prints what it returns ----------------
@@ -329,7 +376,7 @@ def _residuals(args: argparse.Namespace) -> int:
     from uavturb.experiments.identify import residuals_to_file
 
     res, path = residuals_to_file(args.recording, args.out, source=args.source, derivative=args.derivative,
-                                  params=args.params, vehicle=args.vehicle)
+                                  params=args.params, vehicle=args.vehicle, overwrite=args.overwrite)
     print(f"wrote {path}: {len(res.t)} samples, source {res.source}, residual RMS {res.rmse:.4f} N")
     return 0
 
@@ -437,7 +484,8 @@ def _sweep(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from uavturb.experiments.compare import compare
 
-    res = compare(experiment=args.mlflow_experiment, parent_run_id=args.parent, out=args.out)
+    res = compare(experiment=args.mlflow_experiment, parent_run_id=args.parent, out=args.out,
+                  overwrite=args.overwrite)
     print(res["table"])
     print(f"wrote {res['markdown']} and {res['csv']}")
     return 0
@@ -471,9 +519,9 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from uavturb.experiments.benchmarks import bench
+    from uavturb.experiments.benchmarks import BENCH_OPTIONS, bench_target
 
-    bench(args.what)
+    bench_target(args.what, {k: getattr(args, k) for k in BENCH_OPTIONS})
     return 0
 
 

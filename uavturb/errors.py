@@ -7,6 +7,21 @@ from pathlib import Path
 from typing import Iterator
 
 
+#: The longest file name / problem an error line shows: a value echoed from a hostile file (a
+#: 100 MB CSV field) is cut in the middle, so the line stays readable and the start and end show.
+MAX_WHERE = 300
+MAX_PROBLEM = 600
+
+
+def shorten(text: str, limit: int) -> str:
+    """``text`` on one line, at most about ``limit`` characters (the middle cut out: ``[... N characters ...]``)."""
+    text = text.replace("\r", " ").replace("\n", " ")
+    if len(text) <= limit:
+        return text
+    head, tail = (2 * limit) // 3, limit // 4
+    return f"{text[:head]} [... {len(text) - head - tail} characters ...] {text[-tail:]}"
+
+
 class UavturbError(Exception):
     """An error the command line reports as one line and a non-zero exit status."""
 
@@ -23,9 +38,9 @@ class InputError(UavturbError):
     """
 
     def __init__(self, where: str | Path, problem: str):
-        self.where = str(where)
-        self.problem = problem
-        super().__init__(f"{self.where}: {problem}")
+        self.where = shorten(str(where), MAX_WHERE)
+        self.problem = shorten(problem, MAX_PROBLEM)
+        super().__init__(f"{self.where}: {self.problem}")
 
 
 class Interrupted(BaseException):

@@ -84,11 +84,15 @@ class ShardWindowsDataset(Dataset):
                 "sum_omega2": torch.from_numpy(s2[s:e].copy())}
 
 
-def _loader(ds: Dataset, batch_size: int, num_workers: int, shuffle: bool, seed: int = 0) -> DataLoader:
+def _loader(ds: Dataset, batch_size: int, num_workers: int, shuffle: bool, seed: int = 0,
+            pin_memory: bool | None = None) -> DataLoader:
+    """A DataLoader whose workers live as long as it (one memory map per worker and dataset, opened once);
+    ``pin_memory`` None: pinned when torch sees a CUDA device."""
     g = torch.Generator()
     g.manual_seed(seed)
+    pin = torch.cuda.is_available() if pin_memory is None else bool(pin_memory)
     return DataLoader(ds, batch_size=batch_size, shuffle=shuffle, num_workers=num_workers,
-                      persistent_workers=num_workers > 0, pin_memory=torch.cuda.is_available(),
+                      persistent_workers=num_workers > 0, pin_memory=pin,
                       generator=g if shuffle else None, drop_last=False)
 
 
@@ -104,13 +108,16 @@ class ShardWindowsDataModule(L.LightningDataModule):
     batch_size, num_workers : DataLoader settings.
     image_size : expected image side [px]; 0 = whatever the data holds.
     seed : shuffling seed.
+    pin_memory : DataLoader pinned memory (for copies to a GPU); None: when torch sees a CUDA device.
     """
 
     def __init__(self, root: str = "data/sim", window: int = 8, stride: int = 1, eval_stride: int = 1,
-                 batch_size: int = 16, num_workers: int = 2, image_size: int = 0, seed: int = 0):
+                 batch_size: int = 16, num_workers: int = 2, image_size: int = 0, seed: int = 0,
+                 pin_memory: bool | None = None):
         super().__init__()
         self.root, self.window, self.stride, self.eval_stride = str(root), window, stride, eval_stride
         self.batch_size, self.num_workers, self.image_size, self.seed = batch_size, num_workers, image_size, seed
+        self.pin_memory = pin_memory
         self.manifest: shards.Manifest | None = None
         self.sets: dict[str, ShardWindowsDataset] = {}
 
@@ -132,13 +139,13 @@ class ShardWindowsDataModule(L.LightningDataModule):
             self.sets[split] = ds
 
     def train_dataloader(self) -> DataLoader:
-        return _loader(self.sets["train"], self.batch_size, self.num_workers, True, self.seed)
+        return _loader(self.sets["train"], self.batch_size, self.num_workers, True, self.seed, self.pin_memory)
 
     def val_dataloader(self) -> DataLoader:
-        return _loader(self.sets["val"], self.batch_size, self.num_workers, False)
+        return _loader(self.sets["val"], self.batch_size, self.num_workers, False, pin_memory=self.pin_memory)
 
     def test_dataloader(self) -> DataLoader:
-        return _loader(self.sets["test"], self.batch_size, self.num_workers, False)
+        return _loader(self.sets["test"], self.batch_size, self.num_workers, False, pin_memory=self.pin_memory)
 
 
 def ground_effect_law(root: str | Path) -> tuple[float, float] | None:
@@ -210,15 +217,16 @@ class PairsDataModule(L.LightningDataModule):
     batch_size, num_workers : DataLoader settings.
     val_fraction : share of pairs held out.
     seed : of the hold-out draw and of shuffling.
+    pin_memory : DataLoader pinned memory (for copies to a GPU); None: when torch sees a CUDA device.
     """
 
     def __init__(self, root: str = "data/pairs", target: str = "normals", batch_size: int = 16,
-                 num_workers: int = 2, val_fraction: float = 0.1, seed: int = 0):
+                 num_workers: int = 2, val_fraction: float = 0.1, seed: int = 0, pin_memory: bool | None = None):
         super().__init__()
         if not 0.0 < val_fraction < 1.0:
             raise InputError("data.val_fraction", f"must be in (0, 1), got {val_fraction}")
         self.root, self.target, self.batch_size, self.num_workers = str(root), target, batch_size, num_workers
-        self.val_fraction, self.seed = val_fraction, seed
+        self.val_fraction, self.seed, self.pin_memory = val_fraction, seed, pin_memory
         self.train_set: Subset | None = None
         self.val_set: Subset | None = None
 
@@ -234,10 +242,10 @@ class PairsDataModule(L.LightningDataModule):
         self.train_set = Subset(ds, sorted(int(i) for i in perm[n_val:]))
 
     def train_dataloader(self) -> DataLoader:
-        return _loader(self.train_set, self.batch_size, self.num_workers, True, self.seed)
+        return _loader(self.train_set, self.batch_size, self.num_workers, True, self.seed, self.pin_memory)
 
     def val_dataloader(self) -> DataLoader:
-        return _loader(self.val_set, self.batch_size, self.num_workers, False)
+        return _loader(self.val_set, self.batch_size, self.num_workers, False, pin_memory=self.pin_memory)
 
     def test_dataloader(self) -> DataLoader:
-        return _loader(self.val_set, self.batch_size, self.num_workers, False)
+        return _loader(self.val_set, self.batch_size, self.num_workers, False, pin_memory=self.pin_memory)

@@ -14,10 +14,53 @@ TARGETS: dict[str, str] = {
     "flights": "MPC update times (mean, median, p95) and closed-loop tracking error on reference flights",
     "generate": "simulator throughput on the quick preset: samples/s and the control/physics/render split",
     "train": "training windows/s of the height model and the input overhead of the shard DataLoader",
+    "gpu": "both training stages on a CUDA device at 128 px, fp32 and bf16-mixed: windows/s, epoch times, GPU\n"
+           "            memory, DataLoader share, 500 pre-training epochs vs 2 CPU cores (--device cpu: small, on the CPU)",
     "infer": "exported streaming model on one CPU thread: per-frame latency (.pt2, ONNX) and batched throughput",
-    "gap": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
+    "gap": "the gap finder's seconds and peak memory per hour of 200 Hz flight (RECORDINGS, or two generated flights)",
+    "gap-proof": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
     "sweep": "the quick sweep one run after another and on a local Ray instance: wall times and their ratio",
+    "readers": "a 1M-row ground-truth CSV read in a fresh process: seconds and peak memory against the file's size",
 }
+
+_READ_CHILD = """
+import sys, time
+from uavturb.io import euroc_csv
+t = time.perf_counter()
+if sys.argv[1] != "-":
+    euroc_csv.read_csv(sys.argv[1], euroc_csv.GROUNDTRUTH_COLUMNS, "ground truth")
+peak_kb = open("/proc/self/status").read().split("VmHWM:")[1].split()[0]  # this process's peak RSS
+print(time.perf_counter() - t, peak_kb)
+"""
+
+
+def bench_readers(rows: int = 1_000_000) -> dict[str, float]:
+    """Read a ground-truth CSV of ``rows`` rows (17 columns, written first, not timed) in a fresh
+    process: wall time and the process's peak resident memory (the kernel's ``VmHWM``) above what
+    its imports take, against the file's size and the arrays returned."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    from uavturb.io import euroc_csv
+
+    rng = np.random.default_rng(0)
+    t_ns = 1403636579763555584 + np.arange(rows, dtype=np.int64) * 5_000_000
+    values = rng.normal(size=(rows, euroc_csv.GROUNDTRUTH_COLUMNS - 1))
+    with tempfile.TemporaryDirectory(prefix="uavturb-bench-readers-") as tmp:
+        path = Path(tmp) / "data.csv"
+        euroc_csv.write_csv(path, euroc_csv.GROUNDTRUTH_HEADER, t_ns, values, fmt="%.9g")
+        del values
+        peaks = []
+        for arg in (str(path), "-"):  # the read, then the imports alone
+            out = subprocess.run([sys.executable, "-c", _READ_CHILD, arg], capture_output=True, text=True, check=True,
+                                 env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}).stdout.split()
+            peaks.append((float(out[1]) / 1024, float(out[0])))
+        size = path.stat().st_size / 2**20
+    return {"rows": float(rows), "file (MB)": size, "arrays returned (MB)": rows * 17 * 8 / 2**20,
+            "read (s)": peaks[0][1], "peak memory above imports (MB)": peaks[0][0] - peaks[1][0],
+            "peak memory / file size": (peaks[0][0] - peaks[1][0]) / size}
 
 
 def bench_sweep(seeds: int = 1) -> dict[str, float]:
@@ -69,6 +112,10 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
 
 def bench(what: str) -> None:
     """``uavturb bench``: print the figures of one of :data:`TARGETS`."""
+    if what == "readers":  # bounded CSV reader (uavturb.io.euroc_csv)
+        for k, v in bench_readers().items():
+            print(f"{k:<48}{v:>12.4g}")
+        return
     if what == "sweep":  # the quick sweep, sequential and on Ray (uavturb.experiments.executors)
         for k, v in bench_sweep().items():
             print(f"{k:<48}{v:>12.4g}")
@@ -97,7 +144,7 @@ def bench(what: str) -> None:
 
         for k, v in heights.benchmark().items():
             print(f"{k:<40}{v:>12.4g}")
-    elif what == "gap":
+    elif what == "gap-proof":
         from uavturb.experiments.gap_proof import gap_proof
 
         gap_proof(Path("gap_proof"))
@@ -119,3 +166,34 @@ def bench(what: str) -> None:
         print(f"{'RK4 step, one state (us)':<40}{single * 1e6:>12.2f}")
         print(f"{'x_dot over 100k states (us/state)':<40}{mapped * 1e6:>12.3f}")
 
+
+#: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`)
+BENCH_OPTIONS = ("recordings", "minutes", "device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
+
+
+def bench_target(what: str, options: dict | None = None) -> None:
+    """``uavturb bench TARGET [options]``: :func:`bench`, or for ``gpu`` its measurement with ``options``
+    (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`, None = default).
+
+    Raises
+    ------
+    InputError : an option given to a target other than ``gpu``, or a bad option of ``gpu``.
+    """
+    from uavturb.errors import InputError
+
+    options = {k: v for k, v in (options or {}).items() if v is not None and v != []}
+    if what == "gap":  # speed and memory of the gap finder (uavturb.experiments.bench_gap)
+        from uavturb.experiments.bench_gap import bench_gap
+
+        bench_gap(options.pop("recordings", ()), **options)
+        return
+    options.pop("recordings", None)
+    options.pop("minutes", None)
+    if what == "gpu":  # both training stages on a CUDA device (uavturb.experiments.bench_gpu)
+        from uavturb.experiments.bench_gpu import bench_gpu
+
+        bench_gpu(**options)
+        return
+    if options:
+        raise InputError("--" + next(iter(options)).replace("_", "-"), "only with TARGET gpu")
+    bench(what)

@@ -146,7 +146,7 @@ def format_csv(rows: list[dict[str, Any]]) -> str:
 
 
 def compare(experiment: str | None = None, parent_run_id: str | None = None, out: str | Path | None = "outputs",
-            spec: str | Path | None = None) -> dict[str, Any]:
+            spec: str | Path | None = None, overwrite: bool = False) -> dict[str, Any]:
     """Table 1 of an ablation sweep from the MLflow store.
 
     Parameters
@@ -154,7 +154,8 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     experiment : MLflow experiment (default: the sweep file's, ``uavturb-ablation``).
     parent_run_id : the sweep's parent run (default: the latest sweep parent of the experiment;
         without one, every finished ablation run of the experiment).
-    out : folder for ``table1.md`` and ``table1.csv`` (written atomically); None writes nothing.
+    out : folder for ``table1.md`` and ``table1.csv`` (written atomically; existing ones are replaced
+        only with ``overwrite``); None writes nothing.
     spec : sweep file giving the row order and the paper's values (default ``sweeps/ablation.yaml``).
 
     Returns
@@ -168,8 +169,11 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     InputError : no such experiment or parent run, or no finished ablation run in it.
     """
     from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
-    from uavturb.io.publish import write_text_atomic
+    from uavturb.io.publish import check_output_file, write_text_atomic
 
+    if out is not None:  # before any query: existing tables are replaced only with overwrite
+        for name in ("table1.md", "table1.csv"):
+            check_output_file(Path(out) / name, overwrite=overwrite)
     sp = load_spec(spec if spec is not None else DEFAULT_SPEC)
     experiment = experiment or sp.experiment
     from uavturb.experiments.tracking import client as tracking_client
@@ -204,6 +208,6 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
                            "parent_run_id": parent_run_id, "experiment": experiment}
     if out is not None:
         out = Path(out)
-        res["markdown"] = str(write_text_atomic(out / "table1.md", res["markdown_text"]))
-        res["csv"] = str(write_text_atomic(out / "table1.csv", res["csv_text"]))
+        res["markdown"] = str(write_text_atomic(out / "table1.md", res["markdown_text"], overwrite=overwrite))
+        res["csv"] = str(write_text_atomic(out / "table1.csv", res["csv_text"], overwrite=overwrite))
     return res

@@ -167,6 +167,8 @@ class DataConfig:
     batch_size: int = allowed(16, **_POSITIVE_INT)
     num_workers: int = allowed(2, ge=0)
     image_size: int = allowed(128, ge=0)                      # px (square); 0 = whatever the data holds
+    pin_memory: bool | None = None                            # DataLoader pinned memory; null: when training on
+    #                                                           a CUDA device (experiments/accelerators.py)
     val_fraction: float = allowed(0.1, gt=0, lt=1)            # pairs held out for validation
     synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
 
@@ -180,7 +182,10 @@ class TrainerConfig:
                            text='"auto", a count ("2"), -1 (all) or device ids ("0,1")')
     strategy: str = allowed("auto", choices=STRATEGIES)
     num_nodes: int = allowed(1, **_POSITIVE_INT)
-    precision: str = allowed("32-true", choices=PRECISIONS)
+    precision: str = allowed("32-true", choices=PRECISIONS)  # bf16-mixed: CPU and Ampere+ GPUs; 16-mixed: GPUs only
+    cudnn_benchmark: bool = False       # cuDNN picks the fastest convolution for the (fixed) image size; GPU only
+    matmul_precision: str = allowed("highest", choices=("highest", "high", "medium"))
+    #                                     torch.set_float32_matmul_precision: high = TF32 on Ampere+ GPUs
     seed: int = allowed(0, ge=0, lt=2**32)
     limit_train_batches: float = allowed(1.0, **_POSITIVE)    # <= 1: fraction; > 1: number of batches
     limit_val_batches: float = allowed(1.0, **_POSITIVE)
@@ -227,7 +232,18 @@ def check_values(cfg: DictConfig, cls: Any = TrainConfig, prefix: str = "") -> N
         rule = f.metadata.get("allowed")
         if rule is not None and not rule.accepts(value):
             noun = "an integer" if sub is int else "a number"
-            raise InputError(key, f"{value!r} is not allowed; allowed: {rule.describe(noun)}")
+            hint = _did_you_mean(rule, value)
+            raise InputError(key, f"{value!r} is not allowed; allowed: {rule.describe(noun)}{hint}")
+
+
+def _did_you_mean(rule: Allowed, value: Any) -> str:
+    """`` (did you mean 'bf16-mixed'?)`` for a string close to one of ``rule.choices``; else ``""``."""
+    import difflib
+
+    if rule.choices is None or not isinstance(value, str):
+        return ""
+    close = difflib.get_close_matches(value.lower(), rule.choices, n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def allowed_keys(path: str) -> list[str]:

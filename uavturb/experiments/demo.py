@@ -68,7 +68,7 @@ def physics_on_flight(rec_path: Path, out: Path) -> dict:
 
     (rec,) = load_recordings([rec_path])
     res = residual_forces(rec, ident.apply(rec.vehicle))
-    csv = write_residuals(res, out / "residuals.csv")
+    csv = write_residuals(res, out / "residuals.csv", overwrite=True)
     _say(f"residual force series ({res.source}) -> {csv}, RMS {res.rmse:.3f} N")
 
     d = res.data.d_down
@@ -127,7 +127,7 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     res = sweep(preset="quick", seeds=1, overrides=[*SWEEP_DATA, f"data.root={out / 'sim'}",
                                                      f"data.pairs_root={out / 'pairs'}",
                                                      f"trainer.default_root_dir={out / 'runs'}"])
-    table1 = compare(parent_run_id=res["parent_run_id"], experiment=res["experiment"], out=out / "table1")
+    table1 = compare(parent_run_id=res["parent_run_id"], experiment=res["experiment"], out=out / "table1", overwrite=True)
     ours = next(r for r in res["runs"] if r["row"] == "normals/finetune")
     summary["table1"] = {"parent_run_id": res["parent_run_id"], "experiment": res["experiment"],
                          "rows": table1["rows"]}

@@ -238,6 +238,12 @@ class SequentialExecutor(Executor):
 
     name = "sequential"
 
+    def check(self, cfg: DictConfig) -> None:
+        """The runs train here: this machine must have the device they ask for (a GPU, bf16)."""
+        from uavturb.experiments.accelerators import check_trainer_device
+
+        check_trainer_device(cfg.trainer)
+
     def submit(self, train_fn: Callable[..., dict[str, Any]], job: Job) -> Job:
         self.jobs.append(job)
         encoder = job.encoder
@@ -385,13 +391,33 @@ class RayExecutor(Executor):
         return self.jobs
 
 
+#: Ray's switch for clusters (its default on macOS and Windows is off): off, a local instance's
+#: node address is 127.0.0.1 and its servers listen on the loopback interface only.
+RAY_CLUSTER_SWITCH = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
+def _local_ray_on_loopback() -> None:
+    """Make the local Ray instance about to start reachable from this machine only (Ray binds its
+    gRPC servers to every interface otherwise). Set before Ray is imported, so its processes
+    inherit it; a value the user set is kept."""
+    import os
+
+    os.environ.setdefault(RAY_CLUSTER_SWITCH, "0")
+    constants = sys.modules.get("ray._private.ray_constants")
+    if constants is not None and os.environ[RAY_CLUSTER_SWITCH] == "0":  # Ray imported already
+        constants.ENABLE_RAY_CLUSTER = False
+
+
 @contextlib.contextmanager
 def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iterator[Any]:
     """Ray, connected for the block: ``address`` (an existing cluster) or a local instance.
 
-    A local instance has ``num_cpus`` CPUs (default: all), no dashboard, and stops at the end.
-    A Ray this process already initialised (tests) is used as it is and left running.
+    A local instance has ``num_cpus`` CPUs (default: all), no dashboard, listens on 127.0.0.1
+    only (:func:`_local_ray_on_loopback`), and stops at the end. A Ray this process already
+    initialised (tests) is used as it is and left running.
     """
+    if not address:
+        _local_ray_on_loopback()
     try:
         import ray
     except ImportError:

@@ -53,6 +53,7 @@ from torch import nn
 
 from uavturb.errors import InputError
 from uavturb.experiments.tracking import client as _client
+from uavturb.io.checkpoint import read_checkpoint
 from uavturb.io.publish import check_output_folder, publish_folder
 from uavturb.nn.height import phi_alpha_beta
 from uavturb.nn.streaming import INPUT_NAMES, OUTPUT_NAMES, StreamingHeightModel
@@ -129,19 +130,19 @@ def run_checkpoint(run_id: str) -> Path:
 
 
 def load_height_module(run_id: str | None = None, checkpoint: str | Path | None = None):
-    """A :class:`~uavturb.systems.HeightModule` in eval mode on the CPU, from a run or a file."""
+    """A :class:`~uavturb.systems.HeightModule` in eval mode, float32 on the CPU, from a run or a file
+    (a checkpoint written on a GPU, or in bf16, loads the same)."""
     from uavturb.systems import HeightModule
 
     path = Path(checkpoint) if checkpoint is not None else run_checkpoint(run_id)
-    if not path.is_file():
-        raise InputError(path, "checkpoint not found")
-    try:
-        module = HeightModule.load_from_checkpoint(str(path), map_location="cpu")
+    read_checkpoint(path)  # one line for a missing, unreadable or poisoned file
+    try:  # weights_only given explicitly: TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD cannot turn it off
+        module = HeightModule.load_from_checkpoint(str(path), map_location="cpu", weights_only=True)
     except InputError:
         raise
     except Exception as e:  # noqa: BLE001 - any unreadable checkpoint is bad input
         raise InputError(path, f"not a HeightModule checkpoint ({type(e).__name__}: {str(e)[:200]})") from None
-    return module.eval()
+    return module.float().eval()  # float32 on the CPU, whatever device and precision it was trained with
 
 
 # --- real sequences to check against -----------------------------------------------------

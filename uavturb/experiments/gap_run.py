@@ -13,7 +13,7 @@ from uavturb.gap.finder import analyse, parse_sim_effects
 from uavturb.gap.report import write_json, write_markdown, write_plots
 from uavturb.gap.surface_curve import plot_surface_curve
 from uavturb.io.physics_config import load_physics_config, write_physics_config
-from uavturb.io.publish import check_output_folder, publish_folder
+from uavturb.io.publish import check_output_file, check_output_folder, publish_folder
 
 
 def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str | None = None, seed: int = 0,
@@ -36,6 +36,8 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
     if not recordings:
         raise InputError("gap", "no recording given")
     check_output_folder(out, overwrite=overwrite)
+    if apply is not None:
+        check_output_file(apply, overwrite=overwrite)
     recs = load_recordings(recordings, vehicle)
     report, ex = analyse(recs, sim, seed=seed)
     report["seconds_analysis"] = time.perf_counter() - t0
@@ -51,7 +53,7 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
             for n, p in report["sim_effect_params"].items():
                 fitted[n] = p["fitted"] or p["sim"]
             write_physics_config(apply, fitted, {"thrust_coefficient": report["nominal"]["thrust_coefficient"]},
-                                 source=f"uavturb gap {' '.join(report['recordings'])}")
+                                 source=f"uavturb gap {' '.join(report['recordings'])}", overwrite=overwrite)
             report["applied_config"] = str(apply)
         write_markdown(tmp, report, plots)
         write_json(tmp, report)

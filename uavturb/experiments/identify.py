@@ -9,6 +9,7 @@ from typing import Sequence
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io.publish import check_output_file
 from uavturb.io.reader import load_recordings
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.identification import Identification, identify
@@ -64,13 +65,16 @@ def _identified_for_forces(ident: Identification, vehicle: Vehicle) -> Vehicle:
 
 
 def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto", derivative: str = "savgol",
-                      params: str = "identified", vehicle: str | Vehicle | None = None) -> tuple[Residuals, Path]:
-    """``uavturb residuals``: the residual force series of one flight, written to CSV or Parquet."""
+                      params: str = "identified", vehicle: str | Vehicle | None = None,
+                      overwrite: bool = False) -> tuple[Residuals, Path]:
+    """``uavturb residuals``: the residual force series of one flight, written to CSV or Parquet
+    (an existing ``out`` is replaced only with ``overwrite``)."""
     out = Path(out)
     if out.suffix not in (".csv", ".parquet"):
         raise InputError(out, "output must end in .csv or .parquet")
     if not out.parent.exists():
         raise InputError(out.parent, "output folder does not exist")
+    check_output_file(out, overwrite=overwrite)
     (rec,) = load_recordings([path], vehicle)
     if params == "identified":
         v = _identified_for_forces(identify([rec], rec.vehicle), rec.vehicle)
@@ -82,5 +86,5 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     else:
         raise InputError("--params", f"unknown value '{params}' (allowed: identified, nominal)")
     res = residual_forces(rec, v, source=source, derivative=derivative)
-    return res, write_residuals(res, out)
+    return res, write_residuals(res, out, overwrite=overwrite)
 

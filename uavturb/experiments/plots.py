@@ -34,13 +34,14 @@ def predict_last_frames(module: torch.nn.Module, depth: np.ndarray, window: int,
     if T < window:
         return out
     module.eval()
-    device = next(module.parameters()).device
+    param = next(module.parameters())
+    device, dtype = param.device, param.dtype  # e.g. a GPU, or bf16 weights (trainer.precision=bf16-true)
     x = torch.from_numpy(np.array(depth, np.float32)).unsqueeze(1)  # (T, 1, H, W), a writable copy
     ends = np.arange(window - 1, T)
     for s in range(0, len(ends), batch):
         e = ends[s:s + batch]
         idx = torch.from_numpy(e[:, None] - np.arange(window - 1, -1, -1)[None, :])
-        d, _ = module(x[idx].to(device))
+        d, _ = module(x[idx].to(device, dtype))
         out[e] = d[:, -1].float().cpu().numpy()
     return out
 

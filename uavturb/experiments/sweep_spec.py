@@ -15,6 +15,7 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from uavturb.errors import InputError
+from uavturb.io.yaml_mapping import read_yaml_mapping
 
 #: the shipped sweep files (package data)
 SWEEPS_DIR = Path(str(resources.files("uavturb") / "sweeps"))
@@ -78,13 +79,8 @@ class SweepSpec:
 
 def load_spec(path: str | Path = DEFAULT_SPEC) -> DictConfig:
     """Read and check a sweep file; a typo fails naming the file and the key."""
-    import yaml
-
     path = resolve_spec(path)
-    try:
-        body = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as e:
-        raise InputError(path, f"not valid YAML ({str(e).splitlines()[0]})") from None
+    body = read_yaml_mapping(path, expected="a mapping of sweep keys")
     try:
         spec = OmegaConf.merge(OmegaConf.structured(SweepSpec), body)
         OmegaConf.to_container(spec, throw_on_missing=True)

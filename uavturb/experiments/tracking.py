@@ -133,6 +133,8 @@ def _store_problem(uri: str, e: Exception) -> StoreError:
         table = first.split("table ", 1)[-1].split()[0]
         hint = (f"an earlier schema upgrade was interrupted: back up {db}, then run "
                 f"`sqlite3 {db} 'DROP TABLE {table}'` and `mlflow db upgrade {uri}`")
+    elif "disk is full" in first.lower() or "no space left" in first.lower():
+        hint = "the disk is full: free some space and run the command again (the store itself is fine)"
     elif db is not None:
         hint = (f"run `mlflow db upgrade {uri}`; if that fails too, move {db} away and start a new store")
     else:

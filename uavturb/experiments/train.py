@@ -35,7 +35,15 @@ a signal stops it (:class:`uavturb.errors.Interrupted`), FAILED on an error; its
 ``pid`` and ``pid_start`` let any later command mark it FAILED if its process dies without
 closing it (SIGKILL). ``train(cfg, resume=RUN_ID)`` (``uavturb train --resume RUN_ID``) continues
 such a run in the same MLflow run from its ``last.ckpt``, as Lightning's ``ckpt_path`` does.
-Bad config values and bad data fail before any run is opened.
+Bad config values and bad data fail before any run is opened, and so does a device this machine
+lacks (``trainer.accelerator=gpu`` without a CUDA device, fp16 on the CPU:
+:mod:`uavturb.experiments.accelerators`).
+
+Devices: DataLoader memory is pinned when training on a CUDA device (``data.pin_memory``
+decides otherwise); ``trainer.cudnn_benchmark`` and ``trainer.matmul_precision`` are
+Lightning's ``benchmark`` and torch's float32 matmul precision (TF32 with ``high``).
+Checkpoints hold float32 weights under mixed precision and load on the CPU wherever they were
+trained (``map_location="cpu"`` in evaluate and export).
 
 Output: on a terminal Lightning's progress bar; otherwise (a log file) one line per epoch on
 stderr (:func:`epoch_lines`). Lightning's notices (accelerator, tips) are left out.
@@ -51,6 +59,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from uavturb.errors import InputError
+from uavturb.experiments.accelerators import check_trainer_device
 from uavturb.experiments.config import TrainConfig, to_flat_dict, validate
 
 #: MLflow artifact path of a run's best checkpoint (the local file: tag ``checkpoint``)
@@ -96,6 +105,25 @@ def _devices(x: str) -> int | str | list[int]:
     return x
 
 
+def trainer_kwargs(t: DictConfig) -> dict[str, Any]:
+    """Lightning ``Trainer`` arguments of the ``trainer`` node of a config (device, precision, lengths);
+    callbacks, logger and progress are the caller's. ``uavturb bench gpu`` builds its trainers with them."""
+    return dict(max_epochs=t.max_epochs, max_steps=t.max_steps, accelerator=t.accelerator,
+                devices=_devices(t.devices), strategy=t.strategy, num_nodes=t.num_nodes, precision=t.precision,
+                limit_train_batches=_limit(t.limit_train_batches), limit_val_batches=_limit(t.limit_val_batches),
+                limit_test_batches=_limit(t.limit_test_batches), log_every_n_steps=t.log_every_n_steps,
+                default_root_dir=t.default_root_dir, deterministic=t.deterministic, benchmark=t.cudnn_benchmark)
+
+
+def set_torch_flags(t: DictConfig) -> None:
+    """Process-wide torch settings of the ``trainer`` node: CPU threads and the float32 matmul precision."""
+    import torch
+
+    if t.num_threads > 0:
+        torch.set_num_threads(t.num_threads)
+    torch.set_float32_matmul_precision(t.matmul_precision)
+
+
 def _prepare_data(cfg: DictConfig) -> Path:
     """The dataset folder of this stage, generated when ``data.synthetic.enabled`` and missing."""
     from uavturb.data import synthetic
@@ -133,6 +161,7 @@ def _resolve_ground_effect_law(cfg: DictConfig, data_root: Path) -> None:
 def _build(cfg: DictConfig):
     """(module, datamodule, callbacks, monitor) of the configured stage."""
     from uavturb.data.datamodules import PairsDataModule, ShardWindowsDataModule
+    from uavturb.experiments.accelerators import pin_memory
     from uavturb.systems import FreezeThenFinetune, HeightModule, TranscoderModule
 
     m, d = cfg.model, cfg.data
@@ -142,7 +171,7 @@ def _build(cfg: DictConfig):
         module = TranscoderModule(target=m.pretraining, lr=m.lr_pretrain, lam=m.lam, embed_dim=m.embed_dim,
                                   encoder_hidden=m.encoder_hidden, max_depth=m.max_depth)
         dm = PairsDataModule(d.pairs_root, target=m.pretraining, batch_size=d.batch_size, num_workers=d.num_workers,
-                             val_fraction=d.val_fraction, seed=cfg.trainer.seed)
+                             val_fraction=d.val_fraction, seed=cfg.trainer.seed, pin_memory=pin_memory(cfg))
         return module, dm, [], "val/loss"
     callbacks = []
     encoder_ckpt = None
@@ -160,15 +189,23 @@ def _build(cfg: DictConfig):
                           loss=m.loss, law_weight_ref=m.law_weight_ref)
     dm = ShardWindowsDataModule(d.root, window=d.window, stride=d.stride, eval_stride=d.eval_stride,
                                 batch_size=d.batch_size, num_workers=d.num_workers, image_size=d.image_size,
-                                seed=cfg.trainer.seed)  # seeds differ in batch order too, not only in init
+                                seed=cfg.trainer.seed,  # seeds differ in batch order too, not only in init
+                                pin_memory=pin_memory(cfg))
     return module, dm, callbacks, "val/rmse_d"
+
+
+def build_stage(cfg: DictConfig, data_root: Path):
+    """(module, datamodule, callbacks, monitor) of the configured stage on ``data_root``, the ground-effect
+    law resolved first (as :func:`train` does; ``uavturb bench gpu`` trains what this builds)."""
+    _resolve_ground_effect_law(cfg, data_root)
+    return _build(cfg)
 
 
 #: keys a resumed run may change (how long and where it trains, not what it learns); any other
 #: difference from the run's own config is refused
 RESUMABLE_KEYS = ("trainer.max_epochs", "trainer.max_steps", "trainer.num_threads", "trainer.enable_progress_bar",
                   "trainer.accelerator", "trainer.devices", "trainer.strategy", "trainer.num_nodes",
-                  "data.num_workers", "model.encoder_ckpt")
+                  "trainer.cudnn_benchmark", "data.num_workers", "data.pin_memory", "model.encoder_ckpt")
 #: name of the checkpoint of the latest epoch, in the run's checkpoint folder (tag ``checkpoint_dir``)
 LAST_CHECKPOINT = "last.ckpt"
 
@@ -217,7 +254,9 @@ def run_config(run_id: str) -> DictConfig:
             path = c.download_artifacts(run_id, "config.yaml", tmp)
         except Exception:  # noqa: BLE001 - MlflowException or OSError: the artifact is gone
             raise InputError("--resume", f"run {run_id} has no readable config.yaml artifact") from None
-        return validate(OmegaConf.load(path))
+        from uavturb.io.yaml_mapping import read_yaml_mapping
+
+        return validate(OmegaConf.create(read_yaml_mapping(path)))  # within the YAML bounds: runs can be shared
 
 
 def resume_config(run_id: str, overrides: list[str] | None = None, experiment: str | None = None) -> DictConfig:
@@ -479,18 +518,21 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
 
     cfg = validate(cfg)
     _check_system_metrics(cfg)
+    check_trainer_device(cfg.trainer)  # gpu without a CUDA device, fp16 on the CPU: one line, nothing started
     quiet_lightning()
     if resume is not None and not cfg.tracking.enabled:
         raise InputError("--resume", "needs tracking.enabled=true (the run lives in MLflow)")
     if resume is not None and _is_rank_zero():  # a run that cannot be resumed fails before any work
         from uavturb.experiments.tracking import client
+        from uavturb.io.checkpoint import read_checkpoint
 
-        _config_changes(cfg, _resumable_run(client(), resume))
+        run = _resumable_run(client(), resume)
+        _config_changes(cfg, run)
+        last = Path(run.data.tags["checkpoint_dir"]) / LAST_CHECKPOINT
+        if last.is_file():  # a poisoned or broken checkpoint is refused before the run is touched
+            read_checkpoint(last)
     t = cfg.trainer
-    if t.num_threads > 0:
-        import torch
-
-        torch.set_num_threads(t.num_threads)
+    set_torch_flags(t)
     L.seed_everything(t.seed, workers=True, verbose=False)
     data_root = _prepare_data(cfg)
     _resolve_ground_effect_law(cfg, data_root)
@@ -537,25 +579,20 @@ def _fit_and_test(cfg, module, dm, callbacks, monitor, client, run_id, last, ckp
         callbacks.append(EarlyStopping(monitor=monitor, mode="min", patience=t.early_stopping_patience))
     progress_bar, progress_lines = _progress_callbacks(t)
     callbacks.extend(progress_lines)
-    trainer = L.Trainer(max_epochs=t.max_epochs, max_steps=t.max_steps, accelerator=t.accelerator,
-                        devices=_devices(t.devices), strategy=t.strategy, num_nodes=t.num_nodes,
-                        precision=t.precision, limit_train_batches=_limit(t.limit_train_batches),
-                        limit_val_batches=_limit(t.limit_val_batches), limit_test_batches=_limit(t.limit_test_batches),
-                        log_every_n_steps=t.log_every_n_steps, enable_progress_bar=progress_bar,
-                        default_root_dir=t.default_root_dir, deterministic=t.deterministic, callbacks=callbacks,
+    trainer = L.Trainer(**trainer_kwargs(t), enable_progress_bar=progress_bar, callbacks=callbacks,
                         logger=logger if logger is not None else False, enable_model_summary=False)
     if resume is not None and trainer.is_global_zero:
         print(f"resuming run {resume} " + (f"from {last}" if last else f"from the start (no {LAST_CHECKPOINT} yet)"),
               file=sys.stderr, flush=True)
     system = _system_metrics(cfg, logger) if logger is not None and trainer.is_global_zero else None
     try:
-        trainer.fit(module, datamodule=dm, ckpt_path=str(last) if last else None)
+        trainer.fit(module, datamodule=dm, ckpt_path=str(last) if last else None, weights_only=True)
     finally:
         if system is not None:
             _finish_system_metrics(system)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     best = checkpoint.best_model_path or None
-    tested = trainer.test(module, datamodule=dm, ckpt_path=best if best else None, verbose=False)
+    tested = trainer.test(module, datamodule=dm, ckpt_path=best if best else None, verbose=False, weights_only=True)
     for row in tested:
         metrics.update({k: float(v) for k, v in row.items()})
     metrics.update({k + FA_SCALED_SUFFIX: v * FA_SCALE for k, v in list(metrics.items()) if k.endswith("rmse_fa")})

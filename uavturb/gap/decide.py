@@ -55,8 +55,10 @@ DRAG_BLOCK_S = 1.0
 #: mounts, frame flex and an attitude estimate's levelling leave 1-2 deg (the 1-1.5 deg pushes of real
 #: indoor sessions); a larger tilt makes a vehicle drift visibly in hover and is trimmed out in tuning
 TILT_MAX_DEG = 3.0
-#: share of the weight an effect's force must reach where it acts to be a discovery (practical size)
-PRACTICAL_SHARE = 0.005
+#: share of the weight an effect's force must reach where it acts to be a discovery (practical size): a push
+#: a thousandth of the weight is none; the concealed effects of ``uavturb gap-proof`` (a 0.036 N push on a
+#: 14.7 N hexarotor, 0.25 %) are the smallest the proof asks for
+PRACTICAL_SHARE = 0.002
 #: s of flight within reach of a surface needed to test its law
 MIN_NEAR_S = 2.0
 #: deg of heading change under which a body-fixed and a world-fixed force look alike
@@ -114,11 +116,18 @@ class Reach:
         return f"hover {where} at several heights below {self.reach_m:.2f} m for a few seconds each"
 
 
+def surface_geometry(data: GapData) -> dict:
+    """What surface laws that use the rotor spacing need (none where the arm length is unknown)."""
+    if not np.isfinite(data.arm_length):
+        return {}
+    return {"arm_length": data.arm_length, "rotor_count": data.rotor_speeds.shape[1]}
+
+
 def surface_reach(data: GapData, name: str) -> Reach:
     """Can the surface law ``name`` be tested on ``data``? (module docstring, point 1)"""
     spec = EFFECTS[name]
     d = data.d_down if spec.surface == "d_down" else data.d_up
-    reach = spec.surface_reach(data.rotor_radius)
+    reach = spec.surface_reach(data.rotor_radius, **surface_geometry(data))
     near = np.isfinite(d) & (d <= reach)
     dt = float(np.median(np.diff(data.t))) if len(data) > 1 else 0.0
     near_s = float(near.sum()) * dt

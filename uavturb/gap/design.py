@@ -43,6 +43,10 @@ NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items()
              if e.search is not None and e.fitted_by_finder}
 
 
+#: Hz, the rate the gap finder analyses at (block means of faster recordings; :func:`gap_data`)
+RATE_HZ = 25.0
+
+
 @dataclass
 class GapData:
     """Samples of one or more flights for the translational fit (``K`` rows).
@@ -65,7 +69,9 @@ class GapData:
     level : (K,) -, thrust level of each row's recording (:func:`uavturb.gap.nominal.thrust_levels`;
         None: all 1)
     contiguous : the flights before rows were dropped (motor lag needs contiguous rows), and
-    rows : (K,) int, the indices of these rows in ``contiguous``
+    rows : (K,) int, the indices of these rows in ``contiguous``; where rows are block means of
+        consecutive samples (:func:`gap_data`'s ``rate_hz``), the indices of every member sample, and
+    block_of : (M,) int, the row each member sample belongs to (None: one sample a row)
     anchored : ``{recording name: AnchoredBias}``, accelerometer biases measured against motion capture
     arm_length : m, the vehicle's arm (sizes the airframe for physical ranges; nan: unknown)
     """
@@ -89,6 +95,7 @@ class GapData:
     level: np.ndarray | None = None
     contiguous: "GapData | None" = field(default=None, repr=False)
     rows: np.ndarray | None = None
+    block_of: np.ndarray | None = None
     anchored: dict = field(default_factory=dict, repr=False)
     arm_length: float = float("nan")
     _lag_cache: dict = field(default_factory=dict, repr=False)
@@ -98,7 +105,10 @@ class GapData:
 
     @property
     def S(self) -> np.ndarray:
-        return np.sum(self.rotor_speeds**2, axis=1)
+        """(K,) (rad/s)^2, ``sum(w_i^2)`` (computed once: the fits read it thousands of times)."""
+        if "S" not in self._lag_cache:
+            self._lag_cache["S"] = np.sum(self.rotor_speeds**2, axis=1)
+        return self._lag_cache["S"]
 
     @property
     def thrust_level(self) -> np.ndarray:
@@ -110,11 +120,22 @@ class GapData:
         """Some rows come from an accelerometer (so an accelerometer bias exists)."""
         return bool(self.imu is not None and np.any(self.imu))
 
+    def gather(self, values: np.ndarray) -> np.ndarray:
+        """Values of the contiguous flights ``(len(contiguous), ...)`` on these rows (block means where
+        rows are blocks)."""
+        if self.block_of is None:
+            return values[self.rows]
+        counts = np.bincount(self.block_of, minlength=len(self)).astype(float)
+        v = values[self.rows].reshape(len(self.rows), -1)
+        out = np.stack([np.bincount(self.block_of, weights=v[:, j], minlength=len(self)) for j in range(v.shape[1])],
+                       axis=1) / counts[:, None]
+        return out.reshape((len(self),) + values.shape[1:])
+
     def S_lag(self, tau: float) -> np.ndarray:
         """``sum(w_lag^2)`` with rotor speeds lagging the records by ``tau`` [s] (per recording),
         computed on the contiguous flights when these rows are a subset of them."""
         if self.contiguous is not None:
-            return self.contiguous.S_lag(tau)[self.rows]
+            return self.gather(self.contiguous.S_lag(tau))
         key = round(float(tau), 9)
         if key not in self._lag_cache:
             out = np.empty(len(self))
@@ -122,19 +143,30 @@ class GapData:
                 m = self.group == g
                 out[m] = np.sum(lag_rotor_speeds(self.t[m], self.rotor_speeds[m], tau) ** 2, axis=1)
             if len(self._lag_cache) > 64:
+                S = self._lag_cache.get("S")
                 self._lag_cache.clear()
+                if S is not None:
+                    self._lag_cache["S"] = S
             self._lag_cache[key] = out
         return self._lag_cache[key]
 
     def subset(self, mask: np.ndarray) -> "GapData":
         """The rows where ``mask`` holds; they keep a reference to the contiguous flights."""
-        rows = np.flatnonzero(mask) if self.rows is None else self.rows[mask]
+        block_of = None
+        if self.rows is None:
+            rows = np.flatnonzero(mask)
+        elif self.block_of is None:
+            rows = self.rows[mask]
+        else:
+            members = mask[self.block_of]
+            rows, block_of = self.rows[members], (np.cumsum(mask) - 1)[self.block_of[members]]
         return GapData(self.group[mask], self.t[mask], self.p[mask], self.y[mask], self.R[mask], self.rotor_speeds[mask],
                        self.v[mask], self.d_down[mask], self.d_up[mask], self.mass, self.rotor_radius,
                        self.names, self.source, self.flights,
                        None if self.imu is None else self.imu[mask], self.fits_bias,
                        None if self.level is None else self.level[mask],
-                       self if self.contiguous is None else self.contiguous, rows, self.anchored, self.arm_length)
+                       self if self.contiguous is None else self.contiguous, rows, block_of, self.anchored,
+                       self.arm_length)
 
 
 def _smooth_height(t: np.ndarray, z: np.ndarray, window_s: float) -> np.ndarray:
@@ -161,7 +193,7 @@ def _in_flight(fd: FlightData, mass: float, k_T_guess: float | None, min_thrust_
 def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, source: str = "auto",
              min_thrust_ratio: float = 0.3, k_T_guess: float | None = None,
              height_window_s: float = 0.3, exclude: list[np.ndarray] | None = None,
-             anchor_bias: bool = True, arm_length: float = float("nan")) -> GapData:
+             anchor_bias: bool = True, arm_length: float = float("nan"), rate_hz: float | None = RATE_HZ) -> GapData:
     """Stack flights into :class:`GapData`, keeping samples in flight (not resting on a surface).
 
     Rows at the derivative filter's edges, rows whose rotors carry less than
@@ -169,6 +201,11 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     ground contact) are left out. Heights over and under surfaces use the rotor plane's height
     smoothed over ``height_window_s`` [s]. Motor lag needs contiguous rows: the lag filter runs on
     each flight before rows are dropped (:attr:`GapData.contiguous`).
+
+    With ``rate_hz`` (default :data:`RATE_HZ`), faster recordings are analysed as block means of
+    consecutive samples at about that rate (:func:`block_means`): the effects of the vocabulary change
+    over tenths of seconds, and the fits, repeated hundreds of times in a selection, cost in proportion
+    to the rows. ``None`` keeps every sample.
 
     With ``anchor_bias`` (default), the accelerometer bias of a flight with an IMU is measured
     against its motion capture (:func:`uavturb.gap.nominal.anchored_bias`) and taken off the
@@ -205,13 +242,57 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
                    source="+".join(sorted({p["src"] for p in parts})), flights=flights,
                    fits_bias=bool(np.any(cat["imu"])) and not anchor_bias, arm_length=arm_length)
     full.anchored = anchored
-    return full.subset(keep)
+    n = block_size(full, rate_hz)
+    return full.subset(keep) if n <= 1 else block_means(full, keep, n)
+
+
+def block_size(data: GapData, rate_hz: float | None) -> int:
+    """Samples a row averages to bring the data's rate down to about ``rate_hz`` (1: none)."""
+    if not rate_hz or len(data) < 2:
+        return 1
+    dt = float(np.median(np.diff(data.t)))
+    return max(1, int(round(1.0 / (dt * rate_hz)))) if dt > 0 else 1
+
+
+def block_means(full: GapData, keep: np.ndarray, n: int) -> GapData:
+    """Rows that are means of ``n`` consecutive kept samples of one recording (no dropped row between
+    them): ``y``, positions, velocities, attitudes' columns and heights averaged, rotor speeds as the
+    root mean square (so ``sum(w^2)`` is the mean of the samples'), times as the mean. The model is
+    linear in its regressors for given nonlinear parameters, and every regressor changes slowly
+    against ``n`` samples (a block is 40 ms at the default 25 Hz), so the fit on block means is the
+    fit on the samples with the white noise averaged; motor lag is filtered on the contiguous samples
+    and averaged over each block (:meth:`GapData.S_lag`)."""
+    idx = np.flatnonzero(keep)
+    starts = np.r_[True, (np.diff(idx) != 1) | (np.diff(full.group[idx]) != 0)]
+    run = np.cumsum(starts) - 1
+    pos = np.arange(len(idx)) - np.flatnonzero(starts)[run]
+    block_key = run * (len(idx) + 1) + pos // n
+    _, block_of = np.unique(block_key, return_inverse=True)
+    K = int(block_of.max()) + 1
+    counts = np.bincount(block_of, minlength=K).astype(float)
+
+    def mean(x: np.ndarray) -> np.ndarray:
+        v = np.asarray(x, float)[idx].reshape(len(idx), -1)
+        out = np.stack([np.bincount(block_of, weights=v[:, j], minlength=K) for j in range(v.shape[1])], 1)
+        return (out / counts[:, None]).reshape((K,) + np.shape(x)[1:])
+
+    with np.errstate(invalid="ignore"):
+        d_down, d_up = mean(full.d_down), mean(full.d_up)
+    group = full.group[idx][np.unique(block_of, return_index=True)[1]]
+    data = GapData(group, mean(full.t), mean(full.p), mean(full.y), mean(full.R),
+                   np.sqrt(mean(full.rotor_speeds**2)), mean(full.v), np.where(np.isnan(d_down), np.inf, d_down),
+                   np.where(np.isnan(d_up), np.inf, d_up), full.mass, full.rotor_radius, full.names, full.source,
+                   full.flights, None if full.imu is None else mean(full.imu) > 0.5, full.fits_bias, None, full, idx,
+                   block_of, full.anchored, full.arm_length)
+    return data
 
 
 def apply_thrust_levels(data: GapData, k_T_guess: float | None) -> ThrustLevels:
     """Measure each recording's thrust level far from surfaces (:func:`uavturb.gap.nominal.thrust_levels`)
     and, where they differ, give each row its recording's level (``data.level``)."""
-    reach = max(e.surface_reach(data.rotor_radius) for e in EFFECTS.values() if e.surface)
+    geometry = {} if not np.isfinite(data.arm_length) else {"arm_length": data.arm_length,
+                                                             "rotor_count": data.rotor_speeds.shape[1]}
+    reach = max(e.surface_reach(data.rotor_radius, **geometry) for e in EFFECTS.values() if e.surface)
     far = (data.d_down > reach) & (data.d_up > reach)
     y_thrust = np.einsum("ki,ki->k", data.y, data.R[:, :, 2])
     levels = thrust_levels(data.group, data.t, y_thrust, data.S, far, data.names)

@@ -67,7 +67,7 @@ def _sim_offset(data: GapData, sim: dict[str, dict[str, float]], k_T: float) -> 
                          rotor_radius=full.rotor_radius, d_down=full.d_down[m], d_up=full.d_up[m], t=full.t[m],
                          R=full.R[m])
         out[m] = total_force(sim, x)
-    return out if data.rows is None else out[data.rows]
+    return out if data.rows is None else data.gather(out)
 
 
 def _open_loop(data: GapData, force: np.ndarray, horizon_s: float = 0.5, stride_s: float = 0.5) -> float:
@@ -255,6 +255,32 @@ def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels) -> dict[str, 
     return out
 
 
+#: |value| / honest standard error a named effect's parameter must reach (:mod:`uavturb.gap.uncertainty`)
+HONEST_Z = 2.0
+
+
+def _budget(data: GapData, final: ModelFit, name: str) -> dict[str, dict[str, float]]:
+    """:func:`uavturb.gap.uncertainty.error_budget` of ``name`` in ``final`` (a surface law's recordings
+    must each come within its reach to count)."""
+    if EFFECTS[name].surface is None:
+        return error_budget(data, final, name)
+    return error_budget(data, final, name, can_test=lambda d: surface_reach(d, name).testable)
+
+
+def not_pinned(data: GapData, final: ModelFit, name: str) -> str | None:
+    """Why ``name`` is no discovery when none of its parameters stands :data:`HONEST_Z` honest standard
+    errors from zero (the spread between recordings or blocks counted), else None."""
+    if not EFFECTS[name].absent_at_zero:
+        return None
+    params, _ = final.effect_params(name)
+    se = honest_stderr(_budget(data, final, name))
+    z = max((abs(v) / se[k] if se[k] > 0 else np.inf) for k, v in params.items())
+    if not np.isfinite(z) or z >= HONEST_Z:
+        return None
+    return (f"its fitted value ({', '.join(f'{k} = {v:.3g} ± {se[k]:.2g}' for k, v in params.items())}) lies within "
+            f"{HONEST_Z:.0f} honest standard errors of zero once the spread between recordings or blocks is counted")
+
+
 def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any) -> list[dict[str, Any]]:
     """The report's ``effects``: each chosen effect's fitted parameters with honest errors
     (:mod:`uavturb.gap.uncertainty`: sample, height reference, between recordings or blocks), the
@@ -262,10 +288,7 @@ def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any) -
     effects_out = []
     for s in sel.steps:
         params, _ = final.effect_params(s.name)
-        surface = EFFECTS[s.name].surface is not None
-        budget = error_budget(data, final, s.name,
-                              can_test=(lambda d, n=s.name: surface_reach(d, n).testable) if surface else
-                              (lambda d: True))
+        budget = _budget(data, final, s.name)
         effects_out.append({
             "name": s.name, "params": params, "stderr": honest_stderr(budget),
             "explanation": explanation(s.name, params, facts),
@@ -291,7 +314,8 @@ def _decide(data: GapData, sel: Selection, candidates: list[str]
         drop = None
         for s in steps:
             params, _ = final.effect_params(s.name)
-            bad = EFFECTS[s.name].physical_range.violation(params, facts) or too_small(data, final, s.name)
+            bad = (EFFECTS[s.name].physical_range.violation(params, facts) or too_small(data, final, s.name)
+                   or not_pinned(data, final, s.name))
             if bad is not None:
                 rejected.append({"name": s.name, "params": params, "why": bad})
                 drop = s

@@ -63,7 +63,8 @@ class ModelFit:
         if name == "battery_sag":
             kT, ks = self.coef["k_T"], self.coef["k_T*s"]
             s = ks / kT
-            se = abs(s) * np.hypot(self.stderr["k_T*s"] / max(abs(ks), 1e-300), self.stderr["k_T"] / kT)
+            se = abs(s) * np.hypot(self.stderr.get("k_T*s", np.nan) / max(abs(ks), 1e-300),
+                                   self.stderr.get("k_T", np.nan) / kT)
             return {"s": s}, {"s": se}
         keys = EFFECTS[name].params
         return {k: self.coef[k] for k in keys}, {k: self.stderr.get(k, float("nan")) for k in keys}

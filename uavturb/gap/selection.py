@@ -106,7 +106,8 @@ def improvement_z(before: HeldOut, after: HeldOut, block_s: tuple[float, ...] = 
     """Significance of the held-out squared-error reduction from ``before`` to ``after``
     (same test rows): ``z = sum(|e_b|^2 - |e_a|^2) / (2 sqrt(sum_blocks (sum e_a . delta)^2))``,
     ``delta = e_b - e_a`` (module docstring); the smallest ``z`` over the block lengths
-    ``block_s`` [s] (at least 8 blocks each)."""
+    ``block_s`` [s] (at least :data:`MIN_BLOCKS` blocks each; shorter blocks where the held-out part is
+    too short for any of them)."""
     eb, ea = before.resid, after.resid
     delta = eb - ea
     gain = float(np.sum(eb**2) - np.sum(ea**2))
@@ -114,14 +115,22 @@ def improvement_z(before: HeldOut, after: HeldOut, block_s: tuple[float, ...] = 
     t = before.t if before.t is not None else np.zeros(len(eb))
     g = before.group if before.group is not None else np.zeros(len(eb), int)
     zs = []
-    for L in block_s:
+    span = sum(float(np.ptp(t[g == k])) for k in np.unique(g)) if len(t) else 0.0
+    # a short held-out part (the last 30 % of an 18 s take-off) has fewer than MIN_BLOCKS blocks of
+    # every length: its blocks are then as long as MIN_BLOCKS of them allow
+    lengths = [L for L in block_s if span / L >= MIN_BLOCKS] or ([span / MIN_BLOCKS] if span > 0 else [])
+    for L in lengths:
         labels = g.astype(np.int64) * 10**7 + np.floor(t / L).astype(np.int64)
         _, inv = np.unique(labels, return_inverse=True)
-        if inv.max(initial=0) + 1 < 8:
+        if inv.max(initial=0) + 1 < MIN_BLOCKS:
             continue
         spread = 2.0 * float(np.sqrt(np.sum(np.bincount(inv, weights=u_k) ** 2)))
         zs.append(gain / spread if spread > 0 else (0.0 if gain <= 0 else float(np.inf)))
     return min(zs) if zs else 0.0
+
+
+#: blocks the spread of a held-out gain needs at least
+MIN_BLOCKS = 8
 
 
 @dataclass
@@ -164,6 +173,24 @@ def _signed_ok(fit: ModelFit, name: str, z_min: float) -> bool:
     return max(zs) > z_min
 
 
+def _same_physics(a: str, b: str) -> bool:
+    """Two laws of one physics (``EffectSpec.alternative_to``): at most one of them is named."""
+    return EFFECTS[a].alternative_to == b or EFFECTS[b].alternative_to == a
+
+
+def _standard_law(best: tuple, passed: dict[str, tuple], z_improve: float, tried: dict, step: int) -> tuple:
+    """``best``, unless it is an alternative law (``alternative_to``) that does not beat the standard law
+    of its physics on the held-out data beyond noise (``z > z_improve``): then the standard law, which
+    ``effects.md`` names (a better law "may be named instead" only where it fits better)."""
+    c, ho, _ = best
+    standard = EFFECTS[c].alternative_to
+    if standard is None or standard not in passed:
+        return best
+    z = improvement_z(passed[standard][1], ho)
+    tried[c][f"step{step}_z_over_{standard}"] = z
+    return best if z >= z_improve else passed[standard]
+
+
 def select(data: GapData, candidates: list[str], base: frozenset[str] = frozenset(), *, z_improve: float = 4.0,
            z_min: float = 4.0, lag: int = 50, max_effects: int = 4, offset: np.ndarray | None = None,
            thrust_floor: float = 0.0) -> Selection:
@@ -185,6 +212,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
     remaining = [c for c in candidates if c not in current]
     while remaining and len(steps) < max_effects:
         best = None  # the best held-out fit among the candidates that pass the guards
+        passed: dict[str, tuple] = {}
         for c in remaining:
             ho = heldout(data, current | {c}, fm, offset=offset)
             t = improvement_z(cur_ho, ho)
@@ -197,9 +225,10 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
                 continue
             if best is None or ho.rmse < best[1].rmse:
                 best = (c, ho, t)
+            passed[c] = (c, ho, t)
         if best is None:
             break
-        c, ho, t = best
+        c, ho, t = _standard_law(best, passed, z_improve, tried, len(steps) + 1)
         fit = fit_model(full, current | {c}, lag=lag)
         if not _signed_ok(fit, c, z_min):
             tried[c]["rejected"] = 1.0
@@ -208,7 +237,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         steps.append(Step(c, cur_ho.rmse, ho.rmse, t, fit))
         current = current | {c}
         cur_ho = ho
-        remaining.remove(c)
+        remaining = [r for r in remaining if r != c and not _same_physics(r, c)]
 
     # backward check: drop an effect whose removal does not hurt significantly
     changed = True

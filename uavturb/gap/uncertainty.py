@@ -69,7 +69,7 @@ def _shifted(data: GapData, dz: float) -> GapData:
     out.y = data.y
     out.d_down = np.maximum(data.d_down + dz, 1e-3)
     out.d_up = np.maximum(data.d_up - dz, 1e-3)
-    out.contiguous, out.rows = data.contiguous, data.rows
+    out.contiguous, out.rows, out.block_of = data.contiguous, data.rows, data.block_of
     return out
 
 

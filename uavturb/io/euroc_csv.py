@@ -6,6 +6,11 @@ separated by ``,`` or ``, ``. The column order is fixed by the stream (``recordi
 this module holds the exact EuRoC headers, :func:`read_csv`, :func:`read_frame_list` (the
 ``cam0`` frame list) and :func:`write_csv`.
 
+Reading is bounded (files come from other people's loggers): at most :data:`MAX_COLUMNS`
+columns (checked on the first row), :data:`MAX_LINE_BYTES` bytes a line and :data:`MAX_ROWS`
+rows a file (estimated before parsing), parsed in blocks so memory stays a small multiple of
+the numbers read. A UTF-8 byte order mark and any bytes in ``#`` lines are accepted.
+
 Timestamps are parsed as exact ``int64`` (never through ``float``: EuRoC nanosecond
 timestamps have 19 digits, more than a double holds).
 """
@@ -15,8 +20,9 @@ from __future__ import annotations
 import io
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
+from typing import Iterator, NoReturn
 
 import numpy as np
 import pandas as pd
@@ -54,57 +60,126 @@ def rotors_header(n_rotors: int) -> str:
 
 
 # --- reading ---------------------------------------------------------------------------
+#
+# Files from other people's loggers are read within stated bounds, checked before the heavy
+# work; each refusal is one line naming the file and the limit. The file is parsed in blocks
+# of about BLOCK_BYTES, so memory stays a small multiple of the numbers it holds.
+
+#: Columns of a row, timestamp included (``rotors0`` holds one a rotor, at most 32).
+MAX_COLUMNS = 64
+#: Bytes of one line (a header line included).
+MAX_LINE_BYTES = 1 << 16
+#: Rows of one file (7 hours at 200 Hz).
+MAX_ROWS = 5_000_000
+#: The file is read and parsed in blocks of about this many bytes.
+BLOCK_BYTES = 16 << 20
+
+_BOM = b"\xef\xbb\xbf"
+_TIMESTAMP_BYTES = np.zeros(256, dtype=bool)  # what column 0 may hold: an integer (no '.', 'e', '_')
+_TIMESTAMP_BYTES[list(b"0123456789+- \t")] = True
+_ROW_STARTS_ODDLY = np.zeros(256, dtype=bool)  # '#' or a blank: maybe a comment or blank line
+_ROW_STARTS_ODDLY[list(b"# \t\r\n\f\v")] = True
 
 
-def _data_rows(path: Path, what: str) -> tuple[np.ndarray, list[str], str]:
-    """The data rows of a CSV file with their 1-based line numbers (``#`` and blank lines dropped).
-
-    Returns
-    -------
-    lines : (N,) int64, line number of each row in the file
-    rows : list of N str, the rows as they are in the file
-    body : the rows joined by newlines (what the parser reads)
-    """
+def _open(path: Path):
     if not path.is_file():
         raise InputError(path, "file not found")
     try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise InputError(path, f"not a text CSV file ({what})") from None
+        return path.open("rb")
     except OSError as e:
         raise InputError(path, f"cannot be read ({e.strerror})") from None
-    all_lines = text.splitlines()
-    h = 0  # leading header (and blank) lines
-    while h < len(all_lines) and (not all_lines[h].strip() or all_lines[h].lstrip().startswith("#")):
-        h += 1
-    while all_lines and not all_lines[-1].strip():  # trailing blank lines
-        all_lines.pop()
-    rows = all_lines[h:]
-    body = "\n".join(rows)
-    if "#" in body or any(not s.strip() for s in rows):  # comment or blank lines between rows: drop them
-        numbered = [(i, s) for i, s in enumerate(all_lines, 1) if s.strip() and not s.lstrip().startswith("#")]
-        lines = np.fromiter((i for i, _ in numbered), dtype=np.int64, count=len(numbered))
-        rows = [s for _, s in numbered]
-        body = "\n".join(rows)
-    else:  # the usual file: one header block, then only rows
-        lines = np.arange(h + 1, h + 1 + len(rows), dtype=np.int64)
-    if not rows:
-        raise InputError(path, f"no data rows (empty {what} file)")
-    return lines, rows, body
 
 
-def _check_columns(path: Path, lines: np.ndarray, body: str, n_cols: int | None) -> int:
-    """Every row of ``body`` has the same number of comma-separated fields (``n_cols`` if given); returns it."""
-    buf = np.frombuffer(body.encode("utf-8"), dtype=np.uint8)
-    ends = np.append(np.flatnonzero(buf == ord("\n")), len(buf))  # one past the last byte of each row
-    commas = np.searchsorted(np.flatnonzero(buf == ord(",")), ends)  # commas before the end of each row
-    counts = np.diff(commas, prepend=0) + 1
-    expected = int(counts[0]) if n_cols is None else n_cols
+def _blocks(path: Path, f) -> Iterator[tuple[int, bytes]]:
+    """(number of the block's first line, whole lines ending in ``\\n`` except maybe the last),
+    a UTF-8 byte order mark dropped; a line longer than :data:`MAX_LINE_BYTES` is refused."""
+    line, carry, first = 1, b"", True
+    while True:
+        try:
+            chunk = f.read(BLOCK_BYTES)
+        except OSError as e:
+            raise InputError(path, f"cannot be read ({e.strerror})") from None
+        if first and chunk.startswith(_BOM):
+            chunk = chunk[len(_BOM):]
+        first = False
+        if not chunk:
+            break
+        data = carry + chunk
+        cut = data.rfind(b"\n")
+        if cut < 0:
+            carry = data
+            if len(carry) > MAX_LINE_BYTES:
+                raise InputError(path, f"line {line} is longer than {MAX_LINE_BYTES} bytes (the limit of a line)")
+            continue
+        block, carry = data[:cut + 1], data[cut + 1:]
+        yield line, block
+        line += block.count(b"\n")
+    if carry:
+        if len(carry) > MAX_LINE_BYTES:
+            raise InputError(path, f"line {line} is longer than {MAX_LINE_BYTES} bytes (the limit of a line)")
+        yield line, carry
+
+
+@dataclass
+class _Block:
+    """Rows of one block of a file: their line numbers, the rows joined by ``\\n`` (``body``),
+    and the byte offsets the vectorised checks use."""
+
+    lines: np.ndarray  # (N,) int64, line number of each row in the file
+    body: bytes
+    buf: np.ndarray  # (len(body),) uint8, the bytes of body
+    starts: np.ndarray  # (N,) offset where each row starts
+    ends: np.ndarray  # (N,) offset one past its last byte
+    commas: np.ndarray  # offsets of every ','
+
+    @classmethod
+    def of(cls, lines: np.ndarray, body: bytes) -> "_Block":
+        buf = np.frombuffer(body, dtype=np.uint8)
+        nl = np.flatnonzero(buf == ord("\n"))
+        return cls(lines, body, buf, np.concatenate(([0], nl + 1)), np.append(nl, len(buf)),
+                   np.flatnonzero(buf == ord(",")))
+
+
+def _rows(first_line: int, block: bytes) -> _Block:
+    """The data rows of a block of lines (``#`` and blank lines dropped, wherever they are)."""
+    body = block[:-1] if block.endswith(b"\n") else block
+    n = body.count(b"\n") + 1 if body else 0
+    rows = _Block.of(np.arange(first_line, first_line + n, dtype=np.int64), body)
+    first = rows.buf[rows.starts[rows.starts < len(body)]]  # first byte of each non-empty row
+    if body and len(first) == n and not _ROW_STARTS_ODDLY[first].any():  # the usual block: only rows
+        return rows
+    kept = [(i, s) for i, s in enumerate(body.split(b"\n"), first_line) if s.strip() and not s.lstrip().startswith(b"#")]
+    lines = np.fromiter((i for i, _ in kept), dtype=np.int64, count=len(kept))
+    return _Block.of(lines, b"\n".join(s for _, s in kept))
+
+
+def _check_columns(path: Path, rows: _Block, n_cols: int | None) -> int:
+    """Every row has the same number of comma-separated fields (``n_cols`` if given, at most
+    :data:`MAX_COLUMNS`); returns it."""
+    found = int(np.searchsorted(rows.commas, rows.ends[0])) + 1
+    if found > MAX_COLUMNS:  # checked on the first row, before anything is sized by it
+        raise InputError(path, f"line {rows.lines[0]}: {found} columns, more than {MAX_COLUMNS} (the limit of a row)")
+    long = np.flatnonzero(rows.ends - rows.starts > MAX_LINE_BYTES)
+    if len(long):
+        raise InputError(path, f"line {rows.lines[long[0]]} is longer than {MAX_LINE_BYTES} bytes (the limit of a line)")
+    counts = np.diff(np.searchsorted(rows.commas, rows.ends), prepend=0) + 1
+    expected = found if n_cols is None else n_cols
     bad = np.flatnonzero(counts != expected)
     if len(bad):
         k = bad[0]
-        raise InputError(path, f"line {lines[k]}: expected {expected} columns, found {counts[k]}")
+        raise InputError(path, f"line {rows.lines[k]}: expected {expected} columns, found {counts[k]}")
     return expected
+
+
+def _timestamps_are_integers(rows: _Block) -> bool:
+    """Column 0 of every row holds only digits, signs and blanks, at most 40 bytes (pandas would
+    read ``1.5e3`` as 1500). Needs a comma on every row (checked before)."""
+    width = rows.commas[np.searchsorted(rows.commas, rows.starts)] - rows.starts
+    if width.max() > 40:
+        return False
+    at = rows.starts[:, None] + np.arange(int(width.max()))
+    inside = np.arange(int(width.max())) < width[:, None]
+    return bool(_TIMESTAMP_BYTES[rows.buf[np.where(inside, at, 0)]][inside].all())
 
 
 def _check_times(path: Path, lines: np.ndarray, t_ns: np.ndarray) -> None:
@@ -117,9 +192,13 @@ def _check_times(path: Path, lines: np.ndarray, t_ns: np.ndarray) -> None:
         raise InputError(path, f"line {lines[k]}: timestamp {t_ns[k]} is {kind} (previous row has {t_ns[k - 1]})")
 
 
-def _diagnose(path: Path, lines: np.ndarray, rows: list[str]) -> NoReturn:
-    """Slow pass run only when the fast parse failed: raise an InputError naming the bad field."""
-    for line, row in zip(lines, rows):
+def _diagnose(path: Path, lines: np.ndarray, body: bytes) -> NoReturn:
+    """Slow pass run only when the fast parse of a block failed: raise an InputError naming the bad field."""
+    for line, raw in zip(lines, body.split(b"\n")):
+        try:
+            row = raw.decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise InputError(path, f"line {line}: not text (byte 0x{raw[e.start]:02x} at column {e.start + 1})") from None
         for col, field in enumerate(row.split(",")):
             field = field.strip()
             try:
@@ -128,23 +207,53 @@ def _diagnose(path: Path, lines: np.ndarray, rows: list[str]) -> NoReturn:
                 if col == 0 and not -(2**63) <= int(field) < 2**63:
                     raise ValueError(field)
                 if col > 0 and not math.isfinite(float(field)):
-                    raise InputError(path, f"line {line}, column {col + 1}: value {field} is not finite")
+                    raise InputError(path, f"line {line}, column {col + 1}: value {field[:40]} is not finite")
             except ValueError:
                 kind = "timestamp (integer nanoseconds)" if col == 0 else "number"
-                shown = field if field else "an empty field"
-                raise InputError(path, f"line {line}, column {col + 1}: expected a {kind}, found {shown!r}") from None
+                shown = repr(field[:60]) + ("..." if len(field) > 60 else "") if field else "an empty field"
+                raise InputError(path, f"line {line}, column {col + 1}: expected a {kind}, found {shown}") from None
     raise InputError(path, "could not be parsed as numbers")
+
+
+def _parse_block(path: Path, rows: _Block, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(timestamps (N,) int64, values (N, n - 1) float64, all finite) of one block's rows."""
+    try:
+        lines, body = rows.lines, rows.body
+        if not _timestamps_are_integers(rows):
+            raise ValueError("timestamp")
+        df = pd.read_csv(io.BytesIO(body), header=None, skipinitialspace=True, na_filter=False,
+                         dtype={0: np.int64, **{k: np.float64 for k in range(1, n)}}, engine="c")
+        if df.shape != (len(lines), n):  # rows merged or split (quotes etc.)
+            raise ValueError("shape")
+    except (ValueError, OverflowError, UnicodeDecodeError, pd.errors.ParserError):
+        _diagnose(path, lines, body)
+    t_ns = df[0].to_numpy(np.int64)
+    values = df.iloc[:, 1:].to_numpy(np.float64)
+    finite = np.isfinite(values)
+    if not finite.all():
+        k, c = np.argwhere(~finite)[0]
+        raise InputError(path, f"line {lines[k]}, column {c + 2}: value {values[k, c]} is not finite")
+    return t_ns, values
+
+
+def _check_row_count(path: Path, rows: int, read: int, size: int, n: int) -> None:
+    """Refuse a file of more than :data:`MAX_ROWS` rows (estimated from the share read so far)."""
+    estimate = rows * size // max(read, 1)
+    if estimate > MAX_ROWS:
+        need = estimate * (n + 1) * 8 * 2 / 1e9  # values, timestamps and line numbers, twice while joined
+        raise InputError(path, f"holds about {estimate} rows, more than {MAX_ROWS} (the limit of a file); "
+                               f"reading it would need about {need:.1f} GB of memory: split the recording")
 
 
 def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
              return_lines: bool = False) -> tuple[np.ndarray, ...]:
-    """Read an EuRoC-style numeric CSV file.
+    """Read an EuRoC-style numeric CSV file, in blocks, within this module's bounds.
 
     Parameters
     ----------
     path : file to read
     n_cols : expected number of columns including the timestamp, or ``None`` to accept any
-        number (the same on every row)
+        number (the same on every row, at most :data:`MAX_COLUMNS`)
     what : what the file holds, for messages (``"ground truth"``, ``"IMU"``, ...)
 
     Returns
@@ -158,27 +267,29 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
     ------
     InputError
         Naming ``path`` and the line: missing file, no data rows, wrong column count,
-        non-numeric or non-finite value, timestamps duplicated or out of order.
+        non-numeric or non-finite value, timestamps duplicated or out of order, a bound
+        exceeded (:data:`MAX_COLUMNS`, :data:`MAX_LINE_BYTES`, :data:`MAX_ROWS`).
     """
     path = Path(path)
-    lines, rows, body = _data_rows(path, what)
-    n = _check_columns(path, lines, body, n_cols)
-    if n < 2:
-        raise InputError(path, f"expected a timestamp and at least one value per row, found {n} column")
-    try:
-        # column 0 as text, then exact int64: pandas would accept "1.5e3" (through float) as an integer
-        df = pd.read_csv(io.StringIO(body), header=None, skipinitialspace=True, na_filter=False,
-                         dtype={0: str, **{k: np.float64 for k in range(1, n)}}, engine="c")
-        if df.shape != (len(rows), n):  # rows merged or split (quotes etc.)
-            raise ValueError("shape")
-        t_ns = np.asarray(df[0].to_numpy(), dtype=str).astype(np.int64)
-    except (ValueError, OverflowError, pd.errors.ParserError):
-        _diagnose(path, lines, rows)
-    values = df.iloc[:, 1:].to_numpy(np.float64)
-    finite = np.isfinite(values)
-    if not finite.all():
-        k, c = np.argwhere(~finite)[0]
-        raise InputError(path, f"line {lines[k]}, column {c + 2}: value {values[k, c]} is not finite")
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    count, expected = 0, n_cols
+    with _open(path) as f:
+        size = os.fstat(f.fileno()).st_size
+        for first_line, block in _blocks(path, f):
+            rows = _rows(first_line, block)
+            if not len(rows.lines):
+                continue
+            n = expected = _check_columns(path, rows, expected)  # later blocks: as many as the first
+            if n < 2:
+                raise InputError(path, f"expected a timestamp and at least one value per row, found {n} column")
+            count += len(rows.lines)
+            _check_row_count(path, count, f.tell(), size, n)
+            t_ns, values = _parse_block(path, rows, n)
+            parts.append((rows.lines, values, t_ns))
+    if not parts:
+        raise InputError(path, f"no data rows (empty {what} file)")
+    lines, values, t_ns = (np.concatenate(p) if len(parts) > 1 else p[0] for p in zip(*parts))
+    del parts
     _check_times(path, lines, t_ns)
     return (t_ns, values, lines) if return_lines else (t_ns, values)
 
@@ -192,21 +303,37 @@ def read_frame_list(path: str | Path) -> tuple[np.ndarray, list[str]]:
     files : list of N file names (relative to ``cam0/data/``)
     """
     path = Path(path)
-    lines, rows, body = _data_rows(path, "camera frame list")
-    _check_columns(path, lines, body, 2)
-    t_ns = np.empty(len(rows), dtype=np.int64)
-    files = []
-    for k, (line, row) in enumerate(zip(lines, rows)):
-        stamp, name = (f.strip() for f in row.split(","))
-        try:
-            t_ns[k] = int(stamp)
-        except ValueError:
-            raise InputError(path, f"line {line}, column 1: expected a timestamp (integer nanoseconds), "
-                                   f"found {stamp!r}") from None
-        if not name:
-            raise InputError(path, f"line {line}, column 2: empty file name")
-        files.append(name)
-    _check_times(path, lines, t_ns)
+    stamps: list[int] = []
+    files: list[str] = []
+    all_lines: list[np.ndarray] = []
+    with _open(path) as f:
+        size = os.fstat(f.fileno()).st_size
+        for first_line, block in _blocks(path, f):
+            rows = _rows(first_line, block)
+            if not len(rows.lines):
+                continue
+            _check_columns(path, rows, 2)
+            _check_row_count(path, len(stamps) + len(rows.lines), f.tell(), size, 2)
+            all_lines.append(rows.lines)
+            for line, raw in zip(rows.lines.tolist(), rows.body.split(b"\n")):
+                stamp, name = (x.strip() for x in raw.decode("utf-8", errors="replace").split(","))
+                try:
+                    if "_" in stamp:
+                        raise ValueError(stamp)
+                    stamps.append(int(stamp))
+                except ValueError:
+                    raise InputError(path, f"line {line}, column 1: expected a timestamp (integer nanoseconds), "
+                                           f"found {stamp[:60]!r}") from None
+                if not name:
+                    raise InputError(path, f"line {line}, column 2: empty file name")
+                files.append(name)
+    if not files:
+        raise InputError(path, "no data rows (empty camera frame list file)")
+    try:
+        t_ns = np.array(stamps, dtype=np.int64)
+    except OverflowError:
+        raise InputError(path, "a timestamp does not fit in 64 bits") from None
+    _check_times(path, np.concatenate(all_lines), t_ns)
     return t_ns, files
 
 

@@ -43,8 +43,9 @@ def load_physics_config(path: str | Path) -> dict[str, Any]:
 
 
 def write_physics_config(path: str | Path, effects: dict[str, dict[str, float]],
-                         vehicle: dict[str, Any] | None = None, source: str | None = None) -> Path:
-    """Write a physics config atomically."""
+                         vehicle: dict[str, Any] | None = None, source: str | None = None,
+                         overwrite: bool = False) -> Path:
+    """Write a physics config atomically; an existing ``path`` is replaced only with ``overwrite``."""
     path = Path(path)
     body: dict[str, Any] = {}
     if source:
@@ -54,4 +55,4 @@ def write_physics_config(path: str | Path, effects: dict[str, dict[str, float]],
         body["vehicle"] = vehicle
     from uavturb.io.publish import write_text_atomic
 
-    return write_text_atomic(path, yaml.safe_dump(body, sort_keys=False))
+    return write_text_atomic(path, yaml.safe_dump(body, sort_keys=False), overwrite=overwrite)

@@ -109,20 +109,33 @@ def _vertex_element(path: Path, elements: list[_Element]) -> tuple[int, list[int
 
 
 def _skip_binary(path: Path, data: bytes, offset: int, element: _Element, endian: str) -> int:
-    """Byte offset after ``element`` in a binary body."""
+    """Byte offset after ``element`` in a binary body.
+
+    Every step moves forward and stays inside ``data`` (a negative list count, or one that runs
+    past the end, is an error), so the walk ends after at most ``len(data)`` steps.
+    """
+    truncated = f"PLY data is truncated (in element '{element.name}')"
     if not element.has_lists:
         size = sum(np.dtype(p.type).itemsize for p in element.properties)
-        return offset + element.count * size
-    for _ in range(element.count):  # list properties: walk item by item
+        offset += element.count * size
+        if offset > len(data):
+            raise InputError(path, truncated)
+        return offset
+    for item in range(element.count):  # list properties: walk item by item
         for p in element.properties:
             if p.count_type is None:
                 offset += np.dtype(p.type).itemsize
                 continue
             ct = np.dtype(endian + p.count_type)
             if offset + ct.itemsize > len(data):
-                raise InputError(path, f"PLY data is truncated (in element '{element.name}')")
+                raise InputError(path, truncated)
             n = int(np.frombuffer(data, ct, 1, offset)[0])
+            if n < 0:
+                raise InputError(path, f"PLY element '{element.name}' {item}: list '{p.name}' has a negative "
+                                       f"length ({n})")
             offset += ct.itemsize + n * np.dtype(p.type).itemsize
+        if offset > len(data):
+            raise InputError(path, truncated)
     return offset
 
 

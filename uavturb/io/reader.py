@@ -6,6 +6,7 @@ shared with :mod:`uavturb.io.writer`.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Sequence
 
@@ -30,6 +31,9 @@ CAM_YAML = "mav0/cam0/sensor.yaml"
 CAM_DATA = "mav0/cam0/data"
 VICON_CSV = "mav0/vicon0/data.csv"
 BATTERY_CSV = "mav0/battery0/data.csv"
+
+#: Set to 1 to read stream files that are links to places outside the recording folder.
+FOLLOW_LINKS_ENV = "UAVTURB_FOLLOW_LINKS"
 
 #: A quaternion whose norm differs from 1 by more than this is an error, not rounding.
 QUATERNION_NORM_TOLERANCE = 1e-2
@@ -113,6 +117,7 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
         raise InputError(root, "recording folder not found")
     if not root.is_dir():
         raise InputError(root, "not a recording folder (it is a file)")
+    check_links(root)
     vehicle = _folder_vehicle(root, vehicle)
     gt = _read_ground_truth(root)
     imu = _read_imu(root, gt.t_ns, required=require_imu)
@@ -127,6 +132,19 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
     from uavturb.io.body_frame import to_body
 
     return to_body(rec)
+
+
+def check_links(root: Path) -> None:
+    """Every file and folder of the layout (``vehicle.yaml``, ``mav0/*``, ``mav0/*/*``) stays inside
+    ``root`` once links are followed, unless the user says so (``UAVTURB_FOLLOW_LINKS=1``): a
+    recording from someone else cannot make a command read ``/etc/...`` or another user's files."""
+    if os.environ.get(FOLLOW_LINKS_ENV) == "1":
+        return
+    top = root.resolve()
+    for entry in [root / VEHICLE_YAML, root / "mav0", *root.glob("mav0/*"), *root.glob("mav0/*/*")]:
+        if entry.is_symlink() and not entry.resolve().is_relative_to(top):
+            raise InputError(entry, f"is a link out of the recording folder (to {entry.resolve()}); it is not "
+                                    f"followed unless you set {FOLLOW_LINKS_ENV}=1")
 
 
 def _folder_vehicle(root: Path, vehicle: Vehicle | None) -> Vehicle:

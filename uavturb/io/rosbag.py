@@ -23,6 +23,7 @@ each stream is sorted by time and exact duplicates are dropped.
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 from typing import Any
 
@@ -221,7 +222,8 @@ def _read_topics(path: Path, motor_topic: str, imu_topic: str, vicon_topic: str
                         else (msg.pose.position, msg.pose.orientation)
                     a.append((pos.x, pos.y, pos.z))
                     b.append((rot.w, rot.x, rot.y, rot.z))
-    except (ReaderError, SerdeError, TypesysError, KeyError) as e:
+    except (ReaderError, SerdeError, TypesysError, KeyError, ValueError, IndexError, UnicodeDecodeError,
+            OSError, struct.error) as e:  # a random or truncated file meets any of them in the parsers
         raise InputError(path, f"not a readable ROS1 bag ({type(e).__name__}: {e})") from None
     except AttributeError as e:
         raise InputError(path, f"unexpected message layout ({e})") from None

@@ -8,7 +8,6 @@ file and the key; writers are atomic.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,7 +18,8 @@ import yaml
 from uavturb.errors import InputError
 from uavturb.io.euroc_csv import write_atomic
 from uavturb.io.recording import Camera
-from uavturb.io.yaml_mapping import parse_yaml_mapping
+from uavturb.io.yaml_mapping import parse_yaml_mapping, read_yaml_text
+from uavturb.physics.vehicle import is_finite_number
 
 IMU_NOISE_KEYS = ("gyroscope_noise_density", "gyroscope_random_walk",
                   "accelerometer_noise_density", "accelerometer_random_walk")
@@ -45,9 +45,7 @@ class ImuSensor:
 
 
 def _load(path: Path) -> dict[str, Any]:
-    if not path.is_file():
-        raise InputError(path, "file not found")
-    text = path.read_text(encoding="utf-8", errors="replace")
+    text = read_yaml_text(path)
     # OpenCV-style files start with '%YAML:1.0', which is not a YAML 1.1 directive
     text = "\n".join("" if s.startswith("%YAML") else s for s in text.splitlines())
     return parse_yaml_mapping(text, path, expected="a mapping of sensor keys")
@@ -59,7 +57,7 @@ def _number(path: Path, d: dict, key: str, *, required: bool, positive: bool = T
         if required:
             raise InputError(path, f"missing required key '{key}'")
         return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+    if not is_finite_number(v):
         raise InputError(path, f"key '{key}' must be a finite number, got {v!r}")
     if positive and float(v) <= 0:
         raise InputError(path, f"key '{key}' must be positive, got {v!r}")
@@ -73,7 +71,7 @@ def _numbers(path: Path, d: dict, key: str, length: int, *, label: str | None = 
         raise InputError(path, f"missing required key '{label}'")
     if not isinstance(v, (list, tuple)) or len(v) != length:
         raise InputError(path, f"key '{label}' must be a list of {length} numbers, got {v!r}")
-    if any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(float(x)) for x in v):
+    if not all(is_finite_number(x) for x in v):
         raise InputError(path, f"key '{label}' holds a non-numeric or non-finite value")
     return np.asarray(v, dtype=np.float64)
 

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -419,6 +420,25 @@ def read_manifest(root: str | Path) -> Manifest:
     extra = {k: v for k, v in body.items() if k not in MANIFEST_KEYS}
     return Manifest(root=root, splits=splits, counts=counts, image_size=(size[0], size[1]), config=body["config"],
                     config_hash=str(body["config_hash"]), version=body["version"], extra=extra)
+
+
+def check_manifest_replaceable(root: str | Path) -> None:
+    """``ROOT/manifest.json`` may be rewritten: it is absent or a dataset manifest uavturb wrote.
+
+    Raises
+    ------
+    InputError : it is something else (a user's file, a link): it is never replaced.
+    """
+    path = Path(root) / MANIFEST
+    if not os.path.lexists(path):
+        return
+    try:
+        if path.is_symlink():
+            raise InputError(path, "is a link")
+        read_manifest(root)
+    except InputError as e:
+        raise InputError(path, f"is not a dataset manifest uavturb wrote ({e.problem}); it is not replaced: "
+                               "choose another --out or move it away") from None
 
 
 def update_manifest(root: str | Path, **fields: Any) -> Manifest:

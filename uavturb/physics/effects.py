@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from scipy.signal import lfilter
 
 from uavturb.errors import InputError
 from uavturb.physics import ground_effect as ge
@@ -145,34 +146,57 @@ def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray
     """Actual rotor speeds under first-order lag ``tau dw/dt = w_cmd - w``.
 
     Exact discretisation for commands held between samples (zero-order hold), started at
-    ``w(t_0) = w_cmd(t_0)``.
+    ``w(t_0) = w_cmd(t_0)``: ``w_k = a_k w_{k-1} + (1 - a_k) w_cmd_{k-1}``, ``a_k = exp(-dt_k / tau)``.
 
     Parameters
     ----------
     t : (K,) s, increasing
     w_cmd : (K, N) rad/s, the recorded (commanded) speeds
     tau : s, time constant (0 returns the commands)
+
+    Notes
+    -----
+    The recurrence runs as a scipy filter (C speed) on each stretch between dropouts (steps over
+    :data:`LAG_GAP` times the median step; the lag restarts from the command after one, as it has
+    long settled). On a stretch whose steps are jittered by less than :data:`LAG_JITTER` of their
+    mean the filter uses the mean step: the error is of the order of the jitter times the lag's own
+    small effect. Stretches jittered more run the exact loop over time.
     """
     w_cmd = np.asarray(w_cmd, float)
-    if tau <= 0:
+    if tau <= 0 or len(w_cmd) < 2:
         return w_cmd.copy()
-    dt = np.diff(np.asarray(t, float), prepend=t[0])
-    a = np.exp(-dt / tau)  # (K,)
+    t = np.asarray(t, float)
+    dt = np.diff(t)
+    breaks = np.flatnonzero(dt > LAG_GAP * float(np.median(dt))) + 1
+    out = np.empty_like(w_cmd)
+    for a, b in zip(np.r_[0, breaks], np.r_[breaks, len(t)]):
+        out[a:b] = _lag_stretch(t[a:b], w_cmd[a:b], tau)
+    return out
+
+
+#: a step over this many median steps is a dropout (the lag restarts from the command after it)
+LAG_GAP = 3.0
+#: relative spread of the steps under which a stretch is filtered with its mean step
+LAG_JITTER = 0.25
+
+
+def _lag_stretch(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray:
+    """:func:`lag_rotor_speeds` on one stretch without dropouts."""
     out = np.empty_like(w_cmd)
     out[0] = w_cmd[0]
-    # w_k = a_k w_{k-1} + (1 - a_k) w_cmd_{k-1}: a linear recurrence, run as a scipy filter
-    # when the step is uniform, else as a loop over time (vectorised over rotors).
-    if np.allclose(dt[1:], dt[1:].mean(), rtol=1e-6, atol=0):
-        from scipy.signal import lfilter
-
-        ak = float(a[1])
-        u = np.vstack([w_cmd[:1], w_cmd[:-1]])  # input delayed by one sample
-        zi = ak * w_cmd[0]
-        y, _ = lfilter([1 - ak], [1, -ak], u[1:], axis=0, zi=np.atleast_2d(zi))
+    if len(t) < 2:
+        return out
+    dt = np.diff(t)
+    mean = float(dt.mean())
+    if float(np.std(dt)) <= LAG_JITTER * mean:
+        ak = float(np.exp(-mean / tau))
+        # w_k = a w_{k-1} + (1 - a) w_cmd_{k-1}: the input delayed by one sample
+        y, _ = lfilter([1 - ak], [1, -ak], w_cmd[:-1], axis=0, zi=np.atleast_2d(ak * w_cmd[0]))
         out[1:] = y
         return out
+    a = np.exp(-dt / tau)
     for k in range(1, len(w_cmd)):
-        out[k] = a[k] * out[k - 1] + (1 - a[k]) * w_cmd[k - 1]
+        out[k] = a[k - 1] * out[k - 1] + (1 - a[k - 1]) * w_cmd[k - 1]
     return out
 
 
@@ -276,6 +300,11 @@ class EffectSpec:
         (laws that do not need them ignore them). Used by :mod:`uavturb.gap.surface_curve`.
     fitted_by_finder : the gap finder's model (:mod:`uavturb.gap.design`) fits this effect; False for
         laws it cannot fit yet (they are fitted to the measured surface curve only)
+    alternative_to : another law of the same physics (``ground_effect_multirotor`` for ``ground_effect``):
+        the finder names at most one of them, the alternative only where it beats the other on
+        held-out data beyond noise
+    absent_at_zero : parameters all zero mean no effect (False for the multirotor law, whose rotor images
+        act at ``K_b = 0``): only then does a parameter within noise of zero say the effect is not there
     """
 
     name: str
@@ -294,14 +323,35 @@ class EffectSpec:
     manoeuvre: str = ""
     ratio: Callable[..., np.ndarray] | None = None
     fitted_by_finder: bool = True
+    alternative_to: str | None = None
+    absent_at_zero: bool = True
 
-    def surface_reach(self, rotor_radius: float, share: float = 0.01) -> float:
+    def surface_reach(self, rotor_radius: float, share: float = 0.01, **geometry) -> float:
         """m, the height under which this surface law, at the top of its physical range, adds at
-        least ``share`` of the thrust: flights that never come closer cannot decide it."""
+        least ``share`` of the thrust: flights that never come closer cannot decide it.
+
+        Cheeseman-Bennett shapes (ground, ceiling) in closed form; any other law by bisection on its
+        ``ratio`` with ``geometry`` (``arm_length``, ``rotor_count``; the closed form where the law
+        cannot be evaluated without them)."""
         if self.surface is None:
             return float("inf")
         rho = share / (1.0 + share)  # rho/(1-rho) = share
-        return rotor_radius / 4.0 * float(np.sqrt(self.physical_range.hi / rho))
+        closed = rotor_radius / 4.0 * float(np.sqrt(self.physical_range.hi / rho))
+        if self.ratio is None or self.ratio.__name__ == "_cheeseman_bennett_ratio":
+            return closed
+        if not geometry:
+            return closed
+        lo, hi = np.log(rotor_radius / 4.0), np.log(1000.0 * rotor_radius)
+
+        def extra(z: float) -> float:
+            return float(self.ratio(np.array([np.exp(z)]), self.physical_range.hi, rotor_radius, **geometry)[0]) - 1.0
+
+        if not np.isfinite(extra(hi)):
+            return closed
+        for _ in range(60):  # the law falls with height: the highest height where it still adds ``share``
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if not np.isfinite(extra(mid)) or extra(mid) >= share else (lo, mid)
+        return float(np.exp(hi))
 
 
 def body_drag_max(f: FlightFacts) -> float:
@@ -413,7 +463,7 @@ EFFECTS: dict[str, EffectSpec] = {
                    PhysicalRange("K_b", 0.0, 6.0, lambda p, f: p["K_b"], _MULTIROTOR_RANGE_SOURCE),
                    _explain_ground_multirotor, search=(0.01, 20.0), along_thrust=True, surface="d_down",
                    manoeuvre="hover over the floor at several heights from one to ten rotor radii",
-                   ratio=_multirotor_ratio),
+                   ratio=_multirotor_ratio, alternative_to="ground_effect", absent_at_zero=False),
         EffectSpec("ceiling_effect", ("kappa",), ("-",), (2.0,), ceiling_effect_force, False,
                    "ceiling effect: suction towards the surface above",
                    PhysicalRange("kappa", 0.25, 12.0, lambda p, f: p["kappa"], _SURFACE_RANGE_SOURCE),

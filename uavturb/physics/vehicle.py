@@ -24,6 +24,20 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.physics.constants import GRAVITY
 
+#: The most rotors a vehicle may have (a bound checked before anything is sized by ``rotor_count``).
+MAX_ROTORS = 32
+
+
+def is_finite_number(v: Any) -> bool:
+    """A real number (not a bool) that a float holds finitely (an integer of 400 digits does not)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
+
+
 REQUIRED_KEYS = ("mass", "rotor_count", "arm_length", "rotor_angles_deg", "rotor_directions", "rotor_radius")
 OPTIONAL_KEYS = ("name", "thrust_coefficient", "moment_coefficient", "inertia", "rotor_speed_scale", "max_rotor_speed",
                  "rotor_speed_source", "rotor_plane_z", "T_BS")
@@ -200,7 +214,7 @@ class Vehicle:
 
         def number(key: str, positive: bool = True) -> float:
             v = d[key]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+            if not is_finite_number(v):
                 raise InputError(where, f"key '{key}' must be a finite number, got {v!r}")
             if positive and float(v) <= 0:
                 raise InputError(where, f"key '{key}' must be positive, got {v!r}")
@@ -214,14 +228,14 @@ class Vehicle:
                 raise InputError(where, f"key '{key}' has {len(v)} values, expected {length}")
             out = []
             for x in v:
-                if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(float(x)):
+                if not is_finite_number(x):
                     raise InputError(where, f"key '{key}' holds a non-numeric value {x!r}")
                 out.append(float(x))
             return out
 
         rc = d["rotor_count"]
-        if isinstance(rc, bool) or not isinstance(rc, int) or rc < 3:
-            raise InputError(where, f"key 'rotor_count' must be an integer >= 3, got {rc!r}")
+        if isinstance(rc, bool) or not isinstance(rc, int) or not 3 <= rc <= MAX_ROTORS:
+            raise InputError(where, f"key 'rotor_count' must be an integer from 3 to {MAX_ROTORS}, got {rc!r}")
         angles = number_list("rotor_angles_deg", rc)
         dirs = number_list("rotor_directions", rc)
         if any(s not in (1.0, -1.0) for s in dirs):
@@ -272,7 +286,7 @@ def checked_transform(value: Any, where: str | Path, key: str = "T_BS") -> tuple
         raise InputError(where, f"{shape_msg}, got {value!r}")
     for r in value:
         for x in r:
-            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(float(x)):
+            if not is_finite_number(x):
                 raise InputError(where, f"key '{key}' holds a non-numeric or non-finite value {x!r}")
     T = np.asarray(value, dtype=float)
     R = T[:3, :3]

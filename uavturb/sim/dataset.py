@@ -166,6 +166,7 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     if out.exists() and not out.is_dir():
         raise InputError(out, "exists and is not a folder")
     created = not out.exists()
+    shards.check_manifest_replaceable(out)  # a user's manifest.json is never replaced
     out.mkdir(parents=True, exist_ok=True)
     all_tasks = plan_tasks(p, seed)
     tasks = [t for t in all_tasks if t.index % n == k - 1]

@@ -85,8 +85,10 @@ class FlightData:
                           pick(self.d_down), pick(self.d_up), self.window)
 
 
-#: share of repeated rows above which a stream is read on its updates only (sample-and-hold loggers)
+#: share of repeated rows above which a stream may be held (read on its updates only: sample-and-hold loggers)
 HELD_SHARE = 0.2
+#: share of a held stream's updates that its logger repeats at least once
+HELD_UPDATES = 0.8
 
 
 def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
@@ -95,13 +97,32 @@ def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
     stream's rows, the repeats are dropped, so that derivatives and interpolation work between real
     updates instead of on steps. Streams that update on every row are returned as they are."""
     gt, rotors = rec.ground_truth, rec.rotors
-    m = update_mask(np.hstack([gt.p, gt.q, gt.v]))
-    if 1.0 - m.mean() > HELD_SHARE:
+    m = _updates(np.hstack([gt.p, gt.q, gt.v]))
+    if m is not None:
         gt = GroundTruth(t_ns=gt.t_ns[m], p=gt.p[m], q=gt.q[m], v=gt.v[m], b_w=gt.b_w[m], b_a=gt.b_a[m])
-    m = update_mask(rotors.speeds)
-    if 1.0 - m.mean() > HELD_SHARE:
+    m = _updates(rotors.speeds)
+    if m is not None:
         rotors = Rotors(t_ns=rotors.t_ns[m], speeds=rotors.speeds[m])
     return gt, rotors
+
+
+def _updates(values: np.ndarray) -> np.ndarray | None:
+    """The update rows of a held stream and its last row (a held value still holds until the stream
+    ends), or None for a stream that is not held.
+
+    A logger that writes faster than a stream updates repeats nearly every update for one row or
+    more; values that merely repeat when they change by less than their resolution (rotor speeds
+    rounded to 1 rad/s in a still hover, positions to 1 mm) repeat in bursts, most updates not at all.
+    A stream is held where more than :data:`HELD_SHARE` of its rows repeat *and* more than
+    :data:`HELD_UPDATES` of its updates are repeated at least once."""
+    m = update_mask(values)
+    if len(m) < 3 or 1.0 - m.mean() <= HELD_SHARE:
+        return None
+    repeated = ~m[1:][m[:-1]]  # for each update row (but the last row), whether the next row repeats it
+    if not len(repeated) or repeated.mean() <= HELD_UPDATES:
+        return None
+    m[-1] = True
+    return m
 
 
 def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,

@@ -175,14 +175,15 @@ def residual_table(res: Residuals):
     return pd.DataFrame(dict(zip(RESIDUAL_COLUMNS, cols)))
 
 
-def write_residuals(res: Residuals, path: str | Path) -> Path:
+def write_residuals(res: Residuals, path: str | Path, *, overwrite: bool = False) -> Path:
     """Write the residual series: Parquet if ``path`` ends in ``.parquet``, else CSV.
 
-    Written to a temporary file and renamed, so ``path`` is complete or absent.
+    Written to a temporary file and renamed, so ``path`` is complete or absent; an existing
+    ``path`` is replaced only with ``overwrite``.
     """
     path = Path(path)
     df = residual_table(res)
-    with publish_file(path) as tmp:
+    with publish_file(path, overwrite=overwrite) as tmp:
         if path.suffix == ".parquet":
             df.to_parquet(tmp, index=False)
         else:

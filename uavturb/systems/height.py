@@ -157,7 +157,7 @@ class HeightModule(L.LightningModule):
         d_hat, _ = self(batch["depth"])
         d_true = batch["d"]
         loss = self.height_loss(d_hat, d_true, batch["sum_omega2"])
-        d_last = d_hat[:, -1].detach()
+        d_last = d_hat[:, -1].detach().float()  # metrics in float32 whatever the training precision
         fa_hat = self.predict_fa(d_last, batch["sum_omega2"][:, -1])
         bs = d_hat.shape[0]
         self.rmse_d[f"{stage}_"].update(d_last, d_true[:, -1])
