@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from uavturb.experiments.gap_conditions import TOLERANCE, verdict
+from uavturb.experiments.gap_conditions import THRUST_TILT, TOLERANCE, contact_found, true_effects, verdict
 from uavturb.experiments.proof_scoring import param_error
 
 WIND = {"wind": {"f_x": -1.84, "f_y": 0.0}}
@@ -43,3 +43,37 @@ def test_an_effect_beside_the_target_named_far_off_is_wrong():
     assert verdict(WIND, PHYSICS, _report(honest), KNOWN)[0] == "right"
     # without the other effects' truths only the targets are scored (the old rule)
     assert verdict(WIND, PHYSICS, _report(blended))[0] == "right"
+
+
+def test_nothing_may_be_named_beside_a_look_alike():
+    """A thrust axis tilted 1.5 deg at a fixed heading: a steady push that is no wind."""
+    physics: set[str] = set()
+    push = {"wind": {"f_x": 0.33, "f_y": 0.19}}
+    assert verdict({}, physics, _report({}), {}, look_alikes=(THRUST_TILT,))[0] == "right"
+    assert verdict({}, physics, _report({}, [("wind", THRUST_TILT)]), {}, look_alikes=(THRUST_TILT,))[0] == "right"
+    assert verdict({}, physics, _report({THRUST_TILT: {"tilt_deg": 1.5}}), {}, look_alikes=(THRUST_TILT,))[0] == "right"
+    assert verdict({}, physics, _report(push), {}, look_alikes=(THRUST_TILT,))[0] == "WRONG"
+
+
+def test_effects_hidden_by_measured_speeds_are_not_physics():
+    truth = {"effects": {"battery_sag": {"s": 1e-3}, "motor_lag": {"tau": 0.03}}, "equivalent_effects": {},
+             "invisible_effects": ["battery_sag", "motor_lag"]}
+    known, physics = true_effects([truth, truth])
+    assert physics == set() and known == {}
+    assert verdict({}, physics, _report({"battery_sag": {"s": 1e-3}}), known)[0] == "WRONG"
+    assert verdict({}, physics, _report({}, [("battery_sag", "thrust_coefficient")]), known)[0] == "right"
+
+
+def test_ground_contact_must_be_found():
+    ge = {"ground_effect": {"mu": 2.0}}
+    truth = {"rec-0": [[0.0, 3.0], [60.0, 63.0]]}
+    found = [{"recording": "/x/rec-0", "t_start": 0.0, "t_end": 2.9}, {"recording": "/x/rec-0", "t_start": 60.2,
+                                                                       "t_end": 63.0}]
+    assert contact_found(truth, found) and not contact_found(truth, found[:1])
+    assert not contact_found(truth, [{**c, "recording": "/x/rec-1"} for c in found])
+    report = {**_report({"ground_effect": {"mu": 2.1}}), "ground_contact": found}
+    assert verdict(ge, set(ge), report, ge, contact=truth)[0] == "right"
+    assert verdict(ge, set(ge), {**report, "ground_contact": []}, ge, contact=truth)[0] == "missed"
+    # a floor carrying the vehicle read as ground effect: mu far off is WRONG whatever the contact
+    far = {**report, "effects": [{"name": "ground_effect", "params": {"mu": 3.5}}]}
+    assert verdict(ge, set(ge), far, ge, contact=truth)[0] == "WRONG"

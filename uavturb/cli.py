@@ -149,6 +149,8 @@ def _add_generate_flight(gsub: argparse._SubParsersAction) -> None:
                    help="ground truth and rotors at this rate (IMU stays 200 Hz)")
     r.add_argument("--jitter-ms", type=float, default=0.0, help="sampling-time jitter of those streams, +- ms")
     r.add_argument("--fixed-heading", action="store_true", help="the reference's yaw never changes")
+    r.add_argument("--heading-deg", type=float, default=None, metavar="DEG",
+                   help="with --fixed-heading: the heading held (default the reference's initial one)")
     r.add_argument("--motor-commands", action="store_true",
                    help="rotors0 holds commands u in [0,1]; true speed w = a + b u; rotor_speed_scale exact at hover")
     r.add_argument("--wind-speed", metavar="VX,VY", default=None,
@@ -159,6 +161,26 @@ def _add_generate_flight(gsub: argparse._SubParsersAction) -> None:
                    help="streams in a EuRoC-like sensor frame S (T_BS in vehicle.yaml, 10 cm lever arm)")
     r.add_argument("--mass-error", type=float, default=0.0, metavar="FRACTION",
                    help="vehicle.yaml's mass is the simulated one times 1 + FRACTION")
+    r.add_argument("--ground-contact-s", type=float, default=0.0, metavar="S",
+                   help="S seconds on the landing gear, rotors spinning, at the start and the end (kinds that land)")
+    r.add_argument("--position-hold-hz", type=float, default=None, metavar="HZ",
+                   help="ground-truth rows keep their rate but update at HZ (bit-identical repeats)")
+    r.add_argument("--rotor-hold-hz", type=float, default=None, metavar="HZ",
+                   help="rotors0 rows keep their rate but update at HZ (bit-identical repeats)")
+    r.add_argument("--rotor-delay-s", type=float, default=0.0, metavar="S",
+                   help="rotors0 timestamps S seconds late (the row at t holds the value at t - S)")
+    r.add_argument("--thrust-level", type=float, default=1.0, metavar="FACTOR",
+                   help="true k_T is vehicle.yaml's times FACTOR (a per-recording thrust level)")
+    r.add_argument("--thrust-tilt-deg", type=float, default=0.0, metavar="DEG",
+                   help="thrust axis tilted DEG from the airframe's z (attitude and IMU of the airframe)")
+    r.add_argument("--thrust-tilt-azimuth-deg", type=float, default=0.0, metavar="DEG",
+                   help="direction of that tilt in the airframe's x-y plane, from +x towards +y")
+    r.add_argument("--rotor-plane-z", type=float, default=0.0, metavar="M",
+                   help="rotor plane M metres above the body origin (negative: below), in vehicle.yaml")
+    r.add_argument("--measured-rotors", action="store_true",
+                   help="rotors0 holds measured (actual) rotor speeds; vehicle.yaml rotor_speed_source: measured")
+    r.add_argument("--battery-voltage", type=float, default=None, metavar="V",
+                   help="write battery0: the voltage from V, sagging over the flight")
 
 
 def _add_generate_sim(gsub: argparse._SubParsersAction, sim_presets: str) -> None:
@@ -440,7 +462,13 @@ def _generate_flight(args: argparse.Namespace) -> int:
                                   no_imu=args.no_imu, rate_hz=args.rate_hz, jitter_ms=args.jitter_ms,
                                   fixed_heading=args.fixed_heading, motor_commands=args.motor_commands,
                                   wind_speed=args.wind_speed, accel_bias_walk=args.accel_bias_walk,
-                                  sensor_frame=args.sensor_frame, mass_error=args.mass_error)
+                                  sensor_frame=args.sensor_frame, mass_error=args.mass_error,
+                                  ground_contact_s=args.ground_contact_s, position_hold_hz=args.position_hold_hz,
+                                  rotor_hold_hz=args.rotor_hold_hz, rotor_delay_s=args.rotor_delay_s,
+                                  thrust_level=args.thrust_level, thrust_tilt_deg=args.thrust_tilt_deg,
+                                  thrust_tilt_azimuth_deg=args.thrust_tilt_azimuth_deg,
+                                  rotor_plane_z=args.rotor_plane_z, measured_rotors=args.measured_rotors,
+                                  battery_voltage=args.battery_voltage, heading_deg=args.heading_deg)
     gt = rec.ground_truth
     print(f"wrote {args.out}: {len(gt)} ground-truth rows, {(gt.t_ns[-1] - gt.t_ns[0]) * 1e-9:.1f} s, "
           f"effects {args.effects}")

@@ -25,7 +25,12 @@ def generate_flight_command(*, vehicle: str = "hex", effects: str = "none", dura
                             out: str | Path | None = None, no_imu: bool = False, rate_hz: float | None = None,
                             jitter_ms: float = 0.0, fixed_heading: bool = False, motor_commands: bool = False,
                             wind_speed: str | None = None, accel_bias_walk: float = 0.0, sensor_frame: str = "body",
-                            mass_error: float = 0.0) -> Recording:
+                            mass_error: float = 0.0, ground_contact_s: float = 0.0,
+                            position_hold_hz: float | None = None, rotor_hold_hz: float | None = None,
+                            rotor_delay_s: float = 0.0, thrust_level: float = 1.0, thrust_tilt_deg: float = 0.0,
+                            thrust_tilt_azimuth_deg: float = 0.0, rotor_plane_z: float = 0.0,
+                            measured_rotors: bool = False, battery_voltage: float | None = None,
+                            heading_deg: float | None = None) -> Recording:
     """``uavturb generate flight``: a simulated flight in the EuRoC layout, with the troubles of real
     recordings asked for (:class:`uavturb.sim.conditions.Conditions`) and their truth in ``truth.yaml``.
 
@@ -39,8 +44,13 @@ def generate_flight_command(*, vehicle: str = "hex", effects: str = "none", dura
         raise InputError("--noise", f"unknown value '{noise}' (allowed: realistic, none)")
     sensor_noise = flight.SensorNoise() if noise == "realistic" else flight.SensorNoise.none()
     cond = Conditions(no_imu=no_imu, rate_hz=rate_hz, jitter_ms=jitter_ms, fixed_heading=fixed_heading,
+                      heading_deg=heading_deg,
                       motor_commands=motor_commands, wind_speed=parse_wind_speed(wind_speed),
-                      accel_bias_walk=accel_bias_walk, sensor_frame=sensor_frame, mass_error=mass_error)
+                      accel_bias_walk=accel_bias_walk, sensor_frame=sensor_frame, mass_error=mass_error,
+                      ground_contact_s=ground_contact_s, position_hold_hz=position_hold_hz,
+                      rotor_hold_hz=rotor_hold_hz, rotor_delay_s=rotor_delay_s, thrust_level=thrust_level,
+                      thrust_tilt_deg=thrust_tilt_deg, thrust_tilt_azimuth_deg=thrust_tilt_azimuth_deg,
+                      rotor_plane_z=rotor_plane_z, measured_rotors=measured_rotors, battery_voltage=battery_voltage)
     return generate_conditioned_flight(vehicle=vehicle, effects=effects, duration=duration, kind=kind, seed=seed,
                                        conditions=cond, noise=sensor_noise, out=out).recording
 

@@ -14,8 +14,9 @@ against it:
     with independent jitter: every row is the (noisy) state *at its own timestamp* (states
     interpolated linearly, attitudes by slerp, from the 200 Hz record; rotor commands held, as
     a flight controller holds them). Timestamps are exact; the sampling is irregular.
-``fixed_heading``
-    the reference's yaw is held at its initial value (a flight that never turns).
+``fixed_heading``, ``heading_deg``
+    the reference's yaw is held at its initial value, or at ``heading_deg`` [deg] when given (a
+    flight that never turns; two flights at one heading).
 ``motor_commands``
     ``rotors0`` holds normalised motor commands ``u`` in [0, 1] instead of speeds; the vehicle's
     true speed is the affine thrust curve ``w = a + b u`` [rad/s] (:class:`MotorCurve`: ``a`` an
@@ -48,6 +49,57 @@ against it:
     acceleration (:mod:`uavturb.physics.frames`).
 ``mass_error``
     ``vehicle.yaml``'s mass is the simulated mass times ``1 + mass_error``.
+``ground_contact_s``
+    the recording starts and ends with ``ground_contact_s`` seconds on the landing gear, rotors
+    spinning (:mod:`uavturb.sim.ground_contact`): still, level, at the flight's landed height
+    (the first and last set-points of ``low_passes``, ``mixed`` and ``euroc_room`` flights, over the
+    floor), the IMU reading gravity, the lift (thrust plus the effects' vertical force) ramping
+    from 40 % of the weight to 70 % before take-off and back after landing, the floor carrying
+    the rest. ``truth.yaml``: the contact intervals ``[t_start, t_end]`` [s since the first
+    ground-truth row] and the floor's force.
+``position_hold_hz``, ``rotor_hold_hz``
+    sample-and-hold: the ground-truth rows (pose and velocity: a motion-capture pose at
+    ``position_hold_hz``) or the ``rotors0`` rows keep their rate (``rate_hz`` or 200 Hz), but the
+    value only updates at the hold rate: each update, at ``t0 + k / hold_hz``, appears in the first
+    row at or after it with that row's own value, and is repeated bit for bit until the next
+    (:func:`~uavturb.sim.stream_troubles.held_rows`). ``truth.yaml``: the update rates and counts.
+``rotor_delay_s``
+    the ``rotors0`` timestamps are late: the row at ``t`` holds the rotor value in force at
+    ``t - delay`` (the 200 Hz stream shifted before any resampling or holding; the first value
+    repeated before the start).
+``thrust_level``
+    the true thrust coefficient is ``vehicle.yaml``'s times ``thrust_level`` (the flight is
+    simulated with ``k_T * thrust_level``, ``vehicle.yaml`` keeps ``k_T``): recordings of one vehicle
+    on other days, batteries or propellers. ``truth.yaml``: both coefficients.
+``thrust_tilt_deg``, ``thrust_tilt_azimuth_deg``
+    the rotors' thrust axis is tilted by ``tilt`` from the airframe's z axis, towards the azimuth
+    ``az`` in the airframe's x-y plane (a bent arm, tilted motor mounts). The physics runs in the
+    rotor frame B; the recording's attitude and IMU are the *airframe's* (the motion-capture
+    markers and the flight controller's IMU sit on it), ``R_WS = R_WB R_SB^T`` with ``R_SB`` the
+    tilt (:func:`~uavturb.sim.stream_troubles.tilt_rotation`), the IMU's gyro and accelerometer
+    rotated alike, and ``vehicle.yaml`` does not know it (no ``T_BS``). A model thrusting along the
+    airframe's z then sees a push fixed in the airframe, ``m g sin(tilt)`` at hover towards
+    ``az``: at a fixed heading it looks like ``wind``, which it is not (``effects.md``'s
+    look-alikes). ``truth.yaml``: tilt, azimuth and that push (``push_at_hover``, in W at the
+    flight's first heading, and in the airframe).
+``rotor_plane_z``
+    the rotor discs' plane sits ``rotor_plane_z`` [m] above the body origin along z_B (negative:
+    below), written in ``vehicle.yaml``; surface effects act at the rotor plane's height (the
+    simulator's closed loop), and low flights are planned for the rotor plane
+    (:func:`uavturb.sim.flight.low_heights`).
+``measured_rotors``
+    ``rotors0`` holds the rotor speeds the ESCs measure: the actual speeds (lagging the commands
+    by the motor time constant of a ``motor_lag`` in the physics), slowed by a ``battery_sag`` as a
+    sagging voltage would (:func:`~uavturb.sim.stream_troubles.measured_speeds`, the nominal
+    model's thrust is then the true one), quantised like commands; ``vehicle.yaml``'s
+    ``rotor_speed_source`` is ``measured``. A ``battery_sag`` or ``motor_lag`` in the physics is then
+    invisible: ``truth.yaml`` lists them under ``invisible_effects`` and leaves them out of
+    ``equivalent_effects`` (naming them is wrong).
+``battery_voltage``
+    a ``battery0`` stream (10 Hz, voltage only) from this voltage [V] (16.8 for a full 4S pack),
+    sagging as ``V0 sqrt(1 - s t)``: ``s`` the ``battery_sag`` of the physics (thrust per speed
+    squared goes as the voltage squared), else a drain of 7e-4 1/s that speed-regulated motors
+    do not feel.
 """
 
 from __future__ import annotations
@@ -67,7 +119,18 @@ from uavturb.physics import frames
 from uavturb.physics.dynamics import GRAVITY, IDX_W, dynamics_for, physical_params
 from uavturb.physics.effects import EFFECTS
 from uavturb.physics.vehicle import Vehicle
+from uavturb.sim.flight import SensorNoise
+from uavturb.sim.ground_contact import with_ground_contact
 from uavturb.sim.references import Constant, Reference
+from uavturb.sim.stream_troubles import (
+    DRAIN_SAG,
+    battery_stream,
+    delayed_rows,
+    held_rows,
+    measured_speeds,
+    tilt_push_at_hover,
+    tilt_rotation,
+)
 
 #: EuRoC-like pose of the sensor frame S in B (``x_B = T_BS x_S``): columns of the rotation are S's
 #: axes in B, x_S = (sin 20, 0, cos 20) (20 deg from up), y_S = (0, -1, 0), z_S = (cos 20, 0, -sin 20)
@@ -82,6 +145,7 @@ SENSOR_FRAMES = ("body", "euroc")
 #: file of the truth, at the recording's root
 TRUTH_FILE = "truth.yaml"
 BIAS_FILE = "truth/accel_bias.csv"
+ROTOR_TRUTH_FILE = "truth/rotor_speeds.csv"
 
 
 @dataclass(frozen=True)
@@ -92,13 +156,28 @@ class Conditions:
     rate_hz: float | None = None
     jitter_ms: float = 0.0
     fixed_heading: bool = False
+    heading_deg: float | None = None
     motor_commands: bool = False
     wind_speed: tuple[float, float] | None = None
     accel_bias_walk: float = 0.0
     sensor_frame: str = "body"
     mass_error: float = 0.0
+    ground_contact_s: float = 0.0
+    position_hold_hz: float | None = None
+    rotor_hold_hz: float | None = None
+    rotor_delay_s: float = 0.0
+    thrust_level: float = 1.0
+    thrust_tilt_deg: float = 0.0
+    thrust_tilt_azimuth_deg: float = 0.0
+    rotor_plane_z: float = 0.0
+    measured_rotors: bool = False
+    battery_voltage: float | None = None
 
     def __post_init__(self) -> None:
+        self._check_original()
+        self._check_real_troubles()
+
+    def _check_original(self) -> None:
         if self.rate_hz is not None and not 0 < self.rate_hz <= 200:
             raise InputError("--rate-hz", f"must be in (0, 200] Hz (the simulator records at 200 Hz), got {self.rate_hz}")
         if self.jitter_ms < 0:
@@ -113,10 +192,36 @@ class Conditions:
             raise InputError("--sensor-frame", f"unknown frame '{self.sensor_frame}' (allowed: {', '.join(SENSOR_FRAMES)})")
         if not -0.5 < self.mass_error < 0.5:
             raise InputError("--mass-error", f"must be a fraction in (-0.5, 0.5), got {self.mass_error}")
+        if self.heading_deg is not None and (not self.fixed_heading or not np.isfinite(self.heading_deg)):
+            raise InputError("--heading-deg", f"needs --fixed-heading and a finite angle, got {self.heading_deg}")
         if self.no_imu and self.accel_bias_walk > 0:
             raise InputError("--accel-bias-walk", "needs an IMU (it cannot be combined with --no-imu)")
         if self.wind_speed is not None and (len(self.wind_speed) != 2 or not np.all(np.isfinite(self.wind_speed))):
             raise InputError("--wind-speed", f"expected two finite numbers vx,vy [m/s], got {self.wind_speed}")
+
+    def _check_real_troubles(self) -> None:
+        if not 0 <= self.ground_contact_s <= 30:
+            raise InputError("--ground-contact-s", f"must be in [0, 30] s, got {self.ground_contact_s}")
+        row_hz = self.rate_hz or 200.0
+        for flag, hz in (("--position-hold-hz", self.position_hold_hz), ("--rotor-hold-hz", self.rotor_hold_hz)):
+            if hz is not None and not 0 < hz < row_hz:
+                raise InputError(flag, f"must be in (0, {row_hz:g}) Hz (below the stream's row rate), got {hz}")
+        if not 0 <= self.rotor_delay_s < 1:
+            raise InputError("--rotor-delay-s", f"must be in [0, 1) s, got {self.rotor_delay_s}")
+        if not 0.5 < self.thrust_level < 1.5:
+            raise InputError("--thrust-level", f"must be a factor in (0.5, 1.5), got {self.thrust_level}")
+        if not 0 <= self.thrust_tilt_deg < 10 or not np.isfinite(self.thrust_tilt_azimuth_deg):
+            raise InputError("--thrust-tilt-deg", f"must be in [0, 10) deg with a finite azimuth, got "
+                                                  f"{self.thrust_tilt_deg} towards {self.thrust_tilt_azimuth_deg}")
+        if self.thrust_tilt_deg > 0 and self.sensor_frame != "body":
+            raise InputError("--thrust-tilt-deg", "cannot be combined with --sensor-frame euroc")
+        if not -0.5 < self.rotor_plane_z < 0.5:
+            raise InputError("--rotor-plane-z", f"must be in (-0.5, 0.5) m, got {self.rotor_plane_z}")
+        if self.measured_rotors and self.motor_commands:
+            raise InputError("--measured-rotors", "cannot be combined with --motor-commands (rotors0 holds one or "
+                                                  "the other)")
+        if self.battery_voltage is not None and not 0 < self.battery_voltage < 100:
+            raise InputError("--battery-voltage", f"must be in (0, 100) V, got {self.battery_voltage}")
 
     @property
     def resampled(self) -> bool:
@@ -126,9 +231,10 @@ class Conditions:
 # --- before the simulation: the reference and the physics ------------------------------------------
 
 
-def hold_heading(reference: Reference) -> Reference:
-    """``reference`` with its yaw held at its initial value [rad] (yaw rate and acceleration zero)."""
-    yaw0 = float(reference.yaw.derivs(np.zeros(1))[0, 0])
+def hold_heading(reference: Reference, yaw: float | None = None) -> Reference:
+    """``reference`` with its yaw held at ``yaw`` [rad], default its initial value (yaw rate and
+    acceleration zero)."""
+    yaw0 = float(reference.yaw.derivs(np.zeros(1))[0, 0]) if yaw is None else float(yaw)
     return replace(reference, yaw=Constant(yaw0), name=f"{reference.name}, fixed heading")
 
 
@@ -273,38 +379,32 @@ class Conditioned:
 
 
 def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Vehicle,
-              effects: dict[str, dict[str, float]], seed: int = 0, w_max: float | None = None) -> Conditioned:
+              effects: dict[str, dict[str, float]], seed: int = 0, w_max: float | None = None,
+              noise: SensorNoise | None = None) -> Conditioned:
     """Make the simulator's recording ``rec`` (in B, with its ``Truth``) show the troubles of ``cond``.
 
     Parameters
     ----------
     rec, truth : :func:`~uavturb.sim.flight.simulate_flight`'s outputs
     cond : Conditions
-    true_vehicle : the simulated vehicle
+    true_vehicle : the simulated vehicle (with ``thrust_level`` already in its ``k_T``)
     effects : the simulated effects (``{name: params}``)
-    seed : seeds the sampling jitter
+    seed : seeds the sampling jitter, the contact segments' and the battery's noise
     w_max : rad/s, the controller's top speed (the motor curve's full command)
+    noise : the flight's SensorNoise (default realistic): the contact segments' noise and the
+        measured rotor speeds' resolution
     """
     rng = np.random.default_rng([int(seed), 11])
+    noise = SensorNoise() if noise is None else noise
     doc: dict[str, Any] = {}
     extras: dict[str, str] = {}
-    if cond.accel_bias_walk > 0 and rec.imu is not None:
-        b0 = truth.acc_bias[:1]  # the initial bias: all a motion-capture state file would know
-        rec = replace(rec, ground_truth=replace(rec.ground_truth, b_a=np.repeat(b0, len(rec.ground_truth), 0)))
-    T_BS = EUROC_T_BS if cond.sensor_frame == "euroc" else np.eye(4)
-    if cond.sensor_frame == "euroc":
-        rec = to_sensor_frame(rec, truth, T_BS)
-        doc["sensor_frame"] = {"name": "euroc", "T_BS": T_BS.tolist(), "lever_arm_m": float(np.linalg.norm(T_BS[:3, 3])),
-                               "x_S_from_up_deg": 20.0, "imu_at_hover_m_s2": (T_BS[:3, :3].T @ [0, 0, GRAVITY]).tolist()}
-    if cond.accel_bias_walk > 0 and rec.imu is not None:
-        bias = frames.vector_to_sensor(truth.acc_bias, T_BS)  # the true bias, in the IMU's frame
-        lines = ["#timestamp [ns],b_a_x [m s^-2],b_a_y [m s^-2],b_a_z [m s^-2]"]
-        lines += [f"{t},{b[0]:.9g},{b[1]:.9g},{b[2]:.9g}" for t, b in zip(rec.imu.t_ns, bias)]
-        extras[BIAS_FILE] = "\n".join(lines) + "\n"
-        doc["accel_bias_walk"] = {"sigma": cond.accel_bias_walk, "unit": "m/s^3/sqrt(Hz)", "file": BIAS_FILE,
-                                  "frame": "S" if cond.sensor_frame == "euroc" else "B",
-                                  "state_file_b_a": "held at the initial bias", "initial": bias[0].tolist(),
-                                  "final": bias[-1].tolist(), "max_abs": float(np.abs(bias).max())}
+    if cond.ground_contact_s > 0:
+        wind = None if cond.wind_speed is None else np.array([*cond.wind_speed, 0.0])
+        rec, truth, doc["ground_contact"] = with_ground_contact(rec, truth, cond.ground_contact_s,
+                                                                vehicle=true_vehicle, effects=effects, noise=noise,
+                                                                seed=seed, wind=wind)
+    rec = _rotor_telemetry(rec, truth, cond, effects, noise, doc, extras)
+    rec = _frames(rec, truth, cond, doc, extras)
     if cond.motor_commands:
         curve = MotorCurve.for_vehicle(true_vehicle, w_max or 2.5 * true_vehicle.hover_speed())
         rec, doc["motor_commands"] = motor_command_stream(rec, curve, true_vehicle.hover_speed())
@@ -315,13 +415,11 @@ def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Veh
                           "applies_to": ["state_groundtruth_estimate0", "rotors0"],
                           "law": "row k taken at k / rate_hz + U(-jitter, jitter) (exact timestamps); rotor commands "
                                  "held"}
+    rec = _held_streams(rec, cond, doc)
     if cond.no_imu:
         rec = replace(rec, imu=None)
         doc["no_imu"] = True
-    if cond.mass_error:
-        m = true_vehicle.mass
-        rec = replace(rec, vehicle=rec.vehicle.with_params(mass=m * (1.0 + cond.mass_error)))
-        doc["mass_error"] = {"fraction": cond.mass_error, "true_mass": m, "recorded_mass": m * (1.0 + cond.mass_error)}
+    rec = _vehicle_file(rec, cond, true_vehicle, truth, doc)
     if cond.fixed_heading:
         doc["fixed_heading"] = {"yaw_rad": float(truth.reference.yaw[0])}
     if cond.wind_speed is not None:
@@ -331,14 +429,134 @@ def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Veh
                              "law": "F = -k_d Wsum R [v_a,B,x, v_a,B,y, 0] - c_d |v_a| v_a, v_a = v - v_wind",
                              "k_d": k_d, "c_d": c_d, "wsum_hover": hover_rotor_sum(true_vehicle),
                              "push_at_hover": {"f_x": float(push[0]), "f_y": float(push[1])}}
+    if cond.battery_voltage is not None:
+        sag = float(effects.get("battery_sag", {}).get("s", DRAIN_SAG))
+        gt = rec.ground_truth
+        rec = replace(rec, battery=battery_stream(int(gt.t_ns[0]), int(gt.t_ns[-1]), cond.battery_voltage, sag,
+                                                  np.random.default_rng([int(seed), 13])))
+        doc["battery"] = {"stream": "battery0", "law": "V = V0 sqrt(1 - s t)", "V0": cond.battery_voltage, "s": sag,
+                          "s_from": "battery_sag" if "battery_sag" in effects else "drain (thrust unaffected)",
+                          "rate_hz": 10.0}
     return Conditioned(rec, doc, extras)
+
+
+def _rotor_telemetry(rec: Recording, truth: Any, cond: Conditions, effects: dict[str, dict[str, float]],
+                     noise: SensorNoise, doc: dict[str, Any], extras: dict[str, str]) -> Recording:
+    """``rotors0`` as measured speeds and/or late (on the simulator's single-rate stream); the true
+    speeds as ``truth/rotor_speeds.csv`` when rotor telemetry is troubled."""
+    rot = rec.rotors
+    if cond.measured_rotors:
+        sag = float(effects.get("battery_sag", {}).get("s", 0.0))
+        t = (rot.t_ns - rec.t0_ns) * 1e-9
+        rot = Rotors(rot.t_ns, measured_speeds(truth.rotor_speeds, t, sag, noise.rotor_quantum))
+        invisible = sorted(set(effects) & {"battery_sag", "motor_lag"})
+        doc["measured_rotors"] = {"rotor_speed_source": "measured",
+                                  "law": "w_meas = w_actual sqrt(1 - s t) (s: battery_sag, else 0), quantised",
+                                  "quantum": noise.rotor_quantum, "invisible": invisible}
+    if cond.rotor_delay_s > 0:
+        rot = Rotors(rot.t_ns, rot.speeds[delayed_rows(rot.t_ns, cond.rotor_delay_s)])
+        doc["rotor_delay"] = {"seconds": cond.rotor_delay_s, "stream": "rotors0",
+                              "law": "the row at t holds the value in force at t - delay (before resampling)"}
+    if cond.measured_rotors or cond.rotor_delay_s > 0 or cond.rotor_hold_hz is not None:
+        n = truth.rotor_speeds.shape[1]
+        lines = ["#timestamp [ns]," + ",".join(f"w_{i} [rad s^-1]" for i in range(n))]
+        lines += [f"{t}," + ",".join(f"{w:.6f}" for w in row) for t, row in zip(rec.rotors.t_ns, truth.rotor_speeds)]
+        extras[ROTOR_TRUTH_FILE] = "\n".join(lines) + "\n"
+        doc["true_rotor_speeds"] = {"file": ROTOR_TRUTH_FILE, "what": "actual rotor speeds at the simulator's "
+                                                                      "record times (on time)"}
+    return replace(rec, rotors=rot)
+
+
+def _frames(rec: Recording, truth: Any, cond: Conditions, doc: dict[str, Any], extras: dict[str, str]) -> Recording:
+    """The attitude and IMU in the airframe of a tilted thrust axis, or in EuRoC's sensor frame; the
+    accelerometer bias walk's truth."""
+    if cond.accel_bias_walk > 0 and rec.imu is not None:
+        b0 = truth.acc_bias[:1]  # the initial bias: all a motion-capture state file would know
+        rec = replace(rec, ground_truth=replace(rec.ground_truth, b_a=np.repeat(b0, len(rec.ground_truth), 0)))
+    T_BS = EUROC_T_BS if cond.sensor_frame == "euroc" else np.eye(4)
+    if cond.sensor_frame == "euroc":
+        rec = to_sensor_frame(rec, truth, T_BS)
+        doc["sensor_frame"] = {"name": "euroc", "T_BS": T_BS.tolist(), "lever_arm_m": float(np.linalg.norm(T_BS[:3, 3])),
+                               "x_S_from_up_deg": 20.0, "imu_at_hover_m_s2": (T_BS[:3, :3].T @ [0, 0, GRAVITY]).tolist()}
+    if cond.thrust_tilt_deg > 0:
+        R_SB = tilt_rotation(cond.thrust_tilt_deg, cond.thrust_tilt_azimuth_deg)
+        T_BS = np.eye(4)
+        T_BS[:3, :3] = R_SB.T
+        vehicle, frame = rec.vehicle, rec.frame
+        rec = replace(to_sensor_frame(rec, truth, T_BS), vehicle=vehicle, frame=frame)  # vehicle.yaml does not know
+        push = tilt_push_at_hover(vehicle.mass, cond.thrust_tilt_deg, cond.thrust_tilt_azimuth_deg,
+                                  float(truth.reference.yaw[0]))
+        doc["thrust_tilt"] = {"tilt_deg": cond.thrust_tilt_deg, "azimuth_deg": cond.thrust_tilt_azimuth_deg,
+                              "thrust_axis_in_airframe": (R_SB @ [0.0, 0.0, 1.0]).tolist(),
+                              "law": "attitude and IMU of the airframe S, R_WS = R_WB R_SB^T; thrust along z_B",
+                              "push_at_hover": push,
+                              "looks_like": "wind at a fixed heading (the push turns with the airframe)"}
+    if cond.accel_bias_walk > 0 and rec.imu is not None:
+        bias = frames.vector_to_sensor(truth.acc_bias, T_BS)  # the true bias, in the IMU's frame
+        lines = ["#timestamp [ns],b_a_x [m s^-2],b_a_y [m s^-2],b_a_z [m s^-2]"]
+        lines += [f"{t},{b[0]:.9g},{b[1]:.9g},{b[2]:.9g}" for t, b in zip(rec.imu.t_ns, bias)]
+        extras[BIAS_FILE] = "\n".join(lines) + "\n"
+        doc["accel_bias_walk"] = {"sigma": cond.accel_bias_walk, "unit": "m/s^3/sqrt(Hz)", "file": BIAS_FILE,
+                                  "frame": "S" if cond.sensor_frame == "euroc" else "B",
+                                  "state_file_b_a": "held at the initial bias", "initial": bias[0].tolist(),
+                                  "final": bias[-1].tolist(), "max_abs": float(np.abs(bias).max())}
+    return rec
+
+
+def _held_streams(rec: Recording, cond: Conditions, doc: dict[str, Any]) -> Recording:
+    """Ground truth and/or rotors updating at their hold rates in rows at their own rates."""
+    held: dict[str, Any] = {}
+    row_hz = cond.rate_hz or 200.0
+    if cond.position_hold_hz is not None:
+        gt = rec.ground_truth
+        k = held_rows(gt.t_ns, cond.position_hold_hz)
+        rec = replace(rec, ground_truth=GroundTruth(t_ns=gt.t_ns, **{f: getattr(gt, f)[k]
+                                                                    for f in ("p", "q", "v", "b_w", "b_a")}))
+        held["state_groundtruth_estimate0"] = {"update_hz": cond.position_hold_hz, "row_hz": row_hz,
+                                               "updates": int(len(np.unique(k)))}
+    if cond.rotor_hold_hz is not None:
+        rot = rec.rotors
+        k = held_rows(rot.t_ns, cond.rotor_hold_hz)
+        rec = replace(rec, rotors=Rotors(rot.t_ns, rot.speeds[k]))
+        held["rotors0"] = {"update_hz": cond.rotor_hold_hz, "row_hz": row_hz, "updates": int(len(np.unique(k)))}
+    if held:
+        doc["held_streams"] = {**held, "law": "update k at t0 + k / update_hz appears in the first row at or after "
+                                              "it and repeats bit for bit until the next"}
+    return rec
+
+
+def _vehicle_file(rec: Recording, cond: Conditions, true_vehicle: Vehicle, truth: Any,
+                  doc: dict[str, Any]) -> Recording:
+    """What ``vehicle.yaml`` says: a mass off, the nominal thrust coefficient, the rotor speeds' source,
+    the rotor plane's height (already the simulated vehicle's)."""
+    v = rec.vehicle
+    if cond.mass_error:
+        m = true_vehicle.mass
+        v = v.with_params(mass=m * (1.0 + cond.mass_error))
+        doc["mass_error"] = {"fraction": cond.mass_error, "true_mass": m, "recorded_mass": m * (1.0 + cond.mass_error)}
+    if cond.thrust_level != 1.0:
+        k_true = float(true_vehicle.thrust_coefficient)
+        v = v.with_params(thrust_coefficient=k_true / cond.thrust_level)
+        doc["thrust_level"] = {"factor": cond.thrust_level, "true_thrust_coefficient": k_true,
+                               "recorded_thrust_coefficient": k_true / cond.thrust_level,
+                               "law": "true k_T = vehicle.yaml's k_T * factor (a per-recording thrust level)"}
+    if cond.measured_rotors:
+        v = v.with_params(rotor_speed_source="measured")
+    if cond.rotor_plane_z != 0.0:
+        z_body = truth.x[:, 2]
+        doc["rotor_plane_z"] = {"m": cond.rotor_plane_z, "in": "vehicle.yaml",
+                                "rotor_plane_height_min_m": float(np.min(truth.d_down)),
+                                "body_origin_height_min_m": float(np.min(z_body))}
+    return replace(rec, vehicle=v)
 
 
 def truth_document(true_vehicle: Vehicle, effects: dict[str, dict[str, float]], conditions: dict[str, Any], *,
                    seed: int, kind: str, duration: float) -> dict[str, Any]:
     """The ``truth.yaml`` document: the simulated vehicle, the simulated effects, the effects the
-    gap finder should find (``equivalent_effects``) and the conditions' truths."""
-    equivalent = {name: dict(p) for name, p in effects.items()}
+    gap finder should find (``equivalent_effects``), those of the physics the recording cannot
+    show (``invisible_effects``: with measured rotor speeds) and the conditions' truths."""
+    invisible = conditions.get("measured_rotors", {}).get("invisible", [])
+    equivalent = {name: dict(p) for name, p in effects.items() if name not in invisible}
     if "wind_speed" in conditions:
         equivalent["wind"] = dict(conditions["wind_speed"]["push_at_hover"])
     return {
@@ -346,9 +564,11 @@ def truth_document(true_vehicle: Vehicle, effects: dict[str, dict[str, float]], 
         "seed": int(seed), "kind": kind, "duration_s": float(duration),
         "vehicle": {"mass": true_vehicle.mass, "thrust_coefficient": true_vehicle.thrust_coefficient,
                     "moment_coefficient": true_vehicle.moment_coefficient,
-                    "inertia": [float(j) for j in true_vehicle.inertia]},
+                    "inertia": [float(j) for j in true_vehicle.inertia],
+                    "rotor_plane_z": float(true_vehicle.rotor_plane_z)},
         "effects": {name: {k: float(v) for k, v in p.items()} for name, p in effects.items()},
         "equivalent_effects": {name: {k: float(v) for k, v in p.items()} for name, p in equivalent.items()},
+        "invisible_effects": list(invisible),
         "conditions": conditions,
     }
 
@@ -385,11 +605,13 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
     from uavturb.io.writer import write_recording
     from uavturb.physics.effects import parse_effects
     from uavturb.sim import euroc_standin
-    from uavturb.sim.flight import SensorNoise, flight_room, make_reference, simulate_flight
+    from uavturb.sim.flight import flight_room, make_reference, simulate_flight
 
     stand_in = kind == euroc_standin.KIND
     v = euroc_standin.flyable(named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle)
     v = euroc_standin.with_vi_sensor(v) if stand_in else v
+    v = v.with_params(rotor_plane_z=conditions.rotor_plane_z or v.rotor_plane_z,
+                      thrust_coefficient=float(v.thrust_coefficient) * conditions.thrust_level)
     room = flight_room(kind)
     eff = parse_effects(effects) if isinstance(effects, str) or effects is None else dict(effects)
     noise = SensorNoise() if noise is None else noise
@@ -397,7 +619,7 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
         noise = replace(noise, acc_random_walk=float(conditions.accel_bias_walk))
     ref = make_reference(kind, duration, seed, v, room)
     if conditions.fixed_heading:
-        ref = hold_heading(ref)
+        ref = hold_heading(ref, None if conditions.heading_deg is None else np.radians(conditions.heading_deg))
     wind = None
     if conditions.wind_speed is not None:
         eff = with_drag(eff)
@@ -405,7 +627,7 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
     rec, truth = simulate_flight(v, ref, duration=duration, effects=eff, noise=noise, seed=seed, wind=wind,
                                  room=room)
     w_max = v.max_rotor_speed or 2.5 * v.hover_speed()  # the controller's bound (sim.controller)
-    out_c = condition(rec, truth, conditions, true_vehicle=v, effects=eff, seed=seed, w_max=w_max)
+    out_c = condition(rec, truth, conditions, true_vehicle=v, effects=eff, seed=seed, w_max=w_max, noise=noise)
     out_c.truth = truth_document(v, eff, out_c.truth, seed=seed, kind=kind, duration=duration)
     if stand_in:  # EuRoC's cam0, its T_BS relative to the recording's S
         out_c.recording = euroc_standin.with_cam0(out_c.recording)

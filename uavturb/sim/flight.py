@@ -260,7 +260,7 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
     dt_rec = rec_every * physics_dt
     t_rec = np.arange(K) * dt_rec
     f = _forces(vehicle, loop, effects, lag, t_rec, wind)
-    s = _sensor_readings(loop.x, f.specific_force, loop.rotor_commands, noise, seed, dt_rec)
+    s = sensor_readings(loop.x, f.specific_force, loop.rotor_commands, noise, seed, dt_rec)
 
     t_ns = np.int64(t0_ns) + np.arange(K, dtype=np.int64) * np.int64(round(dt_rec * 1e9))
     rec = Recording(
@@ -310,7 +310,7 @@ def _forces(vehicle: Vehicle, loop: Any, effects: dict[str, dict[str, float]], l
 
 
 @dataclass
-class _SensorReadings:
+class SensorReadings:
     """What the sensors report at the record times: the true state with noise, biases and quantisation."""
 
     p: np.ndarray  # (K, 3) m in W, motion capture position
@@ -323,8 +323,8 @@ class _SensorReadings:
     rotors: np.ndarray  # (K, N) rad/s, the commanded rotor speeds as reported (quantised)
 
 
-def _sensor_readings(X: np.ndarray, spec_force: np.ndarray, W_cmd: np.ndarray, noise: SensorNoise, seed: int,
-                     dt_rec: float) -> _SensorReadings:
+def sensor_readings(X: np.ndarray, spec_force: np.ndarray, W_cmd: np.ndarray, noise: SensorNoise, seed: int,
+                     dt_rec: float) -> SensorReadings:
     """Sensor readings of states ``X`` (K, 13) sampled every ``dt_rec`` [s], seeded by ``seed``."""
     K = len(X)
     rng = np.random.default_rng([int(seed), 7])
@@ -349,7 +349,7 @@ def _sensor_readings(X: np.ndarray, spec_force: np.ndarray, W_cmd: np.ndarray, n
         q_meas = quat.normalize(quat.multiply(q_meas, np.concatenate([np.ones((K, 1)), half], axis=1)))
     v_meas = X[:, IDX_V] + rng.normal(0.0, noise.velocity_std, size=(K, 3))
     rotors = W_cmd if noise.rotor_quantum <= 0 else np.round(W_cmd / noise.rotor_quantum) * noise.rotor_quantum
-    return _SensorReadings(p_meas, q_meas, v_meas, gyro, acc, b_w, b_a, rotors)
+    return SensorReadings(p_meas, q_meas, v_meas, gyro, acc, b_w, b_a, rotors)
 
 
 # --- one call: a named flight ----------------------------------------------------------
@@ -371,12 +371,34 @@ def roll_acc_limit(vehicle: Vehicle, share: float = 0.3) -> float:
     return float(np.sum(np.abs(A[1])) * share * w2 / vehicle.inertia[0])
 
 
+#: m, lowest height of the body origin over a surface when landed (the landing gear's height)
+MIN_BODY_HEIGHT = 0.02
+
+
+def low_heights(vehicle: Vehicle) -> dict[str, Any]:
+    """Rest height [m] and ranges of low hover heights [m] of the body origin for ``vehicle``.
+
+    Planned for the rotor plane (``recordings.md``, "Heights over surfaces"): it rests 0.6 rotor
+    radius over the floor (2 to 6 cm) and hovers from one rotor radius to 0.5 m; the body origin
+    sits ``rotor_plane_z`` below it, never under :data:`MIN_BODY_HEIGHT` (rotors 15 cm above the
+    origin rest 17 cm over the floor, as on their landing gear)."""
+    r, z_r = vehicle.rotor_radius, vehicle.rotor_plane_z
+    plane_rest = float(np.clip(0.6 * r, 0.02, 0.06))
+    rest = plane_rest if z_r == 0.0 else max(plane_rest - z_r, MIN_BODY_HEIGHT)
+    lo = max(r, 0.75 * plane_rest) - z_r
+    if z_r != 0.0:
+        lo = max(lo, 0.75 * rest, MIN_BODY_HEIGHT)
+    hi = 0.5 - min(z_r, 0.0)
+    return {"rest_height": rest, "floor_heights": (lo, hi), "table_heights": (lo, hi)}
+
+
 def make_reference(kind: str = "excitation", duration: float = 60.0, seed: int = 0, vehicle: Vehicle | None = None,
                    room: Room | None = None) -> Reference:
     """The reference of a named flight kind (``excitation``, ``low_passes``, ``mixed``, ``euroc_room``)
     for a vehicle: yaw acceleration within its authority (0.7 x :func:`yaw_acc_limit`, at most
     1 rad/s^2), faster and larger roll/pitch excitation for agile vehicles (:func:`roll_acc_limit`),
-    low hovers from one rotor radius up to 0.5 m, rest height 0.6 rotor radius (2 to 6 cm).
+    low hovers from one rotor radius up to 0.5 m, rest height 0.6 rotor radius (2 to 6 cm), both
+    of the rotor plane (:func:`low_heights`).
     ``euroc_room`` is :func:`uavturb.sim.euroc_standin.reference` (its landed height).
     ``room``: default :func:`flight_room`."""
     room = flight_room(kind) if room is None else room
@@ -393,11 +415,8 @@ def make_reference(kind: str = "excitation", duration: float = 60.0, seed: int =
     if kind == "excitation":
         return excitation(duration, seed, max_yaw_acc=yaw_acc, **exc)
     low: dict[str, Any] = {}
-    if vehicle is not None:  # heights in rotor radii: 1 r to 0.5 m; the body rests at 0.6 r (2-6 cm)
-        r = vehicle.rotor_radius
-        rest = float(np.clip(0.6 * r, 0.02, 0.06))
-        lo = max(r, 0.75 * rest)
-        low = {"rest_height": rest, "floor_heights": (lo, 0.5), "table_heights": (lo, 0.5)}
+    if vehicle is not None:
+        low = low_heights(vehicle)
     if kind == "low_passes":
         return low_passes(duration, seed, room=room, max_yaw_acc=yaw_acc, **low)
     if kind == "mixed":
