@@ -213,8 +213,8 @@ def test_cli_yaml_bomb_and_ply_hang_and_random_bag(rec, tmp_path):
     assert took < 30 and mb < 2048
     bag = tmp_path / "random.bag"
     bag.write_bytes(np.random.default_rng(0).bytes(4000))
-    code, err, took, mb = _cli(["import-euroc", str(bag), "--out", str(tmp_path / "imported")], tmp_path)
-    assert code == 2 and err.startswith(f"uavturb import-euroc: error: {bag}: not a readable ROS1 bag"), err[-2000:]
+    code, err, took, mb = _cli(["import", "euroc", str(bag), "--out", str(tmp_path / "imported")], tmp_path)
+    assert code == 2 and err.startswith(f"uavturb import euroc: error: {bag}: not a readable ROS1 bag"), err[-2000:]
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "imported").exists()
 
 
