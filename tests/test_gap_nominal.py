@@ -126,3 +126,11 @@ def test_one_recording_gets_a_block_jackknife():
     budget = error_budget(data, final, "ground_effect")["mu"]
     assert "between_blocks" in budget and np.isfinite(budget["between_blocks"]) and budget["fits"] == 5
     assert final.nonlinear["ground_effect"] == pytest.approx(2.0, abs=3 * budget["stderr"])
+
+
+def test_height_uncertainty_sets_the_height_reference_term():
+    data = _ground_flights(mus=(2.0, 2.0))
+    final = fit_model(data, {"ground_effect"})
+    wide = error_budget(data, final, "ground_effect", height_reference_m=0.02)["mu"]["height_reference"]
+    narrow = error_budget(data, final, "ground_effect", height_reference_m=0.002)["mu"]["height_reference"]
+    assert narrow < 0.2 * wide  # a better known floor and rotor plane, a tighter mu

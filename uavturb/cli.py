@@ -223,6 +223,9 @@ def _add_gap(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one (raw EuRoC)")
     s.add_argument("--no-mlflow", action="store_true", help="do not log the run to MLflow")
     s.add_argument("--overwrite", action="store_true", help="replace a report folder that uavturb wrote")
+    s.add_argument("--height-uncertainty", type=float, default=0.01, metavar="M",
+                   help="how well the rotor plane's height over the floor is known [m] (default 0.01): "
+                        "widens surface laws' stated errors")
 
 
 def _add_gap_proof(sub: argparse._SubParsersAction) -> None:
@@ -504,7 +507,7 @@ def _gap(args: argparse.Namespace) -> int:
 
     report = gap(args.recordings, args.out, sim_effects=args.sim_effects, seed=args.seed, apply=args.apply,
                  vehicle=args.vehicle, log_mlflow=not args.no_mlflow, physics_config=args.physics_config,
-                 overwrite=args.overwrite)
+                 overwrite=args.overwrite, height_uncertainty=args.height_uncertainty)
     print(f"effects named: {', '.join(format_effect(e) for e in report['effects']) or 'none'}")
     print(f"held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
           f"{report['final']['heldout_rmse_N']:.4f} N ({report['protocol']}); report in {args.out}")

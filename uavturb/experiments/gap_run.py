@@ -12,13 +12,15 @@ from uavturb.errors import InputError
 from uavturb.gap.finder import analyse, parse_sim_effects
 from uavturb.gap.report import write_json, write_markdown, write_plots
 from uavturb.gap.surface_curve import plot_surface_curve
+from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M
 from uavturb.io.physics_config import load_physics_config, write_physics_config
 from uavturb.io.publish import check_output_file, check_output_folder, publish_folder
 
 
 def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str | None = None, seed: int = 0,
         apply: str | Path | None = None, vehicle: str | None = None, log_mlflow: bool = True,
-        physics_config: str | Path | None = None, overwrite: bool = False) -> dict:
+        physics_config: str | Path | None = None, overwrite: bool = False,
+        height_uncertainty: float = HEIGHT_REFERENCE_M) -> dict:
     """Run the gap finder on recording folders and write ``out/report.json`` and ``out/report.md``.
 
     ``out`` holds a complete report or none: everything is built in a temporary folder beside it
@@ -39,7 +41,7 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
     if apply is not None:
         check_output_file(apply, overwrite=overwrite)
     recs = load_recordings(recordings, vehicle)
-    report, ex = analyse(recs, sim, seed=seed)
+    report, ex = analyse(recs, sim, seed=seed, height_uncertainty=height_uncertainty)
     report["seconds_analysis"] = time.perf_counter() - t0
 
     with publish_folder(out, overwrite=overwrite, command="uavturb gap") as tmp:

@@ -26,7 +26,7 @@ from uavturb.gap.nominal import ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared
 from uavturb.gap.selection import Selection, finish, folds, heldout, select
 from uavturb.gap.surface_curve import finder_surface_curve
-from uavturb.gap.uncertainty import error_budget, honest_stderr
+from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
     DEFAULT_EFFECTS,
@@ -93,7 +93,8 @@ def _open_loop(data: GapData, force: np.ndarray, horizon_s: float = 0.5, stride_
     return float(np.sqrt(np.mean(errs))) if errs else float("nan")
 
 
-def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0) -> tuple[dict, dict]:
+def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0,
+            height_uncertainty: float = HEIGHT_REFERENCE_M) -> tuple[dict, dict]:
     """The analysis without any writing: returns the report dictionary and what the plots need.
 
     BLAS runs single-threaded: the fits are tall and thin (a few columns), where threaded
@@ -102,10 +103,13 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):
-        return _analyse(recordings, sim, seed=seed)
+        return _analyse(recordings, sim, seed=seed, height_uncertainty=height_uncertainty)
 
 
-def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0) -> tuple[dict, dict]:
+def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0,
+             height_uncertainty: float = HEIGHT_REFERENCE_M) -> tuple[dict, dict]:
+    if not (0.0 <= height_uncertainty <= 0.5):
+        raise InputError("--height-uncertainty", f"must be between 0 and 0.5 m, got {height_uncertainty:.3g}")
     np.random.seed(seed)
     vehicle = recordings[0].vehicle
     paths = [str(r.path) if r.path else r.name for r in recordings]
@@ -150,7 +154,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "mismatch": {"segments": [{"recording": paths[s.group], "t_start": s.t_start, "t_end": s.t_end,
                                    "axis": s.axis, "rms_N": s.rms_N} for s in segs],
                      "drivers": drv},
-        "effects": _effects_named(data, sel, final, facts),
+        "effects": _effects_named(data, sel, final, facts, height_uncertainty),
+        "height_uncertainty_m": height_uncertainty,
         "sim_effect_params": {name: {"sim": p, "fitted": final.effect_params(name)[0] if name in final.effects
                                      else {}} for name, p in sim.items()},
         "nominal": _nominal(data, final, levels),
@@ -260,12 +265,14 @@ def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels) -> dict[str, 
 HONEST_Z = 2.0
 
 
-def _budget(data: GapData, final: ModelFit, name: str) -> dict[str, dict[str, float]]:
+def _budget(data: GapData, final: ModelFit, name: str,
+            height_uncertainty: float = HEIGHT_REFERENCE_M) -> dict[str, dict[str, float]]:
     """:func:`uavturb.gap.uncertainty.error_budget` of ``name`` in ``final`` (a surface law's recordings
     must each come within its reach to count)."""
     if EFFECTS[name].surface is None:
         return error_budget(data, final, name)
-    return error_budget(data, final, name, can_test=lambda d: surface_reach(d, name).testable)
+    return error_budget(data, final, name, can_test=lambda d: surface_reach(d, name).testable,
+                        height_reference_m=height_uncertainty)
 
 
 def not_pinned(data: GapData, final: ModelFit, name: str) -> str | None:
@@ -286,14 +293,15 @@ def not_pinned(data: GapData, final: ModelFit, name: str) -> str | None:
             f"{HONEST_Z:.0f} standard errors of zero once the spread between recordings or blocks is counted")
 
 
-def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any) -> list[dict[str, Any]]:
+def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
+                   height_uncertainty: float = HEIGHT_REFERENCE_M) -> list[dict[str, Any]]:
     """The report's ``effects``: each chosen effect's fitted parameters with honest errors
     (:mod:`uavturb.gap.uncertainty`: sample, height reference, between recordings or blocks), the
     explanation and the held-out gain."""
     effects_out = []
     for s in sel.steps:
         params, _ = final.effect_params(s.name)
-        budget = _budget(data, final, s.name)
+        budget = _budget(data, final, s.name, height_uncertainty)
         effects_out.append({
             "name": s.name, "params": params, "stderr": honest_stderr(budget),
             "explanation": explanation(s.name, params, facts),

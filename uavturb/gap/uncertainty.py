@@ -74,7 +74,8 @@ def _shifted(data: GapData, dz: float) -> GapData:
 
 
 def error_budget(data: GapData, final: ModelFit, name: str,
-                 can_test: Callable[[GapData], bool] = lambda d: True) -> dict[str, dict[str, float]]:
+                 can_test: Callable[[GapData], bool] = lambda d: True,
+                 height_reference_m: float = HEIGHT_REFERENCE_M) -> dict[str, dict[str, float]]:
     """The terms of the module docstring for each parameter of the effect ``name`` of ``final``.
 
     Parameters
@@ -84,6 +85,7 @@ def error_budget(data: GapData, final: ModelFit, name: str,
     name : a named effect of ``final``
     can_test : whether a recording's own rows can test the effect (a surface effect needs flights
         within its reach)
+    height_reference_m : m, uncertainty of the heights over surfaces (``uavturb gap --height-uncertainty``)
 
     Returns
     -------
@@ -94,8 +96,8 @@ def error_budget(data: GapData, final: ModelFit, name: str,
     effects = final.effects
     budget = {k: {"sample": float(se.get(k, np.nan))} for k in keys}
     if EFFECTS[name].surface is not None:
-        up, down = _refit(_shifted(data, HEIGHT_REFERENCE_M), effects, name), \
-            _refit(_shifted(data, -HEIGHT_REFERENCE_M), effects, name)
+        up, down = _refit(_shifted(data, height_reference_m), effects, name), \
+            _refit(_shifted(data, -height_reference_m), effects, name)
         for k in keys:
             budget[k]["height_reference"] = abs(up[k] - down[k]) / 2 if up and down else float("nan")
     groups = np.unique(data.group)
