@@ -1,4 +1,6 @@
-"""Cheeseman-Bennett ground effect (Cheeseman & Bennett 1955; the paper's eq. "ground effect").
+"""Cheeseman-Bennett ground effect (Cheeseman & Bennett 1955; the paper's eq. "ground effect"), and
+Sanchez-Cuevas et al.'s multirotor law (2017; :func:`multirotor_thrust_ratio`), which adds the images
+of the other rotors and the lift of the body.
 
 Force on the vehicle, vertical, in newtons::
 
