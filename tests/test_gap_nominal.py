@@ -95,7 +95,7 @@ def _ground_flights(mus=(2.0, 2.0), levels=(1.0, 1.0), seconds=40.0, seed=3, noi
 def test_a_thrust_level_between_recordings_does_not_move_mu():
     data = _ground_flights(levels=(1.0, 1.04), tops=(1.4, 1.0))  # the stronger recording flies lower
     pooled = fit_model(data, {"ground_effect"}).nonlinear["ground_effect"]
-    levels = apply_thrust_levels(data, K_T)
+    levels = apply_thrust_levels(data)
     assert levels.differ
     own = fit_model(data, {"ground_effect"}).nonlinear["ground_effect"]
     assert own == pytest.approx(2.0, rel=0.03)

@@ -116,18 +116,11 @@ class Reach:
         return f"hover {where} at several heights below {self.reach_m:.2f} m for a few seconds each"
 
 
-def surface_geometry(data: GapData) -> dict:
-    """What surface laws that use the rotor spacing need (none where the arm length is unknown)."""
-    if not np.isfinite(data.arm_length):
-        return {}
-    return {"arm_length": data.arm_length, "rotor_count": data.rotor_speeds.shape[1]}
-
-
 def surface_reach(data: GapData, name: str) -> Reach:
     """Can the surface law ``name`` be tested on ``data``? (module docstring, point 1)"""
     spec = EFFECTS[name]
     d = data.d_down if spec.surface == "d_down" else data.d_up
-    reach = spec.surface_reach(data.rotor_radius, **surface_geometry(data))
+    reach = spec.surface_reach(data.rotor_radius, **data.geometry)
     near = np.isfinite(d) & (d <= reach)
     dt = float(np.median(np.diff(data.t))) if len(data) > 1 else 0.0
     near_s = float(near.sum()) * dt
@@ -139,12 +132,9 @@ def effect_size(data: GapData, fit: ModelFit, effect: str) -> float:
     """N, the 99th percentile over the samples of the norm of the force ``fit`` gives ``effect``:
     its size where it acts (a ground effect acts near the floor only, a motor lag in thrust steps:
     on the lag flights of the tests its force is 0.004 N at the median, 0.23 N at the 99th percentile)."""
-    zeroed = ModelFit(fit.effects, dict(fit.nonlinear), dict(fit.coef), fit.stderr, fit.rmse)
-    if effect in zeroed.nonlinear:
-        zeroed.nonlinear[effect] = 0.0
-    for i in effect_columns(list(zeroed.coef), effect):
-        zeroed.coef[list(zeroed.coef)[i]] = 0.0
-    force = fit.predict(data) - zeroed.predict(data)
+    without = ModelFit(fit.effects - {effect}, {e: v for e, v in fit.nonlinear.items() if e != effect}, fit.coef,
+                       fit.stderr, fit.rmse)  # its columns gone (a law whose zero still acts included)
+    force = fit.predict(data) - without.predict(data)
     return float(np.percentile(np.linalg.norm(force, axis=1), 99))
 
 

@@ -31,7 +31,6 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from uavturb.gap.nominal import ThrustLevels, anchored_bias, thrust_levels
-from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, lag_rotor_speeds
@@ -89,7 +88,6 @@ class GapData:
     rotor_radius: float
     names: list[str]
     source: str
-    flights: list[FlightData] = field(default_factory=list, repr=False)
     imu: np.ndarray | None = None
     fits_bias: bool = True
     level: np.ndarray | None = None
@@ -98,6 +96,7 @@ class GapData:
     block_of: np.ndarray | None = None
     anchored: dict = field(default_factory=dict, repr=False)
     arm_length: float = float("nan")
+    _S: np.ndarray | None = field(default=None, repr=False)
     _lag_cache: dict = field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
@@ -106,9 +105,15 @@ class GapData:
     @property
     def S(self) -> np.ndarray:
         """(K,) (rad/s)^2, ``sum(w_i^2)`` (computed once: the fits read it thousands of times)."""
-        if "S" not in self._lag_cache:
-            self._lag_cache["S"] = np.sum(self.rotor_speeds**2, axis=1)
-        return self._lag_cache["S"]
+        if self._S is None:
+            self._S = np.sum(self.rotor_speeds**2, axis=1)
+        return self._S
+
+    @property
+    def geometry(self) -> dict:
+        """What surface laws that use the rotor spacing need: ``arm_length`` [m] (nan where unknown: such
+        a law is then nan, and its reach the closed form's) and ``rotor_count``."""
+        return {"arm_length": self.arm_length, "rotor_count": self.rotor_speeds.shape[1]}
 
     @property
     def thrust_level(self) -> np.ndarray:
@@ -143,10 +148,7 @@ class GapData:
                 m = self.group == g
                 out[m] = np.sum(lag_rotor_speeds(self.t[m], self.rotor_speeds[m], tau) ** 2, axis=1)
             if len(self._lag_cache) > 64:
-                S = self._lag_cache.get("S")
                 self._lag_cache.clear()
-                if S is not None:
-                    self._lag_cache["S"] = S
             self._lag_cache[key] = out
         return self._lag_cache[key]
 
@@ -162,7 +164,7 @@ class GapData:
             rows, block_of = self.rows[members], (np.cumsum(mask) - 1)[self.block_of[members]]
         return GapData(self.group[mask], self.t[mask], self.p[mask], self.y[mask], self.R[mask], self.rotor_speeds[mask],
                        self.v[mask], self.d_down[mask], self.d_up[mask], self.mass, self.rotor_radius,
-                       self.names, self.source, self.flights,
+                       self.names, self.source,
                        None if self.imu is None else self.imu[mask], self.fits_bias,
                        None if self.level is None else self.level[mask],
                        self if self.contiguous is None else self.contiguous, rows, block_of, self.anchored,
@@ -282,17 +284,15 @@ def block_means(full: GapData, keep: np.ndarray, n: int) -> GapData:
     data = GapData(group, mean(full.t), mean(full.p), mean(full.y), mean(full.R),
                    np.sqrt(mean(full.rotor_speeds**2)), mean(full.v), np.where(np.isnan(d_down), np.inf, d_down),
                    np.where(np.isnan(d_up), np.inf, d_up), full.mass, full.rotor_radius, full.names, full.source,
-                   full.flights, None if full.imu is None else mean(full.imu) > 0.5, full.fits_bias, None, full, idx,
+                   None if full.imu is None else mean(full.imu) > 0.5, full.fits_bias, None, full, idx,
                    block_of, full.anchored, full.arm_length)
     return data
 
 
-def apply_thrust_levels(data: GapData, k_T_guess: float | None) -> ThrustLevels:
+def apply_thrust_levels(data: GapData) -> ThrustLevels:
     """Measure each recording's thrust level far from surfaces (:func:`uavturb.gap.nominal.thrust_levels`)
     and, where they differ, give each row its recording's level (``data.level``)."""
-    geometry = {} if not np.isfinite(data.arm_length) else {"arm_length": data.arm_length,
-                                                             "rotor_count": data.rotor_speeds.shape[1]}
-    reach = max(e.surface_reach(data.rotor_radius, **geometry) for e in EFFECTS.values() if e.surface)
+    reach = max(e.surface_reach(data.rotor_radius, **data.geometry) for e in EFFECTS.values() if e.surface)
     far = (data.d_down > reach) & (data.d_up > reach)
     y_thrust = np.einsum("ki,ki->k", data.y, data.R[:, :, 2])
     levels = thrust_levels(data.group, data.t, y_thrust, data.S, far, data.names)
@@ -303,20 +303,13 @@ def apply_thrust_levels(data: GapData, k_T_guess: float | None) -> ThrustLevels:
     return levels
 
 
-def surface_ratio(d: np.ndarray, coeff: float, r: float) -> np.ndarray:
-    """``rho/(1-rho)`` with the paper's clip (force ~0 under ``r sqrt(c)/4``)."""
-    g = ge.force_ratio(d, coeff, r)
-    return np.where(np.isfinite(g), g, 0.0)
-
-
 def surface_law_extra(data: GapData, name: str, value: float) -> np.ndarray:
     """(K,) -, the extra thrust per unit thrust, ``T_IGE/T_OGE - 1``, of the surface law ``name`` of the
     registry at its parameter ``value``, at each row's height to its surface (its ``ratio``; 0 where the
     law does not hold, under its pole, as the paper clips the ground effect)."""
     spec = EFFECTS[name]
     d = data.d_down if spec.surface == "d_down" else data.d_up
-    ratio = spec.ratio(d, value, data.rotor_radius, arm_length=data.arm_length,
-                       rotor_count=data.rotor_speeds.shape[1])
+    ratio = spec.ratio(d, value, data.rotor_radius, **data.geometry)
     return np.where(np.isfinite(ratio), ratio - 1.0, 0.0)
 
 

@@ -120,7 +120,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     del fds, contact  # the aligned streams live on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
     if len(data) < 200:
         raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
-    levels = apply_thrust_levels(data, vehicle.thrust_coefficient)
+    levels = apply_thrust_levels(data)
 
     base = _simulator_baseline(data, sim)
     protocol, fm = folds(data)
@@ -283,7 +283,7 @@ def not_pinned(data: GapData, final: ModelFit, name: str) -> str | None:
     params, _ = final.effect_params(name)
     # the statistical terms only: the height reference's uncertainty moves a surface law's parameter
     # but cannot make a lift near the floor that the held-out fit found disappear
-    budget = _budget(data, final, name)
+    budget = _budget(data, final, name, height_uncertainty=0.0)
     se = {k: float(np.nanmax([b["sample"], b.get("between_recordings", np.nan), b.get("between_blocks", np.nan)]))
           for k, b in budget.items()}
     z = max((abs(v) / se[k] if se[k] > 0 else np.inf) for k, v in params.items())

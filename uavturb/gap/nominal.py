@@ -74,6 +74,16 @@ class AnchoredBias:
     n: int
 
 
+def mocap_specific_force(R: np.ndarray, dv: np.ndarray) -> np.ndarray:
+    """(K, 3) m/s^2 in B, the specific force motion capture shows: ``R^T (v_dot + g e_z)``.
+
+    Parameters
+    ----------
+    R : (K, 3, 3) body to world; dv : (K, 3) m/s^2, derivative of the world velocity
+    """
+    return np.einsum("kji,kj->ki", R, dv + np.array([0.0, 0.0, GRAVITY]))
+
+
 def anchored_bias(t: np.ndarray, R: np.ndarray, acc: np.ndarray, dv: np.ndarray, use: np.ndarray) -> AnchoredBias:
     """The accelerometer bias as the mean of ``acc - R^T (dv + g e_z)`` over the rows ``use``.
 
@@ -85,8 +95,7 @@ def anchored_bias(t: np.ndarray, R: np.ndarray, acc: np.ndarray, dv: np.ndarray,
     dv : (K, 3) m/s^2, smoothed derivative of the motion-capture velocity in W
     use : (K,) bool, rows in flight (no ground contact; the filter's edges out)
     """
-    spec_mocap = np.einsum("kji,kj->ki", R, dv + np.array([0.0, 0.0, GRAVITY]))
-    diff = (acc - spec_mocap)[use]
+    diff = (acc - mocap_specific_force(R, dv))[use]
     if len(diff) == 0:
         return AnchoredBias(np.zeros(3), np.full(3, np.inf), 0)
     mean, se = block_mean_and_se(diff, block_labels(t[use]))

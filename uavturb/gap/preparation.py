@@ -20,6 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from uavturb.gap.nominal import mocap_specific_force
 from uavturb.io.recording import Recording, Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.physics.constants import GRAVITY
@@ -45,8 +46,7 @@ def needed_thrust(fd: FlightData, mass: float) -> np.ndarray:
     ``m (R^T (v_dot + g e_z))_z`` (motion capture)."""
     if fd.acc is not None:
         return mass * fd.acc[:, 2]
-    R = quat.to_rotation_matrix(fd.q)
-    return mass * np.einsum("ki,ki->k", R[:, :, 2], fd.dv + np.array([0.0, 0.0, GRAVITY]))
+    return mass * mocap_specific_force(quat.to_rotation_matrix(fd.q), fd.dv)[:, 2]
 
 
 def delay_corrected(rec: Recording, fd: FlightData) -> tuple[Recording, dict[str, Any] | None]:

@@ -630,7 +630,7 @@ def finder_surface_curve(data: GapData, final: ModelFit) -> tuple[dict | None, S
         return None, None, {}
     if not curve.bins:
         return None, curve, {}
-    geometry = {"arm_length": data.arm_length, "rotor_count": data.rotor_speeds.shape[1]}
+    geometry = data.geometry
     fits = {}
     for name, spec in EFFECTS.items():
         if spec.surface == "d_down" and spec.ratio is not None:

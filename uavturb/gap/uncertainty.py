@@ -66,10 +66,8 @@ def _spread(values: list[dict[str, float]], keys: tuple[str, ...], jackknife: bo
 def _shifted(data: GapData, dz: float) -> GapData:
     """``data`` with every surface height moved by ``dz`` [m] (closer to the floor for ``dz < 0``)."""
     out = data.subset(np.ones(len(data), bool))
-    out.y = data.y
     out.d_down = np.maximum(data.d_down + dz, 1e-3)
     out.d_up = np.maximum(data.d_up - dz, 1e-3)
-    out.contiguous, out.rows, out.block_of = data.contiguous, data.rows, data.block_of
     return out
 
 
@@ -95,7 +93,10 @@ def error_budget(data: GapData, final: ModelFit, name: str,
     _, se = final.effect_params(name)
     effects = final.effects
     budget = {k: {"sample": float(se.get(k, np.nan))} for k in keys}
-    if EFFECTS[name].surface is not None:
+    if EFFECTS[name].surface is not None and height_reference_m == 0.0:
+        for k in keys:
+            budget[k]["height_reference"] = 0.0
+    elif EFFECTS[name].surface is not None:
         up, down = _refit(_shifted(data, height_reference_m), effects, name), \
             _refit(_shifted(data, -height_reference_m), effects, name)
         for k in keys:

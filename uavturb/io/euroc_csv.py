@@ -272,6 +272,21 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
     """
     path = Path(path)
     parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    for rows, n in _row_blocks(path, n_cols):
+        t_ns, values = _parse_block(path, rows, n)
+        parts.append((rows.lines, values, t_ns))
+    if not parts:
+        raise InputError(path, f"no data rows (empty {what} file)")
+    lines, values, t_ns = (np.concatenate(p) if len(parts) > 1 else p[0] for p in zip(*parts))
+    del parts
+    _check_times(path, lines, t_ns)
+    return (t_ns, values, lines) if return_lines else (t_ns, values)
+
+
+def _row_blocks(path: Path, n_cols: int | None):
+    """The data rows of ``path`` block by block (:func:`_blocks`), each block checked for its column
+    count (later blocks: as many as the first; at least a timestamp and one value) and the running row
+    count against :data:`MAX_ROWS`: yields ``(rows, n_cols)``."""
     count, expected = 0, n_cols
     with _open(path) as f:
         size = os.fstat(f.fileno()).st_size
@@ -279,19 +294,12 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
             rows = _rows(first_line, block)
             if not len(rows.lines):
                 continue
-            n = expected = _check_columns(path, rows, expected)  # later blocks: as many as the first
+            n = expected = _check_columns(path, rows, expected)
             if n < 2:
                 raise InputError(path, f"expected a timestamp and at least one value per row, found {n} column")
             count += len(rows.lines)
             _check_row_count(path, count, f.tell(), size, n)
-            t_ns, values = _parse_block(path, rows, n)
-            parts.append((rows.lines, values, t_ns))
-    if not parts:
-        raise InputError(path, f"no data rows (empty {what} file)")
-    lines, values, t_ns = (np.concatenate(p) if len(parts) > 1 else p[0] for p in zip(*parts))
-    del parts
-    _check_times(path, lines, t_ns)
-    return (t_ns, values, lines) if return_lines else (t_ns, values)
+            yield rows, n
 
 
 def read_frame_list(path: str | Path) -> tuple[np.ndarray, list[str]]:
@@ -306,27 +314,20 @@ def read_frame_list(path: str | Path) -> tuple[np.ndarray, list[str]]:
     stamps: list[int] = []
     files: list[str] = []
     all_lines: list[np.ndarray] = []
-    with _open(path) as f:
-        size = os.fstat(f.fileno()).st_size
-        for first_line, block in _blocks(path, f):
-            rows = _rows(first_line, block)
-            if not len(rows.lines):
-                continue
-            _check_columns(path, rows, 2)
-            _check_row_count(path, len(stamps) + len(rows.lines), f.tell(), size, 2)
-            all_lines.append(rows.lines)
-            for line, raw in zip(rows.lines.tolist(), rows.body.split(b"\n")):
-                stamp, name = (x.strip() for x in raw.decode("utf-8", errors="replace").split(","))
-                try:
-                    if "_" in stamp:
-                        raise ValueError(stamp)
-                    stamps.append(int(stamp))
-                except ValueError:
-                    raise InputError(path, f"line {line}, column 1: expected a timestamp (integer nanoseconds), "
-                                           f"found {stamp[:60]!r}") from None
-                if not name:
-                    raise InputError(path, f"line {line}, column 2: empty file name")
-                files.append(name)
+    for rows, _ in _row_blocks(path, 2):
+        all_lines.append(rows.lines)
+        for line, raw in zip(rows.lines.tolist(), rows.body.split(b"\n")):
+            stamp, name = (x.strip() for x in raw.decode("utf-8", errors="replace").split(","))
+            try:
+                if "_" in stamp:
+                    raise ValueError(stamp)
+                stamps.append(int(stamp))
+            except ValueError:
+                raise InputError(path, f"line {line}, column 1: expected a timestamp (integer nanoseconds), "
+                                       f"found {stamp[:60]!r}") from None
+            if not name:
+                raise InputError(path, f"line {line}, column 2: empty file name")
+            files.append(name)
     if not files:
         raise InputError(path, "no data rows (empty camera frame list file)")
     try:

@@ -330,16 +330,13 @@ class EffectSpec:
         """m, the height under which this surface law, at the top of its physical range, adds at
         least ``share`` of the thrust: flights that never come closer cannot decide it.
 
-        Cheeseman-Bennett shapes (ground, ceiling) in closed form; any other law by bisection on its
-        ``ratio`` with ``geometry`` (``arm_length``, ``rotor_count``; the closed form where the law
-        cannot be evaluated without them)."""
+        By bisection on the law's ``ratio`` with ``geometry`` (``arm_length``, ``rotor_count``); the
+        Cheeseman-Bennett closed form without them, or where the law cannot be evaluated (arm unknown)."""
         if self.surface is None:
             return float("inf")
         rho = share / (1.0 + share)  # rho/(1-rho) = share
         closed = rotor_radius / 4.0 * float(np.sqrt(self.physical_range.hi / rho))
-        if self.ratio is None or self.ratio.__name__ == "_cheeseman_bennett_ratio":
-            return closed
-        if not geometry:
+        if self.ratio is None or not geometry:
             return closed
         lo, hi = np.log(rotor_radius / 4.0), np.log(1000.0 * rotor_radius)
 
