@@ -342,13 +342,28 @@ def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tup
 def dependent_columns(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tuple[np.ndarray, list[str]]:
     """The columns of :func:`design` that depend on ``mu``, ``kappa``, ``tau``: thrust with the
     surface effects (``k_T``) and, with ``battery_sag``, its decay (``k_T*s``). ``(3K, 1 or 2)``."""
-    K = len(data)
-    zb = data.R[:, :, 2]
-    S = (lagged_S(data, nonlinear["tau"]) if "motor_lag" in effects else data.S) * data.thrust_level
-    surf = np.zeros(K)
+    return thrust_columns(data, effects, effective_S(data, effects, nonlinear), surface_extra(data, effects, nonlinear))
+
+
+def effective_S(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> np.ndarray:
+    """(K,) (rad/s)^2, ``sum(w^2)`` the thrust sees: lagged by ``tau`` with ``motor_lag``, times each row's
+    thrust level."""
+    S = lagged_S(data, nonlinear["tau"]) if "motor_lag" in effects else data.S
+    return S * data.thrust_level
+
+
+def surface_extra(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> np.ndarray:
+    """(K,) -, the extra thrust per unit thrust of every surface law in ``effects`` at its parameter."""
+    surf = np.zeros(len(data))
     for name in sorted(effects):
         if EFFECTS[name].surface is not None:
             surf += surface_law_extra(data, name, nonlinear[EFFECTS[name].params[0]])
+    return surf
+
+
+def thrust_columns(data: GapData, effects: set[str], S: np.ndarray, surf: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """:func:`dependent_columns` from the effective ``S`` (K,) and the surface laws' ``surf`` (K,)."""
+    zb = data.R[:, :, 2]
     thrust = S[:, None] * zb
     thrust[:, 2] += S * surf
     cols, names = [thrust], ["k_T"]
