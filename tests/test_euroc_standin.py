@@ -17,8 +17,9 @@ from uavturb.io import sensor_yaml  # noqa: E402
 from uavturb.io.reader import read_recording  # noqa: E402
 from uavturb.io.vehicle_file import SHIPPED_DIR, load_vehicle  # noqa: E402
 from uavturb.physics import quaternion as quat  # noqa: E402
-from uavturb.sim import cameras, euroc_standin  # noqa: E402
-from uavturb.sim.references import EUROC_ROOM  # noqa: E402
+from uavturb.sim.core import cameras  # noqa: E402
+from uavturb.sim.flights import euroc_standin  # noqa: E402
+from uavturb.sim.flights.plans import EUROC_ROOM  # noqa: E402
 
 #: EuRoC MAV dataset, mav0/cam0/sensor.yaml (every sequence): the numbers as published
 EUROC_INTRINSICS = [458.654, 457.296, 367.215, 248.375]
@@ -102,7 +103,7 @@ def test_render_through_cam0_matches_a_ray_cast_on_a_flat_floor(width, height):
     """The body hovers level 1.2 m up; cam0 (0.13 m lower, 19.4 deg down) sees the floor: the depth at
     the principal point (1/z interpolated, exact for a plane) is the ray cast's, and every pixel is."""
     from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.render import SceneRenderer
+    from uavturb.sim.core.render import SceneRenderer
 
     floor = trimesh.creation.box(extents=(60.0, 60.0, 0.1))
     floor.apply_translation((0.0, 0.0, -0.05))
@@ -132,7 +133,7 @@ def test_forward_camera_through_intrinsics_equals_the_fov_camera():
     """The renderer's calibrated-camera path, given the forward camera's own K, renders what its
     field-of-view path renders (so the two conventions for the principal point agree)."""
     from uavturb.scene import procedural
-    from uavturb.sim.render import SceneRenderer, random_poses
+    from uavturb.sim.core.render import SceneRenderer, random_poses
 
     scene = procedural.generate_scene(3)
     poses = random_poses(scene, 4, seed=1)
@@ -152,7 +153,7 @@ def test_forward_camera_through_intrinsics_equals_the_fov_camera():
 def test_stand_in_height_profile(seed, duration):
     """Take-off from the floor, 0.5-2 m over the surface below between take-off and landing (some of it
     over furniture), landing on the floor; 2-8 s below 0.3 m in all, at most 4 s at each end."""
-    from uavturb.sim.flight import make_reference
+    from uavturb.sim.flights.simulate import make_reference
 
     ref = make_reference("euroc_room", duration, seed, _firefly())
     assert ref.duration == pytest.approx(duration)
@@ -174,7 +175,7 @@ def test_stand_in_height_profile(seed, duration):
 
 
 def test_stand_in_needs_time_and_a_flyable_vehicle():
-    from uavturb.sim.flight import make_reference
+    from uavturb.sim.flights.simulate import make_reference
 
     with pytest.raises(InputError, match="--duration: a euroc_room flight needs at least 2[0-9] s"):
         make_reference("euroc_room", 15.0, 0, _firefly())
@@ -235,8 +236,8 @@ def test_evaluate_projects_through_cam0(flight):
     from uavturb.io import align
     from uavturb.io.body_frame import to_body
     from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.flight import room_mesh
-    from uavturb.sim.render import SceneRenderer
+    from uavturb.sim.flights.simulate import room_mesh
+    from uavturb.sim.core.render import SceneRenderer
 
     rec = read_recording(flight)
     seq = recording_sequence(rec, rec.vehicle, image_size=32)
@@ -285,9 +286,9 @@ HASHES = {"tiny": ("328da3ba72d27e99", "3aeff8a2495cf0c7", "60e0002d24fd9451"),
 
 def test_existing_presets_keep_their_config_hashes():
     from uavturb.io import shards
-    from uavturb.sim.dataset import dataset_config
-    from uavturb.sim.presets import get_preset
-    from uavturb.sim.pretraining import pairs_config
+    from uavturb.sim.dataset.generation import dataset_config
+    from uavturb.sim.dataset.presets import get_preset
+    from uavturb.sim.dataset.pretraining_pairs import pairs_config
 
     for name, (mpc, geometric, pairs) in HASHES.items():
         p = get_preset(name)
@@ -305,9 +306,9 @@ def test_sim_shards_through_cam0(tmp_path):
     """``generate sim --set camera=euroc_cam0``: cam0's intrinsics at the preset's 24 px, its mount on the
     body, and landed heights raised to 0.16 m so the camera stays over the floor."""
     from uavturb.io import shards
-    from uavturb.sim import dataset
+    from uavturb.sim.dataset import generation
 
-    m = dataset.generate_sim("tiny", tmp_path / "eu", seed=0, progress=False, camera="euroc_cam0", width=24,
+    m = generation.generate_sim("tiny", tmp_path / "eu", seed=0, progress=False, camera="euroc_cam0", width=24,
                              height=24, controller="geometric")
     assert m.config["preset"]["camera"] == "euroc_cam0"
     folder = m.folders("train")[0]
@@ -318,7 +319,7 @@ def test_sim_shards_through_cam0(tmp_path):
     assert tr.depth.shape[1:] == (24, 24) and tr.d.min() > 0.15 and abs(tr.d[0] - 0.16) < 0.01
     from uavturb.scene.procedural import generate_scene
     from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.render import SceneRenderer
+    from uavturb.sim.core.render import SceneRenderer
 
     with SceneRenderer(generate_scene(meta["scene_seed"]), 24, 24, K=cameras.EUROC_CAM0.K(24, 24)) as r:
         k = len(tr.t) // 2

@@ -9,8 +9,9 @@ import pytest
 
 from uavturb.gap.finder import analyse
 from uavturb.io.reader import read_recording
-from uavturb.sim.flight import SensorNoise, generate_flight
-from uavturb.sim.references import Room
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import generate_flight
+from uavturb.sim.flights.plans import Room
 
 #: accelerometer bias [m/s^2] in B that the state file does not know (its b_a columns are zero)
 HIDDEN_BIAS = (0.15, -0.10, 0.05)
@@ -173,7 +174,7 @@ def test_force_outside_the_vocabulary_is_unexplained_not_named(tmp_path):
 def wind_tunnel(tmp_path_factory):
     """Two MoCap-only 50 Hz flights at a fixed heading in a 4 m/s wind that acts on the airspeed
     (rotor drag k_d = 8.06e-5 and body drag c_d = 0.05 on v - v_wind), with their truth."""
-    from uavturb.sim.conditions import Conditions, generate_conditioned_flight, read_truth
+    from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight, read_truth
 
     root = tmp_path_factory.mktemp("windtunnel")
     cond = Conditions(no_imu=True, rate_hz=50, jitter_ms=2.0, fixed_heading=True, wind_speed=(-4.0, 0.0))

@@ -9,15 +9,11 @@ from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import dynamics_for, physical_params
 from uavturb.physics.effects import lag_rotor_speeds, parse_effects
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
-from uavturb.sim.controller import GeometricController
-from uavturb.sim.flight import (
-    EUROC_T0_NS,
-    SensorNoise,
-    generate_flight,
-    make_reference,
-    simulate_flight,
-)
-from uavturb.sim.references import Room, excitation, hover, low_passes, mixed
+from uavturb.sim.core.controller import GeometricController
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import EUROC_T0_NS, generate_flight, make_reference, simulate_flight
+from uavturb.sim.core.signals import hover
+from uavturb.sim.flights.plans import excitation, low_passes, mixed, Room
 
 E_Z = np.array([0.0, 0.0, 1.0])
 

@@ -7,7 +7,7 @@ under the body origin), and the ground-effect force is the physics core's law
 ``f_a = phi(d, k_T sum Omega^2, mu, r)`` (:func:`uavturb.physics.ground_effect.phi`) with the
 paper's simulated quadrotor (``k_T = 5.45e-6``, ``r = 0.01 m``) and ``mu = 2``.
 
-Frames and conventions are those of the simulator (:mod:`uavturb.sim.render`): world z up;
+Frames and conventions are those of the simulator (:mod:`uavturb.sim.core.render`): world z up;
 the camera's optical frame has x right, y down, z forward; it looks along body +x, pitched
 down by ``pitch_deg``; pixel ``(i, j)`` has the ray ``((j - (W-1)/2) / f, (i - (H-1)/2) / f, 1)``
 with ``f = (H/2) / tan(yfov/2)`` (:func:`pixel_rays`), so a ray parameter is the z-depth.

@@ -75,7 +75,7 @@ class BoxHeights:
     :func:`box_heights`, bit for bit).
 
     Many positions at once go through :func:`box_heights` over all boxes. One position at a
-    time (the closed loop of :mod:`uavturb.sim.closed_loop`) looks at the boxes binned on a
+    time (the closed loop of :mod:`uavturb.sim.core.closed_loop`) looks at the boxes binned on a
     ``cell`` [m] grid in x, y over its cell only (a box is in every cell its footprint touches,
     so no box over the position is missed); one pass answers both heights, so ``d_up`` right
     after ``d_down`` of the same position is a cache hit.
