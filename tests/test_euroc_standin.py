@@ -19,6 +19,8 @@ from uavturb.io.vehicle_file import SHIPPED_DIR, load_vehicle  # noqa: E402
 from uavturb.physics import quaternion as quat  # noqa: E402
 from uavturb.sim.core import cameras  # noqa: E402
 from uavturb.sim.flights import euroc_standin  # noqa: E402
+from uavturb.scene.layouts import floor_boxes, room_size  # noqa: E402
+from uavturb.scene.queries import surface_below  # noqa: E402
 from uavturb.sim.flights.plans import EUROC_ROOM  # noqa: E402
 
 #: EuRoC MAV dataset, mav0/cam0/sensor.yaml (every sequence): the numbers as published
@@ -159,7 +161,7 @@ def test_stand_in_height_profile(seed, duration):
     assert ref.duration == pytest.approx(duration)
     t = np.arange(0.0, duration + 1e-9, 0.005)
     sp = ref(t)
-    surface = EUROC_ROOM.surface_below(sp.p[:, 0], sp.p[:, 1])
+    surface = surface_below(EUROC_ROOM, sp.p[:, :2])
     d = sp.p[:, 2] - surface
     assert surface[0] == surface[-1] == 0.0  # starts and ends on the floor, at rest
     assert d[0] == d[-1] == pytest.approx(0.16) and np.all(np.abs(sp.v[[0, -1]]) < 1e-12)
@@ -171,7 +173,7 @@ def test_stand_in_height_profile(seed, duration):
     assert cruise.min() >= 0.5 - 1e-9 and cruise.max() <= 2.0 + 1e-9
     assert np.mean(surface[up:down + 1] > 0) > 0.05  # over furniture for a while
     assert t[down] - t[up] > 0.6 * duration
-    assert np.all(np.abs(sp.p[:, :2]) < np.array(EUROC_ROOM.size) / 2 - 0.5)
+    assert np.all(np.abs(sp.p[:, :2]) < np.array(room_size(EUROC_ROOM)) / 2 - 0.5)
 
 
 def test_stand_in_needs_time_and_a_flyable_vehicle():
@@ -208,8 +210,8 @@ def test_flight_is_written_like_euroc(flight):
     assert truth["stand_in"]["landed_height_m"] == 0.16 and len(truth["stand_in"]["room"]["boxes"]) == 4
     from uavturb.scene.heights import SurfaceIndex
 
-    centres = np.array([[(b[0] + b[1]) / 2, (b[2] + b[3]) / 2, 2.0] for b in EUROC_ROOM.boxes])
-    tops = np.array([b[4] for b in EUROC_ROOM.boxes])  # 0.75 (table), 0.45, 0.2, 0.6
+    centres = np.array([[(b[0] + b[1]) / 2, (b[2] + b[3]) / 2, 2.0] for b in floor_boxes(EUROC_ROOM)])
+    tops = np.array([b[4] for b in floor_boxes(EUROC_ROOM)])  # 0.75 (table), 0.45, 0.2, 0.6
     assert np.allclose(SurfaceIndex(rec.points).d_down(centres), 2.0 - tops, atol=0.02)  # the cloud has the furniture
     assert np.allclose(SurfaceIndex(rec.points).d_up(centres), 3.2 - 2.0, atol=0.02)  # and the 3.2 m ceiling
 
@@ -236,7 +238,6 @@ def test_evaluate_projects_through_cam0(flight):
     from uavturb.io import align
     from uavturb.io.body_frame import to_body
     from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.flights.simulate import room_mesh
     from uavturb.sim.core.render import SceneRenderer
 
     rec = read_recording(flight)
@@ -250,7 +251,7 @@ def test_evaluate_projects_through_cam0(flight):
     T_WC = camera_pose_world(align.interpolate_quaternions(gt.t_ns, gt.q, t_ns), align.interpolate(gt.t_ns, gt.p, t_ns),
                              seq.camera.T_BS)
     errors = []
-    with SceneRenderer(room_mesh(EUROC_ROOM), 32, 32, K=seq.camera.K) as r:
+    with SceneRenderer(EUROC_ROOM.mesh, 32, 32, K=seq.camera.K) as r:
         for k, T in zip(frames, T_WC):
             ref, got = r.depth(T), seq.depth[k]
             ok = (ref > 0) & (got > 0)

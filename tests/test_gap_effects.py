@@ -11,7 +11,8 @@ from uavturb.gap.finder import analyse
 from uavturb.io.reader import read_recording
 from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import generate_flight
-from uavturb.sim.flights.plans import Room
+from uavturb.scene.layouts import table_room
+from uavturb.sim.flights.plans import TABLE_ROOM
 
 #: accelerometer bias [m/s^2] in B that the state file does not know (its b_a columns are zero)
 HIDDEN_BIAS = (0.15, -0.10, 0.05)
@@ -34,7 +35,7 @@ def _scale_vehicle_kT(path, factor):
     yml.write_text(new)
 
 
-def _flight(root, name, effects, seed, *, duration=45.0, noise=None, room=Room()):
+def _flight(root, name, effects, seed, *, duration=45.0, noise=None, room=TABLE_ROOM):
     path = root / name
     generate_flight(vehicle="hex", effects=effects, duration=duration, kind="mixed", seed=seed, out=path,
                     noise=noise, room=room)
@@ -118,7 +119,7 @@ def test_single_effect_named_and_fitted(tmp_path, name, spec, truth):
 
 @pytest.mark.slow
 def test_ceiling_effect_named_under_a_low_ceiling(tmp_path):
-    room = Room(ceiling=1.8)  # the mixed flight's hovers at 1.25 m pass 0.3-0.8 m under it
+    room = table_room(ceiling=1.8)  # the mixed flight's hovers at 1.25 m pass 0.3-0.8 m under it
     paths = [_flight(tmp_path, f"c{k}", "ceiling_effect:kappa=2.0", 41 + k, room=room) for k in range(2)]
     report, named = _named(paths)
     assert list(named) == ["ceiling_effect"]

@@ -95,7 +95,7 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
     Parameters
     ----------
     scene : Scene
-    vehicle : Vehicle or preset name (``quad``: the paper's 50 g drone; ``hex``)
+    vehicle : Vehicle or built-in vehicle (``quad``: the paper's 50 g drone; ``hex``)
     seed : fixes the plan (the flight itself is deterministic)
     controller : ``"mpc"`` or ``"geometric"``
     camera_rate : Hz, sample rate of the output (camera frames)

@@ -6,6 +6,10 @@ vehicle, the effects and the simulator's time steps. Its fields are the dataset 
 stored (with its hash) in ``manifest.json``; two runs with the same preset, overrides and
 seed write identical arrays.
 
+"Preset" means this one thing: a named simulated dataset, the value of ``--preset`` (stored under
+the key ``preset`` of every manifest's config, so part of its hash). Vehicles are built-in
+(``quad``, ``hex``) or shipped (``firefly``), never presets.
+
 =========  ======  =========  ============  ==========  ===========  ============
 preset     scenes  split      trajectories  samples     image        pairs
 =========  ======  =========  ============  ==========  ===========  ============

@@ -592,7 +592,7 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
 
     Parameters
     ----------
-    vehicle : preset name, ``vehicle.yaml`` path or Vehicle (the simulated, true vehicle; the shipped
+    vehicle : built-in vehicle (``hex``, ``quad``), ``vehicle.yaml`` path or Vehicle (the simulated, true vehicle; the shipped
         ``firefly`` flies with RotorS's constants, :func:`uavturb.sim.flights.euroc_standin.flyable`)
     effects : ``"wind:f_x=0.5,rotor_drag"`` or the parsed dict (``effects.md``)
     duration : s; kind : flight kind (:data:`uavturb.sim.flights.simulate.KINDS`; ``euroc_room`` adds EuRoC's

@@ -20,7 +20,7 @@ the flights of the paper's Table 2:
 - **the point cloud**: the room's mesh sampled every 3 cm (``pointcloud0``, as every simulated flight).
 
 The shipped ``firefly`` vehicle file has no thrust or moment coefficient (EuRoC does not publish
-them); :func:`flyable` flies it with RotorS's Firefly constants (those of the ``hex`` preset), which
+them); :func:`flyable` flies it with RotorS's Firefly constants (those of the built-in ``hex``), which
 ``vehicle.yaml`` and ``truth.yaml`` then hold.
 """
 
@@ -34,7 +34,10 @@ from uavturb.errors import InputError
 from uavturb.io.recording import Recording
 from uavturb.io.vehicle_file import SHIPPED_DIR, load_vehicle
 from uavturb.physics.vehicle import HEXAROTOR, Vehicle
+from uavturb.scene.indoor import Scene
+from uavturb.scene.layouts import floor_boxes, room_size
 from uavturb.sim.core.cameras import EUROC_CAM0, least_body_height
+from uavturb.sim.core.signals import Reference
 from uavturb.sim.flights.plans import EUROC_ROOM, euroc_room
 
 #: the flight kind (``uavturb generate flight --kind euroc_room``)
@@ -46,7 +49,7 @@ def landed_height() -> float:
     return round(least_body_height(EUROC_CAM0.name), 3)
 
 
-def reference(duration: float, seed: int, max_yaw_acc: float = 0.5, room=None):
+def reference(duration: float, seed: int, max_yaw_acc: float = 0.5, room: Scene | None = None) -> Reference:
     """The flight plan: :func:`~uavturb.sim.flights.plans.euroc_room` in ``room`` (default
     :data:`~uavturb.sim.flights.plans.EUROC_ROOM`), landed at :func:`landed_height`; ``max_yaw_acc`` rad/s^2."""
     return euroc_room(duration, seed, room=EUROC_ROOM if room is None else room, rest_height=landed_height(),
@@ -64,7 +67,7 @@ def flyable(vehicle: Vehicle) -> Vehicle:
     """``vehicle`` with the constants a simulation needs.
 
     A vehicle with the Firefly's rotor geometry and no thrust or moment coefficient (the shipped
-    ``firefly`` file) gets RotorS's Firefly constants (``hex`` preset: ``k_T`` 8.54858e-6
+    ``firefly`` file) gets RotorS's Firefly constants (the built-in ``hex``: ``k_T`` 8.54858e-6
     N/(rad/s)^2, ``k_M`` 0.016 ``k_T``, top speed 838 rad/s); any other incomplete vehicle is an error.
     """
     if vehicle.thrust_coefficient is not None and vehicle.moment_coefficient is not None:
@@ -92,5 +95,5 @@ def with_cam0(rec: Recording) -> Recording:
 def truth_entry() -> dict:
     """What ``truth.yaml`` says of the stand-in (camera, room, landed height)."""
     return {"cam0": EUROC_CAM0.name, "cam0_source": EUROC_CAM0.source, "landed_height_m": landed_height(),
-            "room": {"size_m": list(EUROC_ROOM.size), "ceiling_m": EUROC_ROOM.ceiling,
-                     "boxes": [list(b) for b in EUROC_ROOM.boxes]}}
+            "room": {"size_m": list(room_size(EUROC_ROOM)), "ceiling_m": float(EUROC_ROOM.ceiling_height),
+                     "boxes": [list(b) for b in floor_boxes(EUROC_ROOM)]}}

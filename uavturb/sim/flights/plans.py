@@ -10,9 +10,10 @@ they are planned in:
   the floor, flight 0.5-2 m over the floor and the furniture of :data:`EUROC_ROOM`, landing
   (:mod:`uavturb.sim.flights.euroc_standin` makes the rest of the stand-in).
 
-The scene they are planned in is a :class:`Room` (floor at ``z = 0``, a ceiling, one
-table, optionally more furniture), the same one :mod:`uavturb.sim.flights.simulate` turns into a
-point cloud. Moves are :class:`~uavturb.sim.core.waypoint_plan.WaypointPlan` moves, routed over
+The scene they are planned in is a :func:`~uavturb.scene.layouts.table_room` (floor at ``z = 0``,
+a ceiling, one table, optionally more furniture; :data:`TABLE_ROOM` by default), the scene whose
+mesh :mod:`uavturb.sim.flights.simulate` turns into a point cloud; heights of the surface below
+come from :func:`uavturb.scene.queries.surface_below`. Moves are :class:`~uavturb.sim.core.waypoint_plan.WaypointPlan` moves, routed over
 the table (:class:`TableRouter`), never through it.
 """
 
@@ -20,75 +21,43 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.physics.constants import GRAVITY
+from uavturb.scene.indoor import Furniture, Scene
+from uavturb.scene.layouts import euroc_vicon_room, floor_boxes, room_size, table_room
+from uavturb.scene.queries import surface_below
 from uavturb.sim.core.signals import Constant, Envelope, Reference, Signal, Sines
 from uavturb.sim.core.waypoint_plan import WaypointPlan
 
 # --- the room ------------------------------------------------------------------------
 
+#: the room of ``low_passes`` and ``mixed`` flights: 8 x 6 m, 2.6 m high, one table (:func:`table_room`)
+TABLE_ROOM = table_room()
 
-@dataclass(frozen=True)
-class Room:
-    """A rectangular room with one table, centred on the world origin.
-
-    Attributes
-    ----------
-    size : (2,) m, room extent along world x and y (the room spans ``±size/2``)
-    ceiling : float, m, height of the ceiling over the floor (floor at ``z = 0``)
-    table_center : (2,) m, table centre in world x, y
-    table_size : (2,) m, table extent along world x and y
-    table_height : float, m, height of the table top over the floor
-    furniture : further boxes standing on the floor, each ``(x_min, x_max, y_min, y_max, height)`` [m]
-    """
-
-    size: tuple[float, float] = (8.0, 6.0)
-    ceiling: float = 2.6
-    table_center: tuple[float, float] = (1.8, 0.9)
-    table_size: tuple[float, float] = (1.2, 0.8)
-    table_height: float = 0.75
-    furniture: tuple[tuple[float, float, float, float, float], ...] = ()
-
-    @property
-    def boxes(self) -> tuple[tuple[float, float, float, float, float], ...]:
-        """Every box on the floor, the table first: ``(x_min, x_max, y_min, y_max, height)`` [m]."""
-        return ((*self.table_bounds, self.table_height), *(tuple(float(v) for v in b) for b in self.furniture))
-
-    @property
-    def table_bounds(self) -> tuple[float, float, float, float]:
-        """``(x_min, x_max, y_min, y_max)`` [m] of the table top."""
-        cx, cy = self.table_center
-        hx, hy = self.table_size[0] / 2, self.table_size[1] / 2
-        return cx - hx, cx + hx, cy - hy, cy + hy
-
-    def over_table(self, x: np.ndarray, y: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """Whether world points ``(x, y)`` [m] lie over the table top grown by ``margin`` [m]."""
-        x0, x1, y0, y1 = self.table_bounds
-        x, y = np.asarray(x, float), np.asarray(y, float)
-        return (x >= x0 - margin) & (x <= x1 + margin) & (y >= y0 - margin) & (y <= y1 + margin)
-
-    def surface_below(self, x: np.ndarray, y: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """Height [m] of the surface under world points ``(x, y)``: the highest box top (the table's
-        or another piece of furniture's, each grown by ``margin`` [m]) or the floor."""
-        out = np.where(self.over_table(x, y, margin), self.table_height, 0.0)
-        x, y = np.asarray(x, float), np.asarray(y, float)
-        for x0, x1, y0, y1, h in self.furniture:
-            inside = (x >= x0 - margin) & (x <= x1 + margin) & (y >= y0 - margin) & (y <= y1 + margin)
-            out = np.maximum(out, np.where(inside, float(h), 0.0))
-        return out
+#: the stand-in for EuRoC's Vicon room, the room of ``euroc_room`` flights (:func:`euroc_vicon_room`)
+EUROC_ROOM = euroc_vicon_room()
 
 
+def _table(room: Scene) -> Furniture:
+    """The table of a :func:`table_room` (its first furniture)."""
+    return room.furniture[0]
 
-#: A stand-in for EuRoC's Vicon room (V1_01_easy, V1_02_medium): a motion-capture room with a table and
-#: a few boxes and mats on the floor. Not a scan; sizes and layout are ours.
-EUROC_ROOM = Room(size=(8.0, 7.0), ceiling=3.2, table_center=(1.5, 1.0), table_size=(1.2, 0.8), table_height=0.75,
-                  furniture=((-2.2, -1.6, 0.8, 1.6, 0.45),  # a stack of boxes
-                             (-1.6, 0.2, -2.2, -1.2, 0.2),  # foam mats
-                             (1.0, 1.6, -2.4, -1.6, 0.6)))  # a crate
+
+def table_bounds(room: Scene) -> tuple[float, float, float, float]:
+    """``(x_min, x_max, y_min, y_max)`` [m] of the table top of a :func:`table_room`."""
+    t = _table(room)
+    return float(t.lo[0]), float(t.hi[0]), float(t.lo[1]), float(t.hi[1])
+
+
+def over_table(room: Scene, x: np.ndarray, y: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    """Whether world points ``(x, y)`` [m] lie over the table top of a :func:`table_room` grown by
+    ``margin`` [m]."""
+    x0, x1, y0, y1 = table_bounds(room)
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    return (x >= x0 - margin) & (x <= x1 + margin) & (y >= y0 - margin) & (y <= y1 + margin)
 
 
 # --- excitation ----------------------------------------------------------------------
@@ -121,7 +90,7 @@ def excitation(duration: float = 60.0, seed: int = 0, *, center: tuple[float, fl
     in roll and pitch by about ``tilt_excitation`` [rad] while the yaw turns, so that the gyroscopic products
     ``w_y w_z``, ``w_x w_z`` are excited. The yaw is a slow sweep (amplitude up to several rad)
     plus two faster sines, under ``max_yaw_rate`` and ``max_yaw_acc`` (a hexarotor's yaw
-    authority is small: about 0.7 rad/s^2 for the Firefly-like preset).
+    authority is small: about 0.7 rad/s^2 for the Firefly-like built-in ``hex``).
 
     Parameters
     ----------
@@ -179,20 +148,20 @@ def excitation(duration: float = 60.0, seed: int = 0, *, center: tuple[float, fl
 
 
 class TableRouter:
-    """Moves a :class:`WaypointPlan` between points of a :class:`Room` without flying through the table."""
+    """Moves a :class:`WaypointPlan` between points of a :func:`table_room` without flying through the table."""
 
-    def __init__(self, plan: WaypointPlan, room: Room, clearance: float = 0.1, margin: float = 0.15):
+    def __init__(self, plan: WaypointPlan, room: Scene, clearance: float = 0.1, margin: float = 0.15):
         self.plan, self.room, self.clearance, self.margin = plan, room, clearance, margin
 
     def _crosses_table(self, a: np.ndarray, b: np.ndarray) -> bool:
         s = np.linspace(0.0, 1.0, 41)[:, None]
         pts = a[None, :2] * (1 - s) + b[None, :2] * s
-        return bool(np.any(self.room.over_table(pts[:, 0], pts[:, 1], self.margin)))
+        return bool(np.any(over_table(self.room, pts[:, 0], pts[:, 1], self.margin)))
 
     def go(self, p: np.ndarray, yaw: float | None = None, speed: float | None = None, phase: str | None = None) -> None:
         p = np.asarray(p, float)
         a = self.plan.p
-        safe = self.room.table_height + self.clearance
+        safe = _table(self.room).surface + self.clearance
         if self._crosses_table(a, p) and (a[2] < safe or p[2] < safe):
             z = max(a[2], p[2], safe + 0.1)
             if a[2] < z - 1e-9:
@@ -210,19 +179,19 @@ def _height(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def _floor_point(rng: np.random.Generator, room: Room, keep_out: float = 0.5, wall: float = 1.0) -> np.ndarray:
+def _floor_point(rng: np.random.Generator, room: Scene, keep_out: float = 0.5, wall: float = 1.0) -> np.ndarray:
     """A random floor point [m] (x, y) at least ``keep_out`` from the table and ``wall`` from the walls."""
-    hx, hy = room.size[0] / 2 - wall, room.size[1] / 2 - wall
+    hx, hy = room_size(room)[0] / 2 - wall, room_size(room)[1] / 2 - wall
     for _ in range(1000):
         xy = rng.uniform([-hx, -hy], [hx, hy])
-        if not room.over_table(xy[0], xy[1], keep_out):
+        if not over_table(room, xy[0], xy[1], keep_out):
             return xy
     raise InputError("reference", "the room has no free floor away from the table")
 
 
-def _table_point(rng: np.random.Generator, room: Room, inset: float = 0.2) -> np.ndarray:
+def _table_point(rng: np.random.Generator, room: Scene, inset: float = 0.2) -> np.ndarray:
     """A random point (x, y) [m] over the table top, ``inset`` inside its edges."""
-    x0, x1, y0, y1 = room.table_bounds
+    x0, x1, y0, y1 = table_bounds(room)
     return rng.uniform([x0 + inset, y0 + inset], [x1 - inset, y1 - inset])
 
 
@@ -230,9 +199,9 @@ def _low_pass_maneuvers(router: TableRouter, rng: np.random.Generator, until: fl
                         table_heights: tuple[float, float], pass_speed: float, hold: tuple[float, float]) -> None:
     """Append random low hovers (floor, table top) and table-edge passes until ``until`` [s]."""
     plan, room = router.plan, router.room
-    top = room.table_height
-    x0, x1, y0, y1 = room.table_bounds
-    cx, cy = room.table_center
+    top = _table(room).surface
+    x0, x1, y0, y1 = table_bounds(room)
+    cx, cy = (float(v) for v in _table(room).centre[:2])
     kinds = ["floor", "table", "edge_x", "edge_y"]
     queue = list(rng.permutation(kinds))
     misses = 0
@@ -286,14 +255,14 @@ def _landing_time(plan: WaypointPlan, rest_height: float) -> float:
 
 def _land(router: TableRouter, rng: np.random.Generator, rest_height: float) -> None:
     plan = router.plan
-    xy = plan.p[:2] if not router.room.over_table(*plan.p[:2], 0.3) else _floor_point(rng, router.room)
+    xy = plan.p[:2] if not over_table(router.room, *plan.p[:2], 0.3) else _floor_point(rng, router.room)
     router.go((xy[0], xy[1], 0.3))
     plan.hold(1.5, "hover_floor")
     plan.move((xy[0], xy[1], rest_height), speed=0.3, phase="landing")
     plan.hold(1.0, "rest")
 
 
-def low_passes(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_height: float = 0.06,
+def low_passes(duration: float = 60.0, seed: int = 0, *, room: Scene = TABLE_ROOM, rest_height: float = 0.06,
                start: tuple[float, float] | None = None, yaw0: float | None = None,
                floor_heights: tuple[float, float] = (0.1, 0.5), table_heights: tuple[float, float] = (0.1, 0.5),
                pass_speed: float = 0.8, hold: tuple[float, float] = (1.5, 3.0), max_yaw_acc: float = 0.5) -> Reference:
@@ -356,7 +325,7 @@ def _heading_steps(plan: WaypointPlan, rng: np.random.Generator, center: np.ndar
     plan.move(center, y0 + direction * 2 * np.pi, phase="heading_hover")
 
 
-def mixed(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_height: float = 0.06,
+def mixed(duration: float = 60.0, seed: int = 0, *, room: Scene = TABLE_ROOM, rest_height: float = 0.06,
           center: tuple[float, float, float] = (0.0, 0.0, 1.25), excitation_share: float = 0.4,
           ceiling_gap: tuple[float, float] = (0.25, 0.45), floor_heights: tuple[float, float] = (0.1, 0.5),
           table_heights: tuple[float, float] = (0.1, 0.5), max_yaw_acc: float = 0.5,
@@ -395,7 +364,7 @@ def mixed(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_he
     used = first.duration + exc.duration
     for _ in range(2 if duration - used > 30.0 else 0):
         xy = _floor_point(rng, room)
-        router.go((xy[0], xy[1], room.ceiling - rng.uniform(*ceiling_gap)), phase=None)
+        router.go((xy[0], xy[1], room.ceiling_height - rng.uniform(*ceiling_gap)), phase=None)
         b.hold(rng.uniform(1.5, 3.0), "hover_ceiling")
     left = duration - used
     _low_pass_maneuvers(router, rng, left - _landing_time(b, rest_height) - 1.0, floor_heights=floor_heights,
@@ -408,12 +377,12 @@ def mixed(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_he
 # --- a stand-in for EuRoC's Vicon-room flights --------------------------------------------
 
 
-def _free_floor_point(rng: np.random.Generator, room: Room, keep_out: float, wall: float) -> np.ndarray:
+def _free_floor_point(rng: np.random.Generator, room: Scene, keep_out: float, wall: float) -> np.ndarray:
     """A random floor point (x, y) [m] at least ``keep_out`` from every box and ``wall`` from the walls."""
-    hx, hy = room.size[0] / 2 - wall, room.size[1] / 2 - wall
+    hx, hy = room_size(room)[0] / 2 - wall, room_size(room)[1] / 2 - wall
     for _ in range(1000):
         xy = rng.uniform([-hx, -hy], [hx, hy])
-        if room.surface_below(xy[0], xy[1], keep_out) == 0.0:
+        if surface_below(room, xy[None], keep_out)[0] == 0.0:
             return xy
     raise InputError("reference", "the room has no free floor away from its furniture")
 
@@ -428,7 +397,7 @@ def _facing(yaw: float, a: np.ndarray, b: np.ndarray) -> float:
     return yaw + (target - yaw + math.pi) % (2 * math.pi) - math.pi
 
 
-def _leg(plan: WaypointPlan, b: np.ndarray, room: Room, clearance: float, margin: float, speed: float,
+def _leg(plan: WaypointPlan, b: np.ndarray, room: Scene, clearance: float, margin: float, speed: float,
          phase: str) -> None:
     """Fly from the plan's position to ``b`` [m] facing the way, never lower than ``clearance`` over
     a box top within ``margin`` of the path: where the straight leg would be, climb first (and
@@ -436,7 +405,7 @@ def _leg(plan: WaypointPlan, b: np.ndarray, room: Room, clearance: float, margin
     a = plan.p.copy()
     s = np.linspace(0.0, 1.0, 61)
     path = a[None, :] * (1 - s[:, None]) + np.asarray(b, float)[None, :] * s[:, None]
-    need = room.surface_below(path[:, 0], path[:, 1], margin) + clearance
+    need = surface_below(room, path[:, :2], margin) + clearance
     yaw = _facing(plan.yaw, a, b)
     if np.all(path[:, 2] >= need - 1e-9):
         plan.move(b, yaw, speed, phase)
@@ -450,17 +419,18 @@ def _leg(plan: WaypointPlan, b: np.ndarray, room: Room, clearance: float, margin
         plan.move(b, None, speed, phase)
 
 
-def _waypoint(rng: np.random.Generator, room: Room, k: int, heights: tuple[float, float], top: float,
+def _waypoint(rng: np.random.Generator, room: Scene, k: int, heights: tuple[float, float], top: float,
               wall: float, inset: float = 0.15) -> np.ndarray:
     """Cruise point ``k``: every other one over a random box (``inset`` inside its edges), the others
     anywhere ``wall`` from the walls; ``heights`` [m] over the surface below, capped at ``top`` [m]."""
     if k % 2 == 1:
-        x0, x1, y0, y1, _ = room.boxes[int(rng.integers(len(room.boxes)))]
+        boxes = floor_boxes(room)
+        x0, x1, y0, y1, _ = boxes[int(rng.integers(len(boxes)))]
         xy = rng.uniform([x0 + inset, y0 + inset], [x1 - inset, y1 - inset])
     else:
-        hx, hy = room.size[0] / 2 - wall, room.size[1] / 2 - wall
+        hx, hy = room_size(room)[0] / 2 - wall, room_size(room)[1] / 2 - wall
         xy = rng.uniform([-hx, -hy], [hx, hy])
-    z = min(float(room.surface_below(xy[0], xy[1])) + rng.uniform(*heights), top)
+    z = min(float(surface_below(room, xy[None])[0]) + rng.uniform(*heights), top)
     return np.array([xy[0], xy[1], z])
 
 
@@ -469,7 +439,7 @@ def _descend(plan: WaypointPlan, xy: np.ndarray, rest_height: float, vertical_sp
     plan.hold(1.0, "rest")
 
 
-def euroc_room(duration: float = 60.0, seed: int = 0, *, room: Room = EUROC_ROOM, rest_height: float = 0.16,
+def euroc_room(duration: float = 60.0, seed: int = 0, *, room: Scene = EUROC_ROOM, rest_height: float = 0.16,
                heights: tuple[float, float] = (0.6, 1.9), top: float = 2.0, clearance: float = 0.5,
                margin: float = 0.35, speed: float = 1.2, vertical_speed: float = 0.4,
                hold: tuple[float, float] = (0.5, 1.5), max_yaw_acc: float = 0.5, wall: float = 1.0,

@@ -41,11 +41,12 @@ from uavturb.physics.dynamics import (
 from uavturb.physics.effects import EFFECTS, EffectInputs, effect_force, parse_effects
 from uavturb.physics.vehicle import Vehicle
 from uavturb.scene.heights import SurfaceIndex, sample_mesh_points
+from uavturb.scene.indoor import Scene
 from uavturb.sim.core.closed_loop import track_reference, whole_ratio
 from uavturb.sim.core.controller import ControllerGains
 from uavturb.sim.core.signals import Reference, Setpoint
 from uavturb.sim.flights import euroc_standin
-from uavturb.sim.flights.plans import EUROC_ROOM, Room, excitation, low_passes, mixed
+from uavturb.sim.flights.plans import EUROC_ROOM, TABLE_ROOM, excitation, low_passes, mixed
 from uavturb.sim.flights.sensors import SensorNoise, sensor_readings
 
 #: First timestamp [ns] of synthetic flights: the epoch of EuRoC's MH_01_easy (2014-06-24).
@@ -54,10 +55,11 @@ EUROC_T0_NS = 1403636579758555392
 KINDS = ("excitation", "low_passes", "mixed", "euroc_room")
 
 
-def flight_room(kind: str) -> Room:
+def flight_room(kind: str) -> Scene:
     """The scene a flight kind is planned in: :data:`~uavturb.sim.flights.plans.EUROC_ROOM` for
-    ``euroc_room`` (:mod:`uavturb.sim.flights.euroc_standin`), the default :class:`Room` otherwise."""
-    return EUROC_ROOM if kind == "euroc_room" else Room()
+    ``euroc_room`` (:mod:`uavturb.sim.flights.euroc_standin`), :data:`~uavturb.sim.flights.plans.TABLE_ROOM`
+    otherwise."""
+    return EUROC_ROOM if kind == "euroc_room" else TABLE_ROOM
 
 
 @dataclass
@@ -111,41 +113,25 @@ class Truth:
 # --- the scene ----------------------------------------------------------------------
 
 
-def room_mesh(room: Room = Room()):
-    """Triangle mesh (``trimesh.Trimesh``) of a :class:`Room`: floor, walls, ceiling, and the table
-    and any further furniture as solid boxes standing on the floor."""
-    import trimesh
-
-    walls = trimesh.creation.box(extents=(room.size[0], room.size[1], room.ceiling))
-    walls.apply_translation((0.0, 0.0, room.ceiling / 2))
-    walls.invert()  # normals point into the room
-    solids = []
-    for x0, x1, y0, y1, h in room.boxes:  # the table first, as it always was
-        box = trimesh.creation.box(extents=(x1 - x0, y1 - y0, h))
-        box.apply_translation(((x0 + x1) / 2, (y0 + y1) / 2, h / 2))
-        solids.append(box)
-    return trimesh.util.concatenate([walls, *solids])
-
-
 @lru_cache(maxsize=4)
-def _room_cloud(room: Room, spacing: float, seed: int) -> np.ndarray:
-    pts = np.asarray(sample_mesh_points(room_mesh(room), spacing, seed), float)
+def _room_cloud(room: Scene, spacing: float, seed: int) -> np.ndarray:
+    pts = np.asarray(sample_mesh_points(room.mesh, spacing, seed), float)
     pts.setflags(write=False)
     return pts
 
 
-def room_points(room: Room = Room(), spacing: float = 0.03, seed: int = 0) -> np.ndarray:
-    """The scene point cloud [m] in W, ``(P, 3)``: :func:`room_mesh` sampled every ``spacing`` [m]
-    (cached; read-only)."""
+def room_points(room: Scene = TABLE_ROOM, spacing: float = 0.03, seed: int = 0) -> np.ndarray:
+    """The scene point cloud [m] in W, ``(P, 3)``: the room's mesh (:mod:`uavturb.scene.layouts`)
+    sampled every ``spacing`` [m] (cached per scene; read-only)."""
     return _room_cloud(room, float(spacing), int(seed))
 
 
 @lru_cache(maxsize=4)
-def _room_index(room: Room, spacing: float, seed: int) -> Any:
+def _room_index(room: Scene, spacing: float, seed: int) -> Any:
     return SurfaceIndex(_room_cloud(room, spacing, seed))
 
 
-def surface_index(points: np.ndarray | None = None, room: Room = Room(), spacing: float = 0.03) -> Any:
+def surface_index(points: np.ndarray | None = None, room: Scene = TABLE_ROOM, spacing: float = 0.03) -> Any:
     """A :class:`~uavturb.scene.heights.SurfaceIndex` on ``points``, or on :func:`room_points` of
     ``room`` when ``points`` is ``None`` (cached)."""
     if points is None:
@@ -158,7 +144,7 @@ def surface_index(points: np.ndarray | None = None, room: Room = Room(), spacing
 
 def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float | None = None,
                     effects: dict[str, dict[str, float]] | None = None, points: np.ndarray | None = None,
-                    surfaces: Any = None, room: Room = Room(), physics_dt: float = 0.001, control_dt: float = 0.005,
+                    surfaces: Any = None, room: Scene = TABLE_ROOM, physics_dt: float = 0.001, control_dt: float = 0.005,
                     record_dt: float = 0.005, noise: SensorNoise = SensorNoise(), seed: int = 0,
                     gains: ControllerGains = ControllerGains(), feedforward: bool = False, settle: bool = True,
                     t0_ns: int = EUROC_T0_NS, wind: np.ndarray | None = None) -> tuple[Recording, Truth]:
@@ -174,7 +160,7 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
         recording's ``pointcloud0``
     surfaces : object with ``d_down(pos (K, 3)) -> (K,)`` and ``d_up(pos) -> (K,)`` [m]
         (default: a ``SurfaceIndex`` on ``points``)
-    room : Room, the default scene
+    room : Scene, the default scene (a :func:`~uavturb.scene.layouts.table_room`)
     physics_dt, control_dt, record_dt : s; the last two are whole multiples of ``physics_dt``
     noise : SensorNoise (``SensorNoise.none()`` for perfect sensors)
     seed : seed of the sensor noise
@@ -303,7 +289,7 @@ def low_heights(vehicle: Vehicle) -> dict[str, Any]:
 
 
 def make_reference(kind: str = "excitation", duration: float = 60.0, seed: int = 0, vehicle: Vehicle | None = None,
-                   room: Room | None = None) -> Reference:
+                   room: Scene | None = None) -> Reference:
     """The reference of a named flight kind (``excitation``, ``low_passes``, ``mixed``, ``euroc_room``)
     for a vehicle: yaw acceleration within its authority (0.7 x :func:`yaw_acc_limit`, at most
     1 rad/s^2), faster and larger roll/pitch excitation for agile vehicles (:func:`roll_acc_limit`),
@@ -334,13 +320,13 @@ def make_reference(kind: str = "excitation", duration: float = 60.0, seed: int =
 
 def generate_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dict[str, float]] = "",
                     duration: float = 60.0, kind: str = "excitation", seed: int = 0, out: str | Path | None = None,
-                    noise: SensorNoise | None = None, overwrite: bool = False, room: Room | None = None,
+                    noise: SensorNoise | None = None, overwrite: bool = False, room: Scene | None = None,
                     **simulate_kw: Any) -> Recording:
     """Simulate a named flight and, when ``out`` is given, write it as a recording folder.
 
     Parameters
     ----------
-    vehicle : preset name (``hex``, ``quad``), ``vehicle.yaml`` path, or Vehicle
+    vehicle : built-in vehicle (``hex``, ``quad``), ``vehicle.yaml`` path, or Vehicle
     effects : ``"wind:f_x=0.5,ground_effect"`` (see ``parse_effects``) or the parsed dict
     duration : s
     kind : ``excitation``, ``low_passes``, ``mixed`` (see :mod:`uavturb.sim.flights.plans`) or
