@@ -16,6 +16,12 @@ import numpy as np
 
 from uavturb.sim.core.signals import SMOOTHSTEP_MAX_ACC, SMOOTHSTEP_MAX_RATE, Reference, Waypoints
 
+
+def wrap_near(yaw: float, near: float) -> float:
+    """``yaw`` [rad] shifted by a multiple of 2 pi to lie within pi of ``near`` [rad] (the heading a
+    plan turns to: the short way round)."""
+    return near + (yaw - near + math.pi) % (2 * math.pi) - math.pi
+
 @dataclass
 class WaypointPlan:
     """Builds stop-and-go waypoint plans (each move starts and ends at rest)."""

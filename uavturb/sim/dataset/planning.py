@@ -47,7 +47,7 @@ from uavturb.scene.indoor import Scene
 from uavturb.scene.queries import height_below
 from uavturb.sim.dataset.navigation import NavGrid, astar, christofides_order, simplify_path
 from uavturb.sim.core.signals import Reference
-from uavturb.sim.core.waypoint_plan import WaypointPlan
+from uavturb.sim.core.waypoint_plan import WaypointPlan, wrap_near
 
 __all__ = ["PlanConfig", "PlannedTrajectory", "build_grid", "plan_trajectory"]
 
@@ -166,11 +166,6 @@ def _log_uniform(rng: np.random.Generator, lo_hi: tuple[float, float]) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def _wrap_to(yaw: float, near: float) -> float:
-    """``yaw`` [rad] shifted by a multiple of 2 pi to lie within pi of ``near``."""
-    return near + (yaw - near + np.pi) % (2 * np.pi) - np.pi
-
-
 class _Builder:
     """Appends moves to a :class:`WaypointPlan`, with yaw facing forward on horizontal moves."""
 
@@ -185,7 +180,7 @@ class _Builder:
         d = np.asarray(target_xy, float)[:2] - self.p[:2]
         if np.hypot(*d) < 1e-6:
             return
-        yaw = _wrap_to(math.atan2(d[1], d[0]), self.plan.yaw)
+        yaw = wrap_near(math.atan2(d[1], d[0]), self.plan.yaw)
         if abs(yaw - self.plan.yaw) > 1e-3:
             self.plan.move(self.p, yaw, phase=phase)
 

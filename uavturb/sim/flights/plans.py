@@ -30,7 +30,7 @@ from uavturb.scene.indoor import Furniture, Scene
 from uavturb.scene.layouts import euroc_vicon_room, floor_boxes, room_size, table_room
 from uavturb.scene.queries import surface_below
 from uavturb.sim.core.signals import Constant, Envelope, Reference, Signal, Sines
-from uavturb.sim.core.waypoint_plan import WaypointPlan
+from uavturb.sim.core.waypoint_plan import WaypointPlan, wrap_near
 
 # --- the room ------------------------------------------------------------------------
 
@@ -393,8 +393,7 @@ def _facing(yaw: float, a: np.ndarray, b: np.ndarray) -> float:
     d = np.asarray(b[:2], float) - np.asarray(a[:2], float)
     if np.hypot(*d) < 0.1:
         return yaw
-    target = math.atan2(d[1], d[0])
-    return yaw + (target - yaw + math.pi) % (2 * math.pi) - math.pi
+    return wrap_near(math.atan2(d[1], d[0]), yaw)
 
 
 def _leg(plan: WaypointPlan, b: np.ndarray, room: Scene, clearance: float, margin: float, speed: float,
