@@ -13,8 +13,11 @@ they are planned in:
 The scene they are planned in is a :func:`~uavturb.scene.layouts.table_room` (floor at ``z = 0``,
 a ceiling, one table, optionally more furniture; :data:`TABLE_ROOM` by default), the scene whose
 mesh :mod:`uavturb.sim.flights.simulate` turns into a point cloud; heights of the surface below
-come from :func:`uavturb.scene.queries.surface_below`. Moves are :class:`~uavturb.sim.core.waypoint_plan.WaypointPlan` moves, routed over
-the table (:class:`TableRouter`), never through it.
+come from :func:`uavturb.scene.queries.surface_below`. Moves are
+:class:`~uavturb.sim.core.waypoint_plan.WaypointPlan` moves (the plan builder of every planned
+flight), routed over the table (:class:`TableRouter`) or over any box near a leg (``euroc_room``),
+never through them. These rooms have no navigation grid to search:
+:func:`uavturb.sim.dataset.planning.plan_trajectory` plans through generated scenes.
 """
 
 from __future__ import annotations
