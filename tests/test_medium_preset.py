@@ -7,8 +7,8 @@ import pytest
 from uavturb.errors import InputError
 from uavturb.experiments.config import load_config
 from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
-from uavturb.sim.presets import get_preset
-from uavturb.sim.tasks import plan_tasks, scene_splits
+from uavturb.sim.dataset.presets import get_preset
+from uavturb.sim.dataset.assignment import plan_tasks, scene_splits
 
 
 @pytest.mark.parametrize("name", ["quick", "medium", "paper"])

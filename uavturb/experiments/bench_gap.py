@@ -50,7 +50,7 @@ def _child(code: str, args: Sequence[str]) -> tuple[str, float]:
 
 def _generated(folder: Path, minutes: float) -> list[str]:
     """Two flights of ``minutes`` (hexarotor, ground effect and rotor drag) under ``folder``."""
-    from uavturb.sim.flight import generate_flight
+    from uavturb.sim.flights.simulate import generate_flight
 
     paths = []
     for k in range(2):

@@ -132,11 +132,13 @@ def bench(what: str) -> None:
             print(f"{k:<48}{v:>12.4g}" if isinstance(v, float) else f"{k:<48}{v:>12}")
         return
     if what == "flights":  # MPC solve times and closed-loop flight speed (uavturb.sim.flight_benchmark)
-        from uavturb.sim import flight_benchmark, mpc, scene_flight
+        from uavturb.sim import flight_benchmark
+        from uavturb.sim.core import mpc
+        from uavturb.sim.dataset.flying import CONTROLLERS
 
         for k, v in mpc.benchmark().items():
             print(f"{'mpc ' + k:<40}{v:>12.4g}")
-        for ctrl in scene_flight.CONTROLLERS:
+        for ctrl in CONTROLLERS:
             flight_benchmark.benchmark(3, ctrl)
         return
     if what == "scene":

@@ -1,5 +1,5 @@
 """``uavturb gap-proof --suite conditions``: the gap finder on flights with real recordings'
-troubles, each with a known truth (``uavturb generate flight`` options, :mod:`uavturb.sim.conditions`).
+troubles, each with a known truth (``uavturb generate flight`` options, :mod:`uavturb.sim.flights.conditions`).
 
 Each condition is two flights run blind (``--sim-effects none``). Its *target* effects are what a
 flight engineer wants found (the equivalent steady push of a wind, a ground effect...); the
@@ -47,7 +47,7 @@ import numpy as np
 from uavturb.experiments.proof_scoring import param_error, with_hidden_bias
 from uavturb.experiments.sindy_peer import sindy_names
 from uavturb.gap.finder import analyse
-from uavturb.sim.conditions import Conditions
+from uavturb.sim.flights.conditions import Conditions
 
 #: relative error within which a target counts as named right (issue: wind within 30 %)
 TOLERANCE = 0.30
@@ -171,7 +171,7 @@ def verdict(targets: dict[str, dict[str, float]], physics: set[str], report: dic
 def run_conditions(out: Path, *, duration: float = 60.0, seed: int = 0, progress=print) -> dict:
     """Generate each condition's two flights under ``out/flights/``, run the finder blind, score."""
     from uavturb.io.reader import load_recordings
-    from uavturb.sim.conditions import generate_conditioned_flight, read_truth
+    from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
 
     rows = []
     for i, cond in enumerate(CONDITIONS):

@@ -48,7 +48,7 @@ TYPICAL: dict[str, dict[str, float]] = {
     "battery_sag": {"s": 1.0e-3}, "ground_effect": {"mu": 2.0}, "ceiling_effect": {"kappa": 2.0},
     "motor_lag": {"tau": 0.03},
 }
-#: the mixed flight plans hovers under the ceiling from 100 s on (uavturb.sim.references.mixed)
+#: the mixed flight plans hovers under the ceiling from 100 s on (uavturb.sim.flights.plans.mixed)
 CEILING_DURATION = 100.0
 
 
@@ -94,7 +94,8 @@ def run_proof(out: Path, *, duration: float = 90.0, seed: int = 0, singles: list
     ``duration``. ``seconds`` times reading both recordings and the analysis. Every flight
     carries :data:`uavturb.experiments.proof_scoring.HIDDEN_BIAS`."""
     from uavturb.io.reader import read_recording
-    from uavturb.sim.flight import SensorNoise, generate_flight
+    from uavturb.sim.flights.sensors import SensorNoise
+    from uavturb.sim.flights.simulate import generate_flight
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
