@@ -50,3 +50,26 @@ def test_values_repeated_by_rounding_are_not_a_held_stream():
     rounded = GroundTruth(gt.t_ns, np.round(gt.p, 2), gt.q, np.round(gt.v, 1), gt.b_w, gt.b_a)  # cm, 0.1 m/s
     out, rotors = held_updates(dataclasses.replace(rec, ground_truth=rounded))
     assert out is rounded and rotors is rec.rotors
+
+
+def test_the_residual_noise_of_a_slow_stream_is_read_between_its_updates():
+    """A residual whose stream updates at 5 Hz, interpolated into 25 Hz rows: neighbouring rows share their
+    updates, so first differences say the noise is a third of what it is; differences between rows an
+    update apart recover it, and the located segments' window counts updates, not rows."""
+    from types import SimpleNamespace
+
+    from uavturb.gap import locate
+
+    rng = np.random.default_rng(4)
+    sigma = 0.05  # N per update
+    t_u = np.arange(0.0, 120.0, 0.2)  # s, updates at 5 Hz
+    t = np.arange(0.0, 119.8, 0.04)  # s, rows at 25 Hz
+    r = np.column_stack([np.interp(t, t_u, rng.normal(0, sigma, len(t_u))) for _ in range(3)])
+    data = SimpleNamespace(t=t, group=np.zeros(len(t), int))
+    naive = locate.residual_noise(data, r)
+    held = locate.residual_noise(data, r, update_step_s=0.2)
+    assert np.all(naive < 0.5 * sigma)
+    np.testing.assert_allclose(held, sigma, rtol=0.15)
+    rows, draws = locate.window_rows(data, 0.5)
+    assert rows == draws and 12 <= rows <= 13
+    assert locate.window_rows(data, 0.5, update_step_s=0.2) == (rows, 2)

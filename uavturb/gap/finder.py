@@ -125,7 +125,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     base = _simulator_baseline(data, sim)
     protocol, fm = folds(data)
     base_ho = heldout(data, frozenset(), fm, offset=base.offset)
-    segs, rs0, sigma = locate.segments(data, base.r0)
+    step = 1.0 / held["slowest_update_hz"] if np.isfinite(held["slowest_update_hz"]) else 0.0
+    segs, rs0, sigma = locate.segments(data, base.r0, update_step_s=step)
     drv = locate.drivers(data, rs0)
 
     candidates, not_testable, sim_fit_base = _testable_candidates(data, sim, measured_rotor_speeds(recordings))
@@ -137,9 +138,9 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
     rf = final.residual(data)
-    _, rsf, _ = locate.segments(data, rf)
-    n = max(3, int(round(0.5 / float(np.median(np.diff(data.t))))))
-    beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / n)))
+    _, rsf, _ = locate.segments(data, rf, update_step_s=step)
+    _, draws = locate.window_rows(data, 0.5, step)
+    beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / draws)))
     curve_report, curve, curve_fits = finder_surface_curve(data, final)
     report = {
         "schema": SCHEMA,

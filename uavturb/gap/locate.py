@@ -22,6 +22,7 @@ from scipy.ndimage import uniform_filter1d
 from scipy.signal import savgol_filter
 
 from uavturb.gap.design import GapData
+from uavturb.sysid.streams import noise_from_updates
 
 AXES = "xyz"
 FAR = 10.0  # m, stands for "no surface" (inf) in feature binning
@@ -58,14 +59,34 @@ class Segment:
     group: int = 0
 
 
-def segments(data: GapData, r: np.ndarray, *, window_s: float = 0.5, k: float = 5.0,
-             min_s: float = 0.3) -> tuple[list[Segment], np.ndarray, np.ndarray]:
-    """Located segments, the smoothed residual ``(K, 3)`` and the per-axis noise ``sigma`` [N]."""
+def window_rows(data: GapData, window_s: float, update_step_s: float = 0.0) -> tuple[int, int]:
+    """(rows in a ``window_s`` [s] window, independent noise draws in it): the rows, or the updates of the
+    slowest stream where it updates every ``update_step_s`` [s], more slowly than the rows come."""
     dt = float(np.median(np.diff(data.t)))
     n = max(3, int(round(window_s / dt)))
-    sigma = noise_sigma(r, data.group)
+    return n, (n if update_step_s <= dt else max(1, int(round(window_s / update_step_s))))
+
+
+def residual_noise(data: GapData, r: np.ndarray, update_step_s: float = 0.0) -> np.ndarray:
+    """Per-axis noise [N] of one independent draw of the residual ``r`` (K, 3): from first differences
+    (:func:`noise_sigma`), or, where a stream updates more slowly than the rows come (every
+    ``update_step_s`` [s]), from differences between rows that far apart
+    (:func:`uavturb.sysid.streams.noise_from_updates`): neighbouring rows then share an update and
+    their differences say the noise is nil."""
+    dt = float(np.median(np.diff(data.t)))
+    if update_step_s <= dt:
+        return noise_sigma(r, data.group)
+    return noise_from_updates(data.t, r, data.group, update=np.ones(len(r), bool), min_step_s=update_step_s)
+
+
+def segments(data: GapData, r: np.ndarray, *, window_s: float = 0.5, k: float = 5.0,
+             min_s: float = 0.3, update_step_s: float = 0.0) -> tuple[list[Segment], np.ndarray, np.ndarray]:
+    """Located segments, the smoothed residual ``(K, 3)`` and the per-axis noise ``sigma`` [N] of one
+    independent draw (``update_step_s`` [s]: the slowest stream's update step, :func:`residual_noise`)."""
+    n, draws = window_rows(data, window_s, update_step_s)
+    sigma = residual_noise(data, r, update_step_s)
     rs = smooth(r, n, data.group)
-    level = k * np.maximum(sigma, 1e-9) / np.sqrt(n)
+    level = k * np.maximum(sigma, 1e-9) / np.sqrt(draws)
     out: list[Segment] = []
     for g in np.unique(data.group):
         m = np.flatnonzero(data.group == g)

@@ -68,18 +68,20 @@ def delay_corrected(rec: Recording, fd: FlightData) -> tuple[Recording, dict[str
     return dataclasses.replace(rec, rotors=Rotors(t_ns=rec.rotors.t_ns - shift, speeds=rec.rotors.speeds)), found
 
 
-def stream_limits(rec: Recording) -> tuple[list[str], list[str]]:
+def stream_limits(rec: Recording) -> tuple[list[str], list[str], float]:
     """(one line per stream: rows and updates; sentences where a stream updates too slowly for the
-    ground effect or a motor lag)."""
+    ground effect or a motor lag; the slowest update rate [Hz] of the streams the residual force and
+    the model read)."""
     streams = {"state_groundtruth_estimate0": (rec.ground_truth.t_ns, rec.ground_truth.p)}
     if rec.rotors is not None:
         streams["rotors0"] = (rec.rotors.t_ns, rec.rotors.speeds)
     if rec.imu is not None:
         streams["imu0"] = (rec.imu.t_ns, rec.imu.acc)
-    lines, limits = [], []
+    lines, limits, slowest = [], [], np.inf
     for name, (t, x) in streams.items():
         u = stream_updates(f"{rec.name}/{name}", t, x)
         lines.append(u.describe())
+        slowest = min(slowest, u.update_rate_hz)
         if name == "state_groundtruth_estimate0":
             why = slow_for(u, needed_rate_hz(SURFACE_CROSSING_S), "a surface effect (heights crossed in 0.2 s)")
         elif name == "rotors0":
@@ -88,7 +90,7 @@ def stream_limits(rec: Recording) -> tuple[list[str], list[str]]:
             why = None
         if why:
             limits.append(why)
-    return lines, limits
+    return lines, limits, slowest
 
 
 def _vehicle_landed_height(fds: Sequence[FlightData]) -> float | None:
@@ -132,6 +134,7 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
     """The recordings with late telemetry corrected, their flight data, and what was found
     (``streams``, ``stream_limits``, ``delays``)."""
     recs, fds, delays, lines, limits = [], [], [], [], []
+    slowest = np.inf
     for rec in recordings:
         fd = flight_data(rec)
         rec2, found = delay_corrected(rec, fd)
@@ -141,7 +144,8 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
                 fd = flight_data(rec2)
         recs.append(rec2)
         fds.append(fd)
-        ln, lim = stream_limits(rec)
+        ln, lim, rate = stream_limits(rec)
         lines += ln
         limits += lim
-    return recs, fds, {"streams": lines, "stream_limits": limits, "delays": delays}
+        slowest = min(slowest, rate)
+    return recs, fds, {"streams": lines, "stream_limits": limits, "delays": delays, "slowest_update_hz": slowest}
