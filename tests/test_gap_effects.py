@@ -118,6 +118,24 @@ def test_single_effect_named_and_fitted(tmp_path, name, spec, truth):
 
 
 @pytest.mark.slow
+def test_the_multirotor_law_flown_is_named_over_cheeseman_bennett(tmp_path):
+    """The simulator flies Sanchez-Cuevas et al.'s multirotor law (it needs the rotor spacing): the finder
+    names it, not Cheeseman-Bennett, with K_b within 15 %, and its curve fits the measured one."""
+    paths = []
+    for k in range(2):
+        path = tmp_path / f"m{k}"
+        generate_flight(vehicle="hex", effects="ground_effect_multirotor:K_b=1.5", duration=60.0, kind="low_passes",
+                        seed=1 + k, out=path)
+        paths.append(path)
+    report, named = _named(paths)
+    assert list(named) == ["ground_effect_multirotor"]
+    assert named["ground_effect_multirotor"]["params"]["K_b"] == pytest.approx(1.5, rel=0.15)
+    curve = report["surface_curve"]
+    assert curve["named"]["agrees"] and curve["named"]["largest_difference"] < 0.01
+    assert [a["law"] for a in curve["alternatives"]] == ["ground_effect"] and not curve["alternatives"][0]["law_fits"]
+
+
+@pytest.mark.slow
 def test_ceiling_effect_named_under_a_low_ceiling(tmp_path):
     room = table_room(ceiling=1.8)  # the mixed flight's hovers at 1.25 m pass 0.3-0.8 m under it
     paths = [_flight(tmp_path, f"c{k}", "ceiling_effect:kappa=2.0", 41 + k, room=room) for k in range(2)]

@@ -525,7 +525,7 @@ def total_force(effects: dict[str, dict[str, float]], inputs: EffectInputs) -> n
 
 def force_on_state(effects: dict[str, dict[str, float]], q: np.ndarray, v: np.ndarray, rotor_speeds: np.ndarray,
                    t: float, d_down: float, d_up: float, k_T: float, rotor_radius: float,
-                   R: np.ndarray | None = None) -> np.ndarray:
+                   R: np.ndarray | None = None, arm_length: float | None = None) -> np.ndarray:
     """World force [N], ``(3,)``, of ``effects`` on one state: what a simulator adds at each step.
 
     Parameters
@@ -536,12 +536,13 @@ def force_on_state(effects: dict[str, dict[str, float]], q: np.ndarray, v: np.nd
     t : s since the start; d_down, d_up : m (``inf`` where there is no surface)
     k_T : N/(rad/s)^2; rotor_radius : m
     R : (3, 3) body-to-world rotation of ``q`` when the caller has it
+    arm_length : m, centre to each rotor hub (laws that use the rotor spacing)
     """
     if not effects:
         return np.zeros(3)
     inp = EffectInputs(q=np.asarray(q)[None], v=np.asarray(v)[None], rotor_speeds=np.asarray(rotor_speeds)[None],
                        k_T=k_T, rotor_radius=rotor_radius, d_down=np.array([d_down]), d_up=np.array([d_up]),
-                       t=np.array([t]), R=None if R is None else np.asarray(R)[None])
+                       t=np.array([t]), R=None if R is None else np.asarray(R)[None], arm_length=arm_length)
     return total_force(effects, inp)[0]
 
 

@@ -132,12 +132,13 @@ class EffectForce:
         self.effects = effects
         self.wind = np.zeros(3) if wind is None else np.asarray(wind, float)
         self.k_T, self.r = float(vehicle.thrust_coefficient), float(vehicle.rotor_radius)
+        self.arm = float(vehicle.arm_length)  # m, for laws that use the rotor spacing
         self._rotation = RotationOf()
 
     def __call__(self, x: np.ndarray, w: np.ndarray, t: float, d_down: float, d_up: float) -> np.ndarray:
         q = x[IDX_Q]
         return force_on_state(self.effects, q, x[IDX_V] - self.wind, w, t, d_down, d_up, self.k_T, self.r,
-                              self._rotation(q) if self.effects else None)
+                              self._rotation(q) if self.effects else None, self.arm)
 
 
 class HeldHeights:

@@ -241,7 +241,7 @@ def _forces(vehicle: Vehicle, loop: Any, effects: dict[str, dict[str, float]], l
     lag_force = (thrust - thrust_cmd)[:, None] * z_b
     airspeed = X[:, IDX_V] - (0.0 if wind is None else np.asarray(wind, float))
     inp = EffectInputs(q=X[:, IDX_Q], v=airspeed, rotor_speeds=W_act, k_T=k_T, rotor_radius=r, d_down=loop.d_down,
-                       d_up=loop.d_up, t=t_rec)
+                       d_up=loop.d_up, t=t_rec, arm_length=float(vehicle.arm_length))
     per_effect = {name: effect_force(name, params, inp) for name, params in effects.items()}
     if lag is not None:
         per_effect["motor_lag"] = lag_force
