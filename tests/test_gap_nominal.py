@@ -3,12 +3,15 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from uavturb.gap.design import GapData, apply_thrust_levels
-from uavturb.gap.fit import fit_model
-from uavturb.gap.nominal import anchored_bias, block_mean_and_se, thrust_levels
+from uavturb.gap.finder import _nominal
+from uavturb.gap.fit import ModelFit, fit_model
+from uavturb.gap.nominal import ThrustLevels, anchored_bias, block_mean_and_se, thrust_levels
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
@@ -134,3 +137,18 @@ def test_height_uncertainty_sets_the_height_reference_term():
     wide = error_budget(data, final, "ground_effect", height_reference_m=0.02)["mu"]["height_reference"]
     narrow = error_budget(data, final, "ground_effect", height_reference_m=0.002)["mu"]["height_reference"]
     assert narrow < 0.2 * wide  # a better known floor and rotor plane, a tighter mu
+
+
+def test_the_pooled_thrust_coefficient_error_covers_the_recordings_spread():
+    """Recordings whose levels agree share one k_T: its stated error is the larger of the sample error and
+    the standard deviation of the recordings' own levels (each lands within about two of it); where the
+    levels differ each recording has its own and the sample error stays."""
+    fit = ModelFit(frozenset(), {}, {"k_T": 1.0e-6}, {"k_T": 1.0e-9}, 0.01)
+    data = SimpleNamespace(names=["a", "b", "c"], fits_bias=False, anchored={})
+    k = np.array([0.99e-6, 1.0e-6, 1.02e-6])
+    agree = ThrustLevels(k, np.full(3, 2e-9), np.ones(3), False, "agree")
+    out = _nominal(data, fit, agree)
+    assert out["thrust_coefficient_stderr"] == pytest.approx(np.std(k, ddof=1))
+    assert np.all(np.abs(k - 1.0e-6) < 2 * out["thrust_coefficient_stderr"])
+    differ = ThrustLevels(k, np.full(3, 2e-9), k / 1.0e-6, True, "differ")
+    assert _nominal(data, fit, differ)["thrust_coefficient_stderr"] == pytest.approx(1.0e-9)

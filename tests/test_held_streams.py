@@ -4,9 +4,11 @@ that merely repeat at their resolution are not (sysid/flight_data.py)."""
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 
+from uavturb.gap import locate
 from uavturb.io.recording import GroundTruth
 from uavturb.physics.effects import parse_effects
 from uavturb.physics.vehicle import HEXAROTOR
@@ -56,10 +58,6 @@ def test_the_residual_noise_of_a_slow_stream_is_read_between_its_updates():
     """A residual whose stream updates at 5 Hz, interpolated into 25 Hz rows: neighbouring rows share their
     updates, so first differences say the noise is a third of what it is; differences between rows an
     update apart recover it, and the located segments' window counts updates, not rows."""
-    from types import SimpleNamespace
-
-    from uavturb.gap import locate
-
     rng = np.random.default_rng(4)
     sigma = 0.05  # N per update
     t_u = np.arange(0.0, 120.0, 0.2)  # s, updates at 5 Hz

@@ -17,7 +17,8 @@ from uavturb.gap.surface_curve import (
     surface_figure,
 )
 from uavturb.physics import ground_effect as ge
-from uavturb.physics.effects import EFFECTS, EffectInputs, effect_force
+from uavturb.gap.fit import fit_model
+from uavturb.physics.effects import EFFECTS, EffectInputs, EffectSpec, PhysicalRange, effect_force
 
 R = 0.0231  # m, Crazyflie rotor radius
 ARM = 0.046  # m
@@ -257,9 +258,6 @@ def test_a_new_linear_law_is_one_registry_entry_the_finder_fits(monkeypatch):
     """Declared once: a law that is linear in its parameters gets its regressor columns from its ``force``
     (no code in design.py or fit.py). A vertical push F = (0, 0, f_z) added to the registry is fitted
     to its known value, with the accelerometer bias and the thrust beside it."""
-    from uavturb.gap.fit import fit_model
-    from uavturb.physics.effects import EffectSpec, PhysicalRange
-
     def vertical_push_force(x, f_z):
         out = np.zeros((x.K, 3))
         out[:, 2] = f_z

@@ -245,8 +245,14 @@ def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels) -> dict[str, 
     """The report's ``nominal``: the thrust coefficient (one per recording where their levels differ,
     with the spread), and the accelerometer bias as measured against motion capture."""
     k_T = final.coef["k_T"]
+    sample = float(final.stderr.get("k_T", np.nan))
+    measured = levels.k_T[np.isfinite(levels.k_T)]
+    # one k_T for recordings whose levels agree: its error covers their spread (each recording's own
+    # level lands within about two errors of it, gap-report.md); where they differ each has its own
+    between = float(np.std(measured, ddof=1)) if len(measured) >= 2 and not levels.differ else 0.0
     out: dict[str, Any] = {
-        "thrust_coefficient": k_T, "thrust_coefficient_stderr": final.stderr.get("k_T"),
+        "thrust_coefficient": k_T, "thrust_coefficient_stderr": max(sample, between),
+        "thrust_coefficient_stderr_terms": {"sample": sample, "between_recordings": between},
         "thrust_levels_differ": levels.differ, "thrust_level_note": levels.why,
         "thrust_level_spread_percent": levels.spread_percent,
         "thrust_coefficient_per_recording": {n: k_T * float(lv) for n, lv in zip(data.names, levels.level)},

@@ -229,6 +229,11 @@ def _recording_lines(report: dict) -> list[str]:
     nominal = report.get("nominal", {})
     if nominal.get("thrust_level_note"):
         L += ["", f"Thrust levels: {nominal['thrust_level_note']}."]
+    terms = nominal.get("thrust_coefficient_stderr_terms")
+    if terms and nominal.get("thrust_coefficient"):
+        k, se = nominal["thrust_coefficient"], nominal["thrust_coefficient_stderr"]
+        limit = "the spread between recordings" if terms["between_recordings"] > terms["sample"] else "sample noise"
+        L += [f"Thrust coefficient k_T = {k:.4g} ± {se:.2g} N/(rad/s)^2 ({100 * se / k:.2g} %, limited by {limit})."]
     return L
 
 
