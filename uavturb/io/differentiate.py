@@ -15,6 +15,7 @@ holds at least :data:`MIN_WINDOW_SAMPLES` samples (a quadratic through 3 points 
 from __future__ import annotations
 
 import numpy as np
+from scipy.signal import savgol_filter
 
 #: fewest samples in a window (at 50 Hz a 0.05 s window would hold 3)
 MIN_WINDOW_SAMPLES = 5
@@ -49,6 +50,11 @@ def local_quadratic(t: np.ndarray, x: np.ndarray, window: int, deriv: int = 1) -
     if N < 3:
         return np.zeros_like(x) if deriv else x.copy()
     n = min(window, N if N % 2 else N - 1)
+    step = np.diff(t)
+    dt = float(np.median(step))
+    if dt > 0 and float(np.max(np.abs(step - dt))) <= UNIFORM_TOLERANCE * dt:
+        # uniform sampling: the same fits by Savitzky-Golay's convolution (equal to 1e-10), ~50x faster
+        return savgol_filter(x, n, 2, deriv=deriv, delta=dt, axis=0, mode="interp")
     out = np.empty_like(flat)
     for a in range(0, N, CHUNK_ROWS):  # in chunks: the (rows, n, 3) fits of an hour at 200 Hz would take GBs
         rows = np.arange(a, min(a + CHUNK_ROWS, N))
@@ -56,6 +62,8 @@ def local_quadratic(t: np.ndarray, x: np.ndarray, window: int, deriv: int = 1) -
     return out.reshape(x.shape)
 
 
+#: relative spread of the time steps under which sampling counts as uniform (:func:`local_quadratic`)
+UNIFORM_TOLERANCE = 1e-6
 #: rows fitted at once by :func:`local_quadratic` (bounds its memory to ~100 MB whatever the length)
 CHUNK_ROWS = 65536
 
