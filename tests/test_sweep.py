@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from uavturb.errors import InputError, Interrupted
-from uavturb.experiments import sweep as sweep_mod
-from uavturb.experiments.compare import compare
-from uavturb.experiments.sweep import sweep
-from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
-from uavturb.experiments.tracking import tracking_uri
+from uavturb.runs import sweep as sweep_mod
+from uavturb.runs.table1 import compare
+from uavturb.runs.sweep import sweep
+from uavturb.runs.sweep_spec import DEFAULT_SPEC, load_spec
+from uavturb.runs.store import tracking_uri
 
 ROWS = [r.name for r in load_spec(DEFAULT_SPEC).rows]
 

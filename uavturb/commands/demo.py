@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from uavturb.experiments.generate import generate_flight_command, generate_normals, generate_sim
-from uavturb.experiments.identify import format_identification, identify_recordings
+from uavturb.commands.generate import generate_flight_command, generate_normals, generate_sim
+from uavturb.commands.identify import format_identification, identify_recordings
 from uavturb.io.reader import load_recordings
 from uavturb.physics import ground_effect as ge
 from uavturb.physics.constants import GRAVITY
@@ -104,13 +104,13 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     MLflow runs go to the default store (``mlflow.db`` and ``mlruns/`` in the working
     directory, or ``MLFLOW_TRACKING_URI``).
     """
-    from uavturb.experiments.compare import compare
-    from uavturb.experiments.evaluate import evaluate
-    from uavturb.experiments.export import export
-    from uavturb.experiments.gap_run import gap
+    from uavturb.runs.table1 import compare
+    from uavturb.commands.evaluate import evaluate
+    from uavturb.commands.export import export
+    from uavturb.commands.gap import gap
     from uavturb.gap.report import format_effect
-    from uavturb.experiments.sweep import sweep
-    from uavturb.experiments.tracking import ui_url
+    from uavturb.runs.sweep import sweep
+    from uavturb.runs.store import ui_url
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

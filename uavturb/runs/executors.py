@@ -62,7 +62,7 @@ class Job:
     ``encoder`` is the pre-training its encoder comes from: another :class:`Job`, or
     ``{"checkpoint": path, "run_id": id}`` of a finished pre-training run, or None.
     ``resume``: the id of this child's interrupted run, continued in place rather than trained
-    again beside it (:func:`uavturb.experiments.train.train`'s ``resume``).
+    again beside it (:func:`uavturb.runs.train.train`'s ``resume``).
     ``state``: ``pending``, ``finished``, ``failed`` or ``skipped`` (its pre-training failed).
     """
 
@@ -100,8 +100,8 @@ def encoder_checkpoint(encoder: dict[str, Any], cache_dir: Path) -> str:
         return str(local)
     import mlflow
 
-    from uavturb.experiments.tracking import tracking_uri
-    from uavturb.experiments.train import CHECKPOINT_ARTIFACT
+    from uavturb.runs.store import tracking_uri
+    from uavturb.runs.train import CHECKPOINT_ARTIFACT
 
     dst = cache_dir / str(encoder["run_id"])
     dst.mkdir(parents=True, exist_ok=True)
@@ -121,8 +121,8 @@ def _record_failure(cfg: DictConfig, tags: dict[str, str], since_ms: int, error:
     opened its run) a FAILED child is created, so that the failure shows in the MLflow UI.
     """
     from uavturb.errors import Interrupted
-    from uavturb.experiments.tracking import client as tracking_client
-    from uavturb.experiments.tracking import close_run, run_tags
+    from uavturb.runs.store import client as tracking_client
+    from uavturb.runs.store import close_run, run_tags
 
     status = "KILLED" if isinstance(error, (Interrupted, KeyboardInterrupt)) else "FAILED"
     client = tracking_client()
@@ -144,8 +144,8 @@ def _record_failure(cfg: DictConfig, tags: dict[str, str], since_ms: int, error:
 
 def _quiet_worker() -> None:
     """Lightning's and MLflow's per-run notices off in a worker too, as in the sweep's process."""
-    from uavturb.experiments.tracking import quiet_mlflow
-    from uavturb.experiments.train import quiet_lightning
+    from uavturb.runs.store import quiet_mlflow
+    from uavturb.runs.train import quiet_lightning
 
     quiet_lightning()
     quiet_mlflow()
@@ -240,7 +240,7 @@ class SequentialExecutor(Executor):
 
     def check(self, cfg: DictConfig) -> None:
         """The runs train here: this machine must have the device they ask for (a GPU, bf16)."""
-        from uavturb.experiments.accelerators import check_trainer_device
+        from uavturb.runs.accelerators import check_trainer_device
 
         check_trainer_device(cfg.trainer)
 
@@ -442,14 +442,14 @@ def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iter
 
 
 def _tracking_uri() -> str:
-    from uavturb.experiments.tracking import tracking_uri
+    from uavturb.runs.store import tracking_uri
 
     return tracking_uri()
 
 
 def _prepare_data_once(cfg: DictConfig, done: set[tuple[str, str]]) -> None:
     """Generate a synthetic dataset here, once, before parallel tasks would all write it at once."""
-    from uavturb.experiments.train import _prepare_data  # the same step train() takes first
+    from uavturb.runs.train import _prepare_data  # the same step train() takes first
 
     key = (str(cfg.stage), str(cfg.data.pairs_root if cfg.stage == "pretrain" else cfg.data.root))
     if key not in done and cfg.data.synthetic.enabled:

@@ -168,7 +168,7 @@ class DataConfig:
     num_workers: int = allowed(2, ge=0)
     image_size: int = allowed(128, ge=0)                      # px (square); 0 = whatever the data holds
     pin_memory: bool | None = None                            # DataLoader pinned memory; null: when training on
-    #                                                           a CUDA device (experiments/accelerators.py)
+    #                                                           a CUDA device (runs/accelerators.py)
     val_fraction: float = allowed(0.1, gt=0, lt=1)            # pairs held out for validation
     synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
 

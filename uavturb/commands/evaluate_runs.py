@@ -2,14 +2,14 @@
 
 The paper reports Table 2 for one model. One CPU-trained seed is an anecdote: here every run
 of a sweep's rows (or every run given) is evaluated on the same flights, as
-:func:`uavturb.experiments.evaluate.evaluate` does for one, and the table is summarised per
+:func:`uavturb.commands.evaluate.evaluate` does for one, and the table is summarised per
 row over its seeds:
 
 - per row: RMSE(f_a,phi) (the law on true heights: the same for every run), RMSE(f_a) (the law
   on the network's heights), their ratio (the paper: 0.408 / 0.243 = 1.68 on EuRoC) and
   RMSE(d), mean +- standard deviation over seeds (``n`` seeds), with the worst seed's ratio;
 - where the error comes from: per row and height band
-  (:func:`uavturb.experiments.evaluate.band_metrics`) RMSE(f_a), the height bias and the band's
+  (:func:`uavturb.commands.evaluate.band_metrics`) RMSE(f_a), the height bias and the band's
   share of the squared f_a error, averaged over seeds, and a plot of RMSE(f_a) by band.
 
 Flights, the vehicle and ``(alpha, beta)`` are identified once; depth frames are projected once
@@ -45,14 +45,14 @@ def sweep_runs(parent_run_id: str, rows: Sequence[str] | None = None) -> list[st
     ------
     InputError : no such parent run, an unknown row, or no finished height run.
     """
-    from uavturb.experiments import tracking
-    from uavturb.experiments.compare import search_all_runs
+    from uavturb.runs import store
+    from uavturb.runs.table1 import search_all_runs
 
-    client = tracking.client()
+    client = store.client()
     try:
         parent = client.get_run(parent_run_id)
     except Exception:  # noqa: BLE001 - MlflowException of an unknown id
-        raise InputError("--sweep", f"no run {parent_run_id!r} in {tracking.tracking_uri()}") from None
+        raise InputError("--sweep", f"no run {parent_run_id!r} in {store.tracking_uri()}") from None
     filt = f"tags.`mlflow.parentRunId` = '{parent_run_id}' and attributes.status = 'FINISHED'"
     runs = [r for r in search_all_runs(client, parent.info.experiment_id, filt) if "ablation" in r.data.tags]
     known = sorted({r.data.tags["ablation"] for r in runs})
@@ -174,7 +174,7 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
     ----------
     run_ids : MLflow runs of height trainings (e.g. :func:`sweep_runs`)
     recordings, vehicle, frame_dt, ge_fraction, overwrite, log, progress : as
-        :func:`uavturb.experiments.evaluate.evaluate`
+        :func:`uavturb.commands.evaluate.evaluate`
     out : output folder (module docstring)
 
     Returns
@@ -182,8 +182,8 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
     dict: ``rows`` (:func:`summarise`), ``runs`` (per run: ``run_id``, ``row``, ``label``, ``total``,
     ``bands``, ``mlflow_run``), ``summary`` (markdown text), ``out``.
     """
-    from uavturb.experiments import evaluate as ev
-    from uavturb.experiments.export import get_run
+    from uavturb.commands import evaluate as ev
+    from uavturb.commands.export import get_run
     from uavturb.io.reader import load_recordings
 
     ge_fraction = ev.GE_FRACTION if ge_fraction is None else ge_fraction
@@ -219,11 +219,11 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
 
 class _SharedFlights:
     """What every run's evaluation shares: the flights, the vehicle identified on the first, the depth
-    frames per camera (projected once) and the law (:class:`~uavturb.experiments.evaluate.EvaluationLaw`,
+    frames per camera (projected once) and the law (:class:`~uavturb.commands.evaluate.EvaluationLaw`,
     fitted on the first call of :meth:`sequences`)."""
 
     def __init__(self, recs: list[Any], ge_fraction: float, progress: bool):
-        from uavturb.experiments import evaluate as ev
+        from uavturb.commands import evaluate as ev
 
         self.recs, self.ge_fraction, self.progress = recs, ge_fraction, progress
         self.vehicle, self.vehicle_source = ev.evaluation_vehicle(recs[0], progress)
@@ -233,7 +233,7 @@ class _SharedFlights:
     def sequences(self, settings: dict[str, Any]) -> list[Any]:
         """The flights' frames through the camera ``settings``; the law fitted on the first call."""
         from uavturb.data.recordings import recording_sequence
-        from uavturb.experiments import evaluate as ev
+        from uavturb.commands import evaluate as ev
 
         key = json.dumps(settings, sort_keys=True)
         if key not in self._by_camera:
@@ -249,8 +249,8 @@ class _SharedFlights:
 def _evaluate_run(run: Any, row: str, label: str, flights: _SharedFlights, frame_dt: float | None, tmp: Path
                   ) -> dict[str, Any]:
     """One run's Table 2 into ``tmp/<label>/`` (as ``uavturb evaluate`` writes it); its figures."""
-    from uavturb.experiments import evaluate as ev
-    from uavturb.experiments.export import load_height_module
+    from uavturb.commands import evaluate as ev
+    from uavturb.commands.export import load_height_module
 
     settings = ev.camera_settings(run, frame_dt=frame_dt)
     seqs = flights.sequences(settings)

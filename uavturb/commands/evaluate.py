@@ -276,40 +276,40 @@ def log_evaluation(run_id: str, folder: Path, results: list[tuple[str, dict[str,
     """
     import warnings
 
-    from uavturb.experiments import tracking
-    from uavturb.experiments.export import get_run
+    from uavturb.runs import store
+    from uavturb.commands.export import get_run
 
     parent = get_run(run_id)
-    client = tracking.client()
+    client = store.client()
     params = {k: str(v)[:500] for k, v in params.items()}
-    key = tracking.input_key(parent=run_id, **params)
-    previous = tracking.find_run(client, parent.info.experiment_id, key, parent_run_id=run_id)
+    key = store.input_key(parent=run_id, **params)
+    previous = store.find_run(client, parent.info.experiment_id, key, parent_run_id=run_id)
     total = dict(results[-1][1])
     note = (f"Table 2 of run `{run_id}` on {params['recordings']}: RMSE(f_a) {total['rmse_fa']:.4f} N "
             f"(law on true heights {total['rmse_fa_phi']:.4f} N), RMSE(d) {total['rmse_d']:.3f} m over "
             f"{int(total['n_ge'])} ground-effect frames.")
     if previous is not None:
         cid = previous.info.run_id
-        tracking.claim_run(client, cid)
+        store.claim_run(client, cid)
     else:
         cid = client.create_run(parent.info.experiment_id, run_name=f"evaluate-{run_id[:8]}",
-                                tags=tracking.run_tags({"mlflow.parentRunId": run_id, "evaluation": "table2",
-                                                        tracking.KEY_TAG: key})).info.run_id
+                                tags=store.run_tags({"mlflow.parentRunId": run_id, "evaluation": "table2",
+                                                        store.KEY_TAG: key})).info.run_id
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             if previous is None:
                 for k, v in params.items():
                     client.log_param(cid, k, v)
-            client.set_tag(cid, tracking.NOTE_TAG, note)
+            client.set_tag(cid, store.NOTE_TAG, note)
             for mk, mv in total.items():
                 if np.isfinite(mv):
                     client.log_metric(cid, f"eval/{mk}", float(mv))
             client.log_artifacts(cid, str(folder), "evaluation")
     except BaseException as e:
-        tracking.close_run(client, cid, e)
+        store.close_run(client, cid, e)
         raise
-    tracking.close_run(client, cid)
+    store.close_run(client, cid)
     return cid
 
 
@@ -477,7 +477,7 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     ``vehicle_source``, ``out``, ``mlflow_run`` (child run id or None), ``table`` (text).
     """
     from uavturb.data.recordings import recording_sequence
-    from uavturb.experiments.export import load_height_module, run_and_output
+    from uavturb.commands.export import load_height_module, run_and_output
     from uavturb.io.reader import load_recordings
 
     if not recordings:

@@ -61,7 +61,7 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
         write_json(tmp, report)
     if log_mlflow:
         try:
-            from uavturb.experiments.tracking import log_run
+            from uavturb.runs.store import log_run
 
             log_run("uavturb-gap", run_name="gap " + ",".join(Path(r).name for r in report["recordings"]),
                     params={"recordings": report["recordings"], "sim_effects": report["sim_effects"], "seed": seed,

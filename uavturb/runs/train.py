@@ -11,7 +11,7 @@ Stages (``cfg.stage``):
 
 Both stages keep the best checkpoint on the validation monitor (``val/loss`` resp.
 ``val/rmse_d``), then test it. Tracking: one MLflow run (Lightning's ``MLFlowLogger``, store
-from :func:`uavturb.experiments.tracking.tracking_uri`) holding the resolved config (flattened as
+from :func:`uavturb.runs.store.tracking_uri`) holding the resolved config (flattened as
 params and as ``config.yaml``), tags ``mlflow.source.git.commit``, ``data_hash`` and ``stage``, the
 dataset as the run's input (name and digest), and the metrics.
 
@@ -27,7 +27,7 @@ run id; a time stamp when tracking is off), logged to the run as the artifact
 ``checkpoints/best.ckpt`` (:data:`CHECKPOINT_ARTIFACT`), and its local path (relative to the
 working folder where it lies under it) is the run's tag ``checkpoint``. Height runs also log
 the figure ``plots/test_heights.png`` (predicted vs true height over test trajectories,
-:mod:`uavturb.experiments.plots`). ``last.ckpt`` beside it holds the latest epoch (tag
+:mod:`uavturb.evaluation.test_heights`). ``last.ckpt`` beside it holds the latest epoch (tag
 ``checkpoint_dir``: the folder).
 
 Interruptions and resuming: the run is FINISHED when training and testing complete, KILLED when
@@ -37,7 +37,7 @@ closing it (SIGKILL). ``train(cfg, resume=RUN_ID)`` (``uavturb train --resume RU
 such a run in the same MLflow run from its ``last.ckpt``, as Lightning's ``ckpt_path`` does.
 Bad config values and bad data fail before any run is opened, and so does a device this machine
 lacks (``trainer.accelerator=gpu`` without a CUDA device, fp16 on the CPU:
-:mod:`uavturb.experiments.accelerators`).
+:mod:`uavturb.runs.accelerators`).
 
 Devices: DataLoader memory is pinned when training on a CUDA device (``data.pin_memory``
 decides otherwise); ``trainer.cudnn_benchmark`` and ``trainer.matmul_precision`` are
@@ -59,8 +59,8 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from uavturb.errors import InputError
-from uavturb.experiments.accelerators import check_trainer_device
-from uavturb.experiments.config import TrainConfig, to_flat_dict, validate
+from uavturb.runs.accelerators import check_trainer_device
+from uavturb.runs.config import TrainConfig, to_flat_dict, validate
 
 #: MLflow artifact path of a run's best checkpoint (the local file: tag ``checkpoint``)
 CHECKPOINT_ARTIFACT = "checkpoints/best.ckpt"
@@ -161,7 +161,7 @@ def _resolve_ground_effect_law(cfg: DictConfig, data_root: Path) -> None:
 def _build(cfg: DictConfig):
     """(module, datamodule, callbacks, monitor) of the configured stage."""
     from uavturb.data.datamodules import PairsDataModule, ShardWindowsDataModule
-    from uavturb.experiments.accelerators import pin_memory
+    from uavturb.runs.accelerators import pin_memory
     from uavturb.systems import FreezeThenFinetune, HeightModule, TranscoderModule
 
     m, d = cfg.model, cfg.data
@@ -224,7 +224,7 @@ def _resumable_run(client, run_id: str):
     """The run ``run_id`` if it is a training run that may be resumed now; InputError otherwise."""
     from mlflow.exceptions import MlflowException
 
-    from uavturb.experiments.tracking import process_alive, tracking_uri
+    from uavturb.runs.store import process_alive, tracking_uri
 
     try:
         run = client.get_run(run_id)
@@ -245,7 +245,7 @@ def run_config(run_id: str) -> DictConfig:
     """The resolved config a training run logged (its ``config.yaml`` artifact), validated."""
     import tempfile
 
-    from uavturb.experiments.tracking import client
+    from uavturb.runs.store import client
 
     c = client()
     _resumable_run(c, run_id)
@@ -267,7 +267,7 @@ def resume_config(run_id: str, overrides: list[str] | None = None, experiment: s
     as for a new run (repeating the run's command line); :func:`train` then refuses it if it
     differs from the run's in any other key.
     """
-    from uavturb.experiments.config import load_config
+    from uavturb.runs.config import load_config
 
     overrides = list(overrides or [])
     if experiment is None and all(o.split("=", 1)[0] in RESUMABLE_KEYS for o in overrides):
@@ -297,13 +297,13 @@ def _open_run(cfg: DictConfig, data_root: Path, data_hash: str, ckpt_root: Path,
 
     A new run gets the resolved config (params and ``config.yaml``), the dataset as its input
     (name, digest), a description, the tags ``mlflow.source.git.commit``, ``data_hash``, ``stage``,
-    ``checkpoint_dir`` and :func:`uavturb.experiments.tracking.process_tags`.
+    ``checkpoint_dir`` and :func:`uavturb.runs.store.process_tags`.
     A resumed one is marked RUNNING by this process, keeps its params, and records what changed
     in the tags ``resumed`` (how many times) and ``resume_changes``.
     """
     from mlflow.entities import Param
 
-    from uavturb.experiments.tracking import (NOTE_TAG, claim_run, client, experiment_id, log_dataset, project_path,
+    from uavturb.runs.store import (NOTE_TAG, claim_run, client, experiment_id, log_dataset, project_path,
                                               run_tags)
 
     c = client()
@@ -334,7 +334,7 @@ def _open_run(cfg: DictConfig, data_root: Path, data_hash: str, ckpt_root: Path,
             log_dataset(c, run_id, data_root, data_hash, "pretraining" if cfg.stage == "pretrain" else "training")
     except BaseException as e:
         from uavturb.errors import Interrupted
-        from uavturb.experiments.tracking import close_run
+        from uavturb.runs.store import close_run
 
         status = close_run(c, run_id, e)
         if isinstance(e, Interrupted):  # stopped while the run was being opened: nothing trained yet
@@ -345,7 +345,7 @@ def _open_run(cfg: DictConfig, data_root: Path, data_hash: str, ckpt_root: Path,
 
 def _describe(cfg: DictConfig, data_root: Path, data_hash: str) -> str:
     """The run's description (MLflow's ``mlflow.note.content``, Markdown)."""
-    from uavturb.experiments.tracking import project_path
+    from uavturb.runs.store import project_path
 
     m = cfg.model
     if cfg.stage == "pretrain":
@@ -363,7 +363,7 @@ def _logger(cfg: DictConfig, run_id: str | None):
         return None
     from lightning.pytorch.loggers import MLFlowLogger
 
-    from uavturb.experiments.tracking import tracking_uri
+    from uavturb.runs.store import tracking_uri
 
     class StageMetricsLogger(MLFlowLogger):
         """MLFlowLogger that logs the stage's metric names (:func:`stage_metric_names`)."""
@@ -422,7 +422,7 @@ def _system_metrics(cfg: DictConfig, logger):
         return None
     from mlflow.system_metrics.system_metrics_monitor import SystemMetricsMonitor
 
-    from uavturb.experiments.tracking import tracking_uri
+    from uavturb.runs.store import tracking_uri
 
     monitor = SystemMetricsMonitor(logger.run_id, tracking_uri=tracking_uri())
     monitor.start()
@@ -446,7 +446,7 @@ def _log_checkpoint(logger, best: str | None) -> None:
     import shutil
     import tempfile
 
-    from uavturb.experiments.tracking import project_path
+    from uavturb.runs.store import project_path
 
     if not best:
         return
@@ -462,7 +462,7 @@ def _log_height_plot(logger, module, dm, window: int) -> None:
     """Predicted vs true height over the first test trajectories, as the figure ``plots/test_heights.png``."""
     import matplotlib.pyplot as plt
 
-    from uavturb.experiments.plots import figure_test_heights
+    from uavturb.evaluation.test_heights import figure_test_heights
 
     fig = figure_test_heights(module, dm.sets["test"].folders, window)
     logger.experiment.log_figure(logger.run_id, fig, "plots/test_heights.png")
@@ -523,7 +523,7 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     if resume is not None and not cfg.tracking.enabled:
         raise InputError("--resume", "needs tracking.enabled=true (the run lives in MLflow)")
     if resume is not None and _is_rank_zero():  # a run that cannot be resumed fails before any work
-        from uavturb.experiments.tracking import client
+        from uavturb.runs.store import client
         from uavturb.io.checkpoint import read_checkpoint
 
         run = _resumable_run(client(), resume)
@@ -551,7 +551,7 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     except BaseException as e:
         if client is not None:
             from uavturb.errors import Interrupted
-            from uavturb.experiments.tracking import close_run
+            from uavturb.runs.store import close_run
 
             status = close_run(client, run_id, e)
             if isinstance(e, Interrupted):
@@ -597,7 +597,7 @@ def _fit_and_test(cfg, module, dm, callbacks, monitor, client, run_id, last, ckp
         metrics.update({k: float(v) for k, v in row.items()})
     metrics.update({k + FA_SCALED_SUFFIX: v * FA_SCALE for k, v in list(metrics.items()) if k.endswith("rmse_fa")})
     if client is not None and trainer.is_global_zero:
-        from uavturb.experiments.tracking import close_run
+        from uavturb.runs.store import close_run
 
         logger.experiment.set_tag(logger.run_id, "world_size", str(trainer.world_size))
         _log_checkpoint(logger, best)

@@ -52,7 +52,7 @@ import torch
 from torch import nn
 
 from uavturb.errors import InputError
-from uavturb.experiments.tracking import client as _client
+from uavturb.runs.store import client as _client
 from uavturb.io.checkpoint import read_checkpoint
 from uavturb.io.publish import check_output_folder, publish_folder
 from uavturb.nn.height import phi_alpha_beta
@@ -79,7 +79,7 @@ def get_run(run_id: str):
     """The MLflow run ``run_id`` of the configured store; InputError naming ``--run`` if absent."""
     from mlflow.exceptions import MlflowException
 
-    from uavturb.experiments.tracking import tracking_uri
+    from uavturb.runs.store import tracking_uri
 
     try:
         return _client().get_run(run_id)
@@ -327,16 +327,16 @@ def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], example: dic
     import mlflow
     import onnx
 
-    from uavturb.experiments import tracking
+    from uavturb.runs import store
 
-    client = tracking.client()
-    mlflow.set_tracking_uri(tracking.tracking_uri())
+    client = store.client()
+    mlflow.set_tracking_uri(store.tracking_uri())
     exp_id = client.get_run(run_id).info.experiment_id
-    key = tracking.input_key(checkpoint_sha256=meta["checkpoint_sha256"], alpha=meta["alpha"], beta=meta["beta"],
+    key = store.input_key(checkpoint_sha256=meta["checkpoint_sha256"], alpha=meta["alpha"], beta=meta["beta"],
                              registered_name=registered_name)
     previous = mlflow.search_logged_models(experiment_ids=[exp_id], output_format="list",
                                            filter_string=f"source_run_id = '{run_id}' AND name = '{MODEL_NAME}'")
-    same = [m for m in previous if m.tags.get(tracking.KEY_TAG) == key]
+    same = [m for m in previous if m.tags.get(store.KEY_TAG) == key]
     if same:
         versions = client.search_model_versions(f"name = '{registered_name}'") if registered_name else []
         version = next((v.version for v in versions if v.source == same[0].model_uri
@@ -350,12 +350,12 @@ def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], example: dic
         warnings.simplefilter("ignore")
         with mlflow.start_run(run_id=run_id):
             info = mlflow.onnx.log_model(onnx.load(str(folder / ONNX_FILE)), name=MODEL_NAME, signature=sig,
-                                         input_example=example, metadata=metadata, tags={tracking.KEY_TAG: key},
+                                         input_example=example, metadata=metadata, tags={store.KEY_TAG: key},
                                          registered_model_name=registered_name)
             mlflow.log_artifact(str(folder / PT2_FILE), artifact_path="export")
             mlflow.log_artifact(str(folder / META_FILE), artifact_path="export")
             mlflow.log_metric("export/max_abs_diff", meta["max_abs_diff"])
-            mlflow.set_tag("export", tracking.project_path(meta["out"]))
+            mlflow.set_tag("export", store.project_path(meta["out"]))
     if registered_name:
         _update_best_alias(client, registered_name)
     return {"model_uri": info.model_uri, "registered_version": info.registered_model_version, "reused": False}

@@ -168,7 +168,7 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     ------
     InputError : no such experiment or parent run, or no finished ablation run in it.
     """
-    from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
+    from uavturb.runs.sweep_spec import DEFAULT_SPEC, load_spec
     from uavturb.io.publish import check_output_file, write_text_atomic
 
     if out is not None:  # before any query: existing tables are replaced only with overwrite
@@ -176,8 +176,8 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
             check_output_file(Path(out) / name, overwrite=overwrite)
     sp = load_spec(spec if spec is not None else DEFAULT_SPEC)
     experiment = experiment or sp.experiment
-    from uavturb.experiments.tracking import client as tracking_client
-    from uavturb.experiments.tracking import tracking_uri
+    from uavturb.runs.store import client as tracking_client
+    from uavturb.runs.store import tracking_uri
 
     client, uri = tracking_client(), tracking_uri()
     exp = client.get_experiment_by_name(experiment)

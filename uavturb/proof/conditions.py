@@ -44,8 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
-from uavturb.experiments.proof_scoring import param_error, with_hidden_bias
-from uavturb.experiments.sindy_peer import sindy_names
+from uavturb.proof.scoring import param_error, with_hidden_bias
+from uavturb.proof.sindy_peer import sindy_names
 from uavturb.gap.finder import analyse
 from uavturb.sim.conditions import Conditions
 

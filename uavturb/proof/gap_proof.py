@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.experiments.proof_scoring import param_error, with_hidden_bias
-from uavturb.experiments.sindy_peer import sindy_names
+from uavturb.proof.scoring import param_error, with_hidden_bias
+from uavturb.proof.sindy_peer import sindy_names
 from uavturb.gap.finder import analyse
 from uavturb.physics.effects import EFFECTS
 
@@ -92,7 +92,7 @@ def run_proof(out: Path, *, duration: float = 90.0, seed: int = 0, singles: list
     out), run PySINDy on the same samples, and tabulate. Cases with the ceiling effect fly
     :data:`CEILING_DURATION` s (the plan's hovers under the ceiling need it); the others
     ``duration``. ``seconds`` times reading both recordings and the analysis. Every flight
-    carries :data:`uavturb.experiments.proof_scoring.HIDDEN_BIAS`."""
+    carries :data:`uavturb.proof.scoring.HIDDEN_BIAS`."""
     from uavturb.io.reader import read_recording
     from uavturb.sim.flight import SensorNoise, generate_flight
 
@@ -202,11 +202,11 @@ def confusion_table(rows: list[dict]) -> str:
 def gap_proof(out: Path, *, duration: float = 90.0, seed: int = 0, singles: list[str] | None = None,
               pairs: bool = True, suite: str = "all") -> dict:
     """``uavturb gap-proof``: the finder blind on concealed effects (``suite`` ``concealed``) and on
-    flights with real recordings' troubles (``conditions``, :mod:`uavturb.experiments.gap_conditions`);
+    flights with real recordings' troubles (``conditions``, :mod:`uavturb.proof.conditions`);
     writes ``out/proof.md`` and ``proof.json``."""
     import json
 
-    from uavturb.experiments.gap_conditions import conditions_table, run_conditions
+    from uavturb.proof.conditions import conditions_table, run_conditions
     from uavturb.physics.effects import EFFECTS
 
     if suite not in ("all", "concealed", "conditions"):

@@ -173,7 +173,7 @@ def bench_infer(model_dir: str | Path | None = None, *, size: int = 128, frames:
     """
     import torch
 
-    from uavturb.experiments.export import export_streaming
+    from uavturb.commands.export import export_streaming
     from uavturb.nn.streaming import StreamingHeightModel
     from uavturb.systems import HeightModule
 
@@ -214,7 +214,7 @@ def _time_exported(model_dir: Path, frames: int, batch: int
     import onnxruntime as ort
     import torch
 
-    from uavturb.experiments.export import ONNX_FILE, PT2_FILE
+    from uavturb.commands.export import ONNX_FILE, PT2_FILE
 
     program = torch.export.load(str(model_dir / PT2_FILE)).module()
     opts = ort.SessionOptions()

@@ -39,17 +39,17 @@ from typing import Any, Iterator
 from omegaconf import DictConfig, OmegaConf
 
 from uavturb.errors import InputError, Interrupted
-from uavturb.experiments.config import load_config
-from uavturb.experiments.executors import PRETRAIN_RUN, Job, make_executor
-from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec, resolve_spec
-from uavturb.experiments.tracking import NOTE_TAG, ui_url
-from uavturb.experiments.train import CHECKPOINT_ARTIFACT, quiet_lightning, train
+from uavturb.runs.config import load_config
+from uavturb.runs.executors import PRETRAIN_RUN, Job, make_executor
+from uavturb.runs.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec, resolve_spec
+from uavturb.runs.store import NOTE_TAG, ui_url
+from uavturb.runs.train import CHECKPOINT_ARTIFACT, quiet_lightning, train
 
 
 def _spec_name(path: Path) -> str:
     """The sweep file as logged: a shipped sweep by its name, another file relative to the working folder."""
-    from uavturb.experiments.sweep_spec import SWEEPS_DIR
-    from uavturb.experiments.tracking import project_path
+    from uavturb.runs.sweep_spec import SWEEPS_DIR
+    from uavturb.runs.store import project_path
 
     return f"{path.stem} (shipped)" if path.resolve().parent == SWEEPS_DIR.resolve() else project_path(path)
 
@@ -66,7 +66,7 @@ class _Store:
     """The sweep's MLflow experiment: parent run, and children looked up by tags."""
 
     def __init__(self, experiment: str):
-        from uavturb.experiments.tracking import client, experiment_id
+        from uavturb.runs.store import client, experiment_id
 
         self.client = client()
         self.experiment_id = experiment_id(self.client, experiment)
@@ -75,7 +75,7 @@ class _Store:
     def parent(self, name: str, sweep_hash: str, preset: str, params: dict[str, Any]) -> tuple[str, bool]:
         """(run id, resumed): the latest parent of this sweep hash, else a new one. Two sweeps started
         together find the same parent (a lock per sweep hash)."""
-        from uavturb.experiments.tracking import claim_run, named_lock, run_tags
+        from uavturb.runs.store import claim_run, named_lock, run_tags
 
         with named_lock(f"sweep-{sweep_hash}"):
             runs = self.client.search_runs([self.experiment_id],
@@ -124,7 +124,7 @@ def _child_lock(parent_id: str, label: str) -> Iterator[None]:
     find it finished (two identical sweeps started together do not train it twice)."""
     from filelock import Timeout
 
-    from uavturb.experiments.tracking import named_lock
+    from uavturb.runs.store import named_lock
 
     lock = named_lock(f"child-{parent_id}-{label}")
     try:
@@ -143,10 +143,10 @@ def _child_state(store: _Store, parent_id: str, done: Any, **tags: str) -> tuple
 
     A finished run counts where ``done(run)`` holds. A run still RUNNING in a live process of this
     host (a ``uavturb train --resume`` started by hand) is waited for. An interrupted one (KILLED,
-    FAILED, or RUNNING whose process is gone) that :func:`uavturb.experiments.train.train` opened is
+    FAILED, or RUNNING whose process is gone) that :func:`uavturb.runs.train.train` opened is
     resumed in place rather than trained again beside it.
     """
-    from uavturb.experiments.tracking import process_alive
+    from uavturb.runs.store import process_alive
 
     said = False
     while True:
@@ -177,7 +177,7 @@ def _checkpoint_of(run: Any, cache_dir: Path) -> str | None:
     try:
         import mlflow
 
-        from uavturb.experiments.tracking import tracking_uri
+        from uavturb.runs.store import tracking_uri
 
         dst = cache_dir / run.info.run_id
         dst.mkdir(parents=True, exist_ok=True)
@@ -370,10 +370,10 @@ class _Children:
 
 
 def _finish_parent(plan: _Plan, store: _Store, parent_id: str, sweep_hash: str) -> tuple[dict[str, Any], str]:
-    """(Table 1 from :func:`uavturb.experiments.compare.compare`, the UI view's id): the table logged to the
+    """(Table 1 from :func:`uavturb.runs.table1.compare`, the UI view's id): the table logged to the
     parent run as artifacts and description, the parent closed, the view saved."""
-    from uavturb.experiments.compare import compare
-    from uavturb.experiments.tracking import close_run
+    from uavturb.runs.table1 import compare
+    from uavturb.runs.store import close_run
 
     table = compare(experiment=plan.experiment, parent_run_id=parent_id, spec=plan.spec_path, out=None)
     store.client.log_text(parent_id, table["markdown_text"], "table1.md")
@@ -401,7 +401,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     experiment : MLflow experiment (default: the file's ``experiment``).
     conf_dir : a user's config folder, searched before the shipped one.
     executor : ``sequential`` (one run after another, here) or ``ray`` (Ray tasks;
-        :mod:`uavturb.experiments.executors`).
+        :mod:`uavturb.runs.executors`).
     address : the Ray cluster (``--executor ray``; default: a local Ray instance).
     max_retries : extra attempts of a run that fails.
 
@@ -417,7 +417,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     InputError : bad sweep file, unknown preset, bad override (before anything runs).
     RunsFailed : some runs failed after their retries (the parent run is then FAILED).
     """
-    from uavturb.experiments.tracking import close_run
+    from uavturb.runs.store import close_run
 
     plan = _resolve_plan(spec, preset, seeds, overrides, experiment, conf_dir)
     ex = make_executor(executor, address=address, max_retries=max_retries)
@@ -450,7 +450,7 @@ TABLE1_COLUMNS = ["tags.`ablation`", "tags.`seed`", "metrics.`test/rmse_d`", "me
 
 def table1_view(store: _Store, name: str, preset: str, sweep_hash: str) -> str:
     """A saved view of the experiment listing this sweep's Table 1 runs with their test metrics."""
-    from uavturb.experiments.tracking import save_view
+    from uavturb.runs.store import save_view
 
     return save_view(store.client, store.experiment_id, f"table1-{sweep_hash}", f"Table 1 ({name}, {preset})",
                      search_filter=f"tags.sweep_hash = '{sweep_hash}' and tags.ablation LIKE '%'",
