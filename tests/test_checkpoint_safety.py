@@ -69,7 +69,7 @@ def test_other_files_are_one_line(tmp_path):
 def test_resume_refuses_a_poisoned_last_checkpoint_before_touching_the_run(tmp_path, monkeypatch, capsys):
     from uavturb.runs import store
     from uavturb.runs.config import load_config, to_flat_dict
-    from uavturb.runs.train import LAST_CHECKPOINT
+    from uavturb.runs.resume import LAST_CHECKPOINT
 
     from test_interruptions import _tiny
 

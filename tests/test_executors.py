@@ -27,7 +27,7 @@ from uavturb.runs import executors
 from uavturb.runs import sweep as sweep_mod
 from uavturb.runs.executors import absolute_tracking_uri, task_resources
 from uavturb.runs.sweep import sweep
-from uavturb.runs.sweep_spec import DEFAULT_SPEC, load_spec
+from uavturb.runs.config import DEFAULT_SPEC, load_spec
 from uavturb.runs.store import tracking_uri
 
 ray = pytest.importorskip("ray")

@@ -13,7 +13,8 @@ import torch
 from height_run import tiny_height_run
 
 from uavturb.errors import InputError
-from uavturb.commands.export import export, run_checkpoint
+from uavturb.commands.export import export
+from uavturb.runs.store import run_checkpoint
 from uavturb.io import shards
 from uavturb.nn.height import phi_alpha_beta
 from uavturb.nn.streaming import StreamingHeightModel, gru_step

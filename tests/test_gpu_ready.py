@@ -119,7 +119,7 @@ def test_the_gpu_groups_say_what_they_set():
     t, d = cfg.trainer, cfg.data
     assert (t.accelerator, t.devices, t.precision, t.cudnn_benchmark) == ("gpu", "1", "bf16-mixed", True)
     assert (d.image_size, d.window, d.batch_size, d.pin_memory) == (128, 8, 16, True) and d.num_workers >= 2
-    from uavturb.runs.train import trainer_kwargs
+    from uavturb.runs.trainer import trainer_kwargs
 
     kw = trainer_kwargs(t)
     assert (kw["accelerator"], kw["devices"], kw["precision"], kw["benchmark"]) == ("gpu", 1, "bf16-mixed", True)
@@ -175,7 +175,7 @@ def test_bf16_mixed_training_on_the_cpu_reloads_and_exports_like_float32(tmp_pat
     assert res["max_abs_diff"] <= 1e-5 and res["image_size"] == (16, 16)
 
     # the DataLoaders train() builds pin memory as the config says (the CPU: no)
-    from uavturb.runs.train import build_stage
+    from uavturb.runs.trainer import build_stage
 
     for extra, pinned in (([], False), (["data.pin_memory=true"], True)):
         _, dm, _, _ = build_stage(load_config(_tiny(tmp_path, "trainer=cpu", *extra)), tmp_path / "sim")

@@ -54,7 +54,7 @@ def _last_line(stderr: str) -> str:
 
 
 def _runs(uri: str, experiment: str) -> list:
-    from uavturb.runs.store import store_lock
+    from uavturb.runs.locks import store_lock
 
     with store_lock(uri):  # the store may be being created by the command under test
         client = mlflow.MlflowClient(uri)
@@ -197,15 +197,16 @@ def test_sigkill_leaves_a_run_the_next_store_command_marks_failed(tmp_path, monk
 
 def test_stale_marking_leaves_live_and_foreign_runs_alone(tmp_path, monkeypatch):
     from uavturb.runs import store
+    from uavturb.runs.processes import process_tags
 
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
     c = store.client()
     exp = store.experiment_id(c, "stale")
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    mine = c.create_run(exp, tags=store.process_tags()).info.run_id
-    other_host = c.create_run(exp, tags={**store.process_tags(), "host": "elsewhere"}).info.run_id
-    gone = c.create_run(exp, tags={**store.process_tags(), "pid": dead.stdout.strip()}).info.run_id
-    reused = c.create_run(exp, tags={**store.process_tags(), "pid_start": "1"}).info.run_id  # pid reused since
+    mine = c.create_run(exp, tags=process_tags()).info.run_id
+    other_host = c.create_run(exp, tags={**process_tags(), "host": "elsewhere"}).info.run_id
+    gone = c.create_run(exp, tags={**process_tags(), "pid": dead.stdout.strip()}).info.run_id
+    reused = c.create_run(exp, tags={**process_tags(), "pid_start": "1"}).info.run_id  # pid reused since
     untagged = c.create_run(exp).info.run_id
     assert sorted(store.mark_stale_runs(c)) == sorted([gone, reused])
     status = {r: c.get_run(r).info.status for r in (mine, other_host, gone, reused, untagged)}

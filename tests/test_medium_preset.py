@@ -6,7 +6,7 @@ import pytest
 
 from uavturb.errors import InputError
 from uavturb.runs.config import load_config
-from uavturb.runs.sweep_spec import DEFAULT_SPEC, load_spec
+from uavturb.runs.config import DEFAULT_SPEC, load_spec
 from uavturb.sim.presets import get_preset
 from uavturb.sim.tasks import plan_tasks, scene_splits
 

@@ -19,7 +19,7 @@ import mlflow
 import pytest
 
 from uavturb.runs.sweep import sweep
-from uavturb.runs.sweep_spec import DEFAULT_SPEC, load_spec
+from uavturb.runs.config import DEFAULT_SPEC, load_spec
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [pytest.mark.slow,

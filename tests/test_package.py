@@ -12,7 +12,7 @@ import pytest
 
 from uavturb.errors import InputError
 from uavturb.runs.config import CONF_DIR, load_config
-from uavturb.runs.sweep_spec import DEFAULT_SPEC, resolve_spec
+from uavturb.runs.config import DEFAULT_SPEC, resolve_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 

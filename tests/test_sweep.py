@@ -20,7 +20,7 @@ from uavturb.errors import InputError, Interrupted
 from uavturb.runs import sweep as sweep_mod
 from uavturb.runs.table1 import compare
 from uavturb.runs.sweep import sweep
-from uavturb.runs.sweep_spec import DEFAULT_SPEC, load_spec
+from uavturb.runs.config import DEFAULT_SPEC, load_spec
 from uavturb.runs.store import tracking_uri
 
 ROWS = [r.name for r in load_spec(DEFAULT_SPEC).rows]

@@ -96,9 +96,9 @@ def test_ground_effect_law_of_the_training_data(tmp_path):
     assert alpha == pytest.approx(HEXAROTOR.thrust_coefficient * beta, rel=1e-12)
     assert ground_effect_law(tmp_path / "nothing") is None
     with pytest.raises(InputError, match="model.alpha"):
-        from uavturb.runs.train import _resolve_ground_effect_law
+        from uavturb.runs.training_data import resolve_ground_effect_law
 
-        _resolve_ground_effect_law(load_config(["model.alpha=1e-9"]), tmp_path / "hex")
+        resolve_ground_effect_law(load_config(["model.alpha=1e-9"]), tmp_path / "hex")
 
 
 def test_pretrain_then_finetune_height(tmp_path, store):

@@ -41,7 +41,7 @@ def _sim_presets() -> str:
 
 
 def _sweep_presets() -> str:
-    from uavturb.runs.sweep_spec import DEFAULT_SPEC, load_spec
+    from uavturb.runs.config import DEFAULT_SPEC, load_spec
 
     return ", ".join(load_spec(DEFAULT_SPEC).presets)
 
@@ -524,7 +524,8 @@ def _gap_proof(args: argparse.Namespace) -> int:
 
 def _train(args: argparse.Namespace) -> int:
     from uavturb.runs.config import load_config
-    from uavturb.runs.train import resume_config, train
+    from uavturb.runs.resume import resume_config
+    from uavturb.runs.train import train
 
     if args.resume:
         out = train(resume_config(args.resume, args.overrides, args.experiment), resume=args.resume)
@@ -558,8 +559,7 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from uavturb.commands.evaluate import evaluate
-    from uavturb.commands.evaluate_runs import evaluate_runs, sweep_runs
+    from uavturb.commands.evaluate import evaluate, evaluate_runs, sweep_runs
 
     if (args.sweep is None) == (args.run is None):
         raise InputError("--run", "give one or more --run RUN_ID, or --sweep PARENT_RUN_ID")

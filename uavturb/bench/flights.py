@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from uavturb.scene.procedural import generate_scene
 from uavturb.sim.scene_flight import fly_trajectory
 
 
@@ -17,7 +18,6 @@ def benchmark(n_trajectories: int = 3, controller: str = "mpc", seed: int = 0, p
     time in the controller and the physics, MPC update times (mean, p95) [ms], tracking error
     (mean, max) [m] and the collision count.
     """
-    from uavturb.scene.procedural import generate_scene
 
     frames = wall = ctrl_s = phys_s = 0.0
     solve, err = [], []

@@ -75,10 +75,9 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
     import tempfile
 
     from uavturb.runs import store
-    from uavturb.runs.config import load_config
+    from uavturb.runs.config import DEFAULT_SPEC, load_config
     from uavturb.runs.sweep import sweep
-    from uavturb.runs.sweep_spec import DEFAULT_SPEC
-    from uavturb.runs.train import _prepare_data
+    from uavturb.runs.training_data import prepare_data
 
     out: dict[str, float] = {}
     old = os.environ.get("MLFLOW_TRACKING_URI")
@@ -87,11 +86,10 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
         try:
             data = [f"data.root={tmp}/sim", f"data.pairs_root={tmp}/pairs"]
             for stage in ("pretrain", "height"):
-                _prepare_data(load_config(["data=synthetic", f"stage={stage}", *data]))
-            client = store.client()
+                prepare_data(load_config(["data=synthetic", f"stage={stage}", *data]))
             metrics = {}
             for executor in ("sequential", "ray"):
-                client.create_experiment(f"bench-{executor}", artifact_location=f"{tmp}/mlruns/{executor}")
+                store.create_experiment(f"bench-{executor}", artifact_location=f"{tmp}/mlruns/{executor}")
                 t = time.perf_counter()
                 res = sweep(DEFAULT_SPEC, preset="quick", seeds=seeds, experiment=f"bench-{executor}",
                             overrides=[*data, f"trainer.default_root_dir={tmp}/runs-{executor}"], executor=executor)
@@ -106,7 +104,7 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
     out["CPUs"] = float(os.cpu_count() or 1)
     out["max relative difference of test metrics"] = max(
         abs(m[k] - metrics["ray"][run][k]) / max(abs(m[k]), 1e-12)
-        for run, m in metrics["sequential"].items() for k in ("test/rmse_d", "test/rmse_fa"))
+        for run, m in metrics["sequential"].items() for k in store.TABLE1_METRICS)
     return out
 
 
