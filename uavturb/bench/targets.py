@@ -139,9 +139,9 @@ def bench(what: str) -> None:
             flight_benchmark.benchmark(3, ctrl)
         return
     if what == "scene":
-        from uavturb.scene import heights
+        from uavturb.bench import scene
 
-        for k, v in heights.benchmark().items():
+        for k, v in scene.benchmark().items():
             print(f"{k:<40}{v:>12.4g}")
     elif what == "gap-proof":
         from uavturb.proof.gap_proof import gap_proof
