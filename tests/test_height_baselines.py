@@ -1,4 +1,4 @@
-"""Known answers of the Table 1 reference estimators (uavturb.height_baselines)."""
+"""Known answers of the Table 1 reference estimators (uavturb.evaluation.baselines)."""
 
 from __future__ import annotations
 

@@ -45,7 +45,7 @@ def known_rmse(row: str, seed: int) -> tuple[float, float]:
 
 
 class FakeTrain:
-    """Stands in for uavturb.train.train: one FINISHED MLflow run with the given tags."""
+    """Stands in for uavturb.runs.train.train: one FINISHED MLflow run with the given tags."""
 
     def __init__(self, tmp_path: Path, fail_at: int | None = None, kill_at: int | None = None):
         self.calls: list[tuple[object, dict]] = []

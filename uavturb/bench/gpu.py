@@ -3,7 +3,7 @@ and bf16 side by side.
 
 Both stages are trained as ``uavturb train`` trains them -- the config groups ``trainer=gpu``
 and ``data=shards_gpu`` (``--device cpu``: ``trainer=cpu``), the modules and memory-mapped
-DataLoaders that :func:`uavturb.runs.train.build_stage` builds, Lightning's ``Trainer``
+DataLoaders that :func:`uavturb.runs.trainer.build_stage` builds, Lightning's ``Trainer``
 with :func:`~uavturb.runs.train.trainer_kwargs` -- on synthetic box rooms
 (:mod:`uavturb.data.synthetic`) written as shards and pairs to a temporary folder:
 

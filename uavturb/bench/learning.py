@@ -9,7 +9,7 @@
   in alternating blocks of 5 steps. 1.0 means the model never waits for data; the target is
   under 1.10. On a machine shared with other jobs, step times scatter by tens of percent:
   read the ratio together with the time spent waiting for the next batch, printed too.
-- **infer**: the exported streaming model (:mod:`uavturb.export`) at 128 x 128 on **one CPU
+- **infer**: the exported streaming model (:mod:`uavturb.commands.export`) at 128 x 128 on **one CPU
   thread**: per-frame latency (batch 1, state carried; target <= 1 ms, the camera at 20 Hz
   leaves 50 ms) for the ``torch.export`` program and for ONNX Runtime, and batched throughput.
   Latency does not depend on the weights, so a freshly initialised model of the paper's

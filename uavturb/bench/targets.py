@@ -118,7 +118,7 @@ def bench(what: str) -> None:
         for k, v in bench_sweep().items():
             print(f"{k:<48}{v:>12.4g}")
         return
-    if what in ("train", "infer"):  # learning pipeline (uavturb.bench_learning)
+    if what in ("train", "infer"):  # learning pipeline (uavturb.bench.learning)
         from uavturb.bench import learning
 
         (learning.bench_train if what == "train" else learning.bench_infer)()
@@ -129,7 +129,7 @@ def bench(what: str) -> None:
         for k, v in dataset_benchmark.benchmark().items():
             print(f"{k:<48}{v:>12.4g}" if isinstance(v, float) else f"{k:<48}{v:>12}")
         return
-    if what == "flights":  # MPC solve times and closed-loop flight speed (uavturb.sim.flight_benchmark)
+    if what == "flights":  # MPC solve times and closed-loop flight speed (uavturb.bench.flights)
         from uavturb.bench import flights as flight_benchmark
         from uavturb.sim import mpc, scene_flight
 

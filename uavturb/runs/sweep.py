@@ -369,7 +369,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     dict with ``parent_run_id``, ``experiment``, ``resumed`` (bool), ``runs`` (one dict per
     row and seed: ``row``, ``seed``, ``run_id``, ``metrics``, ``checkpoint``, ``reused``),
     ``pretrain`` (``{(variant, seed): checkpoint}``), ``table`` (Table 1 as text, from
-    :func:`uavturb.compare.compare`).
+    :func:`uavturb.runs.table1.compare`).
 
     Raises
     ------

@@ -1,6 +1,6 @@
 """Table 1 from the MLflow store (``uavturb compare``): mean +- std over seeds per ablation row.
 
-Rows are the height runs tagged ``ablation=<row>`` (and ``seed=<n>``) by :func:`uavturb.sweep.sweep`,
+Rows are the height runs tagged ``ablation=<row>`` (and ``seed=<n>``) by :func:`uavturb.runs.sweep.sweep`,
 FINISHED, with metrics ``test/rmse_d`` [m] and ``test/rmse_fa`` [N]. By default the children of
 the latest sweep parent run of the experiment are used; with no sweep parent at all, every
 such run of the experiment. Where a (row, seed) pair has several runs, the latest counts.
