@@ -11,6 +11,10 @@ from typing import Callable
 
 from uavturb.errors import InputError, Interrupted, UavturbError, raise_on_signals
 
+# Each command imports its module (uavturb.commands, uavturb.runs, uavturb.bench, ...) inside its
+# handler below, not here: start-up time (`uavturb --help` and `uavturb gap` never load torch,
+# Lightning or MLflow).
+
 
 def _version() -> str:
     from importlib.metadata import PackageNotFoundError, version
