@@ -320,7 +320,7 @@ def log_run(experiment: str | None, *, run_name: str, params: dict[str, Any], me
     c = client()
     exp_id = get_run(parent_run_id).info.experiment_id if parent_run_id else experiment_id(c, experiment)
     params = {k: str(v)[:500] for k, v in params.items()}
-    key = input_key(run_name=run_name, params=params, parent=parent_run_id)
+    key = input_key(run_name=run_name, params=params, **({"parent": parent_run_id} if parent_run_id else {}))
     previous = find_run(c, exp_id, key, parent_run_id=parent_run_id)
     if previous is not None:
         rid = previous.info.run_id
