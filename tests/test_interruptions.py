@@ -54,7 +54,7 @@ def _last_line(stderr: str) -> str:
 
 
 def _runs(uri: str, experiment: str) -> list:
-    from uavturb.runs.locks import store_lock
+    from uavturb.runs.mutex import store_lock
 
     with store_lock(uri):  # the store may be being created by the command under test
         client = mlflow.MlflowClient(uri)

@@ -7,8 +7,8 @@ Everyone opens the store through :func:`client`:
 
 - *Creation is safe under concurrency.* Creating (and migrating) a SQLite store runs alembic
   migrations that two processes must not run at once; :func:`client` holds a file lock of the
-  store (:func:`uavturb.runs.locks.store_lock`, in a cache folder) while it opens the store, so one process creates it and the
-  others wait. A store that cannot be opened is reported in one line with what to do
+  store (:func:`uavturb.runs.mutex.store_lock`, in a cache folder) while it opens the store, so
+  one process creates it and the others wait. A store that cannot be opened is reported in one line with what to do
   (:class:`StoreError`).
 - *Run states tell the truth.* Every run uavturb opens carries the tags ``host``, ``pid`` and
   ``pid_start`` (:func:`uavturb.runs.processes.process_tags`) of the process that keeps it. The first :func:`client` of
@@ -30,7 +30,7 @@ run's checkpoint (:func:`run_checkpoint`), searches that page (:func:`search_run
 find-or-create helper (:func:`log_run`) every command uses, one way to close a run
 (:func:`close_run`, :func:`closing_run`), and one table of metric names and units
 (:data:`METRICS`). The file locks it takes live in a cache folder, never in the working
-directory (:func:`uavturb.runs.locks.lock_folder`). MLflow itself is imported inside the
+directory (:func:`uavturb.runs.mutex.lock_folder`). MLflow itself is imported inside the
 functions: importing it takes about a second, which commands that log nothing do not pay.
 """
 
@@ -53,7 +53,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from uavturb.errors import InputError, Interrupted, UavturbError
-from uavturb.runs.locks import sqlite_path, store_lock
+from uavturb.runs.mutex import sqlite_path, store_lock
 from uavturb.runs.processes import process_alive, process_tags
 
 

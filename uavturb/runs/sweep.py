@@ -44,7 +44,7 @@ from uavturb.io.shards import config_hash
 from uavturb.runs import store
 from uavturb.runs.config import DEFAULT_SPEC, SWEEPS_DIR, load_config, load_spec, resolve_spec
 from uavturb.runs.executors import PRETRAIN_RUN, Job, make_executor
-from uavturb.runs.locks import named_lock
+from uavturb.runs.mutex import named_lock
 from uavturb.runs.processes import process_alive
 from uavturb.runs.table1 import compare
 from uavturb.runs.train import quiet_lightning, train
