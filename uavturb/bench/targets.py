@@ -109,7 +109,11 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
 
 
 def bench(what: str) -> None:
-    """``uavturb bench``: print the figures of one of :data:`TARGETS`."""
+    """``uavturb bench``: print the figures of one of :data:`TARGETS`.
+
+    Each target imports what it measures here, not at the top of the module (as cli.py does):
+    ``uavturb bench --help`` reads :data:`TARGETS`, and a target must not load the stacks of the
+    others (torch and Lightning, Ray, CasADi, PySINDy) into the process it times."""
     if what == "readers":  # bounded CSV reader (uavturb.io.euroc_csv)
         for k, v in bench_readers().items():
             print(f"{k:<48}{v:>12.4g}")
