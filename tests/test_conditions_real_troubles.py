@@ -17,10 +17,11 @@ from uavturb.io.writer import write_recording
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.vehicle import HEXAROTOR
-from uavturb.sim import conditions as C
-from uavturb.sim.flight import SensorNoise, low_heights, make_reference, simulate_flight
-from uavturb.sim.references import hover
-from uavturb.sim.stream_troubles import held_rows
+from uavturb.sim.flights import conditions as C
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import low_heights, make_reference, simulate_flight
+from uavturb.sim.core.signals import hover
+from uavturb.sim.flights.stream_troubles import held_rows
 
 GE = {"ground_effect": {"mu": 2.0}}
 

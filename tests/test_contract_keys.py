@@ -17,8 +17,8 @@ from uavturb.io.writer import write_recording
 from uavturb.physics import quaternion as quat
 from uavturb.physics.effects import parse_effects
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR, Vehicle
-from uavturb.sim.flight import simulate_flight
-from uavturb.sim.references import hover
+from uavturb.sim.flights.simulate import simulate_flight
+from uavturb.sim.core.signals import hover
 from uavturb.sysid.flight_data import flight_data
 
 

@@ -231,10 +231,12 @@ def test_update_manifest_and_dataset_hash(tmp_path):
 
 def test_synthetic_heights_see_the_boxes(tmp_path):
     """Known answers of the analytic scene: depth of the floor straight ahead, box tops under the body."""
-    from uavturb.data.synthetic import BoxRoom, camera_rotation, pixel_rays, render
+    from uavturb.data.synthetic import camera_rotation, pixel_rays, render
+    from uavturb.scene.layouts import box_room
+    from uavturb.scene.queries import surface_below
 
-    room = BoxRoom(half=4.0, ceiling=3.0, boxes=np.array([[-1.0, 1.0, -1.0, 1.0, 0.5]]))
-    np.testing.assert_allclose(room.surface_below(np.array([[0.0, 0.0], [2.0, 0.0]])), [0.5, 0.0])
+    room = box_room((8.0, 8.0), 3.0, [(-1.0, 1.0, -1.0, 1.0, 0.5)])
+    np.testing.assert_allclose(surface_below(room, np.array([[0.0, 0.0], [2.0, 0.0]])), [0.5, 0.0])
     # camera 1 m above the floor, looking straight down (pitch 90 deg) over the floor at x = 2.5
     rays = pixel_rays(5, 70.0)
     depth, normals = render(room, np.array([[2.5, 0.0, 1.0]]), camera_rotation(np.zeros(1), 90.0), rays)

@@ -17,8 +17,11 @@ from uavturb.io import sensor_yaml  # noqa: E402
 from uavturb.io.reader import read_recording  # noqa: E402
 from uavturb.io.vehicle_file import SHIPPED_DIR, load_vehicle  # noqa: E402
 from uavturb.physics import quaternion as quat  # noqa: E402
-from uavturb.sim import cameras, euroc_standin  # noqa: E402
-from uavturb.sim.references import EUROC_ROOM  # noqa: E402
+from uavturb.sim.core import cameras  # noqa: E402
+from uavturb.sim.flights import euroc_standin  # noqa: E402
+from uavturb.scene.layouts import floor_boxes, room_size  # noqa: E402
+from uavturb.scene.queries import surface_below  # noqa: E402
+from uavturb.sim.flights.plans import EUROC_ROOM  # noqa: E402
 
 #: EuRoC MAV dataset, mav0/cam0/sensor.yaml (every sequence): the numbers as published
 EUROC_INTRINSICS = [458.654, 457.296, 367.215, 248.375]
@@ -102,7 +105,7 @@ def test_render_through_cam0_matches_a_ray_cast_on_a_flat_floor(width, height):
     """The body hovers level 1.2 m up; cam0 (0.13 m lower, 19.4 deg down) sees the floor: the depth at
     the principal point (1/z interpolated, exact for a plane) is the ray cast's, and every pixel is."""
     from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.render import SceneRenderer
+    from uavturb.sim.core.render import SceneRenderer
 
     floor = trimesh.creation.box(extents=(60.0, 60.0, 0.1))
     floor.apply_translation((0.0, 0.0, -0.05))
@@ -132,7 +135,7 @@ def test_forward_camera_through_intrinsics_equals_the_fov_camera():
     """The renderer's calibrated-camera path, given the forward camera's own K, renders what its
     field-of-view path renders (so the two conventions for the principal point agree)."""
     from uavturb.scene import procedural
-    from uavturb.sim.render import SceneRenderer, random_poses
+    from uavturb.sim.core.render import SceneRenderer, random_poses
 
     scene = procedural.generate_scene(3)
     poses = random_poses(scene, 4, seed=1)
@@ -152,13 +155,13 @@ def test_forward_camera_through_intrinsics_equals_the_fov_camera():
 def test_stand_in_height_profile(seed, duration):
     """Take-off from the floor, 0.5-2 m over the surface below between take-off and landing (some of it
     over furniture), landing on the floor; 2-8 s below 0.3 m in all, at most 4 s at each end."""
-    from uavturb.sim.flight import make_reference
+    from uavturb.sim.flights.simulate import make_reference
 
     ref = make_reference("euroc_room", duration, seed, _firefly())
     assert ref.duration == pytest.approx(duration)
     t = np.arange(0.0, duration + 1e-9, 0.005)
     sp = ref(t)
-    surface = EUROC_ROOM.surface_below(sp.p[:, 0], sp.p[:, 1])
+    surface = surface_below(EUROC_ROOM, sp.p[:, :2])
     d = sp.p[:, 2] - surface
     assert surface[0] == surface[-1] == 0.0  # starts and ends on the floor, at rest
     assert d[0] == d[-1] == pytest.approx(0.16) and np.all(np.abs(sp.v[[0, -1]]) < 1e-12)
@@ -170,11 +173,11 @@ def test_stand_in_height_profile(seed, duration):
     assert cruise.min() >= 0.5 - 1e-9 and cruise.max() <= 2.0 + 1e-9
     assert np.mean(surface[up:down + 1] > 0) > 0.05  # over furniture for a while
     assert t[down] - t[up] > 0.6 * duration
-    assert np.all(np.abs(sp.p[:, :2]) < np.array(EUROC_ROOM.size) / 2 - 0.5)
+    assert np.all(np.abs(sp.p[:, :2]) < np.array(room_size(EUROC_ROOM)) / 2 - 0.5)
 
 
 def test_stand_in_needs_time_and_a_flyable_vehicle():
-    from uavturb.sim.flight import make_reference
+    from uavturb.sim.flights.simulate import make_reference
 
     with pytest.raises(InputError, match="--duration: a euroc_room flight needs at least 2[0-9] s"):
         make_reference("euroc_room", 15.0, 0, _firefly())
@@ -207,8 +210,8 @@ def test_flight_is_written_like_euroc(flight):
     assert truth["stand_in"]["landed_height_m"] == 0.16 and len(truth["stand_in"]["room"]["boxes"]) == 4
     from uavturb.scene.heights import SurfaceIndex
 
-    centres = np.array([[(b[0] + b[1]) / 2, (b[2] + b[3]) / 2, 2.0] for b in EUROC_ROOM.boxes])
-    tops = np.array([b[4] for b in EUROC_ROOM.boxes])  # 0.75 (table), 0.45, 0.2, 0.6
+    centres = np.array([[(b[0] + b[1]) / 2, (b[2] + b[3]) / 2, 2.0] for b in floor_boxes(EUROC_ROOM)])
+    tops = np.array([b[4] for b in floor_boxes(EUROC_ROOM)])  # 0.75 (table), 0.45, 0.2, 0.6
     assert np.allclose(SurfaceIndex(rec.points).d_down(centres), 2.0 - tops, atol=0.02)  # the cloud has the furniture
     assert np.allclose(SurfaceIndex(rec.points).d_up(centres), 3.2 - 2.0, atol=0.02)  # and the 3.2 m ceiling
 
@@ -235,8 +238,7 @@ def test_evaluate_projects_through_cam0(flight):
     from uavturb.io import align
     from uavturb.io.body_frame import to_body
     from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.flight import room_mesh
-    from uavturb.sim.render import SceneRenderer
+    from uavturb.sim.core.render import SceneRenderer
 
     rec = read_recording(flight)
     seq = recording_sequence(rec, rec.vehicle, image_size=32)
@@ -249,7 +251,7 @@ def test_evaluate_projects_through_cam0(flight):
     T_WC = camera_pose_world(align.interpolate_quaternions(gt.t_ns, gt.q, t_ns), align.interpolate(gt.t_ns, gt.p, t_ns),
                              seq.camera.T_BS)
     errors = []
-    with SceneRenderer(room_mesh(EUROC_ROOM), 32, 32, K=seq.camera.K) as r:
+    with SceneRenderer(EUROC_ROOM.mesh, 32, 32, K=seq.camera.K) as r:
         for k, T in zip(frames, T_WC):
             ref, got = r.depth(T), seq.depth[k]
             ok = (ref > 0) & (got > 0)
@@ -285,9 +287,9 @@ HASHES = {"tiny": ("328da3ba72d27e99", "3aeff8a2495cf0c7", "60e0002d24fd9451"),
 
 def test_existing_presets_keep_their_config_hashes():
     from uavturb.io import shards
-    from uavturb.sim.dataset import dataset_config
-    from uavturb.sim.presets import get_preset
-    from uavturb.sim.pretraining import pairs_config
+    from uavturb.sim.dataset.generation import dataset_config
+    from uavturb.sim.dataset.presets import get_preset
+    from uavturb.sim.dataset.pretraining_pairs import pairs_config
 
     for name, (mpc, geometric, pairs) in HASHES.items():
         p = get_preset(name)
@@ -305,9 +307,9 @@ def test_sim_shards_through_cam0(tmp_path):
     """``generate sim --set camera=euroc_cam0``: cam0's intrinsics at the preset's 24 px, its mount on the
     body, and landed heights raised to 0.16 m so the camera stays over the floor."""
     from uavturb.io import shards
-    from uavturb.sim import dataset
+    from uavturb.sim.dataset import generation
 
-    m = dataset.generate_sim("tiny", tmp_path / "eu", seed=0, progress=False, camera="euroc_cam0", width=24,
+    m = generation.generate_sim("tiny", tmp_path / "eu", seed=0, progress=False, camera="euroc_cam0", width=24,
                              height=24, controller="geometric")
     assert m.config["preset"]["camera"] == "euroc_cam0"
     folder = m.folders("train")[0]
@@ -318,7 +320,7 @@ def test_sim_shards_through_cam0(tmp_path):
     assert tr.depth.shape[1:] == (24, 24) and tr.d.min() > 0.15 and abs(tr.d[0] - 0.16) < 0.01
     from uavturb.scene.procedural import generate_scene
     from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.render import SceneRenderer
+    from uavturb.sim.core.render import SceneRenderer
 
     with SceneRenderer(generate_scene(meta["scene_seed"]), 24, 24, K=cameras.EUROC_CAM0.K(24, 24)) as r:
         k = len(tr.t) // 2

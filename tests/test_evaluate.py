@@ -27,7 +27,8 @@ from uavturb.runs.store import tracking_uri
 from uavturb.io.reader import read_recording
 from uavturb.physics.ground_effect import phi_alpha_beta
 from uavturb.physics.vehicle import HEXAROTOR
-from uavturb.sim.flight import SensorNoise, generate_flight
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import generate_flight
 
 MU = 2.0
 

@@ -8,7 +8,7 @@ from uavturb.errors import InputError
 from uavturb.commands.gap import gap
 from uavturb.io.physics_config import load_physics_config
 from uavturb.physics.effects import DEFAULT_EFFECTS
-from uavturb.sim.flight import generate_flight
+from uavturb.sim.flights.simulate import generate_flight
 
 REQUIRED = {"schema", "recordings", "sim_effects", "protocol", "baseline", "mismatch", "effects",
             "sim_effect_params", "final", "unexplained"}

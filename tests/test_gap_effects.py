@@ -9,8 +9,10 @@ import pytest
 
 from uavturb.gap.finder import analyse
 from uavturb.io.reader import read_recording
-from uavturb.sim.flight import SensorNoise, generate_flight
-from uavturb.sim.references import Room
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import generate_flight
+from uavturb.scene.layouts import table_room
+from uavturb.sim.flights.plans import TABLE_ROOM
 
 #: accelerometer bias [m/s^2] in B that the state file does not know (its b_a columns are zero)
 HIDDEN_BIAS = (0.15, -0.10, 0.05)
@@ -33,7 +35,7 @@ def _scale_vehicle_kT(path, factor):
     yml.write_text(new)
 
 
-def _flight(root, name, effects, seed, *, duration=45.0, noise=None, room=Room()):
+def _flight(root, name, effects, seed, *, duration=45.0, noise=None, room=TABLE_ROOM):
     path = root / name
     generate_flight(vehicle="hex", effects=effects, duration=duration, kind="mixed", seed=seed, out=path,
                     noise=noise, room=room)
@@ -117,7 +119,7 @@ def test_single_effect_named_and_fitted(tmp_path, name, spec, truth):
 
 @pytest.mark.slow
 def test_ceiling_effect_named_under_a_low_ceiling(tmp_path):
-    room = Room(ceiling=1.8)  # the mixed flight's hovers at 1.25 m pass 0.3-0.8 m under it
+    room = table_room(ceiling=1.8)  # the mixed flight's hovers at 1.25 m pass 0.3-0.8 m under it
     paths = [_flight(tmp_path, f"c{k}", "ceiling_effect:kappa=2.0", 41 + k, room=room) for k in range(2)]
     report, named = _named(paths)
     assert list(named) == ["ceiling_effect"]
@@ -173,7 +175,7 @@ def test_force_outside_the_vocabulary_is_unexplained_not_named(tmp_path):
 def wind_tunnel(tmp_path_factory):
     """Two MoCap-only 50 Hz flights at a fixed heading in a 4 m/s wind that acts on the airspeed
     (rotor drag k_d = 8.06e-5 and body drag c_d = 0.05 on v - v_wind), with their truth."""
-    from uavturb.sim.conditions import Conditions, generate_conditioned_flight, read_truth
+    from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight, read_truth
 
     root = tmp_path_factory.mktemp("windtunnel")
     cond = Conditions(no_imu=True, rate_hz=50, jitter_ms=2.0, fixed_heading=True, wind_speed=(-4.0, 0.0))

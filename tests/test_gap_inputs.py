@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from uavturb.cli import main
-from uavturb.sim.flight import generate_flight
+from uavturb.sim.flights.simulate import generate_flight
 
 
 @pytest.fixture(scope="module")

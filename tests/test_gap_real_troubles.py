@@ -8,7 +8,7 @@ import pytest
 
 from uavturb.gap.finder import analyse
 from uavturb.io.reader import load_recordings
-from uavturb.sim.conditions import Conditions, generate_conditioned_flight, read_truth
+from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight, read_truth
 
 GROUND = {"ground_effect": {"mu": 2.0}}
 

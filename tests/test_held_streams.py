@@ -10,8 +10,9 @@ import numpy as np
 from uavturb.io.recording import GroundTruth
 from uavturb.physics.effects import parse_effects
 from uavturb.physics.vehicle import HEXAROTOR
-from uavturb.sim.flight import SensorNoise, simulate_flight
-from uavturb.sim.references import Constant, Reference, Sines
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import simulate_flight
+from uavturb.sim.core.signals import Constant, Reference, Sines
 from uavturb.sysid.flight_data import flight_data, held_updates
 
 

@@ -25,7 +25,7 @@ from uavturb.io.ulog_import import import_ulog
 from uavturb.io.writer import write_recording
 from uavturb.physics import quaternion as quat
 from uavturb.scene.heights import SurfaceIndex
-from uavturb.sim.flight import generate_flight
+from uavturb.sim.flights.simulate import generate_flight
 
 PERMUTED = [2, 0, 3, 1]  # vehicle rotor i is log motor PERMUTED[i]
 

@@ -31,7 +31,7 @@ def copy_of_package(tmp_path_factory) -> Path:
 def test_the_tree_keeps_every_contract():
     res = _lint(ROOT)
     assert res.returncode == 0, res.stdout[-3000:]
-    assert "Contracts: 2 kept, 0 broken." in res.stdout
+    assert "Contracts: 3 kept, 0 broken." in res.stdout
 
 
 def test_a_lower_layer_importing_a_higher_one_fails(copy_of_package):
@@ -48,9 +48,25 @@ def test_a_lower_layer_importing_a_higher_one_fails(copy_of_package):
 
 def test_siblings_importing_each_other_fail(copy_of_package):
     a = copy_of_package / "uavturb" / "gap" / "uses_sim.py"
-    a.write_text("import uavturb.sim.flight\n")
+    a.write_text("import uavturb.sim.flights.simulate\n")
     try:
         res = _lint(copy_of_package)
     finally:
         a.unlink()
     assert res.returncode != 0 and "BROKEN" in res.stdout
+
+
+@pytest.mark.parametrize("room, imports", [("core", "uavturb.sim.flights.simulate"),
+                                           ("flights", "uavturb.sim.dataset.planning"),
+                                           ("dataset", "uavturb.sim.flights.plans")])
+def test_the_simulators_rooms_keep_to_themselves(copy_of_package, room, imports):
+    """core imports neither flights nor dataset; flights and dataset do not import each other."""
+    bad = copy_of_package / "uavturb" / "sim" / room / "sneaky.py"
+    bad.write_text(f"import {imports}\n")
+    try:
+        res = _lint(copy_of_package)
+    finally:
+        bad.unlink()
+    assert res.returncode != 0
+    assert "The simulator's rooms: flights and dataset build on core, not on each other BROKEN" in res.stdout
+    assert f"uavturb.sim.{room}.sneaky -> {imports}" in res.stdout

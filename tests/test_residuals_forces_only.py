@@ -12,8 +12,8 @@ from uavturb.commands.identify import residuals_to_file
 from uavturb.io.writer import write_recording
 from uavturb.physics.effects import parse_effects
 from uavturb.physics.vehicle import HEXAROTOR
-from uavturb.sim.flight import simulate_flight
-from uavturb.sim.references import Constant, Reference, Sines
+from uavturb.sim.flights.simulate import simulate_flight
+from uavturb.sim.core.signals import Constant, Reference, Sines
 
 
 def test_hover_without_inertia_gives_forces_and_nan_torques(tmp_path, capsys):

@@ -64,7 +64,7 @@ def to_sensor_frame(rec: Recording, T_BS: np.ndarray) -> Recording:
 
 @pytest.fixture(scope="module")
 def flight():
-    from uavturb.sim.flight import generate_flight
+    from uavturb.sim.flights.simulate import generate_flight
 
     return generate_flight("hex", "wind:f_x=0.6,f_y=-0.3", duration=20.0, seed=3)
 

@@ -16,8 +16,9 @@ from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EffectInputs, body_drag_force, rotor_drag_force
 from uavturb.physics.vehicle import HEXAROTOR
-from uavturb.sim import conditions as C
-from uavturb.sim.flight import SensorNoise, make_reference, simulate_flight
+from uavturb.sim.flights import conditions as C
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import make_reference, simulate_flight
 
 
 @pytest.fixture(scope="module")

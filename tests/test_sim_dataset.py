@@ -15,9 +15,9 @@ from uavturb.io.vehicle_file import named_vehicle
 from uavturb.physics.ground_effect import phi
 from uavturb.scene.procedural import generate_scene
 from uavturb.scene.queries import height_below, inside_obstacle
-from uavturb.sim import dataset, trajectory
-from uavturb.sim.presets import get_preset
-from uavturb.sim.tasks import plan_tasks, scene_splits
+from uavturb.sim.dataset import generation, trajectory_arrays
+from uavturb.sim.dataset.presets import get_preset
+from uavturb.sim.dataset.assignment import plan_tasks, scene_splits
 
 #: three scenes (one per split), one 1-second trajectory each, 24 x 24 px, geometric controller
 SMALL = dict(max_seconds=1.0, width=24, height=24, controller="geometric")
@@ -43,7 +43,7 @@ def _assert_same(a, b):
 @pytest.fixture(scope="module")
 def full(tmp_path_factory):
     root = tmp_path_factory.mktemp("full")
-    dataset.generate_sim("tiny", root, seed=0, progress=False, **SMALL)
+    generation.generate_sim("tiny", root, seed=0, progress=False, **SMALL)
     return root
 
 
@@ -68,7 +68,7 @@ def test_samples_hold_known_answers(full):
             assert tr.meta["split"] == split and tr.meta["controller"] == "geometric"
             np.testing.assert_allclose(np.linalg.norm(tr.state[:, 3:7], axis=1), 1.0, atol=1e-9)
             # the centre pixel's depth is the distance along the optical axis to the mesh
-            from uavturb.sim.render import camera_pose
+            from uavturb.sim.core.render import camera_pose
 
             T = camera_pose(p[5], tr.state[5, 3:7], 20.0)
             loc, _, _ = scene.mesh.ray.intersects_location(T[None, :3, 3], T[None, :3, 2])
@@ -94,7 +94,7 @@ def test_interrupted_run_resumes_to_identical_arrays(full, tmp_path):
         raise KeyboardInterrupt("killed")
 
     with pytest.raises(KeyboardInterrupt):
-        dataset.generate_sim("tiny", root, seed=0, progress=False, on_trajectory=kill, **SMALL)
+        generation.generate_sim("tiny", root, seed=0, progress=False, on_trajectory=kill, **SMALL)
     done = sorted(p.name for p in root.iterdir())
     assert done == ["traj_00000"]  # one finished shard, no manifest yet
     first = root / "traj_00000" / "depth.npy"
@@ -103,7 +103,7 @@ def test_interrupted_run_resumes_to_identical_arrays(full, tmp_path):
     junk = root / ".traj_00001.abc.tmp"
     junk.mkdir()
     (junk / "depth.npy").write_bytes(b"half")
-    dataset.generate_sim("tiny", root, seed=0, progress=False, **SMALL)
+    generation.generate_sim("tiny", root, seed=0, progress=False, **SMALL)
     assert os.stat(first).st_mtime_ns == stamp  # finished shards are never rewritten
     assert not junk.exists()
     _assert_same(_arrays(full)[1], _arrays(root)[1])
@@ -111,36 +111,36 @@ def test_interrupted_run_resumes_to_identical_arrays(full, tmp_path):
 
 
 def test_same_seed_same_arrays_any_workers_other_seed_differs(full, tmp_path):
-    dataset.generate_sim("tiny", tmp_path / "w2", seed=0, workers=2, progress=False, **SMALL)
+    generation.generate_sim("tiny", tmp_path / "w2", seed=0, workers=2, progress=False, **SMALL)
     _assert_same(_arrays(full)[1], _arrays(tmp_path / "w2")[1])
-    m = dataset.generate_sim("tiny", tmp_path / "s1", seed=1, progress=False, shard="1/3", **SMALL)
+    m = generation.generate_sim("tiny", tmp_path / "s1", seed=1, progress=False, shard="1/3", **SMALL)
     other = shards.read_trajectory(m.root / "traj_00000")
     assert not np.array_equal(other.state, shards.read_trajectory(full / "traj_00000").state)
 
 
 def test_shards_then_merge_equal_the_full_run(full, tmp_path):
     for k in (1, 2):
-        dataset.generate_sim("tiny", tmp_path / f"s{k}", seed=0, shard=f"{k}/2", progress=False, **SMALL)
+        generation.generate_sim("tiny", tmp_path / f"s{k}", seed=0, shard=f"{k}/2", progress=False, **SMALL)
     part = json.loads((tmp_path / "s1" / "manifest.json").read_text())
     assert part["shard"] == "1/2" and part["complete"] is False and part["statistics"]["trajectories"] == 2
-    merged = dataset.merge_datasets([tmp_path / "s1", tmp_path / "s2"], tmp_path / "merged")
+    merged = generation.merge_datasets([tmp_path / "s1", tmp_path / "s2"], tmp_path / "merged")
     mf, af = _arrays(full)
     assert merged.splits == mf.splits and merged.counts == mf.counts and merged.config_hash == mf.config_hash
     _assert_same(af, _arrays(tmp_path / "merged")[1])
     a, b = (json.loads((r / "manifest.json").read_text()) for r in (full, tmp_path / "merged"))
     assert a["statistics"] == b["statistics"] and b["complete"] is True
     # merging into one of the shard folders works too
-    dataset.merge_datasets([tmp_path / "s1", tmp_path / "s2"], tmp_path / "s1")
+    generation.merge_datasets([tmp_path / "s1", tmp_path / "s2"], tmp_path / "s1")
     assert shards.read_manifest(tmp_path / "s1").splits == mf.splits
 
 
 def test_bad_inputs_fail_naming_the_key(full, tmp_path):
     with pytest.raises(InputError, match="unknown preset"):
-        dataset.generate_sim("huge", tmp_path / "x", progress=False)
+        generation.generate_sim("huge", tmp_path / "x", progress=False)
     with pytest.raises(InputError, match="--shard"):
-        dataset.generate_sim("tiny", tmp_path / "x", shard="0/2", progress=False)
+        generation.generate_sim("tiny", tmp_path / "x", shard="0/2", progress=False)
     with pytest.raises(InputError, match="'widht'"):
-        dataset.generate_sim("tiny", tmp_path / "x", widht=3, progress=False)
+        generation.generate_sim("tiny", tmp_path / "x", widht=3, progress=False)
     with pytest.raises(InputError, match="plan.bogus"):
         get_preset("tiny", plan={"bogus": 1})
     with pytest.raises(InputError, match="n_train"):
@@ -148,12 +148,12 @@ def test_bad_inputs_fail_naming_the_key(full, tmp_path):
     # a folder of another config is refused, and nothing is written into it
     before = sorted(p.name for p in full.iterdir())
     with pytest.raises(InputError, match="another config"):
-        dataset.generate_sim("tiny", full, seed=5, progress=False, **SMALL)
+        generation.generate_sim("tiny", full, seed=5, progress=False, **SMALL)
     assert sorted(p.name for p in full.iterdir()) == before
     s = tmp_path / "other"
-    dataset.generate_sim("tiny", s, seed=3, shard="1/3", progress=False, **SMALL)
+    generation.generate_sim("tiny", s, seed=3, shard="1/3", progress=False, **SMALL)
     with pytest.raises(InputError, match="config hash"):
-        dataset.merge_datasets([full, s], tmp_path / "m")
+        generation.merge_datasets([full, s], tmp_path / "m")
 
 
 def test_paper_preset_matches_the_paper():
@@ -177,13 +177,13 @@ def test_below_out_of_view_known_answers(pitch, depth_scale, expected):
     f = 16.0
     K = np.array([[f, 0, 15.5], [0, f, 15.5], [0, 0, 1]])
     depth = np.full((1, 32, 32), 0.8 * depth_scale, np.float32)  # camera looking down sees the floor at 0.8 m
-    assert trajectory.below_out_of_view(state, d, depth, K, pitch)[0] == expected
+    assert trajectory_arrays.below_out_of_view(state, d, depth, K, pitch)[0] == expected
 
 
 @pytest.mark.slow
 def test_quick_preset_statistics(tmp_path):
     """The issue's thresholds on the quick preset (run with -m slow; about a minute on 2 cores)."""
-    dataset.generate_sim("quick", tmp_path / "q", workers=2, seed=0, progress=False)
+    generation.generate_sim("quick", tmp_path / "q", workers=2, seed=0, progress=False)
     st = json.loads((tmp_path / "q" / "manifest.json").read_text())["statistics"]
     assert st["share_d_below_0.5m"] >= 0.15
     assert st["share_below_out_of_view"] >= 0.05
@@ -199,8 +199,8 @@ def test_sigkill_mid_run_then_rerun_gives_the_same_arrays(full, tmp_path):
     import time
 
     root = tmp_path / "k"
-    code = ("from uavturb.sim import dataset; "
-            f"dataset.generate_sim('tiny', {str(root)!r}, seed=0, progress=False, **{SMALL!r})")
+    code = ("from uavturb.sim.dataset import generation; "
+            f"generation.generate_sim('tiny', {str(root)!r}, seed=0, progress=False, **{SMALL!r})")
     proc = subprocess.Popen([sys.executable, "-c", code])
     deadline = time.time() + 120
     while not (root / "traj_00000").exists() and time.time() < deadline and proc.poll() is None:
@@ -208,12 +208,12 @@ def test_sigkill_mid_run_then_rerun_gives_the_same_arrays(full, tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert not (root / "manifest.json").exists()
-    dataset.generate_sim("tiny", root, seed=0, progress=False, **SMALL)
+    generation.generate_sim("tiny", root, seed=0, progress=False, **SMALL)
     _assert_same(_arrays(full)[1], _arrays(root)[1])
 
 
 def test_optional_normals_and_rgb_ride_in_the_same_shard(full, tmp_path):
-    m = dataset.generate_sim("tiny", tmp_path / "nr", seed=0, shard="1/3", progress=False,
+    m = generation.generate_sim("tiny", tmp_path / "nr", seed=0, shard="1/3", progress=False,
                              **{**SMALL, "normals": True, "rgb": True})
     tr = shards.read_trajectory(m.root / "traj_00000")
     ref = shards.read_trajectory(full / "traj_00000")
@@ -228,7 +228,7 @@ def test_optional_normals_and_rgb_ride_in_the_same_shard(full, tmp_path):
 
 
 def test_mpc_and_geometric_flyers_fly_the_same_plan(full, tmp_path):
-    m = dataset.generate_sim("tiny", tmp_path / "mpc", seed=0, shard="1/3", progress=False,
+    m = generation.generate_sim("tiny", tmp_path / "mpc", seed=0, shard="1/3", progress=False,
                              **{**SMALL, "controller": "mpc"})
     mpc = shards.read_trajectory(m.root / "traj_00000")
     geo = shards.read_trajectory(full / "traj_00000")

@@ -9,15 +9,13 @@ from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import dynamics_for, physical_params
 from uavturb.physics.effects import lag_rotor_speeds, parse_effects
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
-from uavturb.sim.controller import GeometricController
-from uavturb.sim.flight import (
-    EUROC_T0_NS,
-    SensorNoise,
-    generate_flight,
-    make_reference,
-    simulate_flight,
-)
-from uavturb.sim.references import Room, excitation, hover, low_passes, mixed
+from uavturb.scene.layouts import table_room
+from uavturb.scene.queries import surface_below
+from uavturb.sim.core.controller import GeometricController
+from uavturb.sim.core.signals import hover
+from uavturb.sim.flights.plans import excitation, low_passes, mixed, over_table, table_bounds
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import EUROC_T0_NS, generate_flight, make_reference, simulate_flight
 
 E_Z = np.array([0.0, 0.0, 1.0])
 
@@ -57,12 +55,12 @@ def test_excitation_is_rich_and_bounded():
 
 
 def test_low_passes_stay_clear_of_the_table():
-    room = Room()
+    room = table_room()
     ref = low_passes(120.0, seed=1, room=room)
     sp = ref(np.arange(0.0, ref.duration, 0.01))
-    over = room.over_table(sp.p[:, 0], sp.p[:, 1])
+    over = over_table(room, sp.p[:, 0], sp.p[:, 1])
     assert over.any() and (~over).any()
-    height = sp.p[:, 2] - room.surface_below(sp.p[:, 0], sp.p[:, 1])
+    height = sp.p[:, 2] - surface_below(room, sp.p[:, :2])
     assert height.min() >= 0.06 - 1e-9
     assert np.any(over & (height < 0.5))  # low over the table
     assert "edge_pass" in ref.notes
@@ -114,14 +112,14 @@ def test_specific_force_is_the_analytic_one():
     assert np.array_equal(rec.imu.gyro, truth.x[:, 10:13])
     assert np.abs(truth.force[:, 2]).max() > 0.1  # ground effect did act
     # the recorded heights are those of the room
-    room = Room()
+    room = table_room()
     p = truth.x[:, :3]
-    x0, x1, y0, y1 = room.table_bounds
+    x0, x1, y0, y1 = table_bounds(room)
     far = (np.minimum(np.abs(p[:, 0] - x0), np.abs(p[:, 0] - x1)) > 0.1) & \
           (np.minimum(np.abs(p[:, 1] - y0), np.abs(p[:, 1] - y1)) > 0.1)
-    expected = p[:, 2] - room.surface_below(p[:, 0], p[:, 1])
+    expected = p[:, 2] - surface_below(room, p[:, :2])
     assert np.max(np.abs(truth.d_down[far] - expected[far])) < 0.03
-    assert np.max(np.abs(truth.d_up - (room.ceiling - p[:, 2]))) < 0.03
+    assert np.max(np.abs(truth.d_up - (room.ceiling_height - p[:, 2]))) < 0.03
 
 
 def test_wind_is_recovered_from_imu_and_rotors():

@@ -7,8 +7,8 @@ import pytest
 
 from uavturb.physics.dynamics import dynamics_for, physical_params
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
-from uavturb.sim import mpc
-from uavturb.sim.references import Constant, Reference, Waypoints, hover
+from uavturb.sim.core import mpc
+from uavturb.sim.core.signals import Constant, hover, Reference, Waypoints
 
 
 def test_box_qp_known_answers_and_against_qrqp():

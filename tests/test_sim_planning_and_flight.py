@@ -8,7 +8,7 @@ import pytest
 from uavturb.errors import InputError
 from uavturb.physics.vehicle import QUADROTOR
 from uavturb.scene import procedural, queries
-from uavturb.sim import flight_plot, navigation, planning, scene_flight
+from uavturb.sim.dataset import flying, navigation, plan_plot, planning
 
 RADIUS = QUADROTOR.arm_length + QUADROTOR.rotor_radius
 
@@ -141,7 +141,7 @@ def test_fly_trajectory_short_flight_both_controllers():
     sc = procedural.generate_scene(3)
     plan = planning.plan_trajectory(sc, 3, rotor_radius=QUADROTOR.rotor_radius)
     for ctrl in ("geometric", "mpc"):
-        X, W, t, info = scene_flight.fly_trajectory(sc, QUADROTOR, 3, ctrl, plan=plan, duration=5.0)
+        X, W, t, info = flying.fly_trajectory(sc, QUADROTOR, 3, ctrl, plan=plan, duration=5.0)
         assert X.shape == (101, 13) and W.shape == (101, 4) and t.shape == (101,)
         assert np.allclose(np.diff(t), 0.05)
         assert not info["collided"] and info["collisions"] == 0
@@ -150,7 +150,7 @@ def test_fly_trajectory_short_flight_both_controllers():
         assert np.all((W >= 0) & (W <= QUADROTOR.max_rotor_speed))
         # take-off from the floor: low, in ground effect, with its force up
         assert info["d_down"][0] < 0.05 and info["effect_force"][0, 2] > 0
-    X2, W2, _, _ = scene_flight.fly_trajectory(sc, QUADROTOR, 3, "mpc", plan=plan, duration=5.0)
+    X2, W2, _, _ = flying.fly_trajectory(sc, QUADROTOR, 3, "mpc", plan=plan, duration=5.0)
     assert np.array_equal(X, X2) and np.array_equal(W, W2)  # deterministic
 
 
@@ -159,7 +159,7 @@ def test_fly_trajectory_truncates_at_collision():
     plan = planning.plan_trajectory(sc, 3)
     # a vehicle much wider than the planner's clearance hits something on the way
     wide = QUADROTOR.with_params(arm_length=0.6)
-    X, _, t, info = scene_flight.fly_trajectory(sc, wide, 3, "geometric", plan=plan)
+    X, _, t, info = flying.fly_trajectory(sc, wide, 3, "geometric", plan=plan)
     assert info["collided"] and info["collisions"] == 1
     assert len(X) < int(plan.reference.duration * 20)
     assert t[-1] < info["collision_time"]
@@ -169,18 +169,18 @@ def test_fly_trajectory_truncates_at_collision():
 def test_bad_inputs():
     sc = procedural.generate_scene(0)
     with pytest.raises(InputError, match="controller"):
-        scene_flight.fly_trajectory(sc, "quad", 0, controller="pid")
+        flying.fly_trajectory(sc, "quad", 0, controller="pid")
     with pytest.raises(InputError, match="n_points"):
         planning.plan_trajectory(sc, 0, planning.PlanConfig(n_points=0))
     with pytest.raises(InputError, match="camera_rate"):
-        scene_flight.fly_trajectory(sc, "quad", 0, camera_rate=30.0, duration=1.0)
+        flying.fly_trajectory(sc, "quad", 0, camera_rate=30.0, duration=1.0)
 
 
 @pytest.mark.slow
 def test_full_mpc_flights_track_and_stay_clear():
     for seed in (1, 4):
         sc = procedural.generate_scene(seed)
-        X, W, t, info = scene_flight.fly_trajectory(sc, "quad", seed, "mpc")
+        X, W, t, info = flying.fly_trajectory(sc, "quad", seed, "mpc")
         assert not info["collided"]
         assert info["tracking_error"].max() < 0.03
         assert (info["d_down"] < 0.5).mean() > 0.1
@@ -190,7 +190,7 @@ def test_full_mpc_flights_track_and_stay_clear():
 def test_plot_flight_writes_png(tmp_path):
     sc = procedural.generate_scene(2)
     plan = planning.plan_trajectory(sc, 2)
-    out = flight_plot.plot_flight(sc, plan, str(tmp_path / "flight.png"))
+    out = plan_plot.plot_flight(sc, plan, str(tmp_path / "flight.png"))
     data = (tmp_path / "flight.png").read_bytes()
     assert out.endswith("flight.png") and data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.png"]  # no temporary left

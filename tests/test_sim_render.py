@@ -12,7 +12,7 @@ import pytest  # noqa: E402
 from uavturb.errors import InputError  # noqa: E402
 from uavturb.physics import quaternion as quat  # noqa: E402
 from uavturb.scene import boxes, procedural  # noqa: E402
-from uavturb.sim import render as R  # noqa: E402
+from uavturb.sim.core import render as R  # noqa: E402
 
 
 def _pixel_rays(K, H, W):

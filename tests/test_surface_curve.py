@@ -6,9 +6,11 @@ import pytest
 
 from uavturb.errors import InputError
 from uavturb.gap import design
+from uavturb.gap.selection import LIFT_Z, SHAPE_DELTA_CHI2, Z_WITH_CURVE, CurveEvidence
 from uavturb.gap.surface_curve import (
     LAW_FITS_CHI2_DOF,
     fit_law,
+    lift_z,
     measured_curve,
     plot_surface_curve,
     surface_curve_report,
@@ -223,3 +225,61 @@ def test_reach_of_a_law_is_where_it_adds_one_percent_at_the_top_of_its_range():
     cb = EFFECTS["ground_effect"]
     assert cb.ratio(np.array([cb.surface_reach(R)]), cb.physical_range.hi, R)[0] - 1 == pytest.approx(0.01, rel=1e-6)
     assert reach > 1.4 * cb.surface_reach(R)
+
+
+def test_lift_z_sees_a_lift_near_the_floor_and_none_without_one():
+    """The curve's model-free evidence of a lift: near a floor with mu = 3 it stands many standard errors
+    above 1; without a ground effect it does not; with no curve it is 0."""
+    lifted = curve_of(hovers(cheeseman_bennett(3.0), seed=11))
+    flat = curve_of(hovers(lambda d: np.ones_like(d), seed=12))
+    assert lift_z(lifted, R) > 10.0
+    assert abs(lift_z(flat, R)) < 3.0
+    assert lift_z(None, R) == 0.0
+
+
+def test_curve_evidence_supports_a_ground_law_and_ranks_shapes():
+    """Selection's reading of the curve: a ground law passes on a weak held-out z only beside a strong lift;
+    an alternative law's shape must beat the standard one's by SHAPE_DELTA_CHI2."""
+    strong = CurveEvidence(lift_z=LIFT_Z + 1.0, chi2={"ground_effect": 40.0, "ground_effect_multirotor": 30.0})
+    assert strong.supports("ground_effect", Z_WITH_CURVE + 0.1)
+    assert not strong.supports("ground_effect", Z_WITH_CURVE - 0.1)
+    assert not strong.supports("ceiling_effect", 3.0)  # the curve is measured over the floor only
+    assert not strong.supports("wind", 3.0)
+    assert not CurveEvidence(lift_z=LIFT_Z - 1.0).supports("ground_effect", 3.0)
+    assert strong.fits_better("ground_effect_multirotor", "ground_effect")
+    assert not strong.fits_better("ground_effect", "ground_effect_multirotor")
+    close = CurveEvidence(chi2={"ground_effect": 40.0, "ground_effect_multirotor": 40.0 - SHAPE_DELTA_CHI2 + 0.5})
+    assert not close.fits_better("ground_effect_multirotor", "ground_effect")
+    assert CurveEvidence().fits_better("ground_effect_multirotor", "ground_effect")  # nothing known: no veto
+
+
+def test_a_new_linear_law_is_one_registry_entry_the_finder_fits(monkeypatch):
+    """Declared once: a law that is linear in its parameters gets its regressor columns from its ``force``
+    (no code in design.py or fit.py). A vertical push F = (0, 0, f_z) added to the registry is fitted
+    to its known value, with the accelerometer bias and the thrust beside it."""
+    from uavturb.gap.fit import fit_model
+    from uavturb.physics.effects import EffectSpec, PhysicalRange
+
+    def vertical_push_force(x, f_z):
+        out = np.zeros((x.K, 3))
+        out[:, 2] = f_z
+        return out
+
+    spec = EffectSpec("vertical_push", ("f_z",), ("N",), (0.05,), vertical_push_force, True, "a steady vertical push",
+                      PhysicalRange("f_z [N]", 0.0, 1.0, lambda p, f: abs(p["f_z"]), "test"), lambda p, f: "",
+                      positive=False)
+    monkeypatch.setitem(EFFECTS, "vertical_push", spec)
+    rng = np.random.default_rng(3)
+    K, k_T, f_z = 2000, 2e-8, 0.04
+    w = 2000.0 + 200.0 * rng.standard_normal((K, 4))
+    ang = 0.2 * rng.standard_normal((K, 2))  # rad, roll and pitch
+    Rm = np.array([[[np.cos(b), 0, np.sin(b)], [np.sin(a) * np.sin(b), np.cos(a), -np.sin(a) * np.cos(b)],
+                    [-np.cos(a) * np.sin(b), np.sin(a), np.cos(a) * np.cos(b)]] for a, b in ang])
+    y = k_T * np.sum(w**2, 1)[:, None] * Rm[:, :, 2] + np.array([0.0, 0.0, f_z]) + 1e-3 * rng.standard_normal((K, 3))
+    data = design.GapData(np.zeros(K, int), np.arange(K) * 0.04, np.zeros((K, 3)), y, Rm, w, np.zeros((K, 3)),
+                          np.full(K, np.inf), np.full(K, np.inf), 0.032, R, ["synthetic"], "mocap", fits_bias=False)
+    A, names = design.design(data, {"vertical_push"}, {})
+    assert names == ["k_T", "f_z"]
+    fit = fit_model(data, {"vertical_push"}, with_stderr=False)
+    assert fit.coef["f_z"] == pytest.approx(f_z, rel=0.02) and fit.coef["k_T"] == pytest.approx(k_T, rel=1e-3)
+    assert fit.effect_params("vertical_push")[0] == {"f_z": fit.coef["f_z"]}

@@ -211,3 +211,52 @@ def test_rows_of_other_lengths_are_refused():
     t, z, v, tilt, thrust, _, _ = flight(TAKEOFF_LANDING)
     with pytest.raises(InputError, match="thrust"):
         ground_contact(t, z, v, tilt, thrust[:-1], MASS)
+
+
+def test_a_short_rest_with_the_rotors_off_is_contact():
+    """A drop to the floor with the motors off, 0.18 s still, then a restart at 110 % of the weight (the
+    thrust read off commanded speeds leads the real one while they spin up): shorter than ``min_s``, but
+    rotors off hold no hover. The zero thrust is a state, not a held value: it is not interpolated into
+    the restart."""
+    phases = [("hover", 2.0), ("move", 1.0, -0.3), ("ground", 0.18, 0.0, 0.0), ("ground", 0.15, 1.1, 1.1),
+              ("move", 1.0, 0.3), ("hover", 2.0)]
+    t, z, v, tilt, thrust, contact, _ = flight(phases, seed=9, floor=0.3)
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS, calibrate=False)
+    assert len(found) == 1
+    rest = t[contact]
+    assert found[0].t_start <= rest[0] and found[0].t_end >= rest[0] + 0.18
+    assert mask[contact].all() and not mask[t < 1.5].any()
+    assert "thrust 0 % of the weight" in found[0].why
+    # the same rest with the rotors at 80 % of the weight, 0.18 s long: too short to tell from a low hover
+    phases[2] = ("ground", 0.18, 0.8, 0.8)
+    t, z, v, tilt, thrust, contact, _ = flight(phases, seed=9, floor=0.3)
+    _, found = ground_contact(t, z, v, tilt, thrust, MASS, calibrate=False)
+    assert found == []
+
+
+def skid(seed=10, low=0.0):
+    """Hover 0.3 m up, come down to ``low`` m over the landed height and slide 0.6 s along the floor at
+    0.1 m/s with the thrust at 88 % of the weight (the gear touches), climb back and hover; the
+    recording ends on the ground so that its landed height is known."""
+    phases = [("hover", 2.0), ("move", 1.5, -0.3 + low), ("hover", 0.6), ("move", 1.5, 0.3 - low), ("hover", 2.0),
+              ("move", 2.0, -0.3), ("ground", 2.0, 0.6, 0.6)]
+    t, z, v, tilt, thrust, contact, _ = flight(phases, seed=seed, floor=0.3)
+    sliding = (t >= 3.5) & (t < 4.1)
+    v[sliding, 0] = 0.1
+    thrust[sliding] = 0.88 * MASS * GRAVITY
+    return t, z, v, tilt, thrust, contact, sliding
+
+
+def test_a_skid_along_the_floor_is_left_out_but_a_low_hover_of_another_recording_is_not():
+    t, z, v, tilt, thrust, contact, sliding = skid()
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS, calibrate=False)
+    assert mask[sliding].all() and mask[contact].all()
+    assert any(c.why.startswith("skimming the floor") for c in found)
+    assert not mask[(t > 5.8) & (t < 7.5)].any()  # the hover between
+    # the same manoeuvre 2 cm higher, in a recording whose vehicle landed at the height of the first:
+    # it never came within skim_m of the floor, so its low hover is in the air
+    t2, z2, v2, tilt2, thrust2, _, sliding2 = skid(seed=11, low=0.02)
+    skim_top = float(np.min(z[contact])) + ContactLimits().skim_m
+    mask2, found2 = ground_contact(t2, z2, v2, tilt2, thrust2, MASS, calibrate=False, skim_top=skim_top)
+    assert not mask2[sliding2].any()
+    assert not any(c.why.startswith("skimming the floor") for c in found2)

@@ -87,9 +87,9 @@ def test_ground_effect_law_of_the_training_data(tmp_path):
     mu = 2 gives beta = 2 * 0.1^2 / 16 and alpha = k_T beta; a folder without shards gives None."""
     from uavturb.data.datamodules import ground_effect_law
     from uavturb.physics.vehicle import HEXAROTOR
-    from uavturb.sim import dataset
+    from uavturb.sim.dataset import generation
 
-    dataset.generate_sim("tiny", tmp_path / "hex", seed=0, progress=False, vehicle="hex", width=16, height=16,
+    generation.generate_sim("tiny", tmp_path / "hex", seed=0, progress=False, vehicle="hex", width=16, height=16,
                          controller="geometric", trajectories=3)
     alpha, beta = ground_effect_law(tmp_path / "hex")
     assert beta == pytest.approx(2.0 * 0.1**2 / 16, rel=1e-12)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from uavturb.cli import main
-from uavturb.sim.flight import generate_flight
+from uavturb.sim.flights.simulate import generate_flight
 
 
 @pytest.fixture(scope="module")

@@ -39,7 +39,7 @@ def _renamed(new: str) -> type[argparse.Action]:
 
 
 def _sim_presets() -> str:
-    from uavturb.sim.presets import PRESETS
+    from uavturb.sim.dataset.presets import PRESETS
 
     return " | ".join(PRESETS)
 

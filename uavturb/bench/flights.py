@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from uavturb.scene.procedural import generate_scene
-from uavturb.sim.scene_flight import fly_trajectory
+from uavturb.sim.dataset.flying import fly_trajectory
 
 
 def benchmark(n_trajectories: int = 3, controller: str = "mpc", seed: int = 0, print_fn: Any = print,

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from uavturb.sim.flight import generate_flight
+from uavturb.sim.flights.simulate import generate_flight
 
 #: rows of one flight-hour at 200 Hz
 HOUR_ROWS = 3600 * 200

@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from uavturb.io import shards
-from uavturb.sim.dataset import generate_sim, time_split
-from uavturb.sim.presets import get_preset
+from uavturb.sim.dataset.generation import generate_sim, time_split
+from uavturb.sim.dataset.presets import get_preset
 
 
 def benchmark(preset: str = "quick", workers: int = 2, seed: int = 0, out: str | Path | None = None,

@@ -135,11 +135,12 @@ def bench(what: str) -> None:
         return
     if what == "flights":  # MPC solve times and closed-loop flight speed (uavturb.bench.flights)
         from uavturb.bench import flights as flight_benchmark
-        from uavturb.sim import mpc, scene_flight
+        from uavturb.sim.core import mpc
+        from uavturb.sim.dataset.flying import CONTROLLERS
 
         for k, v in mpc.benchmark().items():
             print(f"{'mpc ' + k:<40}{v:>12.4g}")
-        for ctrl in scene_flight.CONTROLLERS:
+        for ctrl in CONTROLLERS:
             flight_benchmark.benchmark(3, ctrl)
         return
     if what == "scene":

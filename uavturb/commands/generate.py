@@ -32,17 +32,17 @@ def generate_flight_command(*, vehicle: str = "hex", effects: str = "none", dura
                             measured_rotors: bool = False, battery_voltage: float | None = None,
                             heading_deg: float | None = None) -> Recording:
     """``uavturb generate flight``: a simulated flight in the EuRoC layout, with the troubles of real
-    recordings asked for (:class:`uavturb.sim.conditions.Conditions`) and their truth in ``truth.yaml``.
+    recordings asked for (:class:`uavturb.sim.flights.conditions.Conditions`) and their truth in ``truth.yaml``.
 
     Takes the command's arguments as text (``effects``, ``noise``, ``wind_speed``) and calls
-    :func:`uavturb.sim.conditions.generate_conditioned_flight`; the library's flight without the
-    troubles is :func:`uavturb.sim.flight.generate_flight`."""
-    from uavturb.sim import flight
-    from uavturb.sim.conditions import Conditions, generate_conditioned_flight
+    :func:`uavturb.sim.flights.conditions.generate_conditioned_flight`; the library's flight without the
+    troubles is :func:`uavturb.sim.flights.simulate.generate_flight`."""
+    from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight
+    from uavturb.sim.flights.sensors import SensorNoise
 
     if noise not in ("realistic", "none"):
         raise InputError("--noise", f"unknown value '{noise}' (allowed: realistic, none)")
-    sensor_noise = flight.SensorNoise() if noise == "realistic" else flight.SensorNoise.none()
+    sensor_noise = SensorNoise() if noise == "realistic" else SensorNoise.none()
     cond = Conditions(no_imu=no_imu, rate_hz=rate_hz, jitter_ms=jitter_ms, fixed_heading=fixed_heading,
                       heading_deg=heading_deg,
                       motor_commands=motor_commands, wind_speed=parse_wind_speed(wind_speed),
@@ -78,38 +78,38 @@ def generate_sim(preset: str, out: str | Path, *, workers: int = 1, seed: int = 
     ``executor="ray"``: one Ray task per trajectory, on the cluster at ``address`` or on a local
     Ray instance with ``workers`` CPUs; the arrays are the same as with ``local``.
     """
-    from uavturb.sim import dataset
+    from uavturb.sim.dataset import generation
 
     if executor == "ray":
         from uavturb.runs.executors import ray_session
 
         with ray_session(address, num_cpus=workers):
-            m = dataset.generate_sim(preset, out, workers=workers, seed=seed, shard=shard, executor="ray",
+            m = generation.generate_sim(preset, out, workers=workers, seed=seed, shard=shard, executor="ray",
                                      **overrides)
     else:
         if address:
             raise InputError("--address", "only with --executor ray")
-        m = dataset.generate_sim(preset, out, workers=workers, seed=seed, shard=shard, executor=executor,
+        m = generation.generate_sim(preset, out, workers=workers, seed=seed, shard=shard, executor=executor,
                                  **overrides)
-    return dataset.describe(m.root)
+    return generation.describe(m.root)
 
 
 def generate_normals(preset: str, out: str | Path, *, workers: int = 1, seed: int = 0, irs: str | None = None,
                      size: int = 128, **overrides) -> str:
     """``uavturb generate normals``: pre-training pairs (rendered, or converted from IRS)."""
-    from uavturb.sim import pretraining
+    from uavturb.sim.dataset import pretraining_pairs
 
     if irs is not None:
-        meta = pretraining.import_irs(irs, out, size=size)
+        meta = pretraining_pairs.import_irs(irs, out, size=size)
     else:
-        meta = pretraining.generate_normals(preset, out, workers=workers, seed=seed, **overrides)
+        meta = pretraining_pairs.generate_normals(preset, out, workers=workers, seed=seed, **overrides)
     return f"wrote {Path(out) / 'pairs'}: {meta['count']} pairs of {meta['image_size'][0]}x{meta['image_size'][1]} px"
 
 
 def generate_merge(dirs: Sequence[str | Path], out: str | Path) -> str:
     """``uavturb generate merge``: join shard folders."""
-    from uavturb.sim import dataset
+    from uavturb.sim.dataset import generation
 
-    m = dataset.merge_datasets(dirs, out)
-    return dataset.describe(m.root)
+    m = generation.merge_datasets(dirs, out)
+    return generation.describe(m.root)
 

@@ -98,8 +98,8 @@ def cam0_pose_in_body(rec: Recording) -> np.ndarray:
 def cam0_camera(rec: Recording, size: int) -> CameraModel:
     """``cam0`` cropped to its largest centred square and scaled to ``size`` px, posed in B
     (:func:`cam0_pose_in_body`); the crop and scale of the simulator's calibrated cameras
-    (:func:`uavturb.sim.cameras.scaled_intrinsics`)."""
-    from uavturb.sim.cameras import scaled_intrinsics
+    (:func:`uavturb.sim.core.cameras.scaled_intrinsics`)."""
+    from uavturb.sim.core.cameras import scaled_intrinsics
 
     cam = rec.cam0
     K = scaled_intrinsics(cam.intrinsics, (int(cam.resolution[0]), int(cam.resolution[1])), size, size)
@@ -107,12 +107,12 @@ def cam0_camera(rec: Recording, size: int) -> CameraModel:
 
 
 def registry_camera(name: str, size: int) -> CameraModel:
-    """A camera of :mod:`uavturb.sim.cameras` (not ``forward``) at ``size`` px, on its vehicle's body
-    (:func:`uavturb.sim.cameras.body_mount`): the camera a simulator preset rendered its data with."""
-    from uavturb.sim.cameras import body_mount, camera_spec
+    """A camera of :mod:`uavturb.sim.core.cameras` (not ``forward``) at ``size`` px, on its vehicle's body
+    (:func:`uavturb.sim.core.cameras.body_mount`): the camera a simulator preset rendered its data with."""
+    from uavturb.sim.core.cameras import body_mount, camera_spec
 
     return CameraModel(camera_spec(name).K(size, size), size, size, body_mount(name),
-                       f"{name} (the training data's camera, uavturb.sim.cameras)")
+                       f"{name} (the training data's camera, uavturb.sim.core.cameras)")
 
 
 def camera_for(rec: Recording, size: int, yfov_deg: float | None = None, pitch_deg: float | None = None,
@@ -120,7 +120,7 @@ def camera_for(rec: Recording, size: int, yfov_deg: float | None = None, pitch_d
     """The recording's ``cam0`` when it has one, else the registered ``camera`` (the training data's,
     :func:`registry_camera`) when one is named, else :func:`forward_camera`."""
     from uavturb.data import synthetic
-    from uavturb.sim.cameras import FORWARD
+    from uavturb.sim.core.cameras import FORWARD
 
     if rec.cam0 is not None:
         return cam0_camera(rec, size)
@@ -191,7 +191,7 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     frame_dt : s, frame period where the recording lists no cam0 frames (default: cam0's
         ``rate_hz``, else 0.05)
     yfov_deg, pitch_deg : the default camera's, where there is no cam0
-    camera : a camera of :mod:`uavturb.sim.cameras` to use where there is no cam0 (the training
+    camera : a camera of :mod:`uavturb.sim.core.cameras` to use where there is no cam0 (the training
         data's, when it was rendered through one; default: the forward camera)
     gt_window_s : s, longest averaging window of the ground-truth f_a
     progress : print frames/s to stderr

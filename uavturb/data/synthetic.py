@@ -1,13 +1,14 @@
-"""Synthetic shards and pre-training pairs with known answers: analytic box rooms, pinhole camera.
+"""Synthetic shards and pre-training pairs with known answers: box rooms, pinhole camera.
 
 A scene is a closed room ``[-L, L]^2 x [0, ceiling]`` (floor, four walls, ceiling) with
-axis-aligned boxes standing on the floor (tables, crates). Depth and normals are exact ray
-casts (slab tests), so every pixel hits a surface; heights are exact (the box top or the floor
-under the body origin), and the ground-effect force is the physics core's law
+axis-aligned boxes standing on the floor (tables, crates): a single-room layout of the one scene
+model (:func:`random_box_room`, :func:`uavturb.scene.layouts.box_room`). Depth and normals are exact
+ray casts (:func:`cast_rays`: slab tests), so every pixel hits a surface; heights are exact (the
+box top or the floor under the body origin, :func:`uavturb.scene.queries.surface_below`), and the ground-effect force is the physics core's law
 ``f_a = phi(d, k_T sum Omega^2, mu, r)`` (:func:`uavturb.physics.ground_effect.phi`) with the
 paper's simulated quadrotor (``k_T = 5.45e-6``, ``r = 0.01 m``) and ``mu = 2``.
 
-Frames and conventions are those of the simulator (:mod:`uavturb.sim.render`): world z up;
+Frames and conventions are those of the simulator (:mod:`uavturb.sim.core.render`): world z up;
 the camera's optical frame has x right, y down, z forward; it looks along body +x, pitched
 down by ``pitch_deg``; pixel ``(i, j)`` has the ray ``((j - (W-1)/2) / f, (i - (H-1)/2) / f, 1)``
 with ``f = (H/2) / tan(yfov/2)`` (:func:`pixel_rays`), so a ray parameter is the z-depth.
@@ -16,18 +17,21 @@ The body flies level (roll = pitch = 0), heading along its horizontal velocity.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io import shards
 from uavturb.physics import quaternion as quat
 from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.physics.ground_effect import phi
 from uavturb.physics.vehicle import QUADROTOR
 from uavturb.progress import progress_bar, show_rate
+from uavturb.scene.indoor import Scene
+from uavturb.scene.layouts import box_room
+from uavturb.scene.queries import surface_below
 
 YFOV_DEG = 70.0        # vertical field of view, as the simulator's renderer
 PITCH_DEG = 45.0       # camera pitched down [deg]
@@ -57,74 +61,63 @@ def pixel_rays(size: int | tuple[int, int], yfov_deg: float = YFOV_DEG) -> np.nd
     return np.stack([uu, vv, np.ones_like(uu)], axis=-1)
 
 
-@dataclass
-class BoxRoom:
-    """A closed room with boxes on the floor.
+def random_box_room(rng: np.random.Generator, n_boxes: tuple[int, int] = (3, 7)) -> Scene:
+    """A random room of the synthetic data: ``[-ROOM_HALF, ROOM_HALF]^2 x [0, CEILING]`` with
+    ``n_boxes`` (inclusive range) boxes standing on the floor, 0.6-1.8 m wide, 0.2-0.8 m high
+    (a :func:`~uavturb.scene.layouts.box_room`)."""
+    k = int(rng.integers(n_boxes[0], n_boxes[1] + 1))
+    c = rng.uniform(-ROOM_HALF + 1.0, ROOM_HALF - 1.0, (k, 2))
+    s = rng.uniform(0.3, 0.9, (k, 2))
+    top = rng.uniform(0.2, 0.8, k)
+    boxes = np.column_stack([c[:, 0] - s[:, 0], c[:, 0] + s[:, 0], c[:, 1] - s[:, 1], c[:, 1] + s[:, 1], top])
+    return box_room((2 * ROOM_HALF, 2 * ROOM_HALF), CEILING, boxes)
 
-    Attributes
+
+def _highest_top(room: Scene) -> float:
+    """m, the highest box top of a room (0 without boxes)."""
+    return max((f.surface for f in room.furniture), default=0.0)
+
+
+def cast_rays(room: Scene, origin: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact ray cast into a single-room layout (:mod:`uavturb.scene.layouts`) from origins inside
+    the room, outside every box: its walls, floor and ceiling, then a slab test per box.
+
+    Parameters
     ----------
-    half : m, the room is ``[-half, half]^2`` in x, y.
-    ceiling : m, height of the ceiling.
-    boxes : (K, 5) ``x_min, x_max, y_min, y_max, top`` [m] (bottoms on the floor).
+    room : Scene of kind ``'room'``.
+    origin : (F, 3) ray origins [m], world.
+    dirs : (F, P, 3) ray directions, world (any length: the result is in their units).
+
+    Returns
+    -------
+    t : (F, P) ray parameter of the first hit; normals : (F, P, 3) unit world normals of
+    the surfaces hit (not yet oriented).
     """
-
-    half: float
-    ceiling: float
-    boxes: np.ndarray
-
-    @classmethod
-    def random(cls, rng: np.random.Generator, n_boxes: tuple[int, int] = (3, 7)) -> BoxRoom:
-        k = int(rng.integers(n_boxes[0], n_boxes[1] + 1))
-        c = rng.uniform(-ROOM_HALF + 1.0, ROOM_HALF - 1.0, (k, 2))
-        s = rng.uniform(0.3, 0.9, (k, 2))
-        top = rng.uniform(0.2, 0.8, k)
-        boxes = np.column_stack([c[:, 0] - s[:, 0], c[:, 0] + s[:, 0], c[:, 1] - s[:, 1], c[:, 1] + s[:, 1], top])
-        return cls(ROOM_HALF, CEILING, boxes)
-
-    def surface_below(self, xy: np.ndarray) -> np.ndarray:
-        """(K,) height [m] of the highest surface under points ``xy`` (K, 2)."""
-        b = self.boxes
-        inside = ((xy[:, None, 0] >= b[:, 0]) & (xy[:, None, 0] <= b[:, 1]) & (xy[:, None, 1] >= b[:, 2])
-                  & (xy[:, None, 1] <= b[:, 3]))
-        return np.where(inside, b[:, 4], 0.0).max(axis=1, initial=0.0)
-
-    def cast(self, origin: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Ray cast from origins inside the room, outside every box.
-
-        Parameters
-        ----------
-        origin : (F, 3) ray origins [m], world.
-        dirs : (F, P, 3) ray directions, world (any length: the result is in their units).
-
-        Returns
-        -------
-        t : (F, P) ray parameter of the first hit; normals : (F, P, 3) unit world normals of
-        the surfaces hit (not yet oriented).
-        """
-        o = origin[:, None, :]
-        dd = np.where(np.abs(dirs) < 1e-12, 1e-12, dirs)
-        lo = np.array([-self.half, -self.half, 0.0])
-        hi = np.array([self.half, self.half, self.ceiling])
-        # room: exit through the slab each direction points to
-        t_axis = (np.where(dd > 0, hi, lo) - o) / dd                        # (F, P, 3)
-        axis = t_axis.argmin(-1)
-        t = np.take_along_axis(t_axis, axis[..., None], -1)[..., 0]
-        n = np.zeros(dirs.shape)
-        np.put_along_axis(n, axis[..., None], 1.0, -1)
-        # boxes: slab test
-        for x0, x1, y0, y1, top in self.boxes:
-            blo, bhi = np.array([x0, y0, 0.0]), np.array([x1, y1, top])
-            t1, t2 = (blo - o) / dd, (bhi - o) / dd
-            tn, tf = np.minimum(t1, t2), np.maximum(t1, t2)
-            t_in, t_out = tn.max(-1), tf.min(-1)
-            hit = (t_in <= t_out) & (t_in > 0) & (t_in < t)
-            if hit.any():
-                ax = tn.argmax(-1)
-                nb = np.zeros(dirs.shape)
-                np.put_along_axis(nb, ax[..., None], 1.0, -1)
-                t = np.where(hit, t_in, t)
-                n = np.where(hit[..., None], nb, n)
-        return t, n
+    o = origin[:, None, :]
+    dd = np.where(np.abs(dirs) < 1e-12, 1e-12, dirs)
+    rect = room.rooms[0].rect
+    lo = np.array([rect[0], rect[1], 0.0])
+    hi = np.array([rect[2], rect[3], room.ceiling_height])
+    # room: exit through the slab each direction points to
+    t_axis = (np.where(dd > 0, hi, lo) - o) / dd                        # (F, P, 3)
+    axis = t_axis.argmin(-1)
+    t = np.take_along_axis(t_axis, axis[..., None], -1)[..., 0]
+    n = np.zeros(dirs.shape)
+    np.put_along_axis(n, axis[..., None], 1.0, -1)
+    # boxes: slab test
+    for box in room.furniture:
+        blo, bhi = box.lo, box.hi
+        t1, t2 = (blo - o) / dd, (bhi - o) / dd
+        tn, tf = np.minimum(t1, t2), np.maximum(t1, t2)
+        t_in, t_out = tn.max(-1), tf.min(-1)
+        hit = (t_in <= t_out) & (t_in > 0) & (t_in < t)
+        if hit.any():
+            ax = tn.argmax(-1)
+            nb = np.zeros(dirs.shape)
+            np.put_along_axis(nb, ax[..., None], 1.0, -1)
+            t = np.where(hit, t_in, t)
+            n = np.where(hit[..., None], nb, n)
+    return t, n
 
 
 def camera_rotation(yaw: np.ndarray, pitch_deg: float | np.ndarray) -> np.ndarray:
@@ -137,7 +130,7 @@ def camera_rotation(yaw: np.ndarray, pitch_deg: float | np.ndarray) -> np.ndarra
     return np.stack([x, y, z], -1)
 
 
-def render(room: BoxRoom, p: np.ndarray, R_WC: np.ndarray, rays: np.ndarray, normals: bool = True,
+def render(room: Scene, p: np.ndarray, R_WC: np.ndarray, rays: np.ndarray, normals: bool = True,
            chunk: int = 16) -> tuple[np.ndarray, np.ndarray | None]:
     """Depth (and normals) images of a room.
 
@@ -160,7 +153,7 @@ def render(room: BoxRoom, p: np.ndarray, R_WC: np.ndarray, rays: np.ndarray, nor
     for s in range(0, len(p), chunk):
         R = R_WC[s:s + chunk]
         dirs = np.einsum("fij,pj->fpi", R, r)
-        t, n_w = room.cast(p[s:s + chunk], dirs)
+        t, n_w = cast_rays(room, p[s:s + chunk], dirs)
         depth[s:s + chunk] = t.reshape(-1, H, W)
         if normals:
             n_c = np.einsum("fji,fpj->fpi", R, n_w)  # R^T n
@@ -179,7 +172,7 @@ def _smooth_noise(rng: np.random.Generator, T: int, dt: float, n: int, freqs=(0.
     return out
 
 
-def fly(room: BoxRoom, rng: np.random.Generator, T: int, dt: float = DT) -> dict[str, np.ndarray]:
+def fly(room: Scene, rng: np.random.Generator, T: int, dt: float = DT) -> dict[str, np.ndarray]:
     """A smooth level flight over the room: positions, yaw, heights.
 
     Returns
@@ -199,7 +192,7 @@ def fly(room: BoxRoom, rng: np.random.Generator, T: int, dt: float = DT) -> dict
     xy_free = c0 + np.cumsum(step, axis=0) - step[0]
     # reflect at the walls (triangle wave keeps positions continuous)
     xy = np.abs(np.mod(xy_free + span, 4 * span) - 2 * span) - span
-    top = room.boxes[:, 4].max(initial=0.0)
+    top = _highest_top(room)
     z_lo = top + rng.uniform(0.1, 0.3)
     z_hi = z_lo + rng.uniform(0.3, 1.0)
     z = z_lo + (z_hi - z_lo) * (0.5 + 0.5 * _smooth_noise(rng, T, dt, 1, (0.05, 0.5))[:, 0])
@@ -207,11 +200,11 @@ def fly(room: BoxRoom, rng: np.random.Generator, T: int, dt: float = DT) -> dict
     v = np.gradient(p, dt, axis=0) if T > 1 else np.zeros((T, 3))
     yaw = np.unwrap(np.arctan2(v[:, 1], v[:, 0])) if T > 1 else np.array([heading])
     yaw_rate = np.gradient(yaw, dt) if T > 1 else np.zeros(T)
-    d = z - room.surface_below(xy)
+    d = z - surface_below(room, xy)
     return {"t": t, "p": p, "yaw": yaw, "d": d, "v": v, "yaw_rate": yaw_rate}
 
 
-def synthetic_trajectory(room: BoxRoom, rng: np.random.Generator, T: int, size: int, dt: float = DT,
+def synthetic_trajectory(room: Scene, rng: np.random.Generator, T: int, size: int, dt: float = DT,
                          yfov_deg: float = YFOV_DEG, pitch_deg: float = PITCH_DEG,
                          with_normals: bool = False) -> dict[str, np.ndarray]:
     """Arrays of one trajectory in the shard contract (:mod:`uavturb.data.shards`)."""
@@ -260,8 +253,6 @@ def make_synthetic_dataset(root: str | Path, n_scenes: int = 6, trajs_per_scene:
     -------
     :class:`uavturb.data.shards.Manifest`
     """
-    from uavturb.io import shards
-
     if T < 1 or size < 1 or trajs_per_scene < 1:
         raise InputError("synthetic", f"T, size and trajs_per_scene must be positive, got {T}, {size}, "
                          f"{trajs_per_scene}")
@@ -272,7 +263,7 @@ def make_synthetic_dataset(root: str | Path, n_scenes: int = 6, trajs_per_scene:
     k = 0
     bar = progress_bar(n_scenes * trajs_per_scene, "synthetic shards", "trajectories") if progress else None
     for s in range(n_scenes):
-        room = BoxRoom.random(rng)
+        room = random_box_room(rng)
         for j in range(trajs_per_scene):
             name = f"traj_{k:05d}"
             arrays = synthetic_trajectory(room, rng, T, size, dt, yfov_deg, pitch_deg, with_normals)
@@ -301,8 +292,6 @@ def make_synthetic_pairs(root: str | Path, M: int = 512, size: int = 32, seed: i
     Cameras sit anywhere above the boxes, look in any direction, pitched down 10-80 deg; a new
     room every ``per_room`` views. Returns the pairs folder.
     """
-    from uavturb.io import shards
-
     if M < 1 or size < 1:
         raise InputError("pairs", f"M and size must be positive, got {M}, {size}")
     rng = np.random.default_rng(seed)
@@ -310,9 +299,9 @@ def make_synthetic_pairs(root: str | Path, M: int = 512, size: int = 32, seed: i
     depth = np.empty((M, size, size), np.float32)
     normals = np.empty((M, size, size, 3), np.float32)
     for s in range(0, M, per_room):
-        room = BoxRoom.random(rng)
+        room = random_box_room(rng)
         n = min(per_room, M - s)
-        top = room.boxes[:, 4].max(initial=0.0)
+        top = _highest_top(room)
         p = np.column_stack([rng.uniform(-ROOM_HALF + 0.3, ROOM_HALF - 0.3, (n, 2)),
                              rng.uniform(top + 0.1, CEILING - 0.3, n)])
         R = camera_rotation(rng.uniform(0, 2 * np.pi, n), rng.uniform(10.0, 80.0, n))

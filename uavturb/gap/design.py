@@ -33,7 +33,7 @@ from scipy.signal import savgol_filter
 from uavturb.gap.nominal import ThrustLevels, anchored_bias, thrust_levels
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.physics.effects import EFFECTS, lag_rotor_speeds
+from uavturb.physics.effects import EFFECTS, EffectInputs, lag_rotor_speeds
 from uavturb.sysid.flight_data import FlightData
 
 #: nonlinear parameter of each effect whose law is not linear in it, with its search bounds
@@ -342,13 +342,28 @@ def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tup
 def dependent_columns(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tuple[np.ndarray, list[str]]:
     """The columns of :func:`design` that depend on ``mu``, ``kappa``, ``tau``: thrust with the
     surface effects (``k_T``) and, with ``battery_sag``, its decay (``k_T*s``). ``(3K, 1 or 2)``."""
-    K = len(data)
-    zb = data.R[:, :, 2]
-    S = (lagged_S(data, nonlinear["tau"]) if "motor_lag" in effects else data.S) * data.thrust_level
-    surf = np.zeros(K)
+    return thrust_columns(data, effects, effective_S(data, effects, nonlinear), surface_extra(data, effects, nonlinear))
+
+
+def effective_S(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> np.ndarray:
+    """(K,) (rad/s)^2, ``sum(w^2)`` the thrust sees: lagged by ``tau`` with ``motor_lag``, times each row's
+    thrust level."""
+    S = lagged_S(data, nonlinear["tau"]) if "motor_lag" in effects else data.S
+    return S * data.thrust_level
+
+
+def surface_extra(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> np.ndarray:
+    """(K,) -, the extra thrust per unit thrust of every surface law in ``effects`` at its parameter."""
+    surf = np.zeros(len(data))
     for name in sorted(effects):
         if EFFECTS[name].surface is not None:
             surf += surface_law_extra(data, name, nonlinear[EFFECTS[name].params[0]])
+    return surf
+
+
+def thrust_columns(data: GapData, effects: set[str], S: np.ndarray, surf: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """:func:`dependent_columns` from the effective ``S`` (K,) and the surface laws' ``surf`` (K,)."""
+    zb = data.R[:, :, 2]
     thrust = S[:, None] * zb
     thrust[:, 2] += S * surf
     cols, names = [thrust], ["k_T"]
@@ -361,7 +376,8 @@ def dependent_columns(data: GapData, effects: set[str], nonlinear: dict[str, flo
 def fixed_columns(data: GapData, effects: set[str]) -> tuple[np.ndarray, list[str]]:
     """The columns of :func:`design` that do not depend on the nonlinear parameters: the
     accelerometer bias (body frame; rows with an IMU only, none without any IMU) and the linear
-    effects. ``(3K, P_f)``."""
+    effects, each parameter's column its law's force at that parameter = 1 (the registry's ``force``:
+    a linear law is one registry entry, nothing here). ``(3K, P_f)``."""
     K = len(data)
     R = data.R
     cols, names = [], []
@@ -370,25 +386,25 @@ def fixed_columns(data: GapData, effects: set[str]) -> tuple[np.ndarray, list[st
         for j, ax in enumerate("xyz"):
             cols.append(data.mass * R[:, :, j] * on[:, None])
             names.append(f"b_{ax}")
-    if "rotor_drag" in effects:
-        vB = np.einsum("kji,kj->ki", R, data.v)
-        vB[:, 2] = 0.0
-        wsum = np.sum(data.rotor_speeds, axis=1)
-        cols.append(-wsum[:, None] * np.einsum("kij,kj->ki", R, vB))
-        names.append("k_d")
-    if "body_drag" in effects:
-        cols.append(-np.linalg.norm(data.v, axis=1, keepdims=True) * data.v)
-        names.append("c_d")
-    if "wind" in effects:
-        ex = np.zeros((K, 3))
-        ex[:, 0] = 1.0
-        ey = np.zeros((K, 3))
-        ey[:, 1] = 1.0
-        cols += [ex, ey]
-        names += ["f_x", "f_y"]
+    x = None
+    for name in sorted(effects, key=list(EFFECTS).index):
+        spec = EFFECTS[name]
+        if not spec.linear or spec.along_thrust:
+            continue  # thrust-scaled laws are dependent columns (their coefficient carries k_T)
+        if x is None:
+            x = effect_inputs(data)
+        for p in spec.params:  # a linear law's column per parameter: its force at that parameter = 1
+            cols.append(spec.force(x, **{q: float(q == p) for q in spec.params}))
+            names.append(p)
     if not cols:
         return np.zeros((3 * K, 0)), names
     return np.stack([c.T.reshape(-1) for c in cols], axis=1), names
+
+
+def effect_inputs(data: GapData) -> EffectInputs:
+    """What the registry's laws need, on the rows of ``data`` (``k_T`` = 1: thrust in units of ``k_T``)."""
+    return EffectInputs(q=None, v=data.v, rotor_speeds=data.rotor_speeds, k_T=1.0, rotor_radius=data.rotor_radius,
+                        d_down=data.d_down, d_up=data.d_up, t=data.t, R=data.R, arm_length=data.arm_length)
 
 
 def bias_count(data: GapData) -> int:

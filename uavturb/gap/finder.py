@@ -24,8 +24,8 @@ from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.nominal import ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared
-from uavturb.gap.selection import Selection, finish, folds, heldout, select
-from uavturb.gap.surface_curve import finder_surface_curve
+from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, select
+from uavturb.gap.surface_curve import finder_surface_curve, lift_z
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
@@ -131,7 +131,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     candidates, not_testable, sim_fit_base = _testable_candidates(data, sim, measured_rotor_speeds(recordings))
     quantum = max((rotor_quantum(r.rotors.speeds) for r in recordings), default=0.0)
     floor = rounding_floor(data, base.nominal.coef["k_T"], quantum)
-    sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor)
+    sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor,
+                 curve=nominal_curve_evidence(data, base.least_squares))
     sel, ambiguous, rejected = _decide(data, sel, candidates)
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
@@ -201,6 +202,13 @@ def _simulator_baseline(data: GapData, sim: dict[str, dict[str, float]]) -> _Bas
     baseline_ls = fit_model(base_data, set(), with_stderr=False)
     return _Baseline(nominal, offset, baseline_ls, baseline.residual(base_data),
                      baseline.predict(base_data) + offset)
+
+
+def nominal_curve_evidence(data: GapData, nominal: ModelFit) -> CurveEvidence:
+    """The measured surface curve under the nominal model (no effect named yet), as selection reads it:
+    its lift near the floor and each surface law's shape fit (:class:`~uavturb.gap.selection.CurveEvidence`)."""
+    _, curve, fits = finder_surface_curve(data, nominal)
+    return CurveEvidence(lift_z(curve, data.rotor_radius), {n: f.chi2 for n, f in fits.items()})
 
 
 def measured_rotor_speeds(recordings: Sequence) -> bool:

@@ -13,16 +13,18 @@ from scipy.optimize import minimize_scalar
 from uavturb.gap.design import (
     NONLINEAR,
     GapData,
-    dependent_columns,
     design,
+    effective_S,
     fixed_columns,
     stack_target,
+    surface_extra,
+    thrust_columns,
     unstack,
 )
 from uavturb.physics.effects import EFFECTS
 from uavturb.sysid.least_squares import lstsq
 
-GRID_POINTS = 17
+GRID_POINTS = 9
 
 
 @dataclass
@@ -102,11 +104,29 @@ class _Profile:
         self.data, self.effects, self.y = data, set(effects), y
         self.F, _ = fixed_columns(data, self.effects)
         self.FF, self.Fy, self.yy = self.F.T @ self.F, self.F.T @ y, float(y @ y)
+        # the effective rotor speeds depend on tau only, the surface laws on mu / kappa only: a profile over
+        # one of them reuses the other's (a lagged sum over a flight-hour costs more than the whole fit)
+        self._S: dict[float, np.ndarray] = {}
+        self._surf: dict[tuple, np.ndarray] = {}
+        self._surface = [EFFECTS[e].params[0] for e in sorted(self.effects) if EFFECTS[e].surface is not None]
+
+    def _columns(self, values: dict[str, float]) -> np.ndarray:
+        tau = round(values["tau"], 12) if "motor_lag" in self.effects else 0.0
+        if tau not in self._S:
+            self._S = {tau: effective_S(self.data, self.effects, values)}
+        key = tuple(round(values[p], 12) for p in self._surface)
+        if key not in self._surf:
+            self._surf = {key: surface_extra(self.data, self.effects, values)}
+        return thrust_columns(self.data, self.effects, self._S[tau], self._surf[key])[0]
 
     def sse(self, nl: dict[str, float]) -> float:
-        D, _ = dependent_columns(self.data, self.effects, _nl_values(nl))
-        DF = D.T @ self.F
-        G = np.block([[D.T @ D, DF], [DF.T, self.FF]])
+        D = self._columns(_nl_values(nl))
+        nd = D.shape[1]
+        G = np.empty((nd + self.FF.shape[0],) * 2)
+        G[:nd, :nd] = D.T @ D
+        G[:nd, nd:] = D.T @ self.F
+        G[nd:, :nd] = G[:nd, nd:].T
+        G[nd:, nd:] = self.FF
         b = np.concatenate([D.T @ self.y, self.Fy])
         d = np.sqrt(np.diag(G))
         d[d == 0] = 1.0

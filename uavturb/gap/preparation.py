@@ -19,6 +19,7 @@ import dataclasses
 from typing import Any, Sequence
 
 import numpy as np
+from scipy.ndimage import median_filter
 
 from uavturb.gap.nominal import mocap_specific_force
 from uavturb.io.recording import Recording, Rotors
@@ -90,10 +91,29 @@ def stream_limits(rec: Recording) -> tuple[list[str], list[str]]:
     return lines, limits
 
 
+def _vehicle_landed_height(fds: Sequence[FlightData]) -> float | None:
+    """m, the lowest rotor-plane height over all flights (5-row median, as ``ground_contact`` reads it), or
+    None where a flight has no ``d_down``."""
+    lows = []
+    for fd in fds:
+        d = fd.d_down if fd.d_down is not None else None
+        if d is None or not np.any(np.isfinite(d)):
+            return None
+        lows.append(float(np.min(median_filter(d[np.isfinite(d)], 5, mode="nearest"))))
+    return min(lows) if lows else None
+
+
 def contact_masks(fds: Sequence[FlightData], mass: float, k_T: float | None, paths: Sequence[str]
                   ) -> tuple[list[np.ndarray], list[dict[str, Any]]]:
-    """Per flight, the rows where the floor carries the vehicle, and the report's ``ground_contact``."""
+    """Per flight, the rows where the floor carries the vehicle, and the report's ``ground_contact``.
+
+    The recordings are of one vehicle and ``d_down`` is measured to the surface below, so the vehicle's
+    landed rotor-plane height is the lowest over all of them: a recording that never came down within
+    ``skim_m`` of it skims nothing (its lowest hover is a hover)."""
     masks, report = [], []
+    skim_top = _vehicle_landed_height(fds)
+    if skim_top is not None:
+        skim_top += CONTACT_LIMITS.skim_m
     for fd, path in zip(fds, paths):
         R = quat.to_rotation_matrix(fd.q)
         tilt = np.degrees(np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0)))
@@ -101,7 +121,7 @@ def contact_masks(fds: Sequence[FlightData], mass: float, k_T: float | None, pat
         thrust = k_T * S if k_T else S / np.median(S) * mass * GRAVITY
         d_down = fd.d_down if fd.d_down is not None and np.any(np.isfinite(fd.d_down)) else None
         mask, intervals = ground_contact(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass, d_down=d_down,
-                                         limits=CONTACT_LIMITS)
+                                         limits=CONTACT_LIMITS, skim_top=skim_top if d_down is not None else None)
         masks.append(mask)
         report += [iv.to_report(path) for iv in intervals]
     return masks, report

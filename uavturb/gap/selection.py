@@ -31,6 +31,21 @@ Guard against false discoveries. An effect is added only when all hold:
 
 A backward pass then drops any chosen effect whose removal does not hurt the held-out fit
 significantly (look-alikes picked early lose to the right one picked later).
+
+Two rules concern the surface laws, where the measured surface curve (``surface_curve.py``: the thrust
+ratio per height bin, normalised far from the surface, with honest errors) is a second, model-free line
+of evidence:
+
+- **Two independent lines of evidence.** A held-out part can hold little of a surface: the last 30 % of
+  a single take-off holds one landing, about a second near the floor, so a 30 % better held-out fit
+  scores ``z`` about 2 there. A ground law then passes with ``z >=`` :data:`Z_WITH_CURVE` where the
+  measured curve on its own shows the lift, :data:`LIFT_Z` standard errors above 1 within four rotor
+  radii (``surface_curve.lift_z``): the joint chance of both by accident is far below ``z = 4`` alone.
+- **A better law must fit better.** An alternative law (``EffectSpec.alternative_to``) replaces the
+  standard one only where it beats it on the held-out data beyond noise *and* its shape fits the
+  measured curve better beyond noise (``chi2`` lower by :data:`SHAPE_DELTA_CHI2`): on real Crazyflies the multirotor law's long tail beat
+  Cheeseman-Bennett on held-out forces by trading with the thrust coefficient while the measured curve,
+  normalised far from the floor, fell off faster than either law and closer to Cheeseman-Bennett.
 """
 
 from __future__ import annotations
@@ -131,6 +146,39 @@ def improvement_z(before: HeldOut, after: HeldOut, block_s: tuple[float, ...] = 
 
 #: blocks the spread of a held-out gain needs at least
 MIN_BLOCKS = 8
+#: held-out z a ground law needs where the measured surface curve shows the lift on its own (module docstring)
+Z_WITH_CURVE = 2.0
+#: standard errors above 1 the measured curve must show near the surface for that
+LIFT_Z = 4.0
+#: chi^2 by which an alternative law's shape must beat the standard law's on the measured curve (two laws of
+#: one parameter on the same bins: a difference of 4 is two standard deviations of evidence)
+SHAPE_DELTA_CHI2 = 4.0
+
+
+@dataclass(frozen=True)
+class CurveEvidence:
+    """What the measured surface curve (under the nominal model) says, for selection.
+
+    Attributes
+    ----------
+    lift_z : standard errors by which the curve stands above 1 near the surface (``surface_curve.lift_z``)
+    chi2 : chi^2 of each surface law's shape on the curve (``surface_curve.fit_law``; same bins, one parameter each)
+    """
+
+    lift_z: float = 0.0
+    chi2: dict[str, float] = field(default_factory=dict)
+
+    def supports(self, name: str, z: float) -> bool:
+        """Whether a ground law with held-out ``z`` passes on the curve's evidence (module docstring)."""
+        return EFFECTS[name].surface == "d_down" and z >= Z_WITH_CURVE and self.lift_z >= LIFT_Z
+
+    def fits_better(self, law: str, than: str) -> bool:
+        """Whether ``law``'s shape fits the curve better than ``than``'s beyond noise: chi^2 lower by more than
+        :data:`SHAPE_DELTA_CHI2` (True where either is unknown)."""
+        a, b = self.chi2.get(law), self.chi2.get(than)
+        if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)):
+            return True
+        return a < b - SHAPE_DELTA_CHI2
 
 
 @dataclass
@@ -178,27 +226,34 @@ def _same_physics(a: str, b: str) -> bool:
     return EFFECTS[a].alternative_to == b or EFFECTS[b].alternative_to == a
 
 
-def _standard_law(best: tuple, passed: dict[str, tuple], z_improve: float, tried: dict, step: int) -> tuple:
+def _standard_law(best: tuple, passed: dict[str, tuple], z_improve: float, tried: dict, step: int,
+                  curve: CurveEvidence) -> tuple:
     """``best``, unless it is an alternative law (``alternative_to``) that does not beat the standard law
-    of its physics on the held-out data beyond noise (``z > z_improve``): then the standard law, which
-    ``effects.md`` names (a better law "may be named instead" only where it fits better)."""
+    of its physics on the held-out data beyond noise (``z > z_improve``) or whose shape fits the measured
+    curve worse: then the standard law, which ``effects.md`` names (a better law "may be named instead"
+    only where it fits better)."""
     c, ho, _ = best
     standard = EFFECTS[c].alternative_to
     if standard is None or standard not in passed:
         return best
     z = improvement_z(passed[standard][1], ho)
     tried[c][f"step{step}_z_over_{standard}"] = z
-    return best if z >= z_improve else passed[standard]
+    better_shape = curve.fits_better(c, standard)
+    if not better_shape:
+        tried[c][f"step{step}_shape_worse_than_{standard}"] = 1.0
+    return best if z >= z_improve and better_shape else passed[standard]
 
 
 def select(data: GapData, candidates: list[str], base: frozenset[str] = frozenset(), *, z_improve: float = 4.0,
            z_min: float = 4.0, lag: int = 50, max_effects: int = 4, offset: np.ndarray | None = None,
-           thrust_floor: float = 0.0) -> Selection:
+           thrust_floor: float = 0.0, curve: CurveEvidence | None = None) -> Selection:
     """Forward selection from ``base`` (the simulator's effects, refitted) over ``candidates``.
 
     ``thrust_floor`` [N^2]: an effect along the thrust axis (``design.THRUST_AXIS``) must also
     reduce the held-out mean squared error by more than this (``design.rounding_floor``: what
-    rounded rotor speeds can fake)."""
+    rounded rotor speeds can fake). ``curve``: the measured surface curve's evidence (module
+    docstring; none: the held-out data alone decide)."""
+    curve = curve or CurveEvidence()
     protocol, fm = folds(data)
     full = data
     if offset is not None:
@@ -218,8 +273,10 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
             t = improvement_z(cur_ho, ho)
             tried.setdefault(c, {})[f"step{len(steps) + 1}_z"] = t
             tried[c][f"step{len(steps) + 1}_heldout_rmse_N"] = ho.rmse
-            if t < z_improve:
+            if t < z_improve and not curve.supports(c, t):
                 continue
+            if t < z_improve:
+                tried[c][f"step{len(steps) + 1}_curve_lift_z"] = curve.lift_z
             if c in THRUST_AXIS and np.mean(cur_ho.err2) - np.mean(ho.err2) <= thrust_floor:
                 tried[c][f"step{len(steps) + 1}_below_rounding_floor"] = 1.0
                 continue
@@ -228,9 +285,10 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
             passed[c] = (c, ho, t)
         if best is None:
             break
-        c, ho, t = _standard_law(best, passed, z_improve, tried, len(steps) + 1)
+        c, ho, t = _standard_law(best, passed, z_improve, tried, len(steps) + 1, curve)
         fit = fit_model(full, current | {c}, lag=lag)
-        if not _signed_ok(fit, c, z_min):
+        # with the curve's evidence beside it, a parameter needs the same two standard errors as its held-out gain
+        if not _signed_ok(fit, c, Z_WITH_CURVE if t < z_improve else z_min):
             tried[c]["rejected"] = 1.0
             remaining.remove(c)
             continue
@@ -246,7 +304,8 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         for s in list(steps):
             without = current - {s.name}
             ho = heldout(data, without, fm, offset=offset)
-            if improvement_z(ho, cur_ho) < z_improve:
+            z_keep = improvement_z(ho, cur_ho)
+            if z_keep < z_improve and not curve.supports(s.name, z_keep):
                 steps.remove(s)
                 current, cur_ho, changed = without, ho, True
                 break

@@ -601,6 +601,29 @@ HOVER_TILT_DEG = 15.0
 AGREEMENT = 0.02
 
 
+#: rotor radii within which the measured curve's bins count as lift evidence (Cheeseman-Bennett at mu = 3
+#: adds 1.2 % at 4 r, and more below)
+LIFT_RADII = 4.0
+
+
+def lift_z(curve: SurfaceCurve | None, r: float) -> float:
+    """How many standard errors the measured curve's bins within :data:`LIFT_RADII` ``r`` of the surface
+    stand above 1: the model-free evidence of a surface lift, independent of any law.
+
+    The weighted mean of ``ratio - 1`` over those bins (weights ``1/stderr^2``) over its standard
+    error, widened by the largest normalisation error (a recording's level moves all its bins
+    together). 0 without such bins."""
+    if curve is None or not curve.bins:
+        return 0.0
+    near = [b for b in curve.bins if b.d_m <= LIFT_RADII * r and np.isfinite(b.stderr) and b.stderr > 0]
+    if not near:
+        return 0.0
+    w = np.array([1.0 / b.stderr**2 for b in near])
+    excess = float(np.sum(w * np.array([b.ratio - 1.0 for b in near])) / np.sum(w))
+    level = max((b.stderr_level for b in near), default=0.0)
+    return excess / float(np.sqrt(1.0 / np.sum(w) + level**2))
+
+
 def finder_surface_curve(data: GapData, final: ModelFit) -> tuple[dict | None, SurfaceCurve | None,
                                                                   dict[str, LawFit]]:
     """The ``surface_curve`` of a gap report (``gap-report.md``), measured on the finder's samples.

@@ -49,18 +49,30 @@ def local_quadratic(t: np.ndarray, x: np.ndarray, window: int, deriv: int = 1) -
     if N < 3:
         return np.zeros_like(x) if deriv else x.copy()
     n = min(window, N if N % 2 else N - 1)
-    h = n // 2
-    start = np.clip(np.arange(N) - h, 0, N - n)
-    idx = start[:, None] + np.arange(n)[None, :]  # (N, n) the samples of each fit
-    tau = t[idx] - t[:, None]  # (N, n) s, times relative to the sample evaluated
+    out = np.empty_like(flat)
+    for a in range(0, N, CHUNK_ROWS):  # in chunks: the (rows, n, 3) fits of an hour at 200 Hz would take GBs
+        rows = np.arange(a, min(a + CHUNK_ROWS, N))
+        out[rows] = _fits(t, flat, rows, n, deriv)
+    return out.reshape(x.shape)
+
+
+#: rows fitted at once by :func:`local_quadratic` (bounds its memory to ~100 MB whatever the length)
+CHUNK_ROWS = 65536
+
+
+def _fits(t: np.ndarray, flat: np.ndarray, rows: np.ndarray, n: int, deriv: int) -> np.ndarray:
+    """(len(rows), D): :func:`local_quadratic` at ``rows`` with windows of ``n`` samples."""
+    N = len(t)
+    start = np.clip(rows - n // 2, 0, N - n)
+    idx = start[:, None] + np.arange(n)[None, :]  # (R, n) the samples of each fit
+    tau = t[idx] - t[rows, None]  # (R, n) s, times relative to the sample evaluated
     scale = np.maximum(np.abs(tau).max(axis=1, keepdims=True), 1e-12)
     u = tau / scale  # dimensionless, in [-1, 1]: a well-conditioned normal matrix
-    powers = np.stack([np.ones_like(u), u, u * u], axis=2)  # (N, n, 3)
-    A = np.einsum("kni,knj->kij", powers, powers)  # (N, 3, 3)
-    b = np.einsum("kni,knd->kid", powers, flat[idx])  # (N, 3, D)
-    coef = np.linalg.solve(A, b)  # (N, 3, D): x ~ c0 + c1 u + c2 u^2
-    out = coef[:, 0, :] if deriv == 0 else coef[:, 1, :] / scale
-    return out.reshape(x.shape)
+    powers = np.stack([np.ones_like(u), u, u * u], axis=2)  # (R, n, 3)
+    A = np.einsum("kni,knj->kij", powers, powers)  # (R, 3, 3)
+    b = np.einsum("kni,knd->kid", powers, flat[idx])  # (R, 3, D)
+    coef = np.linalg.solve(A, b)  # (R, 3, D): x ~ c0 + c1 u + c2 u^2
+    return coef[:, 0, :] if deriv == 0 else coef[:, 1, :] / scale
 
 
 def derivative(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray:

@@ -148,9 +148,20 @@ def _rows(first_line: int, block: bytes) -> _Block:
     first = rows.buf[rows.starts[rows.starts < len(body)]]  # first byte of each non-empty row
     if body and len(first) == n and not _ROW_STARTS_ODDLY[first].any():  # the usual block: only rows
         return rows
+    if body and len(first) == n:  # the usual first block: a header (or a few comments) above plain rows
+        odd = np.flatnonzero(_ROW_STARTS_ODDLY[first])
+        k = int(odd[-1]) + 1
+        if k < n and len(odd) == k and k <= 64 and all(_droppable(body[a:b]) for a, b in zip(rows.starts[:k],
+                                                                                          rows.ends[:k])):
+            return _Block.of(rows.lines[k:], body[rows.starts[k]:])
     kept = [(i, s) for i, s in enumerate(body.split(b"\n"), first_line) if s.strip() and not s.lstrip().startswith(b"#")]
     lines = np.fromiter((i for i, _ in kept), dtype=np.int64, count=len(kept))
     return _Block.of(lines, b"\n".join(s for _, s in kept))
+
+
+def _droppable(row: bytes) -> bool:
+    """A blank or comment line (``#`` after any blanks)."""
+    return not row.strip() or row.lstrip().startswith(b"#")
 
 
 def _check_columns(path: Path, rows: _Block, n_cols: int | None) -> int:

@@ -534,7 +534,7 @@ def read_pairs(root: str | Path, mmap: bool = True) -> tuple[np.ndarray, np.ndar
 
 
 # ----------------------------------------------------------------------------------------------
-# additions for the simulator's writers (uavturb.sim.dataset, uavturb.sim.pretraining);
+# additions for the simulator's writers (uavturb.sim.dataset.generation, uavturb.sim.dataset.pretraining_pairs);
 # update_manifest (above) serves them too
 
 

@@ -1,5 +1,5 @@
 """``uavturb gap-proof --suite conditions``: the gap finder on flights with real recordings'
-troubles, each with a known truth (``uavturb generate flight`` options, :mod:`uavturb.sim.conditions`).
+troubles, each with a known truth (``uavturb generate flight`` options, :mod:`uavturb.sim.flights.conditions`).
 
 Each condition is two flights run blind (``--sim-effects none``). Its *target* effects are what a
 flight engineer wants found (the equivalent steady push of a wind, a ground effect...); the
@@ -48,7 +48,7 @@ from uavturb.gap.finder import analyse
 from uavturb.io.reader import load_recordings
 from uavturb.proof.scoring import param_error, with_hidden_bias
 from uavturb.proof.sindy_peer import sindy_names
-from uavturb.sim.conditions import Conditions, generate_conditioned_flight, read_truth
+from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight, read_truth
 
 #: relative error within which a target counts as named right (issue: wind within 30 %)
 TOLERANCE = 0.30

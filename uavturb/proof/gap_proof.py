@@ -29,7 +29,8 @@ from uavturb.physics.effects import EFFECTS
 from uavturb.proof.conditions import conditions_table, run_conditions
 from uavturb.proof.scoring import param_error, with_hidden_bias
 from uavturb.proof.sindy_peer import sindy_names
-from uavturb.sim.flight import SensorNoise, generate_flight
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import generate_flight
 
 #: concealed magnitudes. Sensor noise is about 0.042 N per axis and sample (EuRoC's ADIS16448
 #: accelerometer on the 1.5 kg hexarotor); hover rotor-speed sum about 3200 rad/s.
@@ -51,7 +52,7 @@ TYPICAL: dict[str, dict[str, float]] = {
     "battery_sag": {"s": 1.0e-3}, "ground_effect": {"mu": 2.0}, "ceiling_effect": {"kappa": 2.0},
     "motor_lag": {"tau": 0.03},
 }
-#: the mixed flight plans hovers under the ceiling from 100 s on (uavturb.sim.references.mixed)
+#: the mixed flight plans hovers under the ceiling from 100 s on (uavturb.sim.flights.plans.mixed)
 CEILING_DURATION = 100.0
 
 

@@ -88,12 +88,9 @@ def sindy_names(data: GapData, threshold: float | None = None, *, ensemble: bool
     kT = coef[0]
     c = dict(zip(labels, coef))
     named: dict[str, dict[str, float]] = {}
-    if c["k_d"]:
-        named["rotor_drag"] = {"k_d": c["k_d"]}
-    if c["c_d"]:
-        named["body_drag"] = {"c_d": c["c_d"]}
-    if c["f_x"] or c["f_y"]:
-        named["wind"] = {"f_x": c["f_x"], "f_y": c["f_y"]}
+    for name, spec in EFFECTS.items():  # linear laws: their library columns are their parameters (design.py)
+        if spec.linear and not spec.along_thrust and any(c.get(p) for p in spec.params):
+            named[name] = {p: c[p] for p in spec.params}
     if c["k_T*s"]:
         named["battery_sag"] = {"s": c["k_T*s"] / kT}
     # surface columns are k_T S G(2, d), G ~ rho ~ coefficient for small rho: coefficient k_T mu / 2

@@ -1,5 +1,6 @@
 """Solid axis-aligned boxes ``(M, 2, 3)`` as ``[lo, hi]`` corners [m] in W, z up: their mesh, their
-occupancy of a horizontal slab, and the one height query over boxes (:class:`BoxHeights`).
+occupancy of a horizontal slab, and the one surface query over boxes (:func:`surface_heights`, behind
+:func:`box_heights` and :class:`BoxHeights`).
 
 Generated scenes (:mod:`uavturb.scene.procedural`) are unions of such boxes, which makes their
 geometric queries exact.
@@ -52,22 +53,47 @@ def box_occupancy(boxes, xs, ys, z, res, margin, band) -> np.ndarray:
 
 
 
-def box_heights(boxes: np.ndarray, positions: np.ndarray, direction: float) -> np.ndarray:
-    """Vertical distance [m] from points ``(N, 3)`` to the nearest box face below (``direction``
-    ``-1``) or above (``+1``), over all boxes at once; ``inf`` where there is none, ``(N,)``.
-    A point inside a box is at distance 0 from it."""
+def surface_heights(boxes: np.ndarray, positions: np.ndarray, grow: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """The one surface query over solid boxes: heights ``z`` [m] in W of the nearest box top at or
+    below each position and of the nearest box bottom at or above it.
+
+    A box counts for a position when the position lies over its footprint (boundary included),
+    grown by ``grow`` [m] on every side in x and y, and its top is not above the position (its
+    bottom not below, for the surface above; 1e-12 m of tolerance). Every height over boxes
+    comes from here: ``d_down = z - below`` and ``d_up = above - z`` (:func:`box_heights`,
+    :class:`BoxHeights`), and the height of the surface under a point of a room
+    (:func:`uavturb.scene.queries.surface_below`).
+
+    Parameters
+    ----------
+    boxes : (M, 2, 3) m, ``[lo, hi]`` corners
+    positions : (N, 3) m, W
+    grow : m, footprint margin
+
+    Returns
+    -------
+    below : (N,) m, ``-inf`` where no box is below; above : (N,) m, ``inf`` where none is above.
+    """
     p = np.asarray(positions, dtype=float).reshape(-1, 3)
-    out = np.full(len(p), np.inf)
+    boxes = np.asarray(boxes, dtype=float).reshape(-1, 2, 3)
     x, y, z = p[:, :1], p[:, 1:2], p[:, 2:3]
     lo, hi = boxes[:, 0], boxes[:, 1]
-    over = (x >= lo[:, 0]) & (x <= hi[:, 0]) & (y >= lo[:, 1]) & (y <= hi[:, 1])  # (N, M)
-    if direction < 0:
-        d = np.where(over & (hi[:, 2] <= z + 1e-12), z - hi[:, 2], np.inf)
-    else:
-        d = np.where(over & (lo[:, 2] >= z - 1e-12), lo[:, 2] - z, np.inf)
-    if d.shape[1]:
-        out = np.maximum(d.min(axis=1), 0.0)
-    return out
+    over = ((x >= lo[:, 0] - grow) & (x <= hi[:, 0] + grow) & (y >= lo[:, 1] - grow)
+            & (y <= hi[:, 1] + grow))  # (N, M); x - 0.0 is x: no growth changes nothing
+    below = np.where(over & (hi[:, 2] <= z + 1e-12), hi[:, 2], -np.inf).max(axis=1, initial=-np.inf)
+    above = np.where(over & (lo[:, 2] >= z - 1e-12), lo[:, 2], np.inf).min(axis=1, initial=np.inf)
+    return below, above
+
+
+def box_heights(boxes: np.ndarray, positions: np.ndarray, direction: float) -> np.ndarray:
+    """Vertical distance [m] from points ``(N, 3)`` to the nearest box face below (``direction``
+    ``-1``) or above (``+1``) (:func:`surface_heights`); ``inf`` where there is none, ``(N,)``.
+    A point inside a box is at distance 0 from it."""
+    p = np.asarray(positions, dtype=float).reshape(-1, 3)
+    below, above = surface_heights(boxes, p)
+    # min_k (z - top_k) is z - max_k top_k exactly (rounding is monotone), as the loop always measured
+    d = p[:, 2] - below if direction < 0 else above - p[:, 2]
+    return np.maximum(d, 0.0)
 
 
 class BoxHeights:
@@ -75,7 +101,7 @@ class BoxHeights:
     :func:`box_heights`, bit for bit).
 
     Many positions at once go through :func:`box_heights` over all boxes. One position at a
-    time (the closed loop of :mod:`uavturb.sim.closed_loop`) looks at the boxes binned on a
+    time (the closed loop of :mod:`uavturb.sim.core.closed_loop`) looks at the boxes binned on a
     ``cell`` [m] grid in x, y over its cell only (a box is in every cell its footprint touches,
     so no box over the position is missed); one pass answers both heights, so ``d_up`` right
     after ``d_down`` of the same position is a cache hit.
@@ -108,15 +134,8 @@ class BoxHeights:
         idx = self.bins.get(tuple(np.floor((p[:2] - self.origin) / self.cell).astype(int)))
         down = up = np.inf
         if idx is not None:
-            b = self.boxes[idx]
-            x, y, z = p
-            over = (x >= b[:, 0, 0]) & (x <= b[:, 1, 0]) & (y >= b[:, 0, 1]) & (y <= b[:, 1, 1])
-            below = over & (b[:, 1, 2] <= z + 1e-12)
-            above = over & (b[:, 0, 2] >= z - 1e-12)
-            if below.any():
-                down = max(float(np.min(z - b[below, 1, 2])), 0.0)
-            if above.any():
-                up = max(float(np.min(b[above, 0, 2] - z)), 0.0)
+            below, above = surface_heights(self.boxes[idx], p[None])
+            down, up = max(float(p[2] - below[0]), 0.0), max(float(above[0] - p[2]), 0.0)
         self._last = (key, down, up)
         return down, up
 

@@ -7,7 +7,8 @@ generates procedural scenes from boxes (:mod:`uavturb.scene.procedural`) and can
 scanned meshes. Conventions (``recordings.md``): world frame W, z up, metres; the floor of a
 generated scene is the plane ``z = 0`` and its ceiling the plane ``z = ceiling_height``.
 A generated scene's mesh is the concatenation of its boxes (12 triangles per box, in box
-order: face ``k`` belongs to box ``k // 12``). Queries: :mod:`uavturb.scene.queries`.
+order: face ``k`` belongs to box ``k // 12``). Single-room layouts: :mod:`uavturb.scene.layouts`.
+Queries: :mod:`uavturb.scene.queries`.
 """
 
 from __future__ import annotations
@@ -127,9 +128,14 @@ class Furniture:
         return float(self.hi[2])
 
 
-@dataclass
+@dataclass(eq=False)
 class Scene:
-    """An indoor scene: its mesh and, for generated scenes, its layout.
+    """An indoor scene: its mesh and, for generated scenes and single-room layouts, its layout.
+
+    The one scene model: generated scenes (:func:`uavturb.scene.procedural.generate_scene`),
+    single-room layouts (:mod:`uavturb.scene.layouts`: the flight rooms, the EuRoC stand-in room,
+    the synthetic box rooms) and external meshes (:func:`load_scene_mesh`). Scenes compare and
+    hash by identity (a scene is one object, as caches of its point cloud need).
 
     Attributes
     ----------
@@ -139,7 +145,7 @@ class Scene:
     seed : int or None
         The seed of :func:`generate_scene`; ``None`` for external meshes.
     kind : str
-        ``'apartment'``, ``'office'`` or ``'external'``.
+        ``'apartment'``, ``'office'`` (generated), ``'room'`` (a single-room layout) or ``'external'``.
     rooms : list of SceneRoom
         Axis-aligned rooms (empty for external meshes).
     doors : list of Door

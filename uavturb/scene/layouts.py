@@ -1,154 +1,147 @@
-"""Floor plans of generated scenes: rectangular cells (rooms bounded by wall centre lines,
-``(x0, y0, x1, y1)`` [m]), the walls they share, and interval helpers for cutting doors."""
+"""Single-room layouts: functions that build a :class:`~uavturb.scene.indoor.Scene` of one closed
+room with solid boxes standing on its floor.
+
+- :func:`box_room`: any such room (the synthetic data's rooms, :mod:`uavturb.data.synthetic`);
+- :func:`table_room`: a room with one table and optionally more furniture (the rooms of
+  ``uavturb generate flight``, :mod:`uavturb.sim.flights.plans`);
+- :func:`euroc_vicon_room`: the stand-in for EuRoC's Vicon room (V1_01_easy, V1_02_medium).
+
+Conventions (``recordings.md``): world frame W, z up, metres. The room's free floor spans
+``±size/2`` about the world origin, the floor is the plane ``z = 0`` and the ceiling the plane
+``z = ceiling``. A layout's scene holds one :class:`~uavturb.scene.indoor.SceneRoom` (kind
+``'room'``), one :class:`~uavturb.scene.indoor.Furniture` per box in the order given (``parts`` the
+box itself, ``surface`` its top), and solid boxes: the floor, the ceiling and four wall slabs
+(:data:`SLAB` thick, the walls reaching past floor and ceiling) followed by the furniture boxes,
+so the height queries of :mod:`uavturb.scene.queries` answer exactly from them.
+
+Its mesh is the room's inner shell (one box, faces turned inwards) followed by the furniture
+boxes (12 triangles each, ``trimesh.creation.box``), as the flight rooms have always been meshed:
+their recordings' point clouds are sampled from it (face ``k >= 12`` belongs to furniture
+``k // 12 - 1``).
+"""
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
+import trimesh
 
-MIN_SIDE = 2.4  # m, smallest room side of a generated layout (wall centre lines)
-DOOR_CLEAR = 0.15  # m, wall kept on each side of a door before a wall junction
+from uavturb.errors import InputError
+from uavturb.scene.indoor import Furniture, Scene, SceneRoom
 
-Cell = tuple[float, float, float, float]
+#: m, thickness of a layout's floor, ceiling and wall slabs
+SLAB = 0.1
 
-
-def snap(v: float, step: float = 0.05) -> float:
-    """Round to a grid so shared walls have bit-identical coordinates."""
-    return round(round(v / step) * step, 6)
-
-
-def apartment_cells(rng: np.random.Generator, n: int) -> list[tuple[float, float, float, float]]:
-    """Apartment footprint split recursively into up to ``n`` rectangular cells."""
-    area = n * rng.uniform(9.0, 20.0)
-    aspect = rng.uniform(1.0, 1.8)
-    W = snap(max(np.sqrt(area * aspect), 2 * MIN_SIDE + 0.1))
-    D = snap(max(area / W, MIN_SIDE))
-    cells = [(0.0, 0.0, W, D)]
-    while len(cells) < n:
-        order = sorted(range(len(cells)), key=lambda k: -(cells[k][2] - cells[k][0]) * (cells[k][3] - cells[k][1]))
-        for k in order:
-            x0, y0, x1, y1 = cells[k]
-            w, d = x1 - x0, y1 - y0
-            axis = 0 if w >= d else 1
-            if rng.random() < 0.25:
-                axis = 1 - axis
-            side = w if axis == 0 else d
-            if side < 2 * MIN_SIDE:
-                axis = 1 - axis
-                side = w if axis == 0 else d
-                if side < 2 * MIN_SIDE:
-                    continue
-            lo = (x0, y0)[axis]
-            cut = snap(lo + side * rng.uniform(0.35, 0.65))
-            cut = min(max(cut, snap(lo + MIN_SIDE + 0.025)), snap(lo + side - MIN_SIDE - 0.025))
-            if axis == 0:
-                cells[k : k + 1] = [(x0, y0, cut, y1), (cut, y0, x1, y1)]
-            else:
-                cells[k : k + 1] = [(x0, y0, x1, cut), (x0, cut, x1, y1)]
-            break
-        else:
-            break
-    return cells
+#: one box standing on the floor: ``(x_min, x_max, y_min, y_max, top)`` [m]
+FloorBox = tuple[float, float, float, float, float]
 
 
-def office_cells(rng: np.random.Generator, n: int) -> tuple[list[tuple[float, float, float, float]], list[str]]:
-    """A corridor along x with ``n - 1`` offices on one or both sides."""
-    n_off = n - 1
-    two = n_off >= 2 and rng.random() < 0.7
-    k_a = int(np.ceil(n_off / 2)) if two else n_off
-    k_b = n_off - k_a
-    widths_a = [snap(rng.uniform(2.6, 4.5)) for _ in range(k_a)]
-    L = snap(sum(widths_a))
-    cw = snap(rng.uniform(1.6, 2.4))
-    d_a = snap(rng.uniform(3.0, 5.5))
-    d_b = snap(rng.uniform(3.0, 5.5)) if k_b else 0.0
-    cells, kinds = [], []
-    y_c0, y_c1 = d_b, snap(d_b + cw)
-    cells.append((0.0, y_c0, L, y_c1))
-    kinds.append("corridor")
-
-    def row(widths, ya, yb):
-        x = 0.0
-        for k, w in enumerate(widths):
-            x1 = L if k == len(widths) - 1 else snap(x + w)
-            cells.append((x, ya, x1, yb))
-            kinds.append(str(rng.choice(["office", "office", "office", "meeting", "storage"])))
-            x = x1
-
-    row(widths_a, y_c1, snap(y_c1 + d_a))
-    if k_b:
-        frac = rng.uniform(0.8, 1.2, k_b)
-        widths_b = list(frac / frac.sum() * L)
-        row(widths_b, 0.0, y_c0)
-    if rng.random() < 0.5:  # corridor along y instead
-        cells = [(y0, x0, y1, x1) for (x0, y0, x1, y1) in cells]
-    return cells, kinds
+def _shell_and_furniture_mesh(size: tuple[float, float], ceiling: float, boxes: Sequence[FloorBox]) -> trimesh.Trimesh:
+    """The inner shell (normals into the room) and the furniture boxes, in order."""
+    walls = trimesh.creation.box(extents=(size[0], size[1], ceiling))
+    walls.apply_translation((0.0, 0.0, ceiling / 2))
+    walls.invert()  # normals point into the room
+    solids = []
+    for x0, x1, y0, y1, h in boxes:
+        box = trimesh.creation.box(extents=(x1 - x0, y1 - y0, h))
+        box.apply_translation(((x0 + x1) / 2, (y0 + y1) / 2, h / 2))
+        solids.append(box)
+    return trimesh.util.concatenate([walls, *solids])
 
 
-def shared_walls(cells, t: float) -> dict[tuple[int, int], tuple[int, float, float, float]]:
-    """Pairs of cells sharing a wall long enough for a door: ``(axis, coord, a, b)`` of the overlap.
+def _structure(size: tuple[float, float], ceiling: float) -> np.ndarray:
+    """``(6, 2, 3)`` m: floor, ceiling and the walls at ``-x``, ``+x``, ``-y``, ``+y``."""
+    hx, hy, t = size[0] / 2, size[1] / 2, SLAB
+    return np.array([
+        [[-hx - t, -hy - t, -t], [hx + t, hy + t, 0.0]],
+        [[-hx - t, -hy - t, ceiling], [hx + t, hy + t, ceiling + t]],
+        [[-hx - t, -hy - t, -t], [-hx, hy + t, ceiling + t]],
+        [[hx, -hy - t, -t], [hx + t, hy + t, ceiling + t]],
+        [[-hx, -hy - t, -t], [hx, -hy, ceiling + t]],
+        [[-hx, hy, -t], [hx, hy + t, ceiling + t]],
+    ])
 
-    ``axis`` 0: the wall runs along x at ``y = coord``; 1: along y at ``x = coord``.
+
+def box_room(size: tuple[float, float], ceiling: float, boxes: Sequence[Sequence[float]],
+             kinds: Sequence[str] | None = None) -> Scene:
+    """A closed room with solid boxes standing on its floor.
+
+    Parameters
+    ----------
+    size : (2,) m, free floor extent along world x and y (the room spans ``±size/2``)
+    ceiling : m, height of the ceiling over the floor
+    boxes : (K, 5) ``x_min, x_max, y_min, y_max, top`` [m], bottoms on the floor
+    kinds : (K,) furniture kinds (default ``'box'`` each)
+
+    Returns
+    -------
+    Scene of kind ``'room'`` (see the module's description).
+
+    Raises
+    ------
+    InputError : a size or ceiling that is not positive, a box that is empty, has no height or
+        reaches the ceiling, or ``kinds`` of another length.
     """
-    need = 1.2 + 2 * (t / 2 + DOOR_CLEAR)
-    out = {}
-    for i, a in enumerate(cells):
-        for j, b in enumerate(cells):
-            if j <= i:
-                continue
-            for axis, (ca, cb) in ((1, (a[2], b[0])), (1, (b[2], a[0])), (0, (a[3], b[1])), (0, (b[3], a[1]))):
-                if abs(ca - cb) > 1e-9:
-                    continue
-                if axis == 1:
-                    lo, hi = max(a[1], b[1]), min(a[3], b[3])
-                else:
-                    lo, hi = max(a[0], b[0]), min(a[2], b[2])
-                if hi - lo >= need:
-                    out[(i, j)] = (axis, ca, lo, hi)
-    return out
+    size = (float(size[0]), float(size[1]))
+    ceiling = float(ceiling)
+    if min(size) <= 0 or ceiling <= 0:
+        raise InputError("room", f"size and ceiling must be positive, got {size} and {ceiling}")
+    rows: list[FloorBox] = [tuple(float(v) for v in b) for b in boxes]  # type: ignore[misc]
+    kinds = ["box"] * len(rows) if kinds is None else [str(k) for k in kinds]
+    if len(kinds) != len(rows):
+        raise InputError("room", f"{len(rows)} boxes but {len(kinds)} kinds")
+    for x0, x1, y0, y1, top in rows:
+        if not (x0 < x1 and y0 < y1 and 0 < top < ceiling):
+            raise InputError("room", f"box {(x0, x1, y0, y1, top)} must have x_min < x_max, y_min < y_max and "
+                                     f"0 < top < ceiling ({ceiling:g} m)")
+    furniture = []
+    for (x0, x1, y0, y1, top), kind in zip(rows, kinds):
+        lo, hi = np.array([x0, y0, 0.0]), np.array([x1, y1, top])
+        furniture.append(Furniture(kind=kind, lo=lo, hi=hi, parts=np.array([[lo, hi]]), surface=top, room=0))
+    rect = np.array([-size[0] / 2, -size[1] / 2, size[0] / 2, size[1] / 2])
+    solids = np.concatenate([_structure(size, ceiling), np.array([[f.lo, f.hi] for f in furniture]).reshape(-1, 2, 3)])
+    return Scene(mesh=_shell_and_furniture_mesh(size, ceiling, rows), seed=None, kind="room",
+                 rooms=[SceneRoom(kind="room", rect=rect, cell=rect.copy())], furniture=furniture,
+                 bounds=np.array([[rect[0], rect[1], 0.0], [rect[2], rect[3], ceiling]]), ceiling_height=ceiling,
+                 wall_thickness=SLAB, boxes=solids,
+                 box_kinds=np.array(["floor", "ceiling", "wall", "wall", "wall", "wall", *kinds], dtype="<U8"),
+                 box_owner=np.r_[np.full(6, -1), np.arange(len(furniture))].astype(np.int64))
 
 
-def is_connected(n: int, edges) -> bool:
-    if n == 0:
-        return False
-    seen, stack = {0}, [0]
-    adj = {k: set() for k in range(n)}
-    for i, j in edges:
-        adj[i].add(j)
-        adj[j].add(i)
-    while stack:
-        k = stack.pop()
-        for m in adj[k] - seen:
-            seen.add(m)
-            stack.append(m)
-    return len(seen) == n
+def table_room(size: tuple[float, float] = (8.0, 6.0), ceiling: float = 2.6, table_center: tuple[float, float] = (1.8, 0.9),
+               table_size: tuple[float, float] = (1.2, 0.8), table_height: float = 0.75,
+               furniture: Sequence[FloorBox] = ()) -> Scene:
+    """A room with one table (its first furniture, kind ``'table'``) and further ``furniture`` boxes
+    (kind ``'box'``), each ``(x_min, x_max, y_min, y_max, height)`` [m].
+
+    Parameters
+    ----------
+    size : (2,) m, room extent along world x and y; ceiling : m
+    table_center, table_size : (2,) m, the table top's centre and extent in world x, y
+    table_height : m, height of the table top over the floor
+    """
+    cx, cy = table_center
+    hx, hy = table_size[0] / 2, table_size[1] / 2
+    table = (cx - hx, cx + hx, cy - hy, cy + hy, table_height)
+    return box_room(size, ceiling, [table, *furniture], ["table"] + ["box"] * len(furniture))
 
 
-def merge_intervals(iv: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    iv = sorted(iv)
-    out = []
-    for a, b in iv:
-        if out and a <= out[-1][1] + 1e-9:
-            out[-1] = (out[-1][0], max(out[-1][1], b))
-        else:
-            out.append((a, b))
-    return out
+def euroc_vicon_room() -> Scene:
+    """A stand-in for EuRoC's Vicon room (V1_01_easy, V1_02_medium): a motion-capture room with a
+    table and a few boxes and mats on the floor. Not a scan; sizes and layout are ours."""
+    return table_room(size=(8.0, 7.0), ceiling=3.2, table_center=(1.5, 1.0), table_size=(1.2, 0.8), table_height=0.75,
+                      furniture=((-2.2, -1.6, 0.8, 1.6, 0.45),  # a stack of boxes
+                                 (-1.6, 0.2, -2.2, -1.2, 0.2),  # foam mats
+                                 (1.0, 1.6, -2.4, -1.6, 0.6)))  # a crate
 
 
-def subtract_intervals(iv: list[tuple[float, float]], holes: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    out = []
-    for a, b in iv:
-        pieces = [(a, b)]
-        for h0, h1 in holes:
-            nxt = []
-            for p0, p1 in pieces:
-                if h1 <= p0 or h0 >= p1:
-                    nxt.append((p0, p1))
-                    continue
-                if h0 > p0:
-                    nxt.append((p0, h0))
-                if h1 < p1:
-                    nxt.append((h1, p1))
-            pieces = nxt
-        out += [p for p in pieces if p[1] - p[0] > 1e-6]
-    return out
+def room_size(scene: Scene) -> tuple[float, float]:
+    """``(2,)`` m, the free floor extent of a single-room layout along world x and y."""
+    r = scene.rooms[0].rect
+    return float(r[2] - r[0]), float(r[3] - r[1])
 
+
+def floor_boxes(scene: Scene) -> list[FloorBox]:
+    """The furniture of a layout as ``(x_min, x_max, y_min, y_max, top)`` [m] rows, in order."""
+    return [(float(f.lo[0]), float(f.hi[0]), float(f.lo[1]), float(f.hi[1]), float(f.hi[2])) for f in scene.furniture]

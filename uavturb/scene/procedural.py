@@ -3,7 +3,7 @@
 The paper flies a virtual UAV through the scanned Matterport3D homes in Habitat. This module
 replaces those scans with procedural scenes built from axis-aligned boxes, so that any number
 of distinct scenes can be generated offline, deterministically from a seed
-(:func:`generate_scene`): a floor plan (:mod:`uavturb.scene.layouts`), doors, walls with
+(:func:`generate_scene`): a floor plan (:mod:`uavturb.scene.floor_plans`), doors, walls with
 lintels, floor and ceiling slabs, and furniture (:mod:`uavturb.scene.furniture`; a table is a
 top and four legs, so there is free space under it). The result is a
 :class:`~uavturb.scene.indoor.Scene` whose boxes make the queries of
@@ -18,7 +18,7 @@ from uavturb.errors import InputError
 from uavturb.scene.boxes import boxes_to_mesh
 from uavturb.scene.furniture import furnish
 from uavturb.scene.indoor import Door, Furniture, Scene, SceneRoom
-from uavturb.scene.layouts import (
+from uavturb.scene.floor_plans import (
     DOOR_CLEAR,
     Cell,
     apartment_cells,
@@ -88,7 +88,7 @@ def generate_scene(seed: int, kind: str | None = None) -> Scene:
 def _floor_plan(rng: np.random.Generator, kind: str, t: float, seed: int
                 ) -> tuple[list[Cell], list[str] | None, dict[tuple[int, int], tuple[int, float, float, float]]]:
     """Connected cells of a floor plan (apartments: sometimes L-shaped), their room kinds (offices;
-    ``None`` for apartments) and the walls they share (:func:`~uavturb.scene.layouts.shared_walls`)."""
+    ``None`` for apartments) and the walls they share (:func:`~uavturb.scene.floor_plans.shared_walls`)."""
     for _attempt in range(50):
         n = int(rng.integers(2, 7))
         if kind == "apartment":

@@ -8,7 +8,7 @@ Frames and conventions
 ----------------------
 - World W: z up (``recordings.md``). Body B: x forward, y left, z up; ``q_WB`` (w, x, y, z)
   rotates body vectors into W.
-- Camera C is the optical frame of EuRoC ``cam0`` and of :mod:`uavturb.sim.render`:
+- Camera C is the optical frame of EuRoC ``cam0`` and of :mod:`uavturb.sim.core.render`:
   x right, y down, z forward (the viewing direction). ``T_WC`` (4x4) maps C to W;
   ``cam0/sensor.yaml``'s ``T_BS`` maps the camera (sensor) frame to B, so
   ``T_WC = T_WB @ T_BS`` (:func:`camera_pose_world`).

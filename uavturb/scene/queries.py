@@ -1,8 +1,12 @@
 """Geometric queries on a :class:`~uavturb.scene.indoor.Scene`: heights straight down and up
-(the ``d_down``, ``d_up`` of ``effects.md``) and collisions.
+(the ``d_down``, ``d_up`` of ``effects.md``), the height of the surface under a point, and
+collisions.
 
-Generated scenes answer exactly from their boxes (:mod:`uavturb.scene.boxes`); external meshes
-by vertical ray casts and mesh sections (:mod:`uavturb.scene.mesh_queries`).
+Scenes made of boxes (generated scenes, single-room layouts) answer exactly from their boxes,
+every height through the one surface query :func:`uavturb.scene.boxes.surface_heights`; external
+meshes by vertical ray casts and mesh sections (:mod:`uavturb.scene.mesh_queries`). Point clouds
+(a recording's scan) have the same ``d_down`` / ``d_up`` query in
+:class:`uavturb.scene.heights.SurfaceIndex`.
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ import numpy as np
 import trimesh
 
 from uavturb.errors import InputError
-from uavturb.scene.boxes import BoxHeights, box_heights, boxes_contain
+from uavturb.scene.boxes import BoxHeights, box_heights, boxes_contain, surface_heights
 from uavturb.scene.indoor import Scene
 from uavturb.scene.mesh_queries import ray_heights
 
@@ -62,6 +66,26 @@ def height_above(mesh_or_scene: Scene | trimesh.Trimesh, positions: np.ndarray) 
     (N,) float array, m; ``inf`` where nothing is above.
     """
     return _heights(mesh_or_scene, positions, 1.0)
+
+
+def surface_below(scene: Scene, xy: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    """Height [m] of the highest surface under points ``xy`` ``(N, 2)`` [m] of a scene made of boxes:
+    the floor's (0) or the top of the furniture there, each footprint grown by ``margin`` [m].
+
+    :func:`~uavturb.scene.boxes.surface_heights` seen from 1 um under the ceiling (the highest
+    surface a flight can be over). Returns ``(N,)`` m, ``-inf`` off the floor.
+
+    Raises
+    ------
+    InputError : a scene without boxes or ceiling (an external mesh).
+    """
+    if not scene.has_boxes or scene.ceiling_height is None:
+        raise InputError("scene", "surface_below needs a scene made of boxes with a ceiling (not an external mesh)")
+    xy = np.atleast_2d(np.asarray(xy, dtype=float))
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise InputError("xy", f"expected shape (N, 2), got {xy.shape}")
+    top = np.full((len(xy), 1), float(scene.ceiling_height) - 1e-6)
+    return surface_heights(scene.boxes, np.hstack([xy, top]), grow=float(margin))[0]
 
 
 def inside_obstacle(scene: Scene, positions: np.ndarray, margin: float = 0.0) -> np.ndarray:

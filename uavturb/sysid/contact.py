@@ -11,7 +11,13 @@ it is still and level and its attitude steady; and its rotors carry less than it
 (once they carry more, it lifts off). Thrust guesses from rotor speeds can be 10-20 % off
 (unknown ``k_T``), so the thrust is first scaled so that it carries the weight in the air,
 and height and stillness decide first: a hover a few centimetres above the landed height is
-in the air however low its thrust reads (ground effect). Stillness is judged on the rows where
+in the air however low its thrust reads (ground effect). Rotors off or idling hold no hover, so such a
+rest counts however short (on real Crazyflies a drop to the floor with the motors off, 0.15 s still,
+then a restart: while the rotors spun up the thrust read off commanded speeds led the real one by the
+motor lag, up to 15 % over the weight for 0.2 s with the vehicle still on the floor, which the margins
+cover). A vehicle that skids or bounces along the floor is not still: rows within
+:attr:`ContactLimits.skim_m` of the landed height where the thrust dips under the weight are left
+out too. Stillness is judged on the rows where
 the state updated (:func:`uavturb.sysid.streams.update_mask`): held positions must not make a
 flying vehicle look still. Each contact interval is widened by a margin on either side so that
 the transients of lift-off and touch-down are left out too.
@@ -29,7 +35,7 @@ from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
 
 from uavturb.errors import InputError
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.sysid.streams import update_mask, updates_only
+from uavturb.sysid.streams import update_mask
 
 
 @dataclass
@@ -68,7 +74,13 @@ class ContactLimits:
     air_m : m, rows this far above the landed height are in the air (they scale the thrust)
     window_s : s, the window of the speed median and the tilt range
     margin_s : s, added on each side of a contact interval (lift-off and touch-down transients)
-    min_s : s, shortest contact kept (before margins)
+    min_s : s, shortest contact kept (before margins), unless the rotors idle in it
+    idle_ratio : share of the weight under which the rotors idle (or are off): no hover, however short
+    skim_m : m, rows this close to the landed height, still or not, with the thrust under ``thrust_ratio`` of
+        the weight, are left out too: the landing gear may touch there (a skid, a bounce); on real Crazyflie
+        random walks whose lowest set points put the rotor plane at its resting height, 0.4 % of the rows,
+        these held the largest residuals of all
+    skim_margin_s : s, added on each side of such rows
     gear_max_m : m, with ``d_down``: the highest a resting rotor plane sits over the surface (its
         landing gear); a recording whose lowest ``d_down`` is higher never landed
     """
@@ -82,13 +94,17 @@ class ContactLimits:
     window_s: float = 0.3
     margin_s: float = 0.2
     min_s: float = 0.2
+    idle_ratio: float = 0.3
+    skim_m: float = 0.005
+    skim_margin_s: float = 0.1
     gear_max_m: float = 0.5
 
 
 def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.ndarray, thrust: np.ndarray,
                    mass: float, *, d_down: np.ndarray | None = None, group: np.ndarray | None = None,
                    update: np.ndarray | None = None, landed_height: float | None = None, calibrate: bool = True,
-                   limits: ContactLimits | None = None) -> tuple[np.ndarray, list[ContactInterval]]:
+                   limits: ContactLimits | None = None, skim_top: float | None = None
+                   ) -> tuple[np.ndarray, list[ContactInterval]]:
     """Rows where the floor carries the vehicle, and the contact intervals with why.
 
     Parameters
@@ -108,6 +124,9 @@ def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.nda
     calibrate : scale the thrust so that its vertical part carries the weight in the air
         (median over rows ``air_m`` above the landed height); else use it as given
     limits : ContactLimits, thresholds
+    skim_top : m, height (of ``d_down`` where given, else of ``z``) under which rows may skim the floor;
+        default ``skim_m`` over the landed height. Give the vehicle's landed height over all its
+        recordings plus ``skim_m`` so that a recording that never came down there skims nothing
 
     Returns
     -------
@@ -131,7 +150,7 @@ def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.nda
                else np.asarray(update, bool)[rows].copy())
         rec = _Recording(t[rows], h[rows], v[rows], np.asarray(tilt_deg, float)[rows],
                          np.asarray(thrust, float)[rows], upd)
-        m, found = _contact_in(rec, mass, landed_height, calibrate, lim, d_down is not None)
+        m, found = _contact_in(rec, mass, landed_height, calibrate, lim, d_down is not None, skim_top)
         mask[rows] = m
         intervals += [ContactInterval(a, b, why, int(g)) for a, b, why in found]
     return mask, intervals
@@ -150,7 +169,7 @@ class _Recording:
 
 
 def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: bool, lim: ContactLimits,
-                rotor_plane: bool) -> tuple[np.ndarray, list[tuple[float, float, str]]]:
+                rotor_plane: bool, skim_top: float | None) -> tuple[np.ndarray, list[tuple[float, float, str]]]:
     """Contact rows (margins included) and ``(t_start, t_end, why)`` of one recording."""
     n = len(rec.t)
     out = np.zeros(n, bool)
@@ -169,17 +188,33 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
     resting = (last >= 0) & np.isfinite(rec.h) & rest_u[np.minimum(pos, len(u) - 1)]
     weight = mass * GRAVITY
     scale = _thrust_scale(rec, h0, weight, lim) if calibrate else 1.0
-    tu, thrust_u = updates_only(rec.t, rec.thrust)  # a held thrust is late by half its update step
-    ratio = _window_median(rec.t, np.interp(rec.t, tu, thrust_u) * scale / weight, lim.window_s)
+    # a held thrust is late by half its update step: read it on its updates; rotors off (zero thrust) are
+    # a state, not a stale value, and hold every row (interpolated, a restart would lift a rest off zero)
+    fresh = update_mask(rec.thrust) | (rec.thrust <= 0)
+    ratio = _window_median(rec.t, np.interp(rec.t, rec.t[fresh], rec.thrust[fresh]) * scale / weight, lim.window_s)
     resting &= ratio < 1.0  # once the rotors carry the weight, it lifts off
     found = []
     for a, b in _runs(resting):
-        if rec.t[b - 1] - rec.t[a] < lim.min_s or np.median(ratio[a:b]) >= lim.thrust_ratio:
+        lowest = float(np.min(ratio[a:b]))
+        # rotors off or idling (a drop to the floor before a restart) cannot hold a hover however short the rest
+        if (rec.t[b - 1] - rec.t[a] < lim.min_s and lowest >= lim.idle_ratio) or np.median(ratio[a:b]) >= lim.thrust_ratio:
             continue
         out |= (rec.t >= rec.t[a] - lim.margin_s) & (rec.t <= rec.t[b - 1] + lim.margin_s)
         core = slice(a, b)
         found.append(_why(rec, core, h0, landed is not None, rotor_plane, float(np.max(speed_u[pos[core]])),
                           float(np.median(ratio[core])), scale, lim))
+    top = h0 + lim.skim_m if skim_top is None else skim_top
+    skim = (last >= 0) & np.isfinite(rec.h) & (rec.h <= top) & ~out
+    name = "rotor-plane height" if rotor_plane else "height"
+    rested = out.copy()
+    for a, b in _runs(skim):
+        if np.min(ratio[a:b]) >= lim.thrust_ratio or (a > 0 and rested[a - 1]) or (b < n and rested[b]):
+            continue  # the rotors carry the weight, or a lift-off or touch-down its rest's margins cover
+        out |= (rec.t >= rec.t[a] - lim.skim_margin_s) & (rec.t <= rec.t[b - 1] + lim.skim_margin_s)
+        found.append((float(rec.t[a]), float(rec.t[b - 1]),
+                      f"skimming the floor: {name} down to {np.min(rec.h[a:b]):.3f} m, within {100 * lim.skim_m:.1f} cm "
+                      f"of the landed height {top - lim.skim_m:.3f} m, thrust down to {100 * np.min(ratio[a:b]):.0f} % "
+                      f"of the weight: the landing gear may touch (a skid or a bounce)"))
     return out, [(float(rec.t[a]), float(rec.t[b - 1]), _joined_why(found, rec.t[a], rec.t[b - 1]))
                  for a, b in _runs(out)]
 
@@ -231,13 +266,14 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 def _why(rec: _Recording, core: slice, h0: float, given: bool, rotor_plane: bool, speed: float, ratio: float,
          scale: float, lim: ContactLimits) -> tuple[float, float, str]:
-    """``(t_start, t_end, sentence)`` of one contact core (margins not included in the times)."""
+    """``(t_start, t_end, sentence)`` of one contact core (margins not included in the times); ``ratio``
+    is the share of the weight the thrust carried there (median)."""
     h = rec.h[core]
     name = "rotor-plane height" if rotor_plane else "height"
     ref = (f"the landed height given, {h0:.3f} m" if given
            else f"within {100 * lim.height_tol_m:.1f} cm of the lowest the recording reached, {h0:.3f} m")
     scaled = f" (thrust scaled by {scale:.2f} so that it carries the weight in the air)" if abs(scale - 1) > 0.02 else ""
     why = (f"on the landing gear: {name} {np.min(h):.3f}-{np.max(h):.3f} m ({ref}), speed under {speed:.2f} m/s, "
-           f"level within {np.max(rec.tilt[core]):.0f} deg and thrust {100 * ratio:.0f} % of the weight{scaled}: "
-           f"the floor carries the rest ({lim.margin_s:.1f} s margins either side)")
+           f"level within {np.max(rec.tilt[core]):.0f} deg and thrust {100 * ratio:.0f} % of the weight"
+           f"{scaled}: the floor carries the rest ({lim.margin_s:.1f} s margins either side)")
     return float(rec.t[core.start]), float(rec.t[core.stop - 1]), why

@@ -48,9 +48,10 @@ def newey_west_meat(Aw: np.ndarray, lag: int, groups: np.ndarray | None = None) 
     for k in range(1, min(lag, K - 1) + 1):
         w = 1.0 - k / (lag + 1.0)
         prod = Aw[k:].T @ Aw[:-k]
-        if groups is not None:
-            same = groups[k:] == groups[:-k]
-            prod = (Aw[k:][same]).T @ Aw[:-k][same]
+        if groups is not None:  # take out the few pairs across segments (their boundaries) afterwards
+            cross = np.flatnonzero(groups[k:] != groups[:-k])
+            if len(cross):
+                prod -= Aw[k:][cross].T @ Aw[:-k][cross]
         S += w * (prod + prod.T)
     return S
 

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.sim.presets import SimPreset
+from uavturb.scene.procedural import split_scenes
+from uavturb.sim.dataset.presets import SimPreset
 
 
 @dataclass(frozen=True)
@@ -40,8 +41,6 @@ class Task:
 
 def scene_splits(preset: SimPreset) -> dict[str, list[int]]:
     """Scene indices per split (by scene, never by sample)."""
-    from uavturb.scene.procedural import split_scenes
-
     return split_scenes(preset.n_scenes, preset.n_train, preset.n_val, preset.n_test, seed=preset.split_seed)
 
 

@@ -3,7 +3,7 @@
 Real recordings start and end on the floor with the rotors running (``recordings.md``): the floor
 carries part of the weight, a force no aerodynamic law explains. The simulator has no contact
 model, so its flights "rest" hovering at their first and last set-points, a landing-gear height
-over the floor (:func:`uavturb.sim.flight.low_heights`). :func:`with_ground_contact` splices
+over the floor (:func:`uavturb.sim.flights.simulate.low_heights`). :func:`with_ground_contact` splices
 ``seconds`` of contact before the flight's first record and after its last one, at the same
 place (the flight's first and last true positions, level, at the flight's first and last
 headings):
@@ -17,7 +17,7 @@ headings):
 - the IMU reads gravity, ``(0, 0, g)`` in B, plus its noise and the flight's biases (held);
 - rotor speeds as the flight's, commands equal to speeds (the ramps are slow).
 
-The :class:`~uavturb.sim.flight.Truth` is spliced alongside, so that the other conditions
+The :class:`~uavturb.sim.flights.simulate.Truth` is spliced alongside, so that the other conditions
 (resampling, sensor frames, held streams) see the contact rows like any other. Effects that
 depend on the time since the start (``battery_sag``) would move with the splice: they cannot be
 combined with contact.
@@ -36,8 +36,9 @@ from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EffectInputs, effect_force
 from uavturb.physics.vehicle import Vehicle
-from uavturb.sim.flight import SensorNoise, Truth, sensor_readings
-from uavturb.sim.references import Setpoint
+from uavturb.sim.flights.sensors import sensor_readings, SensorNoise
+from uavturb.sim.flights.simulate import Truth
+from uavturb.sim.core.signals import Setpoint
 
 #: fraction of the weight [-] the lift carries on the ground: at the recording's ends, and just
 #: before take-off / just after landing (the floor carries the rest)

@@ -53,8 +53,16 @@ from typing import Any, Iterator
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io import shards
 from uavturb.io.publish import atomic_folder, write_text_atomic
-from uavturb.sim.presets import SimPreset, get_preset
+from uavturb.physics import quaternion as quat
+from uavturb.progress import progress_bar, show_rate
+from uavturb.scene.procedural import generate_scene
+from uavturb.scene.queries import inside_obstacle
+from uavturb.sim.core.cameras import preset_intrinsics
+from uavturb.sim.core.render import SceneRenderer, camera_pose
+from uavturb.sim.dataset.assignment import scene_splits
+from uavturb.sim.dataset.presets import SimPreset, get_preset
 
 CHUNKS_DIR = ".pairs-chunks"
 IRS_FOCAL_PX = 480.0  # px, at IRS's 960 px image width
@@ -70,6 +78,7 @@ def pairs_config(preset: SimPreset, seed: int) -> dict[str, Any]:
     """What fixes the generated pairs (stored, with its hash, in ``pairs/meta.json``)."""
     keys = ("n_scenes", "n_train", "n_val", "n_test", "split_seed", "width", "height", "yfov_deg", "pairs",
             "pairs_chunk")
+    # "generator" names the writer as pairs files have always named it (part of the config hash: kept as it was)
     conf = {"generator": "uavturb.sim.pretraining", "version": 1, "seed": int(seed),
             "preset": {"name": preset.name, **{k: getattr(preset, k) for k in keys}}}
     if preset.camera != "forward":  # a calibrated camera's intrinsics (the forward camera keeps the old hash)
@@ -82,10 +91,6 @@ def random_viewpoints(scene, n: int, rng: np.random.Generator) -> np.ndarray:
 
     See the module notes for the distribution.
     """
-    from uavturb.physics import quaternion as quat
-    from uavturb.scene.queries import inside_obstacle
-    from uavturb.sim.render import camera_pose
-
     rooms = scene.rooms
     if not rooms:
         raise InputError("scene", "random viewpoints need a generated scene (rooms)")
@@ -107,9 +112,6 @@ def _chunk_pairs(job: tuple[int, int, int, int, str, SimPreset, int]) -> int:
     """Render chunk ``c`` (pairs ``[start, stop)``) of scene ``scene_index`` into its chunk folder."""
     c, start, stop, scene_index, root, preset, seed = job
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    from uavturb.scene.procedural import generate_scene
-    from uavturb.sim.cameras import preset_intrinsics
-    from uavturb.sim.render import SceneRenderer
 
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), c]))
     scene = generate_scene(scene_index)
@@ -152,8 +154,6 @@ def generate_normals(preset: str | SimPreset = "quick", out: str | Path = "data/
     """
     import json
 
-    from uavturb.io import shards
-    from uavturb.sim.tasks import scene_splits
 
     p = get_preset(preset, **overrides)
     if int(workers) < 1:
@@ -211,8 +211,6 @@ def _chunks_folder(out: Path, seed: int, chash: str) -> Path:
 def _render_chunks(todo: list[tuple], workers: int, label: str | None, on_chunk: Any) -> float:
     """Render the chunks ``todo`` here or in ``workers`` processes, with a progress bar ``label``
     (None: none); returns the wall time [s]."""
-    from uavturb.progress import progress_bar, show_rate
-
     bar = progress_bar(len(todo), label, "chunks") if label is not None else None
     t0 = time.perf_counter()
     pairs_done = 0
@@ -379,8 +377,6 @@ def import_irs(root: str | Path, out: str | Path, size: int = 128, limit: int | 
     import json
     import tempfile
 
-    from uavturb.io import shards
-    from uavturb.progress import progress_bar
 
     out = Path(out)
     total = len(irs_pairs(root)) if limit is None else min(limit, len(irs_pairs(root)))

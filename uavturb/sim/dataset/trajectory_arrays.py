@@ -1,4 +1,4 @@
-"""One trajectory of a dataset (:func:`make_trajectory`): fly (:mod:`uavturb.sim.flyers`),
+"""One trajectory of a dataset (:func:`make_trajectory`): fly (:mod:`uavturb.sim.dataset.flying`),
 truncate before a collision, measure ``d`` and ``f_a``, render depth (one renderer per scene and
 process), write it atomically (:func:`work`, in a worker or in-process)."""
 
@@ -13,9 +13,17 @@ from typing import Any
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.sim.flyers import FLYERS
-from uavturb.sim.presets import SimPreset
-from uavturb.sim.tasks import Task
+from uavturb.io import shards
+from uavturb.io.vehicle_file import named_vehicle
+from uavturb.physics.ground_effect import phi
+from uavturb.scene.procedural import generate_scene
+from uavturb.scene.projection import camera_pose_world
+from uavturb.scene.queries import collides, height_below, inside_obstacle
+from uavturb.sim.core.cameras import preset_intrinsics, preset_mount
+from uavturb.sim.core.render import SceneRenderer, camera_pose
+from uavturb.sim.dataset.assignment import Task
+from uavturb.sim.dataset.flying import FLYERS
+from uavturb.sim.dataset.presets import SimPreset
 
 LOW_HEIGHT = 0.5  # m, "ground effect matters" threshold of the statistics
 SURFACE_MEMORY_S = 1.0  # s, look-back of the "surface below changed" statistic
@@ -25,8 +33,6 @@ COLLISION_HALF_HEIGHT = 0.005  # m, vertical half-extent of the vehicle in the c
 
 @lru_cache(maxsize=2)
 def _scene(index: int):
-    from uavturb.scene.procedural import generate_scene
-
     return generate_scene(int(index))
 
 
@@ -38,9 +44,6 @@ class _RendererCache:
         self.renderer = None
 
     def get(self, scene_index: int, preset: SimPreset):
-        from uavturb.sim.cameras import preset_intrinsics
-        from uavturb.sim.render import SceneRenderer
-
         key = (scene_index, preset.width, preset.height, preset.yfov_deg, preset.rgb, preset.camera)
         if key != self.key:
             if self.renderer is not None:
@@ -62,11 +65,8 @@ RENDERERS = _RendererCache()
 
 def camera_poses(state: np.ndarray, pitch_deg: float, mount: np.ndarray | None = None) -> np.ndarray:
     """``T_WC`` (T, 4, 4) of the preset's camera at the states ``(T, 13)``: the forward camera of
-    :func:`uavturb.sim.render.camera_pose` pitched ``pitch_deg`` down, or the body mount ``T_BC``
-    (4, 4) of a calibrated camera (:func:`uavturb.sim.cameras.preset_mount`)."""
-    from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.render import camera_pose
-
+    :func:`uavturb.sim.core.render.camera_pose` pitched ``pitch_deg`` down, or the body mount ``T_BC``
+    (4, 4) of a calibrated camera (:func:`uavturb.sim.core.cameras.preset_mount`)."""
     if mount is not None:
         return camera_pose_world(state[:, 3:7], state[:, :3], mount)
     return np.stack([camera_pose(x[:3], x[3:7], pitch_deg) for x in state]) if len(state) else np.zeros((0, 4, 4))
@@ -117,11 +117,6 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
         when the preset asks for it)
     meta : the trajectory's metadata, with ``stats`` (counts and seconds)
     """
-    from uavturb.io.vehicle_file import named_vehicle
-    from uavturb.physics.ground_effect import phi
-    from uavturb.scene.queries import collides, height_below, inside_obstacle
-    from uavturb.sim.cameras import preset_mount
-
     t_start, cpu_start = time.perf_counter(), time.process_time()
     scene = _scene(task.scene)
     vehicle = named_vehicle(preset.vehicle)
@@ -192,8 +187,6 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
 
 def _write(folder: Path, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
     """Write a trajectory atomically; ``rgb`` rides along in the same atomic rename."""
-    from uavturb.io import shards
-
     rgb = arrays.pop("rgb", None)
     extra = None if rgb is None else {"rgb": np.asarray(rgb, np.uint8)}
     shards.write_trajectory(folder, arrays, meta, extra_arrays=extra)

@@ -2,14 +2,15 @@
 ``effects.md`` switched on, and record what the sensors of ``recordings.md`` would see.
 
 The closed loop (controller, effects, RK4 physics, motor lag, held heights) is
-:func:`uavturb.sim.closed_loop.track_reference`, the loop of every simulated flight: physics every
-``physics_dt`` (1 ms), :class:`~uavturb.sim.controller.GeometricController` every ``control_dt``
+:func:`uavturb.sim.core.closed_loop.track_reference`, the loop of every simulated flight: physics every
+``physics_dt`` (1 ms), :class:`~uavturb.sim.core.controller.GeometricController` every ``control_dt``
 (5 ms) on the true state, heights over the surface below and to the surface above from a
 :class:`~uavturb.scene.heights.SurfaceIndex` on the scene cloud at the control rate.
 ``motor_lag``: ``rotors0`` records the commands (``effects.md``).
 
 This module adds what the sensors of ``recordings.md`` see, every ``record_dt`` (5 ms, 200 Hz):
-ground truth, IMU and rotor speeds, with the noise of :class:`SensorNoise`. The accelerometer
+ground truth, IMU and rotor speeds, with the noise of :class:`~uavturb.sim.flights.sensors.SensorNoise`
+(:mod:`uavturb.sim.flights.sensors`). The accelerometer
 reads the specific force ``R^T (F_thrust + F_ext) / m`` of the same instant (from ``Dynamics.xdot``).
 
 Timestamps are ``int64`` nanoseconds from a EuRoC-like epoch (:data:`EUROC_T0_NS`), so that
@@ -28,27 +29,25 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
 from uavturb.io.vehicle_file import named_vehicle
+from uavturb.io.writer import write_recording
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import (
     GRAVITY,
     IDX_Q,
     IDX_V,
-    IDX_W,
     dynamics_for,
     physical_params,
 )
 from uavturb.physics.effects import EFFECTS, EffectInputs, effect_force, parse_effects
 from uavturb.physics.vehicle import Vehicle
-from uavturb.sim.closed_loop import track_reference, whole_ratio
-from uavturb.sim.controller import ControllerGains
-from uavturb.sim.references import (
-    Reference,
-    Room,
-    Setpoint,
-    excitation,
-    low_passes,
-    mixed,
-)
+from uavturb.scene.heights import SurfaceIndex, sample_mesh_points
+from uavturb.scene.indoor import Scene
+from uavturb.sim.core.closed_loop import track_reference, whole_ratio
+from uavturb.sim.core.controller import ControllerGains
+from uavturb.sim.core.signals import Reference, Setpoint
+from uavturb.sim.flights import euroc_standin
+from uavturb.sim.flights.plans import EUROC_ROOM, TABLE_ROOM, excitation, low_passes, mixed
+from uavturb.sim.flights.sensors import SensorNoise, sensor_readings
 
 #: First timestamp [ns] of synthetic flights: the epoch of EuRoC's MH_01_easy (2014-06-24).
 EUROC_T0_NS = 1403636579758555392
@@ -56,49 +55,11 @@ EUROC_T0_NS = 1403636579758555392
 KINDS = ("excitation", "low_passes", "mixed", "euroc_room")
 
 
-def flight_room(kind: str) -> Room:
-    """The scene a flight kind is planned in: :data:`~uavturb.sim.references.EUROC_ROOM` for
-    ``euroc_room`` (:mod:`uavturb.sim.euroc_standin`), the default :class:`Room` otherwise."""
-    from uavturb.sim.references import EUROC_ROOM
-
-    return EUROC_ROOM if kind == "euroc_room" else Room()
-
-
-@dataclass(frozen=True)
-class SensorNoise:
-    """Sensor noise and biases of a synthetic recording. Discrete white-noise standard
-    deviations follow from the densities as ``density * sqrt(1 / record_dt)``.
-
-    Attributes
-    ----------
-    gyro_noise_density : rad/s/sqrt(Hz) (ADIS16448 of EuRoC: 1.7e-4)
-    acc_noise_density : m/s^2/sqrt(Hz) (EuRoC: 2.0e-3)
-    gyro_bias : (3,) rad/s, initial gyroscope bias in B
-    acc_bias : (3,) m/s^2, initial accelerometer bias in B
-    gyro_random_walk : rad/s^2/sqrt(Hz), bias random walk (0: constant bias; EuRoC: 1.9393e-5)
-    acc_random_walk : m/s^3/sqrt(Hz) (0: constant bias; EuRoC: 3.0e-3)
-    position_std : m, motion-capture position noise
-    attitude_std : rad, motion-capture attitude noise (per axis, small rotation)
-    velocity_std : m/s, noise on the recorded velocity
-    rotor_quantum : rad/s, resolution of the recorded rotor speeds (0: none)
-    """
-
-    gyro_noise_density: float = 1.7e-4
-    acc_noise_density: float = 2.0e-3
-    gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    acc_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    gyro_random_walk: float = 0.0
-    acc_random_walk: float = 0.0
-    position_std: float = 1e-3
-    attitude_std: float = 5e-4
-    velocity_std: float = 5e-3
-    rotor_quantum: float = 1.0
-
-    @classmethod
-    def none(cls, **biases: Any) -> "SensorNoise":
-        """No noise and no quantisation (biases may still be given: ``gyro_bias``, ``acc_bias``)."""
-        return cls(gyro_noise_density=0.0, acc_noise_density=0.0, position_std=0.0, attitude_std=0.0,
-                   velocity_std=0.0, rotor_quantum=0.0, **biases)
+def flight_room(kind: str) -> Scene:
+    """The scene a flight kind is planned in: :data:`~uavturb.sim.flights.plans.EUROC_ROOM` for
+    ``euroc_room`` (:mod:`uavturb.sim.flights.euroc_standin`), :data:`~uavturb.sim.flights.plans.TABLE_ROOM`
+    otherwise."""
+    return EUROC_ROOM if kind == "euroc_room" else TABLE_ROOM
 
 
 @dataclass
@@ -152,51 +113,29 @@ class Truth:
 # --- the scene ----------------------------------------------------------------------
 
 
-def room_mesh(room: Room = Room()):
-    """Triangle mesh (``trimesh.Trimesh``) of a :class:`Room`: floor, walls, ceiling, and the table
-    and any further furniture as solid boxes standing on the floor."""
-    import trimesh
-
-    walls = trimesh.creation.box(extents=(room.size[0], room.size[1], room.ceiling))
-    walls.apply_translation((0.0, 0.0, room.ceiling / 2))
-    walls.invert()  # normals point into the room
-    solids = []
-    for x0, x1, y0, y1, h in room.boxes:  # the table first, as it always was
-        box = trimesh.creation.box(extents=(x1 - x0, y1 - y0, h))
-        box.apply_translation(((x0 + x1) / 2, (y0 + y1) / 2, h / 2))
-        solids.append(box)
-    return trimesh.util.concatenate([walls, *solids])
-
-
 @lru_cache(maxsize=4)
-def _room_cloud(room: Room, spacing: float, seed: int) -> np.ndarray:
-    from uavturb.scene.heights import sample_mesh_points
-
-    pts = np.asarray(sample_mesh_points(room_mesh(room), spacing, seed), float)
+def _room_cloud(room: Scene, spacing: float, seed: int) -> np.ndarray:
+    pts = np.asarray(sample_mesh_points(room.mesh, spacing, seed), float)
     pts.setflags(write=False)
     return pts
 
 
-def room_points(room: Room = Room(), spacing: float = 0.03, seed: int = 0) -> np.ndarray:
-    """The scene point cloud [m] in W, ``(P, 3)``: :func:`room_mesh` sampled every ``spacing`` [m]
-    (cached; read-only)."""
+def room_points(room: Scene = TABLE_ROOM, spacing: float = 0.03, seed: int = 0) -> np.ndarray:
+    """The scene point cloud [m] in W, ``(P, 3)``: the room's mesh (:mod:`uavturb.scene.layouts`)
+    sampled every ``spacing`` [m] (cached per scene; read-only)."""
     return _room_cloud(room, float(spacing), int(seed))
 
 
 @lru_cache(maxsize=4)
-def _room_index(room: Room, spacing: float, seed: int) -> Any:
-    from uavturb.scene.heights import SurfaceIndex
-
+def _room_index(room: Scene, spacing: float, seed: int) -> Any:
     return SurfaceIndex(_room_cloud(room, spacing, seed))
 
 
-def surface_index(points: np.ndarray | None = None, room: Room = Room(), spacing: float = 0.03) -> Any:
+def surface_index(points: np.ndarray | None = None, room: Scene = TABLE_ROOM, spacing: float = 0.03) -> Any:
     """A :class:`~uavturb.scene.heights.SurfaceIndex` on ``points``, or on :func:`room_points` of
     ``room`` when ``points`` is ``None`` (cached)."""
     if points is None:
         return _room_index(room, float(spacing), 0)
-    from uavturb.scene.heights import SurfaceIndex
-
     return SurfaceIndex(np.asarray(points, float))
 
 
@@ -205,7 +144,7 @@ def surface_index(points: np.ndarray | None = None, room: Room = Room(), spacing
 
 def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float | None = None,
                     effects: dict[str, dict[str, float]] | None = None, points: np.ndarray | None = None,
-                    surfaces: Any = None, room: Room = Room(), physics_dt: float = 0.001, control_dt: float = 0.005,
+                    surfaces: Any = None, room: Scene = TABLE_ROOM, physics_dt: float = 0.001, control_dt: float = 0.005,
                     record_dt: float = 0.005, noise: SensorNoise = SensorNoise(), seed: int = 0,
                     gains: ControllerGains = ControllerGains(), feedforward: bool = False, settle: bool = True,
                     t0_ns: int = EUROC_T0_NS, wind: np.ndarray | None = None) -> tuple[Recording, Truth]:
@@ -221,7 +160,7 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
         recording's ``pointcloud0``
     surfaces : object with ``d_down(pos (K, 3)) -> (K,)`` and ``d_up(pos) -> (K,)`` [m]
         (default: a ``SurfaceIndex`` on ``points``)
-    room : Room, the default scene
+    room : Scene, the default scene (a :func:`~uavturb.scene.layouts.table_room`)
     physics_dt, control_dt, record_dt : s; the last two are whole multiples of ``physics_dt``
     noise : SensorNoise (``SensorNoise.none()`` for perfect sensors)
     seed : seed of the sensor noise
@@ -309,49 +248,6 @@ def _forces(vehicle: Vehicle, loop: Any, effects: dict[str, dict[str, float]], l
     return _Forces(thrust, spec_force, lag_force, per_effect)
 
 
-@dataclass
-class SensorReadings:
-    """What the sensors report at the record times: the true state with noise, biases and quantisation."""
-
-    p: np.ndarray  # (K, 3) m in W, motion capture position
-    q: np.ndarray  # (K, 4) quaternion w,x,y,z, B to W
-    v: np.ndarray  # (K, 3) m/s in W
-    gyro: np.ndarray  # (K, 3) rad/s in B
-    acc: np.ndarray  # (K, 3) m/s^2 in B
-    gyro_bias: np.ndarray  # (K, 3) rad/s
-    acc_bias: np.ndarray  # (K, 3) m/s^2
-    rotors: np.ndarray  # (K, N) rad/s, the commanded rotor speeds as reported (quantised)
-
-
-def sensor_readings(X: np.ndarray, spec_force: np.ndarray, W_cmd: np.ndarray, noise: SensorNoise, seed: int,
-                     dt_rec: float) -> SensorReadings:
-    """Sensor readings of states ``X`` (K, 13) sampled every ``dt_rec`` [s], seeded by ``seed``."""
-    K = len(X)
-    rng = np.random.default_rng([int(seed), 7])
-    rate = 1.0 / dt_rec
-
-    def bias(b0: tuple[float, float, float], walk: float) -> np.ndarray:
-        b = np.broadcast_to(np.asarray(b0, float), (K, 3)).copy()
-        if walk > 0:
-            steps = rng.normal(0.0, walk * np.sqrt(dt_rec), size=(K, 3))
-            steps[0] = 0.0
-            b += np.cumsum(steps, axis=0)
-        return b
-
-    b_w = bias(noise.gyro_bias, noise.gyro_random_walk)
-    b_a = bias(noise.acc_bias, noise.acc_random_walk)
-    gyro = X[:, IDX_W] + b_w + rng.normal(0.0, noise.gyro_noise_density * np.sqrt(rate), size=(K, 3))
-    acc = spec_force + b_a + rng.normal(0.0, noise.acc_noise_density * np.sqrt(rate), size=(K, 3))
-    p_meas = X[:, 0:3] + rng.normal(0.0, noise.position_std, size=(K, 3))
-    q_meas = X[:, IDX_Q]
-    if noise.attitude_std > 0:
-        half = 0.5 * rng.normal(0.0, noise.attitude_std, size=(K, 3))
-        q_meas = quat.normalize(quat.multiply(q_meas, np.concatenate([np.ones((K, 1)), half], axis=1)))
-    v_meas = X[:, IDX_V] + rng.normal(0.0, noise.velocity_std, size=(K, 3))
-    rotors = W_cmd if noise.rotor_quantum <= 0 else np.round(W_cmd / noise.rotor_quantum) * noise.rotor_quantum
-    return SensorReadings(p_meas, q_meas, v_meas, gyro, acc, b_w, b_a, rotors)
-
-
 # --- one call: a named flight ----------------------------------------------------------
 
 
@@ -393,19 +289,17 @@ def low_heights(vehicle: Vehicle) -> dict[str, Any]:
 
 
 def make_reference(kind: str = "excitation", duration: float = 60.0, seed: int = 0, vehicle: Vehicle | None = None,
-                   room: Room | None = None) -> Reference:
+                   room: Scene | None = None) -> Reference:
     """The reference of a named flight kind (``excitation``, ``low_passes``, ``mixed``, ``euroc_room``)
     for a vehicle: yaw acceleration within its authority (0.7 x :func:`yaw_acc_limit`, at most
     1 rad/s^2), faster and larger roll/pitch excitation for agile vehicles (:func:`roll_acc_limit`),
     low hovers from one rotor radius up to 0.5 m, rest height 0.6 rotor radius (2 to 6 cm), both
     of the rotor plane (:func:`low_heights`).
-    ``euroc_room`` is :func:`uavturb.sim.euroc_standin.reference` (its landed height).
+    ``euroc_room`` is :func:`uavturb.sim.flights.euroc_standin.reference` (its landed height).
     ``room``: default :func:`flight_room`."""
     room = flight_room(kind) if room is None else room
     yaw_acc = 0.5 if vehicle is None else float(np.clip(0.7 * yaw_acc_limit(vehicle), 0.1, 1.0))
     if kind == "euroc_room":
-        from uavturb.sim import euroc_standin
-
         return euroc_standin.reference(duration, seed, max_yaw_acc=yaw_acc, room=room)
     exc: dict[str, Any] = {}
     if vehicle is not None:  # agile vehicles are shaken faster (1 for the hexarotor, 2.5 for the quadrotor)
@@ -426,17 +320,17 @@ def make_reference(kind: str = "excitation", duration: float = 60.0, seed: int =
 
 def generate_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dict[str, float]] = "",
                     duration: float = 60.0, kind: str = "excitation", seed: int = 0, out: str | Path | None = None,
-                    noise: SensorNoise | None = None, overwrite: bool = False, room: Room | None = None,
+                    noise: SensorNoise | None = None, overwrite: bool = False, room: Scene | None = None,
                     **simulate_kw: Any) -> Recording:
     """Simulate a named flight and, when ``out`` is given, write it as a recording folder.
 
     Parameters
     ----------
-    vehicle : preset name (``hex``, ``quad``), ``vehicle.yaml`` path, or Vehicle
+    vehicle : built-in vehicle (``hex``, ``quad``), ``vehicle.yaml`` path, or Vehicle
     effects : ``"wind:f_x=0.5,ground_effect"`` (see ``parse_effects``) or the parsed dict
     duration : s
-    kind : ``excitation``, ``low_passes``, ``mixed`` (see :mod:`uavturb.sim.references`) or
-        ``euroc_room`` (:mod:`uavturb.sim.euroc_standin`: EuRoC's VI-sensor and cam0 on the vehicle)
+    kind : ``excitation``, ``low_passes``, ``mixed`` (see :mod:`uavturb.sim.flights.plans`) or
+        ``euroc_room`` (:mod:`uavturb.sim.flights.euroc_standin`: EuRoC's VI-sensor and cam0 on the vehicle)
     seed : seeds the reference and the sensor noise
     out : recording folder to write (atomically, by ``write_recording``)
     noise : SensorNoise (default: realistic)
@@ -448,8 +342,6 @@ def generate_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dic
     -------
     Recording (with ``path`` set when written).
     """
-    from uavturb.sim import euroc_standin
-
     v = euroc_standin.flyable(named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle)
     v = euroc_standin.with_vi_sensor(v) if kind == "euroc_room" else v
     room = flight_room(kind) if room is None else room
@@ -459,8 +351,6 @@ def generate_flight(vehicle: str | Vehicle = "hex", effects: str | dict[str, dic
                              noise=SensorNoise() if noise is None else noise, seed=seed, **simulate_kw)
     rec = euroc_standin.with_cam0(rec) if kind == "euroc_room" else rec
     if out is not None:
-        from uavturb.io.writer import write_recording
-
         write_recording(rec, out, overwrite=overwrite)
         rec = replace(rec, path=Path(out))
     return rec

@@ -3,8 +3,8 @@
 What makes a simulated flight look like EuRoC's Vicon-room sequences (V1_01_easy, V1_02_medium),
 the flights of the paper's Table 2:
 
-- **the flight** (:func:`uavturb.sim.references.euroc_room`): take-off from the floor, flight
-  0.5-2 m over the floor and the furniture of :data:`uavturb.sim.references.EUROC_ROOM`, landing on
+- **the flight** (:func:`uavturb.sim.flights.plans.euroc_room`): take-off from the floor, flight
+  0.5-2 m over the floor and the furniture of :data:`uavturb.sim.flights.plans.EUROC_ROOM`, landing on
   the floor; about 2-3 s below 0.3 m at each end, 1 s at rest (the dynamics have no contact: "at
   rest" is a hover at the landed height);
 - **the vehicle's legs**: landed, the body origin stands :func:`landed_height` (0.16 m) over the
@@ -13,14 +13,14 @@ the flights of the paper's Table 2:
 - **the sensor frame**: ground truth and IMU in EuRoC's S (the VI-sensor's IMU), placed in B by
   ``vehicle.yaml``'s ``T_BS``: the Firefly's (``uavturb/presets/firefly.yaml``) unless the vehicle
   has its own (:func:`with_vi_sensor`);
-- **cam0**: ``mav0/cam0/sensor.yaml`` of EuRoC's cam0 (:data:`uavturb.sim.cameras.EUROC_CAM0`:
+- **cam0**: ``mav0/cam0/sensor.yaml`` of EuRoC's cam0 (:data:`uavturb.sim.core.cameras.EUROC_CAM0`:
   intrinsics, 752 x 480, 20 Hz, radial-tangential distortion, ``T_BS`` relative to S), no images:
   ``uavturb evaluate`` projects the recording's point cloud through it at its 20 Hz, as the paper
   does on EuRoC (:func:`with_cam0`);
 - **the point cloud**: the room's mesh sampled every 3 cm (``pointcloud0``, as every simulated flight).
 
 The shipped ``firefly`` vehicle file has no thrust or moment coefficient (EuRoC does not publish
-them); :func:`flyable` flies it with RotorS's Firefly constants (those of the ``hex`` preset), which
+them); :func:`flyable` flies it with RotorS's Firefly constants (those of the built-in ``hex``), which
 ``vehicle.yaml`` and ``truth.yaml`` then hold.
 """
 
@@ -32,8 +32,13 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io.recording import Recording
+from uavturb.io.vehicle_file import SHIPPED_DIR, load_vehicle
 from uavturb.physics.vehicle import HEXAROTOR, Vehicle
-from uavturb.sim.cameras import EUROC_CAM0, least_body_height
+from uavturb.scene.indoor import Scene
+from uavturb.scene.layouts import floor_boxes, room_size
+from uavturb.sim.core.cameras import EUROC_CAM0, least_body_height
+from uavturb.sim.core.signals import Reference
+from uavturb.sim.flights.plans import EUROC_ROOM, euroc_room
 
 #: the flight kind (``uavturb generate flight --kind euroc_room``)
 KIND = "euroc_room"
@@ -44,11 +49,9 @@ def landed_height() -> float:
     return round(least_body_height(EUROC_CAM0.name), 3)
 
 
-def reference(duration: float, seed: int, max_yaw_acc: float = 0.5, room=None):
-    """The flight plan: :func:`uavturb.sim.references.euroc_room` in ``room`` (default
-    :data:`~uavturb.sim.references.EUROC_ROOM`), landed at :func:`landed_height`; ``max_yaw_acc`` rad/s^2."""
-    from uavturb.sim.references import EUROC_ROOM, euroc_room
-
+def reference(duration: float, seed: int, max_yaw_acc: float = 0.5, room: Scene | None = None) -> Reference:
+    """The flight plan: :func:`~uavturb.sim.flights.plans.euroc_room` in ``room`` (default
+    :data:`~uavturb.sim.flights.plans.EUROC_ROOM`), landed at :func:`landed_height`; ``max_yaw_acc`` rad/s^2."""
     return euroc_room(duration, seed, room=EUROC_ROOM if room is None else room, rest_height=landed_height(),
                       max_yaw_acc=max_yaw_acc)
 
@@ -64,7 +67,7 @@ def flyable(vehicle: Vehicle) -> Vehicle:
     """``vehicle`` with the constants a simulation needs.
 
     A vehicle with the Firefly's rotor geometry and no thrust or moment coefficient (the shipped
-    ``firefly`` file) gets RotorS's Firefly constants (``hex`` preset: ``k_T`` 8.54858e-6
+    ``firefly`` file) gets RotorS's Firefly constants (the built-in ``hex``: ``k_T`` 8.54858e-6
     N/(rad/s)^2, ``k_M`` 0.016 ``k_T``, top speed 838 rad/s); any other incomplete vehicle is an error.
     """
     if vehicle.thrust_coefficient is not None and vehicle.moment_coefficient is not None:
@@ -81,8 +84,6 @@ def with_vi_sensor(vehicle: Vehicle) -> Vehicle:
     Firefly's (``uavturb/presets/firefly.yaml``)."""
     if not vehicle.sensor_is_body:
         return vehicle
-    from uavturb.io.vehicle_file import SHIPPED_DIR, load_vehicle
-
     return vehicle.with_params(T_BS=load_vehicle(SHIPPED_DIR / f"{EUROC_CAM0.vehicle}.yaml").T_BS)
 
 
@@ -93,8 +94,6 @@ def with_cam0(rec: Recording) -> Recording:
 
 def truth_entry() -> dict:
     """What ``truth.yaml`` says of the stand-in (camera, room, landed height)."""
-    from uavturb.sim.references import EUROC_ROOM
-
     return {"cam0": EUROC_CAM0.name, "cam0_source": EUROC_CAM0.source, "landed_height_m": landed_height(),
-            "room": {"size_m": list(EUROC_ROOM.size), "ceiling_m": EUROC_ROOM.ceiling,
-                     "boxes": [list(b) for b in EUROC_ROOM.boxes]}}
+            "room": {"size_m": list(room_size(EUROC_ROOM)), "ceiling_m": float(EUROC_ROOM.ceiling_height),
+                     "boxes": [list(b) for b in floor_boxes(EUROC_ROOM)]}}

@@ -1,9 +1,9 @@
 """The closed loop of every simulated flight: controller, effects and RK4 physics.
 
 :func:`run_closed_loop` is the one loop behind ``uavturb generate flight``
-(:func:`uavturb.sim.flight.simulate_flight`) and the training shards of ``uavturb generate sim``
-(:mod:`uavturb.sim.dataset`, through :func:`track_reference` and
-:func:`uavturb.sim.scene_flight.fly_trajectory`). Time stepping, all rates multiples of
+(:func:`uavturb.sim.flights.simulate.simulate_flight`) and the training shards of ``uavturb generate sim``
+(:mod:`uavturb.sim.dataset.generation`, through :func:`track_reference` and
+:func:`uavturb.sim.dataset.flying.fly_trajectory`). Time stepping, all rates multiples of
 ``physics_dt``:
 
 - physics, every ``physics_dt``: one RK4 step of :class:`~uavturb.physics.dynamics.Dynamics`
@@ -37,18 +37,13 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from uavturb.errors import InputError
 from uavturb.physics import quaternion as quat
-from uavturb.physics.dynamics import (
-    IDX_Q,
-    IDX_V,
-    N_STATE,
-    dynamics_for,
-    physical_params,
-)
+from uavturb.physics.dynamics import IDX_Q, IDX_V, N_STATE, dynamics_for, physical_params
 from uavturb.physics.effects import force_on_state
 from uavturb.physics.vehicle import Vehicle
-from uavturb.sim.controller import ControllerGains, GeometricController, RotationOf
-from uavturb.sim.references import Reference, Setpoint
+from uavturb.sim.core.controller import ControllerGains, GeometricController, RotationOf
+from uavturb.sim.core.signals import Reference, Setpoint
 
 #: pilot(x (13,), t [s], force (3,) N in W of the last physics step) -> (N,) rad/s rotor commands
 Pilot = Callable[[np.ndarray, float, np.ndarray], np.ndarray]
@@ -274,7 +269,7 @@ def run_closed_loop(vehicle: Vehicle, x0: np.ndarray, pilot: Pilot, heights: Hei
 
 
 class GeometricTracker:
-    """A :class:`~uavturb.sim.controller.GeometricController` following a reference, as a pilot
+    """A :class:`~uavturb.sim.core.controller.GeometricController` following a reference, as a pilot
     of :func:`run_closed_loop`: the reference is sampled once at the ``n_updates`` control times
     ``k dt`` (one vectorised call; later times are evaluated one by one).
 
@@ -327,8 +322,6 @@ class GeometricTracker:
 
 def whole_ratio(a: float, b: float, what: str, where: str = "simulate_flight") -> int:
     """``a / b`` as a whole number >= 1; raises InputError naming ``where`` and ``what`` otherwise."""
-    from uavturb.errors import InputError
-
     n = int(round(a / b))
     if n < 1 or abs(n * b - a) > 1e-9 * max(a, 1.0):
         raise InputError(where, f"{what} must be a whole multiple of physics_dt")

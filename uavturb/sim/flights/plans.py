@@ -1,15 +1,5 @@
-"""Reference trajectories for synthetic flights: position, velocity, acceleration, jerk
-and yaw (with its rate and acceleration) as analytic functions of time.
-
-A :class:`Reference` holds four scalar :class:`Signal` channels (``x``, ``y``, ``z`` in
-the world frame W [m], ``yaw`` [rad], ZYX yaw of the body about world ``+z``). Every
-signal returns its value and its first three time derivatives, so a reference gives
-the controller velocity, acceleration and jerk feed-forward exactly. Signals are built
-from sums of sines, products with a smooth envelope, and piecewise "minimum-snap"
-septic segments between waypoints (continuous up to the jerk, so references can be
-concatenated without jumps in the body-rate feed-forward).
-
-Four flight plans, all deterministic given a seed:
+"""The flight plans of ``uavturb generate flight`` (all deterministic given a seed) and the room
+they are planned in:
 
 - :func:`excitation`: a rich flight for identification around a hover point;
 - :func:`low_passes`: take-off, low hovers over the floor and a table, passes over
@@ -17,369 +7,63 @@ Four flight plans, all deterministic given a seed:
 - :func:`mixed`: heading changes, ceiling approach, excitation and low passes in one
   flight (a steady wind turns with the heading in B, an accelerometer bias does not);
 - :func:`euroc_room`: a stand-in for EuRoC's Vicon-room flights (V1_01, V1_02): take-off from
-  the floor, flight 0.5-2 m over the floor and the furniture of :data:`EUROC_ROOM`, landing.
+  the floor, flight 0.5-2 m over the floor and the furniture of :data:`EUROC_ROOM`, landing
+  (:mod:`uavturb.sim.flights.euroc_standin` makes the rest of the stand-in).
 
-The scene they are planned in is a :class:`Room` (floor at ``z = 0``, a ceiling, one
-table, optionally more furniture), the same one :mod:`uavturb.sim.flight` turns into a point cloud.
+The scene they are planned in is a :func:`~uavturb.scene.layouts.table_room` (floor at ``z = 0``,
+a ceiling, one table, optionally more furniture; :data:`TABLE_ROOM` by default), the scene whose
+mesh :mod:`uavturb.sim.flights.simulate` turns into a point cloud; heights of the surface below
+come from :func:`uavturb.scene.queries.surface_below`. Moves are
+:class:`~uavturb.sim.core.waypoint_plan.WaypointPlan` moves (the plan builder of every planned
+flight), routed over the table (:class:`TableRouter`) or over any box near a leg (``euroc_room``),
+never through them. These rooms have no navigation grid to search:
+:func:`uavturb.sim.dataset.planning.plan_trajectory` plans through generated scenes.
 """
 
 from __future__ import annotations
 
+import copy
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.physics.constants import GRAVITY
+from uavturb.scene.indoor import Furniture, Scene
+from uavturb.scene.layouts import euroc_vicon_room, floor_boxes, room_size, table_room
+from uavturb.scene.queries import surface_below
+from uavturb.sim.core.signals import Constant, Envelope, Reference, Signal, Sines
+from uavturb.sim.core.waypoint_plan import WaypointPlan, wrap_near
 
 # --- the room ------------------------------------------------------------------------
 
+#: the room of ``low_passes`` and ``mixed`` flights: 8 x 6 m, 2.6 m high, one table (:func:`table_room`)
+TABLE_ROOM = table_room()
 
-@dataclass(frozen=True)
-class Room:
-    """A rectangular room with one table, centred on the world origin.
+#: the stand-in for EuRoC's Vicon room, the room of ``euroc_room`` flights (:func:`euroc_vicon_room`)
+EUROC_ROOM = euroc_vicon_room()
 
-    Attributes
-    ----------
-    size : (2,) m, room extent along world x and y (the room spans ``±size/2``)
-    ceiling : float, m, height of the ceiling over the floor (floor at ``z = 0``)
-    table_center : (2,) m, table centre in world x, y
-    table_size : (2,) m, table extent along world x and y
-    table_height : float, m, height of the table top over the floor
-    furniture : further boxes standing on the floor, each ``(x_min, x_max, y_min, y_max, height)`` [m]
-    """
 
-    size: tuple[float, float] = (8.0, 6.0)
-    ceiling: float = 2.6
-    table_center: tuple[float, float] = (1.8, 0.9)
-    table_size: tuple[float, float] = (1.2, 0.8)
-    table_height: float = 0.75
-    furniture: tuple[tuple[float, float, float, float, float], ...] = ()
+def _table(room: Scene) -> Furniture:
+    """The table of a :func:`table_room` (its first furniture)."""
+    return room.furniture[0]
 
-    @property
-    def boxes(self) -> tuple[tuple[float, float, float, float, float], ...]:
-        """Every box on the floor, the table first: ``(x_min, x_max, y_min, y_max, height)`` [m]."""
-        return ((*self.table_bounds, self.table_height), *(tuple(float(v) for v in b) for b in self.furniture))
 
-    @property
-    def table_bounds(self) -> tuple[float, float, float, float]:
-        """``(x_min, x_max, y_min, y_max)`` [m] of the table top."""
-        cx, cy = self.table_center
-        hx, hy = self.table_size[0] / 2, self.table_size[1] / 2
-        return cx - hx, cx + hx, cy - hy, cy + hy
+def table_bounds(room: Scene) -> tuple[float, float, float, float]:
+    """``(x_min, x_max, y_min, y_max)`` [m] of the table top of a :func:`table_room`."""
+    t = _table(room)
+    return float(t.lo[0]), float(t.hi[0]), float(t.lo[1]), float(t.hi[1])
 
-    def over_table(self, x: np.ndarray, y: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """Whether world points ``(x, y)`` [m] lie over the table top grown by ``margin`` [m]."""
-        x0, x1, y0, y1 = self.table_bounds
-        x, y = np.asarray(x, float), np.asarray(y, float)
-        return (x >= x0 - margin) & (x <= x1 + margin) & (y >= y0 - margin) & (y <= y1 + margin)
 
-    def surface_below(self, x: np.ndarray, y: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """Height [m] of the surface under world points ``(x, y)``: the highest box top (the table's
-        or another piece of furniture's, each grown by ``margin`` [m]) or the floor."""
-        out = np.where(self.over_table(x, y, margin), self.table_height, 0.0)
-        x, y = np.asarray(x, float), np.asarray(y, float)
-        for x0, x1, y0, y1, h in self.furniture:
-            inside = (x >= x0 - margin) & (x <= x1 + margin) & (y >= y0 - margin) & (y <= y1 + margin)
-            out = np.maximum(out, np.where(inside, float(h), 0.0))
-        return out
+def over_table(room: Scene, x: np.ndarray, y: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    """Whether world points ``(x, y)`` [m] lie over the table top of a :func:`table_room` grown by
+    ``margin`` [m]."""
+    x0, x1, y0, y1 = table_bounds(room)
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    return (x >= x0 - margin) & (x <= x1 + margin) & (y >= y0 - margin) & (y <= y1 + margin)
 
 
-#: A stand-in for EuRoC's Vicon room (V1_01_easy, V1_02_medium): a motion-capture room with a table and
-#: a few boxes and mats on the floor. Not a scan; sizes and layout are ours.
-EUROC_ROOM = Room(size=(8.0, 7.0), ceiling=3.2, table_center=(1.5, 1.0), table_size=(1.2, 0.8), table_height=0.75,
-                  furniture=((-2.2, -1.6, 0.8, 1.6, 0.45),  # a stack of boxes
-                             (-1.6, 0.2, -2.2, -1.2, 0.2),  # foam mats
-                             (1.0, 1.6, -2.4, -1.6, 0.6)))  # a crate
-
-
-# --- scalar signals with three derivatives ---------------------------------------------
-
-
-def _as_t(t: np.ndarray | float) -> np.ndarray:
-    return np.atleast_1d(np.asarray(t, dtype=float))
-
-
-class Signal:
-    """A scalar function of time [s] with its first three derivatives.
-
-    Subclasses implement :meth:`derivs`; ``+`` and ``*`` build sums and products.
-    """
-
-    def derivs(self, t: np.ndarray) -> np.ndarray:
-        """Value and derivatives at times ``t``.
-
-        Parameters
-        ----------
-        t : (K,) s
-
-        Returns
-        -------
-        (4, K): value, first, second and third time derivative.
-        """
-        raise NotImplementedError
-
-    def __add__(self, other: "Signal") -> "Signal":
-        return Sum((self, other))
-
-    def __mul__(self, other: "Signal") -> "Signal":
-        return Product(self, other)
-
-
-@dataclass(frozen=True)
-class Constant(Signal):
-    """``f(t) = value``."""
-
-    value: float
-
-    def derivs(self, t: np.ndarray) -> np.ndarray:
-        t = _as_t(t)
-        out = np.zeros((4, len(t)))
-        out[0] = self.value
-        return out
-
-
-@dataclass(frozen=True)
-class Sines(Signal):
-    """``f(t) = sum_k A_k sin(omega_k t + phi_k)``; amplitudes in the signal's unit, ``omega`` [rad/s]."""
-
-    amplitude: tuple[float, ...]
-    omega: tuple[float, ...]
-    phase: tuple[float, ...]
-
-    def derivs(self, t: np.ndarray) -> np.ndarray:
-        t = _as_t(t)
-        A, w, ph = (np.asarray(a, float)[:, None] for a in (self.amplitude, self.omega, self.phase))
-        arg = w * t[None, :] + ph
-        s, c = np.sin(arg), np.cos(arg)
-        return np.stack([(A * s).sum(0), (A * w * c).sum(0), -(A * w**2 * s).sum(0), -(A * w**3 * c).sum(0)])
-
-    def bounds(self) -> tuple[float, float, float]:
-        """Upper bounds of ``|f|``, ``|f'|``, ``|f''|``."""
-        A, w = np.abs(np.asarray(self.amplitude, float)), np.asarray(self.omega, float)
-        return float(A.sum()), float((A * w).sum()), float((A * w**2).sum())
-
-
-@dataclass(frozen=True)
-class Sum(Signal):
-    """Sum of signals."""
-
-    terms: tuple[Signal, ...]
-
-    def derivs(self, t: np.ndarray) -> np.ndarray:
-        t = _as_t(t)
-        out = np.zeros((4, len(t)))
-        for s in self.terms:
-            out += s.derivs(t)
-        return out
-
-
-@dataclass(frozen=True)
-class Product(Signal):
-    """Product ``f g`` (derivatives by Leibniz's rule)."""
-
-    f: Signal
-    g: Signal
-
-    def derivs(self, t: np.ndarray) -> np.ndarray:
-        t = _as_t(t)
-        a, b = self.f.derivs(t), self.g.derivs(t)
-        return np.stack([
-            a[0] * b[0],
-            a[1] * b[0] + a[0] * b[1],
-            a[2] * b[0] + 2 * a[1] * b[1] + a[0] * b[2],
-            a[3] * b[0] + 3 * a[2] * b[1] + 3 * a[1] * b[2] + a[0] * b[3],
-        ])
-
-
-def smoothstep(tau: np.ndarray) -> np.ndarray:
-    """Septic "minimum-snap" step ``s(tau) = 35 tau^4 - 84 tau^5 + 70 tau^6 - 20 tau^7`` on [0, 1],
-    0 before and 1 after; its first three derivatives vanish at both ends.
-
-    Returns
-    -------
-    (4, K): ``s``, ``ds/dtau``, ``d2s/dtau2``, ``d3s/dtau3``.
-    """
-    tau = np.clip(np.asarray(tau, float), 0.0, 1.0)
-    t2, t3 = tau * tau, tau**3
-    s = t2 * t2 * (35 - 84 * tau + 70 * t2 - 20 * t3)
-    s1 = t3 * (140 - 420 * tau + 420 * t2 - 140 * t3)
-    s2 = t2 * (420 - 1680 * tau + 2100 * t2 - 840 * t3)
-    s3 = tau * (840 - 5040 * tau + 8400 * t2 - 4200 * t3)
-    return np.stack([s, s1, s2, s3])
-
-
-_tau = np.linspace(0.0, 1.0, 2001)
-SMOOTHSTEP_MAX_RATE = float(np.max(np.abs(smoothstep(_tau)[1])))  # 2.1875 = 35/16
-SMOOTHSTEP_MAX_ACC = float(np.max(np.abs(smoothstep(_tau)[2])))  # about 7.51
-del _tau
-
-
-@dataclass(frozen=True)
-class Envelope(Signal):
-    """1 on ``[ramp, duration - ramp]``, rising smoothly from 0 at ``t = 0`` and falling back to
-    0 at ``t = duration`` (septic steps of length ``ramp`` [s]); 0 outside ``[0, duration]``."""
-
-    duration: float
-    ramp: float
-
-    def derivs(self, t: np.ndarray) -> np.ndarray:
-        t = _as_t(t)
-        r = self.ramp
-        up = smoothstep(t / r) * (1.0 / r) ** np.arange(4)[:, None]
-        down = smoothstep((self.duration - t) / r) * (-1.0 / r) ** np.arange(4)[:, None]
-        return Product(_Array(up), _Array(down)).derivs(t)
-
-
-@dataclass(frozen=True, eq=False)
-class _Array(Signal):
-    """Precomputed derivatives (internal: lets :class:`Envelope` reuse Leibniz's rule)."""
-
-    values: np.ndarray
-
-    def derivs(self, t: np.ndarray) -> np.ndarray:
-        return self.values
-
-
-@dataclass(frozen=True)
-class Waypoints(Signal):
-    """Piecewise septic steps between waypoint values ``values[i]`` at ``times[i]`` [s]:
-    at rest (zero derivatives) at every waypoint, constant before the first and after the last.
-    Equal consecutive values make a hold."""
-
-    times: tuple[float, ...]
-    values: tuple[float, ...]
-
-    def __post_init__(self) -> None:
-        if len(self.times) != len(self.values) or len(self.times) == 0:
-            raise InputError("reference", "waypoint times and values must have the same non-zero length")
-        if np.any(np.diff(self.times) <= 0):
-            raise InputError("reference", "waypoint times must increase strictly")
-
-    def derivs(self, t: np.ndarray) -> np.ndarray:
-        t = _as_t(t)
-        T, V = np.asarray(self.times, float), np.asarray(self.values, float)
-        out = np.zeros((4, len(t)))
-        out[0] = V[0]
-        if len(T) == 1:
-            return out
-        i = np.clip(np.searchsorted(T, t, side="right") - 1, 0, len(T) - 2)
-        h = T[i + 1] - T[i]
-        s = smoothstep((t - T[i]) / h)
-        dv = V[i + 1] - V[i]
-        out[0] = V[i] + dv * s[0]
-        out[1] = dv * s[1] / h
-        out[2] = dv * s[2] / h**2
-        out[3] = dv * s[3] / h**3
-        return out
-
-
-@dataclass(frozen=True)
-class Piecewise(Signal):
-    """Signals one after another: piece ``k`` runs on ``[starts[k], starts[k+1])`` in its own time
-    ``t - starts[k]``; the last piece runs on for ever."""
-
-    pieces: tuple[Signal, ...]
-    starts: tuple[float, ...]
-
-    def derivs(self, t: np.ndarray) -> np.ndarray:
-        t = _as_t(t)
-        out = np.zeros((4, len(t)))
-        k = np.clip(np.searchsorted(np.asarray(self.starts, float), t, side="right") - 1, 0, len(self.pieces) - 1)
-        for j, piece in enumerate(self.pieces):
-            m = k == j
-            if m.any():
-                out[:, m] = piece.derivs(t[m] - self.starts[j])
-        return out
-
-
-# --- references ----------------------------------------------------------------------
-
-
-@dataclass
-class Setpoint:
-    """A reference sampled at one time (shapes as below) or at ``K`` times (a leading ``K`` axis).
-
-    Attributes
-    ----------
-    t : float or (K,) s
-    p, v, a, j : (3,) or (K, 3): position [m], velocity [m/s], acceleration [m/s^2], jerk [m/s^3] in W
-    yaw, yaw_rate, yaw_acc : float or (K,): rad, rad/s, rad/s^2 (ZYX yaw about world +z)
-    """
-
-    t: np.ndarray
-    p: np.ndarray
-    v: np.ndarray
-    a: np.ndarray
-    j: np.ndarray
-    yaw: np.ndarray
-    yaw_rate: np.ndarray
-    yaw_acc: np.ndarray
-
-    def __getitem__(self, k: int) -> "Setpoint":
-        """The ``k``-th sample of a sampled reference."""
-        return Setpoint(*(getattr(self, f)[k] for f in ("t", "p", "v", "a", "j", "yaw", "yaw_rate", "yaw_acc")))
-
-    def __len__(self) -> int:
-        return len(np.atleast_1d(self.t))
-
-
-@dataclass(frozen=True)
-class Reference:
-    """A flight plan: four channels of time.
-
-    Attributes
-    ----------
-    x, y, z : Signal, m, world position of the body origin
-    yaw : Signal, rad
-    duration : float, s, the plan's length (it holds its last set-point afterwards)
-    name : str
-    notes : dict, free-form description of the plan (phases and their times)
-    """
-
-    x: Signal
-    y: Signal
-    z: Signal
-    yaw: Signal
-    duration: float
-    name: str = "reference"
-    notes: dict = field(default_factory=dict, compare=False)
-
-    def __call__(self, t: np.ndarray | float) -> Setpoint:
-        """Sample the reference at time(s) ``t`` [s]: a scalar ``t`` gives a one-sample
-        :class:`Setpoint` (shapes ``(3,)`` and scalars), an array ``(K,)`` a ``K``-sample one."""
-        scalar = np.ndim(t) == 0
-        tt = _as_t(t)
-        d = np.stack([c.derivs(tt) for c in (self.x, self.y, self.z)], axis=-1)  # (4, K, 3)
-        yw = self.yaw.derivs(tt)
-        sp = Setpoint(tt, d[0], d[1], d[2], d[3], yw[0], yw[1], yw[2])
-        return sp[0] if scalar else sp
-
-    def then(self, other: "Reference", tol: float = 1e-6) -> "Reference":
-        """This plan followed by ``other`` (which must start where this one ends, at rest)."""
-        end, start = self(self.duration), other(0.0)
-        jump = max(np.max(np.abs(end.p - start.p)), abs(float(end.yaw - start.yaw)),
-                   np.max(np.abs(start.v)), np.max(np.abs(end.v)))
-        if jump > tol:
-            raise InputError("reference", f"cannot join '{self.name}' and '{other.name}': they do not meet at rest "
-                                          f"(mismatch {jump:.3g})")
-        chans = []
-        for c in ("x", "y", "z", "yaw"):
-            a, b = getattr(self, c), getattr(other, c)
-            pa = a.pieces if isinstance(a, Piecewise) else (a,)
-            sa = a.starts if isinstance(a, Piecewise) else (0.0,)
-            chans.append(Piecewise(pa + (b,), sa + (self.duration,)))
-        notes = dict(self.notes)
-        for k, v in other.notes.items():
-            notes[k] = [(t0 + self.duration, t1 + self.duration) for t0, t1 in v] if isinstance(v, list) else v
-        return Reference(*chans, duration=self.duration + other.duration, name=f"{self.name}+{other.name}",
-                         notes=notes)
-
-
-def hover(p: tuple[float, float, float], yaw: float = 0.0, duration: float = 10.0) -> Reference:
-    """Hold position ``p`` [m] and ``yaw`` [rad] for ``duration`` [s]."""
-    return Reference(Constant(p[0]), Constant(p[1]), Constant(p[2]), Constant(yaw), float(duration), "hover")
+# --- excitation ----------------------------------------------------------------------
 
 
 def _scaled_sines(rng: np.random.Generator, n: int, omega_range: tuple[float, float], max_amp: float,
@@ -409,7 +93,7 @@ def excitation(duration: float = 60.0, seed: int = 0, *, center: tuple[float, fl
     in roll and pitch by about ``tilt_excitation`` [rad] while the yaw turns, so that the gyroscopic products
     ``w_y w_z``, ``w_x w_z`` are excited. The yaw is a slow sweep (amplitude up to several rad)
     plus two faster sines, under ``max_yaw_rate`` and ``max_yaw_acc`` (a hexarotor's yaw
-    authority is small: about 0.7 rad/s^2 for the Firefly-like preset).
+    authority is small: about 0.7 rad/s^2 for the Firefly-like built-in ``hex``).
 
     Parameters
     ----------
@@ -462,83 +146,25 @@ def excitation(duration: float = 60.0, seed: int = 0, *, center: tuple[float, fl
                      {"excitation": [(0.0, float(duration))]})
 
 
-# --- waypoint plans --------------------------------------------------------------------
+
+# --- low passes and mixed flights --------------------------------------------------------
 
 
-@dataclass
-class _Plan:
-    """Builds stop-and-go waypoint plans (each move starts and ends at rest)."""
+class TableRouter:
+    """Moves a :class:`WaypointPlan` between points of a :func:`table_room` without flying through the table."""
 
-    p: np.ndarray
-    yaw: float
-    speed: float = 0.8  # m/s, peak speed of a move
-    acc: float = 1.0  # m/s^2, peak acceleration of a move
-    yaw_rate: float = 0.8  # rad/s
-    yaw_acc: float = 0.5  # rad/s^2
-    times: list = field(default_factory=list)
-    points: list = field(default_factory=list)
-    phases: dict = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        self.p = np.asarray(self.p, float)
-        self.times.append(0.0)
-        self.points.append((*self.p, self.yaw))
-
-    @property
-    def t(self) -> float:
-        return self.times[-1]
-
-    def move_time(self, p: np.ndarray, yaw: float | None = None, speed: float | None = None) -> float:
-        dist = float(np.linalg.norm(np.asarray(p, float) - self.p))
-        dyaw = abs((self.yaw if yaw is None else yaw) - self.yaw)
-        v = self.speed if speed is None else speed
-        return max(0.5, SMOOTHSTEP_MAX_RATE * dist / v, math.sqrt(SMOOTHSTEP_MAX_ACC * dist / self.acc),
-                   SMOOTHSTEP_MAX_RATE * dyaw / self.yaw_rate, math.sqrt(SMOOTHSTEP_MAX_ACC * dyaw / self.yaw_acc))
-
-    def move(self, p: np.ndarray, yaw: float | None = None, speed: float | None = None,
-             phase: str | None = None) -> "_Plan":
-        T = self.move_time(p, yaw, speed)
-        t0 = self.t
-        self.p = np.asarray(p, float)
-        self.yaw = self.yaw if yaw is None else float(yaw)
-        self.times.append(t0 + T)
-        self.points.append((*self.p, self.yaw))
-        if phase:
-            self.phases.setdefault(phase, []).append((t0, t0 + T))
-        return self
-
-    def hold(self, seconds: float, phase: str | None = None) -> "_Plan":
-        t0 = self.t
-        self.times.append(t0 + float(seconds))
-        self.points.append((*self.p, self.yaw))
-        if phase:
-            self.phases.setdefault(phase, []).append((t0, t0 + float(seconds)))
-        return self
-
-    def reference(self, name: str, duration: float | None = None) -> Reference:
-        if duration is not None and duration > self.t + 1e-9:
-            self.hold(duration - self.t)
-        P = np.asarray(self.points)
-        T = tuple(float(t) for t in self.times)
-        ch = [Waypoints(T, tuple(float(v) for v in P[:, k])) for k in range(4)]
-        return Reference(*ch, duration=float(self.t), name=name, notes=dict(self.phases))
-
-
-class _Router:
-    """Moves a :class:`_Plan` between points of a :class:`Room` without flying through the table."""
-
-    def __init__(self, plan: _Plan, room: Room, clearance: float = 0.1, margin: float = 0.15):
+    def __init__(self, plan: WaypointPlan, room: Scene, clearance: float = 0.1, margin: float = 0.15):
         self.plan, self.room, self.clearance, self.margin = plan, room, clearance, margin
 
     def _crosses_table(self, a: np.ndarray, b: np.ndarray) -> bool:
         s = np.linspace(0.0, 1.0, 41)[:, None]
         pts = a[None, :2] * (1 - s) + b[None, :2] * s
-        return bool(np.any(self.room.over_table(pts[:, 0], pts[:, 1], self.margin)))
+        return bool(np.any(over_table(self.room, pts[:, 0], pts[:, 1], self.margin)))
 
     def go(self, p: np.ndarray, yaw: float | None = None, speed: float | None = None, phase: str | None = None) -> None:
         p = np.asarray(p, float)
         a = self.plan.p
-        safe = self.room.table_height + self.clearance
+        safe = _table(self.room).surface + self.clearance
         if self._crosses_table(a, p) and (a[2] < safe or p[2] < safe):
             z = max(a[2], p[2], safe + 0.1)
             if a[2] < z - 1e-9:
@@ -556,29 +182,29 @@ def _height(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def _floor_point(rng: np.random.Generator, room: Room, keep_out: float = 0.5, wall: float = 1.0) -> np.ndarray:
+def _floor_point(rng: np.random.Generator, room: Scene, keep_out: float = 0.5, wall: float = 1.0) -> np.ndarray:
     """A random floor point [m] (x, y) at least ``keep_out`` from the table and ``wall`` from the walls."""
-    hx, hy = room.size[0] / 2 - wall, room.size[1] / 2 - wall
+    hx, hy = room_size(room)[0] / 2 - wall, room_size(room)[1] / 2 - wall
     for _ in range(1000):
         xy = rng.uniform([-hx, -hy], [hx, hy])
-        if not room.over_table(xy[0], xy[1], keep_out):
+        if not over_table(room, xy[0], xy[1], keep_out):
             return xy
     raise InputError("reference", "the room has no free floor away from the table")
 
 
-def _table_point(rng: np.random.Generator, room: Room, inset: float = 0.2) -> np.ndarray:
+def _table_point(rng: np.random.Generator, room: Scene, inset: float = 0.2) -> np.ndarray:
     """A random point (x, y) [m] over the table top, ``inset`` inside its edges."""
-    x0, x1, y0, y1 = room.table_bounds
+    x0, x1, y0, y1 = table_bounds(room)
     return rng.uniform([x0 + inset, y0 + inset], [x1 - inset, y1 - inset])
 
 
-def _low_pass_maneuvers(router: _Router, rng: np.random.Generator, until: float, *, floor_heights: tuple[float, float],
+def _low_pass_maneuvers(router: TableRouter, rng: np.random.Generator, until: float, *, floor_heights: tuple[float, float],
                         table_heights: tuple[float, float], pass_speed: float, hold: tuple[float, float]) -> None:
     """Append random low hovers (floor, table top) and table-edge passes until ``until`` [s]."""
     plan, room = router.plan, router.room
-    top = room.table_height
-    x0, x1, y0, y1 = room.table_bounds
-    cx, cy = room.table_center
+    top = _table(room).surface
+    x0, x1, y0, y1 = table_bounds(room)
+    cx, cy = (float(v) for v in _table(room).centre[:2])
     kinds = ["floor", "table", "edge_x", "edge_y"]
     queue = list(rng.permutation(kinds))
     misses = 0
@@ -620,26 +246,26 @@ def _low_pass_maneuvers(router: _Router, rng: np.random.Generator, until: float,
                 plan.hold(rng.uniform(*hold), phase if phase != "edge_pass" else None)
 
 
-def _takeoff(plan: _Plan, rng: np.random.Generator, floor_heights: tuple[float, float]) -> None:
+def _takeoff(plan: WaypointPlan, rng: np.random.Generator, floor_heights: tuple[float, float]) -> None:
     plan.hold(1.0, "rest")
     plan.move((*plan.p[:2], _height(rng, (floor_heights[0], 0.5 * sum(floor_heights)))), speed=0.3, phase="takeoff")
     plan.hold(2.0, "hover_floor")
 
 
-def _landing_time(plan: _Plan, rest_height: float) -> float:
+def _landing_time(plan: WaypointPlan, rest_height: float) -> float:
     return plan.move_time((*plan.p[:2], 0.3)) + 2.0 + plan.move_time((*plan.p[:2], rest_height), speed=0.3) + 2.0
 
 
-def _land(router: _Router, rng: np.random.Generator, rest_height: float) -> None:
+def _land(router: TableRouter, rng: np.random.Generator, rest_height: float) -> None:
     plan = router.plan
-    xy = plan.p[:2] if not router.room.over_table(*plan.p[:2], 0.3) else _floor_point(rng, router.room)
+    xy = plan.p[:2] if not over_table(router.room, *plan.p[:2], 0.3) else _floor_point(rng, router.room)
     router.go((xy[0], xy[1], 0.3))
     plan.hold(1.5, "hover_floor")
     plan.move((xy[0], xy[1], rest_height), speed=0.3, phase="landing")
     plan.hold(1.0, "rest")
 
 
-def low_passes(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_height: float = 0.06,
+def low_passes(duration: float = 60.0, seed: int = 0, *, room: Scene = TABLE_ROOM, rest_height: float = 0.06,
                start: tuple[float, float] | None = None, yaw0: float | None = None,
                floor_heights: tuple[float, float] = (0.1, 0.5), table_heights: tuple[float, float] = (0.1, 0.5),
                pass_speed: float = 0.8, hold: tuple[float, float] = (1.5, 3.0), max_yaw_acc: float = 0.5) -> Reference:
@@ -677,8 +303,8 @@ def low_passes(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), re
     rng = np.random.default_rng([int(seed), 2])
     xy = _floor_point(rng, room) if start is None else np.asarray(start, float)
     yaw = float(rng.uniform(-np.pi, np.pi)) if yaw0 is None else float(yaw0)
-    plan = _Plan(np.array([xy[0], xy[1], rest_height]), yaw, yaw_acc=max_yaw_acc)
-    router = _Router(plan, room)
+    plan = WaypointPlan(np.array([xy[0], xy[1], rest_height]), yaw, yaw_acc=max_yaw_acc)
+    router = TableRouter(plan, room)
     _takeoff(plan, rng, floor_heights)
     _low_pass_maneuvers(router, rng, duration - _landing_time(plan, rest_height) - 1.0, floor_heights=floor_heights,
                         table_heights=table_heights, pass_speed=pass_speed, hold=hold)
@@ -686,7 +312,7 @@ def low_passes(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), re
     return plan.reference("low_passes", duration)
 
 
-def _heading_steps(plan: _Plan, rng: np.random.Generator, center: np.ndarray, n: int = 4, hold: float = 2.0,
+def _heading_steps(plan: WaypointPlan, rng: np.random.Generator, center: np.ndarray, n: int = 4, hold: float = 2.0,
                    step: float = 0.5) -> None:
     """Hover at ``n`` headings spread over a full turn, each followed by a short translation;
     ends back at ``center``, one full turn from the initial heading."""
@@ -702,7 +328,7 @@ def _heading_steps(plan: _Plan, rng: np.random.Generator, center: np.ndarray, n:
     plan.move(center, y0 + direction * 2 * np.pi, phase="heading_hover")
 
 
-def mixed(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_height: float = 0.06,
+def mixed(duration: float = 60.0, seed: int = 0, *, room: Scene = TABLE_ROOM, rest_height: float = 0.06,
           center: tuple[float, float, float] = (0.0, 0.0, 1.25), excitation_share: float = 0.4,
           ceiling_gap: tuple[float, float] = (0.25, 0.45), floor_heights: tuple[float, float] = (0.1, 0.5),
           table_heights: tuple[float, float] = (0.1, 0.5), max_yaw_acc: float = 0.5,
@@ -728,20 +354,20 @@ def mixed(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_he
     rng = np.random.default_rng([int(seed), 3])
     c = np.asarray(center, float)
     start = _floor_point(rng, room)
-    a = _Plan(np.array([start[0], start[1], rest_height]), float(rng.uniform(-np.pi, np.pi)), yaw_acc=max_yaw_acc)
+    a = WaypointPlan(np.array([start[0], start[1], rest_height]), float(rng.uniform(-np.pi, np.pi)), yaw_acc=max_yaw_acc)
     _takeoff(a, rng, floor_heights)
-    _Router(a, room).go(c)
+    TableRouter(a, room).go(c)
     _heading_steps(a, rng, c, n=4 if duration >= 90 else 3)
     first = a.reference("headings")
     reserve = 35.0 if duration >= 100.0 else 15.0  # s kept for ceiling hovers, low passes, landing
     t_exc = max(6.0, min(excitation_share * duration, duration - first.duration - reserve))
     exc = excitation(t_exc, seed, center=tuple(c), yaw0=a.yaw, max_yaw_acc=max_yaw_acc, **excitation_kw)
-    b = _Plan(c.copy(), a.yaw, yaw_acc=max_yaw_acc)
-    router = _Router(b, room)
+    b = WaypointPlan(c.copy(), a.yaw, yaw_acc=max_yaw_acc)
+    router = TableRouter(b, room)
     used = first.duration + exc.duration
     for _ in range(2 if duration - used > 30.0 else 0):
         xy = _floor_point(rng, room)
-        router.go((xy[0], xy[1], room.ceiling - rng.uniform(*ceiling_gap)), phase=None)
+        router.go((xy[0], xy[1], room.ceiling_height - rng.uniform(*ceiling_gap)), phase=None)
         b.hold(rng.uniform(1.5, 3.0), "hover_ceiling")
     left = duration - used
     _low_pass_maneuvers(router, rng, left - _landing_time(b, rest_height) - 1.0, floor_heights=floor_heights,
@@ -754,12 +380,12 @@ def mixed(duration: float = 60.0, seed: int = 0, *, room: Room = Room(), rest_he
 # --- a stand-in for EuRoC's Vicon-room flights --------------------------------------------
 
 
-def _free_floor_point(rng: np.random.Generator, room: Room, keep_out: float, wall: float) -> np.ndarray:
+def _free_floor_point(rng: np.random.Generator, room: Scene, keep_out: float, wall: float) -> np.ndarray:
     """A random floor point (x, y) [m] at least ``keep_out`` from every box and ``wall`` from the walls."""
-    hx, hy = room.size[0] / 2 - wall, room.size[1] / 2 - wall
+    hx, hy = room_size(room)[0] / 2 - wall, room_size(room)[1] / 2 - wall
     for _ in range(1000):
         xy = rng.uniform([-hx, -hy], [hx, hy])
-        if room.surface_below(xy[0], xy[1], keep_out) == 0.0:
+        if surface_below(room, xy[None], keep_out)[0] == 0.0:
             return xy
     raise InputError("reference", "the room has no free floor away from its furniture")
 
@@ -770,11 +396,10 @@ def _facing(yaw: float, a: np.ndarray, b: np.ndarray) -> float:
     d = np.asarray(b[:2], float) - np.asarray(a[:2], float)
     if np.hypot(*d) < 0.1:
         return yaw
-    target = math.atan2(d[1], d[0])
-    return yaw + (target - yaw + math.pi) % (2 * math.pi) - math.pi
+    return wrap_near(math.atan2(d[1], d[0]), yaw)
 
 
-def _leg(plan: _Plan, b: np.ndarray, room: Room, clearance: float, margin: float, speed: float,
+def _leg(plan: WaypointPlan, b: np.ndarray, room: Scene, clearance: float, margin: float, speed: float,
          phase: str) -> None:
     """Fly from the plan's position to ``b`` [m] facing the way, never lower than ``clearance`` over
     a box top within ``margin`` of the path: where the straight leg would be, climb first (and
@@ -782,7 +407,7 @@ def _leg(plan: _Plan, b: np.ndarray, room: Room, clearance: float, margin: float
     a = plan.p.copy()
     s = np.linspace(0.0, 1.0, 61)
     path = a[None, :] * (1 - s[:, None]) + np.asarray(b, float)[None, :] * s[:, None]
-    need = room.surface_below(path[:, 0], path[:, 1], margin) + clearance
+    need = surface_below(room, path[:, :2], margin) + clearance
     yaw = _facing(plan.yaw, a, b)
     if np.all(path[:, 2] >= need - 1e-9):
         plan.move(b, yaw, speed, phase)
@@ -796,26 +421,27 @@ def _leg(plan: _Plan, b: np.ndarray, room: Room, clearance: float, margin: float
         plan.move(b, None, speed, phase)
 
 
-def _waypoint(rng: np.random.Generator, room: Room, k: int, heights: tuple[float, float], top: float,
+def _waypoint(rng: np.random.Generator, room: Scene, k: int, heights: tuple[float, float], top: float,
               wall: float, inset: float = 0.15) -> np.ndarray:
     """Cruise point ``k``: every other one over a random box (``inset`` inside its edges), the others
     anywhere ``wall`` from the walls; ``heights`` [m] over the surface below, capped at ``top`` [m]."""
     if k % 2 == 1:
-        x0, x1, y0, y1, _ = room.boxes[int(rng.integers(len(room.boxes)))]
+        boxes = floor_boxes(room)
+        x0, x1, y0, y1, _ = boxes[int(rng.integers(len(boxes)))]
         xy = rng.uniform([x0 + inset, y0 + inset], [x1 - inset, y1 - inset])
     else:
-        hx, hy = room.size[0] / 2 - wall, room.size[1] / 2 - wall
+        hx, hy = room_size(room)[0] / 2 - wall, room_size(room)[1] / 2 - wall
         xy = rng.uniform([-hx, -hy], [hx, hy])
-    z = min(float(room.surface_below(xy[0], xy[1])) + rng.uniform(*heights), top)
+    z = min(float(surface_below(room, xy[None])[0]) + rng.uniform(*heights), top)
     return np.array([xy[0], xy[1], z])
 
 
-def _descend(plan: _Plan, xy: np.ndarray, rest_height: float, vertical_speed: float) -> None:
+def _descend(plan: WaypointPlan, xy: np.ndarray, rest_height: float, vertical_speed: float) -> None:
     plan.move((xy[0], xy[1], rest_height), speed=vertical_speed, phase="landing")
     plan.hold(1.0, "rest")
 
 
-def euroc_room(duration: float = 60.0, seed: int = 0, *, room: Room = EUROC_ROOM, rest_height: float = 0.16,
+def euroc_room(duration: float = 60.0, seed: int = 0, *, room: Scene = EUROC_ROOM, rest_height: float = 0.16,
                heights: tuple[float, float] = (0.6, 1.9), top: float = 2.0, clearance: float = 0.5,
                margin: float = 0.35, speed: float = 1.2, vertical_speed: float = 0.4,
                hold: tuple[float, float] = (0.5, 1.5), max_yaw_acc: float = 0.5, wall: float = 1.0,
@@ -858,18 +484,16 @@ def euroc_room(duration: float = 60.0, seed: int = 0, *, room: Room = EUROC_ROOM
     InputError : ``duration`` too short for take-off, one cruise point and landing (names the least
         of 10 draws).
     """
-    import copy
-
     rng = np.random.default_rng([int(seed), 5])
     start, land = _free_floor_point(rng, room, keep_out, wall), _free_floor_point(rng, room, keep_out, wall)
-    plan = _Plan(np.array([start[0], start[1], rest_height]), float(rng.uniform(-np.pi, np.pi)), speed=speed,
+    plan = WaypointPlan(np.array([start[0], start[1], rest_height]), float(rng.uniform(-np.pi, np.pi)), speed=speed,
                  yaw_acc=max_yaw_acc)
     plan.hold(1.0, "rest")
     first = min(rng.uniform(*heights), top)
     plan.move((start[0], start[1], first), speed=vertical_speed, phase="takeoff")
     plan.hold(rng.uniform(*hold), "hover")
 
-    def finish(p: _Plan) -> _Plan:
+    def finish(p: WaypointPlan) -> WaypointPlan:
         _leg(p, np.array([land[0], land[1], p.p[2]]), room, clearance, margin, speed, "cruise")
         _descend(p, land, rest_height, vertical_speed)
         return p

@@ -3,7 +3,7 @@
 Units and conventions
 ---------------------
 - Intrinsics ``fu, fv, cu, cv`` and resolutions in pixels; pixel ``(row i, col j)`` is centred at
-  ``u = j``, ``v = i`` (as in :mod:`uavturb.scene.projection` and :mod:`uavturb.sim.render`, and
+  ``u = j``, ``v = i`` (as in :mod:`uavturb.scene.projection` and :mod:`uavturb.sim.core.render`, and
   as in EuRoC's Kalibr calibrations). Translations in metres, rates in hertz.
 - Optical frame C: x right, y down, z forward (the viewing direction).
 - S is EuRoC's body frame (the VI-sensor's IMU), B the rotor frame (``recordings.md``). A camera
@@ -18,8 +18,8 @@ Cameras
 ``forward`` (:data:`FORWARD`)
     The simulator's default camera, set by the preset's fields: at the body origin, looking along
     body +x pitched down by ``pitch_deg``, square pixels, vertical field of view ``yfov_deg``,
-    principal point at the image centre (:func:`uavturb.sim.render.camera_pose`,
-    :class:`uavturb.sim.render.SceneRenderer`).
+    principal point at the image centre (:func:`uavturb.sim.core.render.camera_pose`,
+    :class:`uavturb.sim.core.render.SceneRenderer`).
 ``euroc_cam0`` (:data:`CAMERAS`)
     The left camera of EuRoC's VI-sensor, mounted on the AscTec Firefly as in the V1 sequences:
     752 x 480 px at 20 Hz, looking forward about 20 deg down, its optical centre 0.13 m under

@@ -6,6 +6,10 @@ vehicle, the effects and the simulator's time steps. Its fields are the dataset 
 stored (with its hash) in ``manifest.json``; two runs with the same preset, overrides and
 seed write identical arrays.
 
+"Preset" means this one thing: a named simulated dataset, the value of ``--preset`` (stored under
+the key ``preset`` of every manifest's config, so part of its hash). Vehicles are built-in
+(``quad``, ``hex``) or shipped (``firefly``), never presets.
+
 =========  ======  =========  ============  ==========  ===========  ============
 preset     scenes  split      trajectories  samples     image        pairs
 =========  ======  =========  ============  ==========  ===========  ============
@@ -15,7 +19,7 @@ medium     27      18/3/6     60            ~25,000     32 x 32      2,000
 paper      68      43/9/16    531           ~360,000    128 x 128    22,705
 =========  ======  =========  ============  ==========  ===========  ============
 
-Trajectories are planned by :func:`uavturb.sim.planning.plan_trajectory` (random points
+Trajectories are planned by :func:`uavturb.sim.dataset.planning.plan_trajectory` (random points
 ordered by Christofides, A* around walls, take-offs, low hovers, landings and edge passes);
 their length follows from the number of random points (``plan_points``, drawn per
 trajectory): about 14 s with 1 point, 27 s with 2, 53 s with 3 on the generated scenes, so
@@ -41,6 +45,8 @@ from typing import Any
 
 from uavturb.errors import InputError
 from uavturb.physics.effects import DEFAULT_EFFECTS
+from uavturb.sim.core.cameras import CAMERA_NAMES
+from uavturb.sim.dataset.planning import PlanConfig
 
 
 @dataclass(frozen=True)
@@ -64,7 +70,7 @@ class SimPreset:
     max_seconds : float, s
         Cut flights longer than this (0: fly the whole plan, which ends landed).
     plan : dict
-        Overrides of :class:`uavturb.sim.planning.PlanConfig` fields (``n_points`` excepted).
+        Overrides of :class:`uavturb.sim.dataset.planning.PlanConfig` fields (``n_points`` excepted).
     camera_hz : float, Hz
         Sample (camera) rate.
     width, height : int, px
@@ -73,11 +79,11 @@ class SimPreset:
     pitch_deg : float, deg
         Downward pitch of the forward camera relative to body +x.
     camera : str
-        Camera of :mod:`uavturb.sim.cameras`: ``forward`` (default: at the body origin, ``yfov_deg``
+        Camera of :mod:`uavturb.sim.core.cameras`: ``forward`` (default: at the body origin, ``yfov_deg``
         and ``pitch_deg`` above) or a calibrated one (``euroc_cam0``: its intrinsics scaled to
         ``width x height`` and its mount on the body; ``yfov_deg`` and ``pitch_deg`` then unused).
         A camera hanging under the body origin raises the plan's landed and low-hover heights so
-        that it stays 3 cm over the surface (:func:`uavturb.sim.flyers.plan_config`: 0.16 m for
+        that it stays 3 cm over the surface (:func:`uavturb.sim.dataset.flying.plan_config`: 0.16 m for
         ``euroc_cam0``). The manifest's
         config names it only when it is not ``forward`` (existing datasets keep their hash).
     normals : bool
@@ -90,7 +96,7 @@ class SimPreset:
         Effects of ``effects.md`` simulated (``{name: {param: value}}``); ``ground_effect``
         gives the ``mu`` of the stored ``f_a``.
     controller : str
-        ``'auto'`` (the CasADi MPC of :mod:`uavturb.sim.scene_flight` when installed, else
+        ``'auto'`` (the CasADi MPC of :mod:`uavturb.sim.dataset.flying` when installed, else
         the geometric controller), ``'mpc'`` or ``'geometric'``.
     physics_dt : float, s
         Integration step of the physics of MPC flights (the MPC runs at its own rate,
@@ -163,7 +169,6 @@ class SimPreset:
             raise bad("plan_points", f"must be a non-empty list of integers >= 1, got {self.plan_points}")
         if self.max_seconds < 0:
             raise bad("max_seconds", f"must be >= 0, got {self.max_seconds}")
-        from uavturb.sim.planning import PlanConfig
 
         known = {f.name for f in fields(PlanConfig)} - {"n_points"}
         bad_keys = sorted(set(self.plan) - known)
@@ -174,7 +179,6 @@ class SimPreset:
                 raise bad(key, f"must be positive, got {getattr(self, key)}")
         if not 0 < self.yfov_deg < 180:
             raise bad("yfov_deg", f"must be in (0, 180), got {self.yfov_deg}")
-        from uavturb.sim.cameras import CAMERA_NAMES
 
         if self.camera not in CAMERA_NAMES:
             raise bad("camera", f"unknown camera {self.camera!r} (known: {', '.join(CAMERA_NAMES)})")

@@ -1,17 +1,18 @@
-"""Closed-loop flights through a scene along a planned reference.
+"""Closed-loop flights through a generated scene along a planned reference, and the dataset's
+two flyers (:data:`FLYERS`) built on them.
 
 ``fly_trajectory(scene, vehicle, seed, controller="mpc", camera_rate=20.0, ...)`` plans a
 reference as above and flies it in closed loop
-(:func:`uavturb.sim.closed_loop.run_closed_loop`):
+(:func:`uavturb.sim.core.closed_loop.run_closed_loop`):
 
 - physics every ``1 / physics_rate`` s (default 200 Hz): one RK4 step of the one model of
   :mod:`uavturb.physics.dynamics` with the effects of ``effects.md`` (default: the
   simulator's ground effect, ``mu = 2``) evaluated with the actual rotor speeds and the
   heights ``d_down``/``d_up`` over the scene (exact box queries of :mod:`~uavturb.scene.queries`,
   refreshed at the control rate and followed by the height change in between);
-- control every ``1 / control_rate`` s: ``controller="mpc"`` (:class:`~uavturb.sim.mpc.MPCController`,
+- control every ``1 / control_rate`` s: ``controller="mpc"`` (:class:`~uavturb.sim.core.mpc.MPCController`,
   default 25 Hz, a real-time-iteration MPC on the full quaternion model with rotor-speed
-  bounds) or ``"geometric"`` (:class:`~uavturb.sim.controller.GeometricController`, default
+  bounds) or ``"geometric"`` (:class:`~uavturb.sim.core.controller.GeometricController`, default
   200 Hz);
 - samples every ``1 / camera_rate`` s (the camera frames);
 - collision check of the position at every physics step (:func:`~uavturb.scene.queries.collides`: boxes grown by
@@ -25,22 +26,39 @@ Returns ``(states (T, 13), rotor_speeds (T, N), t (T,), info)``: states are ``p`
 start; ``info`` holds ``d_down`` (T,) [m] height of the body over the surface below,
 ``effect_force`` (T, 3) [N] in W, ``reference`` (a :class:`Setpoint` of K=T samples),
 ``phases``, the plan, timing figures and the collision report.
+
+The flyers of ``uavturb generate sim`` (:data:`FLYERS`) plan a reference in a scene with
+:func:`uavturb.sim.dataset.planning.plan_trajectory`, fly it in closed loop and sample it at the
+camera rate: ``mpc`` with the CasADi MPC through :func:`fly_trajectory`, ``geometric`` with the
+geometric controller through :func:`uavturb.sim.core.closed_loop.track_reference`.
 """
 
 from __future__ import annotations
 
+import math
 import time
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable
 
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io.vehicle_file import named_vehicle
+from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.scene.indoor import Scene
 from uavturb.scene.queries import collides, scene_heights
-from uavturb.sim.planning import PlanConfig, PlannedTrajectory, plan_trajectory
-from uavturb.sim.references import Reference
-
-__all__ = ["CONTROLLERS", "make_controller", "fly_trajectory"]
+from uavturb.sim.core.cameras import least_body_height
+from uavturb.sim.core.closed_loop import (
+    CollisionWatch,
+    GeometricTracker,
+    initial_state,
+    run_closed_loop,
+    track_reference,
+)
+from uavturb.sim.core.mpc import MPCController
+from uavturb.sim.core.signals import Reference
+from uavturb.sim.dataset.planning import PlanConfig, PlannedTrajectory, plan_trajectory
+from uavturb.sim.dataset.presets import SimPreset
 
 CONTROLLERS = ("mpc", "geometric")
 
@@ -58,13 +76,9 @@ def make_controller(kind: str, vehicle: Any, reference: Reference, control_rate:
     """A controller for :func:`fly_trajectory` and its rate [Hz] (defaults: MPC 25 Hz,
     geometric 200 Hz)."""
     if kind == "mpc":
-        from uavturb.sim.mpc import MPCController
-
         rate = 25.0 if control_rate is None else float(control_rate)
         return MPCController(vehicle, reference, dt=1.0 / rate, **options), rate
     if kind == "geometric":
-        from uavturb.sim.closed_loop import GeometricTracker
-
         rate = 200.0 if control_rate is None else float(control_rate)
         dt = 1.0 / rate
         return GeometricTracker(vehicle, reference, dt, int(np.ceil(reference.duration / dt)) + 2), rate
@@ -81,7 +95,7 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
     Parameters
     ----------
     scene : Scene
-    vehicle : Vehicle or preset name (``quad``: the paper's 50 g drone; ``hex``)
+    vehicle : Vehicle or built-in vehicle (``quad``: the paper's 50 g drone; ``hex``)
     seed : fixes the plan (the flight itself is deterministic)
     controller : ``"mpc"`` or ``"geometric"``
     camera_rate : Hz, sample rate of the output (camera frames)
@@ -105,8 +119,6 @@ def fly_trajectory(scene: Scene, vehicle: Any = "quad", seed: int = 0, controlle
         truncated at its first hit), ``collision_time`` (s or None), ``tracking_error`` (T,) m,
         ``solve_ms`` (controller update times), ``wall_s``, ``samples_per_s``, ``controller``.
     """
-    from uavturb.io.vehicle_file import named_vehicle
-    from uavturb.physics.effects import DEFAULT_EFFECTS
 
     wall0 = time.perf_counter()
     veh = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
@@ -144,8 +156,7 @@ def _fly_until_collision(scene: Scene, veh: Any, planned: PlannedTrajectory, ctr
                          effects: dict[str, dict[str, float]], duration: float, *, physics_rate: float,
                          control_rate: float, camera_rate: float) -> Any:
     """The closed loop of ``ctrl`` flying ``planned``'s reference [Hz rates], stopped at the first hit of the
-    scene (:func:`uavturb.sim.closed_loop.run_closed_loop`'s result, recorded at ``camera_rate``)."""
-    from uavturb.sim.closed_loop import CollisionWatch, initial_state, run_closed_loop
+    scene (:func:`uavturb.sim.core.closed_loop.run_closed_loop`'s result, recorded at ``camera_rate``)."""
 
     ref = planned.reference
     cam_every = _ratio(physics_rate, camera_rate, "camera_rate")
@@ -175,3 +186,115 @@ def _frames_before_collision(loop: Any, camera_rate: float) -> tuple[int, bool, 
         k = max(k - 1, 0)  # drop the last frame before the hit too: the vehicle was about to touch
     return k, collided, t_hit
 
+
+# --- the flyers of the dataset --------------------------------------------------------
+
+
+@dataclass
+class Flight:
+    """What a flyer returns, sampled at the camera rate.
+
+    Attributes
+    ----------
+    t : (T,) s from the start
+    state : (T, 13) ``p`` (m, W), ``q`` (w, x, y, z, body to world), ``v`` (m/s, W), ``omega`` (rad/s, B)
+    rotor_speeds : (T, N) rad/s, actual rotor speeds
+    timing : seconds spent in ``control`` and ``physics``
+    info : free-form (controller, tracking error...)
+    """
+
+    t: np.ndarray
+    state: np.ndarray
+    rotor_speeds: np.ndarray
+    timing: dict[str, float] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def plan_config(preset: SimPreset, n_points: int, rotor_radius: float):
+    """The :class:`~uavturb.sim.dataset.planning.PlanConfig` of a preset's trajectory with ``n_points`` points.
+
+    A camera that hangs under the body origin (0.13 m for ``euroc_cam0``) would look from under
+    the floor when landed at a few centimetres: the landed height and the lowest low hover become
+    at least :func:`uavturb.sim.core.cameras.least_body_height` (0.16 m for ``euroc_cam0``: the vehicle
+    stands on legs that tall). ``forward`` changes nothing.
+    """
+    cfg = PlanConfig(**{**preset.plan, "n_points": int(n_points)})
+    floor = least_body_height(preset.camera)
+    if floor > 0:
+        lo, hi = cfg.low_heights
+        cfg = replace(cfg, rest_height=max(cfg.rest_for(rotor_radius), floor),
+                      low_heights=(max(lo, floor), max(hi, floor)))
+    return cfg
+
+
+def _plan(scene, vehicle, task_seed: int, n_points: int, preset: SimPreset):
+    cfg = plan_config(preset, n_points, vehicle.rotor_radius)
+    return plan_trajectory(scene, task_seed, cfg, rotor_radius=vehicle.rotor_radius,
+                           vehicle_radius=vehicle.arm_length + vehicle.rotor_radius)
+
+
+def _duration(planned, preset: SimPreset) -> float:
+    """Flight length [s]: the plan's, cut at ``max_seconds``, on the camera grid."""
+    dur = float(planned.reference.duration)
+    if preset.max_seconds > 0:
+        dur = min(dur, preset.max_seconds)
+    return math.floor(dur * preset.camera_hz + 1e-9) / preset.camera_hz
+
+
+def fly_geometric(scene, vehicle, task_seed: int, n_points: int, preset: SimPreset) -> Flight:
+    """Plan with :func:`uavturb.sim.dataset.planning.plan_trajectory`, fly with the geometric controller.
+
+    Physics: :func:`uavturb.sim.core.closed_loop.track_reference` (RK4 and controller every
+    ``geometric_dt`` with the preset's effects and the exact heights of the scene; the
+    reference sampled once, vectorised), sampled at the camera rate. The controller's share
+    of the time is what the closed loop reports for its controller calls.
+    """
+    t0 = time.perf_counter()
+    planned = _plan(scene, vehicle, task_seed, n_points, preset)
+    t_plan = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    record_dt = 1.0 / preset.camera_hz
+    effects = {k: dict(v) for k, v in preset.effects.items()}
+    lag = effects.pop("motor_lag", None)
+    loop = track_reference(vehicle, planned.reference, scene_heights(scene), duration=_duration(planned, preset),
+                           effects=effects, physics_dt=preset.geometric_dt, control_dt=preset.geometric_dt,
+                           record_dt=record_dt, motor_tau=float(lag["tau"]) if lag is not None else 0.0)
+    total = time.perf_counter() - t0
+    rec_every = int(round(record_dt / preset.geometric_dt))
+    t = np.arange(len(loop.x)) * (rec_every * preset.geometric_dt)
+    error = loop.x[:, 0:3] - planned.reference(t).p
+    return Flight(t=t, state=loop.x, rotor_speeds=loop.rotor_speeds,
+                  timing={"control": t_plan + loop.control_s, "physics": total - loop.control_s},
+                  info={"controller": "geometric", "plan_s": t_plan, "plan_points": int(n_points),
+                        "tracking_rms_m": float(np.sqrt(np.mean(np.sum(error**2, axis=1))))})
+
+
+def fly_mpc(scene, vehicle, task_seed: int, n_points: int, preset: SimPreset) -> Flight:
+    """Plan and fly with :func:`fly_trajectory` and its CasADi MPC
+    (physics at ``1 / physics_dt``, the MPC at its default rate; truncated at a collision)."""
+    t0 = time.perf_counter()
+    planned = _plan(scene, vehicle, task_seed, n_points, preset)
+    t_plan = time.perf_counter() - t0
+    states, rotor_speeds, t, info = fly_trajectory(
+        scene, vehicle, task_seed, controller="mpc", camera_rate=preset.camera_hz,
+        physics_rate=1.0 / preset.physics_dt, effects={k: dict(v) for k, v in preset.effects.items()},
+        plan=planned, duration=_duration(planned, preset))
+    return Flight(t=np.asarray(t), state=np.asarray(states), rotor_speeds=np.asarray(rotor_speeds),
+                  timing={"control": t_plan + float(info.get("control_s", float("nan"))),
+                          "physics": float(info.get("physics_s", float("nan")))},
+                  info={"controller": "mpc", "plan_s": t_plan, "plan_points": int(n_points),
+                        "collided": bool(info.get("collided", False)),
+                        "tracking_rms_m": float(np.sqrt(np.mean(np.asarray(info.get("tracking_error", [0.0])) ** 2)))})
+
+
+#: name -> flyer(scene, vehicle, task_seed, n_points, preset) -> Flight
+FLYERS: dict[str, Callable[..., Flight]] = {"geometric": fly_geometric, "mpc": fly_mpc}
+
+
+def resolve_controller(name: str) -> str:
+    """``auto`` -> ``mpc`` (the CasADi MPC of :func:`fly_trajectory`); ``mpc`` and ``geometric`` as they are."""
+    if name == "auto":
+        return "mpc"
+    if name not in FLYERS:
+        raise InputError("controller", f"unknown controller {name!r} (known: auto, {', '.join(FLYERS)})")
+    return name

@@ -1,6 +1,6 @@
 """Real recordings' troubles, reproduced on simulated flights with a known truth.
 
-``uavturb generate flight`` simulates a flight (:func:`uavturb.sim.flight.simulate_flight`:
+``uavturb generate flight`` simulates a flight (:func:`uavturb.sim.flights.simulate.simulate_flight`:
 true states, rotor speeds, accelerations, and the clean 200 Hz recording of ``recordings.md``
 in B). The :class:`Conditions` here make it look like a real recording, each trouble written
 down in ``truth.yaml`` (:func:`truth_document`) so that tests and the gap proof can score
@@ -51,7 +51,7 @@ against it:
     ``vehicle.yaml``'s mass is the simulated mass times ``1 + mass_error``.
 ``ground_contact_s``
     the recording starts and ends with ``ground_contact_s`` seconds on the landing gear, rotors
-    spinning (:mod:`uavturb.sim.ground_contact`): still, level, at the flight's landed height
+    spinning (:mod:`uavturb.sim.flights.ground_contact`): still, level, at the flight's landed height
     (the first and last set-points of ``low_passes``, ``mixed`` and ``euroc_room`` flights, over the
     floor), the IMU reading gravity, the lift (thrust plus the effects' vertical force) ramping
     from 40 % of the weight to 70 % before take-off and back after landing, the floor carrying
@@ -62,7 +62,7 @@ against it:
     ``position_hold_hz``) or the ``rotors0`` rows keep their rate (``rate_hz`` or 200 Hz), but the
     value only updates at the hold rate: each update, at ``t0 + k / hold_hz``, appears in the first
     row at or after it with that row's own value, and is repeated bit for bit until the next
-    (:func:`~uavturb.sim.stream_troubles.held_rows`). ``truth.yaml``: the update rates and counts.
+    (:func:`~uavturb.sim.flights.stream_troubles.held_rows`). ``truth.yaml``: the update rates and counts.
 ``rotor_delay_s``
     the ``rotors0`` timestamps are late: the row at ``t`` holds the rotor value in force at
     ``t - delay`` (the 200 Hz stream shifted before any resampling or holding; the first value
@@ -76,7 +76,7 @@ against it:
     ``az`` in the airframe's x-y plane (a bent arm, tilted motor mounts). The physics runs in the
     rotor frame B; the recording's attitude and IMU are the *airframe's* (the motion-capture
     markers and the flight controller's IMU sit on it), ``R_WS = R_WB R_SB^T`` with ``R_SB`` the
-    tilt (:func:`~uavturb.sim.stream_troubles.tilt_rotation`), the IMU's gyro and accelerometer
+    tilt (:func:`~uavturb.sim.flights.stream_troubles.tilt_rotation`), the IMU's gyro and accelerometer
     rotated alike, and ``vehicle.yaml`` does not know it (no ``T_BS``). A model thrusting along the
     airframe's z then sees a push fixed in the airframe, ``m g sin(tilt)`` at hover towards
     ``az``: at a fixed heading it looks like ``wind``, which it is not (``effects.md``'s
@@ -86,11 +86,11 @@ against it:
     the rotor discs' plane sits ``rotor_plane_z`` [m] above the body origin along z_B (negative:
     below), written in ``vehicle.yaml``; surface effects act at the rotor plane's height (the
     simulator's closed loop), and low flights are planned for the rotor plane
-    (:func:`uavturb.sim.flight.low_heights`).
+    (:func:`uavturb.sim.flights.simulate.low_heights`).
 ``measured_rotors``
     ``rotors0`` holds the rotor speeds the ESCs measure: the actual speeds (lagging the commands
     by the motor time constant of a ``motor_lag`` in the physics), slowed by a ``battery_sag`` as a
-    sagging voltage would (:func:`~uavturb.sim.stream_troubles.measured_speeds`, the nominal
+    sagging voltage would (:func:`~uavturb.sim.flights.stream_troubles.measured_speeds`, the nominal
     model's thrust is then the true one), quantised like commands; ``vehicle.yaml``'s
     ``rotor_speed_source`` is ``measured``. A ``battery_sag`` or ``motor_lag`` in the physics is then
     invisible: ``truth.yaml`` lists them under ``invisible_effects`` and leaves them out of
@@ -114,15 +114,19 @@ import yaml
 from uavturb.errors import InputError
 from uavturb.io import align
 from uavturb.io.recording import GroundTruth, Recording, Rotors
+from uavturb.io.vehicle_file import named_vehicle
+from uavturb.io.writer import write_recording
 from uavturb.io.yaml_mapping import read_yaml_mapping
 from uavturb.physics import frames
 from uavturb.physics.dynamics import GRAVITY, IDX_W, dynamics_for, physical_params
-from uavturb.physics.effects import EFFECTS
+from uavturb.physics.effects import EFFECTS, parse_effects
 from uavturb.physics.vehicle import Vehicle
-from uavturb.sim.flight import SensorNoise
-from uavturb.sim.ground_contact import with_ground_contact
-from uavturb.sim.references import Constant, Reference
-from uavturb.sim.stream_troubles import (
+from uavturb.sim.flights import euroc_standin
+from uavturb.sim.core.signals import Constant, Reference
+from uavturb.sim.flights.ground_contact import with_ground_contact
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import flight_room, make_reference, simulate_flight
+from uavturb.sim.flights.stream_troubles import (
     DRAIN_SAG,
     battery_stream,
     delayed_rows,
@@ -385,7 +389,7 @@ def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Veh
 
     Parameters
     ----------
-    rec, truth : :func:`~uavturb.sim.flight.simulate_flight`'s outputs
+    rec, truth : :func:`~uavturb.sim.flights.simulate.simulate_flight`'s outputs
     cond : Conditions
     true_vehicle : the simulated vehicle (with ``thrust_level`` already in its ``k_T``)
     effects : the simulated effects (``{name: params}``)
@@ -588,11 +592,11 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
 
     Parameters
     ----------
-    vehicle : preset name, ``vehicle.yaml`` path or Vehicle (the simulated, true vehicle; the shipped
-        ``firefly`` flies with RotorS's constants, :func:`uavturb.sim.euroc_standin.flyable`)
+    vehicle : built-in vehicle (``hex``, ``quad``), ``vehicle.yaml`` path or Vehicle (the simulated, true vehicle; the shipped
+        ``firefly`` flies with RotorS's constants, :func:`uavturb.sim.flights.euroc_standin.flyable`)
     effects : ``"wind:f_x=0.5,rotor_drag"`` or the parsed dict (``effects.md``)
-    duration : s; kind : flight kind (:data:`uavturb.sim.flight.KINDS`; ``euroc_room`` adds EuRoC's
-        VI-sensor frame and cam0, :mod:`uavturb.sim.euroc_standin`); seed : reference and noise
+    duration : s; kind : flight kind (:data:`uavturb.sim.flights.simulate.KINDS`; ``euroc_room`` adds EuRoC's
+        VI-sensor frame and cam0, :mod:`uavturb.sim.flights.euroc_standin`); seed : reference and noise
     conditions : Conditions
     noise : SensorNoise (default realistic); ``accel_bias_walk`` sets its ``acc_random_walk``
     out : recording folder to write; overwrite : replace it
@@ -601,12 +605,6 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
     -------
     Conditioned (``recording.path`` set when written).
     """
-    from uavturb.io.vehicle_file import named_vehicle
-    from uavturb.io.writer import write_recording
-    from uavturb.physics.effects import parse_effects
-    from uavturb.sim import euroc_standin
-    from uavturb.sim.flight import flight_room, make_reference, simulate_flight
-
     stand_in = kind == euroc_standin.KIND
     v = euroc_standin.flyable(named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle)
     v = euroc_standin.with_vi_sensor(v) if stand_in else v
@@ -626,13 +624,13 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
         wind = np.array([conditions.wind_speed[0], conditions.wind_speed[1], 0.0])
     rec, truth = simulate_flight(v, ref, duration=duration, effects=eff, noise=noise, seed=seed, wind=wind,
                                  room=room)
-    w_max = v.max_rotor_speed or 2.5 * v.hover_speed()  # the controller's bound (sim.controller)
+    w_max = v.max_rotor_speed or 2.5 * v.hover_speed()  # the controller's bound (sim.core.controller)
     out_c = condition(rec, truth, conditions, true_vehicle=v, effects=eff, seed=seed, w_max=w_max, noise=noise)
     out_c.truth = truth_document(v, eff, out_c.truth, seed=seed, kind=kind, duration=duration)
     if stand_in:  # EuRoC's cam0, its T_BS relative to the recording's S
         out_c.recording = euroc_standin.with_cam0(out_c.recording)
         out_c.truth["stand_in"] = euroc_standin.truth_entry()
-    out_c.extras[TRUTH_FILE] = ("# what the simulator knows and the recording does not (uavturb.sim.conditions)\n"
+    out_c.extras[TRUTH_FILE] = ("# what the simulator knows and the recording does not (uavturb.sim.flights.conditions)\n"
                                 + yaml.safe_dump(out_c.truth, sort_keys=False))
     if out is not None:
         write_recording(out_c.recording, out, overwrite=overwrite, extras=out_c.extras)

@@ -7,7 +7,7 @@ crosses a wall, and follows straight lines between them with the yaw facing forw
 an MPC flies the drone along this reference and collisions are checked. This module
 does the same on a :class:`~uavturb.scene.indoor.Scene`:
 
-1. **Navigation map** (:class:`~uavturb.sim.navigation.NavGrid`, :func:`build_grid`): :meth:`Scene.free_space_grid` at a cruise
+1. **Navigation map** (:class:`~uavturb.sim.dataset.navigation.NavGrid`, :func:`build_grid`): :meth:`Scene.free_space_grid` at a cruise
    height ``z_c`` (drawn per trajectory) with a clearance margin and a height band, plus
    the height of the surface below every cell (:func:`~uavturb.scene.queries.height_below`
    from ``z_c``). A cell is *flat* when that surface is level within ``flat_tol`` over a
@@ -19,9 +19,9 @@ does the same on a :class:`~uavturb.scene.indoor.Scene`:
    complete graph whose edge weights are the shortest grid-path lengths between points
    (8-connected Dijkstra on the free cells), then cut into an open path at the start.
 4. **Legs**: a straight line when its grid cells are free, else the A* grid path
-   (:func:`~uavturb.sim.navigation.astar`, octile heuristic) simplified to its corner points
-   (line-of-sight string pulling, :func:`~uavturb.sim.navigation.simplify_path`). Straight segments at cruise height, stop and go
-   (each segment starts and ends at rest, :class:`~uavturb.sim.references.Waypoints`),
+   (:func:`~uavturb.sim.dataset.navigation.astar`, octile heuristic) simplified to its corner points
+   (line-of-sight string pulling, :func:`~uavturb.sim.dataset.navigation.simplify_path`). Straight segments at cruise height, stop and go
+   (each segment starts and ends at rest, :class:`~uavturb.sim.core.signals.Waypoints`),
    the yaw turned in place at every corner to face the next segment.
 5. **Altitude profile** (where ground effect matters): take-off from rest on the floor,
    low hovers and landings at floor and top points (heights drawn log-uniformly in
@@ -31,7 +31,7 @@ does the same on a :class:`~uavturb.scene.indoor.Scene`:
    the forward camera cannot see it (the paper's negative measurement delay). The flight
    ends landed.
 
-The output is a :class:`~uavturb.sim.references.Reference` (position, velocity,
+The output is a :class:`~uavturb.sim.core.signals.Reference` (position, velocity,
 acceleration, jerk and yaw as functions of time) that both controllers consume.
 """
 
@@ -45,8 +45,9 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.scene.indoor import Scene
 from uavturb.scene.queries import height_below
-from uavturb.sim.navigation import NavGrid, astar, christofides_order, simplify_path
-from uavturb.sim.references import Reference, _Plan
+from uavturb.sim.dataset.navigation import NavGrid, astar, christofides_order, simplify_path
+from uavturb.sim.core.signals import Reference
+from uavturb.sim.core.waypoint_plan import WaypointPlan, wrap_near
 
 __all__ = ["PlanConfig", "PlannedTrajectory", "build_grid", "plan_trajectory"]
 
@@ -165,15 +166,10 @@ def _log_uniform(rng: np.random.Generator, lo_hi: tuple[float, float]) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def _wrap_to(yaw: float, near: float) -> float:
-    """``yaw`` [rad] shifted by a multiple of 2 pi to lie within pi of ``near``."""
-    return near + (yaw - near + np.pi) % (2 * np.pi) - np.pi
-
-
 class _Builder:
-    """Appends moves to a :class:`_Plan`, with yaw facing forward on horizontal moves."""
+    """Appends moves to a :class:`WaypointPlan`, with yaw facing forward on horizontal moves."""
 
-    def __init__(self, plan: _Plan, config: PlanConfig):
+    def __init__(self, plan: WaypointPlan, config: PlanConfig):
         self.plan, self.c = plan, config
 
     @property
@@ -184,7 +180,7 @@ class _Builder:
         d = np.asarray(target_xy, float)[:2] - self.p[:2]
         if np.hypot(*d) < 1e-6:
             return
-        yaw = _wrap_to(math.atan2(d[1], d[0]), self.plan.yaw)
+        yaw = wrap_near(math.atan2(d[1], d[0]), self.plan.yaw)
         if abs(yaw - self.plan.yaw) > 1e-3:
             self.plan.move(self.p, yaw, phase=phase)
 
@@ -282,7 +278,7 @@ def plan_trajectory(scene: Scene, seed: int, config: PlanConfig = PlanConfig(), 
 
     rest = config.rest_for(rotor_radius)
     yaw0 = float(rng.uniform(-np.pi, np.pi))
-    plan = _Plan(np.r_[P[0], surf[0] + rest], yaw0, speed=config.speed, acc=config.acc,
+    plan = WaypointPlan(np.r_[P[0], surf[0] + rest], yaw0, speed=config.speed, acc=config.acc,
                  yaw_rate=config.yaw_rate, yaw_acc=config.yaw_acc)
     b = _Builder(plan, config)
     corners = [plan.p.copy()]

@@ -1,6 +1,6 @@
 """Model predictive control of a multirotor on the full quaternion model of the physics core.
 
-The controller follows a :class:`~uavturb.sim.references.Reference` (position, velocity,
+The controller follows a :class:`~uavturb.sim.core.signals.Reference` (position, velocity,
 acceleration and yaw in time) with the rotor speeds as inputs and their bounds
 ``0 <= Omega_i <= Omega_max`` as constraints, on the one CasADi model of
 :mod:`uavturb.physics.dynamics` (the paper's eq. 1: state ``p, q (w, x, y, z), v, w``,
@@ -31,7 +31,7 @@ acceleration and yaw in time) with the rotor speeds as inputs and their bounds
 
 The first input is applied (zero-order hold) until the next update, ``dt`` later (the
 MPC runs slower than the physics: 25 Hz by default, physics at 200 Hz in
-:func:`~uavturb.sim.scene_flight.fly_trajectory`).
+:func:`~uavturb.sim.dataset.flying.fly_trajectory`).
 
 Timing: :class:`MPCController` records every update's wall time in ``solve_times`` [s];
 ``uavturb bench``-style figures come from :func:`benchmark`.
@@ -54,16 +54,11 @@ import casadi as ca
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.physics.dynamics import (
-    GRAVITY,
-    IDX_Q,
-    IDX_W,
-    N_STATE,
-    dynamics_for,
-    physical_params,
-)
+from uavturb.io.vehicle_file import named_vehicle
+from uavturb.physics import quaternion as quat
+from uavturb.physics.dynamics import GRAVITY, IDX_Q, IDX_W, N_STATE, dynamics_for, physical_params
 from uavturb.physics.vehicle import Vehicle
-from uavturb.sim.references import Reference
+from uavturb.sim.core.signals import Constant, Reference, Waypoints
 
 __all__ = ["MPCWeights", "MPCController", "box_qp", "flat_attitude", "benchmark"]
 
@@ -420,9 +415,6 @@ def benchmark(vehicle: Vehicle | str = "quad", seconds: float = 10.0, **options:
 
     Returns ``{"mean_ms", "median_ms", "p95_ms", "max_ms", "updates", "rms_error_m"}``.
     """
-    from uavturb.io.vehicle_file import named_vehicle
-    from uavturb.sim.references import Constant, Waypoints
-
     v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     ref = Reference(Waypoints((0.0, 1.0, 3.0, 5.0), (0.0, 0.0, 1.0, 1.0)), Constant(0.0),
                     Waypoints((0.0, 1.0, 3.0), (1.0, 1.0, 1.3)), Constant(0.0), seconds, "bench")
@@ -441,8 +433,6 @@ def track(vehicle: Vehicle, reference: Reference, duration: float, physics_rate:
     Returns ``{"t" (K,), "x" (K, 13), "omega" (K, N), "error" (K,) m, "solve_ms" (U,)}`` at
     the control rate.
     """
-    from uavturb.physics import quaternion as quat
-
     ctrl = MPCController(vehicle, reference, **options)
     dyn = dynamics_for(vehicle)
     theta = physical_params(vehicle)

@@ -6,7 +6,7 @@ import numpy as np
 
 from uavturb.scene.indoor import Scene
 from uavturb.scene.queries import height_below
-from uavturb.sim.planning import PlannedTrajectory
+from uavturb.sim.dataset.planning import PlannedTrajectory
 
 
 def plot_flight(scene: Scene, plan: PlannedTrajectory, path: str, states: np.ndarray | None = None,

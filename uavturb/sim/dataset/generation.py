@@ -15,17 +15,17 @@ Pipeline of a trajectory (:func:`make_trajectory`)
 1. *fly*: a flyer (:data:`FLYERS`) plans a reference in the scene and closes the loop
    around the physics (dynamics of :mod:`uavturb.physics.dynamics`, effects of the
    preset) and returns states and rotor speeds at the camera rate. Both flyers plan with
-   :func:`uavturb.sim.planning.plan_trajectory` (random points, Christofides, A*,
+   :func:`uavturb.sim.dataset.planning.plan_trajectory` (random points, Christofides, A*,
    take-offs, low hovers, landings, edge passes); ``mpc`` flies with the CasADi MPC of
-   :mod:`uavturb.sim.mpc` through :func:`~uavturb.sim.scene_flight.fly_trajectory`,
-   ``geometric`` with the geometric controller through :func:`uavturb.sim.closed_loop.track_reference`
+   :mod:`uavturb.sim.core.mpc` through :func:`~uavturb.sim.dataset.flying.fly_trajectory`,
+   ``geometric`` with the geometric controller through :func:`uavturb.sim.core.closed_loop.track_reference`
    (the closed loop both share).
    The flyer is pluggable (:data:`FLYERS`).
 2. *collide*: the flight is truncated before the first sample where the vehicle (a
    cylinder of radius ``arm_length + rotor_radius``) touches the scene
    (:func:`uavturb.scene.queries.collides`); truncations are counted.
 3. *measure*: ``d`` and ``f_a``.
-4. *render*: depth (and normals, colour) with one :class:`~uavturb.sim.render.SceneRenderer`
+4. *render*: depth (and normals, colour) with one :class:`~uavturb.sim.core.render.SceneRenderer`
    per scene and worker (headless EGL), camera pitched down by ``pitch_deg``.
 5. *write*: :func:`uavturb.data.shards.write_trajectory` (atomic).
 
@@ -60,26 +60,26 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from uavturb.errors import InputError
+from uavturb.io import shards
 from uavturb.io.publish import atomic_folder
-from uavturb.sim.flyers import resolve_controller
 from uavturb.progress import progress_bar, show_rate
-from uavturb.sim.presets import SimPreset, get_preset
-from uavturb.sim.tasks import Task, parse_shard, plan_tasks
-from uavturb.sim.trajectory import RENDERERS, init_worker, work
+from uavturb.sim.dataset.assignment import Task, parse_shard, plan_tasks
+from uavturb.sim.dataset.flying import resolve_controller
+from uavturb.sim.dataset.presets import SimPreset, get_preset
+from uavturb.sim.dataset.trajectory_arrays import RENDERERS, init_worker, work
 
 GENERATOR_VERSION = 1
 
 
 def dataset_config(preset: SimPreset, seed: int, controller: str) -> dict[str, Any]:
     """The config stored in the manifest (and hashed): everything that fixes the arrays."""
+    # "generator" names the writer as manifests have always named it (part of the config hash: kept as it was)
     return {"generator": "uavturb.sim.dataset", "generator_version": GENERATOR_VERSION, "seed": int(seed),
             "controller": controller, "preset": preset.to_dict()}
 
 
 def _existing(out: Path, tasks: Sequence[Task], chash: str) -> dict[str, dict[str, Any]]:
     """Metas of finished trajectories of ``tasks`` under ``out``; refuses another config's data."""
-    from uavturb.io import shards
-
     done = {}
     for task in tasks:
         folder = out / task.name
@@ -116,8 +116,6 @@ def time_split(metas: Sequence[dict[str, Any]]) -> dict[str, float]:
 
 def _write_manifest(out: Path, tasks: Sequence[Task], metas: dict[str, dict[str, Any]], config: dict[str, Any],
                     extra: dict[str, Any]):
-    from uavturb.io import shards
-
     splits: dict[str, list[str]] = {s: [] for s in shards.SPLITS}
     for task in tasks:
         if task.name in metas:
@@ -135,7 +133,7 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
 
     Parameters
     ----------
-    preset : ``tiny``, ``quick``, ``paper`` or a :class:`~uavturb.sim.presets.SimPreset`
+    preset : ``tiny``, ``quick``, ``paper`` or a :class:`~uavturb.sim.dataset.presets.SimPreset`
     out : dataset folder (created)
     workers : processes (each with its own EGL renderer); 1 runs in this process
     seed : dataset seed
@@ -151,8 +149,6 @@ def generate_sim(preset: str | SimPreset = "quick", out: str | Path = "data/sim"
     -------
     uavturb.data.shards.Manifest of what ``out`` holds for this shard.
     """
-    from uavturb.io import shards
-
     p = get_preset(preset, **overrides)
     if int(workers) < 1:
         raise InputError("--workers", f"must be at least 1, got {workers}")
@@ -245,7 +241,7 @@ def _run_jobs(jobs: list, workers: int, out: str, chash: str, done: Callable[[di
 
 
 def _ray_work(job: tuple[Task, SimPreset, int, str, str], chash: str) -> dict[str, Any]:
-    """:func:`uavturb.sim.trajectory.work` as a Ray task (a worker process is reused: its renderers too)."""
+    """:func:`uavturb.sim.dataset.trajectory_arrays.work` as a Ray task (a worker process is reused: its renderers too)."""
     init_worker(job[4], chash)
     return work(job)
 
@@ -302,8 +298,6 @@ def merge_datasets(dirs: Sequence[str | Path], out: str | Path):
     uavturb.data.shards.Manifest of the merged dataset (``complete`` tells whether every
     trajectory of the config is there).
     """
-    from uavturb.io import shards
-
     if not dirs:
         raise InputError("merge", "give at least one dataset folder")
     out = Path(out)
@@ -357,7 +351,6 @@ def describe(root: str | Path) -> str:
     """A few lines on a dataset folder: counts per split, statistics, throughput."""
     import json
 
-    from uavturb.io import shards
 
     m = shards.read_manifest(root)
     body = json.loads((Path(root) / shards.MANIFEST).read_text())

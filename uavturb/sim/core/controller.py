@@ -43,7 +43,7 @@ from uavturb.physics.dynamics import (
     rotation_matrix_sym,
 )
 from uavturb.physics.vehicle import Vehicle
-from uavturb.sim.references import Setpoint
+from uavturb.sim.core.signals import Setpoint
 
 E_Z = np.array([0.0, 0.0, 1.0])
 

@@ -11,7 +11,7 @@ Nobody outside this module needs to know about G.
 Pixel ``(row i, col j)`` is centred at ``u = j``, ``v = i`` with the intrinsics of
 :attr:`SceneRenderer.K`: ``fx = fy = (H / 2) / tan(yfov / 2)``, ``cx = (W - 1) / 2``,
 ``cy = (H - 1) / 2``, or the calibrated ``K`` it is given (``SceneRenderer(..., K=...)``, a camera
-of :mod:`uavturb.sim.cameras`).
+of :mod:`uavturb.sim.core.cameras`).
 
 - :meth:`SceneRenderer.depth` returns the **z-depth** (distance along the optical axis,
   not along the ray) in metres, ``0`` where nothing is hit within ``[znear, zfar]``.
@@ -47,6 +47,9 @@ import trimesh  # noqa: E402
 
 from uavturb.errors import InputError  # noqa: E402
 from uavturb.physics import quaternion as quat  # noqa: E402
+from uavturb.scene.indoor import Scene  # noqa: E402
+from uavturb.scene.procedural import generate_scene  # noqa: E402
+from uavturb.scene.queries import inside_obstacle  # noqa: E402
 
 #: Optical frame C (x right, y down, z forward) to OpenGL camera frame G (x right, y up, z back).
 T_CG = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -197,7 +200,7 @@ class SceneRenderer:
     K : (3, 3) float array, px, optional
         Pinhole intrinsics (pixel centres at integer ``u, v``) instead of ``yfov_deg``'s symmetric
         camera: a calibrated camera scaled to this image size
-        (:func:`uavturb.sim.cameras.scaled_intrinsics`). ``yfov_deg`` is then unused.
+        (:func:`uavturb.sim.core.cameras.scaled_intrinsics`). ``yfov_deg`` is then unused.
     """
 
     def __init__(
@@ -211,8 +214,6 @@ class SceneRenderer:
         rgb: bool = False,
         K: np.ndarray | None = None,
     ):
-        from uavturb.scene.indoor import Scene
-
         scene = scene_mesh if isinstance(scene_mesh, Scene) else None
         mesh = scene.mesh if scene is not None else scene_mesh
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
@@ -413,8 +414,6 @@ def random_poses(scene, n: int, seed: int = 0, pitch_deg: float = 20.0) -> np.nd
     Positions are uniform over the rooms' free floor area at 0.3-1.8 m height, at least
     0.1 m from any solid, with random yaw, and the camera pitched down by ``pitch_deg``.
     """
-    from uavturb.scene.queries import inside_obstacle
-
     rng = np.random.default_rng(seed)
     rooms = scene.rooms
     T = np.empty((n, 4, 4))
@@ -445,8 +444,6 @@ def benchmark(n: int = 500, width: int = 128, height: int = 128, seed: int = 3) 
     dict with ``depth_fps`` (depth only), ``normals_fps`` (depth and normals, one pass,
     decoding included), ``scene_faces``.
     """
-    from uavturb.scene.procedural import generate_scene
-
     scene = generate_scene(seed)
     poses = random_poses(scene, n)
     with SceneRenderer(scene, width, height) as r:

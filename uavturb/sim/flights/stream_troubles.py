@@ -1,8 +1,8 @@
 """What loggers and airframes do to a recording's streams: held values, late rotor telemetry,
 measured rotor speeds, a battery's voltage, a thrust axis tilted from the airframe.
 
-Used by :func:`uavturb.sim.conditions.condition` (the laws are stated there, in the module
-docstring of :mod:`uavturb.sim.conditions`, and in ``truth.yaml``).
+Used by :func:`uavturb.sim.flights.conditions.condition` (the laws are stated there, in the module
+docstring of :mod:`uavturb.sim.flights.conditions`, and in ``truth.yaml``).
 """
 
 from __future__ import annotations
