@@ -135,10 +135,9 @@ def bench(what: str) -> None:
         return
     if what == "flights":  # MPC solve times and closed-loop flight speed (uavturb.bench.flights)
         from uavturb.bench import flights as flight_benchmark
-        from uavturb.sim.core import mpc
         from uavturb.sim.dataset.flying import CONTROLLERS
 
-        for k, v in mpc.benchmark().items():
+        for k, v in flight_benchmark.mpc_update_times().items():
             print(f"{'mpc ' + k:<40}{v:>12.4g}")
         for ctrl in CONTROLLERS:
             flight_benchmark.benchmark(3, ctrl)
