@@ -1,5 +1,5 @@
 """Test support: a tiny trained HeightModule, saved as a Lightning checkpoint and logged as an
-MLflow run the way ``uavturb.train`` logs one (params ``data.root``, ``trainer.default_root_dir``)."""
+MLflow run the way ``uavturb.runs.train`` logs one (params ``data.root``, ``trainer.default_root_dir``)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def tiny_height_run(tmp_path: Path, *, use_gru: bool = True, keep: str = "folder
     """Train a tiny HeightModule a few steps on synthetic shards; log a run.
 
     ``keep`` says where the run keeps its checkpoint: ``folder`` (``<root>/checkpoints/<run>/``,
-    as ``uavturb.train``), ``artifact`` (a ``.ckpt`` artifact) or ``tag`` (a ``checkpoint`` tag).
+    as ``uavturb.runs.train``), ``artifact`` (a ``.ckpt`` artifact) or ``tag`` (a ``checkpoint`` tag).
 
     Returns ``(run_id, checkpoint, data_root, module in eval mode)``.
     """

@@ -49,7 +49,7 @@ def test_a_poisoned_checkpoint_is_refused_without_running_it(tmp_path):
 
 
 def test_export_refuses_a_poisoned_checkpoint(tmp_path):
-    from uavturb.experiments.export import load_height_module
+    from uavturb.commands.export import load_height_module
 
     ran = tmp_path / "payload-ran"
     with pytest.raises(InputError, match="refused"):
@@ -67,9 +67,9 @@ def test_other_files_are_one_line(tmp_path):
 
 
 def test_resume_refuses_a_poisoned_last_checkpoint_before_touching_the_run(tmp_path, monkeypatch, capsys):
-    from uavturb.experiments import tracking
-    from uavturb.experiments.config import load_config, to_flat_dict
-    from uavturb.experiments.train import LAST_CHECKPOINT
+    from uavturb.runs import store
+    from uavturb.runs.config import load_config, to_flat_dict
+    from uavturb.runs.resume import LAST_CHECKPOINT
 
     from test_interruptions import _tiny
 
@@ -78,8 +78,8 @@ def test_resume_refuses_a_poisoned_last_checkpoint_before_touching_the_run(tmp_p
     folder = tmp_path / "runs" / "checkpoints" / "r"
     folder.mkdir(parents=True)
     _poisoned(folder / LAST_CHECKPOINT, ran)
-    c = tracking.client()
-    rid = c.create_run(tracking.experiment_id(c, "sig"),
+    c = store.client()
+    rid = c.create_run(store.experiment_id(c, "sig"),
                        tags={"stage": "height", "checkpoint_dir": str(folder)}).info.run_id
     for k, v in to_flat_dict(load_config(_tiny(tmp_path)[2:], experiment="smoke")).items():
         c.log_param(rid, k, str("null" if v is None else v))

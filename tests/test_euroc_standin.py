@@ -330,7 +330,7 @@ def test_sim_shards_through_cam0(tmp_path):
     from types import SimpleNamespace
 
     from uavturb.data.recordings import camera_for
-    from uavturb.experiments.evaluate import dataset_camera
+    from uavturb.commands.evaluate import dataset_camera
 
     cam = dataset_camera(SimpleNamespace(data=SimpleNamespace(params={"data.root": str(tmp_path / "eu")})))
     assert cam["camera"] == "euroc_cam0" and cam["image_size"] == 24 and cam["frame_dt"] == pytest.approx(0.05)

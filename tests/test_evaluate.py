@@ -20,13 +20,10 @@ from uavturb.data.recordings import (
     recording_sequence,
 )
 from uavturb.errors import InputError
-from uavturb.experiments.evaluate import (
-    FlightResult,
-    evaluate,
-    ground_effect_height,
-    predict_heights,
-)
-from uavturb.experiments.tracking import tracking_uri
+from uavturb.commands.evaluate import evaluate
+from uavturb.evaluation.bands import ground_effect_height
+from uavturb.evaluation.metrics import FlightResult, predict_heights
+from uavturb.runs.store import tracking_uri
 from uavturb.io.reader import read_recording
 from uavturb.physics.ground_effect import phi_alpha_beta
 from uavturb.physics.vehicle import HEXAROTOR
@@ -171,7 +168,7 @@ def test_grounded_frames_are_left_out():
 def test_height_bands_known_answer():
     """Bands cut at the law's 5 % and 2 % of thrust; per band the law's and the model's errors, the height
     bias and the band's share of the squared f_a error."""
-    from uavturb.experiments.evaluate import band_edges, band_metrics
+    from uavturb.evaluation.bands import band_edges, band_metrics
 
     beta = 1.25e-3
     edges = band_edges(beta, 0.01)
@@ -232,7 +229,7 @@ def test_table2_with_realistic_sensor_noise(setup, tmp_path):
 def test_table2_over_runs(setup, tmp_path):
     """Several runs on the same flights: per run what ``evaluate`` gives for it alone, summarised per row
     (the runs' name here) over its seeds, with the ratio and the height bands; one folder, published whole."""
-    from uavturb.experiments.evaluate_runs import evaluate_runs
+    from uavturb.commands.evaluate import evaluate_runs
 
     root, rid, _, flights = setup
     with pytest.MonkeyPatch.context() as mp:
@@ -277,7 +274,7 @@ def test_a_law_that_contradicts_the_vehicle_is_flagged():
     """alpha / beta is the thrust coefficient in the paper's form: a fit 4.8 times off (the stand-in
     flights' identification: beta steepened after k_T took the law's far tail) is flagged, one within
     the tolerance is not."""
-    from uavturb.experiments.evaluate import law_consistency
+    from uavturb.evaluation.law import law_consistency
     from uavturb.physics.ground_effect import GroundEffectFit
 
     k_T = 8.54858e-6

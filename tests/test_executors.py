@@ -23,12 +23,12 @@ import numpy as np
 import pytest
 
 from uavturb.errors import InputError
-from uavturb.experiments import executors
-from uavturb.experiments import sweep as sweep_mod
-from uavturb.experiments.executors import absolute_tracking_uri, task_resources
-from uavturb.experiments.sweep import sweep
-from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
-from uavturb.experiments.tracking import tracking_uri
+from uavturb.runs import executors
+from uavturb.runs import sweep as sweep_mod
+from uavturb.runs.executors import absolute_tracking_uri, task_resources
+from uavturb.runs.sweep import sweep
+from uavturb.runs.config import DEFAULT_SPEC, load_spec
+from uavturb.runs.store import tracking_uri
 
 ray = pytest.importorskip("ray")
 
@@ -106,7 +106,7 @@ def _attempts(root: Path, label: str) -> int:
 
 def test_task_resources_from_the_config(capsys):
     from uavturb.cli import main
-    from uavturb.experiments.config import load_config
+    from uavturb.runs.config import load_config
 
     cfg = load_config(["trainer=cpu", "trainer.num_threads=3", "data.num_workers=2"])
     assert task_resources(cfg) == {"num_cpus": 5.0, "num_gpus": 0.0}
@@ -287,7 +287,7 @@ def test_ray_sweep_through_an_mlflow_server_matches_the_sequential_sweep(ray_loc
 
 
 def test_generate_sim_on_ray_writes_the_same_arrays(ray_local, tmp_path):
-    from uavturb.experiments.generate import generate_sim
+    from uavturb.commands.generate import generate_sim
     from uavturb.io import shards
 
     from uavturb.cli import main
@@ -313,7 +313,7 @@ def test_a_local_ray_instance_listens_on_loopback_only(tmp_path):
     """``--executor ray`` without ``--address``: the local instance's GCS port is bound to 127.0.0.1."""
     code = """
 import ray
-from uavturb.experiments.executors import ray_session
+from uavturb.runs.executors import ray_session
 with ray_session(None, num_cpus=1):
     host, port = ray.get_runtime_context().gcs_address.rsplit(":", 1)
     listening = set()

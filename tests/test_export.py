@@ -13,7 +13,8 @@ import torch
 from height_run import tiny_height_run
 
 from uavturb.errors import InputError
-from uavturb.experiments.export import export, run_checkpoint
+from uavturb.commands.export import export
+from uavturb.runs.store import run_checkpoint
 from uavturb.io import shards
 from uavturb.nn.height import phi_alpha_beta
 from uavturb.nn.streaming import StreamingHeightModel, gru_step
@@ -118,7 +119,7 @@ def _check_mlflow_model(client, rid, result, out, use_gru, depth, rotors, d_ref)
     import mlflow
     import onnx
 
-    from uavturb.experiments.export import REGISTERED_MODEL
+    from uavturb.commands.export import REGISTERED_MODEL
 
     L, S = (2, 50) if use_gru else (1, 1)
     info = mlflow.models.get_model_info(f"runs:/{rid}/streaming_model")

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from uavturb.errors import InputError
-from uavturb.experiments.gap_run import gap
+from uavturb.commands.gap import gap
 from uavturb.io.physics_config import load_physics_config
 from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.sim.flights.simulate import generate_flight

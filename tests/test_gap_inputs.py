@@ -155,7 +155,7 @@ def test_out_current_directory_is_refused(tmp_path, monkeypatch, capsys, good):
 def test_default_sim_effects_follow_the_simulator_config(tmp_path, good):
     from pathlib import Path
 
-    from uavturb.experiments.gap_run import gap
+    from uavturb.commands.gap import gap
     from uavturb.io.physics_config import load_physics_config
 
     conf = load_physics_config(Path(__file__).parents[1] / "uavturb" / "conf" / "physics" / "default.yaml")["effects"]

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from uavturb.experiments.gap_conditions import THRUST_TILT, TOLERANCE, contact_found, true_effects, verdict
-from uavturb.experiments.proof_scoring import param_error
+from uavturb.proof.conditions import THRUST_TILT, TOLERANCE, contact_found, true_effects, verdict
+from uavturb.proof.scoring import param_error
 
 WIND = {"wind": {"f_x": -1.84, "f_y": 0.0}}
 KNOWN = {**WIND, "rotor_drag": {"k_d": 8.06e-5}, "body_drag": {"c_d": 0.05}}

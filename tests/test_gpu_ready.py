@@ -14,8 +14,8 @@ import torch
 
 from uavturb.cli import main
 from uavturb.errors import InputError
-from uavturb.experiments import accelerators
-from uavturb.experiments.config import load_config
+from uavturb.runs import accelerators
+from uavturb.runs.config import load_config
 
 no_cuda = pytest.mark.skipif(torch.cuda.is_available(), reason="checks the refusal on a machine without CUDA")
 
@@ -119,7 +119,7 @@ def test_the_gpu_groups_say_what_they_set():
     t, d = cfg.trainer, cfg.data
     assert (t.accelerator, t.devices, t.precision, t.cudnn_benchmark) == ("gpu", "1", "bf16-mixed", True)
     assert (d.image_size, d.window, d.batch_size, d.pin_memory) == (128, 8, 16, True) and d.num_workers >= 2
-    from uavturb.experiments.train import trainer_kwargs
+    from uavturb.runs.trainer import trainer_kwargs
 
     kw = trainer_kwargs(t)
     assert (kw["accelerator"], kw["devices"], kw["precision"], kw["benchmark"]) == ("gpu", 1, "bf16-mixed", True)
@@ -139,8 +139,8 @@ def _storages_tagged_cuda():
 def test_bf16_mixed_training_on_the_cpu_reloads_and_exports_like_float32(tmp_path):
     import numpy as np
 
-    from uavturb.experiments.export import export, load_height_module
-    from uavturb.experiments.train import train
+    from uavturb.commands.export import export, load_height_module
+    from uavturb.runs.train import train
 
     cfg = load_config(_tiny(tmp_path, "trainer=cpu", "trainer.precision=bf16-mixed", "trainer.max_epochs=2",
                             "trainer.limit_train_batches=4", "tracking.enabled=false", "model.lr_head=3e-3",
@@ -175,7 +175,7 @@ def test_bf16_mixed_training_on_the_cpu_reloads_and_exports_like_float32(tmp_pat
     assert res["max_abs_diff"] <= 1e-5 and res["image_size"] == (16, 16)
 
     # the DataLoaders train() builds pin memory as the config says (the CPU: no)
-    from uavturb.experiments.train import build_stage
+    from uavturb.runs.trainer import build_stage
 
     for extra, pinned in (([], False), (["data.pin_memory=true"], True)):
         _, dm, _, _ = build_stage(load_config(_tiny(tmp_path, "trainer=cpu", *extra)), tmp_path / "sim")
@@ -210,7 +210,7 @@ def test_bench_gpu_without_cuda_is_one_line(capsys):
 
 
 def test_bench_gpu_on_the_cpu_prints_every_figure_for_both_precisions(capsys):
-    from uavturb.experiments.bench_gpu import PAPER_PRETRAIN_EPOCHS, PRECISIONS, STAGES, bench_gpu
+    from uavturb.bench.gpu import PAPER_PRETRAIN_EPOCHS, PRECISIONS, STAGES, bench_gpu
 
     res = bench_gpu("cpu", size=16, batch_size=4, steps=2, epochs=2)
     assert set(res["figures"]) == {(s, p) for s in STAGES for p in PRECISIONS} and not res["skipped"]

@@ -1,11 +1,11 @@
-"""Known answers of the Table 1 reference estimators (uavturb.height_baselines)."""
+"""Known answers of the Table 1 reference estimators (uavturb.evaluation.baselines)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from uavturb.experiments.baselines import bottom_row_height, fa_error_shares
+from uavturb.evaluation.baselines import bottom_row_height, fa_error_shares
 
 
 @pytest.mark.parametrize("h,pitch", [(0.3, 20.0), (1.2, 20.0), (0.5, 35.0)])

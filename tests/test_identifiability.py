@@ -11,7 +11,7 @@ from synthetic import inverse_dynamics_flight
 
 from uavturb.cli import main
 from uavturb.errors import InputError
-from uavturb.experiments.identify import format_identification
+from uavturb.commands.identify import format_identification
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.io.writer import write_recording
 from uavturb.physics.vehicle import HEXAROTOR

@@ -14,7 +14,7 @@ from flight_logs import ESC_REPORT, Topic, px4_topics, same_attitudes, write_csv
 
 from uavturb.cli import main
 from uavturb.errors import InputError
-from uavturb.experiments.identify import identify_recordings
+from uavturb.commands.identify import identify_recordings
 from uavturb.io import log_frames
 from uavturb.io.csv_import import import_csv
 from uavturb.io.log_import import flat_floor
@@ -466,7 +466,7 @@ def test_a_dead_rotor_column_is_named_by_its_log_column(tmp_path, capsys, flight
 
 
 def _gap_summary(path, out):
-    from uavturb.experiments.gap_run import gap
+    from uavturb.commands.gap import gap
 
     r = gap([path], out, sim_effects="none", log_mlflow=False)
     return r["nominal"], {e["name"]: e["params"] for e in r["effects"]}

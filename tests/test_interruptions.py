@@ -54,7 +54,7 @@ def _last_line(stderr: str) -> str:
 
 
 def _runs(uri: str, experiment: str) -> list:
-    from uavturb.experiments.tracking import store_lock
+    from uavturb.runs.mutex import store_lock
 
     with store_lock(uri):  # the store may be being created by the command under test
         client = mlflow.MlflowClient(uri)
@@ -123,13 +123,13 @@ def test_sigint_then_resume_continues_the_same_run_at_the_next_epoch(tmp_path, m
 
 
 def test_resume_refuses_a_changed_config_before_any_work(tmp_path, monkeypatch, capsys):
-    from uavturb.experiments import tracking
-    from uavturb.experiments.config import load_config, to_flat_dict
+    from uavturb.runs import store
+    from uavturb.runs.config import load_config, to_flat_dict
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
-    c = tracking.client()
-    rid = c.create_run(tracking.experiment_id(c, "sig"), tags={"stage": "height", "checkpoint_dir": "x"}).info.run_id
+    c = store.client()
+    rid = c.create_run(store.experiment_id(c, "sig"), tags={"stage": "height", "checkpoint_dir": "x"}).info.run_id
     for k, v in to_flat_dict(load_config(_tiny(tmp_path)[2:], experiment="smoke")).items():
         c.log_param(rid, k, str("null" if v is None else v))
     c.set_terminated(rid, "KILLED")
@@ -169,7 +169,7 @@ def test_sigint_on_a_sweep_exits_130_in_one_line_parent_and_child_killed(tmp_pat
 
 _OPEN_A_RUN = """
 import time
-from uavturb.experiments.tracking import client, experiment_id, run_tags
+from uavturb.runs.store import client, experiment_id, run_tags
 c = client()
 run = c.create_run(experiment_id(c, "k"), tags=run_tags())
 print(run.info.run_id, flush=True)
@@ -196,18 +196,19 @@ def test_sigkill_leaves_a_run_the_next_store_command_marks_failed(tmp_path, monk
 
 
 def test_stale_marking_leaves_live_and_foreign_runs_alone(tmp_path, monkeypatch):
-    from uavturb.experiments import tracking
+    from uavturb.runs import store
+    from uavturb.runs.processes import process_tags
 
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
-    c = tracking.client()
-    exp = tracking.experiment_id(c, "stale")
+    c = store.client()
+    exp = store.experiment_id(c, "stale")
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    mine = c.create_run(exp, tags=tracking.process_tags()).info.run_id
-    other_host = c.create_run(exp, tags={**tracking.process_tags(), "host": "elsewhere"}).info.run_id
-    gone = c.create_run(exp, tags={**tracking.process_tags(), "pid": dead.stdout.strip()}).info.run_id
-    reused = c.create_run(exp, tags={**tracking.process_tags(), "pid_start": "1"}).info.run_id  # pid reused since
+    mine = c.create_run(exp, tags=process_tags()).info.run_id
+    other_host = c.create_run(exp, tags={**process_tags(), "host": "elsewhere"}).info.run_id
+    gone = c.create_run(exp, tags={**process_tags(), "pid": dead.stdout.strip()}).info.run_id
+    reused = c.create_run(exp, tags={**process_tags(), "pid_start": "1"}).info.run_id  # pid reused since
     untagged = c.create_run(exp).info.run_id
-    assert sorted(tracking.mark_stale_runs(c)) == sorted([gone, reused])
+    assert sorted(store.mark_stale_runs(c)) == sorted([gone, reused])
     status = {r: c.get_run(r).info.status for r in (mine, other_host, gone, reused, untagged)}
     assert status == {mine: "RUNNING", other_host: "RUNNING", gone: "FAILED", reused: "FAILED", untagged: "RUNNING"}
 
@@ -259,7 +260,7 @@ def test_sigterm_on_generate_sim_stops_workers_and_leaves_no_temporary_folder(tm
 
 # --- concurrent first use of a store ------------------------------------------------------------
 
-_OPEN = "from uavturb.experiments.tracking import client; client(); print('ok')"
+_OPEN = "from uavturb.runs.store import client; client(); print('ok')"
 
 
 def _open_together(tmp_path: Path, n_procs: int) -> list[subprocess.CompletedProcess]:
@@ -298,7 +299,7 @@ def test_a_broken_store_is_one_line_with_what_to_do(tmp_path, monkeypatch, capsy
 
 
 def test_an_interrupted_migration_names_the_table_to_drop():
-    from uavturb.experiments.tracking import _store_problem
+    from uavturb.runs.store import _store_problem
 
     e = Exception("(sqlite3.OperationalError) table _alembic_tmp_experiments already exists\n[SQL: ...]")
     msg = str(_store_problem("sqlite:///x/mlflow.db", e))
@@ -333,7 +334,7 @@ def test_bad_values_fail_in_one_line_before_any_run(tmp_path, monkeypatch, capsy
 
 
 def test_every_value_of_the_defaults_and_shipped_configs_is_allowed():
-    from uavturb.experiments.config import CONF_DIR, load_config
+    from uavturb.runs.config import CONF_DIR, load_config
 
     for group in ("model", "data", "trainer"):
         for f in sorted((CONF_DIR / group).glob("*.yaml")):
@@ -349,7 +350,7 @@ def test_lightning_choices_match_lightning():
     from lightning.pytorch.accelerators import AcceleratorRegistry
     from lightning.pytorch.strategies import StrategyRegistry
 
-    from uavturb.experiments.config import ACCELERATORS, PRECISIONS, STRATEGIES
+    from uavturb.runs.config import ACCELERATORS, PRECISIONS, STRATEGIES
 
     assert set(PRECISIONS) == set(typing.get_args(_PRECISION_INPUT_STR)) | set(typing.get_args(_PRECISION_INPUT_STR_ALIAS))
     assert set(ACCELERATORS) == set(AcceleratorRegistry.available_accelerators()) | {"auto", "gpu"}

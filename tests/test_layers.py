@@ -36,14 +36,14 @@ def test_the_tree_keeps_every_contract():
 
 def test_a_lower_layer_importing_a_higher_one_fails(copy_of_package):
     bad = copy_of_package / "uavturb" / "physics" / "sneaky.py"
-    bad.write_text("from uavturb.experiments import config  # physics must not know about experiments\n")
+    bad.write_text("from uavturb.runs import config  # physics must not know about the run platform\n")
     try:
         res = _lint(copy_of_package)
     finally:
         bad.unlink()
     assert res.returncode != 0
     assert "Dependencies run one way BROKEN" in res.stdout
-    assert "uavturb.physics.sneaky -> uavturb.experiments.config" in res.stdout
+    assert "uavturb.physics.sneaky -> uavturb.runs.config" in res.stdout
 
 
 def test_siblings_importing_each_other_fail(copy_of_package):

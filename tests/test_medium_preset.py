@@ -5,10 +5,9 @@ from __future__ import annotations
 import pytest
 
 from uavturb.errors import InputError
-from uavturb.experiments.config import load_config
-from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
-from uavturb.sim.dataset.presets import get_preset
+from uavturb.runs.config import DEFAULT_SPEC, load_config, load_spec
 from uavturb.sim.dataset.assignment import plan_tasks, scene_splits
+from uavturb.sim.dataset.presets import get_preset
 
 
 @pytest.mark.parametrize("name", ["quick", "medium", "paper"])

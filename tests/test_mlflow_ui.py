@@ -18,8 +18,8 @@ from pathlib import Path
 import mlflow
 import pytest
 
-from uavturb.experiments.sweep import sweep
-from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
+from uavturb.runs.sweep import sweep
+from uavturb.runs.config import DEFAULT_SPEC, load_spec
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [pytest.mark.slow,

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from uavturb.errors import InputError
-from uavturb.experiments.config import CONF_DIR, load_config
-from uavturb.experiments.sweep_spec import DEFAULT_SPEC, resolve_spec
+from uavturb.runs.config import CONF_DIR, load_config
+from uavturb.runs.config import DEFAULT_SPEC, resolve_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 

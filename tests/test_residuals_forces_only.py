@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pandas as pd
 
-from uavturb.experiments.identify import residuals_to_file
+from uavturb.commands.identify import residuals_to_file
 from uavturb.io.writer import write_recording
 from uavturb.physics.effects import parse_effects
 from uavturb.physics.vehicle import HEXAROTOR

@@ -166,7 +166,7 @@ def test_identity_T_BS_changes_nothing(tmp_path, recording):
 
 
 def test_rotated_sensor_twin_identifies_the_same_k_T(tmp_path, flight):
-    from uavturb.experiments.identify import identify_recordings
+    from uavturb.commands.identify import identify_recordings
 
     write_recording(flight, tmp_path / "b")
     write_recording(to_sensor_frame(flight, euroc_like_T_BS()), tmp_path / "s")
@@ -268,7 +268,7 @@ def mocap_only_50hz(flight: Recording, seed: int = 0, jitter_ns: int = 3_000_000
 def test_mocap_only_50hz_flight(tmp_path, flight):
     """No IMU, 50 Hz, jittered: k_T as the simulator's, no accelerometer bias, residuals that
     find the injected steady push (0.6, -0.3, 0) N with a noise floor measured on the data."""
-    from uavturb.experiments.identify import format_identification
+    from uavturb.commands.identify import format_identification
     from uavturb.sysid.identification import identify
     from uavturb.sysid.residuals import residual_forces
 

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from uavturb.errors import InputError, Interrupted
-from uavturb.experiments import sweep as sweep_mod
-from uavturb.experiments.compare import compare
-from uavturb.experiments.sweep import sweep
-from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
-from uavturb.experiments.tracking import tracking_uri
+from uavturb.runs import sweep as sweep_mod
+from uavturb.runs.table1 import compare
+from uavturb.runs.sweep import sweep
+from uavturb.runs.config import DEFAULT_SPEC, load_spec
+from uavturb.runs.store import tracking_uri
 
 ROWS = [r.name for r in load_spec(DEFAULT_SPEC).rows]
 
@@ -45,7 +45,7 @@ def known_rmse(row: str, seed: int) -> tuple[float, float]:
 
 
 class FakeTrain:
-    """Stands in for uavturb.train.train: one FINISHED MLflow run with the given tags."""
+    """Stands in for uavturb.runs.train.train: one FINISHED MLflow run with the given tags."""
 
     def __init__(self, tmp_path: Path, fail_at: int | None = None, kill_at: int | None = None):
         self.calls: list[tuple[object, dict]] = []

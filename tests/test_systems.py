@@ -136,7 +136,7 @@ def test_law_weighted_loss_known_answer():
 def test_config_losses_are_the_modules():
     import dataclasses
 
-    from uavturb.experiments.config import ModelConfig
+    from uavturb.runs.config import ModelConfig
     from uavturb.systems.height import LOSSES
 
     field = {f.name: f for f in dataclasses.fields(ModelConfig)}["loss"]

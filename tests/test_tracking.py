@@ -7,7 +7,7 @@ from pathlib import Path
 import mlflow
 import pytest
 
-from uavturb.experiments import tracking
+from uavturb.runs import store
 
 
 def test_log_run_reuses_the_run_of_the_same_inputs(tmp_path, monkeypatch):
@@ -18,9 +18,9 @@ def test_log_run_reuses_the_run_of_the_same_inputs(tmp_path, monkeypatch):
     (tmp_path / "report" / "report.md").write_text("# report\n")
     args = dict(run_name="gap hex_0,hex_1", params={"recordings": ["a", "b"], "seed": 0},
                 tags={"effects": "ground_effect"}, artifacts=tmp_path / "report")
-    first = tracking.log_run("uavturb-gap", metrics={"gap/final_heldout_rmse_N": 0.08}, **args)
-    again = tracking.log_run("uavturb-gap", metrics={"gap/final_heldout_rmse_N": 0.07}, **args)
-    other = tracking.log_run("uavturb-gap", metrics={"gap/final_heldout_rmse_N": 0.09},
+    first = store.log_run("uavturb-gap", metrics={"gap/final_heldout_rmse_N": 0.08}, **args)
+    again = store.log_run("uavturb-gap", metrics={"gap/final_heldout_rmse_N": 0.07}, **args)
+    other = store.log_run("uavturb-gap", metrics={"gap/final_heldout_rmse_N": 0.09},
                              **{**args, "params": {"recordings": ["a"], "seed": 0}})
     client = mlflow.MlflowClient(uri)
     exp = client.get_experiment_by_name("uavturb-gap")
@@ -28,19 +28,19 @@ def test_log_run_reuses_the_run_of_the_same_inputs(tmp_path, monkeypatch):
     assert sorted(r.info.run_id for r in client.search_runs([exp.experiment_id])) == sorted([first, other])
     run = client.get_run(first)
     assert run.data.metrics["gap/final_heldout_rmse_N"] == 0.07 and run.data.tags["effects"] == "ground_effect"
-    assert exp.tags["mlflow.experimentKind"] == tracking.EXPERIMENT_KIND
+    assert exp.tags["mlflow.experimentKind"] == store.EXPERIMENT_KIND
 
 
 def test_project_path(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert tracking.project_path(tmp_path / "runs" / "best.ckpt") == str(Path("runs") / "best.ckpt")
-    assert tracking.project_path("/elsewhere/x.ckpt") == "/elsewhere/x.ckpt"
+    assert store.project_path(tmp_path / "runs" / "best.ckpt") == str(Path("runs") / "best.ckpt")
+    assert store.project_path("/elsewhere/x.ckpt") == "/elsewhere/x.ckpt"
 
 
 def test_a_write_that_collides_with_another_process_is_retried_once_it_exists():
     from mlflow.exceptions import MlflowException
 
-    from uavturb.experiments.tracking import CONFLICT_ATTEMPTS, on_conflict_retry
+    from uavturb.runs.store import CONFLICT_ATTEMPTS, on_conflict_retry
 
     calls = []
 

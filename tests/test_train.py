@@ -12,8 +12,8 @@ from omegaconf import OmegaConf
 
 from uavturb.data import synthetic
 from uavturb.errors import InputError
-from uavturb.experiments.config import CONF_DIR, allowed_keys, load_config
-from uavturb.experiments.tracking import EXPERIMENT_KIND, NOTE_TAG
+from uavturb.runs.config import CONF_DIR, allowed_keys, load_config
+from uavturb.runs.store import EXPERIMENT_KIND, NOTE_TAG
 from uavturb.io import shards
 from uavturb.systems import HeightModule
 
@@ -36,7 +36,7 @@ def _overrides(tmp_path, *extra):
 
 
 def test_tiny_height_training_learns_and_logs(tmp_path, store):
-    from uavturb.experiments.train import train
+    from uavturb.runs.train import train
 
     cfg = load_config(_overrides(tmp_path, "trainer.max_epochs=4", "model.lr_head=3e-3", "model.lr_encoder=3e-3"),
                       experiment="smoke")
@@ -96,13 +96,13 @@ def test_ground_effect_law_of_the_training_data(tmp_path):
     assert alpha == pytest.approx(HEXAROTOR.thrust_coefficient * beta, rel=1e-12)
     assert ground_effect_law(tmp_path / "nothing") is None
     with pytest.raises(InputError, match="model.alpha"):
-        from uavturb.experiments.train import _resolve_ground_effect_law
+        from uavturb.runs.training_data import resolve_ground_effect_law
 
-        _resolve_ground_effect_law(load_config(["model.alpha=1e-9"]), tmp_path / "hex")
+        resolve_ground_effect_law(load_config(["model.alpha=1e-9"]), tmp_path / "hex")
 
 
 def test_pretrain_then_finetune_height(tmp_path, store):
-    from uavturb.experiments.train import train
+    from uavturb.runs.train import train
 
     pre = train(load_config(_overrides(tmp_path, "trainer.max_epochs=1"), experiment="smoke_pretrain"))
     assert pre["stage"] == "pretrain" and "test/loss" in pre["metrics"] and "val/angle_deg" in pre["metrics"]
@@ -125,7 +125,7 @@ def test_optional_system_metrics(tmp_path, store, monkeypatch):
     # a sampling interval far longer than the run: the sample taken at the end must still be there
     monkeypatch.setenv("MLFLOW_SYSTEM_METRICS_SAMPLING_INTERVAL", "1000")
 
-    from uavturb.experiments.train import train
+    from uavturb.runs.train import train
 
     cfg = load_config(_overrides(tmp_path, "trainer.max_epochs=1", "tracking.system_metrics=true"), experiment="smoke")
     if importlib.util.find_spec("psutil") is None:
@@ -139,7 +139,7 @@ def test_optional_system_metrics(tmp_path, store, monkeypatch):
 
 
 def test_height_stage_needs_encoder_checkpoint(tmp_path, store):
-    from uavturb.experiments.train import train
+    from uavturb.runs.train import train
 
     cfg = load_config(_overrides(tmp_path, "model=normals_finetune", "tracking.enabled=false"))
     with pytest.raises(InputError) as e:
@@ -184,7 +184,7 @@ def test_config_groups_and_experiments():
 def test_group_file_typo_names_file_and_key(tmp_path):
     import shutil
 
-    from uavturb.experiments.config import CONF_DIR
+    from uavturb.runs.config import CONF_DIR
 
     conf = tmp_path / "conf"
     shutil.copytree(CONF_DIR, conf)
@@ -203,7 +203,7 @@ def test_cli_train_typo_is_one_line_naming_the_key(capsys):
 
 
 def test_predict_last_frames_matches_the_windows_the_metrics_score(tmp_path):
-    from uavturb.experiments.plots import plot_test_heights, predict_last_frames
+    from uavturb.evaluation.test_heights import plot_test_heights, predict_last_frames
 
     m = synthetic.make_synthetic_dataset(tmp_path / "ds", n_scenes=3, trajs_per_scene=1, T=9, size=8)
     module = HeightModule(encoder_hidden=16)

@@ -11,6 +11,10 @@ from typing import Callable
 
 from uavturb.errors import InputError, Interrupted, UavturbError, raise_on_signals
 
+# Each command imports its module (uavturb.commands, uavturb.runs, uavturb.bench, ...) inside its
+# handler below, not here: start-up time (`uavturb --help` and `uavturb gap` never load torch,
+# Lightning or MLflow).
+
 
 def _version() -> str:
     from importlib.metadata import PackageNotFoundError, version
@@ -41,7 +45,7 @@ def _sim_presets() -> str:
 
 
 def _sweep_presets() -> str:
-    from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
+    from uavturb.runs.config import DEFAULT_SPEC, load_spec
 
     return ", ".join(load_spec(DEFAULT_SPEC).presets)
 
@@ -307,7 +311,7 @@ def _add_export(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_bench(sub: argparse._SubParsersAction) -> None:
-    from uavturb.experiments.benchmarks import TARGETS
+    from uavturb.bench.targets import TARGETS
 
     s = sub.add_parser("bench", help="benchmarks that print figures", formatter_class=argparse.RawTextHelpFormatter,
                        epilog="targets:\n" + "\n".join(f"  {k:<10}{v}" for k, v in TARGETS.items()))
@@ -404,7 +408,7 @@ def _last_guard(e: Exception) -> tuple[str, int]:
 
 
 def _identify(args: argparse.Namespace) -> int:
-    from uavturb.experiments.identify import format_identification, identify_recordings
+    from uavturb.commands.identify import format_identification, identify_recordings
 
     ident = identify_recordings(args.recordings, model=args.model, vehicle=args.vehicle)
     print(json.dumps(ident.to_dict()) if args.json else format_identification(ident))
@@ -412,7 +416,7 @@ def _identify(args: argparse.Namespace) -> int:
 
 
 def _residuals(args: argparse.Namespace) -> int:
-    from uavturb.experiments.identify import residuals_to_file
+    from uavturb.commands.identify import residuals_to_file
 
     res, path = residuals_to_file(args.recording, args.out, source=args.source, derivative=args.derivative,
                                   params=args.params, vehicle=args.vehicle, overwrite=args.overwrite)
@@ -458,7 +462,7 @@ def _import_csv(args: argparse.Namespace) -> int:
 
 
 def _generate_flight(args: argparse.Namespace) -> int:
-    from uavturb.experiments.generate import generate_flight_command
+    from uavturb.commands.generate import generate_flight_command
 
     rec = generate_flight_command(vehicle=args.vehicle, effects=args.effects, duration=args.duration,
                                   kind=args.kind, seed=args.seed, noise=args.noise, out=args.out,
@@ -479,7 +483,7 @@ def _generate_flight(args: argparse.Namespace) -> int:
 
 
 def _generate_sim(args: argparse.Namespace) -> int:
-    from uavturb.experiments.generate import generate_sim, preset_overrides
+    from uavturb.commands.generate import generate_sim, preset_overrides
 
     print(generate_sim(args.preset, args.out, workers=args.workers, seed=args.seed, shard=args.shard,
                        executor=args.executor, address=args.address, **preset_overrides(args.preset_set)))
@@ -487,7 +491,7 @@ def _generate_sim(args: argparse.Namespace) -> int:
 
 
 def _generate_normals(args: argparse.Namespace) -> int:
-    from uavturb.experiments.generate import generate_normals, preset_overrides
+    from uavturb.commands.generate import generate_normals, preset_overrides
 
     print(generate_normals(args.preset, args.out, workers=args.workers, seed=args.seed, irs=args.irs,
                            size=args.size, **preset_overrides(args.preset_set)))
@@ -495,14 +499,14 @@ def _generate_normals(args: argparse.Namespace) -> int:
 
 
 def _generate_merge(args: argparse.Namespace) -> int:
-    from uavturb.experiments.generate import generate_merge
+    from uavturb.commands.generate import generate_merge
 
     print(generate_merge(args.dirs, args.out))
     return 0
 
 
 def _gap(args: argparse.Namespace) -> int:
-    from uavturb.experiments.gap_run import gap
+    from uavturb.commands.gap import gap
     from uavturb.gap.report import format_effect
 
     report = gap(args.recordings, args.out, sim_effects=args.sim_effects, seed=args.seed, apply=args.apply,
@@ -515,7 +519,7 @@ def _gap(args: argparse.Namespace) -> int:
 
 
 def _gap_proof(args: argparse.Namespace) -> int:
-    from uavturb.experiments.gap_proof import gap_proof
+    from uavturb.proof.gap_proof import gap_proof
 
     gap_proof(Path(args.out), duration=args.duration, seed=args.seed,
               singles=args.effects.split(",") if args.effects else None, pairs=not args.no_pairs, suite=args.suite)
@@ -523,8 +527,9 @@ def _gap_proof(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from uavturb.experiments.config import load_config
-    from uavturb.experiments.train import resume_config, train
+    from uavturb.runs.config import load_config
+    from uavturb.runs.resume import resume_config
+    from uavturb.runs.train import train
 
     if args.resume:
         out = train(resume_config(args.resume, args.overrides, args.experiment), resume=args.resume)
@@ -538,7 +543,7 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from uavturb.experiments.sweep import sweep
+    from uavturb.runs.sweep import sweep
 
     res = sweep(args.spec, preset=args.preset, seeds=args.seeds, overrides=args.overrides,
                 experiment=args.mlflow_experiment, conf_dir=args.config_dir, executor=args.executor,
@@ -548,7 +553,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from uavturb.experiments.compare import compare
+    from uavturb.runs.table1 import compare
 
     res = compare(experiment=args.mlflow_experiment, parent_run_id=args.parent, out=args.out,
                   overwrite=args.overwrite)
@@ -558,8 +563,7 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from uavturb.experiments.evaluate import evaluate
-    from uavturb.experiments.evaluate_runs import evaluate_runs, sweep_runs
+    from uavturb.commands.evaluate import evaluate, evaluate_runs, sweep_runs
 
     if (args.sweep is None) == (args.run is None):
         raise InputError("--run", "give one or more --run RUN_ID, or --sweep PARENT_RUN_ID")
@@ -576,7 +580,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from uavturb.experiments.export import export
+    from uavturb.commands.export import export
 
     res = export(args.run, args.out, data=args.data, alpha=args.alpha, beta=args.beta, overwrite=args.overwrite,
                  log=not args.no_mlflow)
@@ -585,14 +589,14 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from uavturb.experiments.benchmarks import BENCH_OPTIONS, bench_target
+    from uavturb.bench.targets import BENCH_OPTIONS, bench_target
 
     bench_target(args.what, {k: getattr(args, k) for k in BENCH_OPTIONS})
     return 0
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from uavturb.experiments.demo import run
+    from uavturb.commands.demo import run
 
     run(Path(args.out), seed=args.seed)
     return 0

@@ -34,7 +34,7 @@ MPC runs slower than the physics: 25 Hz by default, physics at 200 Hz in
 :func:`~uavturb.sim.dataset.flying.fly_trajectory`).
 
 Timing: :class:`MPCController` records every update's wall time in ``solve_times`` [s];
-``uavturb bench``-style figures come from :func:`benchmark`.
+``uavturb bench flights`` prints them (:func:`uavturb.bench.flights.mpc_update_times`).
 """
 
 from __future__ import annotations
@@ -54,13 +54,12 @@ import casadi as ca
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.io.vehicle_file import named_vehicle
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY, IDX_Q, IDX_W, N_STATE, dynamics_for, physical_params
 from uavturb.physics.vehicle import Vehicle
-from uavturb.sim.core.signals import Constant, Reference, Waypoints
+from uavturb.sim.core.signals import Reference
 
-__all__ = ["MPCWeights", "MPCController", "box_qp", "flat_attitude", "benchmark"]
+__all__ = ["MPCWeights", "MPCController", "box_qp", "flat_attitude"]
 
 
 @dataclass(frozen=True)
@@ -408,21 +407,6 @@ class MPCController:
         self.qp_iterations.append(iters)
         self.solve_times.append(time.perf_counter() - t0)
         return self.U[:, 0] * self.w_max
-
-
-def benchmark(vehicle: Vehicle | str = "quad", seconds: float = 10.0, **options: Any) -> dict[str, float]:
-    """Time MPC updates on a hover-and-step flight in closed loop (no effects).
-
-    Returns ``{"mean_ms", "median_ms", "p95_ms", "max_ms", "updates", "rms_error_m"}``.
-    """
-    v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
-    ref = Reference(Waypoints((0.0, 1.0, 3.0, 5.0), (0.0, 0.0, 1.0, 1.0)), Constant(0.0),
-                    Waypoints((0.0, 1.0, 3.0), (1.0, 1.0, 1.3)), Constant(0.0), seconds, "bench")
-    out = track(v, ref, seconds, **options)
-    st = np.asarray(out["solve_ms"])
-    return {"mean_ms": float(st.mean()), "median_ms": float(np.median(st)), "p95_ms": float(np.percentile(st, 95)),
-            "max_ms": float(st.max()),
-            "updates": float(len(st)), "rms_error_m": float(np.sqrt(np.mean(out["error"] ** 2)))}
 
 
 def track(vehicle: Vehicle, reference: Reference, duration: float, physics_rate: float = 400.0,

@@ -36,76 +36,55 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
+from filelock import Timeout
 from omegaconf import DictConfig, OmegaConf
 
 from uavturb.errors import InputError, Interrupted
-from uavturb.experiments.config import load_config
-from uavturb.experiments.executors import PRETRAIN_RUN, Job, make_executor
-from uavturb.experiments.sweep_spec import DEFAULT_SPEC, FINAL_METRICS, load_spec, resolve_spec
-from uavturb.experiments.tracking import NOTE_TAG, ui_url
-from uavturb.experiments.train import CHECKPOINT_ARTIFACT, quiet_lightning, train
+from uavturb.io.shards import config_hash
+from uavturb.runs import store
+from uavturb.runs.config import DEFAULT_SPEC, SWEEPS_DIR, load_config, load_spec, resolve_spec
+from uavturb.runs.executors import PRETRAIN_RUN, Job, make_executor
+from uavturb.runs.mutex import named_lock
+from uavturb.runs.processes import process_alive
+from uavturb.runs.table1 import compare
+from uavturb.runs.train import quiet_lightning, train
 
 
 def _spec_name(path: Path) -> str:
     """The sweep file as logged: a shipped sweep by its name, another file relative to the working folder."""
-    from uavturb.experiments.sweep_spec import SWEEPS_DIR
-    from uavturb.experiments.tracking import project_path
-
-    return f"{path.stem} (shipped)" if path.resolve().parent == SWEEPS_DIR.resolve() else project_path(path)
+    return f"{path.stem} (shipped)" if path.resolve().parent == SWEEPS_DIR.resolve() else store.project_path(path)
 
 
 def _spec_hash(spec: DictConfig, preset: str, overrides: list[str]) -> str:
-    from uavturb.io.shards import config_hash
-
     body = OmegaConf.to_container(spec)
     body["presets"] = {preset: {k: v for k, v in body["presets"][preset].items() if k != "seeds"}}
     return config_hash({"spec": body, "preset": preset, "overrides": list(overrides)})
 
 
-class _Store:
-    """The sweep's MLflow experiment: parent run, and children looked up by tags."""
+class _SweepRuns:
+    """The sweep's MLflow experiment: parent run, and children looked up by tags (:mod:`uavturb.runs.store`)."""
 
     def __init__(self, experiment: str):
-        from uavturb.experiments.tracking import client, experiment_id
-
-        self.client = client()
-        self.experiment_id = experiment_id(self.client, experiment)
+        self.experiment_id = store.ensure_experiment(experiment)
         self.experiment = experiment
 
     def parent(self, name: str, sweep_hash: str, preset: str, params: dict[str, Any]) -> tuple[str, bool]:
         """(run id, resumed): the latest parent of this sweep hash, else a new one. Two sweeps started
         together find the same parent (a lock per sweep hash)."""
-        from uavturb.experiments.tracking import claim_run, named_lock, run_tags
-
-        with named_lock(f"sweep-{sweep_hash}"):
-            runs = self.client.search_runs([self.experiment_id],
-                                           filter_string=f"tags.sweep = '{name}' and tags.sweep_hash = '{sweep_hash}'",
-                                           order_by=["attributes.start_time DESC"], max_results=1)
-            if runs:
-                run_id = runs[0].info.run_id
-                claim_run(self.client, run_id)
-                return run_id, True
-            run = self.client.create_run(self.experiment_id, run_name=f"sweep-{name}-{preset}",
-                                         tags=run_tags({"sweep": name, "sweep_hash": sweep_hash, "preset": preset,
-                                                        NOTE_TAG: f"Sweep `{name}`, preset `{preset}`: running."}))
-        for k, v in params.items():
-            self.client.log_param(run.info.run_id, k, v)
-        return run.info.run_id, False
+        with named_lock(f"sweep-{sweep_hash}", store.tracking_uri()):
+            run = store.latest_run(self.experiment_id, f"tags.sweep = '{name}' and tags.sweep_hash = '{sweep_hash}'")
+            if run is not None:
+                store.reopen_run(run.info.run_id)
+                return run.info.run_id, True
+            tags = {"sweep": name, "sweep_hash": sweep_hash, "preset": preset,
+                    store.NOTE_TAG: f"Sweep `{name}`, preset `{preset}`: running."}
+            return store.start_run(self.experiment_id, f"sweep-{name}-{preset}", tags, params=params,
+                                   experiment_is_id=True), False
 
     def children(self, parent_id: str, status: str | None = None) -> list[Any]:
         """Child runs of a parent (nested through tag ``mlflow.parentRunId``), latest first; only
         those of ``status`` if given."""
-        filt = f"tags.`mlflow.parentRunId` = '{parent_id}'"
-        if status is not None:
-            filt += f" and attributes.status = '{status}'"
-        out, token = [], None
-        while True:
-            page = self.client.search_runs([self.experiment_id], filter_string=filt, max_results=1000,
-                                           order_by=["attributes.start_time DESC"], page_token=token)
-            out.extend(page)
-            token = page.token
-            if not token:
-                return out
+        return store.child_runs(self.experiment_id, parent_id, status, ["attributes.start_time DESC"])
 
     def finished_children(self, parent_id: str) -> list[Any]:
         return self.children(parent_id, "FINISHED")
@@ -122,11 +101,7 @@ def _find(children: list[Any], **tags: str) -> Any | None:
 def _child_lock(parent_id: str, label: str) -> Iterator[None]:
     """Only one sweep process of this host works on a child at a time; the others wait, then
     find it finished (two identical sweeps started together do not train it twice)."""
-    from filelock import Timeout
-
-    from uavturb.experiments.tracking import named_lock
-
-    lock = named_lock(f"child-{parent_id}-{label}")
+    lock = named_lock(f"child-{parent_id}-{label}", store.tracking_uri())
     try:
         lock.acquire(timeout=0)
     except Timeout:
@@ -138,19 +113,17 @@ def _child_lock(parent_id: str, label: str) -> Iterator[None]:
         lock.release()
 
 
-def _child_state(store: _Store, parent_id: str, done: Any, **tags: str) -> tuple[Any | None, str | None]:
+def _child_state(runs_of: _SweepRuns, parent_id: str, done: Any, **tags: str) -> tuple[Any | None, str | None]:
     """(finished run to reuse, id of an interrupted run to resume) of the child with ``tags``.
 
     A finished run counts where ``done(run)`` holds. A run still RUNNING in a live process of this
     host (a ``uavturb train --resume`` started by hand) is waited for. An interrupted one (KILLED,
-    FAILED, or RUNNING whose process is gone) that :func:`uavturb.experiments.train.train` opened is
+    FAILED, or RUNNING whose process is gone) that :func:`uavturb.runs.train.train` opened is
     resumed in place rather than trained again beside it.
     """
-    from uavturb.experiments.tracking import process_alive
-
     said = False
     while True:
-        runs = [r for r in store.children(parent_id) if all(r.data.tags.get(k) == v for k, v in tags.items())]
+        runs = [r for r in runs_of.children(parent_id) if all(r.data.tags.get(k) == v for k, v in tags.items())]
         for run in runs:
             if run.info.status == "FINISHED" and done(run):
                 return run, None
@@ -170,20 +143,11 @@ def _child_state(store: _Store, parent_id: str, done: Any, **tags: str) -> tuple
 
 
 def _checkpoint_of(run: Any, cache_dir: Path) -> str | None:
-    """Local path of a finished run's checkpoint: its tag, else its artifact downloaded."""
-    local = run.data.tags.get("checkpoint")
-    if local and Path(local).is_file():
-        return local
+    """Local path of a finished run's checkpoint (:func:`uavturb.runs.store.run_checkpoint`), None
+    where it is gone (then it is trained again)."""
     try:
-        import mlflow
-
-        from uavturb.experiments.tracking import tracking_uri
-
-        dst = cache_dir / run.info.run_id
-        dst.mkdir(parents=True, exist_ok=True)
-        return mlflow.artifacts.download_artifacts(run_id=run.info.run_id, artifact_path=CHECKPOINT_ARTIFACT,
-                                                   dst_path=str(dst), tracking_uri=tracking_uri())
-    except Exception:  # noqa: BLE001 - gone: train it again
+        return str(store.run_checkpoint(run, cache_dir))
+    except InputError:
         return None
 
 
@@ -252,20 +216,20 @@ def _resolve_plan(spec: str | Path, preset: str, seeds: int | None, overrides: l
                  variants, base_pretrain)
 
 
-def _open_parent(plan: _Plan, store: _Store, sweep_hash: str) -> tuple[str, bool]:
+def _open_parent(plan: _Plan, runs_of: _SweepRuns, sweep_hash: str) -> tuple[str, bool]:
     """(parent run id, resumed): the sweep's parent run found or created, with its seed count and sweep file."""
     params = {"sweep_file": _spec_name(plan.spec_path), "preset": plan.preset,
               "overrides": json.dumps(plan.overrides), "rows": json.dumps([r.name for r in plan.rows])}
-    parent_id, resumed = store.parent(plan.spec.name, sweep_hash, plan.preset, params)
-    store.client.set_tag(parent_id, "seeds", str(plan.seeds))
-    store.client.log_text(parent_id, OmegaConf.to_yaml(plan.spec), "sweep.yaml")
+    parent_id, resumed = runs_of.parent(plan.spec.name, sweep_hash, plan.preset, params)
+    store.set_tags(parent_id, {"seeds": str(plan.seeds)})
+    store.log_texts(parent_id, {"sweep.yaml": OmegaConf.to_yaml(plan.spec)})
     _say(f"sweep {plan.spec.name} ({plan.preset}, {plan.seeds} seed(s), {len(plan.rows)} rows): MLflow experiment "
          f"{plan.experiment!r}, parent run {parent_id}{' (resumed)' if resumed else ''}")
     return parent_id, resumed
 
 
 def _has_final_metrics(run: Any) -> bool:
-    return all(k in run.data.metrics for k in FINAL_METRICS)
+    return all(k in run.data.metrics for k in store.TABLE1_METRICS)
 
 
 class _Progress:
@@ -281,7 +245,7 @@ class _Progress:
         self.done += 1
         if not reused:
             self.t_run, self.n_run = self.t_run + dt, self.n_run + 1
-        shown = "  ".join(f"{k} {metrics[k]:.4g}" for k in ("test/rmse_d", "test/rmse_fa_1e-4N", "test/loss")
+        shown = "  ".join(f"{k} {metrics[k]:.4g}" for k in (store.RMSE_D, store.RMSE_FA_SCALED, "test/loss")
                           if k in metrics)
         took = "already done" if reused else f"{dt:.0f} s"
         eta = (f"  (sweep ETA {self.t_run / self.n_run * (self.total - self.done):.0f} s)"
@@ -292,9 +256,9 @@ class _Progress:
 class _Children:
     """The sweep's child runs: each reused where finished, else submitted to the executor."""
 
-    def __init__(self, plan: _Plan, store: _Store, parent_id: str, sweep_hash: str, ex: Any):
-        self.plan, self.store, self.parent_id, self.sweep_hash, self.ex = plan, store, parent_id, sweep_hash, ex
-        finished = store.finished_children(parent_id)
+    def __init__(self, plan: _Plan, runs_of: _SweepRuns, parent_id: str, sweep_hash: str, ex: Any):
+        self.plan, self.runs_of, self.parent_id, self.sweep_hash, self.ex = plan, runs_of, parent_id, sweep_hash, ex
+        finished = runs_of.finished_children(parent_id)
 
         def finished_row(row: Any, seed: int) -> bool:
             run = _find(finished, ablation=row.name, seed=str(seed))
@@ -320,7 +284,7 @@ class _Children:
 
     def _job(self, label: str, cfg: DictConfig, tags: dict[str, str], resume: str | None,
              encoder: Any = None) -> Job:
-        return Job(label, cfg, {"mlflow.parentRunId": self.parent_id, **tags, "sweep_hash": self.sweep_hash},
+        return Job(label, cfg, {store.PARENT_TAG: self.parent_id, **tags, "sweep_hash": self.sweep_hash},
                    encoder, resume=resume, on_start=lambda: self.progress.started(label, resume),
                    on_done=lambda out, dt: self.progress.finished(label, False, dt, out["metrics"]))
 
@@ -328,7 +292,7 @@ class _Children:
         """The pre-training run of variant ``v`` and ``seed``: its finished run's checkpoint, or a job."""
         label = f"pretrain {v} seed {seed}"
         with _child_lock(self.parent_id, label):
-            found, resume = _child_state(self.store, self.parent_id,
+            found, resume = _child_state(self.runs_of, self.parent_id,
                                          lambda r: _checkpoint_of(r, self.cache) is not None, pretrain=v,
                                          seed=str(seed))
             if found is not None:
@@ -339,13 +303,13 @@ class _Children:
             note = f"Pre-training for Table 1 (seed {seed}): depth encoder, depth → {v} transcoder."
             self.pretrain_ckpt[(v, seed)] = self.ex.submit(train, self._job(
                 label, self.plan.for_run(self.plan.base_pretrain[v], seed, label),
-                {"pretrain": v, "seed": str(seed), NOTE_TAG: note}, resume))
+                {"pretrain": v, "seed": str(seed), store.NOTE_TAG: note}, resume))
 
     def height(self, row: Any, seed: int) -> None:
         """The Table 1 run of ``row`` and ``seed``: its finished run's result, or a job."""
         label = f"{row.name} seed {seed}"
         with _child_lock(self.parent_id, label):
-            found, resume = _child_state(self.store, self.parent_id, _has_final_metrics, ablation=row.name,
+            found, resume = _child_state(self.runs_of, self.parent_id, _has_final_metrics, ablation=row.name,
                                          seed=str(seed))
             if found is not None:
                 self.results.append({"row": row.name, "seed": seed, "run_id": found.info.run_id,
@@ -359,7 +323,7 @@ class _Children:
             note = _row_note(row, cfg, seed, PRETRAIN_RUN if encoder is not None else None)
             self.results.append({"row": row.name, "seed": seed, "reused": False})
             self.jobs.append((self.results[-1], self.ex.submit(train, self._job(
-                label, cfg, {"ablation": row.name, "seed": str(seed), NOTE_TAG: note}, resume, encoder))))
+                label, cfg, {"ablation": row.name, "seed": str(seed), store.NOTE_TAG: note}, resume, encoder))))
 
     def collect(self) -> tuple[list[dict[str, Any]], dict[tuple[str, int], Any]]:
         """(one result a row and seed, ``{(variant, seed): checkpoint}``) once the executor is done."""
@@ -369,20 +333,15 @@ class _Children:
         return self.results, pretrain
 
 
-def _finish_parent(plan: _Plan, store: _Store, parent_id: str, sweep_hash: str) -> tuple[dict[str, Any], str]:
-    """(Table 1 from :func:`uavturb.experiments.compare.compare`, the UI view's id): the table logged to the
+def _finish_parent(plan: _Plan, runs_of: _SweepRuns, parent_id: str, sweep_hash: str) -> tuple[dict[str, Any], str]:
+    """(Table 1 from :func:`uavturb.runs.table1.compare`, the UI view's id): the table logged to the
     parent run as artifacts and description, the parent closed, the view saved."""
-    from uavturb.experiments.compare import compare
-    from uavturb.experiments.tracking import close_run
-
     table = compare(experiment=plan.experiment, parent_run_id=parent_id, spec=plan.spec_path, out=None)
-    store.client.log_text(parent_id, table["markdown_text"], "table1.md")
-    store.client.log_text(parent_id, table["csv_text"], "table1.csv")
-    store.client.set_tag(parent_id, NOTE_TAG, f"Sweep `{plan.spec.name}`, preset `{plan.preset}`, {plan.seeds} "
-                                              f"seed(s); one child run per row and seed.\n\n{table['markdown_text']}")
-    close_run(store.client, parent_id)
-    view = table1_view(store, plan.spec.name, plan.preset, sweep_hash)
-    _say(f"Table 1 in the MLflow UI: {ui_url(view)}")
+    store.log_texts(parent_id, {"table1.md": table["markdown_text"], "table1.csv": table["csv_text"]})
+    store.finish_run(parent_id, note=f"Sweep `{plan.spec.name}`, preset `{plan.preset}`, {plan.seeds} seed(s); one "
+                                     f"child run per row and seed.\n\n{table['markdown_text']}")
+    view = table1_view(runs_of, plan.spec.name, plan.preset, sweep_hash)
+    _say(f"Table 1 in the MLflow UI: {store.ui_url(view)}")
     return table, view
 
 
@@ -401,7 +360,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     experiment : MLflow experiment (default: the file's ``experiment``).
     conf_dir : a user's config folder, searched before the shipped one.
     executor : ``sequential`` (one run after another, here) or ``ray`` (Ray tasks;
-        :mod:`uavturb.experiments.executors`).
+        :mod:`uavturb.runs.executors`).
     address : the Ray cluster (``--executor ray``; default: a local Ray instance).
     max_retries : extra attempts of a run that fails.
 
@@ -410,48 +369,44 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     dict with ``parent_run_id``, ``experiment``, ``resumed`` (bool), ``runs`` (one dict per
     row and seed: ``row``, ``seed``, ``run_id``, ``metrics``, ``checkpoint``, ``reused``),
     ``pretrain`` (``{(variant, seed): checkpoint}``), ``table`` (Table 1 as text, from
-    :func:`uavturb.compare.compare`).
+    :func:`uavturb.runs.table1.compare`).
 
     Raises
     ------
     InputError : bad sweep file, unknown preset, bad override (before anything runs).
     RunsFailed : some runs failed after their retries (the parent run is then FAILED).
     """
-    from uavturb.experiments.tracking import close_run
-
     plan = _resolve_plan(spec, preset, seeds, overrides, experiment, conf_dir)
     ex = make_executor(executor, address=address, max_retries=max_retries)
     for cfg in [*plan.base_pretrain.values(), *plan.base_height.values()]:
         ex.check(cfg)  # e.g. the GPUs Ray is to reserve
     quiet_lightning()
     sweep_hash = _spec_hash(plan.spec, preset, plan.overrides)
-    store = _Store(plan.experiment)
-    parent_id, resumed = _open_parent(plan, store, sweep_hash)
-    children = _Children(plan, store, parent_id, sweep_hash, ex)
+    runs_of = _SweepRuns(plan.experiment)
+    parent_id, resumed = _open_parent(plan, runs_of, sweep_hash)
+    children = _Children(plan, runs_of, parent_id, sweep_hash, ex)
     try:
         with ex:
             children.submit_all()
             ex.wait()
     except BaseException as e:
-        status = close_run(store.client, parent_id, e)
+        status = store.finish_run(parent_id, e)
         if isinstance(e, Interrupted):
             e.notes.append(f"sweep parent run {parent_id} marked {status}; run the same command again to resume it")
         raise
     results, pretrain = children.collect()
-    table, view = _finish_parent(plan, store, parent_id, sweep_hash)
+    table, view = _finish_parent(plan, runs_of, parent_id, sweep_hash)
     return {"parent_run_id": parent_id, "experiment": plan.experiment, "resumed": resumed, "runs": results,
             "pretrain": pretrain, "table": table["table"], "view": view}
 
 
 #: the columns of the UI's Table 1 view: the row, the seed, RMSE(d) [m] and RMSE(f_a) [1e-4 N], [N]
-TABLE1_COLUMNS = ["tags.`ablation`", "tags.`seed`", "metrics.`test/rmse_d`", "metrics.`test/rmse_fa_1e-4N`",
-                  "metrics.`test/rmse_fa`"]
+TABLE1_COLUMNS = ["tags.`ablation`", "tags.`seed`", f"metrics.`{store.RMSE_D}`", f"metrics.`{store.RMSE_FA_SCALED}`",
+                  f"metrics.`{store.RMSE_FA}`"]
 
 
-def table1_view(store: _Store, name: str, preset: str, sweep_hash: str) -> str:
+def table1_view(runs_of: _SweepRuns, name: str, preset: str, sweep_hash: str) -> str:
     """A saved view of the experiment listing this sweep's Table 1 runs with their test metrics."""
-    from uavturb.experiments.tracking import save_view
-
-    return save_view(store.client, store.experiment_id, f"table1-{sweep_hash}", f"Table 1 ({name}, {preset})",
+    return store.save_view(runs_of.experiment_id, f"table1-{sweep_hash}", f"Table 1 ({name}, {preset})",
                      search_filter=f"tags.sweep_hash = '{sweep_hash}' and tags.ablation LIKE '%'",
                      columns=TABLE1_COLUMNS, order_by="tags.`ablation`")

@@ -9,7 +9,7 @@
   in alternating blocks of 5 steps. 1.0 means the model never waits for data; the target is
   under 1.10. On a machine shared with other jobs, step times scatter by tens of percent:
   read the ratio together with the time spent waiting for the next batch, printed too.
-- **infer**: the exported streaming model (:mod:`uavturb.export`) at 128 x 128 on **one CPU
+- **infer**: the exported streaming model (:mod:`uavturb.commands.export`) at 128 x 128 on **one CPU
   thread**: per-frame latency (batch 1, state carried; target <= 1 ms, the camera at 20 Hz
   leaves 50 ms) for the ``torch.export`` program and for ONNX Runtime, and batched throughput.
   Latency does not depend on the weights, so a freshly initialised model of the paper's
@@ -26,7 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
+from uavturb.commands.export import ONNX_FILE, PT2_FILE, export_streaming
+from uavturb.data.datamodules import ShardWindowsDataModule
+from uavturb.data.synthetic import make_synthetic_dataset
+from uavturb.nn.streaming import StreamingHeightModel
 from uavturb.progress import progress_bar
+from uavturb.systems import HeightModule
 
 
 def _row(name: str, value: float, unit: str = "") -> None:
@@ -51,7 +56,6 @@ def bench_train(root: str | Path | None = None, *, size: int = 64, window: int =
     -------
     ``{num_workers: figures}``, the printed figures.
     """
-    from uavturb.data.synthetic import make_synthetic_dataset
 
     tmp = None
     if root is None:
@@ -74,9 +78,6 @@ def _bench_train_once(root, size: int, window: int, batch_size: int, num_workers
                       use_gru: bool) -> dict[str, float]:
     import torch
     import torch.nn.functional as F
-
-    from uavturb.data.datamodules import ShardWindowsDataModule
-    from uavturb.systems import HeightModule
 
     dm = ShardWindowsDataModule(str(root), window=window, batch_size=batch_size, num_workers=num_workers)
     dm.setup("fit")
@@ -173,10 +174,6 @@ def bench_infer(model_dir: str | Path | None = None, *, size: int = 128, frames:
     """
     import torch
 
-    from uavturb.experiments.export import export_streaming
-    from uavturb.nn.streaming import StreamingHeightModel
-    from uavturb.systems import HeightModule
-
     tmp = None
     if model_dir is None:
         tmp = tempfile.TemporaryDirectory(prefix="uavturb-bench-")
@@ -213,8 +210,6 @@ def _time_exported(model_dir: Path, frames: int, batch: int
     in ``model_dir``, on the threads torch and ONNX Runtime are given (one)."""
     import onnxruntime as ort
     import torch
-
-    from uavturb.experiments.export import ONNX_FILE, PT2_FILE
 
     program = torch.export.load(str(model_dir / PT2_FILE)).module()
     opts = ort.SessionOptions()

@@ -3,8 +3,8 @@ and bf16 side by side.
 
 Both stages are trained as ``uavturb train`` trains them -- the config groups ``trainer=gpu``
 and ``data=shards_gpu`` (``--device cpu``: ``trainer=cpu``), the modules and memory-mapped
-DataLoaders that :func:`uavturb.experiments.train.build_stage` builds, Lightning's ``Trainer``
-with :func:`~uavturb.experiments.train.trainer_kwargs` -- on synthetic box rooms
+DataLoaders that :func:`uavturb.runs.trainer.build_stage` builds, Lightning's ``Trainer``
+with :func:`~uavturb.runs.train.trainer_kwargs` -- on synthetic box rooms
 (:mod:`uavturb.data.synthetic`) written as shards and pairs to a temporary folder:
 
 - **height**: the encoder + GRU (``model=none_gru``: the encoder trains, as when fine-tuned),
@@ -37,7 +37,13 @@ from typing import Any
 
 import numpy as np
 
+from uavturb.data.synthetic import make_synthetic_dataset, make_synthetic_pairs
 from uavturb.errors import InputError
+from uavturb.io import shards
+from uavturb.runs.accelerators import check_trainer_device, cuda_device_count, no_cuda_reason
+from uavturb.runs.config import PRECISIONS as ALLOWED
+from uavturb.runs.config import load_config
+from uavturb.runs.trainer import build_stage, quiet_lightning, set_torch_flags, trainer_kwargs
 
 PAPER_FRAMES = 358_828          # paper: "531 trajectories along 68 scenes and a total of 358,828 samples"
 PAPER_TRAIN_SHARE = 43 / 68     # 43 training scenes of 68 (frames assumed spread evenly over scenes)
@@ -89,8 +95,6 @@ def _clock(on_cuda: bool):
 def _make_data(root: Path, size: int, train_samples: int, window: int) -> tuple[Path, Path]:
     """(shards folder, pairs root) of synthetic box rooms with at least ``train_samples`` training windows
     (stride 1) and pairs; pairs beyond 256 repeat the first ones (the content does not change the speed)."""
-    from uavturb.data.synthetic import make_synthetic_dataset, make_synthetic_pairs
-    from uavturb.io import shards
 
     t0 = time.perf_counter()
     T = max(2 * window, 64 if size <= 32 else 128)
@@ -110,8 +114,6 @@ def _make_data(root: Path, size: int, train_samples: int, window: int) -> tuple[
 
 def _config(stage: str, device: str, precision: str, data: tuple[Path, Path], size: int, batch_size: int,
             workers: int | None, steps: int, epochs: int, runs: Path):
-    from uavturb.experiments.config import load_config
-
     groups = ["trainer=gpu", "data=shards_gpu"] if device == "cuda" else ["trainer=cpu", "data=shards"]
     overrides = [*groups, "model=none_gru", f"stage={stage}", "model.pretraining=" + ("normals" if stage == "pretrain"
                                                                                        else "none"),
@@ -138,8 +140,6 @@ def measure_stage(cfg, data_root: Path, on_cuda: bool) -> dict[str, float]:
 
     import lightning as L
     import torch
-
-    from uavturb.experiments.train import build_stage, quiet_lightning, set_torch_flags, trainer_kwargs
 
     quiet_lightning()
     set_torch_flags(cfg.trainer)
@@ -223,7 +223,6 @@ def bench_gpu(device: str = "cuda", *, size: int | None = None, batch_size: int 
     ------
     InputError : ``device`` is cuda and no CUDA device is seen, or a size, count or precision is bad.
     """
-    from uavturb.experiments.accelerators import check_trainer_device
 
     size, steps, workers = _settings(device, size, steps, workers, epochs, batch_size, cpu_threads, precisions)
     on_cuda = device == "cuda"
@@ -258,8 +257,6 @@ def _settings(device: str, size: int | None, steps: int | None, workers: int | N
               cpu_threads: int, precisions: tuple[str, ...]) -> tuple[int, int, int | None]:
     """(size, steps, workers) of :func:`bench_gpu`, the device's defaults filled in; InputError naming the
     option that is bad, or ``--device`` where no CUDA device is seen."""
-    from uavturb.experiments.accelerators import cuda_device_count, no_cuda_reason
-    from uavturb.experiments.config import PRECISIONS as ALLOWED
 
     if device not in DEVICE_DEFAULTS:
         raise InputError("--device", f"{device!r}: choose cuda or cpu")

@@ -74,11 +74,10 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
     import os
     import tempfile
 
-    from uavturb.experiments import tracking
-    from uavturb.experiments.config import load_config
-    from uavturb.experiments.sweep import sweep
-    from uavturb.experiments.sweep_spec import DEFAULT_SPEC
-    from uavturb.experiments.train import _prepare_data
+    from uavturb.runs import store
+    from uavturb.runs.config import DEFAULT_SPEC, load_config
+    from uavturb.runs.sweep import sweep
+    from uavturb.runs.training_data import prepare_data
 
     out: dict[str, float] = {}
     old = os.environ.get("MLFLOW_TRACKING_URI")
@@ -87,11 +86,10 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
         try:
             data = [f"data.root={tmp}/sim", f"data.pairs_root={tmp}/pairs"]
             for stage in ("pretrain", "height"):
-                _prepare_data(load_config(["data=synthetic", f"stage={stage}", *data]))
-            client = tracking.client()
+                prepare_data(load_config(["data=synthetic", f"stage={stage}", *data]))
             metrics = {}
             for executor in ("sequential", "ray"):
-                client.create_experiment(f"bench-{executor}", artifact_location=f"{tmp}/mlruns/{executor}")
+                store.create_experiment(f"bench-{executor}", artifact_location=f"{tmp}/mlruns/{executor}")
                 t = time.perf_counter()
                 res = sweep(DEFAULT_SPEC, preset="quick", seeds=seeds, experiment=f"bench-{executor}",
                             overrides=[*data, f"trainer.default_root_dir={tmp}/runs-{executor}"], executor=executor)
@@ -106,48 +104,51 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
     out["CPUs"] = float(os.cpu_count() or 1)
     out["max relative difference of test metrics"] = max(
         abs(m[k] - metrics["ray"][run][k]) / max(abs(m[k]), 1e-12)
-        for run, m in metrics["sequential"].items() for k in ("test/rmse_d", "test/rmse_fa"))
+        for run, m in metrics["sequential"].items() for k in store.TABLE1_METRICS)
     return out
 
 
 def bench(what: str) -> None:
-    """``uavturb bench``: print the figures of one of :data:`TARGETS`."""
+    """``uavturb bench``: print the figures of one of :data:`TARGETS`.
+
+    Each target imports what it measures here, not at the top of the module (as cli.py does):
+    ``uavturb bench --help`` reads :data:`TARGETS`, and a target must not load the stacks of the
+    others (torch and Lightning, Ray, CasADi, PySINDy) into the process it times."""
     if what == "readers":  # bounded CSV reader (uavturb.io.euroc_csv)
         for k, v in bench_readers().items():
             print(f"{k:<48}{v:>12.4g}")
         return
-    if what == "sweep":  # the quick sweep, sequential and on Ray (uavturb.experiments.executors)
+    if what == "sweep":  # the quick sweep, sequential and on Ray (uavturb.runs.executors)
         for k, v in bench_sweep().items():
             print(f"{k:<48}{v:>12.4g}")
         return
-    if what in ("train", "infer"):  # learning pipeline (uavturb.bench_learning)
-        from uavturb.experiments import bench_learning
+    if what in ("train", "infer"):  # learning pipeline (uavturb.bench.learning)
+        from uavturb.bench import learning
 
-        (bench_learning.bench_train if what == "train" else bench_learning.bench_infer)()
+        (learning.bench_train if what == "train" else learning.bench_infer)()
         return
     if what == "generate":
-        from uavturb.sim import dataset_benchmark
+        from uavturb.bench import generate as dataset_benchmark
 
         for k, v in dataset_benchmark.benchmark().items():
             print(f"{k:<48}{v:>12.4g}" if isinstance(v, float) else f"{k:<48}{v:>12}")
         return
-    if what == "flights":  # MPC solve times and closed-loop flight speed (uavturb.sim.flight_benchmark)
-        from uavturb.sim import flight_benchmark
-        from uavturb.sim.core import mpc
+    if what == "flights":  # MPC solve times and closed-loop flight speed (uavturb.bench.flights)
+        from uavturb.bench import flights as flight_benchmark
         from uavturb.sim.dataset.flying import CONTROLLERS
 
-        for k, v in mpc.benchmark().items():
+        for k, v in flight_benchmark.mpc_update_times().items():
             print(f"{'mpc ' + k:<40}{v:>12.4g}")
         for ctrl in CONTROLLERS:
             flight_benchmark.benchmark(3, ctrl)
         return
     if what == "scene":
-        from uavturb.scene import heights
+        from uavturb.bench import scene
 
-        for k, v in heights.benchmark().items():
+        for k, v in scene.benchmark().items():
             print(f"{k:<40}{v:>12.4g}")
     elif what == "gap-proof":
-        from uavturb.experiments.gap_proof import gap_proof
+        from uavturb.proof.gap_proof import gap_proof
 
         gap_proof(Path("gap_proof"))
     elif what == "physics":
@@ -169,13 +170,13 @@ def bench(what: str) -> None:
         print(f"{'x_dot over 100k states (us/state)':<40}{mapped * 1e6:>12.3f}")
 
 
-#: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`)
+#: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.bench.gpu.bench_gpu`)
 BENCH_OPTIONS = ("recordings", "minutes", "device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
 
 
 def bench_target(what: str, options: dict | None = None) -> None:
     """``uavturb bench TARGET [options]``: :func:`bench`, or for ``gpu`` its measurement with ``options``
-    (keyword arguments of :func:`uavturb.experiments.bench_gpu.bench_gpu`, None = default).
+    (keyword arguments of :func:`uavturb.bench.gpu.bench_gpu`, None = default).
 
     Raises
     ------
@@ -184,15 +185,15 @@ def bench_target(what: str, options: dict | None = None) -> None:
     from uavturb.errors import InputError
 
     options = {k: v for k, v in (options or {}).items() if v is not None and v != []}
-    if what == "gap":  # speed and memory of the gap finder (uavturb.experiments.bench_gap)
-        from uavturb.experiments.bench_gap import bench_gap
+    if what == "gap":  # speed and memory of the gap finder (uavturb.bench.gap)
+        from uavturb.bench.gap import bench_gap
 
         bench_gap(options.pop("recordings", ()), **options)
         return
     options.pop("recordings", None)
     options.pop("minutes", None)
-    if what == "gpu":  # both training stages on a CUDA device (uavturb.experiments.bench_gpu)
-        from uavturb.experiments.bench_gpu import bench_gpu
+    if what == "gpu":  # both training stages on a CUDA device (uavturb.bench.gpu)
+        from uavturb.bench.gpu import bench_gpu
 
         bench_gpu(**options)
         return

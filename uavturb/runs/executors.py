@@ -39,6 +39,10 @@ from typing import Any, Callable, Iterator
 from omegaconf import DictConfig
 
 from uavturb.errors import InputError, UavturbError
+from uavturb.runs import store
+from uavturb.runs.accelerators import check_trainer_device
+from uavturb.runs.trainer import quiet_lightning
+from uavturb.runs.training_data import prepare_data
 
 #: ``--executor`` choices of ``uavturb sweep``
 EXECUTORS = ("sequential", "ray")
@@ -62,7 +66,7 @@ class Job:
     ``encoder`` is the pre-training its encoder comes from: another :class:`Job`, or
     ``{"checkpoint": path, "run_id": id}`` of a finished pre-training run, or None.
     ``resume``: the id of this child's interrupted run, continued in place rather than trained
-    again beside it (:func:`uavturb.experiments.train.train`'s ``resume``).
+    again beside it (:func:`uavturb.runs.train.train`'s ``resume``).
     ``state``: ``pending``, ``finished``, ``failed`` or ``skipped`` (its pre-training failed).
     """
 
@@ -89,66 +93,17 @@ def _one_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {text}" if text else type(e).__name__
 
 
-def encoder_checkpoint(encoder: dict[str, Any], cache_dir: Path) -> str:
-    """Local path of a pre-training checkpoint: its file where it is, else its MLflow artifact.
-
-    A Ray task may run on another node than the pre-training it needs: the file is then
-    downloaded from the run's artifact ``checkpoints/best.ckpt`` (the store must be shared).
-    """
-    local = encoder.get("checkpoint")
-    if local and Path(local).is_file():
-        return str(local)
-    import mlflow
-
-    from uavturb.experiments.tracking import tracking_uri
-    from uavturb.experiments.train import CHECKPOINT_ARTIFACT
-
-    dst = cache_dir / str(encoder["run_id"])
-    dst.mkdir(parents=True, exist_ok=True)
-    try:
-        return mlflow.artifacts.download_artifacts(run_id=encoder["run_id"], artifact_path=CHECKPOINT_ARTIFACT,
-                                                   dst_path=str(dst), tracking_uri=tracking_uri())
-    except Exception as e:  # noqa: BLE001 - one line naming the run
-        raise InputError(f"run {encoder['run_id']}", f"pre-training checkpoint {local} is not here and its "
-                         f"artifact cannot be read ({_one_line(e)})") from None
-
-
 def _record_failure(cfg: DictConfig, tags: dict[str, str], since_ms: int, error: BaseException) -> None:
-    """Leave this attempt's MLflow child FAILED (KILLED when interrupted), never RUNNING.
-
-    The attempt's child is the run with this job's tags started since ``since_ms``; Lightning
-    may have closed it already (FAILED). Without one (the attempt failed before ``train()``
-    opened its run) a FAILED child is created, so that the failure shows in the MLflow UI.
-    """
-    from uavturb.errors import Interrupted
-    from uavturb.experiments.tracking import client as tracking_client
-    from uavturb.experiments.tracking import close_run, run_tags
-
-    status = "KILLED" if isinstance(error, (Interrupted, KeyboardInterrupt)) else "FAILED"
-    client = tracking_client()
-    exp = client.get_experiment_by_name(cfg.tracking.experiment)
-    if exp is None:
-        return
-    match = " and ".join(f"tags.`{k}` = '{v}'" for k, v in tags.items())
-    runs = client.search_runs([exp.experiment_id], f"{match} and attributes.start_time >= {since_ms}",
-                              max_results=10)
-    if not runs and status == "FAILED":
-        runs = [client.create_run(exp.experiment_id, run_name=cfg.tracking.run_name, tags=run_tags(tags))]
-    for run in runs:
-        rid = run.info.run_id
-        client.set_tag(rid, "error", _one_line(error)[:4000])
-        client.log_text(rid, "".join(traceback.format_exception(error)), "error.txt")
-        if run.info.status in ("RUNNING", "SCHEDULED"):
-            close_run(client, rid, error)
+    """Leave this attempt's MLflow child FAILED (KILLED when interrupted), never RUNNING
+    (:func:`uavturb.runs.store.record_failure`; Lightning may have closed it already)."""
+    store.record_failure(cfg.tracking.experiment, tags, since_ms, error, _one_line(error),
+                         "".join(traceback.format_exception(error)), cfg.tracking.run_name)
 
 
 def _quiet_worker() -> None:
     """Lightning's and MLflow's per-run notices off in a worker too, as in the sweep's process."""
-    from uavturb.experiments.tracking import quiet_mlflow
-    from uavturb.experiments.train import quiet_lightning
-
     quiet_lightning()
-    quiet_mlflow()
+    store.quiet_mlflow()
 
 
 def run_job(train_fn: Callable[..., dict[str, Any]], cfg: DictConfig, tags: dict[str, str],
@@ -165,8 +120,10 @@ def run_job(train_fn: Callable[..., dict[str, Any]], cfg: DictConfig, tags: dict
     since_ms = int(time.time() * 1000)  # MLflow clients stamp start_time with this machine's clock too
     try:
         if encoder is not None:
-            cfg.model.encoder_ckpt = encoder_checkpoint(encoder, Path(cfg.trainer.default_root_dir) / "checkpoints"
-                                                        / "downloaded")
+            # a Ray task may run on another node than the pre-training: then its artifact is downloaded
+            cache = Path(cfg.trainer.default_root_dir) / "checkpoints" / "downloaded"
+            cfg.model.encoder_ckpt = str(store.run_checkpoint(str(encoder["run_id"]), cache, encoder.get("checkpoint"),
+                                                              option=f"run {encoder['run_id']}"))
             tags = {**{k: v.replace(PRETRAIN_RUN, str(encoder["run_id"])) for k, v in tags.items()},
                     "pretrain_run_id": str(encoder["run_id"])}
         t0 = time.perf_counter()
@@ -240,8 +197,6 @@ class SequentialExecutor(Executor):
 
     def check(self, cfg: DictConfig) -> None:
         """The runs train here: this machine must have the device they ask for (a GPU, bf16)."""
-        from uavturb.experiments.accelerators import check_trainer_device
-
         check_trainer_device(cfg.trainer)
 
     def submit(self, train_fn: Callable[..., dict[str, Any]], job: Job) -> Job:
@@ -336,7 +291,7 @@ class RayExecutor(Executor):
     def __enter__(self) -> RayExecutor:
         self._session = ray_session(self.address, self.num_cpus)
         self._session.__enter__()
-        env = {"MLFLOW_TRACKING_URI": absolute_tracking_uri(_tracking_uri())}
+        env = {"MLFLOW_TRACKING_URI": absolute_tracking_uri(store.tracking_uri())}
         self._task = self.ray.remote(run_job)
         self._options = {"max_retries": self.max_retries, "retry_exceptions": True, "runtime_env": {"env_vars": env}}
         return self
@@ -441,19 +396,11 @@ def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iter
         ray.shutdown()
 
 
-def _tracking_uri() -> str:
-    from uavturb.experiments.tracking import tracking_uri
-
-    return tracking_uri()
-
-
 def _prepare_data_once(cfg: DictConfig, done: set[tuple[str, str]]) -> None:
     """Generate a synthetic dataset here, once, before parallel tasks would all write it at once."""
-    from uavturb.experiments.train import _prepare_data  # the same step train() takes first
-
     key = (str(cfg.stage), str(cfg.data.pairs_root if cfg.stage == "pretrain" else cfg.data.root))
     if key not in done and cfg.data.synthetic.enabled:
-        _prepare_data(cfg)
+        prepare_data(cfg)  # the same step train() takes first
     done.add(key)
 
 

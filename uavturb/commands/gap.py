@@ -15,6 +15,8 @@ from uavturb.gap.surface_curve import plot_surface_curve
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M
 from uavturb.io.physics_config import load_physics_config, write_physics_config
 from uavturb.io.publish import check_output_file, check_output_folder, publish_folder
+from uavturb.io.reader import load_recordings
+from uavturb.runs.store import log_run
 
 
 def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str | None = None, seed: int = 0,
@@ -27,7 +29,6 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
     and renamed at the end (:func:`uavturb.io.publish.publish_folder`: an existing report folder is
     replaced only with ``overwrite``; a folder uavturb did not write is never touched).
     """
-    from uavturb.io.reader import load_recordings
 
     t0 = time.perf_counter()
     out = Path(out)
@@ -61,8 +62,6 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
         write_json(tmp, report)
     if log_mlflow:
         try:
-            from uavturb.experiments.tracking import log_run
-
             log_run("uavturb-gap", run_name="gap " + ",".join(Path(r).name for r in report["recordings"]),
                     params={"recordings": report["recordings"], "sim_effects": report["sim_effects"], "seed": seed,
                             "protocol": report["protocol"]},

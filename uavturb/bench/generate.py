@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from uavturb.io import shards
 from uavturb.sim.dataset.generation import generate_sim, time_split
 from uavturb.sim.dataset.presets import get_preset
 
@@ -35,7 +36,6 @@ def benchmark(preset: str = "quick", workers: int = 2, seed: int = 0, out: str |
         t0 = time.perf_counter()
         generate_sim(preset, root, workers=workers, seed=seed, progress=True, **overrides)
         wall = time.perf_counter() - t0
-        from uavturb.io import shards
 
         m = shards.read_manifest(root)
         metas = [shards.read_meta(f) for s in shards.SPLITS for f in m.folders(s)]

@@ -22,6 +22,8 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from uavturb.sim.flights.simulate import generate_flight
+
 #: rows of one flight-hour at 200 Hz
 HOUR_ROWS = 3600 * 200
 
@@ -54,8 +56,6 @@ def _child(code: str, args: Sequence[str]) -> tuple[str, float]:
 
 def _generated(folder: Path, minutes: float) -> list[str]:
     """Two flights of ``minutes`` (hexarotor, ground effect and rotor drag) under ``folder``."""
-    from uavturb.sim.flights.simulate import generate_flight
-
     paths = []
     for k in range(2):
         path = folder / f"flight{k}"

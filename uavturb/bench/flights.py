@@ -1,4 +1,5 @@
-"""``uavturb bench flights``: speed of closed-loop flights through generated scenes."""
+"""``uavturb bench flights``: MPC update times on a plain hover-and-step flight, and the speed of
+closed-loop flights through generated scenes."""
 
 from __future__ import annotations
 
@@ -6,7 +7,27 @@ from typing import Any
 
 import numpy as np
 
+from uavturb.io.vehicle_file import named_vehicle
+from uavturb.physics.vehicle import Vehicle
+from uavturb.scene.procedural import generate_scene
+from uavturb.sim.core.mpc import track
+from uavturb.sim.core.signals import Constant, Reference, Waypoints
 from uavturb.sim.dataset.flying import fly_trajectory
+
+
+def mpc_update_times(vehicle: Vehicle | str = "quad", seconds: float = 10.0, **options: Any) -> dict[str, float]:
+    """Time MPC updates on a hover-and-step flight in closed loop (no effects).
+
+    Returns ``{"mean_ms", "median_ms", "p95_ms", "max_ms", "updates", "rms_error_m"}``.
+    """
+    v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
+    ref = Reference(Waypoints((0.0, 1.0, 3.0, 5.0), (0.0, 0.0, 1.0, 1.0)), Constant(0.0),
+                    Waypoints((0.0, 1.0, 3.0), (1.0, 1.0, 1.3)), Constant(0.0), seconds, "bench")
+    out = track(v, ref, seconds, **options)
+    st = np.asarray(out["solve_ms"])
+    return {"mean_ms": float(st.mean()), "median_ms": float(np.median(st)), "p95_ms": float(np.percentile(st, 95)),
+            "max_ms": float(st.max()),
+            "updates": float(len(st)), "rms_error_m": float(np.sqrt(np.mean(out["error"] ** 2)))}
 
 
 def benchmark(n_trajectories: int = 3, controller: str = "mpc", seed: int = 0, print_fn: Any = print,
@@ -17,7 +38,6 @@ def benchmark(n_trajectories: int = 3, controller: str = "mpc", seed: int = 0, p
     time in the controller and the physics, MPC update times (mean, p95) [ms], tracking error
     (mean, max) [m] and the collision count.
     """
-    from uavturb.scene.procedural import generate_scene
 
     frames = wall = ctrl_s = phys_s = 0.0
     solve, err = [], []

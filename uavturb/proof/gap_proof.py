@@ -23,10 +23,14 @@ from pathlib import Path
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.experiments.proof_scoring import param_error, with_hidden_bias
-from uavturb.experiments.sindy_peer import sindy_names
 from uavturb.gap.finder import analyse
+from uavturb.io.reader import read_recording
 from uavturb.physics.effects import EFFECTS
+from uavturb.proof.conditions import conditions_table, run_conditions
+from uavturb.proof.scoring import param_error, with_hidden_bias
+from uavturb.proof.sindy_peer import sindy_names
+from uavturb.sim.flights.sensors import SensorNoise
+from uavturb.sim.flights.simulate import generate_flight
 
 #: concealed magnitudes. Sensor noise is about 0.042 N per axis and sample (EuRoC's ADIS16448
 #: accelerometer on the 1.5 kg hexarotor); hover rotor-speed sum about 3200 rad/s.
@@ -92,10 +96,7 @@ def run_proof(out: Path, *, duration: float = 90.0, seed: int = 0, singles: list
     out), run PySINDy on the same samples, and tabulate. Cases with the ceiling effect fly
     :data:`CEILING_DURATION` s (the plan's hovers under the ceiling need it); the others
     ``duration``. ``seconds`` times reading both recordings and the analysis. Every flight
-    carries :data:`uavturb.experiments.proof_scoring.HIDDEN_BIAS`."""
-    from uavturb.io.reader import read_recording
-    from uavturb.sim.flights.sensors import SensorNoise
-    from uavturb.sim.flights.simulate import generate_flight
+    carries :data:`uavturb.proof.scoring.HIDDEN_BIAS`."""
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -203,12 +204,9 @@ def confusion_table(rows: list[dict]) -> str:
 def gap_proof(out: Path, *, duration: float = 90.0, seed: int = 0, singles: list[str] | None = None,
               pairs: bool = True, suite: str = "all") -> dict:
     """``uavturb gap-proof``: the finder blind on concealed effects (``suite`` ``concealed``) and on
-    flights with real recordings' troubles (``conditions``, :mod:`uavturb.experiments.gap_conditions`);
+    flights with real recordings' troubles (``conditions``, :mod:`uavturb.proof.conditions`);
     writes ``out/proof.md`` and ``proof.json``."""
     import json
-
-    from uavturb.experiments.gap_conditions import conditions_table, run_conditions
-    from uavturb.physics.effects import EFFECTS
 
     if suite not in ("all", "concealed", "conditions"):
         raise InputError("--suite", f"unknown suite '{suite}' (allowed: all, concealed, conditions)")

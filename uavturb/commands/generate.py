@@ -81,7 +81,7 @@ def generate_sim(preset: str, out: str | Path, *, workers: int = 1, seed: int = 
     from uavturb.sim.dataset import generation
 
     if executor == "ray":
-        from uavturb.experiments.executors import ray_session
+        from uavturb.runs.executors import ray_session
 
         with ray_session(address, num_cpus=workers):
             m = generation.generate_sim(preset, out, workers=workers, seed=seed, shard=shard, executor="ray",

@@ -44,10 +44,11 @@ from pathlib import Path
 
 import numpy as np
 
-from uavturb.experiments.proof_scoring import param_error, with_hidden_bias
-from uavturb.experiments.sindy_peer import sindy_names
 from uavturb.gap.finder import analyse
-from uavturb.sim.flights.conditions import Conditions
+from uavturb.io.reader import load_recordings
+from uavturb.proof.scoring import param_error, with_hidden_bias
+from uavturb.proof.sindy_peer import sindy_names
+from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight, read_truth
 
 #: relative error within which a target counts as named right (issue: wind within 30 %)
 TOLERANCE = 0.30
@@ -170,8 +171,6 @@ def verdict(targets: dict[str, dict[str, float]], physics: set[str], report: dic
 
 def run_conditions(out: Path, *, duration: float = 60.0, seed: int = 0, progress=print) -> dict:
     """Generate each condition's two flights under ``out/flights/``, run the finder blind, score."""
-    from uavturb.io.reader import load_recordings
-    from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
 
     rows = []
     for i, cond in enumerate(CONDITIONS):

@@ -1,6 +1,6 @@
 """Table 1 from the MLflow store (``uavturb compare``): mean +- std over seeds per ablation row.
 
-Rows are the height runs tagged ``ablation=<row>`` (and ``seed=<n>``) by :func:`uavturb.sweep.sweep`,
+Rows are the height runs tagged ``ablation=<row>`` (and ``seed=<n>``) by :func:`uavturb.runs.sweep.sweep`,
 FINISHED, with metrics ``test/rmse_d`` [m] and ``test/rmse_fa`` [N]. By default the children of
 the latest sweep parent run of the experiment are used; with no sweep parent at all, every
 such run of the experiment. Where a (row, seed) pair has several runs, the latest counts.
@@ -21,20 +21,9 @@ from typing import Any
 import numpy as np
 
 from uavturb.errors import InputError
-
-METRICS = ("test/rmse_d", "test/rmse_fa")
-FA_SCALE = 1e4  # the paper prints RMSE(f_a) in units of 1e-4 N
-
-
-def search_all_runs(client, exp_id: str, filter_string: str, order_by: list[str] | None = None) -> list[Any]:
-    out, token = [], None
-    while True:
-        page = client.search_runs([exp_id], filter_string=filter_string, order_by=order_by, max_results=1000,
-                                  page_token=token)
-        out.extend(page)
-        token = page.token
-        if not token:
-            return out
+from uavturb.io.publish import check_output_file, write_text_atomic
+from uavturb.runs import store
+from uavturb.runs.config import DEFAULT_SPEC, load_spec
 
 
 def _mean_std(values: list[float]) -> tuple[float, float]:
@@ -59,7 +48,7 @@ def table_rows(runs: list[Any], spec_rows: list[Any] | None = None) -> list[dict
     latest: dict[tuple[str, str], Any] = {}
     for r in sorted(runs, key=lambda r: r.info.start_time or 0):
         tags, m = r.data.tags, r.data.metrics
-        if "ablation" in tags and all(k in m for k in METRICS):
+        if "ablation" in tags and all(k in m for k in store.TABLE1_METRICS):
             latest[(tags["ablation"], tags.get("seed", "?"))] = r
     by_row: dict[str, list[Any]] = {}
     for (row, _), r in latest.items():
@@ -69,8 +58,8 @@ def table_rows(runs: list[Any], spec_rows: list[Any] | None = None) -> list[dict
     out = []
     for row in order:
         rs = sorted(by_row[row], key=lambda r: r.data.tags.get("seed", ""))
-        d_mean, d_std = _mean_std([r.data.metrics["test/rmse_d"] for r in rs])
-        fa_mean, fa_std = _mean_std([r.data.metrics["test/rmse_fa"] for r in rs])
+        d_mean, d_std = _mean_std([r.data.metrics[store.RMSE_D] for r in rs])
+        fa_mean, fa_std = _mean_std([r.data.metrics[store.RMSE_FA] for r in rs])
         pre, _, model = row.partition("/")
         s = spec.get(row)
         out.append({"row": row, "pretraining": pre, "model": model or "-", "n": len(rs),
@@ -104,7 +93,7 @@ HEADER = ("Pre-training", "Model", "Seeds", "RMSE(d) [m]", "RMSE(f_a) [1e-4 N]",
 
 
 def _cells(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
-    fa = [{k: (None if r[k] is None else r[k] * FA_SCALE) for k in ("rmse_fa_mean", "rmse_fa_std", "paper_rmse_fa")}
+    fa = [{k: (None if r[k] is None else r[k] * store.FA_SCALE) for k in ("rmse_fa_mean", "rmse_fa_std", "paper_rmse_fa")}
           for r in rows]
     d_places = decimals([r["rmse_d_mean"] for r in rows])
     fa_places = decimals([f["rmse_fa_mean"] for f in fa])
@@ -168,38 +157,28 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     ------
     InputError : no such experiment or parent run, or no finished ablation run in it.
     """
-    from uavturb.experiments.sweep_spec import DEFAULT_SPEC, load_spec
-    from uavturb.io.publish import check_output_file, write_text_atomic
-
     if out is not None:  # before any query: existing tables are replaced only with overwrite
         for name in ("table1.md", "table1.csv"):
             check_output_file(Path(out) / name, overwrite=overwrite)
     sp = load_spec(spec if spec is not None else DEFAULT_SPEC)
     experiment = experiment or sp.experiment
-    from uavturb.experiments.tracking import client as tracking_client
-    from uavturb.experiments.tracking import tracking_uri
-
-    client, uri = tracking_client(), tracking_uri()
-    exp = client.get_experiment_by_name(experiment)
-    if exp is None:
+    uri = store.tracking_uri()
+    exp_id = store.find_experiment(experiment)
+    if exp_id is None:
         raise InputError("--mlflow-experiment",
                          f"no MLflow experiment {experiment!r} in {uri} (run `uavturb sweep` first)")
     if parent_run_id is None:
-        parents = search_all_runs(client, exp.experiment_id, "tags.sweep_hash LIKE '%' and tags.sweep LIKE '%'",
-                          ["attributes.start_time DESC"])
-        parent_run_id = parents[0].info.run_id if parents else None
+        parent = store.latest_run(exp_id, "tags.sweep_hash LIKE '%' and tags.sweep LIKE '%'")
+        parent_run_id = parent.info.run_id if parent else None
     if parent_run_id is not None:
-        try:
-            client.get_run(parent_run_id)
-        except Exception:  # noqa: BLE001 - MlflowException of an unknown id
-            raise InputError("--parent", f"no run {parent_run_id!r} in {uri}") from None
-        filt = f"tags.`mlflow.parentRunId` = '{parent_run_id}' and attributes.status = 'FINISHED'"
+        store.get_run(parent_run_id, "--parent")
+        runs = store.child_runs(exp_id, parent_run_id, "FINISHED")
     else:
-        filt = "attributes.status = 'FINISHED'"
-    runs = [r for r in search_all_runs(client, exp.experiment_id, filt) if "ablation" in r.data.tags]
+        runs = store.search_runs([exp_id], "attributes.status = 'FINISHED'")
+    runs = [r for r in runs if "ablation" in r.data.tags]
     rows = table_rows(runs, list(sp.rows))
     if not rows:
-        raise InputError("--mlflow-experiment", f"no finished ablation run with {', '.join(METRICS)} in experiment "
+        raise InputError("--mlflow-experiment", f"no finished ablation run with {', '.join(store.TABLE1_METRICS)} in experiment "
                          f"{experiment!r}" + (f", sweep {parent_run_id}" if parent_run_id else ""))
     title = (f"Table 1: test scenes, mean ± std over seeds (experiment {experiment}"
              + (f", sweep {parent_run_id})" if parent_run_id else ")"))

@@ -34,7 +34,7 @@ difference (heights, f_a, final state) must not exceed ``tolerance`` (1e-5).
 MLflow: the ONNX model is logged to the run as ``streaming_model`` with a signature that states
 every shape (the state is ``(L, batch, S)``: batch on axis 1), an input example, and metadata
 (units, ``alpha``, ``beta``, the run), and registered as :data:`REGISTERED_MODEL`; the alias
-:data:`BEST_ALIAS` follows the version whose run has the lowest ``test/rmse_d``. Exporting the
+:data:`uavturb.runs.store.BEST_ALIAS` follows the version whose run has the lowest ``test/rmse_d``. Exporting the
 same checkpoint with the same law again logs and registers nothing new.
 """
 
@@ -52,18 +52,18 @@ import torch
 from torch import nn
 
 from uavturb.errors import InputError
-from uavturb.experiments.tracking import client as _client
+from uavturb.io import shards
 from uavturb.io.checkpoint import read_checkpoint
 from uavturb.io.publish import check_output_folder, publish_folder
 from uavturb.nn.height import phi_alpha_beta
 from uavturb.nn.streaming import INPUT_NAMES, OUTPUT_NAMES, StreamingHeightModel
+from uavturb.runs import store
+from uavturb.systems import HeightModule
 
 PT2_FILE, ONNX_FILE, META_FILE = "model.pt2", "model.onnx", "export.json"
 TOLERANCE = 1e-5
 #: name of the logged model in its run, and in MLflow's model registry
 MODEL_NAME, REGISTERED_MODEL = "streaming_model", "uavturb-height"
-#: registry alias of the version whose training run has the lowest ``test/rmse_d``
-BEST_ALIAS, BEST_METRIC = "best", "test/rmse_d"
 UNITS = {"depth": "m (z-depth, 0 = no data)", "rotor_speeds": "rad/s", "height": "m", "f_a": "N (vertical, world +z)",
          "state": "GRU hidden state (layers, batch, hidden); zeros at the start of a flight"}
 
@@ -72,69 +72,10 @@ UNITS = {"depth": "m (z-depth, 0 = no data)", "rotor_speeds": "rad/s", "height":
 
 
 
-# --- where a run's checkpoint is ---------------------------------------------------------
-
-
-def get_run(run_id: str):
-    """The MLflow run ``run_id`` of the configured store; InputError naming ``--run`` if absent."""
-    from mlflow.exceptions import MlflowException
-
-    from uavturb.experiments.tracking import tracking_uri
-
-    try:
-        return _client().get_run(run_id)
-    except MlflowException:
-        raise InputError("--run", f"no run '{run_id}' in the MLflow store {tracking_uri()}") from None
-
-
-def _artifact_ckpts(client, run_id: str, path: str | None = None, depth: int = 0) -> list[str]:
-    out = []
-    for a in client.list_artifacts(run_id, path):
-        if a.is_dir and depth < 4:
-            out += _artifact_ckpts(client, run_id, a.path, depth + 1)
-        elif a.path.endswith(".ckpt"):
-            out.append(a.path)
-    return out
-
-
-def run_checkpoint(run_id: str) -> Path:
-    """The checkpoint of an MLflow training run, wherever the run keeps it.
-
-    Looked up in order: a ``checkpoint`` tag or param holding a path that exists; a
-    ``*.ckpt`` artifact of the run (downloaded; ``best*`` preferred); the folder
-    :func:`uavturb.train.train` writes to, ``<trainer.default_root_dir>/checkpoints/<run_id>/``.
-
-    Raises
-    ------
-    InputError : no such run, or no checkpoint found (naming where it looked).
-    """
-    run = get_run(run_id)
-    for value in (run.data.tags.get("checkpoint"), run.data.params.get("checkpoint")):
-        if value and Path(value).is_file():
-            return Path(value)
-    client = _client()
-    arts = _artifact_ckpts(client, run_id)
-    if arts:
-        arts.sort(key=lambda p: (not Path(p).name.startswith("best"), p))
-        import tempfile
-
-        dst = Path(tempfile.mkdtemp(prefix="uavturb-ckpt-"))
-        return Path(client.download_artifacts(run_id, arts[0], str(dst)))
-    root = Path(run.data.params.get("trainer.default_root_dir", "runs"))
-    folder = root / "checkpoints" / run_id
-    found = sorted(folder.glob("*.ckpt"), key=lambda p: (not p.name.startswith("best"), -p.stat().st_mtime))
-    if found:
-        return found[0]
-    raise InputError("--run", f"run {run_id} has no checkpoint (no 'checkpoint' tag, no .ckpt artifact, "
-                              f"nothing in {folder})")
-
-
 def load_height_module(run_id: str | None = None, checkpoint: str | Path | None = None):
     """A :class:`~uavturb.systems.HeightModule` in eval mode, float32 on the CPU, from a run or a file
     (a checkpoint written on a GPU, or in bf16, loads the same)."""
-    from uavturb.systems import HeightModule
-
-    path = Path(checkpoint) if checkpoint is not None else run_checkpoint(run_id)
+    path = Path(checkpoint) if checkpoint is not None else store.run_checkpoint(run_id)
     read_checkpoint(path)  # one line for a missing, unreadable or poisoned file
     try:  # weights_only given explicitly: TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD cannot turn it off
         module = HeightModule.load_from_checkpoint(str(path), map_location="cpu", weights_only=True)
@@ -159,8 +100,6 @@ class CheckSequence:
 
 def shard_sequences(root: str | Path, n: int = 2, length: int = 32) -> list[CheckSequence]:
     """Up to ``n`` sequences of ``length`` frames from a shard dataset (test split first)."""
-    from uavturb.io import shards
-
     root = Path(root)
     if not (root / shards.MANIFEST).is_file():
         raise InputError(root / shards.MANIFEST, "dataset manifest not found: the export is checked on real "
@@ -289,31 +228,11 @@ def export_streaming(model: StreamingHeightModel, image_size: tuple[int, int], n
 
 def signature(model: StreamingHeightModel, image_size: tuple[int, int], n_rotors: int):
     """The MLflow signature with every shape: batch is axis 0 of the frames, axis 1 of the state."""
-    from mlflow.models import ModelSignature
-    from mlflow.types import Schema, TensorSpec
-
-    f32, (H, W) = np.dtype(np.float32), image_size
+    H, W = image_size
     state = (model.layers, -1, model.hidden)
-    return ModelSignature(
-        inputs=Schema([TensorSpec(f32, (-1, 1, H, W), "depth"), TensorSpec(f32, (-1, n_rotors), "rotor_speeds"),
-                       TensorSpec(f32, state, "state")]),
-        outputs=Schema([TensorSpec(f32, (-1,), "height"), TensorSpec(f32, (-1,), "f_a"),
-                        TensorSpec(f32, state, "state_out")]))
-
-
-def _update_best_alias(client, name: str) -> str | None:
-    """Point :data:`BEST_ALIAS` at the registered version whose run has the lowest :data:`BEST_METRIC`."""
-    scored = []
-    for v in client.search_model_versions(f"name = '{name}'"):
-        if v.run_id:
-            value = client.get_run(v.run_id).data.metrics.get(BEST_METRIC)
-            if value is not None and np.isfinite(value):
-                scored.append((value, int(v.version)))
-    if not scored:
-        return None
-    best = str(min(scored)[1])
-    client.set_registered_model_alias(name, BEST_ALIAS, best)
-    return best
+    return store.tensor_signature(
+        inputs=[((-1, 1, H, W), "depth"), ((-1, n_rotors), "rotor_speeds"), (state, "state")],
+        outputs=[((-1,), "height"), ((-1,), "f_a"), (state, "state_out")])
 
 
 def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], example: dict[str, np.ndarray], sig,
@@ -322,43 +241,15 @@ def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], example: dic
 
     Returns ``{"model_uri", "registered_version", "reused"}``.
     """
-    import warnings
-
-    import mlflow
-    import onnx
-
-    from uavturb.experiments import tracking
-
-    client = tracking.client()
-    mlflow.set_tracking_uri(tracking.tracking_uri())
-    exp_id = client.get_run(run_id).info.experiment_id
-    key = tracking.input_key(checkpoint_sha256=meta["checkpoint_sha256"], alpha=meta["alpha"], beta=meta["beta"],
-                             registered_name=registered_name)
-    previous = mlflow.search_logged_models(experiment_ids=[exp_id], output_format="list",
-                                           filter_string=f"source_run_id = '{run_id}' AND name = '{MODEL_NAME}'")
-    same = [m for m in previous if m.tags.get(tracking.KEY_TAG) == key]
-    if same:
-        versions = client.search_model_versions(f"name = '{registered_name}'") if registered_name else []
-        version = next((v.version for v in versions if v.source == same[0].model_uri
-                        or v.model_id == same[0].model_id), None)
-        return {"model_uri": same[0].model_uri, "registered_version": version, "reused": True}
-    for m in previous:  # a different export of this run replaces the one logged before
-        client.delete_logged_model(m.model_id)
+    key = store.input_key(checkpoint_sha256=meta["checkpoint_sha256"], alpha=meta["alpha"], beta=meta["beta"],
+                          registered_name=registered_name)
     metadata = {k: meta[k] for k in ("units", "alpha", "beta", "use_gru", "inputs", "outputs", "max_abs_diff")}
     metadata["run_id"] = run_id
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        with mlflow.start_run(run_id=run_id):
-            info = mlflow.onnx.log_model(onnx.load(str(folder / ONNX_FILE)), name=MODEL_NAME, signature=sig,
-                                         input_example=example, metadata=metadata, tags={tracking.KEY_TAG: key},
-                                         registered_model_name=registered_name)
-            mlflow.log_artifact(str(folder / PT2_FILE), artifact_path="export")
-            mlflow.log_artifact(str(folder / META_FILE), artifact_path="export")
-            mlflow.log_metric("export/max_abs_diff", meta["max_abs_diff"])
-            mlflow.set_tag("export", tracking.project_path(meta["out"]))
-    if registered_name:
-        _update_best_alias(client, registered_name)
-    return {"model_uri": info.model_uri, "registered_version": info.registered_model_version, "reused": False}
+    return store.log_onnx_model(run_id, folder / ONNX_FILE, name=MODEL_NAME, key=key, signature=sig,
+                                input_example=example, metadata=metadata,
+                                artifacts=[folder / PT2_FILE, folder / META_FILE], artifact_path="export",
+                                metrics={store.EXPORT_DIFF: meta["max_abs_diff"]},
+                                tags={"export": store.project_path(meta["out"])}, registered_name=registered_name)
 
 
 def run_and_output(run_id: str | None, checkpoint: str | Path | None, out: Path, overwrite: bool,
@@ -371,7 +262,7 @@ def run_and_output(run_id: str | None, checkpoint: str | Path | None, out: Path,
         neither a run id nor a checkpoint is given (or the run is unknown).
     """
     check_output_folder(out, overwrite=overwrite, hint=hint)
-    run = get_run(run_id) if run_id is not None else None
+    run = store.get_run(run_id) if run_id is not None else None
     if run is None and checkpoint is None:
         raise InputError("--run", "a run id (or a checkpoint) is needed")
     return run
@@ -413,7 +304,7 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
     if (alpha is None) != (beta is None):
         raise InputError("--alpha/--beta", "give both of the ground-effect law's constants, or neither")
     run = run_and_output(run_id, checkpoint, out, overwrite, hint=" (use --overwrite to replace it)")
-    ckpt = Path(checkpoint) if checkpoint is not None else run_checkpoint(run_id)
+    ckpt = Path(checkpoint) if checkpoint is not None else store.run_checkpoint(run_id)
     module = load_height_module(checkpoint=ckpt)
     if data is None:
         data = run_data_root(run) if run is not None else None

@@ -24,12 +24,20 @@ from pathlib import Path
 
 import numpy as np
 
-from uavturb.experiments.generate import generate_flight_command, generate_normals, generate_sim
-from uavturb.experiments.identify import format_identification, identify_recordings
+from uavturb.commands.evaluate import evaluate
+from uavturb.commands.export import export
+from uavturb.commands.gap import gap
+from uavturb.commands.generate import generate_flight_command, generate_normals, generate_sim
+from uavturb.commands.identify import format_identification, identify_recordings
+from uavturb.gap.report import format_effect
 from uavturb.io.reader import load_recordings
 from uavturb.physics import ground_effect as ge
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.vehicle import HEXAROTOR
+from uavturb.runs.store import METRICS, RMSE_D, RMSE_FA_SCALED, ui_url
+from uavturb.runs.sweep import sweep
+from uavturb.runs.table1 import compare
+from uavturb.sysid.residuals import residual_forces, write_residuals
 
 TRUE_MU = 2.0
 #: the demo's Table 1 data: the quick preset's scenes and trajectories at 32x32 px
@@ -56,8 +64,6 @@ def physics_on_flight(rec_path: Path, out: Path) -> dict:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from uavturb.sysid.residuals import residual_forces, write_residuals
 
     ident = identify_recordings([rec_path])
     print(format_identification(ident))
@@ -104,13 +110,6 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     MLflow runs go to the default store (``mlflow.db`` and ``mlruns/`` in the working
     directory, or ``MLFLOW_TRACKING_URI``).
     """
-    from uavturb.experiments.compare import compare
-    from uavturb.experiments.evaluate import evaluate
-    from uavturb.experiments.export import export
-    from uavturb.experiments.gap_run import gap
-    from uavturb.gap.report import format_effect
-    from uavturb.experiments.sweep import sweep
-    from uavturb.experiments.tracking import ui_url
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -175,5 +174,5 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     print()
     _say(f"done in {summary['seconds']['total'] / 60:.1f} min; summary {out / 'summary.json'}")
     _say("browse every run: `make ui` (or .venv/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db), then open "
-         f"{ui_url(res['view'])} (Table 1: the seven rows with test/rmse_d [m] and test/rmse_fa_1e-4N)")
+         f"{ui_url(res['view'])} (Table 1: the seven rows with {RMSE_D} [{METRICS[RMSE_D].unit}] and {RMSE_FA_SCALED})")
     return summary

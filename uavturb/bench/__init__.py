@@ -1,0 +1,1 @@
+"""Benchmarks behind ``uavturb bench``: each prints figures (speed and memory targets are measured here, never by timed tests)."""
