@@ -43,8 +43,15 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from uavturb.data.recordings import recording_sequence
 from uavturb.errors import InputError
+from uavturb.experiments import tracking
+from uavturb.experiments.export import get_run, load_height_module, model_camera, run_and_output
 from uavturb.io.publish import publish_folder
+from uavturb.io.reader import load_recordings
+from uavturb.physics.ground_effect import identify_alpha_beta
+from uavturb.scene.camera import CameraModel
+from uavturb.sysid.identification import identify
 
 GE_FRACTION = 0.01
 #: lower bounds of the law's share of thrust that cut the ground-effect frames into height bands
@@ -109,51 +116,9 @@ def ground_effect_height(beta: float, fraction: float = GE_FRACTION) -> float:
     return float(np.sqrt(beta * (1.0 + 1.0 / fraction)))
 
 
-def dataset_camera(run) -> dict[str, Any]:
-    """``image_size``, ``yfov_deg``, ``pitch_deg``, ``camera`` (a registered camera's name), ``frame_dt``
-    of the run's training data (what is known)."""
-    from uavturb.io import shards
-
-    out: dict[str, Any] = {}
-    if run is None:
-        return out
-    p = run.data.params
-    try:
-        if int(float(p.get("data.image_size", "0"))) > 0:
-            out["image_size"] = int(float(p["data.image_size"]))
-    except ValueError:
-        pass
-    root = p.get("data.root")
-    if root and (Path(root) / shards.MANIFEST).is_file():
-        try:
-            m = shards.read_manifest(root)
-            out.setdefault("image_size", int(m.image_size[0]))
-            # synthetic shards keep the camera at the top of the config, simulator shards in its preset
-            for conf in (m.config, m.config.get("preset") or {}):
-                for k in ("yfov_deg", "pitch_deg"):
-                    if k in conf:
-                        out[k] = float(conf[k])
-                if conf.get("camera"):
-                    out["camera"] = str(conf["camera"])
-                if conf.get("dt"):
-                    out["frame_dt"] = float(conf["dt"])
-                if conf.get("camera_hz"):
-                    out["frame_dt"] = 1.0 / float(conf["camera_hz"])
-        except InputError:
-            pass
-    return out
-
-
-def camera_settings(run: Any, *, image_size: int | None = None, yfov_deg: float | None = None,
-                    pitch_deg: float | None = None, frame_dt: float | None = None) -> dict[str, Any]:
-    """Keyword arguments of :func:`uavturb.data.recordings.recording_sequence` for a run's model:
-    those given, else its training data's (:func:`dataset_camera`): ``image_size`` (default 128),
-    ``yfov_deg``, ``pitch_deg``, ``camera``, ``frame_dt``."""
-    cam = dataset_camera(run)
-    return {"image_size": int(image_size or cam.get("image_size", 128)),
-            "yfov_deg": yfov_deg if yfov_deg is not None else cam.get("yfov_deg"),
-            "pitch_deg": pitch_deg if pitch_deg is not None else cam.get("pitch_deg"),
-            "camera": cam.get("camera"), "frame_dt": frame_dt if frame_dt is not None else cam.get("frame_dt")}
+def image_size_of(camera: CameraModel) -> int | list[int]:
+    """A model camera's image size as evaluations report it: the side of a square image, else ``[H, W]``."""
+    return camera.width if camera.width == camera.height else [camera.height, camera.width]
 
 
 def band_edges(beta: float, ge_fraction: float = GE_FRACTION) -> list[tuple[float, float, str]]:
@@ -276,9 +241,6 @@ def log_evaluation(run_id: str, folder: Path, results: list[tuple[str, dict[str,
     """
     import warnings
 
-    from uavturb.experiments import tracking
-    from uavturb.experiments.export import get_run
-
     parent = get_run(run_id)
     client = tracking.client()
     params = {k: str(v)[:500] for k, v in params.items()}
@@ -316,8 +278,6 @@ def log_evaluation(run_id: str, folder: Path, results: list[tuple[str, dict[str,
 def evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
     """(vehicle, where its constants come from): identified on the first flight, else (said so) its
     ``vehicle.yaml``'s constants."""
-    from uavturb.sysid.identification import identify
-
     try:
         ident = identify([first], first.vehicle)
         veh = ident.apply(first.vehicle)
@@ -338,8 +298,6 @@ def evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
 def fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: bool) -> tuple[Any, float]:
     """(``(alpha, beta)`` fit by BFGS on the first flight's airborne frames with their true heights,
     the ground-effect region's height [m])."""
-    from uavturb.physics.ground_effect import identify_alpha_beta
-
     if not first.airborne.any():
         raise InputError(str(path), "no airborne frame (rotor thrust >= 0.3 m g) to identify (alpha, beta) on")
     air = first.airborne
@@ -451,8 +409,7 @@ def write_evaluation(folder: Path, rows: list[tuple[str, dict[str, float]]], res
 
 
 def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str | Path = "evaluation",
-             checkpoint: str | Path | None = None, vehicle: str | None = None, image_size: int | None = None,
-             frame_dt: float | None = None, yfov_deg: float | None = None, pitch_deg: float | None = None,
+             checkpoint: str | Path | None = None, vehicle: str | None = None, frame_dt: float | None = None,
              ge_fraction: float = GE_FRACTION, overwrite: bool = False, log: bool = True, progress: bool = True
              ) -> dict[str, Any]:
     """``uavturb evaluate``: Table 2 on EuRoC-layout flights (see the module docstring).
@@ -463,10 +420,8 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     recordings : recording folders; the first identifies the vehicle and ``(alpha, beta)``
     out : output folder (replaced when ``overwrite``)
     vehicle : preset or vehicle.yaml for folders without one (raw EuRoC)
-    image_size, yfov_deg, pitch_deg : camera of the depth images (default: the run's
-        training data's; see :mod:`uavturb.data.recordings`)
-    frame_dt : s, frame period where a recording has no cam0 frames (default: the training
-        data's camera period, else 0.05)
+    frame_dt : s, frame period where a recording has no cam0 frames (default: the model
+        camera's, the training data's; else 0.05)
     ge_fraction : the ground-effect region's threshold (law / thrust)
     log : log a child run of ``run_id`` with the metrics and the output folder
     progress : print progress to stderr and the table to stdout
@@ -475,11 +430,10 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     -------
     dict: ``rows`` [(flight, metrics)] with ``Total`` last, ``alpha``, ``beta``, ``h_ge``,
     ``vehicle_source``, ``out``, ``mlflow_run`` (child run id or None), ``table`` (text).
-    """
-    from uavturb.data.recordings import recording_sequence
-    from uavturb.experiments.export import load_height_module, run_and_output
-    from uavturb.io.reader import load_recordings
 
+    The depth frames are seen through the model's own camera (:func:`model_camera`: its checkpoint,
+    else its run); a model that carries none is refused in one line, before any work.
+    """
     if not recordings:
         raise InputError("REC", "at least one recording folder is needed")
     if not 0 < ge_fraction < 1:
@@ -487,12 +441,13 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     out = Path(out)
     run = run_and_output(run_id, checkpoint, out, overwrite)
     module = load_height_module(run_id, checkpoint)
-    settings = camera_settings(run, image_size=image_size, yfov_deg=yfov_deg, pitch_deg=pitch_deg, frame_dt=frame_dt)
-    size = settings["image_size"]
+    camera = model_camera(module, run, checkpoint)
+    size = image_size_of(camera)
 
     recs = load_recordings(recordings, vehicle)
     veh, vehicle_source = evaluation_vehicle(recs[0], progress)
-    seqs = [recording_sequence(r, veh, **settings, progress=progress) for r in recs]
+    seqs = [recording_sequence(r, veh, camera, frame_dt=frame_dt if frame_dt is not None else camera.frame_dt,
+                               progress=progress) for r in recs]
     law = evaluation_law(recs, seqs[0], veh, vehicle_source, ge_fraction, progress)
     fit, h_ge = law.fit, law.h_ge
     results, rows = flight_results(module, seqs, fit, h_ge)

@@ -29,9 +29,16 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from uavturb.data.recordings import recording_sequence
 from uavturb.errors import InputError
+from uavturb.experiments import evaluate as ev
+from uavturb.experiments import tracking
+from uavturb.experiments.compare import search_all_runs
+from uavturb.experiments.export import get_run, load_height_module, model_camera
 from uavturb.io.publish import check_output_folder, publish_folder
+from uavturb.io.reader import load_recordings
 from uavturb.progress import progress_bar
+from uavturb.scene.camera import CameraModel
 
 #: the paper's Table 2 on EuRoC (Total): RMSE(f_a) / RMSE(f_a,phi) = 0.4082 / 0.2433
 PAPER_RATIO = 0.4082 / 0.2433
@@ -45,9 +52,6 @@ def sweep_runs(parent_run_id: str, rows: Sequence[str] | None = None) -> list[st
     ------
     InputError : no such parent run, an unknown row, or no finished height run.
     """
-    from uavturb.experiments import tracking
-    from uavturb.experiments.compare import search_all_runs
-
     client = tracking.client()
     try:
         parent = client.get_run(parent_run_id)
@@ -182,10 +186,6 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
     dict: ``rows`` (:func:`summarise`), ``runs`` (per run: ``run_id``, ``row``, ``label``, ``total``,
     ``bands``, ``mlflow_run``), ``summary`` (markdown text), ``out``.
     """
-    from uavturb.experiments import evaluate as ev
-    from uavturb.experiments.export import get_run
-    from uavturb.io.reader import load_recordings
-
     ge_fraction = ev.GE_FRACTION if ge_fraction is None else ge_fraction
     if not recordings:
         raise InputError("REC", "at least one recording folder is needed")
@@ -223,22 +223,17 @@ class _SharedFlights:
     fitted on the first call of :meth:`sequences`)."""
 
     def __init__(self, recs: list[Any], ge_fraction: float, progress: bool):
-        from uavturb.experiments import evaluate as ev
-
         self.recs, self.ge_fraction, self.progress = recs, ge_fraction, progress
         self.vehicle, self.vehicle_source = ev.evaluation_vehicle(recs[0], progress)
         self._by_camera: dict[str, list[Any]] = {}
         self.law: Any = None
 
-    def sequences(self, settings: dict[str, Any]) -> list[Any]:
-        """The flights' frames through the camera ``settings``; the law fitted on the first call."""
-        from uavturb.data.recordings import recording_sequence
-        from uavturb.experiments import evaluate as ev
-
-        key = json.dumps(settings, sort_keys=True)
+    def sequences(self, camera: CameraModel, frame_dt: float | None) -> list[Any]:
+        """The flights' frames through a model's ``camera``; the law fitted on the first call."""
+        key = json.dumps({"camera": camera.record(), "frame_dt": frame_dt}, sort_keys=True)
         if key not in self._by_camera:
-            self._by_camera[key] = [recording_sequence(r, self.vehicle, **settings, progress=self.progress)
-                                    for r in self.recs]
+            self._by_camera[key] = [recording_sequence(r, self.vehicle, camera, frame_dt=frame_dt,
+                                                       progress=self.progress) for r in self.recs]
         seqs = self._by_camera[key]
         if self.law is None:  # the law depends on the first flight's frames, not on the camera
             self.law = ev.evaluation_law(self.recs, seqs[0], self.vehicle, self.vehicle_source, self.ge_fraction,
@@ -249,17 +244,15 @@ class _SharedFlights:
 def _evaluate_run(run: Any, row: str, label: str, flights: _SharedFlights, frame_dt: float | None, tmp: Path
                   ) -> dict[str, Any]:
     """One run's Table 2 into ``tmp/<label>/`` (as ``uavturb evaluate`` writes it); its figures."""
-    from uavturb.experiments import evaluate as ev
-    from uavturb.experiments.export import load_height_module
-
-    settings = ev.camera_settings(run, frame_dt=frame_dt)
-    seqs = flights.sequences(settings)
+    module = load_height_module(run.info.run_id)
+    camera = model_camera(module, run)
+    seqs = flights.sequences(camera, frame_dt if frame_dt is not None else camera.frame_dt)
     law = flights.law
-    results, table = ev.flight_results(load_height_module(run.info.run_id), seqs, law.fit, law.h_ge)
+    results, table = ev.flight_results(module, seqs, law.fit, law.h_ge)
     bands = ev.band_metrics(results, law.fit.beta, law.ge_fraction)
     folder = ev.safe_filename(label.replace("/", "_").replace(" ", "-"))
     info = {"run_id": run.info.run_id, "row": row, "label": label, **law.info(),
-            "image_size": settings["image_size"], "camera": seqs[0].camera.source,
+            "image_size": ev.image_size_of(camera), "camera": seqs[0].camera.source,
             "rows": [{"flight": n, **m} for n, m in table], "bands": bands}
     (tmp / folder).mkdir()
     ev.write_evaluation(tmp / folder, table, results, info)

@@ -52,10 +52,15 @@ import torch
 from torch import nn
 
 from uavturb.errors import InputError
+from uavturb.experiments import tracking
+from uavturb.experiments.tracking import CAMERA_TAG, tracking_uri
 from uavturb.experiments.tracking import client as _client
+from uavturb.io import shards
 from uavturb.io.checkpoint import read_checkpoint
 from uavturb.io.publish import check_output_folder, publish_folder
 from uavturb.nn.height import phi_alpha_beta
+from uavturb.scene.camera import CameraModel, camera_from_record
+from uavturb.systems import HeightModule
 from uavturb.nn.streaming import INPUT_NAMES, OUTPUT_NAMES, StreamingHeightModel
 
 PT2_FILE, ONNX_FILE, META_FILE = "model.pt2", "model.onnx", "export.json"
@@ -78,8 +83,6 @@ UNITS = {"depth": "m (z-depth, 0 = no data)", "rotor_speeds": "rad/s", "height":
 def get_run(run_id: str):
     """The MLflow run ``run_id`` of the configured store; InputError naming ``--run`` if absent."""
     from mlflow.exceptions import MlflowException
-
-    from uavturb.experiments.tracking import tracking_uri
 
     try:
         return _client().get_run(run_id)
@@ -132,8 +135,6 @@ def run_checkpoint(run_id: str) -> Path:
 def load_height_module(run_id: str | None = None, checkpoint: str | Path | None = None):
     """A :class:`~uavturb.systems.HeightModule` in eval mode, float32 on the CPU, from a run or a file
     (a checkpoint written on a GPU, or in bf16, loads the same)."""
-    from uavturb.systems import HeightModule
-
     path = Path(checkpoint) if checkpoint is not None else run_checkpoint(run_id)
     read_checkpoint(path)  # one line for a missing, unreadable or poisoned file
     try:  # weights_only given explicitly: TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD cannot turn it off
@@ -143,6 +144,27 @@ def load_height_module(run_id: str | None = None, checkpoint: str | Path | None 
     except Exception as e:  # noqa: BLE001 - any unreadable checkpoint is bad input
         raise InputError(path, f"not a HeightModule checkpoint ({type(e).__name__}: {str(e)[:200]})") from None
     return module.float().eval()  # float32 on the CPU, whatever device and precision it was trained with
+
+
+def model_camera(module, run: Any = None, checkpoint: str | Path | None = None) -> CameraModel:
+    """The camera a height model was trained through: its checkpoint's hyperparameter ``camera``,
+    else its run's tag :data:`~uavturb.experiments.tracking.CAMERA_TAG`. Never guessed.
+
+    Raises
+    ------
+    InputError : naming the checkpoint (or run) that carries no camera, or a malformed one.
+    """
+    where = str(checkpoint) if checkpoint is not None else f"run {run.info.run_id}" if run is not None else "model"
+    record = module.hparams.get("camera")
+    if record is None and run is not None and run.data.tags.get(CAMERA_TAG):
+        try:
+            record = json.loads(run.data.tags[CAMERA_TAG])
+        except json.JSONDecodeError:
+            raise InputError(f"run {run.info.run_id}", f"tag {CAMERA_TAG!r} is not JSON") from None
+    if record is None:
+        raise InputError(where, "the model carries no camera (image size, intrinsics, mount): trained before "
+                                "models kept their camera, or on data whose manifest names none; train it again")
+    return camera_from_record(record, where)
 
 
 # --- real sequences to check against -----------------------------------------------------
@@ -159,8 +181,6 @@ class CheckSequence:
 
 def shard_sequences(root: str | Path, n: int = 2, length: int = 32) -> list[CheckSequence]:
     """Up to ``n`` sequences of ``length`` frames from a shard dataset (test split first)."""
-    from uavturb.io import shards
-
     root = Path(root)
     if not (root / shards.MANIFEST).is_file():
         raise InputError(root / shards.MANIFEST, "dataset manifest not found: the export is checked on real "
@@ -327,8 +347,6 @@ def _log_to_mlflow(run_id: str, folder: Path, meta: dict[str, Any], example: dic
     import mlflow
     import onnx
 
-    from uavturb.experiments import tracking
-
     client = tracking.client()
     mlflow.set_tracking_uri(tracking.tracking_uri())
     exp_id = client.get_run(run_id).info.experiment_id
@@ -415,17 +433,21 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
     run = run_and_output(run_id, checkpoint, out, overwrite, hint=" (use --overwrite to replace it)")
     ckpt = Path(checkpoint) if checkpoint is not None else run_checkpoint(run_id)
     module = load_height_module(checkpoint=ckpt)
+    camera = model_camera(module, run, checkpoint)
     if data is None:
         data = run_data_root(run) if run is not None else None
         if data is None:
             raise InputError("--data", "no dataset to check the export on (the run names no data.root)")
     seqs = shard_sequences(data, n=n_sequences, length=length)
     H, W = seqs[0].depth.shape[1:]
+    if (H, W) != (camera.height, camera.width):
+        raise InputError(data, f"holds {H}x{W} images but the model's camera ({camera.name}) makes "
+                               f"{camera.height}x{camera.width}")
     n_rotors = seqs[0].rotor_speeds.shape[1]
     model = StreamingHeightModel(module, alpha, beta).eval()
     a, b = float(model.alpha), float(model.beta)
     properties = {"units": json.dumps(UNITS), "alpha": repr(a), "beta": repr(b), "run_id": str(run_id),
-                  "use_gru": str(model.use_gru)}
+                  "use_gru": str(model.use_gru), "camera": json.dumps(camera.record())}
 
     with publish_folder(out, overwrite=overwrite, command="uavturb export") as tmp:
         t0 = time.perf_counter()
@@ -448,14 +470,14 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
                 "outputs": {"height": [-1], "f_a": [-1], "state_out": [model.layers, -1, model.hidden]},
                 "units": UNITS, "use_gru": model.use_gru, "alpha": a, "beta": b, "max_abs_diff": worst,
                 "max_abs_diff_pt2": diff_pt2, "max_abs_diff_onnx": diff_onnx, "tolerance": tolerance,
-                "check_sequences": [s.name for s in seqs], "data": str(data)}
+                "check_sequences": [s.name for s in seqs], "data": str(data), "camera": camera.record()}
         (tmp / META_FILE).write_text(json.dumps(meta, indent=2))
     logged = None
     if log and run_id is not None:
         logged = _log_export(run_id, out, meta, model, seqs[0], registered_name, verbose)
     return {"out": str(out), "max_abs_diff": worst, "max_abs_diff_pt2": diff_pt2, "max_abs_diff_onnx": diff_onnx,
             "alpha": a, "beta": b, "checkpoint": str(ckpt), "image_size": (int(H), int(W)),
-            "state_shape": model.state_shape(1), "mlflow": logged}
+            "camera": camera.record(), "state_shape": model.state_shape(1), "mlflow": logged}
 
 
 def _check_exported(folder: Path, module: Any, model: StreamingHeightModel,

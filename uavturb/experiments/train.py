@@ -51,6 +51,7 @@ stderr (:func:`epoch_lines`). Lightning's notices (accelerator, tips) are left o
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from pathlib import Path
@@ -58,9 +59,11 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from uavturb.data.datamodules import dataset_camera
 from uavturb.errors import InputError
 from uavturb.experiments.accelerators import check_trainer_device
 from uavturb.experiments.config import TrainConfig, to_flat_dict, validate
+from uavturb.experiments.tracking import CAMERA_TAG
 
 #: MLflow artifact path of a run's best checkpoint (the local file: tag ``checkpoint``)
 CHECKPOINT_ARTIFACT = "checkpoints/best.ckpt"
@@ -182,11 +185,13 @@ def _build(cfg: DictConfig):
         encoder_ckpt = str(m.encoder_ckpt)
         callbacks.append(FreezeThenFinetune(unfreeze_at_epoch=m.unfreeze_at_epoch if m.finetune else -1,
                                             lr=m.lr_encoder))
+    camera = dataset_camera(d.root)  # the model carries the camera of its training images
     module = HeightModule(use_gru=m.use_gru, embed_dim=m.embed_dim, encoder_hidden=m.encoder_hidden,
                           gru_hidden=m.gru_hidden, gru_layers=m.gru_layers, mlp_hidden=m.mlp_hidden,
                           max_depth=m.max_depth, lr_head=m.lr_head, lr_encoder=m.lr_encoder, alpha=m.alpha,
                           beta=m.beta, loss_frames=m.loss_frames, encoder_ckpt=encoder_ckpt,
-                          loss=m.loss, law_weight_ref=m.law_weight_ref)
+                          loss=m.loss, law_weight_ref=m.law_weight_ref,
+                          camera=None if camera is None else camera.record())
     dm = ShardWindowsDataModule(d.root, window=d.window, stride=d.stride, eval_stride=d.eval_stride,
                                 batch_size=d.batch_size, num_workers=d.num_workers, image_size=d.image_size,
                                 seed=cfg.trainer.seed,  # seeds differ in batch order too, not only in init
@@ -539,6 +544,8 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     data_hash = dataset_hash(data_root) if data_root.is_dir() else "missing"
     module, dm, callbacks, monitor = _build(cfg)
     dm.setup("fit")  # bad data fails here, before a run is opened
+    if module.hparams.get("camera") is not None:  # the run names the model's camera too (tag camera, JSON)
+        tags = {**(tags or {}), CAMERA_TAG: json.dumps(module.hparams["camera"])}
     ckpt_root = Path(t.default_root_dir) / "checkpoints"
     client, run_id, last = None, None, None
     if cfg.tracking.enabled and _is_rank_zero():
