@@ -58,6 +58,15 @@ def test_forward_mount_known_answers():
     assert cam.source == "default forward camera (pitch 30 deg down, vertical fov 70 deg)"
 
 
+def test_synthetic_camera_rotation_is_the_forward_mount_on_a_yawed_level_body():
+    yaw, pitch = np.array([0.0, 0.7, -2.5]), np.array([45.0, 10.0, 80.0])
+    R_WC = synthetic.camera_rotation(yaw, pitch)
+    for k in range(3):
+        c, s = np.cos(yaw[k]), np.sin(yaw[k])
+        R_WB = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        np.testing.assert_allclose(R_WC[k], R_WB @ forward_rotation(pitch[k]), atol=1e-12)
+
+
 def test_records_round_trip_through_json():
     for cam in (forward_camera(24, 16, 70.0, 20.0, frame_dt=0.05), registered_camera("euroc_cam0", 32, 32)):
         back = camera_from_record(json.loads(json.dumps(cam.record())), "x.ckpt")

@@ -131,7 +131,9 @@ class BoxRoom:
 
 
 def camera_rotation(yaw: np.ndarray, pitch_deg: float | np.ndarray) -> np.ndarray:
-    """(F, 3, 3) ``R_WC``: optical frame of a camera looking along body +x pitched down, level body."""
+    """(F, 3, 3) ``R_WC``: optical frame of a camera looking along body +x pitched down, level body:
+    ``R_z(yaw) R_BC`` with the forward camera's mount ``R_BC`` (:func:`uavturb.scene.camera.forward_rotation`),
+    written out per frame for arrays of yaws and pitches [rad, deg]."""
     yaw = np.asarray(yaw, float)
     th = np.deg2rad(np.broadcast_to(np.asarray(pitch_deg, float), yaw.shape))
     z = np.stack([np.cos(yaw) * np.cos(th), np.sin(yaw) * np.cos(th), -np.sin(th)], -1)
