@@ -1,4 +1,4 @@
-"""Lightning DataModules over the on-disk datasets of :mod:`uavturb.data.shards`.
+"""Lightning DataModules over the on-disk datasets of :mod:`uavturb.io.shards`.
 
 - :class:`ShardWindowsDataModule`: windows of ``H`` consecutive frames of simulator shards,
   splits from the manifest (by scene). A sample is a dict of tensors::
@@ -36,7 +36,7 @@ class ShardWindowsDataset(Dataset):
 
     Parameters
     ----------
-    folders : trajectory folders (:func:`uavturb.data.shards.write_trajectory`).
+    folders : trajectory folders (:func:`uavturb.io.shards.write_trajectory`).
     window : frames per sample (H).
     stride : frames between the starts of consecutive windows of a trajectory.
 

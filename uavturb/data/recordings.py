@@ -8,7 +8,7 @@ the rotor frame B, so the camera's pose in W is ``T_WB T_BS(vehicle.yaml) T_SC(c
 (body origin over the surface below, m) is measured on the same cloud
 (:class:`uavturb.scene.heights.SurfaceIndex`); the ground-truth turbulence ``f_a`` is the
 world-z component of the residual force of the identified model
-(:func:`uavturb.physics.residuals.residual_forces`, N).
+(:func:`uavturb.sysid.residuals.residual_forces`, N).
 
 Choices (ours):
 

@@ -105,7 +105,7 @@ def run_checkpoint(run_id: str) -> Path:
 
     Looked up in order: a ``checkpoint`` tag or param holding a path that exists; a
     ``*.ckpt`` artifact of the run (downloaded; ``best*`` preferred); the folder
-    :func:`uavturb.train.train` writes to, ``<trainer.default_root_dir>/checkpoints/<run_id>/``.
+    :func:`uavturb.experiments.train.train` writes to, ``<trainer.default_root_dir>/checkpoints/<run_id>/``.
 
     Raises
     ------
