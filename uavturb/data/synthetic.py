@@ -10,7 +10,8 @@ paper's simulated quadrotor (``k_T = 5.45e-6``, ``r = 0.01 m``) and ``mu = 2``.
 Frames and conventions are those of the simulator (:mod:`uavturb.sim.render`): world z up;
 the camera's optical frame has x right, y down, z forward; it looks along body +x, pitched
 down by ``pitch_deg``; pixel ``(i, j)`` has the ray ``((j - (W-1)/2) / f, (i - (H-1)/2) / f, 1)``
-with ``f = (H/2) / tan(yfov/2)`` (:func:`pixel_rays`), so a ray parameter is the z-depth.
+with ``f = (H/2) / tan(yfov/2)`` (:func:`pixel_rays`; the forward camera of :mod:`uavturb.scene.camera`),
+so a ray parameter is the z-depth.
 The body flies level (roll = pitch = 0), heading along its horizontal velocity.
 """
 
@@ -23,11 +24,13 @@ from typing import Any
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io import shards
 from uavturb.physics import quaternion as quat
 from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.physics.ground_effect import phi
 from uavturb.physics.vehicle import QUADROTOR
 from uavturb.progress import progress_bar, show_rate
+from uavturb.scene.camera import forward_intrinsics
 
 YFOV_DEG = 70.0        # vertical field of view, as the simulator's renderer
 PITCH_DEG = 45.0       # camera pitched down [deg]
@@ -50,9 +53,9 @@ def pixel_rays(size: int | tuple[int, int], yfov_deg: float = YFOV_DEG) -> np.nd
     (H, W, 3) float64 rays ``(x, y, 1)`` in the optical frame (x right, y down, z forward).
     """
     H, W = (size, size) if np.isscalar(size) else size
-    f = (H / 2) / np.tan(np.deg2rad(yfov_deg) / 2)
-    u = (np.arange(W) - (W - 1) / 2) / f
-    v = (np.arange(H) - (H - 1) / 2) / f
+    K = forward_intrinsics(W, H, yfov_deg)  # the forward camera of uavturb.scene.camera
+    u = (np.arange(W) - K[0, 2]) / K[0, 0]
+    v = (np.arange(H) - K[1, 2]) / K[1, 1]
     uu, vv = np.meshgrid(u, v)
     return np.stack([uu, vv, np.ones_like(uu)], axis=-1)
 
@@ -128,7 +131,9 @@ class BoxRoom:
 
 
 def camera_rotation(yaw: np.ndarray, pitch_deg: float | np.ndarray) -> np.ndarray:
-    """(F, 3, 3) ``R_WC``: optical frame of a camera looking along body +x pitched down, level body."""
+    """(F, 3, 3) ``R_WC``: optical frame of a camera looking along body +x pitched down, level body:
+    ``R_z(yaw) R_BC`` with the forward camera's mount ``R_BC`` (:func:`uavturb.scene.camera.forward_rotation`),
+    written out per frame for arrays of yaws and pitches [rad, deg]."""
     yaw = np.asarray(yaw, float)
     th = np.deg2rad(np.broadcast_to(np.asarray(pitch_deg, float), yaw.shape))
     z = np.stack([np.cos(yaw) * np.cos(th), np.sin(yaw) * np.cos(th), -np.sin(th)], -1)
@@ -260,8 +265,6 @@ def make_synthetic_dataset(root: str | Path, n_scenes: int = 6, trajs_per_scene:
     -------
     :class:`uavturb.data.shards.Manifest`
     """
-    from uavturb.io import shards
-
     if T < 1 or size < 1 or trajs_per_scene < 1:
         raise InputError("synthetic", f"T, size and trajs_per_scene must be positive, got {T}, {size}, "
                          f"{trajs_per_scene}")
@@ -301,8 +304,6 @@ def make_synthetic_pairs(root: str | Path, M: int = 512, size: int = 32, seed: i
     Cameras sit anywhere above the boxes, look in any direction, pitched down 10-80 deg; a new
     room every ``per_room`` views. Returns the pairs folder.
     """
-    from uavturb.io import shards
-
     if M < 1 or size < 1:
         raise InputError("pairs", f"M and size must be positive, got {M}, {size}")
     rng = np.random.default_rng(seed)

@@ -42,12 +42,12 @@ def plan_config(preset: SimPreset, n_points: int, rotor_radius: float):
 
     A camera that hangs under the body origin (0.13 m for ``euroc_cam0``) would look from under
     the floor when landed at a few centimetres: the landed height and the lowest low hover become
-    at least :func:`uavturb.sim.cameras.least_body_height` (0.16 m for ``euroc_cam0``: the vehicle
+    at least :func:`uavturb.scene.camera.least_body_height` (0.16 m for ``euroc_cam0``: the vehicle
     stands on legs that tall). ``forward`` changes nothing.
     """
     from dataclasses import replace
 
-    from uavturb.sim.cameras import least_body_height
+    from uavturb.scene.camera import least_body_height
     from uavturb.sim.planning import PlanConfig
 
     cfg = PlanConfig(**{**preset.plan, "n_points": int(n_points)})

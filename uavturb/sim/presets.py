@@ -73,7 +73,7 @@ class SimPreset:
     pitch_deg : float, deg
         Downward pitch of the forward camera relative to body +x.
     camera : str
-        Camera of :mod:`uavturb.sim.cameras`: ``forward`` (default: at the body origin, ``yfov_deg``
+        Camera of :mod:`uavturb.scene.camera`: ``forward`` (default: at the body origin, ``yfov_deg``
         and ``pitch_deg`` above) or a calibrated one (``euroc_cam0``: its intrinsics scaled to
         ``width x height`` and its mount on the body; ``yfov_deg`` and ``pitch_deg`` then unused).
         A camera hanging under the body origin raises the plan's landed and low-hover heights so
@@ -174,7 +174,7 @@ class SimPreset:
                 raise bad(key, f"must be positive, got {getattr(self, key)}")
         if not 0 < self.yfov_deg < 180:
             raise bad("yfov_deg", f"must be in (0, 180), got {self.yfov_deg}")
-        from uavturb.sim.cameras import CAMERA_NAMES
+        from uavturb.scene.camera import CAMERA_NAMES
 
         if self.camera not in CAMERA_NAMES:
             raise bad("camera", f"unknown camera {self.camera!r} (known: {', '.join(CAMERA_NAMES)})")

@@ -108,7 +108,7 @@ def _chunk_pairs(job: tuple[int, int, int, int, str, SimPreset, int]) -> int:
     c, start, stop, scene_index, root, preset, seed = job
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     from uavturb.scene.procedural import generate_scene
-    from uavturb.sim.cameras import preset_intrinsics
+    from uavturb.scene.camera import preset_intrinsics
     from uavturb.sim.render import SceneRenderer
 
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), c]))

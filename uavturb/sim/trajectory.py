@@ -38,7 +38,7 @@ class _RendererCache:
         self.renderer = None
 
     def get(self, scene_index: int, preset: SimPreset):
-        from uavturb.sim.cameras import preset_intrinsics
+        from uavturb.scene.camera import preset_intrinsics
         from uavturb.sim.render import SceneRenderer
 
         key = (scene_index, preset.width, preset.height, preset.yfov_deg, preset.rgb, preset.camera)
@@ -63,7 +63,7 @@ RENDERERS = _RendererCache()
 def camera_poses(state: np.ndarray, pitch_deg: float, mount: np.ndarray | None = None) -> np.ndarray:
     """``T_WC`` (T, 4, 4) of the preset's camera at the states ``(T, 13)``: the forward camera of
     :func:`uavturb.sim.render.camera_pose` pitched ``pitch_deg`` down, or the body mount ``T_BC``
-    (4, 4) of a calibrated camera (:func:`uavturb.sim.cameras.preset_mount`)."""
+    (4, 4) of a calibrated camera (:func:`uavturb.scene.camera.preset_mount`)."""
     from uavturb.scene.projection import camera_pose_world
     from uavturb.sim.render import camera_pose
 
@@ -120,7 +120,7 @@ def make_trajectory(task: Task, preset: SimPreset, seed: int, controller: str
     from uavturb.io.vehicle_file import named_vehicle
     from uavturb.physics.ground_effect import phi
     from uavturb.scene.queries import collides, height_below, inside_obstacle
-    from uavturb.sim.cameras import preset_mount
+    from uavturb.scene.camera import preset_mount
 
     t_start, cpu_start = time.perf_counter(), time.process_time()
     scene = _scene(task.scene)
