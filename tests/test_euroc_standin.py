@@ -4,6 +4,7 @@ training data rendered through cam0: known answers from the published calibratio
 from __future__ import annotations
 
 import os
+from types import SimpleNamespace
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
@@ -12,16 +13,31 @@ import pytest  # noqa: E402
 import trimesh  # noqa: E402
 import yaml  # noqa: E402
 
+from uavturb.cli import main  # noqa: E402
+from uavturb.data.datamodules import dataset_camera  # noqa: E402
+from uavturb.data.recordings import cam0_camera, recording_camera, recording_sequence  # noqa: E402
 from uavturb.errors import InputError  # noqa: E402
-from uavturb.io import sensor_yaml  # noqa: E402
+from uavturb.io import align, sensor_yaml, shards  # noqa: E402
+from uavturb.io.body_frame import to_body  # noqa: E402
 from uavturb.io.reader import read_recording  # noqa: E402
+from uavturb.io.recording import GroundTruth, Recording  # noqa: E402
 from uavturb.io.vehicle_file import SHIPPED_DIR, load_vehicle  # noqa: E402
 from uavturb.physics import quaternion as quat  # noqa: E402
-from uavturb.sim.core import cameras  # noqa: E402
+from uavturb.scene import camera  # noqa: E402
 from uavturb.sim.flights import euroc_standin  # noqa: E402
 from uavturb.scene.layouts import floor_boxes, room_size  # noqa: E402
 from uavturb.scene.queries import surface_below  # noqa: E402
 from uavturb.sim.flights.plans import EUROC_ROOM  # noqa: E402
+from uavturb.scene import procedural  # noqa: E402
+from uavturb.scene.heights import SurfaceIndex  # noqa: E402
+from uavturb.scene.procedural import generate_scene  # noqa: E402
+from uavturb.scene.projection import camera_pose_world, depth_from_points  # noqa: E402
+from uavturb.sim.core.render import SceneRenderer, random_poses  # noqa: E402
+from uavturb.sim.dataset import generation  # noqa: E402
+from uavturb.sim.dataset.generation import dataset_config  # noqa: E402
+from uavturb.sim.dataset.presets import get_preset  # noqa: E402
+from uavturb.sim.dataset.pretraining_pairs import pairs_config  # noqa: E402
+from uavturb.sim.flights.simulate import make_reference  # noqa: E402
 
 #: EuRoC MAV dataset, mav0/cam0/sensor.yaml (every sequence): the numbers as published
 EUROC_INTRINSICS = [458.654, 457.296, 367.215, 248.375]
@@ -47,49 +63,45 @@ def _assert_is_euroc_cam0(cam):
 
 
 def test_cam0_registry_round_trips_through_sensor_yaml(tmp_path):
-    spec = cameras.camera_spec("euroc_cam0")
+    spec = camera.camera_spec("euroc_cam0")
     _assert_is_euroc_cam0(spec.sensor())
     sensor_yaml.write_camera_yaml(tmp_path / "sensor.yaml", spec.sensor())
     _assert_is_euroc_cam0(sensor_yaml.read_camera_yaml(tmp_path / "sensor.yaml"))
     with pytest.raises(InputError, match="unknown camera 'cam9' \\(known: forward, euroc_cam0\\)"):
-        cameras.camera_spec("cam9")
+        camera.camera_spec("cam9")
 
 
 def test_scaled_intrinsics_known_answers():
-    K = cameras.EUROC_CAM0.K(32, 32)  # centred 480 x 480 crop (from x = 136 px), scaled by 32 / 480
+    K = camera.EUROC_CAM0.K(32, 32)  # centred 480 x 480 crop (from x = 136 px), scaled by 32 / 480
     s = 32 / 480
     assert np.allclose(K, [[458.654 * s, 0, (367.215 - 136 + 0.5) * s - 0.5],
                            [0, 457.296 * s, (248.375 + 0.5) * s - 0.5], [0, 0, 1]], rtol=0, atol=1e-12)
     assert np.allclose(K[:2, 2], [14.947667, 16.091667], atol=1e-6)
-    assert np.allclose(cameras.EUROC_CAM0.K(376, 240), [[229.327, 0, 183.3575], [0, 228.648, 123.9375], [0, 0, 1]])
-    assert np.array_equal(cameras.EUROC_CAM0.K(), [[458.654, 0, 367.215], [0, 457.296, 248.375], [0, 0, 1]])
+    assert np.allclose(camera.EUROC_CAM0.K(376, 240), [[229.327, 0, 183.3575], [0, 228.648, 123.9375], [0, 0, 1]])
+    assert np.array_equal(camera.EUROC_CAM0.K(), [[458.654, 0, 367.215], [0, 457.296, 248.375], [0, 0, 1]])
 
 
 def test_cam0_mount_looks_forward_20_deg_down_under_the_body():
-    T_BC = cameras.body_mount("euroc_cam0")
+    T_BC = camera.body_mount("euroc_cam0")
     T_BS = load_vehicle(SHIPPED_DIR / "firefly.yaml").T_BS_matrix
     assert np.allclose(T_BC, T_BS @ np.reshape(EUROC_T_BS, (4, 4)), atol=1e-12)
     z = T_BC[:3, 2]  # optical axis in B
     assert np.degrees(np.arcsin(-z[2])) == pytest.approx(19.4, abs=0.1) and z[0] > 0.9
     assert np.allclose(T_BC[:3, 0], [0, -1, 0], atol=0.05)  # image right = body -y
-    assert cameras.hang_below_body("euroc_cam0") == pytest.approx(0.130, abs=5e-4)
-    assert cameras.hang_below_body("forward") == 0.0 and euroc_standin.landed_height() == 0.16
+    assert camera.hang_below_body("euroc_cam0") == pytest.approx(0.130, abs=5e-4)
+    assert camera.hang_below_body("forward") == 0.0 and euroc_standin.landed_height() == 0.16
 
 
 def test_point_projects_to_the_pinhole_pixel_through_the_body_and_sensor_frames():
     """A point at x_C = (0.5, -0.3, 2.5) m from cam0 lands at (fu 0.2 + cu, fv (-0.12) + cv) -- 136 px
     left in the 480 x 480 crop evaluate uses -- through T_WB T_BS(vehicle.yaml) T_SC(cam0)."""
-    from uavturb.data.recordings import cam0_camera
-    from uavturb.io.recording import GroundTruth, Recording
-    from uavturb.scene.projection import camera_pose_world, depth_from_points
-
     vehicle = euroc_standin.with_vi_sensor(_firefly())
     q, p = quat.from_euler(0.05, -0.1, 2.0), np.array([1.0, -2.0, 1.3])
     gt = GroundTruth(t_ns=np.array([0]), p=p[None], q=q[None], v=np.zeros((1, 3)), b_w=np.zeros((1, 3)),
                      b_a=np.zeros((1, 3)))
     rec = euroc_standin.with_cam0(Recording(vehicle=vehicle, ground_truth=gt))
     cam = cam0_camera(rec, 480)
-    T_WC = camera_pose_world(q, p, cam.T_BS)
+    T_WC = camera_pose_world(q, p, cam.T_BC)
     x_W = T_WC @ np.array([0.5, -0.3, 2.5, 1.0])
     u, v = 458.654 * 0.2 + 367.215 - 136, 457.296 * -0.12 + 248.375  # 322.9458, 193.4995
     depth = depth_from_points(x_W[None, :3], T_WC, cam.K, 480, 480, point_size=1e-3, fill_area=0)
@@ -104,13 +116,10 @@ def test_point_projects_to_the_pinhole_pixel_through_the_body_and_sensor_frames(
 def test_render_through_cam0_matches_a_ray_cast_on_a_flat_floor(width, height):
     """The body hovers level 1.2 m up; cam0 (0.13 m lower, 19.4 deg down) sees the floor: the depth at
     the principal point (1/z interpolated, exact for a plane) is the ray cast's, and every pixel is."""
-    from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.core.render import SceneRenderer
-
     floor = trimesh.creation.box(extents=(60.0, 60.0, 0.1))
     floor.apply_translation((0.0, 0.0, -0.05))
-    K = cameras.EUROC_CAM0.K(width, height)
-    T_WC = camera_pose_world(np.array([1.0, 0, 0, 0]), np.array([0.0, 0.0, 1.2]), cameras.body_mount("euroc_cam0"))
+    K = camera.EUROC_CAM0.K(width, height)
+    T_WC = camera_pose_world(np.array([1.0, 0, 0, 0]), np.array([0.0, 0.0, 1.2]), camera.body_mount("euroc_cam0"))
     with SceneRenderer(floor, width, height, K=K) as r:
         depth = r.depth(T_WC).astype(float)
     axis = T_WC[:3, 2]
@@ -134,9 +143,6 @@ def test_render_through_cam0_matches_a_ray_cast_on_a_flat_floor(width, height):
 def test_forward_camera_through_intrinsics_equals_the_fov_camera():
     """The renderer's calibrated-camera path, given the forward camera's own K, renders what its
     field-of-view path renders (so the two conventions for the principal point agree)."""
-    from uavturb.scene import procedural
-    from uavturb.sim.core.render import SceneRenderer, random_poses
-
     scene = procedural.generate_scene(3)
     poses = random_poses(scene, 4, seed=1)
     with SceneRenderer(scene, 48, 40, 70.0) as a:
@@ -155,8 +161,6 @@ def test_forward_camera_through_intrinsics_equals_the_fov_camera():
 def test_stand_in_height_profile(seed, duration):
     """Take-off from the floor, 0.5-2 m over the surface below between take-off and landing (some of it
     over furniture), landing on the floor; 2-8 s below 0.3 m in all, at most 4 s at each end."""
-    from uavturb.sim.flights.simulate import make_reference
-
     ref = make_reference("euroc_room", duration, seed, _firefly())
     assert ref.duration == pytest.approx(duration)
     t = np.arange(0.0, duration + 1e-9, 0.005)
@@ -177,7 +181,6 @@ def test_stand_in_height_profile(seed, duration):
 
 
 def test_stand_in_needs_time_and_a_flyable_vehicle():
-    from uavturb.sim.flights.simulate import make_reference
 
     with pytest.raises(InputError, match="--duration: a euroc_room flight needs at least 2[0-9] s"):
         make_reference("euroc_room", 15.0, 0, _firefly())
@@ -192,8 +195,6 @@ def test_stand_in_needs_time_and_a_flyable_vehicle():
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
-    from uavturb.cli import main
-
     out = tmp_path_factory.mktemp("euroc") / "V1_standin"
     assert main(["generate", "flight", "--vehicle", "firefly", "--kind", "euroc_room", "--duration", "32",
                  "--seed", "1", "--noise", "none", "--effects", "ground_effect:mu=2", "--out", str(out)]) == 0
@@ -208,7 +209,6 @@ def test_flight_is_written_like_euroc(flight):
     truth = yaml.safe_load((flight / "truth.yaml").read_text())
     assert truth["kind"] == "euroc_room" and truth["stand_in"]["cam0"] == "euroc_cam0"
     assert truth["stand_in"]["landed_height_m"] == 0.16 and len(truth["stand_in"]["room"]["boxes"]) == 4
-    from uavturb.scene.heights import SurfaceIndex
 
     centres = np.array([[(b[0] + b[1]) / 2, (b[2] + b[3]) / 2, 2.0] for b in floor_boxes(EUROC_ROOM)])
     tops = np.array([b[4] for b in floor_boxes(EUROC_ROOM)])  # 0.75 (table), 0.45, 0.2, 0.6
@@ -217,9 +217,6 @@ def test_flight_is_written_like_euroc(flight):
 
 
 def test_flown_flight_takes_off_cruises_and_lands(flight):
-    from uavturb.io.body_frame import to_body
-    from uavturb.scene.heights import SurfaceIndex
-
     rec = to_body(read_recording(flight))
     t = rec.seconds(rec.ground_truth.t_ns)
     d = SurfaceIndex(rec.points).d_down(rec.ground_truth.p)
@@ -234,22 +231,16 @@ def test_evaluate_projects_through_cam0(flight):
     agree with the room's mesh rendered through cam0 at the true poses, at every height: in cruise and
     in the ground-effect frames near the floor, down to the landed vehicle whose camera is 3 cm over it
     (where a 3 cm scan's splats span half the image: they are drawn on their surface's plane)."""
-    from uavturb.data.recordings import recording_sequence
-    from uavturb.io import align
-    from uavturb.io.body_frame import to_body
-    from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.core.render import SceneRenderer
-
     rec = read_recording(flight)
-    seq = recording_sequence(rec, rec.vehicle, image_size=32)
+    seq = recording_sequence(rec, rec.vehicle, camera.forward_camera(32, 32, 70.0, 20.0))  # a 32 px model
     assert np.allclose(np.diff(seq.t), 0.05) and len(seq) == 641  # cam0's 20 Hz over 32 s
-    assert np.allclose(seq.camera.T_BS, cameras.body_mount("euroc_cam0"), atol=1e-9)
-    assert np.allclose(seq.camera.K, cameras.EUROC_CAM0.K(32, 32))
+    assert np.allclose(seq.camera.T_BC, camera.body_mount("euroc_cam0"), atol=1e-9)
+    assert np.allclose(seq.camera.K, camera.EUROC_CAM0.K(32, 32))
     gt = to_body(rec).ground_truth
     frames = np.r_[np.flatnonzero(seq.d >= 0.5)[::25], np.flatnonzero(seq.d < 0.36)[::4]]
     t_ns = rec.t0_ns + np.round(seq.t[frames] * 1e9).astype(np.int64)
     T_WC = camera_pose_world(align.interpolate_quaternions(gt.t_ns, gt.q, t_ns), align.interpolate(gt.t_ns, gt.p, t_ns),
-                             seq.camera.T_BS)
+                             seq.camera.T_BC)
     errors = []
     with SceneRenderer(EUROC_ROOM.mesh, 32, 32, K=seq.camera.K) as r:
         for k, T in zip(frames, T_WC):
@@ -266,8 +257,6 @@ def test_evaluate_projects_through_cam0(flight):
 
 
 def test_short_stand_in_fails_in_one_line(tmp_path, capsys):
-    from uavturb.cli import main
-
     assert main(["generate", "flight", "--kind", "euroc_room", "--duration", "10", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert "--duration: a euroc_room flight needs at least" in err and err.count("\n") == 1
@@ -286,10 +275,6 @@ HASHES = {"tiny": ("328da3ba72d27e99", "3aeff8a2495cf0c7", "60e0002d24fd9451"),
 
 
 def test_existing_presets_keep_their_config_hashes():
-    from uavturb.io import shards
-    from uavturb.sim.dataset.generation import dataset_config
-    from uavturb.sim.dataset.presets import get_preset
-    from uavturb.sim.dataset.pretraining_pairs import pairs_config
 
     for name, (mpc, geometric, pairs) in HASHES.items():
         p = get_preset(name)
@@ -306,35 +291,22 @@ def test_existing_presets_keep_their_config_hashes():
 def test_sim_shards_through_cam0(tmp_path):
     """``generate sim --set camera=euroc_cam0``: cam0's intrinsics at the preset's 24 px, its mount on the
     body, and landed heights raised to 0.16 m so the camera stays over the floor."""
-    from uavturb.io import shards
-    from uavturb.sim.dataset import generation
-
     m = generation.generate_sim("tiny", tmp_path / "eu", seed=0, progress=False, camera="euroc_cam0", width=24,
                              height=24, controller="geometric")
     assert m.config["preset"]["camera"] == "euroc_cam0"
     folder = m.folders("train")[0]
     meta = shards.read_meta(folder)
     tr = shards.read_trajectory(folder, mmap=False)
-    assert np.allclose(meta["camera"]["K"], cameras.EUROC_CAM0.K(24, 24))
-    assert np.allclose(meta["camera"]["T_BC"], cameras.body_mount("euroc_cam0"))
+    assert np.allclose(meta["camera"]["K"], camera.EUROC_CAM0.K(24, 24))
+    assert np.allclose(meta["camera"]["T_BC"], camera.body_mount("euroc_cam0"))
     assert tr.depth.shape[1:] == (24, 24) and tr.d.min() > 0.15 and abs(tr.d[0] - 0.16) < 0.01
-    from uavturb.scene.procedural import generate_scene
-    from uavturb.scene.projection import camera_pose_world
-    from uavturb.sim.core.render import SceneRenderer
 
-    with SceneRenderer(generate_scene(meta["scene_seed"]), 24, 24, K=cameras.EUROC_CAM0.K(24, 24)) as r:
+    with SceneRenderer(generate_scene(meta["scene_seed"]), 24, 24, K=camera.EUROC_CAM0.K(24, 24)) as r:
         k = len(tr.t) // 2
-        ref = r.depth(camera_pose_world(tr.state[k, 3:7], tr.state[k, :3], cameras.body_mount("euroc_cam0")))
+        ref = r.depth(camera_pose_world(tr.state[k, 3:7], tr.state[k, :3], camera.body_mount("euroc_cam0")))
     assert np.array_equal(ref, tr.depth[k])
-    # evaluate reads the camera from the manifest, and a recording without cam0 is seen through it
-    from types import SimpleNamespace
-
-    from uavturb.data.recordings import camera_for
-    from uavturb.commands.evaluate import dataset_camera
-
-    cam = dataset_camera(SimpleNamespace(data=SimpleNamespace(params={"data.root": str(tmp_path / "eu")})))
-    assert cam["camera"] == "euroc_cam0" and cam["image_size"] == 24 and cam["frame_dt"] == pytest.approx(0.05)
-    no_cam0 = SimpleNamespace(cam0=None)
-    model = camera_for(no_cam0, 24, camera=cam["camera"])
-    assert np.allclose(model.K, cameras.EUROC_CAM0.K(24, 24)) and np.allclose(model.T_BS, cameras.body_mount("euroc_cam0"))
-    assert camera_for(no_cam0, 24, 70.0, 20.0, camera="forward").source.startswith("default forward camera")
+    # a model trained on these shards carries this camera, and a recording without cam0 is seen through it
+    cam = dataset_camera(tmp_path / "eu")
+    assert (cam.name, cam.width, cam.height, cam.frame_dt) == ("euroc_cam0", 24, 24, pytest.approx(0.05))
+    assert np.allclose(cam.K, camera.EUROC_CAM0.K(24, 24)) and np.allclose(cam.T_BC, camera.body_mount("euroc_cam0"))
+    assert recording_camera(SimpleNamespace(cam0=None), cam) is cam

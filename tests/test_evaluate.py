@@ -12,23 +12,25 @@ import pytest
 import torch
 from height_run import tiny_height_run
 
+from uavturb.cli import main
+from uavturb.commands.evaluate import evaluate, evaluate_runs
 from uavturb.data.recordings import (
     RecordingWindowsDataset,
     box_average,
     cam0_camera,
-    forward_camera,
     recording_sequence,
 )
 from uavturb.errors import InputError
-from uavturb.commands.evaluate import evaluate
-from uavturb.evaluation.bands import ground_effect_height
+from uavturb.evaluation.bands import band_edges, band_metrics, ground_effect_height
+from uavturb.evaluation.law import law_consistency
 from uavturb.evaluation.metrics import FlightResult, predict_heights
-from uavturb.runs.store import tracking_uri
 from uavturb.io.reader import read_recording
-from uavturb.physics.ground_effect import phi_alpha_beta
+from uavturb.physics.ground_effect import GroundEffectFit, phi_alpha_beta
 from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import generate_flight
+from uavturb.runs.store import tracking_uri
+from uavturb.scene.camera import forward_camera
 
 MU = 2.0
 
@@ -114,7 +116,7 @@ def test_heights_carry_the_gru_state_across_chunks(setup):
 def test_recording_sequence_frames_and_ground_truth(setup):
     _, _, _, flights = setup
     rec = read_recording(flights[0])
-    seq = recording_sequence(rec, rec.vehicle, image_size=16, frame_dt=0.25)
+    seq = recording_sequence(rec, rec.vehicle, forward_camera(16, 16, 70.0, 45.0), frame_dt=0.25)
     assert len(seq) == 81 and np.allclose(np.diff(seq.t), 0.25)
     assert seq.depth.shape == (81, 16, 16) and (seq.depth > 0).mean() > 0.95  # closed room: data everywhere
     # on a level body the pitched-down camera sees the floor: the bottom row's depth grows with height
@@ -134,10 +136,10 @@ def test_recording_sequence_frames_and_ground_truth(setup):
 
 def test_cameras():
     # default camera: the training shards' intrinsics (pixel_rays) and a downward pitch
-    cam = forward_camera(32, yfov_deg=70.0, pitch_deg=45.0)
+    cam = forward_camera(32, 32, yfov_deg=70.0, pitch_deg=45.0)
     f = 16 / np.tan(np.deg2rad(35))
     np.testing.assert_allclose(cam.K, [[f, 0, 15.5], [0, f, 15.5], [0, 0, 1]])
-    np.testing.assert_allclose(cam.T_BS[:3, 2], [np.sqrt(0.5), 0, -np.sqrt(0.5)], atol=1e-12)  # optical axis in B
+    np.testing.assert_allclose(cam.T_BC[:3, 2], [np.sqrt(0.5), 0, -np.sqrt(0.5)], atol=1e-12)  # optical axis in B
     # cam0 crop + scale: a point projects where the original image's centre square, scaled, has it
     from conftest import make_recording
 
@@ -151,7 +153,7 @@ def test_cameras():
     x0 = (752 - side) / 2
     assert us == pytest.approx((u + 0.5 - x0) * 120 / side - 0.5)
     assert vs == pytest.approx((v + 0.5) * 120 / side - 0.5)
-    np.testing.assert_array_equal(small.T_BS, rec.cam0.T_BS)
+    np.testing.assert_array_equal(small.T_BC, rec.cam0.T_BS)
 
 
 def test_grounded_frames_are_left_out():
@@ -168,8 +170,6 @@ def test_grounded_frames_are_left_out():
 def test_height_bands_known_answer():
     """Bands cut at the law's 5 % and 2 % of thrust; per band the law's and the model's errors, the height
     bias and the band's share of the squared f_a error."""
-    from uavturb.evaluation.bands import band_edges, band_metrics
-
     beta = 1.25e-3
     edges = band_edges(beta, 0.01)
     h20, h5, h2, h1 = (ground_effect_height(beta, f) for f in (0.2, 0.05, 0.02, 0.01))
@@ -229,8 +229,6 @@ def test_table2_with_realistic_sensor_noise(setup, tmp_path):
 def test_table2_over_runs(setup, tmp_path):
     """Several runs on the same flights: per run what ``evaluate`` gives for it alone, summarised per row
     (the runs' name here) over its seeds, with the ratio and the height bands; one folder, published whole."""
-    from uavturb.commands.evaluate import evaluate_runs
-
     root, rid, _, flights = setup
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(root)
@@ -258,9 +256,49 @@ def test_table2_over_runs(setup, tmp_path):
     assert not (tmp_path / "twice").exists()
 
 
-def test_evaluate_cli_needs_runs_or_a_sweep(setup, tmp_path, capsys):
-    from uavturb.cli import main
+def test_the_model_carries_its_camera_when_its_data_is_gone(setup, tmp_path):
+    """A run trained on data of a camera pitched 20 deg (not the synthetic default 45 deg): its checkpoint
+    and its run carry that camera, so Table 2 is the same after the training data is moved away."""
+    _, _, _, flights = setup
+    rid, ckpt, data, module = tiny_height_run(tmp_path, keep="tag", steps=2, pitch_deg=20.0)
+    cam = module.camera_model()
+    assert (cam.name, cam.width, cam.height, cam.frame_dt) == ("forward", 16, 16, 0.05)
+    np.testing.assert_allclose(cam.T_BC[:3, 2], [np.cos(np.deg2rad(20)), 0, -np.sin(np.deg2rad(20))], atol=1e-12)
+    run = mlflow.MlflowClient(tracking_uri()).get_run(rid)
+    assert json.loads(run.data.tags["camera"]) == module.hparams["camera"]
+    before = evaluate(rid, flights, out=tmp_path / "before", frame_dt=0.1, progress=False, log=False)
+    data.rename(tmp_path / "moved")  # another folder, another machine: the run's data.root is not found
+    after = evaluate(rid, flights, out=tmp_path / "after", frame_dt=0.1, progress=False, log=False)
+    assert after["table"] == before["table"] and after["rows"] == before["rows"]
+    info = json.loads((tmp_path / "after" / "evaluation.json").read_text())
+    assert info["camera"] == "default forward camera (pitch 20 deg down, vertical fov 70 deg)"
+    # the checkpoint alone carries it too (no run: nothing else to read it from)
+    alone = evaluate(None, flights, checkpoint=ckpt, out=tmp_path / "alone", frame_dt=0.1, progress=False,
+                     log=False)
+    assert alone["rows"] == before["rows"]
+    # through the 45 deg camera the old fallback assumed, the frames differ: the camera matters here
+    rec = read_recording(flights[0])
+    ours = recording_sequence(rec, HEXAROTOR, cam, frame_dt=0.1).depth
+    assert not np.allclose(ours, recording_sequence(rec, HEXAROTOR, forward_camera(16, 16, 70.0, 45.0),
+                                                    frame_dt=0.1).depth, atol=0.05)
 
+
+def test_a_model_without_a_camera_is_refused_in_one_line(setup, tmp_path, capsys):
+    """Trained before models kept their camera: evaluate and export refuse it, naming it; nothing is guessed."""
+    _, _, _, flights = setup
+    rid, ckpt, _, module = tiny_height_run(tmp_path, keep="tag", steps=1, camera=False)
+    assert module.camera_model() is None
+    assert main(["evaluate", str(flights[0]), "--run", rid, "--out", str(tmp_path / "a")]) == 2
+    assert main(["export", "--run", rid, "--out", str(tmp_path / "b"), "--no-mlflow"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(f"run {rid}: the model carries no camera" in line for line in err)
+    with pytest.raises(InputError, match="the model carries no camera") as e:
+        evaluate(None, flights, checkpoint=ckpt, out=tmp_path / "c", progress=False, log=False)
+    assert e.value.where == str(ckpt)
+    assert not any((tmp_path / x).exists() for x in "abc")
+
+
+def test_evaluate_cli_needs_runs_or_a_sweep(setup, tmp_path, capsys):
     _, rid, _, flights = setup
     assert main(["evaluate", str(flights[0]), "--out", str(tmp_path / "a")]) == 2
     assert main(["evaluate", str(flights[0]), "--run", rid, "--rows", "x", "--out", str(tmp_path / "b")]) == 2
@@ -274,9 +312,6 @@ def test_a_law_that_contradicts_the_vehicle_is_flagged():
     """alpha / beta is the thrust coefficient in the paper's form: a fit 4.8 times off (the stand-in
     flights' identification: beta steepened after k_T took the law's far tail) is flagged, one within
     the tolerance is not."""
-    from uavturb.evaluation.law import law_consistency
-    from uavturb.physics.ground_effect import GroundEffectFit
-
     k_T = 8.54858e-6
     assert law_consistency(GroundEffectFit(alpha=1.1 * k_T * 1.25e-3, beta=1.25e-3, rmse=0.02, n=100), k_T) is None
     msg = law_consistency(GroundEffectFit(alpha=9.02e-9, beta=5.04e-3, rmse=0.02, n=100), k_T)

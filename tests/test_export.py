@@ -10,14 +10,15 @@ import sys
 import numpy as np
 import pytest
 import torch
-from height_run import tiny_height_run
+from height_run import tiny_dataset, tiny_height_run
 
+from uavturb.commands.export import REGISTERED_MODEL, export
 from uavturb.errors import InputError
-from uavturb.commands.export import export
-from uavturb.runs.store import run_checkpoint
 from uavturb.io import shards
 from uavturb.nn.height import phi_alpha_beta
 from uavturb.nn.streaming import StreamingHeightModel, gru_step
+from uavturb.runs.store import run_checkpoint
+from uavturb.scene.camera import forward_camera
 from uavturb.systems import HeightModule
 
 
@@ -70,6 +71,8 @@ def test_export_equals_module_in_clean_process(tmp_path, store, use_gru, keep):
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary folder left
     meta = json.loads((out / "export.json").read_text())
     assert meta["use_gru"] is use_gru and meta["inputs"]["depth"] == [-1, 1, 16, 16]
+    # the camera the model was trained through, from its checkpoint: the synthetic data's forward camera
+    assert meta["camera"] == forward_camera(16, 16, 70.0, 45.0, frame_dt=0.05).record() == result["camera"]
 
     # the module exactly as load_from_checkpoint alone rebuilds it
     module = HeightModule.load_from_checkpoint(str(run_checkpoint(rid)), map_location="cpu").eval()
@@ -118,8 +121,6 @@ def _check_mlflow_model(client, rid, result, out, use_gru, depth, rotors, d_ref)
     """The logged model: its shapes, a batch of 3 through pyfunc, registered, metadata; the ONNX axis names."""
     import mlflow
     import onnx
-
-    from uavturb.commands.export import REGISTERED_MODEL
 
     L, S = (2, 50) if use_gru else (1, 1)
     info = mlflow.models.get_model_info(f"runs:/{rid}/streaming_model")
@@ -190,3 +191,8 @@ def test_export_bad_inputs(tmp_path, store):
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
     with pytest.raises(InputError, match="manifest"):
         export(rid, tmp_path / "z", data=tmp_path / "empty", log=False)
+    # a dataset of another image size than the model's camera is no check of the export
+    other = tiny_dataset(tmp_path / "other", size=12)
+    with pytest.raises(InputError, match="holds 12x12 images but the model's camera \\(forward\\) makes 16x16"):
+        export(rid, tmp_path / "w", data=other, log=False)
+    assert not (tmp_path / "w").exists()

@@ -1,5 +1,5 @@
-"""Interrupted work tells the truth: exit status, one line, MLflow run states, resuming, a store that
-concurrent first use cannot break, and config values checked before anything starts.
+"""Interrupted work tells the truth: exit status, one line, MLflow run states, resuming, and a store
+that concurrent first use cannot break (config values checked before anything starts: test_config.py).
 
 The signal tests run the real command line in a subprocess with its own MLflow store in tmp.
 """
@@ -305,53 +305,3 @@ def test_an_interrupted_migration_names_the_table_to_drop():
     msg = str(_store_problem("sqlite:///x/mlflow.db", e))
     assert "DROP TABLE _alembic_tmp_experiments" in msg and "mlflow db upgrade sqlite:///x/mlflow.db" in msg
     assert "\n" not in msg
-
-
-# --- values that make no sense ------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("override, allowed", [
-    ("trainer.max_epochs=-1", "an integer >= 1"),
-    ("trainer.max_epochs=0", "an integer >= 1"),
-    ("model.lr_head=-1", "a number > 0"),
-    ("data.batch_size=0", "an integer >= 1"),
-    ("trainer.precision=bogus", "one of 32-true"),
-    ("trainer.devices=abc", '"auto", a count'),
-    ("trainer.limit_train_batches=-1", "a number > 0"),
-    ("trainer.max_steps=0", "or -1 (no limit)"),
-    ("data.val_fraction=1.5", "a number > 0 and < 1"),
-    ("model.lr_encoder=nan", "a number > 0"),
-])
-def test_bad_values_fail_in_one_line_before_any_run(tmp_path, monkeypatch, capsys, override, allowed):
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
-    assert main(["train", *_tiny(tmp_path), override]) == 2
-    err = capsys.readouterr().err.strip()
-    key = override.split("=")[0]
-    assert len(err.splitlines()) == 1
-    assert err.startswith(f"uavturb train: error: {key}: ") and "is not allowed; allowed: " in err and allowed in err
-    assert not (tmp_path / "mlflow.db").exists() and not (tmp_path / "sim").exists()  # nothing opened or made
-
-
-def test_every_value_of_the_defaults_and_shipped_configs_is_allowed():
-    from uavturb.runs.config import CONF_DIR, load_config
-
-    for group in ("model", "data", "trainer"):
-        for f in sorted((CONF_DIR / group).glob("*.yaml")):
-            load_config([f"{group}={f.stem}"])
-    for f in sorted((CONF_DIR / "experiment").glob("*.yaml")):
-        load_config(experiment=f.stem)
-
-
-def test_lightning_choices_match_lightning():
-    import typing
-
-    from lightning.fabric.connector import _PRECISION_INPUT_STR, _PRECISION_INPUT_STR_ALIAS
-    from lightning.pytorch.accelerators import AcceleratorRegistry
-    from lightning.pytorch.strategies import StrategyRegistry
-
-    from uavturb.runs.config import ACCELERATORS, PRECISIONS, STRATEGIES
-
-    assert set(PRECISIONS) == set(typing.get_args(_PRECISION_INPUT_STR)) | set(typing.get_args(_PRECISION_INPUT_STR_ALIAS))
-    assert set(ACCELERATORS) == set(AcceleratorRegistry.available_accelerators()) | {"auto", "gpu"}
-    assert set(STRATEGIES) == set(StrategyRegistry.available_strategies()) | {"auto"}

@@ -7,9 +7,14 @@ import pytest
 from rosbags.rosbag1 import Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from uavturb.cli import main
 from uavturb.errors import InputError
 from uavturb.io import rosbag
+from uavturb.io.euroc_import import import_euroc
 from uavturb.io.reader import read_recording
+from uavturb.io.sensor_yaml import _dump, _matrix
+from uavturb.io.vehicle_file import named_vehicle
+from uavturb.io.writer import write_recording
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
 
 T0 = 1403636579_000_000_000
@@ -91,10 +96,11 @@ def test_bag_reads_into_a_recording(tmp_path):
     assert rec.vehicle.rotor_speed_scale == 3.0 and rec.path == bag
 
 
-def test_bag_converts_to_a_folder_that_reads_back(tmp_path):
+def test_bag_imports_to_a_folder_that_reads_back(tmp_path):
+    """Through ``uavturb import euroc``'s function: the recording checks run before anything is written."""
     bag = tmp_path / "V1_01.bag"
     write_bag(bag)
-    rec = rosbag.convert_rosbag(bag, tmp_path / "V1_01", HEXAROTOR, rotor_speed_scale=3.0)
+    rec = import_euroc(bag, tmp_path / "V1_01", vehicle=HEXAROTOR, rotor_speed_scale=3.0)
     back = read_recording(tmp_path / "V1_01")
     np.testing.assert_allclose(back.rotors.speeds, rec.rotors.speeds, rtol=1e-12)
     np.testing.assert_allclose(back.ground_truth.v, rec.ground_truth.v, rtol=1e-12, atol=1e-15)
@@ -145,9 +151,6 @@ def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
 
     from conftest import make_recording
 
-    from uavturb.cli import main
-    from uavturb.io.writer import write_recording
-
     t_vicon, _, t_motor = write_bag(tmp_path / "V1_01.bag")
     rec = make_recording(duration=1.0)
     rec.rotors = None
@@ -164,8 +167,6 @@ def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
     write_recording(rec, tmp_path / "asl")
     (tmp_path / "asl" / "vehicle.yaml").unlink()
     shutil.rmtree(tmp_path / "asl" / "mav0" / "rotors0", ignore_errors=True)
-    from uavturb.io.sensor_yaml import _dump, _matrix
-
     _dump(tmp_path / "asl" / "mav0" / "vicon0" / "sensor.yaml",
           {"sensor_type": "visual-inertial", "comment": "vicon", "T_BS": _matrix(T_S_vicon)}, "Vicon in S")
     raw = read_recording(tmp_path / "asl", vehicle=rec.vehicle, frame="S")
@@ -196,9 +197,6 @@ def test_import_euroc_asl_folder_plus_bag_rotors(tmp_path, capsys):
 def test_import_euroc_bag_only_uses_the_presets_T_BS(tmp_path, capsys):
     """Without an ASL folder the shipped Firefly's T_BS applies: the bag's IMU in a EuRoC-like S
     (x up) reads +z in B; the same bag with its IMU in B stops with one line on T_BS."""
-    from uavturb.cli import main
-    from uavturb.io.vehicle_file import named_vehicle
-
     firefly = named_vehicle("firefly")
     R_BS = firefly.T_BS_matrix[:3, :3]
     np.testing.assert_allclose(R_BS @ [9.2, 0.0, -3.3], [0.0, -0.1, 9.8], atol=0.06)  # hover: S -> B is up

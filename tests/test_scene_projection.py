@@ -8,13 +8,14 @@ import trimesh
 
 from uavturb.errors import InputError
 from uavturb.physics import quaternion as quat
+from uavturb.scene.camera import R_BC_FORWARD
 from uavturb.scene.heights import sample_mesh_points
 from uavturb.scene.projection import (
     PreparedCloud,
-    R_BC_FORWARD,
     camera_pose_world,
     depth_from_points,
     depth_to_points,
+    estimate_normals,
     estimate_spacing,
     intrinsics_matrix,
     prepare_cloud,
@@ -205,8 +206,6 @@ def test_depth_to_points_inverts_a_pixel():
 
 
 def test_normals_of_a_plane_and_none_at_an_edge():
-    from uavturb.scene.projection import estimate_normals
-
     rng = np.random.default_rng(0)
     floor = np.c_[rng.uniform(0, 1, (2000, 2)), np.zeros(2000)]
     n = estimate_normals(floor)

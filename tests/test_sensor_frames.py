@@ -15,12 +15,19 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
+from uavturb.cli import main
+from uavturb.commands.identify import format_identification, identify_recordings
+from uavturb.data.recordings import recording_sequence
 from uavturb.errors import InputError
 from uavturb.io.reader import load_recordings, read_recording
-from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
+from uavturb.io.recording import Camera, GroundTruth, Imu, Recording, Rotors
 from uavturb.io.vehicle_file import load_vehicle, save_vehicle
 from uavturb.io.writer import write_recording
 from uavturb.physics.vehicle import HEXAROTOR, Vehicle
+from uavturb.scene.camera import forward_camera
+from uavturb.sim.flights.simulate import generate_flight
+from uavturb.sysid.identification import identify
+from uavturb.sysid.residuals import residual_forces
 
 #: EuRoC V1 vicon0/sensor.yaml T_BS: the Vicon (rotor) frame's pose in S
 EUROC_T_S_VICON = np.array([[0.33638, -0.01749, 0.94156, 0.06901], [-0.02078, -0.99972, -0.01114, -0.02781],
@@ -64,8 +71,6 @@ def to_sensor_frame(rec: Recording, T_BS: np.ndarray) -> Recording:
 
 @pytest.fixture(scope="module")
 def flight():
-    from uavturb.sim.flights.simulate import generate_flight
-
     return generate_flight("hex", "wind:f_x=0.6,f_y=-0.3", duration=20.0, seed=3)
 
 
@@ -166,8 +171,6 @@ def test_identity_T_BS_changes_nothing(tmp_path, recording):
 
 
 def test_rotated_sensor_twin_identifies_the_same_k_T(tmp_path, flight):
-    from uavturb.commands.identify import identify_recordings
-
     write_recording(flight, tmp_path / "b")
     write_recording(to_sensor_frame(flight, euroc_like_T_BS()), tmp_path / "s")
     raw = read_recording(tmp_path / "s", frame="S")
@@ -178,8 +181,6 @@ def test_rotated_sensor_twin_identifies_the_same_k_T(tmp_path, flight):
     assert k_b == pytest.approx(HEXAROTOR.thrust_coefficient, rel=0.05)
 
     # the same recording without T_BS: one line naming vehicle.yaml and T_BS, exit 2
-    from uavturb.cli import main
-
     save_vehicle(flight.vehicle, tmp_path / "s" / "vehicle.yaml")
     with pytest.raises(InputError) as e:
         load_recordings([tmp_path / "s"])
@@ -213,10 +214,8 @@ def test_dead_rotor_column(tmp_path, flight, value, expected):
 def test_cam0_is_posed_through_T_BS(tmp_path, flight):
     """A rotated, offset S: cam0/sensor.yaml holds the camera's pose in S (EuRoC). The depth images
     equal those of the S = B twin whose cam0 holds the camera's pose in B."""
-    from uavturb.data.recordings import forward_camera, recording_sequence
-    from uavturb.io.recording import Camera
-
-    T_BC = forward_camera(16, yfov_deg=70.0, pitch_deg=30.0).T_BS  # camera pose in B
+    model = forward_camera(16, 16, yfov_deg=70.0, pitch_deg=30.0)  # a model's camera: its image size
+    T_BC = model.T_BC  # camera pose in B
     T_BS = euroc_like_T_BS()
     cam = Camera(intrinsics=np.array([20.0, 20.0, 15.5, 11.5]), resolution=(32, 24), T_BS=T_BC)
     write_recording(replace(flight, cam0=cam), tmp_path / "b")
@@ -227,15 +226,15 @@ def test_cam0_is_posed_through_T_BS(tmp_path, flight):
     seqs = []
     for name in ("b", "s"):
         rec = read_recording(tmp_path / name, require_rotors=True)
-        seqs.append(recording_sequence(rec, HEXAROTOR, image_size=16, frame_dt=1.0))
+        seqs.append(recording_sequence(rec, HEXAROTOR, model, frame_dt=1.0))
     b, s = seqs
-    np.testing.assert_allclose(s.camera.T_BS, T_BC, atol=1e-12)
+    np.testing.assert_allclose(s.camera.T_BC, T_BC, atol=1e-12)
     assert len(b) == len(s) > 10 and (b.depth > 0).mean() > 0.9
     np.testing.assert_allclose(s.depth, b.depth, atol=1e-4)
     np.testing.assert_allclose(s.p, b.p, atol=1e-9)
     # the camera taken as relative to B (the old reading) would look elsewhere
     wrong = replace(read_recording(tmp_path / "s"), vehicle=HEXAROTOR)
-    assert not np.allclose(recording_sequence(wrong, HEXAROTOR, image_size=16, frame_dt=1.0).depth, b.depth,
+    assert not np.allclose(recording_sequence(wrong, HEXAROTOR, model, frame_dt=1.0).depth, b.depth,
                            atol=0.05)
 
 
@@ -268,10 +267,6 @@ def mocap_only_50hz(flight: Recording, seed: int = 0, jitter_ns: int = 3_000_000
 def test_mocap_only_50hz_flight(tmp_path, flight):
     """No IMU, 50 Hz, jittered: k_T as the simulator's, no accelerometer bias, residuals that
     find the injected steady push (0.6, -0.3, 0) N with a noise floor measured on the data."""
-    from uavturb.commands.identify import format_identification
-    from uavturb.sysid.identification import identify
-    from uavturb.sysid.residuals import residual_forces
-
     write_recording(mocap_only_50hz(flight), tmp_path / "m50")
     (rec,) = load_recordings([tmp_path / "m50"])
     assert rec.imu is None and np.ptp(np.diff(rec.ground_truth.t_ns)) > 4_000_000  # jittered

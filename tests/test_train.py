@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import mlflow
@@ -10,11 +11,20 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from uavturb.cli import main
 from uavturb.data import synthetic
+from uavturb.data.datamodules import ground_effect_law
 from uavturb.errors import InputError
+from uavturb.evaluation.test_heights import plot_test_heights, predict_last_frames
+from uavturb.io import shards
+from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
+from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.runs.config import CONF_DIR, allowed_keys, load_config
 from uavturb.runs.store import EXPERIMENT_KIND, NOTE_TAG
-from uavturb.io import shards
+from uavturb.runs.train import train
+from uavturb.runs.training_data import resolve_ground_effect_law
+from uavturb.scene.camera import forward_camera
+from uavturb.sim.dataset import generation
 from uavturb.systems import HeightModule
 
 
@@ -36,8 +46,6 @@ def _overrides(tmp_path, *extra):
 
 
 def test_tiny_height_training_learns_and_logs(tmp_path, store):
-    from uavturb.runs.train import train
-
     cfg = load_config(_overrides(tmp_path, "trainer.max_epochs=4", "model.lr_head=3e-3", "model.lr_encoder=3e-3"),
                       experiment="smoke")
     assert cfg.model.pretraining == "none"
@@ -59,8 +67,6 @@ def test_tiny_height_training_learns_and_logs(tmp_path, store):
     assert run.data.metrics["test/rmse_fa_1e-4N"] == pytest.approx(1e4 * run.data.metrics["test/rmse_fa"])
     assert run.data.params["model.use_gru"] == "True" and run.data.params["data.window"] == "4"
     # alpha, beta unset: the synthetic data's law (the paper's quadrotor, mu = 2), logged as numbers
-    from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
-
     assert float(run.data.params["model.beta"]) == pytest.approx(BETA_PAPER, rel=1e-9)
     assert float(run.data.params["model.alpha"]) == pytest.approx(ALPHA_PAPER, rel=1e-9)
     assert "config.yaml" in [a.path for a in client.list_artifacts(out["run_id"])]
@@ -71,8 +77,10 @@ def test_tiny_height_training_learns_and_logs(tmp_path, store):
     assert len(losses) >= 8
     assert np.mean(losses[-3:]) < np.mean(losses[:3])  # the loss went down
 
-    # the checkpoint alone rebuilds the model
+    # the checkpoint alone rebuilds the model, with the camera of its training data (the run names it too)
     module = HeightModule.load_from_checkpoint(out["checkpoint"])
+    expected = forward_camera(16, 16, synthetic.YFOV_DEG, synthetic.PITCH_DEG, frame_dt=synthetic.DT).record()
+    assert module.camera_model().record() == expected == json.loads(run.data.tags["camera"])
     module2 = HeightModule.load_from_checkpoint(out["checkpoint"])
     x = torch.rand(2, 4, 1, 16, 16) * 3
     module.eval(), module2.eval()
@@ -85,10 +93,6 @@ def test_tiny_height_training_learns_and_logs(tmp_path, store):
 def test_ground_effect_law_of_the_training_data(tmp_path):
     """``model.alpha, beta`` default to the law the shards were made with: the simulator's hexarotor with
     mu = 2 gives beta = 2 * 0.1^2 / 16 and alpha = k_T beta; a folder without shards gives None."""
-    from uavturb.data.datamodules import ground_effect_law
-    from uavturb.physics.vehicle import HEXAROTOR
-    from uavturb.sim.dataset import generation
-
     generation.generate_sim("tiny", tmp_path / "hex", seed=0, progress=False, vehicle="hex", width=16, height=16,
                          controller="geometric", trajectories=3)
     alpha, beta = ground_effect_law(tmp_path / "hex")
@@ -96,14 +100,10 @@ def test_ground_effect_law_of_the_training_data(tmp_path):
     assert alpha == pytest.approx(HEXAROTOR.thrust_coefficient * beta, rel=1e-12)
     assert ground_effect_law(tmp_path / "nothing") is None
     with pytest.raises(InputError, match="model.alpha"):
-        from uavturb.runs.training_data import resolve_ground_effect_law
-
         resolve_ground_effect_law(load_config(["model.alpha=1e-9"]), tmp_path / "hex")
 
 
 def test_pretrain_then_finetune_height(tmp_path, store):
-    from uavturb.runs.train import train
-
     pre = train(load_config(_overrides(tmp_path, "trainer.max_epochs=1"), experiment="smoke_pretrain"))
     assert pre["stage"] == "pretrain" and "test/loss" in pre["metrics"] and "val/angle_deg" in pre["metrics"]
     logged = mlflow.MlflowClient(store).get_run(pre["run_id"]).data.metrics
@@ -125,8 +125,6 @@ def test_optional_system_metrics(tmp_path, store, monkeypatch):
     # a sampling interval far longer than the run: the sample taken at the end must still be there
     monkeypatch.setenv("MLFLOW_SYSTEM_METRICS_SAMPLING_INTERVAL", "1000")
 
-    from uavturb.runs.train import train
-
     cfg = load_config(_overrides(tmp_path, "trainer.max_epochs=1", "tracking.system_metrics=true"), experiment="smoke")
     if importlib.util.find_spec("psutil") is None:
         with pytest.raises(InputError) as e:
@@ -139,8 +137,6 @@ def test_optional_system_metrics(tmp_path, store, monkeypatch):
 
 
 def test_height_stage_needs_encoder_checkpoint(tmp_path, store):
-    from uavturb.runs.train import train
-
     cfg = load_config(_overrides(tmp_path, "model=normals_finetune", "tracking.enabled=false"))
     with pytest.raises(InputError) as e:
         train(cfg)
@@ -184,8 +180,6 @@ def test_config_groups_and_experiments():
 def test_group_file_typo_names_file_and_key(tmp_path):
     import shutil
 
-    from uavturb.runs.config import CONF_DIR
-
     conf = tmp_path / "conf"
     shutil.copytree(CONF_DIR, conf)
     (conf / "model" / "broken.yaml").write_text("use_gruu: true\n")
@@ -195,16 +189,12 @@ def test_group_file_typo_names_file_and_key(tmp_path):
 
 
 def test_cli_train_typo_is_one_line_naming_the_key(capsys):
-    from uavturb.cli import main
-
     assert main(["train", "model.use_gr=false", "--experiment", "smoke"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "model.use_gr" in err and "use_gru" in err  # names the key and the allowed ones
 
 
 def test_predict_last_frames_matches_the_windows_the_metrics_score(tmp_path):
-    from uavturb.evaluation.test_heights import plot_test_heights, predict_last_frames
-
     m = synthetic.make_synthetic_dataset(tmp_path / "ds", n_scenes=3, trajs_per_scene=1, T=9, size=8)
     module = HeightModule(encoder_hidden=16)
     module.eval()

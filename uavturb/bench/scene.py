@@ -9,6 +9,7 @@ import numpy as np
 import trimesh
 
 from uavturb.scene import projection as proj
+from uavturb.scene.camera import R_BC_FORWARD
 from uavturb.scene.heights import SurfaceIndex, sample_mesh_points
 
 
@@ -72,11 +73,11 @@ def benchmark(n_points: int = 1_000_000, n_queries: int = 100_000, seed: int = 0
         prepared = proj.prepare_cloud(pts)
         q_WB = np.array([1.0, 0.0, 0.0, 0.0])
         T_BS = np.eye(4)
-        T_BS[:3, :3] = proj.R_BC_FORWARD
+        T_BS[:3, :3] = R_BC_FORWARD
         T_WC = proj.camera_pose_world(q_WB, np.array([-3.0, 0.0, 1.2]), T_BS)
         for w, h in ((128, 128), (752, 480)):
             f = 0.6 * w
-            K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+            K = proj.intrinsics_matrix(f, f, (w - 1) / 2, (h - 1) / 2)
             proj.depth_from_points(prepared, T_WC, K, w, h)
             reps = 5
             t = time.perf_counter()

@@ -52,63 +52,23 @@ import json
 from pathlib import Path
 from typing import Any, Sequence
 
-from uavturb.commands.export import load_height_module, run_and_output
+from uavturb.commands.export import load_height_module, model_camera, run_and_output
 from uavturb.data.recordings import recording_sequence
 from uavturb.errors import InputError
 from uavturb.evaluation.bands import GE_FRACTION, band_metrics, plot_bands
 from uavturb.evaluation.law import EvaluationLaw, evaluation_law, evaluation_vehicle
 from uavturb.evaluation.metrics import flight_results
 from uavturb.evaluation.report import format_summary, format_table, safe_filename, summarise, write_evaluation
-from uavturb.io import shards
 from uavturb.io.publish import check_output_folder, publish_folder
 from uavturb.io.reader import load_recordings
 from uavturb.progress import progress_bar
 from uavturb.runs import store
+from uavturb.scene.camera import CameraModel
 
 
-def dataset_camera(run) -> dict[str, Any]:
-    """``image_size``, ``yfov_deg``, ``pitch_deg``, ``camera`` (a registered camera's name), ``frame_dt``
-    of the run's training data (what is known)."""
-    out: dict[str, Any] = {}
-    if run is None:
-        return out
-    p = run.data.params
-    try:
-        if int(float(p.get("data.image_size", "0"))) > 0:
-            out["image_size"] = int(float(p["data.image_size"]))
-    except ValueError:
-        pass
-    root = p.get("data.root")
-    if root and (Path(root) / shards.MANIFEST).is_file():
-        try:
-            m = shards.read_manifest(root)
-            out.setdefault("image_size", int(m.image_size[0]))
-            # synthetic shards keep the camera at the top of the config, simulator shards in its preset
-            for conf in (m.config, m.config.get("preset") or {}):
-                for k in ("yfov_deg", "pitch_deg"):
-                    if k in conf:
-                        out[k] = float(conf[k])
-                if conf.get("camera"):
-                    out["camera"] = str(conf["camera"])
-                if conf.get("dt"):
-                    out["frame_dt"] = float(conf["dt"])
-                if conf.get("camera_hz"):
-                    out["frame_dt"] = 1.0 / float(conf["camera_hz"])
-        except InputError:
-            pass
-    return out
-
-
-def camera_settings(run: Any, *, image_size: int | None = None, yfov_deg: float | None = None,
-                    pitch_deg: float | None = None, frame_dt: float | None = None) -> dict[str, Any]:
-    """Keyword arguments of :func:`uavturb.data.recordings.recording_sequence` for a run's model:
-    those given, else its training data's (:func:`dataset_camera`): ``image_size`` (default 128),
-    ``yfov_deg``, ``pitch_deg``, ``camera``, ``frame_dt``."""
-    cam = dataset_camera(run)
-    return {"image_size": int(image_size or cam.get("image_size", 128)),
-            "yfov_deg": yfov_deg if yfov_deg is not None else cam.get("yfov_deg"),
-            "pitch_deg": pitch_deg if pitch_deg is not None else cam.get("pitch_deg"),
-            "camera": cam.get("camera"), "frame_dt": frame_dt if frame_dt is not None else cam.get("frame_dt")}
+def image_size_of(camera: CameraModel) -> int | list[int]:
+    """A model camera's image size as evaluations report it: the side of a square image, else ``[H, W]``."""
+    return camera.width if camera.width == camera.height else [camera.height, camera.width]
 
 
 def log_evaluation(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]], params: dict[str, Any]) -> str:
@@ -128,8 +88,7 @@ def log_evaluation(run_id: str, folder: Path, results: list[tuple[str, dict[str,
 
 
 def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str | Path = "evaluation",
-             checkpoint: str | Path | None = None, vehicle: str | None = None, image_size: int | None = None,
-             frame_dt: float | None = None, yfov_deg: float | None = None, pitch_deg: float | None = None,
+             checkpoint: str | Path | None = None, vehicle: str | None = None, frame_dt: float | None = None,
              ge_fraction: float = GE_FRACTION, overwrite: bool = False, log: bool = True, progress: bool = True
              ) -> dict[str, Any]:
     """``uavturb evaluate``: Table 2 on EuRoC-layout flights (see the module docstring).
@@ -140,10 +99,8 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     recordings : recording folders; the first identifies the vehicle and ``(alpha, beta)``
     out : output folder (replaced when ``overwrite``)
     vehicle : preset or vehicle.yaml for folders without one (raw EuRoC)
-    image_size, yfov_deg, pitch_deg : camera of the depth images (default: the run's
-        training data's; see :mod:`uavturb.data.recordings`)
-    frame_dt : s, frame period where a recording has no cam0 frames (default: the training
-        data's camera period, else 0.05)
+    frame_dt : s, frame period where a recording has no cam0 frames (default: the model
+        camera's, the training data's; else 0.05)
     ge_fraction : the ground-effect region's threshold (law / thrust)
     log : log a child run of ``run_id`` with the metrics and the output folder
     progress : print progress to stderr and the table to stdout
@@ -152,6 +109,9 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     -------
     dict: ``rows`` [(flight, metrics)] with ``Total`` last, ``alpha``, ``beta``, ``h_ge``,
     ``vehicle_source``, ``out``, ``mlflow_run`` (child run id or None), ``table`` (text).
+
+    The depth frames are seen through the model's own camera (:func:`uavturb.commands.export.model_camera`:
+    its checkpoint, else its run); a model that carries none is refused in one line, before any work.
     """
     if not recordings:
         raise InputError("REC", "at least one recording folder is needed")
@@ -160,12 +120,13 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     out = Path(out)
     run = run_and_output(run_id, checkpoint, out, overwrite)
     module = load_height_module(run_id, checkpoint)
-    settings = camera_settings(run, image_size=image_size, yfov_deg=yfov_deg, pitch_deg=pitch_deg, frame_dt=frame_dt)
-    size = settings["image_size"]
+    camera = model_camera(module, run, checkpoint)
+    size = image_size_of(camera)
 
     recs = load_recordings(recordings, vehicle)
     veh, vehicle_source = evaluation_vehicle(recs[0], progress)
-    seqs = [recording_sequence(r, veh, **settings, progress=progress) for r in recs]
+    seqs = [recording_sequence(r, veh, camera, frame_dt=frame_dt if frame_dt is not None else camera.frame_dt,
+                               progress=progress) for r in recs]
     law = evaluation_law(recs, seqs[0], veh, vehicle_source, ge_fraction, progress)
     fit, h_ge = law.fit, law.h_ge
     results, rows = flight_results(module, seqs, fit, h_ge)
@@ -279,12 +240,12 @@ class _SharedFlights:
         self._by_camera: dict[str, list[Any]] = {}
         self.law: EvaluationLaw | None = None
 
-    def sequences(self, settings: dict[str, Any]) -> list[Any]:
-        """The flights' frames through the camera ``settings``; the law fitted on the first call."""
-        key = json.dumps(settings, sort_keys=True)
+    def sequences(self, camera: CameraModel, frame_dt: float | None) -> list[Any]:
+        """The flights' frames through a model's ``camera``; the law fitted on the first call."""
+        key = json.dumps({"camera": camera.record(), "frame_dt": frame_dt}, sort_keys=True)
         if key not in self._by_camera:
-            self._by_camera[key] = [recording_sequence(r, self.vehicle, **settings, progress=self.progress)
-                                    for r in self.recs]
+            self._by_camera[key] = [recording_sequence(r, self.vehicle, camera, frame_dt=frame_dt,
+                                                       progress=self.progress) for r in self.recs]
         seqs = self._by_camera[key]
         if self.law is None:  # the law depends on the first flight's frames, not on the camera
             self.law = evaluation_law(self.recs, seqs[0], self.vehicle, self.vehicle_source, self.ge_fraction,
@@ -295,14 +256,15 @@ class _SharedFlights:
 def _evaluate_run(run: Any, row: str, label: str, flights: _SharedFlights, frame_dt: float | None, tmp: Path
                   ) -> dict[str, Any]:
     """One run's Table 2 into ``tmp/<label>/`` (as ``uavturb evaluate`` writes it); its figures."""
-    settings = camera_settings(run, frame_dt=frame_dt)
-    seqs = flights.sequences(settings)
+    module = load_height_module(run.info.run_id)
+    camera = model_camera(module, run)
+    seqs = flights.sequences(camera, frame_dt if frame_dt is not None else camera.frame_dt)
     law = flights.law
-    results, table = flight_results(load_height_module(run.info.run_id), seqs, law.fit, law.h_ge)
+    results, table = flight_results(module, seqs, law.fit, law.h_ge)
     bands = band_metrics(results, law.fit.beta, law.ge_fraction)
     folder = safe_filename(label.replace("/", "_").replace(" ", "-"))
     info = {"run_id": run.info.run_id, "row": row, "label": label, **law.info(),
-            "image_size": settings["image_size"], "camera": seqs[0].camera.source,
+            "image_size": image_size_of(camera), "camera": seqs[0].camera.source,
             "rows": [{"flight": n, **m} for n, m in table], "bands": bands}
     (tmp / folder).mkdir()
     write_evaluation(tmp / folder, table, results, info)

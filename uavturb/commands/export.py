@@ -58,6 +58,7 @@ from uavturb.io.publish import check_output_folder, publish_folder
 from uavturb.nn.height import phi_alpha_beta
 from uavturb.nn.streaming import INPUT_NAMES, OUTPUT_NAMES, StreamingHeightModel
 from uavturb.runs import store
+from uavturb.scene.camera import CameraModel, camera_from_record
 from uavturb.systems import HeightModule
 
 PT2_FILE, ONNX_FILE, META_FILE = "model.pt2", "model.onnx", "export.json"
@@ -84,6 +85,27 @@ def load_height_module(run_id: str | None = None, checkpoint: str | Path | None 
     except Exception as e:  # noqa: BLE001 - any unreadable checkpoint is bad input
         raise InputError(path, f"not a HeightModule checkpoint ({type(e).__name__}: {str(e)[:200]})") from None
     return module.float().eval()  # float32 on the CPU, whatever device and precision it was trained with
+
+
+def model_camera(module, run: Any = None, checkpoint: str | Path | None = None) -> CameraModel:
+    """The camera a height model was trained through: its checkpoint's hyperparameter ``camera``,
+    else its run's tag :data:`~uavturb.runs.store.CAMERA_TAG`. Never guessed.
+
+    Raises
+    ------
+    InputError : naming the checkpoint (or run) that carries no camera, or a malformed one.
+    """
+    where = str(checkpoint) if checkpoint is not None else f"run {run.info.run_id}" if run is not None else "model"
+    record = module.hparams.get("camera")
+    if record is None and run is not None and run.data.tags.get(store.CAMERA_TAG):
+        try:
+            record = json.loads(run.data.tags[store.CAMERA_TAG])
+        except json.JSONDecodeError:
+            raise InputError(f"run {run.info.run_id}", f"tag {store.CAMERA_TAG!r} is not JSON") from None
+    if record is None:
+        raise InputError(where, "the model carries no camera (image size, intrinsics, mount): trained before "
+                                "models kept their camera, or on data whose manifest names none; train it again")
+    return camera_from_record(record, where)
 
 
 # --- real sequences to check against -----------------------------------------------------
@@ -306,17 +328,21 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
     run = run_and_output(run_id, checkpoint, out, overwrite, hint=" (use --overwrite to replace it)")
     ckpt = Path(checkpoint) if checkpoint is not None else store.run_checkpoint(run_id)
     module = load_height_module(checkpoint=ckpt)
+    camera = model_camera(module, run, checkpoint)
     if data is None:
         data = run_data_root(run) if run is not None else None
         if data is None:
             raise InputError("--data", "no dataset to check the export on (the run names no data.root)")
     seqs = shard_sequences(data, n=n_sequences, length=length)
     H, W = seqs[0].depth.shape[1:]
+    if (H, W) != (camera.height, camera.width):
+        raise InputError(data, f"holds {H}x{W} images but the model's camera ({camera.name}) makes "
+                               f"{camera.height}x{camera.width}")
     n_rotors = seqs[0].rotor_speeds.shape[1]
     model = StreamingHeightModel(module, alpha, beta).eval()
     a, b = float(model.alpha), float(model.beta)
     properties = {"units": json.dumps(UNITS), "alpha": repr(a), "beta": repr(b), "run_id": str(run_id),
-                  "use_gru": str(model.use_gru)}
+                  "use_gru": str(model.use_gru), "camera": json.dumps(camera.record())}
 
     with publish_folder(out, overwrite=overwrite, command="uavturb export") as tmp:
         t0 = time.perf_counter()
@@ -339,14 +365,14 @@ def export(run_id: str | None, out: str | Path, *, checkpoint: str | Path | None
                 "outputs": {"height": [-1], "f_a": [-1], "state_out": [model.layers, -1, model.hidden]},
                 "units": UNITS, "use_gru": model.use_gru, "alpha": a, "beta": b, "max_abs_diff": worst,
                 "max_abs_diff_pt2": diff_pt2, "max_abs_diff_onnx": diff_onnx, "tolerance": tolerance,
-                "check_sequences": [s.name for s in seqs], "data": str(data)}
+                "check_sequences": [s.name for s in seqs], "data": str(data), "camera": camera.record()}
         (tmp / META_FILE).write_text(json.dumps(meta, indent=2))
     logged = None
     if log and run_id is not None:
         logged = _log_export(run_id, out, meta, model, seqs[0], registered_name, verbose)
     return {"out": str(out), "max_abs_diff": worst, "max_abs_diff_pt2": diff_pt2, "max_abs_diff_onnx": diff_onnx,
             "alpha": a, "beta": b, "checkpoint": str(ckpt), "image_size": (int(H), int(W)),
-            "state_shape": model.state_shape(1), "mlflow": logged}
+            "camera": camera.record(), "state_shape": model.state_shape(1), "mlflow": logged}
 
 
 def _check_exported(folder: Path, module: Any, model: StreamingHeightModel,

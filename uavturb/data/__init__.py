@@ -1,3 +1,3 @@
-"""Datasets: simulator shards and pre-training pairs on disk (:mod:`uavturb.data.shards`),
+"""Datasets: simulator shards and pre-training pairs on disk (:mod:`uavturb.io.shards`),
 synthetic data with known answers (:mod:`uavturb.data.synthetic`) and Lightning DataModules
 (:mod:`uavturb.data.datamodules`)."""

@@ -1,4 +1,4 @@
-"""Lightning DataModules over the on-disk datasets of :mod:`uavturb.data.shards`.
+"""Lightning DataModules over the on-disk datasets of :mod:`uavturb.io.shards`.
 
 - :class:`ShardWindowsDataModule`: windows of ``H`` consecutive frames of simulator shards,
   splits from the manifest (by scene). A sample is a dict of tensors::
@@ -28,6 +28,7 @@ from torch.utils.data import DataLoader, Dataset, Subset
 
 from uavturb.errors import InputError
 from uavturb.io import shards
+from uavturb.scene.camera import FORWARD, CameraModel, named_camera
 
 
 class ShardWindowsDataset(Dataset):
@@ -35,7 +36,7 @@ class ShardWindowsDataset(Dataset):
 
     Parameters
     ----------
-    folders : trajectory folders (:func:`uavturb.data.shards.write_trajectory`).
+    folders : trajectory folders (:func:`uavturb.io.shards.write_trajectory`).
     window : frames per sample (H).
     stride : frames between the starts of consecutive windows of a trajectory.
 
@@ -167,6 +168,34 @@ def ground_effect_law(root: str | Path) -> tuple[float, float] | None:
         return None
     beta = mu * r * r / 16.0
     return k_T * beta, beta
+
+
+def dataset_camera(root: str | Path) -> CameraModel | None:
+    """The camera a shard dataset's depth images were made with (:mod:`uavturb.scene.camera`), from its
+    manifest: the image size, and the generator's camera in its config (the synthetic generator's
+    ``yfov_deg``, ``pitch_deg`` and ``dt`` at the top; a simulator preset's ``camera``, ``yfov_deg``,
+    ``pitch_deg`` and ``camera_hz`` under ``preset``). ``None`` where the dataset does not say (no
+    manifest, a config naming no camera): a model trained on it carries no camera."""
+    try:
+        m = shards.read_manifest(root)
+    except InputError:
+        return None
+    found: dict[str, Any] = {}
+    for conf in (m.config, m.config.get("preset") or {}):  # the preset's entries win
+        for k in ("yfov_deg", "pitch_deg"):
+            if k in conf:
+                found[k] = float(conf[k])
+        if conf.get("camera"):
+            found["camera"] = str(conf["camera"])
+        if conf.get("dt"):
+            found["frame_dt"] = float(conf["dt"])
+        if conf.get("camera_hz"):
+            found["frame_dt"] = 1.0 / float(conf["camera_hz"])
+    H, W = (int(x) for x in m.image_size)
+    name = found.get("camera", FORWARD)
+    if name == FORWARD and not {"yfov_deg", "pitch_deg"} <= set(found):
+        return None
+    return named_camera(name, W, H, found.get("yfov_deg", 0.0), found.get("pitch_deg", 0.0), found.get("frame_dt"))
 
 
 class PairsDataset(Dataset):

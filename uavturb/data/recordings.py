@@ -8,22 +8,18 @@ the rotor frame B, so the camera's pose in W is ``T_WB T_BS(vehicle.yaml) T_SC(c
 (body origin over the surface below, m) is measured on the same cloud
 (:class:`uavturb.scene.heights.SurfaceIndex`); the ground-truth turbulence ``f_a`` is the
 world-z component of the residual force of the identified model
-(:func:`uavturb.physics.residuals.residual_forces`, N).
+(:func:`uavturb.sysid.residuals.residual_forces`, N).
 
 Choices (ours):
 
 - **Frame times**: ``cam0/data.csv``'s timestamps when the recording lists frames, else every
-  ``frame_dt`` (default: ``cam0/sensor.yaml``'s ``rate_hz``, else the training data's 0.05 s,
-  20 Hz) over the span all streams cover.
-- **Image**: the network's square input of side ``image_size``. A ``cam0`` with another
-  resolution is cropped to its largest centred square and scaled (intrinsics changed
-  accordingly, no resampling of pixels: the cloud is projected straight at the target size).
-- **No cam0** (flights from ``uavturb generate flight``): the training data's camera when it
-  was rendered through a registered one (``--set camera=euroc_cam0``: :func:`registry_camera`),
-  else a forward camera at the body origin, looking along body +x pitched down by ``pitch_deg`` with vertical field of view
-  ``yfov_deg`` -- the camera of the training shards (their manifest's ``pitch_deg`` and
-  ``yfov_deg``, read by :mod:`uavturb.evaluate`: 20 deg and 70 deg for the simulator's
-  shards; default :mod:`uavturb.data.synthetic`'s 45 deg and 70 deg).
+  ``frame_dt`` (evaluate gives the model camera's frame period, the training data's; default:
+  ``cam0/sensor.yaml``'s ``rate_hz``, else 0.05 s, 20 Hz) over the span all streams cover.
+- **Image and camera**: the model's own camera (:class:`uavturb.scene.camera.CameraModel`, carried
+  by the trained model), at its image size. A recording with a ``cam0`` is seen through it instead:
+  cropped to the centred crop of the model's image aspect and scaled to its size (intrinsics
+  changed accordingly, no resampling of pixels: the cloud is projected straight at the target size).
+  Flights without cam0 (``uavturb generate flight``) are seen through the model's camera itself.
 - **GT f_a per frame**: the residual (IMU rate) averaged over ``[t - w/2, t + w/2)`` with
   ``w = min(frame period, gt_window_s = 0.05 s)`` (a centred box filter that removes most of
   the accelerometer's white noise without delay); heights and rotor speeds are taken at the
@@ -37,55 +33,26 @@ Choices (ours):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io import align
+from uavturb.io.body_frame import to_body
+from uavturb.io.reader import POINTS_PLY
 from uavturb.io.recording import Recording
 from uavturb.physics import quaternion as quat
+from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.vehicle import Vehicle
 from uavturb.progress import progress_bar
+from uavturb.scene.camera import CameraModel, scaled_intrinsics
+from uavturb.scene.heights import SurfaceIndex
+from uavturb.scene.projection import camera_pose_world, depth_from_points, prepare_cloud
+from uavturb.sysid.flight_data import flight_data
+from uavturb.sysid.residuals import residual_forces
 
 DEFAULT_FRAME_DT = 0.05  # s: the training shards' 20 Hz camera
 AIRBORNE_THRUST_FRACTION = 0.3  # frames with less rotor thrust than this share of the weight are on the ground
-
-
-@dataclass(frozen=True)
-class CameraModel:
-    """A pinhole camera on the body.
-
-    Attributes
-    ----------
-    K : (3, 3) intrinsics [px] at the image size below
-    width, height : px
-    T_BS : (4, 4) camera (optical frame: x right, y down, z forward) pose in the rotor frame B
-    source : where it came from (``cam0/sensor.yaml`` or the default forward camera)
-    """
-
-    K: np.ndarray
-    width: int
-    height: int
-    T_BS: np.ndarray
-    source: str
-
-
-def forward_camera(size: int, yfov_deg: float, pitch_deg: float) -> CameraModel:
-    """The training shards' camera: forward along body +x, pitched down ``pitch_deg``, square ``size`` px.
-
-    Same intrinsics as :func:`uavturb.data.synthetic.pixel_rays`: ``f = (size/2) / tan(yfov/2)``,
-    principal point at the image centre ``(size - 1) / 2``.
-    """
-    from uavturb.scene.projection import R_BC_FORWARD, intrinsics_matrix
-
-    f = (size / 2) / np.tan(np.deg2rad(yfov_deg) / 2)
-    c = (size - 1) / 2
-    a = np.deg2rad(pitch_deg)
-    R_y = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
-    T = np.eye(4)
-    T[:3, :3] = R_y @ R_BC_FORWARD
-    return CameraModel(intrinsics_matrix(f, f, c, c), size, size, T,
-                       f"default forward camera (pitch {pitch_deg:g} deg down, vertical fov {yfov_deg:g} deg)")
 
 
 def cam0_pose_in_body(rec: Recording) -> np.ndarray:
@@ -95,39 +62,22 @@ def cam0_pose_in_body(rec: Recording) -> np.ndarray:
     return rec.vehicle.T_BS_matrix @ T_SC if rec.frame == "B" else T_SC
 
 
-def cam0_camera(rec: Recording, size: int) -> CameraModel:
-    """``cam0`` cropped to its largest centred square and scaled to ``size`` px, posed in B
-    (:func:`cam0_pose_in_body`); the crop and scale of the simulator's calibrated cameras
-    (:func:`uavturb.sim.core.cameras.scaled_intrinsics`)."""
-    from uavturb.sim.core.cameras import scaled_intrinsics
-
+def cam0_camera(rec: Recording, width: int, height: int | None = None) -> CameraModel:
+    """``cam0`` as the centred crop of aspect ``width : height`` (default square) scaled to that size,
+    posed in B (:func:`cam0_pose_in_body`); the crop and scale of the registered cameras
+    (:func:`uavturb.scene.camera.scaled_intrinsics`)."""
+    height = width if height is None else height
     cam = rec.cam0
-    K = scaled_intrinsics(cam.intrinsics, (int(cam.resolution[0]), int(cam.resolution[1])), size, size)
-    return CameraModel(K, size, size, cam0_pose_in_body(rec), "cam0/sensor.yaml (centre square, scaled)")
+    K = scaled_intrinsics(cam.intrinsics, (int(cam.resolution[0]), int(cam.resolution[1])), width, height)
+    return CameraModel("cam0", K, int(width), int(height), cam0_pose_in_body(rec),
+                       "cam0/sensor.yaml (centre square, scaled)" if width == height
+                       else "cam0/sensor.yaml (centre crop, scaled)")
 
 
-def registry_camera(name: str, size: int) -> CameraModel:
-    """A camera of :mod:`uavturb.sim.core.cameras` (not ``forward``) at ``size`` px, on its vehicle's body
-    (:func:`uavturb.sim.core.cameras.body_mount`): the camera a simulator preset rendered its data with."""
-    from uavturb.sim.core.cameras import body_mount, camera_spec
-
-    return CameraModel(camera_spec(name).K(size, size), size, size, body_mount(name),
-                       f"{name} (the training data's camera, uavturb.sim.core.cameras)")
-
-
-def camera_for(rec: Recording, size: int, yfov_deg: float | None = None, pitch_deg: float | None = None,
-               camera: str | None = None) -> CameraModel:
-    """The recording's ``cam0`` when it has one, else the registered ``camera`` (the training data's,
-    :func:`registry_camera`) when one is named, else :func:`forward_camera`."""
-    from uavturb.data import synthetic
-    from uavturb.sim.core.cameras import FORWARD
-
-    if rec.cam0 is not None:
-        return cam0_camera(rec, size)
-    if camera is not None and camera != FORWARD:
-        return registry_camera(camera, size)
-    return forward_camera(size, synthetic.YFOV_DEG if yfov_deg is None else yfov_deg,
-                          synthetic.PITCH_DEG if pitch_deg is None else pitch_deg)
+def recording_camera(rec: Recording, camera: CameraModel) -> CameraModel:
+    """The camera a recording is seen through for a model with ``camera``: the recording's ``cam0``
+    at the model's image size when it has one, else the model's camera itself."""
+    return cam0_camera(rec, camera.width, camera.height) if rec.cam0 is not None else camera
 
 
 @dataclass
@@ -178,21 +128,18 @@ def box_average(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray, width: floa
     return out
 
 
-def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 128, frame_dt: float | None = None,
-                       yfov_deg: float | None = None, pitch_deg: float | None = None, gt_window_s: float = 0.05,
-                       camera: str | None = None, progress: bool = False) -> RecordingSequence:
+def recording_sequence(rec: Recording, vehicle: Vehicle, camera: CameraModel, *, frame_dt: float | None = None,
+                       gt_window_s: float = 0.05, progress: bool = False) -> RecordingSequence:
     """A recording as depth frames, true heights and ground-truth ``f_a`` (see the module docstring).
 
     Parameters
     ----------
     rec : recording with ground truth, rotor speeds and a point cloud
     vehicle : the identified model (``k_T``, ``k_M``, inertia) the residual is computed with
-    image_size : side of the square depth images [px]
+    camera : the model's camera (its image size; the camera itself where there is no cam0:
+        :func:`recording_camera`)
     frame_dt : s, frame period where the recording lists no cam0 frames (default: cam0's
         ``rate_hz``, else 0.05)
-    yfov_deg, pitch_deg : the default camera's, where there is no cam0
-    camera : a camera of :mod:`uavturb.sim.core.cameras` to use where there is no cam0 (the training
-        data's, when it was rendered through one; default: the forward camera)
     gt_window_s : s, longest averaging window of the ground-truth f_a
     progress : print frames/s to stderr
 
@@ -200,20 +147,6 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     ------
     InputError : no point cloud or rotor speeds (naming the file), no frame inside the span.
     """
-    from uavturb.io import align
-    from uavturb.io.reader import POINTS_PLY
-    from uavturb.physics.dynamics import GRAVITY
-    from uavturb.scene.heights import SurfaceIndex
-    from uavturb.scene.projection import (
-        camera_pose_world,
-        depth_from_points,
-        prepare_cloud,
-    )
-    from uavturb.sysid.flight_data import flight_data
-    from uavturb.sysid.residuals import residual_forces
-
-    from uavturb.io.body_frame import to_body
-
     rec = to_body(rec)  # state in B (no-op for the readers' recordings): the camera is posed in B
     where = rec.path or rec.name
     if rec.points is None:
@@ -241,9 +174,9 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, *, image_size: int = 12
     # the law's height: the rotor plane's over the surface below (recordings.md, "Heights over surfaces")
     d = SurfaceIndex(rec.points).d_down(rec.vehicle.rotor_plane_positions(p, quat.to_rotation_matrix(q)))
 
-    camera = camera_for(rec, image_size, yfov_deg, pitch_deg, camera)
+    camera = recording_camera(rec, camera)
     cloud = prepare_cloud(rec.points)
-    T_WC = camera_pose_world(q, p, camera.T_BS)
+    T_WC = camera_pose_world(q, p, camera.T_BC)
     depth = np.empty((len(t_ns), camera.height, camera.width), np.float32)
     with progress_bar(len(t_ns), f"{rec.name}: depth frames", "frames", disable=not progress) as bar:
         for k in range(len(t_ns)):
@@ -284,14 +217,6 @@ class RecordingWindowsDataset:
                 "sum_omega2": torch.from_numpy(seq.sum_omega2[s:e].astype(np.float32))}
 
 
-def read_sequences(paths: list[str | Path], vehicle: Vehicle, **kw) -> list[RecordingSequence]:
-    """:func:`recording_sequence` of each recording folder (point clouds loaded)."""
-    from uavturb.io.reader import load_recordings
-
-    return [recording_sequence(r, vehicle, **kw) for r in load_recordings(paths)]
-
-
-__all__ = ["CameraModel", "RecordingSequence", "RecordingWindowsDataset", "box_average", "camera_for",
-           "cam0_camera", "cam0_pose_in_body", "registry_camera", "forward_camera", "read_sequences", "recording_sequence", "DEFAULT_FRAME_DT",
-           "AIRBORNE_THRUST_FRACTION"]
+__all__ = ["RecordingSequence", "RecordingWindowsDataset", "box_average", "cam0_camera", "cam0_pose_in_body",
+           "recording_camera", "recording_sequence", "DEFAULT_FRAME_DT", "AIRBORNE_THRUST_FRACTION"]
 

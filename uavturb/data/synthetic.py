@@ -11,7 +11,8 @@ paper's simulated quadrotor (``k_T = 5.45e-6``, ``r = 0.01 m``) and ``mu = 2``.
 Frames and conventions are those of the simulator (:mod:`uavturb.sim.core.render`): world z up;
 the camera's optical frame has x right, y down, z forward; it looks along body +x, pitched
 down by ``pitch_deg``; pixel ``(i, j)`` has the ray ``((j - (W-1)/2) / f, (i - (H-1)/2) / f, 1)``
-with ``f = (H/2) / tan(yfov/2)`` (:func:`pixel_rays`), so a ray parameter is the z-depth.
+with ``f = (H/2) / tan(yfov/2)`` (:func:`pixel_rays`; the forward camera of :mod:`uavturb.scene.camera`),
+so a ray parameter is the z-depth.
 The body flies level (roll = pitch = 0), heading along its horizontal velocity.
 """
 
@@ -32,6 +33,7 @@ from uavturb.progress import progress_bar, show_rate
 from uavturb.scene.indoor import Scene
 from uavturb.scene.layouts import box_room
 from uavturb.scene.queries import surface_below
+from uavturb.scene.camera import forward_intrinsics
 
 YFOV_DEG = 70.0        # vertical field of view, as the simulator's renderer
 PITCH_DEG = 45.0       # camera pitched down [deg]
@@ -54,9 +56,9 @@ def pixel_rays(size: int | tuple[int, int], yfov_deg: float = YFOV_DEG) -> np.nd
     (H, W, 3) float64 rays ``(x, y, 1)`` in the optical frame (x right, y down, z forward).
     """
     H, W = (size, size) if np.isscalar(size) else size
-    f = (H / 2) / np.tan(np.deg2rad(yfov_deg) / 2)
-    u = (np.arange(W) - (W - 1) / 2) / f
-    v = (np.arange(H) - (H - 1) / 2) / f
+    K = forward_intrinsics(W, H, yfov_deg)  # the forward camera of uavturb.scene.camera
+    u = (np.arange(W) - K[0, 2]) / K[0, 0]
+    v = (np.arange(H) - K[1, 2]) / K[1, 1]
     uu, vv = np.meshgrid(u, v)
     return np.stack([uu, vv, np.ones_like(uu)], axis=-1)
 
@@ -121,7 +123,9 @@ def cast_rays(room: Scene, origin: np.ndarray, dirs: np.ndarray) -> tuple[np.nda
 
 
 def camera_rotation(yaw: np.ndarray, pitch_deg: float | np.ndarray) -> np.ndarray:
-    """(F, 3, 3) ``R_WC``: optical frame of a camera looking along body +x pitched down, level body."""
+    """(F, 3, 3) ``R_WC``: optical frame of a camera looking along body +x pitched down, level body:
+    ``R_z(yaw) R_BC`` with the forward camera's mount ``R_BC`` (:func:`uavturb.scene.camera.forward_rotation`),
+    written out per frame for arrays of yaws and pitches [rad, deg]."""
     yaw = np.asarray(yaw, float)
     th = np.deg2rad(np.broadcast_to(np.asarray(pitch_deg, float), yaw.shape))
     z = np.stack([np.cos(yaw) * np.cos(th), np.sin(yaw) * np.cos(th), -np.sin(th)], -1)

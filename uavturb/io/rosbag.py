@@ -229,13 +229,3 @@ def _read_topics(path: Path, motor_topic: str, imu_topic: str, vicon_topic: str
         raise InputError(path, f"unexpected message layout ({e})") from None
     return data
 
-
-def convert_rosbag(bag: str | Path, out: str | Path, vehicle: Vehicle, *, overwrite: bool = False,
-                   **kwargs: Any) -> Recording:
-    """Read a raw EuRoC bag (:func:`read_rosbag`, ``kwargs`` passed on) and write it as a recording folder."""
-    from uavturb.io.writer import write_recording
-
-    rec = read_rosbag(bag, vehicle, **kwargs)
-    write_recording(rec, out, overwrite=overwrite)
-    rec.path = Path(out)
-    return rec

@@ -31,6 +31,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
+from uavturb.errors import InputError
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.vehicle import Vehicle
 
@@ -64,8 +65,6 @@ def quat_mul_sym(a: ca.SX, b: ca.SX) -> ca.SX:
 def physical_params(vehicle: Vehicle) -> np.ndarray:
     """``[m, k_T, k_M, J_x, J_y, J_z]`` of a vehicle whose constants are known."""
     if not vehicle.is_complete():
-        from uavturb.errors import InputError
-
         raise InputError(vehicle.name, "thrust_coefficient, moment_coefficient and inertia must be known")
     return np.array([vehicle.mass, vehicle.thrust_coefficient, vehicle.moment_coefficient, *vehicle.inertia])
 
@@ -198,7 +197,3 @@ def dynamics_for(vehicle: Vehicle) -> Dynamics:
     g = _Geometry(vehicle.arm_length, tuple(vehicle.rotor_angles_deg), tuple(vehicle.rotor_directions))
     return _dynamics_for(g, vehicle.rotor_count)
 
-
-def state_vector(p: np.ndarray, q: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Stack ``p (K,3), q (K,4), v (K,3), w (K,3)`` into states ``(K, 13)``."""
-    return np.concatenate([np.atleast_2d(p), np.atleast_2d(q), np.atleast_2d(v), np.atleast_2d(w)], axis=1)

@@ -107,7 +107,7 @@ def allowed(default: Any, **kw: Any) -> Any:
 
 _POSITIVE_INT = {"ge": 1}
 _POSITIVE = {"gt": 0}
-#: Lightning's accepted values (tests/test_interruptions.py checks them against Lightning's registries;
+#: Lightning's accepted values (tests/test_config.py checks them against Lightning's registries;
 #: importing Lightning here would cost seconds for every config read)
 ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps", "tpu")
 PRECISIONS = ("32-true", "16-mixed", "bf16-mixed", "16-true", "bf16-true", "64-true", "transformer-engine",

@@ -81,6 +81,9 @@ EXPERIMENT_KIND = "custom_model_development"
 KEY_TAG = "uavturb.key"
 #: the description MLflow's UI shows on a run's page (Markdown)
 NOTE_TAG = "mlflow.note.content"
+#: tag of a height training run: its model's camera as JSON (:meth:`uavturb.scene.camera.CameraModel.record`),
+#: the same as the checkpoint's hyperparameter ``camera``
+CAMERA_TAG = "camera"
 #: the tag that nests a run under its parent in MLflow's UI
 PARENT_TAG = "mlflow.parentRunId"
 

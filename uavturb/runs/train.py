@@ -49,6 +49,7 @@ trained (``map_location="cpu"`` in evaluate and export).
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 import time
 from pathlib import Path
@@ -179,6 +180,8 @@ def train(cfg: DictConfig | TrainConfig | dict, tags: dict[str, str] | None = No
     data_hash = dataset_hash(data_root) if data_root.is_dir() else "missing"
     module, dm, callbacks, monitor = build(cfg)
     dm.setup("fit")  # bad data fails here, before a run is opened
+    if module.hparams.get("camera") is not None:  # the run names the model's camera too (tag camera, JSON)
+        tags = {**(tags or {}), store.CAMERA_TAG: json.dumps(module.hparams["camera"])}
     ckpt_root = Path(t.default_root_dir) / "checkpoints"
     run_id, last = None, None
     if cfg.tracking.enabled and _is_rank_zero():

@@ -26,7 +26,7 @@ from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.loggers import MLFlowLogger
 from omegaconf import DictConfig
 
-from uavturb.data.datamodules import PairsDataModule, ShardWindowsDataModule
+from uavturb.data.datamodules import PairsDataModule, ShardWindowsDataModule, dataset_camera
 from uavturb.errors import InputError
 from uavturb.runs import store
 from uavturb.runs.accelerators import pin_memory
@@ -116,11 +116,13 @@ def build(cfg: DictConfig):
         encoder_ckpt = str(m.encoder_ckpt)
         callbacks.append(FreezeThenFinetune(unfreeze_at_epoch=m.unfreeze_at_epoch if m.finetune else -1,
                                             lr=m.lr_encoder))
+    camera = dataset_camera(d.root)  # the model carries the camera of its training images
     module = HeightModule(use_gru=m.use_gru, embed_dim=m.embed_dim, encoder_hidden=m.encoder_hidden,
                           gru_hidden=m.gru_hidden, gru_layers=m.gru_layers, mlp_hidden=m.mlp_hidden,
                           max_depth=m.max_depth, lr_head=m.lr_head, lr_encoder=m.lr_encoder, alpha=m.alpha,
                           beta=m.beta, loss_frames=m.loss_frames, encoder_ckpt=encoder_ckpt,
-                          loss=m.loss, law_weight_ref=m.law_weight_ref)
+                          loss=m.loss, law_weight_ref=m.law_weight_ref,
+                          camera=None if camera is None else camera.record())
     dm = ShardWindowsDataModule(d.root, window=d.window, stride=d.stride, eval_stride=d.eval_stride,
                                 batch_size=d.batch_size, num_workers=d.num_workers, image_size=d.image_size,
                                 seed=cfg.trainer.seed,  # seeds differ in batch order too, not only in init

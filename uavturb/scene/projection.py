@@ -88,7 +88,6 @@ from uavturb.physics import quaternion as quat
 
 __all__ = [
     "PreparedCloud",
-    "R_BC_FORWARD",
     "camera_pose_world",
     "depth_from_points",
     "depth_to_points",
@@ -97,11 +96,6 @@ __all__ = [
     "intrinsics_matrix",
     "prepare_cloud",
 ]
-
-#: Optical axes of a level, forward-looking camera in the body frame (columns x_C, y_C, z_C):
-#: x_C = -y_B (right), y_C = -z_B (down), z_C = x_B (forward). Use as ``T_BS[:3, :3]``.
-R_BC_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
 
 @dataclass(frozen=True)
 class PreparedCloud:

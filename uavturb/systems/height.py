@@ -37,6 +37,7 @@ from uavturb.errors import InputError
 from uavturb.nn.encoder import DepthEncoder
 from uavturb.nn.height import HeightHead, phi_alpha_beta, phi_alpha_beta_slope
 from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
+from uavturb.scene.camera import CameraModel, camera_from_record
 
 STAGES = ("train", "val", "test")
 LOSSES = ("height", "law_weighted")  # the paper's height loss; ours weighted by the law's slope
@@ -89,13 +90,18 @@ class HeightModule(L.LightningModule):
         None, so :meth:`load_from_checkpoint` never needs the pre-training file.
     pretrained_from : str or None
         Provenance only (see ``encoder_ckpt``).
+    camera : dict or None
+        The camera of the training images (:meth:`uavturb.scene.camera.CameraModel.record`:
+        name, image size, intrinsics, mount, frame period), kept in the checkpoint so that
+        ``evaluate`` and ``export`` see flights through it (:meth:`camera_model`). None: the
+        training data named none, and those commands refuse the model.
     """
 
     def __init__(self, use_gru: bool = True, embed_dim: int = 50, encoder_hidden: int = 128, gru_hidden: int = 50,
                  gru_layers: int = 2, mlp_hidden: int = 50, max_depth: float = 10.0, lr_head: float = 1e-6,
                  lr_encoder: float = 1e-6, alpha: float = ALPHA_PAPER, beta: float = BETA_PAPER,
                  loss_frames: str = "all", encoder_ckpt: str | None = None, pretrained_from: str | None = None,
-                 loss: str = "height", law_weight_ref: float = 1.0):
+                 loss: str = "height", law_weight_ref: float = 1.0, camera: dict | None = None):
         super().__init__()
         if loss_frames not in ("all", "last"):
             raise InputError("model.loss_frames", f"must be all or last, not {loss_frames!r}")
@@ -103,6 +109,8 @@ class HeightModule(L.LightningModule):
             raise InputError("model.loss", f"must be one of {', '.join(LOSSES)}, not {loss!r}")
         if not law_weight_ref > 0:
             raise InputError("model.law_weight_ref", f"must be positive (N/m), got {law_weight_ref}")
+        if camera is not None:
+            camera_from_record(camera, "model camera")
         self.save_hyperparameters(logger=False)  # train() logs the resolved config once
         self.encoder = DepthEncoder(embed_dim=embed_dim, hidden=encoder_hidden, max_depth=max_depth)
         self.head = HeightHead(embed_dim=embed_dim, hidden=gru_hidden, num_layers=gru_layers, mlp_hidden=mlp_hidden,
@@ -118,6 +126,11 @@ class HeightModule(L.LightningModule):
         # keys "<stage>_": a ModuleDict key "train" would clash with nn.Module.train
         self.rmse_d = torch.nn.ModuleDict({f"{s}_": MeanSquaredError(squared=False) for s in STAGES})
         self.rmse_fa = torch.nn.ModuleDict({f"{s}_": MeanSquaredError(squared=False) for s in STAGES})
+
+    def camera_model(self) -> CameraModel | None:
+        """The camera the model was trained through (hyperparameter ``camera``), None if it carries none."""
+        record = self.hparams.get("camera")
+        return None if record is None else camera_from_record(record, "model camera")
 
     def forward(self, depth: torch.Tensor, h0: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Heights for depth sequences.

@@ -9,9 +9,10 @@ converts internally with ``T_WG = T_WC @ diag(1, -1, -1, 1)`` (G: the OpenGL cam
 Nobody outside this module needs to know about G.
 
 Pixel ``(row i, col j)`` is centred at ``u = j``, ``v = i`` with the intrinsics of
-:attr:`SceneRenderer.K`: ``fx = fy = (H / 2) / tan(yfov / 2)``, ``cx = (W - 1) / 2``,
-``cy = (H - 1) / 2``, or the calibrated ``K`` it is given (``SceneRenderer(..., K=...)``, a camera
-of :mod:`uavturb.sim.core.cameras`).
+:attr:`SceneRenderer.K`: the forward camera's of :mod:`uavturb.scene.camera`
+(:func:`~uavturb.scene.camera.forward_intrinsics`: ``fx = fy = (H / 2) / tan(yfov / 2)``,
+``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``), or the calibrated ``K`` it is given
+(``SceneRenderer(..., K=...)``, a registered camera of that module).
 
 - :meth:`SceneRenderer.depth` returns the **z-depth** (distance along the optical axis,
   not along the ray) in metres, ``0`` where nothing is hit within ``[znear, zfar]``.
@@ -47,6 +48,7 @@ import trimesh  # noqa: E402
 
 from uavturb.errors import InputError  # noqa: E402
 from uavturb.physics import quaternion as quat  # noqa: E402
+from uavturb.scene.camera import forward_intrinsics, forward_rotation  # noqa: E402
 from uavturb.scene.indoor import Scene  # noqa: E402
 from uavturb.scene.procedural import generate_scene  # noqa: E402
 from uavturb.scene.queries import inside_obstacle  # noqa: E402
@@ -54,8 +56,6 @@ from uavturb.scene.queries import inside_obstacle  # noqa: E402
 #: Optical frame C (x right, y down, z forward) to OpenGL camera frame G (x right, y up, z back).
 T_CG = np.diag([1.0, -1.0, -1.0, 1.0])
 
-#: Camera (optical) axes in the body frame for ``pitch_deg = 0``: columns are x_C, y_C, z_C.
-R_BC_LEVEL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 _KIND_COLOURS = {
     "floor": (0.55, 0.42, 0.30),
@@ -100,9 +100,7 @@ def camera_pose(
     """
     p_WB = np.asarray(p_WB, dtype=float).reshape(3)
     R_WB = quat.to_rotation_matrix(np.asarray(q_WB, dtype=float).reshape(4))
-    a = np.deg2rad(pitch_deg)
-    R_y = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
-    R_BC = R_y @ R_BC_LEVEL
+    R_BC = forward_rotation(pitch_deg)
     off = np.zeros(3) if offset is None else np.asarray(offset, dtype=float).reshape(3)
     T = np.eye(4)
     T[:3, :3] = R_WB @ R_BC
@@ -200,7 +198,7 @@ class SceneRenderer:
     K : (3, 3) float array, px, optional
         Pinhole intrinsics (pixel centres at integer ``u, v``) instead of ``yfov_deg``'s symmetric
         camera: a calibrated camera scaled to this image size
-        (:func:`uavturb.sim.core.cameras.scaled_intrinsics`). ``yfov_deg`` is then unused.
+        (:func:`uavturb.scene.camera.scaled_intrinsics`). ``yfov_deg`` is then unused.
     """
 
     def __init__(
@@ -228,9 +226,9 @@ class SceneRenderer:
         self.yfov = float(np.deg2rad(yfov_deg))
         self.znear, self.zfar = float(znear), float(zfar)
         if K is None:
-            f = (self.height / 2) / np.tan(self.yfov / 2)
             #: (3, 3) intrinsics of the optical frame, pixel centres at integer (u, v)
-            self.K = np.array([[f, 0.0, (self.width - 1) / 2], [0.0, f, (self.height - 1) / 2], [0.0, 0.0, 1.0]])
+            self.K = forward_intrinsics(self.width, self.height, yfov_deg)
+            f = self.K[1, 1]
             # camera-frame ray directions (z = 1) of pixel centres, for orienting normals
             u = np.arange(self.width) + 0.5 - self.width / 2
             v = np.arange(self.height) + 0.5 - self.height / 2

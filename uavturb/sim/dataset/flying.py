@@ -47,7 +47,7 @@ from uavturb.io.vehicle_file import named_vehicle
 from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.scene.indoor import Scene
 from uavturb.scene.queries import collides, scene_heights
-from uavturb.sim.core.cameras import least_body_height
+from uavturb.scene.camera import least_body_height
 from uavturb.sim.core.closed_loop import (
     CollisionWatch,
     GeometricTracker,
@@ -215,7 +215,7 @@ def plan_config(preset: SimPreset, n_points: int, rotor_radius: float):
 
     A camera that hangs under the body origin (0.13 m for ``euroc_cam0``) would look from under
     the floor when landed at a few centimetres: the landed height and the lowest low hover become
-    at least :func:`uavturb.sim.core.cameras.least_body_height` (0.16 m for ``euroc_cam0``: the vehicle
+    at least :func:`uavturb.scene.camera.least_body_height` (0.16 m for ``euroc_cam0``: the vehicle
     stands on legs that tall). ``forward`` changes nothing.
     """
     cfg = PlanConfig(**{**preset.plan, "n_points": int(n_points)})

@@ -45,7 +45,7 @@ from typing import Any
 
 from uavturb.errors import InputError
 from uavturb.physics.effects import DEFAULT_EFFECTS
-from uavturb.sim.core.cameras import CAMERA_NAMES
+from uavturb.scene.camera import CAMERA_NAMES
 from uavturb.sim.dataset.planning import PlanConfig
 
 
@@ -79,7 +79,7 @@ class SimPreset:
     pitch_deg : float, deg
         Downward pitch of the forward camera relative to body +x.
     camera : str
-        Camera of :mod:`uavturb.sim.core.cameras`: ``forward`` (default: at the body origin, ``yfov_deg``
+        Camera of :mod:`uavturb.scene.camera`: ``forward`` (default: at the body origin, ``yfov_deg``
         and ``pitch_deg`` above) or a calibrated one (``euroc_cam0``: its intrinsics scaled to
         ``width x height`` and its mount on the body; ``yfov_deg`` and ``pitch_deg`` then unused).
         A camera hanging under the body origin raises the plan's landed and low-hover heights so

@@ -59,7 +59,7 @@ from uavturb.physics import quaternion as quat
 from uavturb.progress import progress_bar, show_rate
 from uavturb.scene.procedural import generate_scene
 from uavturb.scene.queries import inside_obstacle
-from uavturb.sim.core.cameras import preset_intrinsics
+from uavturb.scene.camera import preset_intrinsics
 from uavturb.sim.core.render import SceneRenderer, camera_pose
 from uavturb.sim.dataset.assignment import scene_splits
 from uavturb.sim.dataset.presets import SimPreset, get_preset

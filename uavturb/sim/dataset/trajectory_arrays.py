@@ -19,7 +19,7 @@ from uavturb.physics.ground_effect import phi
 from uavturb.scene.procedural import generate_scene
 from uavturb.scene.projection import camera_pose_world
 from uavturb.scene.queries import collides, height_below, inside_obstacle
-from uavturb.sim.core.cameras import preset_intrinsics, preset_mount
+from uavturb.scene.camera import preset_intrinsics, preset_mount
 from uavturb.sim.core.render import SceneRenderer, camera_pose
 from uavturb.sim.dataset.assignment import Task
 from uavturb.sim.dataset.flying import FLYERS
@@ -66,7 +66,7 @@ RENDERERS = _RendererCache()
 def camera_poses(state: np.ndarray, pitch_deg: float, mount: np.ndarray | None = None) -> np.ndarray:
     """``T_WC`` (T, 4, 4) of the preset's camera at the states ``(T, 13)``: the forward camera of
     :func:`uavturb.sim.core.render.camera_pose` pitched ``pitch_deg`` down, or the body mount ``T_BC``
-    (4, 4) of a calibrated camera (:func:`uavturb.sim.core.cameras.preset_mount`)."""
+    (4, 4) of a calibrated camera (:func:`uavturb.scene.camera.preset_mount`)."""
     if mount is not None:
         return camera_pose_world(state[:, 3:7], state[:, :3], mount)
     return np.stack([camera_pose(x[:3], x[3:7], pitch_deg) for x in state]) if len(state) else np.zeros((0, 4, 4))

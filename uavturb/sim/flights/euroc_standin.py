@@ -13,7 +13,7 @@ the flights of the paper's Table 2:
 - **the sensor frame**: ground truth and IMU in EuRoC's S (the VI-sensor's IMU), placed in B by
   ``vehicle.yaml``'s ``T_BS``: the Firefly's (``uavturb/presets/firefly.yaml``) unless the vehicle
   has its own (:func:`with_vi_sensor`);
-- **cam0**: ``mav0/cam0/sensor.yaml`` of EuRoC's cam0 (:data:`uavturb.sim.core.cameras.EUROC_CAM0`:
+- **cam0**: ``mav0/cam0/sensor.yaml`` of EuRoC's cam0 (:data:`uavturb.scene.camera.EUROC_CAM0`:
   intrinsics, 752 x 480, 20 Hz, radial-tangential distortion, ``T_BS`` relative to S), no images:
   ``uavturb evaluate`` projects the recording's point cloud through it at its 20 Hz, as the paper
   does on EuRoC (:func:`with_cam0`);
@@ -36,7 +36,7 @@ from uavturb.io.vehicle_file import SHIPPED_DIR, load_vehicle
 from uavturb.physics.vehicle import HEXAROTOR, Vehicle
 from uavturb.scene.indoor import Scene
 from uavturb.scene.layouts import floor_boxes, room_size
-from uavturb.sim.core.cameras import EUROC_CAM0, least_body_height
+from uavturb.scene.camera import EUROC_CAM0, least_body_height
 from uavturb.sim.core.signals import Reference
 from uavturb.sim.flights.plans import EUROC_ROOM, euroc_room
 
