@@ -90,11 +90,6 @@ def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
     return c / scale, float(r @ r)
 
 
-def _sse(data: GapData, effects: set[str], nl: dict[str, float], y: np.ndarray) -> float:
-    A, _ = design(data, effects, _nl_values(nl))
-    return _solve(A, y)[1]
-
-
 class _Profile:
     """Least-squares error as a function of the nonlinear parameters, fast: the Gram matrix of
     the fixed columns (bias, linear effects) and their products with ``y`` are computed once;
