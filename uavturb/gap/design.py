@@ -42,6 +42,9 @@ NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items()
              if e.search is not None and e.fitted_by_finder}
 
 
+#: bytes of lagged rotor-speed sums kept per flight set (:meth:`GapData.S_lag`; 34 taus of a flight-hour at 200 Hz)
+LAG_CACHE_BYTES = 200 << 20
+
 #: Hz, the rate the gap finder analyses at (block means of faster recordings; :func:`gap_data`)
 RATE_HZ = 25.0
 
@@ -141,14 +144,16 @@ class GapData:
         computed on the contiguous flights when these rows are a subset of them."""
         if self.contiguous is not None:
             return self.gather(self.contiguous.S_lag(tau))
-        key = round(float(tau), 9)
+        # tau to three significant digits (0.5 % at most, far under its honest error): the searches of
+        # every fold and candidate land on the same few values and share their lagged sums
+        key = float(f"{float(tau):.3g}")
         if key not in self._lag_cache:
             out = np.empty(len(self))
             for g in np.unique(self.group):
                 m = self.group == g
-                out[m] = np.sum(lag_rotor_speeds(self.t[m], self.rotor_speeds[m], tau) ** 2, axis=1)
-            if len(self._lag_cache) > 64:
-                self._lag_cache.clear()
+                out[m] = np.sum(lag_rotor_speeds(self.t[m], self.rotor_speeds[m], key) ** 2, axis=1)
+            while len(self._lag_cache) * out.nbytes > LAG_CACHE_BYTES and self._lag_cache:
+                self._lag_cache.pop(next(iter(self._lag_cache)))  # the oldest first
             self._lag_cache[key] = out
         return self._lag_cache[key]
 

@@ -46,7 +46,6 @@ from typing import Any
 from uavturb.errors import InputError
 from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.scene.camera import CAMERA_NAMES
-from uavturb.sim.dataset.planning import PlanConfig
 
 
 @dataclass(frozen=True)
@@ -169,6 +168,9 @@ class SimPreset:
             raise bad("plan_points", f"must be a non-empty list of integers >= 1, got {self.plan_points}")
         if self.max_seconds < 0:
             raise bad("max_seconds", f"must be >= 0, got {self.max_seconds}")
+
+        # late: the CLI lists the presets while it builds its parser, and planning pulls in the scene's meshes
+        from uavturb.sim.dataset.planning import PlanConfig
 
         known = {f.name for f in fields(PlanConfig)} - {"n_points"}
         bad_keys = sorted(set(self.plan) - known)
