@@ -323,10 +323,6 @@ def lagged_S(data: GapData, tau: float) -> np.ndarray:
     return data.S_lag(tau)
 
 
-#: coefficients whose regressor depends on the nonlinear parameters (``mu``, ``kappa``, ``tau``)
-DEPENDENT = ("k_T", "k_T*s")
-
-
 def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tuple[np.ndarray, list[str]]:
     """Regressors ``A (3K, P)`` (rows: x of all samples, then y, then z) and the coefficient names.
 

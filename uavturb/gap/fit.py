@@ -93,7 +93,7 @@ def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
 class _Profile:
     """Least-squares error as a function of the nonlinear parameters, fast: the Gram matrix of
     the fixed columns (bias, linear effects) and their products with ``y`` are computed once;
-    each evaluation then needs only the dependent columns' products (``design.DEPENDENT``)."""
+    each evaluation then needs only the dependent columns' products (``design.thrust_columns``)."""
 
     def __init__(self, data: GapData, effects: frozenset[str], y: np.ndarray):
         self.data, self.effects, self.y = data, set(effects), y

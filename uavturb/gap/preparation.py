@@ -98,7 +98,7 @@ def _vehicle_landed_height(fds: Sequence[FlightData]) -> float | None:
     None where a flight has no ``d_down``."""
     lows = []
     for fd in fds:
-        d = fd.d_down if fd.d_down is not None else None
+        d = fd.d_down
         if d is None or not np.any(np.isfinite(d)):
             return None
         lows.append(float(np.min(median_filter(d[np.isfinite(d)], 5, mode="nearest"))))
