@@ -11,7 +11,8 @@ import pytest
 from uavturb.gap.design import GapData, apply_thrust_levels
 from uavturb.gap.finder import _nominal
 from uavturb.gap.fit import ModelFit, fit_model
-from uavturb.gap.nominal import ThrustLevels, anchored_bias, block_mean_and_se, thrust_levels
+from uavturb.gap.nominal import (ThrustLevels, anchored_bias, block_mean_and_se, matched_height_levels,
+                                 thrust_levels)
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
@@ -103,6 +104,29 @@ def test_a_thrust_level_between_recordings_does_not_move_mu():
     own = fit_model(data, {"ground_effect"}).nonlinear["ground_effect"]
     assert own == pytest.approx(2.0, rel=0.03)
     assert abs(pooled - 2.0) > abs(own - 2.0)
+
+
+def test_thrust_levels_at_matched_heights_where_no_recording_flies_far():
+    """Flights that never leave the ground effect's reach (rotor plane 0.12-0.62 m, reach 0.87 m), the
+    stronger one lower: the levels come from matched heights, the lift cancels, mu stays right."""
+    data = _ground_flights(levels=(1.0, 1.04), tops=(0.5, 0.3))
+    levels = apply_thrust_levels(data)
+    assert levels.basis == "matched heights" and levels.differ and "matched heights" in levels.why
+    assert levels.level[1] / levels.level[0] == pytest.approx(1.04, rel=3e-3)
+    assert levels.relative[1] / levels.relative[0] == pytest.approx(1.04, rel=3e-3)
+    assert fit_model(data, {"ground_effect"}).nonlinear["ground_effect"] == pytest.approx(2.0, rel=0.05)
+    same = apply_thrust_levels(_ground_flights(levels=(1.0, 1.0), tops=(0.5, 0.3)))
+    assert same.basis == "matched heights" and not same.differ and np.all(same.level == 1.0)
+
+
+def test_matched_height_levels_need_shared_heights():
+    """Two recordings at heights that never overlap cannot be compared: no level measured."""
+    data = _ground_flights(levels=(1.0, 1.04), tops=(0.05, 0.05))
+    data.d_down = np.where(data.group == 1, data.d_down + 1.0, data.d_down)
+    y_thrust = np.einsum("ki,ki->k", data.y, data.R[:, :, 2])
+    k, se, shared = matched_height_levels(data.group, data.t, y_thrust, data.S, data.d_down,
+                                          np.ones(len(data), bool))
+    assert shared == 0 and np.all(np.isnan(k))
 
 
 def test_honest_errors_cover_the_spread_between_recordings():

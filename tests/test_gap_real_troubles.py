@@ -4,6 +4,8 @@ said, and the delay of late rotor telemetry is found and taken out."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from uavturb.gap.finder import analyse
@@ -49,3 +51,31 @@ def test_held_and_late_measured_rotors(tmp_path):
         assert not d["applied"] or d["lag_s"] == pytest.approx(0.06, abs=3 * d["stderr_s"])
     assert any("rotors0" in why and "too slow" in why for why in report["streams"]["stream_limits"])
     assert any(n["name"] == "battery_sag" for n in report["not_testable"])
+
+
+@pytest.mark.slow
+def test_all_of_a_px4_logs_troubles_at_once(tmp_path):
+    """No IMU, MoCap rows at 60 Hz with jitter updated at 9 Hz, measured rotor speeds at 3 Hz and 60 ms late,
+    the landing gear at both ends, rotors 15 cm over the body origin (never nearer the floor than 0.17 m,
+    never beyond the surface laws' reach), a battery, three sessions 4 % and 3 % apart in thrust level: the
+    levels come from matched heights, the fit from the rotor updates, and mu lands within 15 % and two
+    stated errors of the truth."""
+    base = Conditions(no_imu=True, rate_hz=60, jitter_ms=3.0, position_hold_hz=9, rotor_hold_hz=3,
+                      rotor_delay_s=0.06, measured_rotors=True, ground_contact_s=3.0, rotor_plane_z=0.15,
+                      battery_voltage=16.0)
+    paths = []
+    for seed, level in zip((0, 1, 2), (1.0, 1.04, 0.97)):
+        path = tmp_path / f"px4-{seed}"
+        generate_conditioned_flight("hex", GROUND, duration=120.0, kind="low_passes", seed=seed,
+                                    conditions=dataclasses.replace(base, thrust_level=level), out=path)
+        paths.append(path)
+    report, _ = analyse(load_recordings(paths), {})
+    named = {e["name"]: e for e in report["effects"]}
+    assert list(named) == ["ground_effect"]
+    mu, se = named["ground_effect"]["params"]["mu"], named["ground_effect"]["stderr"]["mu"]
+    assert mu == pytest.approx(2.0, rel=0.15) and abs(mu - 2.0) < 2 * se
+    nominal = report["nominal"]
+    assert nominal["thrust_level_basis"] == "matched heights" and nominal["thrust_levels_differ"]
+    k = [nominal["thrust_coefficient_per_recording"][f"px4-{s}"] for s in (0, 1, 2)]
+    assert k[1] / k[0] == pytest.approx(1.04, abs=0.01) and k[2] / k[0] == pytest.approx(0.97, abs=0.01)
+    assert len(report["ground_contact"]) >= 6  # both ends of each flight

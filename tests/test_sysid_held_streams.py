@@ -9,7 +9,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from uavturb.gap import locate
-from uavturb.io.recording import GroundTruth
+from uavturb.gap.design import gap_data
+from uavturb.io.recording import GroundTruth, Rotors
 from uavturb.physics.effects import parse_effects
 from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights.sensors import SensorNoise
@@ -71,3 +72,28 @@ def test_the_residual_noise_of_a_slow_stream_is_read_between_its_updates():
     rows, draws = locate.window_rows(data, 0.5)
     assert rows == draws and 12 <= rows <= 13
     assert locate.window_rows(data, 0.5, update_step_s=0.2) == (rows, 2)
+
+
+def test_a_held_rotor_stream_is_fitted_on_its_updates_only():
+    """Rotor speeds held at 3.3 Hz: the rows nearest their updates are marked fresh, the gap finder fits on
+    those alone (the interpolated rows between them miss the thrust), and keeps every row in flight for
+    sums such as thrust levels."""
+    rec, truth = _bobbing()
+    every = 60  # 200 Hz rows of a 3.3 Hz telemetry
+    src = (np.arange(len(rec.rotors.t_ns)) // every) * every
+    held = dataclasses.replace(rec, rotors=Rotors(rec.rotors.t_ns, rec.rotors.speeds[src]))
+    fd = flight_data(held, window_s=0.3)
+    assert flight_data(rec, window_s=0.3).rotor_fresh is None
+    updates = np.flatnonzero(fd.rotor_fresh)
+    assert len(updates) == len(rec.rotors.t_ns) // every  # every update but the stream's closing row
+    np.testing.assert_array_equal(fd.t_ns[updates], rec.rotors.t_ns[::every][:len(updates)])
+    # at the updates the rotor speeds are the measured ones; between them, interpolated, they are off
+    S_true = np.interp(fd.t, truth.t, np.sum(truth.rotor_speeds**2, axis=1))
+    S = np.sum(fd.rotor_speeds**2, axis=1)
+    between = ~fd.rotor_fresh & (fd.t > 1.0) & (fd.t < 11.0)
+    fresh = fd.rotor_fresh & (fd.t > 1.0) & (fd.t < 11.0)
+    assert np.sqrt(np.mean((S - S_true)[fresh] ** 2)) < 0.05 * np.sqrt(np.mean((S - S_true)[between] ** 2))
+    data = gap_data([fd], HEXAROTOR.mass, HEXAROTOR.rotor_radius, k_T_guess=HEXAROTOR.thrust_coefficient)
+    # the fit's rows are the updates in flight (single rows, not 25 Hz block means); the dense rows all of it
+    assert 30 <= len(data) <= len(updates) and data.dense is not None and len(data.dense) > 5 * len(data)
+    assert set(np.round(data.t, 9)) <= set(np.round(fd.t[fd.rotor_fresh], 9))

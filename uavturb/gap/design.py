@@ -76,6 +76,9 @@ class GapData:
     block_of : (M,) int, the row each member sample belongs to (None: one sample a row)
     anchored : ``{recording name: AnchoredBias}``, accelerometer biases measured against motion capture
     arm_length : m, the vehicle's arm (sizes the airframe for physical ranges; nan: unknown)
+    dense : where a held rotor stream thinned the rows to its updates (:attr:`FlightData.rotor_fresh`), the
+        rows in flight before that (sums over many rows, such as thrust levels, average the interpolation
+        errors out and use them); None otherwise, and in subsets
     """
 
     group: np.ndarray
@@ -101,6 +104,7 @@ class GapData:
     arm_length: float = float("nan")
     _S: np.ndarray | None = field(default=None, repr=False)
     _lag_cache: dict = field(default_factory=dict, repr=False)
+    dense: "GapData | None" = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -224,6 +228,9 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
         use_imu = fd.acc is not None and source in ("auto", "imu")
         R = quat.to_rotation_matrix(fd.q)
         keep = _in_flight(fd, mass, k_T_guess, min_thrust_ratio, None if exclude is None else exclude[g])
+        # a held rotor stream (ESC telemetry at 3 Hz): between its updates the speeds are interpolated,
+        # off by the thrust changes of a third of a second; only the rows of its updates are measured
+        fresh = keep if fd.rotor_fresh is None else keep & fd.rotor_fresh
         if use_imu:
             acc = fd.acc
             if anchor_bias:
@@ -241,16 +248,21 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
         d_down = np.where(np.isfinite(fd.d_down), fd.d_down + dz, np.inf) if fd.d_down is not None else inf
         d_up = np.where(np.isfinite(fd.d_up), fd.d_up - dz, np.inf) if fd.d_up is not None else inf
         parts.append(dict(group=np.full(len(fd), g), t=fd.t, p=fd.p, y=y, R=R, rotor_speeds=fd.rotor_speeds, v=fd.v,
-                          d_down=d_down, d_up=d_up, keep=keep, imu=np.full(len(fd), use_imu),
+                          d_down=d_down, d_up=d_up, keep=keep, fresh=fresh, imu=np.full(len(fd), use_imu),
                           src="imu" if use_imu else "mocap"))
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "src"}
-    keep = cat.pop("keep")
+    keep, fresh = cat.pop("keep"), cat.pop("fresh")
     full = GapData(**cat, mass=mass, rotor_radius=rotor_radius, names=[f.name for f in flights],
                    source="+".join(sorted({p["src"] for p in parts})),
                    fits_bias=bool(np.any(cat["imu"])) and not anchor_bias, arm_length=arm_length)
     full.anchored = anchored
     n = block_size(full, rate_hz)
-    return full.subset(keep) if n <= 1 else block_means(full, keep, n)
+    dense = full.subset(keep) if n <= 1 else block_means(full, keep, n)
+    if np.array_equal(fresh, keep):
+        return dense
+    data = full.subset(fresh) if n <= 1 else block_means(full, fresh, n)
+    data.dense = dense
+    return data
 
 
 def block_size(data: GapData, rate_hz: float | None) -> int:
@@ -295,12 +307,16 @@ def block_means(full: GapData, keep: np.ndarray, n: int) -> GapData:
 
 
 def apply_thrust_levels(data: GapData) -> ThrustLevels:
-    """Measure each recording's thrust level far from surfaces (:func:`uavturb.gap.nominal.thrust_levels`)
-    and, where they differ, give each row its recording's level (``data.level``)."""
+    """Measure each recording's thrust level far from surfaces, or at matched heights where the flights
+    stay within a surface's reach (:func:`uavturb.gap.nominal.thrust_levels`), and, where they differ,
+    give each row its recording's level (``data.level``)."""
     reach = max(e.surface_reach(data.rotor_radius, **data.geometry) for e in EFFECTS.values() if e.surface)
-    far = (data.d_down > reach) & (data.d_up > reach)
-    y_thrust = np.einsum("ki,ki->k", data.y, data.R[:, :, 2])
-    levels = thrust_levels(data.group, data.t, y_thrust, data.S, far, data.names)
+    rows = data if data.dense is None else data.dense  # sums: every row in flight counts
+    far = (rows.d_down > reach) & (rows.d_up > reach)
+    y_thrust = np.einsum("ki,ki->k", rows.y, rows.R[:, :, 2])
+    # matched heights: binned by the height over the floor, out of the ceiling's reach
+    levels = thrust_levels(rows.group, rows.t, y_thrust, rows.S, far, rows.names,
+                           height=rows.d_down, matched=rows.d_up > reach)
     if levels.differ:
         data.level = levels.level[data.group]
         if data.contiguous is not None:

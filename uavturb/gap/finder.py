@@ -37,6 +37,8 @@ from uavturb.physics.effects import (
 )
 
 SCHEMA = "uavturb.gap/1"
+#: rows in flight the analysis needs (a minute of 3 Hz rotor telemetry over two flights has ~150)
+MIN_ROWS = 100
 
 
 def parse_sim_effects(text: str | None) -> dict[str, dict[str, float]]:
@@ -118,7 +120,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient,
                     arm_length=vehicle.arm_length, exclude=contact)
     del fds, contact  # the aligned streams live on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
-    if len(data) < 200:
+    if len(data) < MIN_ROWS:
         raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
     levels = apply_thrust_levels(data)
 
@@ -256,9 +258,11 @@ def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels) -> dict[str, 
         "thrust_levels_differ": levels.differ, "thrust_level_note": levels.why,
         "thrust_level_spread_percent": levels.spread_percent,
         "thrust_coefficient_per_recording": {n: k_T * float(lv) for n, lv in zip(data.names, levels.level)},
-        "thrust_coefficient_far_from_surfaces": {n: (float(k), float(se)) for n, k, se in
-                                                 zip(data.names, levels.k_T, levels.stderr)},
+        "thrust_level_basis": levels.basis,
     }
+    measured_at = "thrust_coefficient_at_matched_heights" if levels.basis == "matched heights" else \
+        "thrust_coefficient_far_from_surfaces"
+    out[measured_at] = {n: (float(k), float(se)) for n, k, se in zip(data.names, levels.k_T, levels.stderr)}
     if data.fits_bias:
         out["accel_bias"] = [final.coef[f"b_{a}"] for a in "xyz"]
         out["accel_bias_note"] = "fitted with the model"

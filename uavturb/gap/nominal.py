@@ -19,7 +19,11 @@ sessions 3-5 % apart it moved the ground effect's ``mu`` from about 4.6 to 6.45 
 battery sag. :func:`thrust_levels` measures each recording's level far from any surface (where no
 surface law acts) and, where the levels differ beyond their honest errors and by more than
 :data:`LEVEL_PRACTICAL` (``gap-report.md``: "each gets its own thrust coefficient"), each
-recording's rows carry their level.
+recording's rows carry their level. Where fewer than two recordings fly beyond a surface law's reach
+(a large vehicle in a low room: a multirotor law reaches 1.3 m on a 1.5 kg hexarotor), the levels are
+measured *at matched heights* instead (:func:`matched_height_levels`): whatever a surface adds at a
+height, it adds to every recording alike, so the recordings' ratios at the same heights give their
+relative levels without any law, and so without swallowing one.
 """
 
 from __future__ import annotations
@@ -36,6 +40,14 @@ BLOCK_S = 1.0
 LEVEL_PRACTICAL = 0.005
 #: chi^2 per degree of freedom of the levels' differences above which they differ (with honest errors)
 LEVEL_CHI2 = 9.0
+#: rows a recording needs in a reference (far from surfaces, or one height bin) to measure its level there
+LEVEL_MIN_ROWS = 50
+#: most height bins (pooled quantiles of the rotor plane's height) of :func:`matched_height_levels`; fewer
+#: where the recordings are short (a bin per :data:`MATCHED_ROWS_PER_BIN` rows of the shortest), never under 3
+MATCHED_BINS = 8
+MATCHED_ROWS_PER_BIN = 40
+#: rows a recording needs in a height bin to measure its level there
+MATCHED_MIN_ROWS = 20
 
 
 def block_labels(t: np.ndarray, block_s: float = BLOCK_S) -> np.ndarray:
@@ -113,6 +125,11 @@ class ThrustLevels:
     level : (G,) -, the level applied to each recording's thrust (all 1 where they do not differ)
     differ : whether the recordings differ in thrust level (and each got its own)
     why : one sentence with the numbers
+    basis : where the levels were measured: ``"far from surfaces"``, ``"matched heights"`` (``k_T`` then
+        holds each recording's coefficient at those heights, the surfaces' common lift included) or
+        ``"none"``
+    relative, relative_stderr : (G,) -, each recording's measured level over their weighted mean, and its
+        error (nan where not measured)
     """
 
     k_T: np.ndarray
@@ -120,6 +137,9 @@ class ThrustLevels:
     level: np.ndarray
     differ: bool
     why: str
+    basis: str = "far from surfaces"
+    relative: np.ndarray | None = None
+    relative_stderr: np.ndarray | None = None
 
     @property
     def spread_percent(self) -> float:
@@ -141,11 +161,108 @@ def _level_of(y_thrust: np.ndarray, S: np.ndarray, t: np.ndarray) -> tuple[float
     return k, float(np.sqrt(np.sum((ys - k * ss) ** 2) * B / (B - 1)) / ss.sum())
 
 
+def _judged(k: np.ndarray, se: np.ndarray, names: list[str], basis: str, where: str) -> ThrustLevels:
+    """Whether measured levels ``k`` (G,) with errors ``se`` differ: chi^2 of their differences over
+    :data:`LEVEL_CHI2` per degree of freedom *and* a spread over :data:`LEVEL_PRACTICAL`; ``where`` says
+    where they were measured, for the sentence."""
+    ok = np.isfinite(k) & np.isfinite(se)
+    level = np.ones(len(k))
+    w = 1.0 / np.maximum(se[ok], 1e-300) ** 2
+    mean = float(np.sum(w * k[ok]) / np.sum(w))
+    chi2_dof = float(np.sum(w * (k[ok] - mean) ** 2) / (ok.sum() - 1))
+    spread = float(np.ptp(k[ok]) / mean)
+    rel, rel_se = np.full(len(k), np.nan), np.full(len(k), np.nan)
+    rel[ok], rel_se[ok] = k[ok] / mean, se[ok] / mean
+    listing = ", ".join(f"{n} {100 * (kg / mean - 1):+.1f} %" for n, kg, o in zip(names, k, ok) if o)
+    differ = chi2_dof > LEVEL_CHI2 and spread > LEVEL_PRACTICAL
+    if differ:
+        level[ok] = k[ok] / mean
+        why = (f"the recordings differ in thrust per rotor speed squared {where} ({listing}; "
+               f"chi^2/dof = {chi2_dof:.1f}): each gets its own thrust coefficient")
+    else:
+        why = (f"the recordings' thrust levels {where} agree ({listing}; chi^2/dof = {chi2_dof:.1f}, "
+               f"spread {100 * spread:.1f} %): one thrust coefficient")
+    return ThrustLevels(k, se, level, differ, why, basis, rel, rel_se)
+
+
+def matched_height_levels(group: np.ndarray, t: np.ndarray, y_thrust: np.ndarray, S: np.ndarray,
+                          height: np.ndarray, use: np.ndarray, bins: int = MATCHED_BINS
+                          ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Each recording's thrust coefficient at matched heights, without a surface law.
+
+    In each height bin ``b`` and recording ``g`` the ratio estimator ``k_gb = sum(y) / sum(S)`` (error
+    from 1 s blocks) is, whatever the surface adds at that height, ``k_T level_g (1 + G_b)``; the
+    weighted least-squares fit of ``log k_gb = a_g + c_b`` over the bins that two or more recordings
+    share gives ``exp(a_g)``, each recording's level up to one common factor, and its error.
+
+    Parameters
+    ----------
+    group : (K,) int, recording index; t : (K,) s
+    y_thrust : (K,) N, the force along the body z axis the rotors made; S : (K,) (rad/s)^2
+    height : (K,) m, the rotor plane's height over the surface below
+    use : (K,) bool, rows in flight out of every other surface's reach
+    bins : most height bins, pooled quantiles of ``height[use]`` (fewer for short recordings)
+
+    Returns
+    -------
+    k : (G,) N/(rad/s)^2, each recording's coefficient at the matched heights, scaled so that their
+        weighted mean is the pooled ratio over the cells used (nan: no shared bin)
+    stderr : (G,) N/(rad/s)^2
+    shared : bins that two or more recordings share
+    """
+    G = int(group.max()) + 1 if len(group) else 0
+    k, se = np.full(G, np.nan), np.full(G, np.nan)
+    ok_rows = use & np.isfinite(height) & (S > 0)
+    shortest = int(np.bincount(group[ok_rows], minlength=G).min()) if G else 0
+    bins = max(3, min(bins, shortest // MATCHED_ROWS_PER_BIN))
+    if G < 2 or shortest < 3 * MATCHED_MIN_ROWS:
+        return k, se, 0
+    edges = np.unique(np.quantile(height[ok_rows], np.linspace(0.0, 1.0, bins + 1)))
+    cell_bin = np.clip(np.searchsorted(edges, height, side="right") - 1, 0, len(edges) - 2)
+    cells = []  # (g, b, log k, se of log k, sum y, sum S)
+    for b in range(len(edges) - 1):
+        for g in range(G):
+            m = ok_rows & (group == g) & (cell_bin == b)
+            if m.sum() < MATCHED_MIN_ROWS:
+                continue
+            kc, sc = _level_of(y_thrust[m], S[m], t[m])
+            if np.isfinite(sc) and kc > 0 and sc > 0:
+                cells.append((g, b, np.log(kc), sc / kc, y_thrust[m].sum(), S[m].sum()))
+    per_bin = np.bincount([c[1] for c in cells], minlength=len(edges) - 1) if cells else np.zeros(1, int)
+    cells = [c for c in cells if per_bin[c[1]] >= 2]
+    groups = sorted({c[0] for c in cells})
+    shared = sorted({c[1] for c in cells})
+    if len(groups) < 2:
+        return k, se, len(shared)
+    gi, bi = {g: i for i, g in enumerate(groups)}, {b: i for i, b in enumerate(shared)}
+    A = np.zeros((len(cells) + 1, len(groups) + len(shared)))
+    y = np.zeros(len(cells) + 1)
+    w = np.zeros(len(cells) + 1)
+    for r, (g, b, lk, sl, _, _) in enumerate(cells):
+        A[r, gi[g]] = 1.0
+        A[r, len(groups) + bi[b]] = 1.0
+        y[r], w[r] = lk, 1.0 / sl**2
+    A[-1, :len(groups)] = 1.0  # the levels' logs sum to zero: one common factor is the bins'
+    w[-1] = float(np.max(w[:-1])) * 1e6
+    sw = np.sqrt(w)
+    coef, *_ = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)
+    cov = np.linalg.pinv((A * w[:, None]).T @ A)
+    a = coef[:len(groups)]
+    a_se = np.sqrt(np.clip(np.diag(cov)[:len(groups)], 0.0, None))
+    pooled = sum(c[4] for c in cells) / sum(c[5] for c in cells)
+    scale = pooled / float(np.exp(a).mean())
+    for g, i in gi.items():
+        k[g], se[g] = scale * np.exp(a[i]), scale * np.exp(a[i]) * a_se[i]
+    return k, se, len(shared)
+
+
 def thrust_levels(group: np.ndarray, t: np.ndarray, y_thrust: np.ndarray, S: np.ndarray, far: np.ndarray,
-                  names: list[str]) -> ThrustLevels:
-    """Each recording's thrust coefficient on its rows far from surfaces (``far``), and whether they
-    differ: chi^2 of their differences over :data:`LEVEL_CHI2` per degree of freedom *and* a spread
-    over :data:`LEVEL_PRACTICAL`.
+                  names: list[str], height: np.ndarray | None = None, matched: np.ndarray | None = None
+                  ) -> ThrustLevels:
+    """Each recording's thrust coefficient on its rows far from surfaces (``far``), or, where fewer than
+    two recordings have such rows, at matched heights (:func:`matched_height_levels` on the rows
+    ``matched`` binned by ``height``), and whether they differ: chi^2 of their differences over
+    :data:`LEVEL_CHI2` per degree of freedom *and* a spread over :data:`LEVEL_PRACTICAL`.
 
     Parameters
     ----------
@@ -154,32 +271,27 @@ def thrust_levels(group: np.ndarray, t: np.ndarray, y_thrust: np.ndarray, S: np.
     S : (K,) (rad/s)^2, sum of squared rotor speeds
     far : (K,) bool, rows in flight farther from every surface than a surface law reaches
     names : recording names, for the sentence
+    height : (K,) m, the rotor plane's height over the surface below (for matched heights)
+    matched : (K,) bool, rows out of reach of every surface but the one below (for matched heights)
     """
     G = int(group.max()) + 1 if len(group) else 0
     k = np.full(G, np.nan)
     se = np.full(G, np.nan)
     for g in range(G):
         m = far & (group == g)
-        if m.sum() >= 50:
+        if m.sum() >= LEVEL_MIN_ROWS:
             k[g], se[g] = _level_of(y_thrust[m], S[m], t[m])
     ok = np.isfinite(k) & np.isfinite(se)
-    level = np.ones(G)
-    if ok.sum() < 2:
-        why = ("one recording: its thrust coefficient is fitted with the rest" if G == 1 else
-               "fewer than two recordings fly far enough from surfaces to measure their thrust levels; "
-               "they share one thrust coefficient")
-        return ThrustLevels(k, se, level, False, why)
-    w = 1.0 / np.maximum(se[ok], 1e-300) ** 2
-    mean = float(np.sum(w * k[ok]) / np.sum(w))
-    chi2_dof = float(np.sum(w * (k[ok] - mean) ** 2) / (ok.sum() - 1))
-    spread = float(np.ptp(k[ok]) / mean)
-    listing = ", ".join(f"{n} {100 * (kg / mean - 1):+.1f} %" for n, kg, o in zip(names, k, ok) if o)
-    differ = chi2_dof > LEVEL_CHI2 and spread > LEVEL_PRACTICAL
-    if differ:
-        level[ok] = k[ok] / mean
-        why = (f"the recordings differ in thrust per rotor speed squared far from surfaces ({listing}; "
-               f"chi^2/dof = {chi2_dof:.1f}): each gets its own thrust coefficient")
-    else:
-        why = (f"the recordings' thrust levels far from surfaces agree ({listing}; chi^2/dof = {chi2_dof:.1f}, "
-               f"spread {100 * spread:.1f} %): one thrust coefficient")
-    return ThrustLevels(k, se, level, differ, why)
+    if ok.sum() >= 2:
+        return _judged(k, se, names, "far from surfaces", "far from surfaces")
+    if G >= 2 and height is not None:
+        use = np.ones(len(group), bool) if matched is None else matched
+        km, sm, shared = matched_height_levels(group, t, y_thrust, S, height, use)
+        if (np.isfinite(km) & np.isfinite(sm)).sum() >= 2:
+            return _judged(km, sm, names, "matched heights",
+                           f"at matched heights ({shared} height bins flown in two or more recordings: a surface "
+                           f"adds the same at the same height, so its lift cancels)")
+    why = ("one recording: its thrust coefficient is fitted with the rest" if G == 1 else
+           "fewer than two recordings fly far enough from surfaces, or share heights enough, to measure "
+           "their thrust levels; they share one thrust coefficient")
+    return ThrustLevels(k, se, np.ones(G), False, why, "none")

@@ -47,6 +47,9 @@ class FlightData:
     d_down, d_up : (K,) m or None, heights of the rotor plane (``vehicle.rotor_plane_z`` above the body
         origin) over the surface below and to the surface above (``inf``: none)
     window : int, Savitzky-Golay window [samples]
+    rotor_fresh : (K,) bool or None, where the rotor stream is held (:func:`held_updates`): the rows
+        nearest each of its updates, the only rows whose rotor speeds were measured rather than
+        interpolated between updates (None: the stream updates on every row)
     """
 
     name: str
@@ -63,6 +66,7 @@ class FlightData:
     d_down: np.ndarray | None
     d_up: np.ndarray | None
     window: int
+    rotor_fresh: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -82,7 +86,7 @@ class FlightData:
             return None if a is None else a[mask]
         return FlightData(self.name, self.t_ns[mask], self.t[mask], self.p[mask], self.q[mask], self.v[mask],
                           self.w[mask], pick(self.acc), self.rotor_speeds[mask], self.dv[mask], self.dw[mask],
-                          pick(self.d_down), pick(self.d_up), self.window)
+                          pick(self.d_down), pick(self.d_up), self.window, pick(self.rotor_fresh))
 
 
 #: share of repeated rows above which a stream may be held (read on its updates only: sample-and-hold loggers)
@@ -144,6 +148,7 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     if rec.rotors is None:
         raise InputError(f"{where}/mav0/rotors0/data.csv", "rotor speeds are needed but the recording has none")
     gt, rotors = held_updates(rec)
+    rotors_held = len(rotors.t_ns) < len(rec.rotors.t_ns)
     use_imu = rec.imu is not None and time_base in ("auto", "imu")
     if time_base == "imu" and rec.imu is None:
         raise InputError(f"{where}/mav0/imu0/data.csv", "file not found (time_base=imu)")
@@ -191,4 +196,16 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         # surface effects depend on the rotor plane's height, not the body origin's (recordings.md)
         rotor_plane = rec.vehicle.rotor_plane_positions(p, quat.to_rotation_matrix(q))
         d_down, d_up = index.d_down(rotor_plane), index.d_up(rotor_plane)
-    return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window)
+    fresh = _nearest_rows(t_ns, rotors.t_ns) if rotors_held else None
+    return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh)
+
+
+def _nearest_rows(t_ns: np.ndarray, update_ns: np.ndarray) -> np.ndarray:
+    """(K,) bool, the rows of the time base ``t_ns`` nearest each update time in ``update_ns`` that falls
+    within it (a held stream's last row, which only marks where the stream ends, excepted)."""
+    fresh = np.zeros(len(t_ns), bool)
+    u = update_ns[(update_ns >= t_ns[0]) & (update_ns <= t_ns[-1])][:-1]
+    if len(u) and len(t_ns) > 1:
+        i = np.clip(np.searchsorted(t_ns, u), 1, len(t_ns) - 1)
+        fresh[np.where(u - t_ns[i - 1] <= t_ns[i] - u, i - 1, i)] = True
+    return fresh
