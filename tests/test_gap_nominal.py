@@ -13,7 +13,7 @@ from uavturb.gap.finder import _nominal
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.gap.nominal import (ThrustLevels, anchored_bias, block_mean_and_se, matched_height_levels,
                                  thrust_levels)
-from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr
+from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr, with_curve_check
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.ground_effect import force_ratio
@@ -176,3 +176,15 @@ def test_the_pooled_thrust_coefficient_error_covers_the_recordings_spread():
     assert np.all(np.abs(k - 1.0e-6) < 2 * out["thrust_coefficient_stderr"])
     differ = ThrustLevels(k, np.full(3, 2e-9), k / 1.0e-6, True, "differ")
     assert _nominal(data, fit, differ)["thrust_coefficient_stderr"] == pytest.approx(1.0e-9)
+
+
+def test_a_disagreeing_surface_curve_widens_the_stated_error():
+    """The finder's mu 3.6 +- 0.5 where the measured curve gives 1.6 (a biased fit): the stated error becomes
+    half their difference; an agreeing curve leaves it as it was."""
+    budget = {"mu": {"sample": 0.49, "height_reference": 0.41, "between_recordings": 0.33, "stderr": 0.64,
+                     "limited_by": "sample", "fits": 2}}
+    wide = with_curve_check(budget, {"mu": 3.6}, "mu", 1.6)["mu"]
+    assert wide["surface_curve"] == pytest.approx(1.0) and wide["stderr"] == pytest.approx(1.0)
+    assert wide["limited_by"] == "surface_curve" and budget["mu"]["stderr"] == 0.64  # the input is left alone
+    close = with_curve_check(budget, {"mu": 3.6}, "mu", 3.4)["mu"]
+    assert close["surface_curve"] == pytest.approx(0.1) and close["stderr"] == 0.64 and close["limited_by"] == "sample"

@@ -26,7 +26,7 @@ from uavturb.gap.nominal import ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared
 from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, select
 from uavturb.gap.surface_curve import finder_surface_curve, lift_z
-from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr
+from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr, with_curve_check
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
     DEFAULT_EFFECTS,
@@ -144,6 +144,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     _, draws = locate.window_rows(data, 0.5, step)
     beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / draws)))
     curve_report, curve, curve_fits = finder_surface_curve(data, final)
+    named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty), curve_fits)
     report = {
         "schema": SCHEMA,
         "recordings": paths,
@@ -158,7 +159,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "mismatch": {"segments": [{"recording": paths[s.group], "t_start": s.t_start, "t_end": s.t_end,
                                    "axis": s.axis, "rms_N": s.rms_N} for s in segs],
                      "drivers": drv},
-        "effects": _effects_named(data, sel, final, facts, height_uncertainty),
+        "effects": named,
         "height_uncertainty_m": height_uncertainty,
         "sim_effect_params": {name: {"sim": p, "fitted": final.effect_params(name)[0] if name in final.effects
                                      else {}} for name, p in sim.items()},
@@ -328,6 +329,19 @@ def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
             "z_heldout": s.z, "error_budget": budget,
         })
     return effects_out
+
+
+def _cross_checked(effects: list[dict[str, Any]], curve_fits: dict) -> list[dict[str, Any]]:
+    """``effects`` with each surface law's error covering its disagreement with the same law fitted to the
+    measured surface curve, where that law's shape fits the curve
+    (:func:`uavturb.gap.uncertainty.with_curve_check`)."""
+    for e in effects:
+        fit = curve_fits.get(e["name"])
+        if fit is None or not fit.law_fits or not np.isfinite(fit.value) or fit.param not in e["params"]:
+            continue
+        e["error_budget"] = with_curve_check(e["error_budget"], e["params"], fit.param, fit.value)
+        e["stderr"] = honest_stderr(e["error_budget"])
+    return effects
 
 
 def _decide(data: GapData, sel: Selection, candidates: list[str]
