@@ -229,8 +229,10 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
         R = quat.to_rotation_matrix(fd.q)
         keep = _in_flight(fd, mass, k_T_guess, min_thrust_ratio, None if exclude is None else exclude[g])
         # a held rotor stream (ESC telemetry at 3 Hz): between its updates the speeds are interpolated,
-        # off by the thrust changes of a third of a second; only the rows of its updates are measured
-        fresh = keep if fd.rotor_fresh is None else keep & fd.rotor_fresh
+        # off by the thrust changes of a third of a second; only the rows of its updates are measured.
+        # Updates faster than the analysis rate leave the interpolation nothing to miss
+        slow = fd.rotor_fresh is not None and fd.rotor_fresh.sum() < (rate_hz or RATE_HZ) * np.ptp(fd.t)
+        fresh = keep & fd.rotor_fresh if slow else keep
         if use_imu:
             acc = fd.acc
             if anchor_bias:
