@@ -1,5 +1,5 @@
-"""The measured surface curve (uavturb.gap.surface_curve) and the multirotor ground-effect law, on
-hover samples made from known laws (no recorded data)."""
+"""The measured surface curve (uavturb.gap.surface_curve), the laws fitted to it (uavturb.gap.surface_laws)
+and the multirotor ground-effect law, on hover samples made from known laws (no recorded data)."""
 
 import numpy as np
 import pytest
@@ -7,15 +7,9 @@ import pytest
 from uavturb.errors import InputError
 from uavturb.gap import design
 from uavturb.gap.selection import LIFT_Z, SHAPE_DELTA_CHI2, Z_WITH_CURVE, CurveEvidence
-from uavturb.gap.surface_curve import (
-    LAW_FITS_CHI2_DOF,
-    fit_law,
-    lift_z,
-    measured_curve,
-    plot_surface_curve,
-    surface_curve_report,
-    surface_figure,
-)
+from uavturb.gap.report import plot_surface_curve, surface_figure
+from uavturb.gap.surface_curve import lift_z, measured_curve
+from uavturb.gap.surface_laws import LAW_FITS_CHI2_DOF, fit_law, surface_curve_report
 from uavturb.physics import ground_effect as ge
 from uavturb.gap.fit import fit_model
 from uavturb.physics.effects import EFFECTS, EffectInputs, EffectSpec, PhysicalRange, effect_force

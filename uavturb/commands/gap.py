@@ -10,8 +10,7 @@ from typing import Sequence
 
 from uavturb.errors import InputError
 from uavturb.gap.finder import analyse, parse_sim_effects
-from uavturb.gap.report import write_json, write_markdown, write_plots
-from uavturb.gap.surface_curve import plot_surface_curve
+from uavturb.gap.report import plot_surface_curve, write_json, write_markdown, write_plots
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M
 from uavturb.io.physics_config import load_physics_config, write_physics_config
 from uavturb.io.publish import check_output_file, check_output_folder, publish_folder

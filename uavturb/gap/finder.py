@@ -25,7 +25,8 @@ from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.nominal import ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared
 from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, select
-from uavturb.gap.surface_curve import finder_surface_curve, lift_z
+from uavturb.gap.surface_curve import lift_z
+from uavturb.gap.surface_laws import finder_surface_curve
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr, with_curve_check
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (

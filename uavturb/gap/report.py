@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from uavturb.gap.locate import AXES, features
+from uavturb.gap.surface_curve import SurfaceCurve
+from uavturb.gap.surface_laws import LawFit
 
 #: units of the candidate drivers of :func:`uavturb.gap.locate.features` (plot axes)
 FEATURE_UNITS = {"d_down": "m", "d_up": "m", "v_x": "m/s", "v_y": "m/s", "v_z": "m/s", "v_Bx": "m/s", "v_By": "m/s",
@@ -284,3 +286,41 @@ def _jsonable(o):
     if isinstance(o, np.ndarray):
         return o.tolist()
     raise TypeError(type(o))
+
+
+def plot_surface_curve(folder: Path, curve: SurfaceCurve, fits: dict[str, LawFit]) -> str:
+    """``folder/surface_curve.png``: measured ratio against rotor-plane height with error bars and counts,
+    and each fitted law; returns the file name."""
+    import matplotlib.pyplot as plt
+
+    fig = surface_figure(curve, fits)
+    name = "surface_curve.png"
+    fig.savefig(Path(folder) / name, dpi=100)
+    plt.close(fig)
+    return name
+
+
+def surface_figure(curve: SurfaceCurve, fits: dict[str, LawFit]):
+    """The matplotlib figure of :func:`plot_surface_curve` (Agg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d, y, se = curve.columns()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.errorbar(d, y, yerr=se, fmt="o", color="k", ms=4, capsize=3, label="measured (± 1 standard error)")
+    for x, yy, b in zip(d, y, curve.bins):
+        ax.annotate(f"n={b.n}", (x, yy), textcoords="offset points", xytext=(0, 8), ha="center", fontsize=7)
+    if len(d):
+        grid = np.linspace(min(b.lo for b in curve.bins), max(b.hi for b in curve.bins), 300)
+        for name, lf in fits.items():
+            ax.plot(grid, lf.evaluate(grid), lw=1.2,
+                    label=f"{name}: {lf.param} = {lf.value:.3g}, chi²/dof = {lf.chi2_dof:.2f}")
+    ax.axhline(1.0, color="0.6", lw=0.8, ls="--")
+    ax.set_xlabel("rotor-plane height over the ground d [m]")
+    ax.set_ylabel("thrust ratio T_IGE / T_OGE [-]")
+    ax.set_title("Measured ground-effect curve and surface laws")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

@@ -1,17 +1,20 @@
 """The measured surface curve of ``gap-report.md``: thrust ratio ``T_IGE/T_OGE`` against rotor-plane height.
 
+This module measures the curve, model-free; :mod:`uavturb.gap.surface_laws` fits the registry's surface
+laws to it and builds the report's ``surface_curve``; :mod:`uavturb.gap.report` plots it.
+
 For each hover-like sample the rotors must be making ``thrust_needed`` [N] (the measured force along
 the body z axis); the nominal model says ``thrust_modelled = k_T,rec sum(w^2)`` [N], with each
 recording's own thrust coefficient. Their ratio, normalised per recording by its median far from the
 surface, is the extra thrust per rotor speed squared the surface gives (``effects.md``, "Surface effects
 on real vehicles"). It is binned in the rotor-plane height ``d`` (``recordings.md``, "Heights over
-surfaces") and the surface laws of the effect registry (their ``ratio``) are fitted to the bins.
+surfaces").
 
 Choices (each stated where it is made):
 
 - **Far from the surface** (normalisation): ``d > far_m``; by default ``far_m = FAR_RADII r``
   (10 rotor radii: Cheeseman-Bennett at ``mu = 3`` adds 0.2 % there; a multirotor law with a strong body
-  term can still add ~1 %, which a free level in :func:`fit_law` absorbs). Without ``r``, the top of the
+  term can still add ~1 %, which a free level in :func:`uavturb.gap.surface_laws.fit_law` absorbs). Without ``r``, the top of the
   flights: ``FAR_SHARE`` of the highest hover height of all recordings. A recording with fewer than
   :data:`MIN_FAR` samples above ``far_m`` cannot be normalised: it is left out, with a note.
 - **Bins** (near range ``d <= far_m``, where the laws are steep): adaptive, consecutive in height, each
@@ -20,35 +23,16 @@ Choices (each stated where it is made):
 - **Honest errors**: a bin's standard error is the larger of the cluster-robust one over time blocks of
   ``block_s`` within each recording (samples in one hover are not independent) and, where two or more
   recordings contribute, the standard error of the recordings' mean (sessions, batteries, height
-  references differ). A law is compared with each bin's mean ratio through its own mean over the bin's
-  samples (a bin spanning several heights has a mean ratio above the law at its mean height). A law's
-  parameter error is the larger of the fit's (scaled by ``sqrt(chi2/dof)`` where that exceeds 1; the
-  fit uses the bins' full covariance, in which a recording's normalisation error is shared by all its
-  bins) and, with two or more recordings, the standard deviation of the values fitted to each
-  recording alone, because a recording's offset moves all its bins together, which per-bin errors do
-  not show, and ``gap-report.md`` asks that each recording's own fit land within about two errors of
-  the joint value; with one recording, a jackknife over time blocks.
-- **A law fits** where ``chi2/dof <`` :data:`LAW_FITS_CHI2_DOF` (3): with honest errors the right law
-  gives ``chi2/dof`` about 1 (standard deviation ``sqrt(2/dof)``, 0.5 at 8 dof), so 3 is four such
-  deviations above it, and a p-value under 1 % from 5 dof on.
+  references differ).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Callable
 
 import numpy as np
-from scipy.linalg import cholesky, solve_triangular
-from scipy.optimize import least_squares
-from scipy.stats import chi2 as chi2_dist
 
 from uavturb.errors import InputError
-from uavturb.gap.design import GapData, dependent_columns
-from uavturb.gap.fit import ModelFit, _nl_values
-from uavturb.physics.constants import GRAVITY
-from uavturb.physics.effects import EFFECTS
 
 #: default far height in rotor radii (normalisation above it)
 FAR_RADII = 10.0
@@ -60,13 +44,6 @@ MIN_FAR = 30
 MIN_BIN_N, MIN_BLOCKS, MAX_BINS = 30, 3, 12
 #: samples a recording needs in a bin for its mean to count in the between-recording error
 MIN_RECORDING_N = 5
-#: chi^2/dof under which a law's shape fits the bins (module docstring)
-LAW_FITS_CHI2_DOF = 3.0
-#: slices of each bin's height range at which a law is evaluated when fitting (:class:`_BinnedLaw`)
-_SUB_BINS = 64
-#: residual [standard errors] given to a bin where a law does not hold (its pole), to steer fits away
-_POLE_RESIDUAL = 1e3
-
 
 @dataclass(frozen=True)
 class SurfaceBin:
@@ -152,7 +129,7 @@ def _normalise(raw, d, ok, group, block, far_m, names) -> tuple[dict[int, float]
                          f"{int(far.sum())} samples (needs {MIN_FAR}), so its thrust level cannot be normalised")
             continue
         levels[int(g)] = float(np.median(raw[far]))
-        _, se, _, _ = _bin_stats(raw[far], group[far], block[far])
+        _, se, _, _ = bin_stats(raw[far], group[far], block[far])
         errors[int(g)] = float(np.nan_to_num(se) * np.sqrt(np.pi / 2) / levels[int(g)])
     return levels, errors, notes
 
@@ -185,14 +162,14 @@ def _adaptive_edges(d: np.ndarray, block: np.ndarray) -> np.ndarray:
     return np.array([ds[0], *inner, ds[-1]], float)
 
 
-def _bin_of(d: np.ndarray, edges: np.ndarray) -> np.ndarray:
+def bin_of(d: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """Bin index of each height (-1 outside ``[edges[0], edges[-1]]``)."""
     idx = np.searchsorted(edges, d, side="right") - 1
     idx[d == edges[-1]] = len(edges) - 2
     return np.where((d < edges[0]) | (d > edges[-1]), -1, idx)
 
 
-def _bin_stats(x: np.ndarray, group: np.ndarray, block: np.ndarray) -> tuple[float, float, int, tuple[int, ...]]:
+def bin_stats(x: np.ndarray, group: np.ndarray, block: np.ndarray) -> tuple[float, float, int, tuple[int, ...]]:
     """``(mean, stderr, blocks, recordings)`` of one bin's ratios (module docstring, honest errors)."""
     n, mean = len(x), float(np.mean(x))
     e = x - mean
@@ -253,352 +230,18 @@ def measured_curve(d, thrust_needed, thrust_modelled, group, *, hover, far_m: fl
         edges = np.unique(np.quantile(dn, np.linspace(0, 1, int(bins) + 1)))
     else:
         edges = np.asarray(bins, float)
-    idx = _bin_of(dn, edges)
+    idx = bin_of(dn, edges)
     out = []
     for k in range(len(edges) - 1):
         m = idx == k
         if m.sum() < 2:
             continue
-        mean, se, nb, recs = _bin_stats(ratio[m], gn[m], bn[m])
+        mean, se, nb, recs = bin_stats(ratio[m], gn[m], bn[m])
         share = np.array([np.mean(gn[m] == g) for g in recs])
         se_level = mean * float(np.sqrt(np.sum((share * np.array([level_error[g] for g in recs])) ** 2)))
         out.append(SurfaceBin(float(edges[k]), float(edges[k + 1]), float(np.mean(dn[m])), int(m.sum()), mean,
                               float(np.hypot(se, se_level)), nb, recs, se_level))
     return SurfaceCurve(out, far, levels, notes, level_error, dn, ratio, gn, bn, edges)
-
-
-@dataclass
-class LawFit:
-    """A surface law fitted to the bins of a :class:`SurfaceCurve`.
-
-    Attributes
-    ----------
-    law : effect name; param : its parameter's name
-    value : fitted value; stderr : its honest error, ``max(stderr_fit, spread_between)`` with two or more
-        recordings (``max(stderr_fit, stderr_jackknife)`` with one): what a recording's own fit may
-        differ from ``value`` by (``gap-report.md``: an error bar covers the spread between recordings);
-        with many recordings it exceeds the standard error of the joint value (``stderr_jackknife``)
-    stderr_fit : from the weighted fit (scaled by ``sqrt(chi2/dof)`` where > 1)
-    stderr_jackknife : standard error of the joint value, jackknife over recordings (over time blocks
-        with one recording); nan where it cannot be formed
-    spread_between : standard deviation of the values fitted to each recording alone (same bins; nan
-        with one recording)
-    level, level_stderr : the far level (1, or fitted with ``free_level``)
-    chi2, dof, chi2_dof, p_value : goodness of fit over the bins used
-    values : (B,) the law's ratio in each bin (averaged over the bin's samples where the curve has them)
-    law_fits : ``chi2_dof < LAW_FITS_CHI2_DOF``; in_range : the value lies in the effect's physical range
-    why : one sentence with the numbers; evaluate : ``d [m] -> ratio`` with the fitted values (plots)
-    """
-
-    law: str
-    param: str
-    value: float
-    stderr: float
-    stderr_fit: float
-    stderr_jackknife: float
-    spread_between: float
-    level: float
-    level_stderr: float
-    chi2: float
-    dof: int
-    chi2_dof: float
-    p_value: float
-    values: np.ndarray
-    law_fits: bool
-    in_range: bool
-    why: str
-    evaluate: Callable[[np.ndarray], np.ndarray] = field(repr=False)
-
-
-class _BinnedLaw:
-    """A law's ratio averaged over each bin's samples (exact against the bin's mean ratio, whatever the
-    spread of heights in it); at the bins' mean heights where the curve holds no samples. For speed the
-    samples of each bin are grouped in :data:`_SUB_BINS` equal slices of its height range and the law is
-    evaluated at each slice's mean height, weighted by its count."""
-
-    def __init__(self, curve: SurfaceCurve, spec, r: float, geometry: dict, free_level: bool):
-        self.curve, self.spec, self.r, self.geometry, self.free_level = curve, spec, r, geometry, free_level
-        self.idx = _bin_of(curve.d, curve.edges) if len(curve.d) else np.array([], int)
-        lo_edges = curve.edges[:-1]
-        self.bin_k = np.array([int(np.searchsorted(lo_edges, b.lo, side="right") - 1) for b in curve.bins], int)
-        if len(curve.d):
-            nb = len(curve.edges) - 1
-            inside = self.idx >= 0
-            k = np.where(inside, self.idx, 0)
-            width = np.maximum(np.diff(curve.edges)[k], 1e-12)
-            frac = np.clip((curve.d - curve.edges[k]) / width, 0.0, 1.0 - 1e-9)
-            self.sub = np.where(inside, k * _SUB_BINS + (frac * _SUB_BINS).astype(int), -1)
-            n = np.bincount(self.sub[inside], minlength=nb * _SUB_BINS)
-            sums = np.bincount(self.sub[inside], weights=curve.d[inside], minlength=nb * _SUB_BINS)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                self.sub_d = np.where(n > 0, sums / np.maximum(n, 1), np.nan)
-            self.sub_bin = np.arange(nb * _SUB_BINS) // _SUB_BINS
-
-    def at(self, d: np.ndarray, z: np.ndarray) -> np.ndarray:
-        level = z[1] if self.free_level else 1.0
-        return level * self.spec.ratio(np.asarray(d, float), float(z[0]), self.r, **self.geometry)
-
-    def bins(self, z: np.ndarray) -> np.ndarray:
-        """(B,) the law in each bin, over all its samples."""
-        return self.over(None)(z)
-
-    def over(self, use: np.ndarray | None) -> Callable[[np.ndarray], np.ndarray]:
-        """``z -> (B,)`` the law in each bin over the samples where ``use`` (all where None)."""
-        if not len(self.curve.d):
-            return lambda z: self.at(self.curve.columns()[0], z)
-        sel = self.sub >= 0 if use is None else (self.sub >= 0) & use
-        counts = np.bincount(self.sub[sel], minlength=len(self.sub_d))
-        present = counts > 0
-        nb = len(self.curve.edges) - 1
-        n = np.bincount(self.sub_bin, weights=counts, minlength=nb)
-
-        def law(z: np.ndarray) -> np.ndarray:
-            vals = np.zeros(len(self.sub_d))
-            vals[present] = self.at(self.sub_d[present], z)
-            sums = np.bincount(self.sub_bin, weights=counts * vals, minlength=nb)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                return (sums / n)[self.bin_k]
-        return law
-
-
-def _weighted_fit(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, se: np.ndarray, spec,
-                  free_level: bool, chol: np.ndarray | None = None):
-    """Least squares of ``(y - model(z)) / se`` over the law's search bounds (bins where ``y`` is finite),
-    or of ``chol^-1 (y - model(z))`` with ``chol`` the Cholesky factor of the covariance of those bins;
-    a grid picks the start. Returns ``(z, whitened residuals, jacobian)``."""
-    lo, hi = spec.search
-    ok = np.isfinite(y)
-
-    def resid(z: np.ndarray) -> np.ndarray:
-        m = model(z)[ok]
-        raw = np.where(np.isfinite(m), y[ok] - m, _POLE_RESIDUAL * se[ok])
-        return raw / se[ok] if chol is None else solve_triangular(chol, raw, lower=True)
-
-    grid = np.concatenate([np.linspace(lo, hi, 41), np.geomspace(max(lo, 1e-3), hi, 41)])
-    level0 = 1.0
-    if free_level:  # the level that matches the upper half of the bins at the grid's middle value
-        far = ok & (np.arange(len(y)) >= len(y) // 2)
-        level0 = float(np.clip(np.median(y[far] / model(np.array([np.median(grid), 1.0]))[far]), 0.6, 1.4))
-    costs = [np.sum(resid(np.array([p, level0])) ** 2) for p in grid]
-    z0 = np.array([grid[int(np.argmin(costs))], level0])[: 2 if free_level else 1]
-    bounds = ([lo, 0.5], [hi, 1.5]) if free_level else ([lo], [hi])
-    z0 = np.clip(z0, np.array(bounds[0]) + 1e-9, np.array(bounds[1]) - 1e-9)
-    sol = least_squares(resid, z0, bounds=bounds, x_scale="jac")
-    return sol.x, resid(sol.x), sol.jac
-
-
-def _units(curve: SurfaceCurve) -> tuple[np.ndarray, np.ndarray]:
-    """``(label per sample, units)``: the recordings, or with a single recording up to 10 chunks of its
-    time blocks."""
-    recs = np.unique(curve.group)
-    if len(recs) >= 2:
-        return curve.group, recs
-    ub = np.unique(curve.block)
-    chunks = np.array_split(ub, max(1, min(10, len(ub))))
-    labels = np.zeros(len(curve.block), np.int64)
-    for i, c in enumerate(chunks):
-        labels[np.isin(curve.block, c)] = i
-    return labels, np.arange(len(chunks))
-
-
-def _rebin(curve: SurfaceCurve, law: _BinnedLaw, use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(ratio, stderr)`` of each bin (same edges) from the samples where ``use``, the errors as
-    :func:`measured_curve` gives them (level errors included); nan where a bin has under 2 samples."""
-    out = np.full((2, len(law.bin_k)), np.nan)
-    for i, k in enumerate(law.bin_k):
-        m = use & (law.idx == k)
-        if m.sum() < 2:
-            continue
-        mean, se, _, recs = _bin_stats(curve.ratio[m], curve.group[m], curve.block[m])
-        share = np.array([np.mean(curve.group[m] == g) for g in recs])
-        level = mean * float(np.sqrt(np.sum((share * np.array([curve.level_error.get(g, 0.0) for g in recs])) ** 2)))
-        out[:, i] = mean, np.hypot(se, level)
-    return out[0], out[1]
-
-
-def _refit(curve: SurfaceCurve, law: _BinnedLaw, keep_bins: np.ndarray, se: np.ndarray | None, free_level: bool,
-           use: np.ndarray) -> float:
-    """The law's parameter fitted to the bins rebinned (same edges) from the samples where ``use``, weighted
-    by ``se`` (by their own errors where None); nan with too few bins."""
-    means, own = _rebin(curve, law, use)
-    weights = own if se is None else se
-    means = np.where(keep_bins & np.isfinite(weights) & (weights > 0), means, np.nan)
-    if np.isfinite(means).sum() < (3 if free_level else 2):
-        return float("nan")
-    return float(_weighted_fit(law.over(use), means, weights, law.spec, free_level)[0][0])
-
-
-def _resampled(curve: SurfaceCurve, law: _BinnedLaw, keep_bins: np.ndarray, se: np.ndarray, free_level: bool
-               ) -> tuple[float, float]:
-    """``(jackknife standard error of the parameter, standard deviation of single-recording values)``:
-    leave out each recording in turn (each of up to 10 chunks of time blocks with one recording) and
-    refit; and, with two or more recordings, fit each recording alone. nan where they cannot be formed."""
-    if len(curve.d) == 0:
-        return float("nan"), float("nan")
-    labels, units = _units(curve)
-    loo = np.array([_refit(curve, law, keep_bins, se, free_level, labels != u) for u in units])
-    loo = loo[np.isfinite(loo)]
-    se_jack = (float(np.sqrt((len(loo) - 1) / len(loo) * np.sum((loo - loo.mean()) ** 2))) if len(loo) >= 2
-               else float("nan"))
-    if len(np.unique(curve.group)) < 2:
-        return se_jack, float("nan")
-    alone = np.array([_refit(curve, law, keep_bins, None, free_level, curve.group == g) for g in units])
-    alone = alone[np.isfinite(alone)]
-    return se_jack, float(np.std(alone, ddof=1)) if len(alone) >= 2 else float("nan")
-
-
-def _bin_covariance(curve: SurfaceCurve, binned: _BinnedLaw) -> np.ndarray:
-    """(B, B) covariance of the bins' ratios: each bin's own error (``stderr`` less its level part) on the
-    diagonal, plus the normalisation errors the bins of one recording share:
-    ``sum_g (share_bg ratio_b e_g)(share_b'g ratio_b' e_g)`` with ``e_g`` the recording's relative level error."""
-    _, y, se = curve.columns()
-    own = np.array([b.stderr**2 - b.stderr_level**2 for b in curve.bins])
-    cov = np.diag(np.maximum(own, 1e-12 * se**2))
-    if not len(curve.d) or not curve.level_error:
-        return cov
-    for g, err in curve.level_error.items():
-        mine = curve.group == g
-        share = np.array([np.mean(mine[binned.idx == k]) if np.any(binned.idx == k) else 0.0 for k in binned.bin_k])
-        col = share * y * err
-        cov += np.outer(col, col)
-    return cov
-
-
-def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False, **geometry) -> LawFit:
-    """Weighted least squares (weights ``1/stderr^2``) of a surface law's ``T_IGE/T_OGE`` to the bins.
-
-    Parameters
-    ----------
-    curve : the measured curve
-    law : effect name with a ``ratio`` (``ground_effect``, ``ground_effect_multirotor``)
-    r : m, rotor radius
-    free_level : also fit the far level (the curve's normalisation height may still feel the surface)
-    geometry : ``arm_length`` [m], ``rotor_count`` (laws that use the rotor spacing)
-    """
-    spec = EFFECTS.get(law)
-    if spec is None or spec.ratio is None or spec.search is None:
-        known = ", ".join(n for n, e in EFFECTS.items() if e.ratio is not None)
-        raise InputError("surface curve", f"'{law}' is no surface law with a thrust ratio (known: {known})")
-    d, y, se = curve.columns()
-    keep = np.isfinite(se) & (se > 0)
-    npar = 2 if free_level else 1
-    if keep.sum() < npar + 1:
-        raise InputError("surface curve", f"{int(keep.sum())} bins with errors: too few to fit {law}")
-    binned = _BinnedLaw(curve, spec, r, geometry, free_level)
-    chol = cholesky(_bin_covariance(curve, binned)[np.ix_(keep, keep)], lower=True)
-    z, res, J = _weighted_fit(binned.bins, np.where(keep, y, np.nan), se, spec, free_level, chol)
-    chi2, dof = float(np.sum(res**2)), int(keep.sum()) - npar
-    chi2_dof = chi2 / dof if dof > 0 else float("nan")
-    try:
-        cov = np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        cov = np.full((npar, npar), np.nan)
-    se_fit = np.sqrt(np.maximum(np.diag(cov), 0.0)) * (np.sqrt(max(chi2_dof, 1.0)) if np.isfinite(chi2_dof) else 1.0)
-    se_jack, spread = _resampled(curve, binned, keep, se, free_level)
-    between = len(np.unique(curve.group)) >= 2
-    stderr = float(np.nanmax([se_fit[0], spread if between else se_jack]))
-    in_range = spec.physical_range.violation({spec.params[0]: float(z[0])}, None) is None
-    fit = LawFit(law, spec.params[0], float(z[0]), stderr, float(se_fit[0]), se_jack, float(spread),
-                 float(z[1]) if free_level else 1.0, float(se_fit[1]) if free_level else 0.0, chi2, dof, chi2_dof,
-                 float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan"), binned.bins(z),
-                 bool(np.isfinite(chi2_dof) and chi2_dof < LAW_FITS_CHI2_DOF), in_range, "",
-                 lambda dd: binned.at(dd, z))
-    fit.why = _why(fit, d[keep], res, spec)
-    return fit
-
-
-def _why(fit: LawFit, d: np.ndarray, res: np.ndarray, spec) -> str:
-    worst = int(np.argmax(np.abs(res)))
-    verdict = ("its shape fits the measured curve" if fit.law_fits else
-               "its shape does not fit the measured curve")
-    level = "" if fit.level == 1.0 else f" and a far level of {fit.level:.4f}"
-    rng = "" if fit.in_range else (f"; {fit.param} lies outside its physical range "
-                                   f"[{spec.physical_range.lo:.3g}, {spec.physical_range.hi:.3g}]")
-    return (f"{fit.law} with {fit.param} = {fit.value:.3g} ± {fit.stderr:.2g}{level} gives chi^2/dof = "
-            f"{fit.chi2_dof:.2f} over {len(d)} bins ({fit.dof} dof; a fitting law gives about 1, the threshold is "
-            f"{LAW_FITS_CHI2_DOF:g}): {verdict} (largest miss {abs(res[worst]):.1f} standard errors at "
-            f"{d[worst]:.3f} m){rng}.")
-
-
-def surface_curve_report(curve: SurfaceCurve, fits: dict[str, LawFit], chosen: str | None = None) -> dict | None:
-    """``report.json``'s ``surface_curve`` (``gap-report.md``), for the law ``chosen`` (default: the lowest
-    ``chi2/dof``), with the other laws under ``alternatives``; None where there are no bins."""
-    if not curve.bins:
-        return None
-    if not fits:
-        raise InputError("surface curve", "no law was fitted to the surface curve")
-    chosen = chosen if chosen is not None else min(fits, key=lambda k: fits[k].chi2_dof)
-    if chosen not in fits:
-        raise InputError("surface curve", f"'{chosen}' was not fitted (fitted: {', '.join(fits)})")
-    fit = fits[chosen]
-
-    def law_entry(lf: LawFit) -> dict:
-        params = {lf.param: lf.value} | ({} if lf.level == 1.0 else {"level": lf.level})
-        stderr = {lf.param: lf.stderr} | ({} if lf.level == 1.0 else {"level": lf.level_stderr})
-        return {"law": lf.law, "params": params, "stderr": stderr, "chi2_dof": lf.chi2_dof, "dof": lf.dof,
-                "p_value": lf.p_value, "law_fits": lf.law_fits, "in_range": lf.in_range, "why": lf.why,
-                "values": [float(v) for v in lf.values]}
-
-    bins = [{"d_m": b.d_m, "n": b.n, "ratio": b.ratio, "stderr": b.stderr, "law": float(v), "lo_m": b.lo,
-             "hi_m": b.hi, "blocks": b.blocks, "recordings": list(b.recordings)}
-            for b, v in zip(curve.bins, fit.values)]
-    head = law_entry(fit)
-    return {"surface": "ground", "bins": bins, "law_fits": fit.law_fits, "why": fit.why, "law": chosen,
-            "params": head["params"], "stderr": head["stderr"], "chi2_dof": fit.chi2_dof, "dof": fit.dof,
-            "far_m": curve.far_m, "notes": list(curve.notes),
-            "alternatives": [law_entry(lf) for name, lf in fits.items() if name != chosen]}
-
-
-def plot_surface_curve(folder: Path, curve: SurfaceCurve, fits: dict[str, LawFit]) -> str:
-    """``folder/surface_curve.png``: measured ratio against rotor-plane height with error bars and counts,
-    and each fitted law; returns the file name."""
-    import matplotlib.pyplot as plt
-
-    fig = surface_figure(curve, fits)
-    name = "surface_curve.png"
-    fig.savefig(Path(folder) / name, dpi=100)
-    plt.close(fig)
-    return name
-
-
-def surface_figure(curve: SurfaceCurve, fits: dict[str, LawFit]):
-    """The matplotlib figure of :func:`plot_surface_curve` (Agg)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    d, y, se = curve.columns()
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.errorbar(d, y, yerr=se, fmt="o", color="k", ms=4, capsize=3, label="measured (± 1 standard error)")
-    for x, yy, b in zip(d, y, curve.bins):
-        ax.annotate(f"n={b.n}", (x, yy), textcoords="offset points", xytext=(0, 8), ha="center", fontsize=7)
-    if len(d):
-        grid = np.linspace(min(b.lo for b in curve.bins), max(b.hi for b in curve.bins), 300)
-        for name, lf in fits.items():
-            ax.plot(grid, lf.evaluate(grid), lw=1.2,
-                    label=f"{name}: {lf.param} = {lf.value:.3g}, chi²/dof = {lf.chi2_dof:.2f}")
-    ax.axhline(1.0, color="0.6", lw=0.8, ls="--")
-    ax.set_xlabel("rotor-plane height over the ground d [m]")
-    ax.set_ylabel("thrust ratio T_IGE / T_OGE [-]")
-    ax.set_title("Measured ground-effect curve and surface laws")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    return fig
-
-
-def law_in_bins(curve: SurfaceCurve, law: str, value: float, r: float, **geometry) -> np.ndarray:
-    """(B,) the surface law ``law`` at its parameter ``value`` in each bin of ``curve`` (averaged over the
-    bin's samples, as :func:`fit_law` compares it)."""
-    return _BinnedLaw(curve, EFFECTS[law], r, geometry, False).bins(np.array([float(value), 1.0]))
-
-
-#: m/s^2 and deg: hover-like samples for the measured curve (the law is a steady-flow law)
-HOVER_ACCELERATION = 1.5
-HOVER_TILT_DEG = 15.0
-#: largest difference [share of thrust] between the named law and the measured ratio in a bin for the
-#: report to call them in agreement
-AGREEMENT = 0.02
 
 
 #: rotor radii within which the measured curve's bins count as lift evidence (Cheeseman-Bennett at mu = 3
@@ -622,64 +265,3 @@ def lift_z(curve: SurfaceCurve | None, r: float) -> float:
     excess = float(np.sum(w * np.array([b.ratio - 1.0 for b in near])) / np.sum(w))
     level = max((b.stderr_level for b in near), default=0.0)
     return excess / float(np.sqrt(1.0 / np.sum(w) + level**2))
-
-
-def finder_surface_curve(data: GapData, final: ModelFit) -> tuple[dict | None, SurfaceCurve | None,
-                                                                  dict[str, LawFit]]:
-    """The ``surface_curve`` of a gap report (``gap-report.md``), measured on the finder's samples.
-
-    The thrust the rotors must make is the measured force along the body z axis less every force of
-    ``final`` (a :class:`~uavturb.gap.fit.ModelFit`) that is not a surface law; the modelled thrust is
-    ``k_T`` times each recording's thrust level and (lagged) ``sum(w^2)``. Every surface law of the
-    registry that acts below is fitted to the bins; the bins' ``law`` is the law ``final`` names, at the
-    finder's value (where it names one), else the best-fitting law.
-    """
-    if not np.any(np.isfinite(data.d_down)):
-        return None, None, {}
-    surface = {e for e in final.effects if EFFECTS[e].surface == "d_down"}
-    rest = ModelFit(final.effects - surface, {e: v for e, v in final.nonlinear.items() if e not in surface},
-                    final.coef, final.stderr, final.rmse)
-    zb = data.R[:, :, 2]
-    D, _ = dependent_columns(data, set(rest.effects), _nl_values(rest.nonlinear))
-    thrust_direction = D[:, 0].reshape(3, -1).T  # (K, 3): S_eff R e_z, the k_T column without surface laws
-    modelled = final.coef["k_T"] * np.einsum("ki,ki->k", thrust_direction, zb)  # (K,) N along z_B
-    needed = modelled + np.einsum("ki,ki->k", data.y - rest.predict(data), zb)
-    acc = data.y / data.mass - np.array([0.0, 0.0, GRAVITY])
-    hover = (np.linalg.norm(acc, axis=1) < HOVER_ACCELERATION) & (zb[:, 2] > np.cos(np.radians(HOVER_TILT_DEG)))
-    try:
-        curve = measured_curve(data.d_down, needed, modelled, data.group, hover=hover, t=data.t,
-                               r=data.rotor_radius, names=data.names)
-    except InputError:
-        return None, None, {}
-    if not curve.bins:
-        return None, curve, {}
-    geometry = data.geometry
-    fits = {}
-    for name, spec in EFFECTS.items():
-        if spec.surface == "d_down" and spec.ratio is not None:
-            try:
-                fits[name] = fit_law(curve, name, data.rotor_radius, **geometry)
-            except (InputError, ValueError, np.linalg.LinAlgError):
-                continue
-    if not fits:
-        return None, curve, {}
-    named = sorted(surface)
-    chosen = named[0] if named and named[0] in fits else None
-    report = surface_curve_report(curve, fits, chosen)
-    if named:
-        p = EFFECTS[named[0]].params[0]
-        value = final.nonlinear[named[0]]
-        # normalised as the measured curve is, by the law's value far from the floor (the finder's k_T
-        # carries the law's far tail)
-        far_d = data.d_down[hover & (data.d_down > curve.far_m) & np.isfinite(data.d_down)]
-        far = float(np.nanmean(EFFECTS[named[0]].ratio(far_d, value, data.rotor_radius, **geometry))) \
-            if len(far_d) else 1.0
-        law = law_in_bins(curve, named[0], value, data.rotor_radius, **geometry) / far
-        for b, v in zip(report["bins"], law):
-            b["law_fitted_to_curve"], b["law"] = b["law"], float(v)
-        worst = float(np.nanmax(np.abs([b["ratio"] - b["law"] for b in report["bins"]])))
-        report["named"] = {"law": named[0], "params": {p: final.nonlinear[named[0]]},
-                           "largest_difference": worst, "agrees": worst <= AGREEMENT}
-        report["why"] += (f" The named {named[0]} at the finder's {p} = {final.nonlinear[named[0]]:.3g} differs from "
-                          f"the measured ratio by at most {100 * worst:.1f} % of thrust in a bin.")
-    return report, curve, fits

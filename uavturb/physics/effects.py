@@ -297,7 +297,7 @@ class EffectSpec:
     ratio : surface laws only: ``(d, param, r, **geometry) -> T_IGE/T_OGE`` [-], the thrust per rotor
         speed squared over its value far from the surface at rotor-plane height ``d`` [m] (``nan``
         where the law does not hold); ``geometry`` holds ``arm_length`` [m] and ``rotor_count``
-        (laws that do not need them ignore them). Used by :mod:`uavturb.gap.surface_curve`.
+        (laws that do not need them ignore them). Used by :mod:`uavturb.gap.surface_laws`.
     fitted_by_finder : the gap finder's model (:mod:`uavturb.gap.design`) fits this effect; False for
         laws it cannot fit yet (they are fitted to the measured surface curve only)
     alternative_to : another law of the same physics (``ground_effect_multirotor`` for ``ground_effect``):
