@@ -11,13 +11,14 @@ from uavturb.gap.decide import (
     collinearity,
     flight_facts,
     heading_span_deg,
+    look_alikes,
     surface_reach,
 )
-from uavturb.gap.design import GapData
+from uavturb.gap.design import GapData, difference_points
 from uavturb.gap.fit import fit_model
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.physics.effects import EFFECTS
+from uavturb.physics.effects import EFFECTS, lag_rotor_speeds
 
 
 def _data(yaw: np.ndarray, *, d_down: float | np.ndarray = np.inf, imu: bool = True, push=(0.0, 0.0),
@@ -162,3 +163,27 @@ def test_drag_in_a_wind_on_a_nearly_still_flight_is_undecided():
     fit = fit_model(data, {"wind", "rotor_drag"})
     entry = airspeed_drag(data, fit, flight_facts(data, fit.coef["k_T"]))
     assert entry is not None and entry["if_drag_on_airspeed"] is None and "cannot resolve" in entry["why"]
+
+
+def test_a_motor_lag_on_its_cached_grid_keeps_its_derivative():
+    """The lagged rotor speeds are cached at tau to three significant digits: a 0.1 % difference step falls
+    inside one grid step, where the lag's column has no derivative (its error was nan and its force read as
+    the thrust coefficient's, R^2 = 1, so a true 15 ms lag went to ``ambiguous``). Known answer: commands
+    stepping at 5 Hz through a 15 ms lag."""
+    assert difference_points("motor_lag", 0.0150) == (0.0153, 0.0147)
+    assert difference_points("ground_effect", 2.0) == pytest.approx((2.002, 1.998))
+    rng = np.random.default_rng(4)
+    K = 6000
+    t = np.arange(K) * 0.005
+    mass, k_T = 1.5, 8.5e-6
+    hover = np.sqrt(mass * GRAVITY / (6 * k_T))
+    w = np.repeat(hover * (1 + 0.1 * rng.uniform(-1, 1, (K // 40, 6))), 40, axis=0)  # held 0.2 s
+    R = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
+    S_true = np.sum(lag_rotor_speeds(t, w, 0.015) ** 2, axis=1)
+    y = k_T * S_true[:, None] * R[:, :, 2] + rng.normal(0, 0.02, (K, 3))
+    data = GapData(np.zeros(K, int), t, np.zeros((K, 3)), y, R, w, np.zeros((K, 3)), np.full(K, np.inf),
+                   np.full(K, np.inf), mass, 0.1, ["steps"], "mocap", imu=np.zeros(K, bool), fits_bias=False)
+    fit = fit_model(data, {"motor_lag"})
+    assert fit.nonlinear["motor_lag"] == pytest.approx(0.015, rel=0.02)
+    assert 0 < fit.stderr["tau"] < 0.1 * fit.nonlinear["motor_lag"]
+    assert dict(look_alikes(data, fit, "motor_lag"))["thrust_coefficient"] < 0.9

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavturb.gap.design import GapData, bias_count, design, unstack
+from uavturb.gap.design import GapData, bias_count, design, difference_points, unstack
 from uavturb.gap.fit import ModelFit, _nl_values
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
@@ -183,14 +183,11 @@ def effect_columns(names: list[str], effect: str) -> list[int]:
 def nonlinear_column(data: GapData, fit: ModelFit, effect: str) -> np.ndarray:
     """(3K, 1) the change of the thrust column per unit change of a nonlinear effect's parameter
     (central difference at its fitted value), i.e. how the effect shows in the data."""
-    p = fit.nonlinear[effect]
-    h = max(1e-3 * p, 1e-6)
-    up = _nl_values(fit.nonlinear | {effect: p + h})
-    dn = _nl_values(fit.nonlinear | {effect: max(p - h, 0.0)})
-    Ap, names = design(data, set(fit.effects), up)
-    Am, _ = design(data, set(fit.effects), dn)
+    hi, lo = difference_points(effect, fit.nonlinear[effect])
+    Ap, names = design(data, set(fit.effects), _nl_values(fit.nonlinear | {effect: hi}))
+    Am, _ = design(data, set(fit.effects), _nl_values(fit.nonlinear | {effect: lo}))
     k = names.index("k_T")
-    return ((Ap[:, k] - Am[:, k]) * fit.coef["k_T"])[:, None]
+    return ((Ap[:, k] - Am[:, k]) * fit.coef["k_T"] / (hi - lo))[:, None]
 
 
 def look_alikes(data: GapData, fit: ModelFit, effect: str) -> list[tuple[str, float]]:

@@ -47,6 +47,10 @@ LAG_CACHE_BYTES = 200 << 20
 
 #: Hz, the rate the gap finder analyses at (block means of faster recordings; :func:`gap_data`)
 RATE_HZ = 25.0
+#: Hz, a held rotor stream updating slower than this is fitted on its updates only (:func:`gap_data`): a
+#: 10 Hz stream interpolates over 0.1 s, half the time a vehicle takes to cross the heights where a ground
+#: effect changes; a controller's 25 Hz commands leave the interpolation little to miss and a motor lag to show
+THIN_BELOW_HZ = 10.0
 
 
 @dataclass
@@ -148,9 +152,7 @@ class GapData:
         computed on the contiguous flights when these rows are a subset of them."""
         if self.contiguous is not None:
             return self.gather(self.contiguous.S_lag(tau))
-        # tau to three significant digits (0.5 % at most, far under its honest error): the searches of
-        # every fold and candidate land on the same few values and share their lagged sums
-        key = float(f"{float(tau):.3g}")
+        key = lag_key(tau)
         if key not in self._lag_cache:
             out = np.empty(len(self))
             for g in np.unique(self.group):
@@ -229,9 +231,8 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
         R = quat.to_rotation_matrix(fd.q)
         keep = _in_flight(fd, mass, k_T_guess, min_thrust_ratio, None if exclude is None else exclude[g])
         # a held rotor stream (ESC telemetry at 3 Hz): between its updates the speeds are interpolated,
-        # off by the thrust changes of a third of a second; only the rows of its updates are measured.
-        # Updates faster than the analysis rate leave the interpolation nothing to miss
-        slow = fd.rotor_fresh is not None and fd.rotor_fresh.sum() < (rate_hz or RATE_HZ) * np.ptp(fd.t)
+        # off by the thrust changes of a third of a second; only the rows of its updates are measured
+        slow = fd.rotor_fresh is not None and fd.rotor_fresh.sum() < THIN_BELOW_HZ * np.ptp(fd.t)
         fresh = keep & fd.rotor_fresh if slow else keep
         if use_imu:
             acc = fd.acc
@@ -334,6 +335,31 @@ def surface_law_extra(data: GapData, name: str, value: float) -> np.ndarray:
     d = data.d_down if spec.surface == "d_down" else data.d_up
     ratio = spec.ratio(d, value, data.rotor_radius, **data.geometry)
     return np.where(np.isfinite(ratio), ratio - 1.0, 0.0)
+
+
+def lag_key(tau: float) -> float:
+    """s, the motor lag's ``tau`` at which :meth:`GapData.S_lag` filters: three significant digits (0.5 % at
+    most, far under its honest error), so that the searches of every fold and candidate land on the same
+    few values and share their lagged sums."""
+    return float(f"{float(tau):.3g}")
+
+
+def applied_value(effect: str, value: float) -> float:
+    """The value of a nonlinear effect's parameter at which :func:`design` computes its columns (the motor
+    lag's cached grid, :func:`lag_key`; every other parameter as given)."""
+    return lag_key(value) if effect == "motor_lag" else float(value)
+
+
+def difference_points(effect: str, value: float) -> tuple[float, float]:
+    """(upper, lower) values of a nonlinear effect's parameter for a central difference of the design's
+    columns around ``value``, at the values they are really computed at (:func:`applied_value`): 0.1 %
+    either side, or 2 % where that falls within one step of a cached grid (the motor lag's)."""
+    if value <= 0.0:
+        return 1e-6, 0.0
+    hi, lo = applied_value(effect, value * (1 + 1e-3)), applied_value(effect, value * (1 - 1e-3))
+    if hi == lo:
+        hi, lo = applied_value(effect, value * 1.02), applied_value(effect, value * 0.98)
+    return hi, lo
 
 
 def lagged_S(data: GapData, tau: float) -> np.ndarray:

@@ -13,6 +13,7 @@ from scipy.optimize import minimize_scalar
 from uavturb.gap.design import (
     NONLINEAR,
     GapData,
+    difference_points,
     design,
     effective_S,
     fixed_columns,
@@ -170,10 +171,10 @@ def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 5
             p = nl[e]
             if p == 0.0:  # absent: no derivative in the log-parametrised search, no standard error
                 continue
-            h = 1e-3 * p
-            Ap, _ = design(data, effects, _nl_values(nl | {e: p + h}))
-            Am, _ = design(data, effects, _nl_values(nl | {e: p - h}))
-            cols.append(((Ap - Am) @ coef / (2 * h))[:, None])
+            hi, lo = difference_points(e, p)
+            Ap, _ = design(data, effects, _nl_values(nl | {e: hi}))
+            Am, _ = design(data, effects, _nl_values(nl | {e: lo}))
+            cols.append(((Ap - Am) @ coef / (hi - lo))[:, None])
             extra.append(NONLINEAR[e][0])
         J = np.hstack(cols)
         groups = np.concatenate([data.group + 1000 * k for k in range(3)])
