@@ -8,6 +8,7 @@ import dataclasses
 
 import pytest
 
+from uavturb.errors import InputError
 from uavturb.gap.finder import analyse
 from uavturb.io.reader import load_recordings
 from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight, read_truth
@@ -79,3 +80,12 @@ def test_all_of_a_px4_logs_troubles_at_once(tmp_path):
     k = [nominal["thrust_coefficient_per_recording"][f"px4-{s}"] for s in (0, 1, 2)]
     assert k[1] / k[0] == pytest.approx(1.04, abs=0.01) and k[2] / k[0] == pytest.approx(0.97, abs=0.01)
     assert len(report["ground_contact"]) >= 6  # both ends of each flight
+
+
+def test_rotor_telemetry_too_slow_to_analyse_says_so(tmp_path):
+    """Rotor speeds updating at 1 Hz over 20 s of flight: too few updates for any fit, and the one line names
+    the rotor stream and its rate, not a generic 'too short'."""
+    paths = _flights(tmp_path, "slow", Conditions(rotor_hold_hz=1.0, measured_rotors=True), seeds=(11,),
+                     duration=20.0)
+    with pytest.raises(InputError, match=r"rotors0/data\.csv: only \d+ rotor-speed updates in flight .*1 Hz"):
+        analyse(load_recordings(paths), {})

@@ -121,6 +121,11 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient,
                     arm_length=vehicle.arm_length, exclude=contact)
     del fds, contact  # the aligned streams live on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
+    if len(data) < MIN_ROWS and data.dense is not None:
+        where = f"{recordings[0].path or recordings[0].name}/mav0/rotors0/data.csv"
+        raise InputError(where, f"only {len(data)} rotor-speed updates in flight (the stream updates at "
+                                f"{held['slowest_update_hz']:.2g} Hz or slower, and the thrust is known only at its "
+                                f"updates); too few to analyse: longer or more flights, or faster rotor telemetry")
     if len(data) < MIN_ROWS:
         raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
     levels = apply_thrust_levels(data)
