@@ -81,18 +81,21 @@ def _open_loop(data: GapData, force: np.ndarray, horizon_s: float = 0.5, stride_
     g = np.array([0.0, 0.0, GRAVITY])
     for grp in np.unique(data.group):
         idx = np.flatnonzero(data.group == grp)
-        t = data.t[idx]
-        dt = float(np.median(np.diff(t)))
+        if len(idx) < 3:
+            continue
+        dt = float(np.median(np.diff(data.t[idx])))
         n = max(2, int(round(horizon_s / dt)))
-        for s in range(0, len(idx) - n, max(1, int(round(stride_s / dt)))):
-            seg = idx[s: s + n + 1]
-            if np.any(np.diff(data.t[seg]) > 3 * dt):  # a gap (rows dropped on the ground)
-                continue
-            a = force[seg[:-1]] / data.mass - g
-            h = np.diff(data.t[seg])[:, None]
-            v = data.v[seg[0]] + np.cumsum(a * h, axis=0)
-            p = data.p[seg[0]] + np.sum(np.vstack([data.v[seg[0]], v[:-1]]) * h + 0.5 * a * h**2, axis=0)
-            errs.append(np.sum((p - data.p[seg[-1]]) ** 2))
+        starts = np.arange(0, len(idx) - n, max(1, int(round(stride_s / dt))))
+        seg = idx[starts[:, None] + np.arange(n + 1)]  # (S, n + 1) rows of each prediction
+        h = np.diff(data.t[seg], axis=1)  # (S, n) s
+        ok = ~np.any(h > 3 * dt, axis=1)  # no gap (rows dropped on the ground)
+        seg, h = seg[ok], h[ok, :, None]
+        a = force[seg[:, :-1]] / data.mass - g  # (S, n, 3) m/s^2
+        v0 = data.v[seg[:, 0]]
+        v = v0[:, None, :] + np.cumsum(a * h, axis=1)
+        v_before = np.concatenate([v0[:, None, :], v[:, :-1]], axis=1)
+        p = data.p[seg[:, 0]] + np.sum(v_before * h + 0.5 * a * h**2, axis=1)
+        errs.extend(np.sum((p - data.p[seg[:, -1]]) ** 2, axis=1))
     return float(np.sqrt(np.mean(errs))) if errs else float("nan")
 
 
@@ -217,7 +220,7 @@ def _simulator_baseline(data: GapData, sim: dict[str, dict[str, float]]) -> _Bas
 def nominal_curve_evidence(data: GapData, nominal: ModelFit) -> CurveEvidence:
     """The measured surface curve under the nominal model (no effect named yet), as selection reads it:
     its lift near the floor and each surface law's shape fit (:class:`~uavturb.gap.selection.CurveEvidence`)."""
-    _, curve, fits = finder_surface_curve(data, nominal)
+    _, curve, fits = finder_surface_curve(data, nominal, resample=False)  # the shape's chi^2 is all it reads
     return CurveEvidence(lift_z(curve, data.rotor_radius), {n: f.chi2 for n, f in fits.items()})
 
 

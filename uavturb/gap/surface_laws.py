@@ -236,7 +236,8 @@ def _bin_covariance(curve: SurfaceCurve, binned: _BinnedLaw) -> np.ndarray:
     return cov
 
 
-def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False, **geometry) -> LawFit:
+def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False, resample: bool = True,
+            **geometry) -> LawFit:
     """Weighted least squares (weights ``1/stderr^2``) of a surface law's ``T_IGE/T_OGE`` to the bins.
 
     Parameters
@@ -245,6 +246,8 @@ def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False
     law : effect name with a ``ratio`` (``ground_effect``, ``ground_effect_multirotor``)
     r : m, rotor radius
     free_level : also fit the far level (the curve's normalisation height may still feel the surface)
+    resample : refit on each recording alone (or, with one, a jackknife over time blocks) for the honest
+        error; without, the error is the fit's alone (enough where only the shape's chi^2 is read)
     geometry : ``arm_length`` [m], ``rotor_count`` (laws that use the rotor spacing)
     """
     spec = EFFECTS.get(law)
@@ -266,7 +269,7 @@ def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False
     except np.linalg.LinAlgError:
         cov = np.full((npar, npar), np.nan)
     se_fit = np.sqrt(np.maximum(np.diag(cov), 0.0)) * (np.sqrt(max(chi2_dof, 1.0)) if np.isfinite(chi2_dof) else 1.0)
-    se_jack, spread = _resampled(curve, binned, keep, se, free_level)
+    se_jack, spread = _resampled(curve, binned, keep, se, free_level) if resample else (float("nan"), float("nan"))
     between = len(np.unique(curve.group)) >= 2
     stderr = float(np.nanmax([se_fit[0], spread if between else se_jack]))
     in_range = spec.physical_range.violation({spec.params[0]: float(z[0])}, None) is None
@@ -335,8 +338,8 @@ HOVER_TILT_DEG = 15.0
 AGREEMENT = 0.02
 
 
-def finder_surface_curve(data: GapData, final: ModelFit) -> tuple[dict | None, SurfaceCurve | None,
-                                                                  dict[str, LawFit]]:
+def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = True
+                         ) -> tuple[dict | None, SurfaceCurve | None, dict[str, LawFit]]:
     """The ``surface_curve`` of a gap report (``gap-report.md``), measured on the finder's samples.
 
     The thrust the rotors must make is the measured force along the body z axis less every force of
@@ -369,7 +372,7 @@ def finder_surface_curve(data: GapData, final: ModelFit) -> tuple[dict | None, S
     for name, spec in EFFECTS.items():
         if spec.surface == "d_down" and spec.ratio is not None:
             try:
-                fits[name] = fit_law(curve, name, data.rotor_radius, **geometry)
+                fits[name] = fit_law(curve, name, data.rotor_radius, resample=resample, **geometry)
             except (InputError, ValueError, np.linalg.LinAlgError):
                 continue
     if not fits:
