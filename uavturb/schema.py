@@ -58,6 +58,7 @@ class Allowed:
     pattern: str | None = None
     nonempty: bool = False
     length: int | None = None
+    unit: str | None = None             # of the bounds, in the description (``Hz``)
     text: str | None = None             # how the allowed values are described (else generated)
 
     def accepts(self, value: Any) -> bool:
@@ -94,6 +95,7 @@ class Allowed:
         bounds = [f"{op} {b:g}" for op, b in ((">=", self.ge), (">", self.gt), ("<=", self.le), ("<", self.lt))
                   if b is not None]
         out = f"{noun} " + " and ".join(bounds) if bounds else noun
+        out += f" {self.unit}" if self.unit and bounds else ""
         return out + "".join(f" or {a}" for a in self.also)
 
 
@@ -178,9 +180,26 @@ def check_values(obj: Any, cls: Any = None, prefix: str = "", name: Callable[[st
             check_values(value, hints[f.name], key + ".", name)
             continue
         rule = f.metadata.get("allowed")
-        if rule is not None and not rule.accepts(value):
+        if rule is not None and not (rule.accepts(value) and _of_type(value, hints[f.name])):
             hint = did_you_mean(value, rule.choices) if rule.choices is not None else ""
             raise InputError(key, f"{value!r} is not allowed; allowed: {rule.describe(_noun(hints[f.name]))}{hint}")
+
+
+def _of_type(value: Any, typ: Any) -> bool:
+    """Whether ``value`` may be a value of a field typed ``typ`` (scalars only; an integer is a number)."""
+    optional = typing.get_origin(typ) in (typing.Union, types.UnionType) and type(None) in typing.get_args(typ)
+    if value is None:
+        return optional
+    base = _base_type(typ)
+    if base is bool:
+        return isinstance(value, bool)
+    if base is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if base is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if base is str:
+        return isinstance(value, str)
+    return True
 
 
 # --- the one override syntax ----------------------------------------------------------------------
@@ -330,7 +349,7 @@ def _set_in(mapping: Mapping[str, Any], layer: Mapping[str, Any]) -> dict[str, A
     return out
 
 
-def apply_overrides(obj: Any, overrides: Mapping[str, Any]) -> Any:
+def apply_overrides(obj: Any, overrides: Mapping[str, Any], where: Callable[[str], str] = str) -> Any:
     """A copy of the dataclass ``obj`` with the overrides of :func:`parse_overrides` (or keyword
     arguments: ``width=64``): a plain key replaces the field's value, a dotted one sets a value
     inside the field's dataclass or mapping and keeps the rest.
@@ -339,12 +358,13 @@ def apply_overrides(obj: Any, overrides: Mapping[str, Any]) -> Any:
     ------
     InputError : a key that is no field of ``obj`` (see :func:`check_keys`).
     """
-    check_keys([k.split(".")[0] for k in overrides], [f.name for f in dataclasses.fields(obj)])
+    check_keys([k.split(".")[0] for k in overrides], [f.name for f in dataclasses.fields(obj)], where)
     changes: dict[str, Any] = {k: v for k, v in overrides.items() if "." not in k}
     for key, inner in nested({k: v for k, v in overrides.items() if "." in k}).items():
         current = changes.get(key, getattr(obj, key))
         if dataclasses.is_dataclass(current):
-            changes[key] = apply_overrides(current, {".".join(p): v for p, v in _leaves(inner, ())})
+            changes[key] = apply_overrides(current, {".".join(p): v for p, v in _leaves(inner, ())},
+                                           lambda k, key=key: where(f"{key}.{k}"))
         else:
             changes[key] = _set_in(current if isinstance(current, dict) else {}, inner)
     return dataclasses.replace(obj, **changes)

@@ -48,7 +48,8 @@ from uavturb.gap.finder import analyse
 from uavturb.io.reader import load_recordings
 from uavturb.proof.scoring import param_error, with_hidden_bias
 from uavturb.proof.sindy_peer import sindy_names
-from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight, read_truth
+from uavturb.sim.flights.condition_schema import Conditions
+from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
 
 #: relative error within which a target counts as named right (issue: wind within 30 %)
 TOLERANCE = 0.30

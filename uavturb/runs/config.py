@@ -24,8 +24,10 @@ Sweep files (``sweeps/ablation.yaml``) have their schema here too (:class:`Sweep
 :func:`load_spec`): a typo fails naming the file and the key. The shipped sweep files are
 package data (``uavturb/sweeps``, :data:`SWEEPS_DIR`); a sweep is named by a path to a file or by
 the name of a shipped one (``ablation``; ``sweeps/ablation.yaml`` too, where no such file exists
-in the working folder): :func:`resolve_spec`. A sweep's rows and presets hold overrides in the
-one syntax of :func:`load_config` (``key=value``, ``group=choice``).
+in the working folder): :func:`resolve_spec`. A sweep's rows and profiles hold overrides in the
+one syntax of :func:`load_config` (``key=value``, ``group=choice``). A sweep's profile
+(:class:`SweepProfile`, ``uavturb sweep --profile quick``) is how it runs -- seeds and overrides --
+not a dataset preset: the data a profile trains on is one of its overrides.
 """
 
 from __future__ import annotations
@@ -377,7 +379,16 @@ class RowSpec:
 
 
 @dataclass
-class PresetSpec:
+class SweepProfile:
+    """How a sweep runs (``uavturb sweep --profile NAME``; ``--preset`` is its old spelling): the
+    number of seeds and the overrides of every run, of the pre-training runs and of the rows' runs.
+
+    Not a dataset preset (``generate sim --preset``): a profile names the data it trains on in its
+    overrides. The shipped ``ablation`` sweep's ``quick`` trains on synthetic box rooms
+    (``data=synthetic``), ``medium`` on the simulator preset ``medium``'s shards, ``paper`` and
+    ``gpu`` on the shards of ``data.root`` (those of ``generate sim --preset paper`` for the paper).
+    """
+
     seeds: int = 1
     overrides: list[str] = field(default_factory=list)   # every run
     pretrain: list[str] = field(default_factory=list)    # pre-training runs
@@ -390,13 +401,15 @@ class SweepSpec:
     experiment: str = "uavturb-ablation"
     rows: list[RowSpec] = field(default_factory=list)
     pretraining: dict[str, str] = field(default_factory=dict)  # model.pretraining -> conf/experiment bundle
-    presets: dict[str, PresetSpec] = field(default_factory=dict)
+    profiles: dict[str, SweepProfile] = field(default_factory=dict)
 
 
 def load_spec(path: str | Path = DEFAULT_SPEC) -> DictConfig:
     """Read and check a sweep file; a typo fails naming the file and the key."""
     path = resolve_spec(path)
     body = read_yaml_mapping(path, expected="a mapping of sweep keys")
+    if "presets" in body and "profiles" not in body:  # the key's old name, in a user's sweep file
+        body["profiles"] = body.pop("presets")
     try:
         spec = OmegaConf.merge(OmegaConf.structured(SweepSpec), body)
         OmegaConf.to_container(spec, throw_on_missing=True)
@@ -408,7 +421,7 @@ def load_spec(path: str | Path = DEFAULT_SPEC) -> DictConfig:
     names = [r.name for r in spec.rows]
     if len(set(names)) != len(names):
         raise InputError(f"{path}: rows", f"row names repeat: {names}")
-    if not spec.presets:
-        raise InputError(f"{path}: presets", "no presets")
+    if not spec.profiles:
+        raise InputError(f"{path}: profiles", "no profiles")
     return spec
 
