@@ -274,7 +274,10 @@ def read_value(text: str, typ: Any, key: str) -> Any:
             [read_scalar(t, key) for t in text.split(",")] if isinstance(value, str) else [value]
         item_types = [a for a in typing.get_args(base) if a is not Ellipsis]
         if item_types:
-            items = [read_value(str(v), item_types[min(i, len(item_types) - 1)], key) for i, v in enumerate(items)]
+            try:
+                items = [read_value(str(v), item_types[min(i, len(item_types) - 1)], key) for i, v in enumerate(items)]
+            except InputError:
+                raise wrong(f"{_noun(base)} separated by commas (or a YAML list)") from None
         return tuple(items) if origin is tuple else list(items)
     if origin is dict:
         if not isinstance(value, dict):

@@ -199,7 +199,7 @@ PRESETS: dict[str, SimPreset] = {
 }
 
 
-def get_preset(name: str | SimPreset, **overrides: Any) -> SimPreset:
+def get_preset(name: str | SimPreset, /, **overrides: Any) -> SimPreset:
     """A preset by name (``tiny``, ``quick``, ``medium``, ``paper``) with fields overridden.
 
     ``overrides``: field values (``width=64``) or, with dotted keys as
