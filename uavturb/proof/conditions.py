@@ -69,7 +69,7 @@ class Condition:
     targets: tuple[str, ...] = ()
     kind: str = "mixed"
     hidden_bias: bool = False  # an accelerometer bias the state file does not know (needs an IMU)
-    vehicle: str = "hex"  # preset of both flights
+    vehicle: str = "hex"  # built-in vehicle of both flights
     second: Conditions | None = None  # the second flight's conditions (default: ``conditions``)
     look_alikes: tuple[str, ...] = ()  # names of troubles that are no effect but may be named (module docstring)
 

@@ -31,7 +31,7 @@ data": 68 scenes, 43/9/16, 531 trajectories, 358,828 samples; IRS pre-training o
 depth/normal pairs). ``quick`` finishes in a few minutes on 2 cores and is what ``make demo``
 uses; ``tiny`` is for tests. ``medium`` is the smallest scale at which Table 1's rows can
 separate on a 2-core CPU (18 training scenes instead of quick's 5, 6 test scenes, 32 x 32 px
-so that the ablation sweep ``sweeps/ablation.yaml --preset medium`` takes ~10.5 min per seed;
+so that the ablation sweep ``sweeps/ablation.yaml --profile medium`` takes ~10.5 min per seed;
 generation ~1 min with 2 workers); it is written to ``data/medium/sim`` and
 ``data/medium/pairs`` by convention.
 
