@@ -20,7 +20,6 @@ from uavturb.schema import (
     allowed,
     apply_overrides,
     check_keys,
-    check_values,
     option_name,
     parse_overrides,
     read_value,
