@@ -37,7 +37,7 @@ def preset_overrides(items: Sequence[str], preset: str = "custom") -> dict[str, 
     """``KEY=VALUE`` overrides of preset fields (``generate sim|normals``: positional, or each after
     ``--set``, its alias) typed by the preset's schema
     (:func:`uavturb.sim.dataset.presets.parse_preset_overrides`)."""
-    return parse_preset_overrides(list(items), preset, option="KEY=VALUE")
+    return parse_preset_overrides(list(items), preset)
 
 
 def generate_sim(preset: str, out: str | Path, *, workers: int = 1, seed: int = 0, shard: str | None = None,
