@@ -169,17 +169,6 @@ class TrainConfig:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
 
 
-def check_values(cfg: DictConfig, cls: Any = TrainConfig, prefix: str = "") -> None:
-    """Check every value of ``cfg`` against the :class:`~uavturb.schema.Allowed` declared on its
-    field (:func:`uavturb.schema.check_values`, the one check of every settings schema).
-
-    Raises
-    ------
-    InputError : naming the first key whose value is not allowed, the value and what is.
-    """
-    schema.check_values(cfg, cls, prefix)
-
-
 def allowed_keys(path: str) -> list[str]:
     """Keys allowed under a dotted path of :class:`TrainConfig` (``""`` = top level)."""
     cls: Any = TrainConfig
@@ -257,9 +246,10 @@ def _defaults(d: dict[str, Any], path: Path) -> dict[str, str]:
 
 
 def validate(cfg: DictConfig | TrainConfig | dict) -> DictConfig:
-    """Merge into the schema (types, unknown keys) and check every value (:func:`check_values`)."""
+    """Merge into the schema (types, unknown keys) and check every value against its declared range
+    (:func:`uavturb.schema.check_values`)."""
     cfg = _merge(OmegaConf.structured(TrainConfig), cfg, "config")
-    check_values(cfg)
+    schema.check_values(cfg, TrainConfig)
     return cfg
 
 
