@@ -10,6 +10,11 @@ seed write identical arrays.
 the key ``preset`` of every manifest's config, so part of its hash). Vehicles are built-in
 (``quad``, ``hex``) or shipped (``firefly``), never presets.
 
+A preset's fields are changed with the one override syntax of the package
+(``uavturb generate sim --preset quick --out DIR width=64 effects.ground_effect.mu=2.5``; ``--set
+KEY=VALUE`` is an alias): :func:`parse_preset_overrides` types each value by :class:`SimPreset`'s
+fields, which declare their ranges (:func:`uavturb.schema.allowed`).
+
 =========  ======  =========  ============  ==========  ===========  ============
 preset     scenes  split      trajectories  samples     image        pairs
 =========  ======  =========  ============  ==========  ===========  ============
