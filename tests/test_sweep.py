@@ -290,7 +290,8 @@ def test_quick_sweep_trains_for_real_and_resumes(tmp_path, store):
     res = sweep(DEFAULT_SPEC, profile="quick", seeds=1, overrides=over, experiment=store[1])
     assert sorted(r["row"] for r in res["runs"]) == sorted(ROWS) and not any(r["reused"] for r in res["runs"])
     kids = _children(store, res["parent_run_id"])
-    assert len(kids) == 8
+    n_runs = len(ROWS) + len(load_spec(DEFAULT_SPEC).pretraining)  # every row, and each pre-training variant once
+    assert len(kids) == n_runs == 9
     for r in kids:
         if "ablation" in r.data.tags:
             assert np.isfinite(r.data.metrics["test/rmse_d"]) and np.isfinite(r.data.metrics["test/rmse_fa"])
@@ -298,7 +299,7 @@ def test_quick_sweep_trains_for_real_and_resumes(tmp_path, store):
             assert "checkpoints/best.ckpt" in [a.path for a in mlflow.MlflowClient(store[0]).list_artifacts(
                 r.info.run_id, "checkpoints")]
     again = sweep(DEFAULT_SPEC, profile="quick", seeds=1, overrides=over, experiment=store[1])
-    assert all(r["reused"] for r in again["runs"]) and len(_children(store, res["parent_run_id"])) == 8
+    assert all(r["reused"] for r in again["runs"]) and len(_children(store, res["parent_run_id"])) == n_runs
     assert compare(experiment=store[1], out=None)["rows"][0]["n"] == 1
 
 
