@@ -18,6 +18,7 @@ from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights import conditions as C
+from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import low_heights, make_reference, simulate_flight
 from uavturb.sim.core.signals import hover
@@ -44,7 +45,7 @@ def hover_flight():
 
 
 def _write(rec, truth, tmp_path, effects=GE, noise=None, **kw):
-    c = C.condition(rec, truth, C.Conditions(**kw), true_vehicle=HEXAROTOR, effects=effects, seed=1, noise=noise)
+    c = C.condition(rec, truth, Conditions(**kw), true_vehicle=HEXAROTOR, effects=effects, seed=1, noise=noise)
     path = tmp_path / "rec"
     write_recording(c.recording, path, extras=c.extras)
     c.truth = C.truth_document(HEXAROTOR, effects, c.truth, seed=1, kind="test", duration=float(truth.t[-1]))
@@ -88,9 +89,9 @@ def test_ground_contact_at_both_ends(landing_flight, tmp_path):
 def test_ground_contact_needs_a_landed_flight(hover_flight, landing_flight):
     rec, truth, eff = hover_flight
     with pytest.raises(InputError, match="takes off from and lands"):
-        C.condition(rec, truth, C.Conditions(ground_contact_s=1.0), true_vehicle=HEXAROTOR, effects={})
+        C.condition(rec, truth, Conditions(ground_contact_s=1.0), true_vehicle=HEXAROTOR, effects={})
     with pytest.raises(InputError, match="battery_sag"):
-        C.condition(*landing_flight, C.Conditions(ground_contact_s=1.0), true_vehicle=HEXAROTOR, effects=eff)
+        C.condition(*landing_flight, Conditions(ground_contact_s=1.0), true_vehicle=HEXAROTOR, effects=eff)
     assert "battery_sag" in eff
 
 
@@ -115,7 +116,7 @@ def test_held_rows_known_answer():
     t = np.arange(10) * 20_000_000  # 50 Hz rows
     np.testing.assert_array_equal(held_rows(t, 9.0), [0, 0, 0, 0, 0, 0, 6, 6, 6, 6])  # next update at 111 ms
     with pytest.raises(InputError, match="--rotor-hold-hz"):
-        C.Conditions(rate_hz=50, rotor_hold_hz=50)
+        Conditions(rate_hz=50, rotor_hold_hz=50)
 
 
 def test_late_measured_rotor_speeds_cross_correlate_at_the_delay(landing_flight, tmp_path):

@@ -193,7 +193,8 @@ def test_force_outside_the_vocabulary_is_unexplained_not_named(tmp_path):
 def wind_tunnel(tmp_path_factory):
     """Two MoCap-only 50 Hz flights at a fixed heading in a 4 m/s wind that acts on the airspeed
     (rotor drag k_d = 8.06e-5 and body drag c_d = 0.05 on v - v_wind), with their truth."""
-    from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight, read_truth
+    from uavturb.sim.flights.condition_schema import Conditions
+    from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
 
     root = tmp_path_factory.mktemp("windtunnel")
     cond = Conditions(no_imu=True, rate_hz=50, jitter_ms=2.0, fixed_heading=True, wind_speed=(-4.0, 0.0))

@@ -11,7 +11,8 @@ import pytest
 from uavturb.errors import InputError
 from uavturb.gap.finder import analyse
 from uavturb.io.reader import load_recordings
-from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight, read_truth
+from uavturb.sim.flights.condition_schema import Conditions
+from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
 
 GROUND = {"ground_effect": {"mu": 2.0}}
 

@@ -1,4 +1,4 @@
-"""The ``medium`` presets (simulator and ablation sweep) load, validate and agree (no training)."""
+"""The ``medium`` simulator preset and the ablation sweep's ``medium`` profile load, validate and agree (no training)."""
 
 from __future__ import annotations
 
@@ -26,9 +26,9 @@ def test_sim_presets_split_every_scene_once_and_balance_trajectories(name):
         get_preset(name, n_train=p.n_train - 1)
 
 
-def test_medium_sweep_preset_resolves_every_run_config():
+def test_medium_sweep_profile_resolves_every_run_config():
     spec = load_spec(DEFAULT_SPEC)
-    pre = spec.presets["medium"]
+    pre = spec.profiles["medium"]
     sim = get_preset("medium")
     roots = set()
     for row in spec.rows:

@@ -49,7 +49,7 @@ def test_table1_view_in_the_mlflow_ui(tmp_path, monkeypatch):
             "data.window=4", "data.synthetic.n_scenes=3", "data.synthetic.trajs_per_scene=1", "data.synthetic.T=16",
             "data.synthetic.pairs=32", f"trainer.default_root_dir={tmp_path / 'runs'}", "trainer.max_epochs=2",
             "model.unfreeze_at_epoch=1"]
-    res = sweep(DEFAULT_SPEC, preset="quick", seeds=1, overrides=over)
+    res = sweep(DEFAULT_SPEC, profile="quick", seeds=1, overrides=over)
     client = mlflow.MlflowClient(uri)
     runs = {r["row"]: client.get_run(r["run_id"]) for r in res["runs"]}
     exp = client.get_experiment_by_name(res["experiment"])

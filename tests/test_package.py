@@ -79,6 +79,7 @@ def test_non_editable_install_trains_from_another_folder(tmp_path):
     assert not (source / "build").exists() and not list(source.glob("*.egg-info"))  # nothing left in the tree
     assert (site / "uavturb" / "conf" / "experiment" / "smoke.yaml").is_file()
     assert (site / "uavturb" / "sweeps" / "ablation.yaml").is_file()
+    assert (site / "uavturb" / "vehicles" / "firefly.yaml").is_file()  # the shipped vehicle files
 
     work = tmp_path / "elsewhere"
     work.mkdir()

@@ -17,6 +17,7 @@ from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EffectInputs, body_drag_force, rotor_drag_force
 from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights import conditions as C
+from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import make_reference, simulate_flight
 
@@ -31,7 +32,7 @@ def flight():
 
 def _conditioned(flight, tmp_path, **kw):
     rec, truth = flight
-    c = C.condition(rec, truth, C.Conditions(**kw), true_vehicle=HEXAROTOR, effects={}, seed=1,
+    c = C.condition(rec, truth, Conditions(**kw), true_vehicle=HEXAROTOR, effects={}, seed=1,
                     w_max=2.5 * HEXAROTOR.hover_speed())
     write_recording(c.recording, tmp_path / "rec", extras=c.extras)
     return c, tmp_path / "rec"
@@ -105,7 +106,7 @@ def test_wind_push_at_hover_is_the_drag_law():
 
 def test_wind_acts_as_drag_on_the_airspeed_in_the_simulator():
     c = C.generate_conditioned_flight("hex", "", duration=10.0, kind="excitation", seed=2,
-                                      conditions=C.Conditions(wind_speed=(2.0, 1.0)), noise=SensorNoise.none())
+                                      conditions=Conditions(wind_speed=(2.0, 1.0)), noise=SensorNoise.none())
     push = c.truth["equivalent_effects"]["wind"]
     assert c.truth["effects"] == {"rotor_drag": {"k_d": 8.06e-5}, "body_drag": {"c_d": 0.05}}
     # the flight hovers on average: the simulated effect force averages to the push at hover

@@ -139,7 +139,7 @@ def test_bad_inputs_fail_naming_the_key(full, tmp_path):
         generation.generate_sim("huge", tmp_path / "x", progress=False)
     with pytest.raises(InputError, match="--shard"):
         generation.generate_sim("tiny", tmp_path / "x", shard="0/2", progress=False)
-    with pytest.raises(InputError, match="'widht'"):
+    with pytest.raises(InputError, match="preset tiny: widht: unknown key \\(did you mean 'width'\\?\\)"):
         generation.generate_sim("tiny", tmp_path / "x", widht=3, progress=False)
     with pytest.raises(InputError, match="plan.bogus"):
         get_preset("tiny", plan={"bogus": 1})

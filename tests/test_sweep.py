@@ -92,7 +92,7 @@ def _children(store, parent: str) -> list:
 def test_sweep_runs_rows_times_seeds_reusing_pretraining(tmp_path, store, monkeypatch):
     fake = FakeTrain(tmp_path)
     monkeypatch.setattr(sweep_mod, "train", fake)
-    res = sweep(DEFAULT_SPEC, preset="quick", seeds=2, experiment=store[1])
+    res = sweep(DEFAULT_SPEC, profile="quick", seeds=2, experiment=store[1])
 
     # one pre-training run per variant and seed, one height run per row and seed
     stages = [(cfg.stage, t.get("pretrain") or t["ablation"], t["seed"]) for cfg, t in fake.calls]
@@ -110,7 +110,7 @@ def test_sweep_runs_rows_times_seeds_reusing_pretraining(tmp_path, store, monkey
             variant = t["ablation"].split("/")[0]
             expected = None if variant == "none" else ckpt[(variant, t["seed"])]
             assert cfg.model.encoder_ckpt == expected, t
-            assert cfg.model.lr_head == 1e-3 and cfg.trainer.max_epochs == 10  # the quick preset
+            assert cfg.model.lr_head == 1e-3 and cfg.trainer.max_epochs == 10  # the quick profile
 
     # the store: a nested height child per row and seed with tags and final metrics, 4 pre-training children
     height = [r for r in runs.values() if "ablation" in r.data.tags]
@@ -119,7 +119,7 @@ def test_sweep_runs_rows_times_seeds_reusing_pretraining(tmp_path, store, monkey
         d, fa = known_rmse(r.data.tags["ablation"], int(r.data.tags["seed"]))
         assert r.data.metrics["test/rmse_d"] == pytest.approx(d) and r.data.metrics["test/rmse_fa"] == pytest.approx(fa)
     parent = mlflow.MlflowClient(store[0]).get_run(res["parent_run_id"])
-    assert parent.info.status == "FINISHED" and parent.data.tags["preset"] == "quick"
+    assert parent.info.status == "FINISHED" and parent.data.tags["preset"] == "quick"  # the profile, under its tag's old name
     artifacts = {a.path for a in mlflow.MlflowClient(store[0]).list_artifacts(parent.info.run_id)}
     assert {"table1.md", "table1.csv", "sweep.yaml"} <= artifacts
     # Table 1 is the parent's description; its means stay off the metrics (the run table compares children)
@@ -141,7 +141,7 @@ def test_interrupted_sweep_resumes_without_redoing_finished_runs(tmp_path, store
     first = FakeTrain(tmp_path, fail_at=7)  # 2 pre-trainings, 4 rows done, interrupted in the 5th row
     monkeypatch.setattr(sweep_mod, "train", first)
     with pytest.raises(KeyboardInterrupt):
-        sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
+        sweep(DEFAULT_SPEC, profile="quick", seeds=1, experiment=store[1])
     client = mlflow.MlflowClient(store[0])
     exp = client.get_experiment_by_name(store[1])
     (parent,) = client.search_runs([exp.experiment_id], "tags.sweep = 'ablation'")
@@ -153,7 +153,7 @@ def test_interrupted_sweep_resumes_without_redoing_finished_runs(tmp_path, store
 
     second = FakeTrain(tmp_path)
     monkeypatch.setattr(sweep_mod, "train", second)
-    res = sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
+    res = sweep(DEFAULT_SPEC, profile="quick", seeds=1, experiment=store[1])
     assert res["parent_run_id"] == parent.info.run_id and res["resumed"]
     assert [t["ablation"] for _, t in second.calls] == ROWS[4:]  # nothing finished is trained again
     assert sum(r["reused"] for r in res["runs"]) == 4
@@ -165,9 +165,9 @@ def test_interrupted_sweep_resumes_without_redoing_finished_runs(tmp_path, store
     # a third call does nothing at all; a second seed adds only that seed's runs
     third = FakeTrain(tmp_path)
     monkeypatch.setattr(sweep_mod, "train", third)
-    sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
+    sweep(DEFAULT_SPEC, profile="quick", seeds=1, experiment=store[1])
     assert third.calls == []
-    sweep(DEFAULT_SPEC, preset="quick", seeds=2, experiment=store[1])
+    sweep(DEFAULT_SPEC, profile="quick", seeds=2, experiment=store[1])
     assert len(third.calls) == 2 + len(ROWS) and {t["seed"] for _, t in third.calls} == {"1"}
     assert len(_children(store, parent.info.run_id)) == 2 * (2 + len(ROWS))
 
@@ -176,7 +176,7 @@ def test_a_sweep_rerun_resumes_its_interrupted_child_in_place(tmp_path, store, m
     first = FakeTrain(tmp_path, kill_at=4)  # 2 pre-trainings, 1 row done, a signal in the 2nd row
     monkeypatch.setattr(sweep_mod, "train", first)
     with pytest.raises(Interrupted) as e:
-        sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
+        sweep(DEFAULT_SPEC, profile="quick", seeds=1, experiment=store[1])
     client = mlflow.MlflowClient(store[0])
     (parent,) = client.search_runs([client.get_experiment_by_name(store[1]).experiment_id], "tags.sweep = 'ablation'")
     assert parent.info.status == "KILLED" and "run the same command again" in e.value.message()
@@ -185,7 +185,7 @@ def test_a_sweep_rerun_resumes_its_interrupted_child_in_place(tmp_path, store, m
 
     second = FakeTrain(tmp_path)
     monkeypatch.setattr(sweep_mod, "train", second)
-    res = sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1])
+    res = sweep(DEFAULT_SPEC, profile="quick", seeds=1, experiment=store[1])
     assert second.resumed == [killed.info.run_id]  # continued, not trained again beside it
     assert [t["ablation"] for _, t in second.calls] == ROWS[1:]
     kids = _children(store, res["parent_run_id"])
@@ -257,12 +257,12 @@ def test_sweep_typos_fail_before_anything_runs(tmp_path, store, monkeypatch):
         sweep(DEFAULT_SPEC, overrides=["model.use_gr=false"], experiment=store[1])
     assert e.value.where == "model.use_gr"
     with pytest.raises(InputError, match="choices: quick, paper"):
-        sweep(DEFAULT_SPEC, preset="fast")
+        sweep(DEFAULT_SPEC, profile="fast")
     bad = tmp_path / "bad.yaml"
-    bad.write_text(DEFAULT_SPEC.read_text().replace("presets:", "presetz:"))
+    bad.write_text(DEFAULT_SPEC.read_text().replace("profiles:", "profilez:"))
     with pytest.raises(InputError) as e:
         sweep(bad)
-    assert "presetz" in e.value.where and str(bad) in e.value.where
+    assert "profilez" in e.value.where and str(bad) in e.value.where
     bad.write_text(DEFAULT_SPEC.read_text().replace("model: none_gru", "model: none_gruu"))
     with pytest.raises(InputError, match="none_gruu"):
         sweep(bad)
@@ -287,18 +287,19 @@ def test_quick_sweep_trains_for_real_and_resumes(tmp_path, store):
             "data.window=4", "data.synthetic.n_scenes=3", "data.synthetic.trajs_per_scene=1", "data.synthetic.T=16",
             "data.synthetic.pairs=32", f"trainer.default_root_dir={tmp_path / 'runs'}", "trainer.max_epochs=2",
             "model.unfreeze_at_epoch=1"]
-    res = sweep(DEFAULT_SPEC, preset="quick", seeds=1, overrides=over, experiment=store[1])
+    res = sweep(DEFAULT_SPEC, profile="quick", seeds=1, overrides=over, experiment=store[1])
     assert sorted(r["row"] for r in res["runs"]) == sorted(ROWS) and not any(r["reused"] for r in res["runs"])
     kids = _children(store, res["parent_run_id"])
-    assert len(kids) == 8
+    n_runs = len(ROWS) + len(load_spec(DEFAULT_SPEC).pretraining)  # every row, and each pre-training variant once
+    assert len(kids) == n_runs == 9
     for r in kids:
         if "ablation" in r.data.tags:
             assert np.isfinite(r.data.metrics["test/rmse_d"]) and np.isfinite(r.data.metrics["test/rmse_fa"])
             assert Path(r.data.tags["checkpoint"]).is_file()
             assert "checkpoints/best.ckpt" in [a.path for a in mlflow.MlflowClient(store[0]).list_artifacts(
                 r.info.run_id, "checkpoints")]
-    again = sweep(DEFAULT_SPEC, preset="quick", seeds=1, overrides=over, experiment=store[1])
-    assert all(r["reused"] for r in again["runs"]) and len(_children(store, res["parent_run_id"])) == 8
+    again = sweep(DEFAULT_SPEC, profile="quick", seeds=1, overrides=over, experiment=store[1])
+    assert all(r["reused"] for r in again["runs"]) and len(_children(store, res["parent_run_id"])) == n_runs
     assert compare(experiment=store[1], out=None)["rows"][0]["n"] == 1
 
 
@@ -329,7 +330,7 @@ def test_two_identical_sweeps_started_together_train_each_child_once(tmp_path, s
 
     def one():
         try:
-            results.append(sweep(DEFAULT_SPEC, preset="quick", seeds=1, experiment=store[1]))
+            results.append(sweep(DEFAULT_SPEC, profile="quick", seeds=1, experiment=store[1]))
         except BaseException as e:  # noqa: BLE001 - reported below
             errors.append(e)
 

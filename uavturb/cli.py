@@ -38,16 +38,20 @@ def _renamed(new: str) -> type[argparse.Action]:
     return Renamed
 
 
+#: what ``--vehicle`` takes (:func:`uavturb.io.vehicle_file.named_vehicle`)
+VEHICLE_HELP = "built-in vehicle (quad, hex), shipped (firefly) or vehicle.yaml"
+
+
 def _sim_presets() -> str:
     from uavturb.sim.dataset.presets import PRESETS
 
     return " | ".join(PRESETS)
 
 
-def _sweep_presets() -> str:
+def _sweep_profiles() -> str:
     from uavturb.runs.config import DEFAULT_SPEC, load_spec
 
-    return ", ".join(load_spec(DEFAULT_SPEC).presets)
+    return ", ".join(load_spec(DEFAULT_SPEC).profiles)
 
 
 def _add_mlflow_experiment(s: argparse.ArgumentParser) -> None:
@@ -63,7 +67,7 @@ def _add_identify(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     s.add_argument("--model", default="auto", choices=["auto", "general", "jx=jy"],
                    help="inertia model: J_x != J_y, the paper's J_x = J_y, or chosen by the data (default)")
-    s.add_argument("--vehicle", help="vehicle.yaml or preset (quad, hex) for folders without one (raw EuRoC)")
+    s.add_argument("--vehicle", help=f"{VEHICLE_HELP} for folders without one (raw EuRoC)")
 
 
 def _add_residuals(sub: argparse._SubParsersAction) -> None:
@@ -76,14 +80,14 @@ def _add_residuals(sub: argparse._SubParsersAction) -> None:
                    help="MoCap derivative: Savitzky-Golay or the paper's one-step forward difference")
     s.add_argument("--params", default="identified", choices=["identified", "nominal"],
                    help="model constants: identified on this flight (default) or vehicle.yaml's")
-    s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one")
+    s.add_argument("--vehicle", help=f"{VEHICLE_HELP} for folders without one")
     s.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 
 
 def _euroc_arguments(s: argparse.ArgumentParser) -> None:
     s.add_argument("bag", metavar="BAG", help="the sequence's .bag (rotor speeds from /fcu/motor_speed)")
     s.add_argument("--asl", metavar="ASL_DIR", help="the sequence's ASL folder: ground truth, IMU, point cloud, cam0")
-    s.add_argument("--vehicle", default="firefly", help="shipped vehicle (firefly), preset or vehicle.yaml")
+    s.add_argument("--vehicle", default="firefly", help=f"{VEHICLE_HELP} (default firefly)")
     s.add_argument("--rotor-speed-scale", type=float, default=None, help="rad/s per unit of /fcu/motor_speed")
     s.add_argument("--out", required=True, metavar="REC", help="recording folder to create")
     s.add_argument("--overwrite", action="store_true")
@@ -91,7 +95,7 @@ def _euroc_arguments(s: argparse.ArgumentParser) -> None:
 
 def _log_arguments(s: argparse.ArgumentParser) -> None:
     """Options shared by `import ulog` and `import csv`."""
-    s.add_argument("--vehicle", required=True, help="vehicle.yaml (rotor geometry in its own order) or preset")
+    s.add_argument("--vehicle", required=True, help=f"{VEHICLE_HELP} (a file: rotor geometry in its own order)")
     s.add_argument("--out", required=True, metavar="REC", help="recording folder to create")
     s.add_argument("--floor-z", type=float, default=None, metavar="Z",
                    help="height [m] of a flat floor in the recording's world (z up), written as pointcloud0 "
@@ -139,7 +143,7 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
 
 def _add_generate_flight(gsub: argparse._SubParsersAction) -> None:
     g = gsub.add_parser("flight", help="a flight in the EuRoC layout with sensor noise and named effects")
-    g.add_argument("--vehicle", default="hex", help="preset (quad, hex), shipped (firefly) or vehicle.yaml")
+    g.add_argument("--vehicle", default="hex", help=VEHICLE_HELP)
     g.add_argument("--effects", default="none", help="NAME:param=value,... from effects.md (default none)")
     g.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
     g.add_argument("--kind", default="mixed", choices=["excitation", "low_passes", "mixed", "euroc_room"],
@@ -147,44 +151,31 @@ def _add_generate_flight(gsub: argparse._SubParsersAction) -> None:
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--noise", default="realistic", choices=["realistic", "none"])
     g.add_argument("--out", required=True, help="recording folder to create")
-    r = g.add_argument_group("real recordings' troubles (truth in REC/truth.yaml)")
-    r.add_argument("--no-imu", action="store_true", help="no imu0: motion capture only")
-    r.add_argument("--rate-hz", type=float, default=None,
-                   help="ground truth and rotors at this rate (IMU stays 200 Hz)")
-    r.add_argument("--jitter-ms", type=float, default=0.0, help="sampling-time jitter of those streams, +- ms")
-    r.add_argument("--fixed-heading", action="store_true", help="the reference's yaw never changes")
-    r.add_argument("--heading-deg", type=float, default=None, metavar="DEG",
-                   help="with --fixed-heading: the heading held (default the reference's initial one)")
-    r.add_argument("--motor-commands", action="store_true",
-                   help="rotors0 holds commands u in [0,1]; true speed w = a + b u; rotor_speed_scale exact at hover")
-    r.add_argument("--wind-speed", metavar="VX,VY", default=None,
-                   help="steady wind [m/s, world]: rotor and body drag act on the airspeed v - v_wind")
-    r.add_argument("--accel-bias-walk", type=float, default=0.0, metavar="SIGMA",
-                   help="accelerometer bias random walk, m/s^3/sqrt(Hz); the state file keeps the initial bias")
-    r.add_argument("--sensor-frame", default="body", choices=["body", "euroc"],
-                   help="streams in a EuRoC-like sensor frame S (T_BS in vehicle.yaml, 10 cm lever arm)")
-    r.add_argument("--mass-error", type=float, default=0.0, metavar="FRACTION",
-                   help="vehicle.yaml's mass is the simulated one times 1 + FRACTION")
-    r.add_argument("--ground-contact-s", type=float, default=0.0, metavar="S",
-                   help="S seconds on the landing gear, rotors spinning, at the start and the end (kinds that land)")
-    r.add_argument("--position-hold-hz", type=float, default=None, metavar="HZ",
-                   help="ground-truth rows keep their rate but update at HZ (bit-identical repeats)")
-    r.add_argument("--rotor-hold-hz", type=float, default=None, metavar="HZ",
-                   help="rotors0 rows keep their rate but update at HZ (bit-identical repeats)")
-    r.add_argument("--rotor-delay-s", type=float, default=0.0, metavar="S",
-                   help="rotors0 timestamps S seconds late (the row at t holds the value at t - S)")
-    r.add_argument("--thrust-level", type=float, default=1.0, metavar="FACTOR",
-                   help="true k_T is vehicle.yaml's times FACTOR (a per-recording thrust level)")
-    r.add_argument("--thrust-tilt-deg", type=float, default=0.0, metavar="DEG",
-                   help="thrust axis tilted DEG from the airframe's z (attitude and IMU of the airframe)")
-    r.add_argument("--thrust-tilt-azimuth-deg", type=float, default=0.0, metavar="DEG",
-                   help="direction of that tilt in the airframe's x-y plane, from +x towards +y")
-    r.add_argument("--rotor-plane-z", type=float, default=0.0, metavar="M",
-                   help="rotor plane M metres above the body origin (negative: below), in vehicle.yaml")
-    r.add_argument("--measured-rotors", action="store_true",
-                   help="rotors0 holds measured (actual) rotor speeds; vehicle.yaml rotor_speed_source: measured")
-    r.add_argument("--battery-voltage", type=float, default=None, metavar="V",
-                   help="write battery0: the voltage from V, sagging over the flight")
+    _add_conditions(g.add_argument_group("real recordings' troubles (truth in REC/truth.yaml)"))
+
+
+def _add_conditions(group: argparse._ArgumentGroup) -> None:
+    """One option per field of the conditions' schema (its help, metavar and default; a flag for a
+    bool, choices where it has them, a number where it is one, the text of a pair such as VX,VY)."""
+    import typing
+
+    from uavturb.schema import option_name
+    from uavturb.sim.flights.condition_schema import Conditions, condition_fields
+
+    types = typing.get_type_hints(Conditions)
+    for f in condition_fields():
+        kw = {"help": f.metadata["help"], "dest": f.name}
+        rule = f.metadata["allowed"]
+        if types[f.name] is bool:
+            group.add_argument(option_name(f.name), action="store_true", **kw)
+            continue
+        if f.metadata.get("metavar"):
+            kw["metavar"] = f.metadata["metavar"]
+        if rule.choices is not None:
+            kw["choices"] = list(rule.choices)
+        elif float in typing.get_args(types[f.name]) or types[f.name] is float:
+            kw["type"] = float
+        group.add_argument(option_name(f.name), default=f.default, **kw)  # a pair stays text: read by the schema
 
 
 def _add_generate_sim(gsub: argparse._SubParsersAction, sim_presets: str) -> None:
@@ -198,8 +189,7 @@ def _add_generate_sim(gsub: argparse._SubParsersAction, sim_presets: str) -> Non
                    help="this process or --workers processes (default), or one Ray task per trajectory")
     g.add_argument("--address", default=None, help="Ray cluster for --executor ray (default: a local Ray "
                                                     "instance with --workers CPUs)")
-    g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="preset_set",
-                   help="change a preset field, e.g. --set width=64 --set trajectories=4 (repeatable)")
+    _add_preset_overrides(g, "width=64 trajectories=4")
 
 
 def _add_generate_normals(gsub: argparse._SubParsersAction, sim_presets: str) -> None:
@@ -210,8 +200,16 @@ def _add_generate_normals(gsub: argparse._SubParsersAction, sim_presets: str) ->
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--irs", default=None, metavar="IRS_DIR", help="convert the IRS dataset instead of rendering")
     g.add_argument("--size", type=int, metavar="N", default=128, help="image side for --irs (default 128)")
+    _add_preset_overrides(g, "width=64 pairs=200")
+
+
+def _add_preset_overrides(g: argparse.ArgumentParser, example: str) -> None:
+    """``KEY=VALUE`` preset fields, as ``train``'s overrides; ``--set KEY=VALUE`` is the same thing."""
+    g.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
+                   help=f"change preset fields, e.g. {example} (dotted keys reach into mappings: "
+                        "effects.ground_effect.mu=2)")
     g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="preset_set",
-                   help="change a preset field, e.g. --set width=64 --set pairs=200 (repeatable)")
+                   help="alias of a KEY=VALUE override (repeatable)")
 
 
 def _add_gap(sub: argparse._SubParsersAction) -> None:
@@ -224,7 +222,7 @@ def _add_gap(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--apply", metavar="CONF", help="write a simulator physics config with the fitted effects")
     s.add_argument("--physics-config", metavar="CONF", help="the simulator's physics config (effect parameters)")
-    s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one (raw EuRoC)")
+    s.add_argument("--vehicle", help=f"{VEHICLE_HELP} for folders without one (raw EuRoC)")
     s.add_argument("--no-mlflow", action="store_true", help="do not log the run to MLflow")
     s.add_argument("--overwrite", action="store_true", help="replace a report folder that uavturb wrote")
     s.add_argument("--height-uncertainty", type=float, default=0.01, metavar="M",
@@ -261,9 +259,10 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
 def _add_sweep(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("sweep", help="run an ablation sweep (sweeps/ablation.yaml: the paper's Table 1) in MLflow")
     s.add_argument("spec", metavar="SWEEP", help="a sweep file, or a shipped sweep's name (ablation)")
-    s.add_argument("--preset", default="quick", help=f"preset of the sweep file (ablation: {_sweep_presets()}; "
-                                                     "default quick)")
-    s.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
+    s.add_argument("--profile", "--preset", dest="profile", default="quick", metavar="PROFILE",
+                   help=f"how the sweep runs: a profile of the sweep file (ablation: {_sweep_profiles()}; default "
+                        "quick): seeds and overrides, not a dataset preset; --preset is its old spelling")
+    s.add_argument("--seeds", type=int, help="number of seeds (default: the profile's)")
     _add_mlflow_experiment(s)
     s.add_argument("--config-dir", metavar="DIR", help=CONFIG_DIR_HELP)
     s.add_argument("--executor", default="sequential", choices=["sequential", "ray"],
@@ -290,7 +289,7 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--sweep", metavar="PARENT_RUN_ID", help="every finished height run of this ablation sweep")
     s.add_argument("--rows", help="with --sweep: only these rows, comma-separated (e.g. depth/finetune,normals/finetune)")
     s.add_argument("--out", default="evaluation", metavar="DIR", help="folder for table.md/csv and plots")
-    s.add_argument("--vehicle", help="vehicle.yaml or preset for folders without one (raw EuRoC)")
+    s.add_argument("--vehicle", help=f"{VEHICLE_HELP} for folders without one (raw EuRoC)")
     s.add_argument("--frame-dt", type=float, default=None, help="frame period [s] without cam0 frames (0.05)")
     s.add_argument("--ge-fraction", type=float, default=0.01,
                    help="ground-effect frames: where the law is at least this share of the thrust (0.01)")
@@ -353,7 +352,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MPLBACKEND", "Agg")
     parser = _parser()
     args, extra = parser.parse_known_args(argv)
-    if extra:  # key=value overrides given after options (train, sweep): argparse leaves them over
+    if extra:  # key=value overrides given after options (train, sweep, generate sim|normals): argparse leaves them over
         if hasattr(args, "overrides") and all("=" in x and not x.startswith("-") for x in extra):
             args.overrides = [*args.overrides, *extra]
         else:
@@ -463,19 +462,11 @@ def _import_csv(args: argparse.Namespace) -> int:
 
 def _generate_flight(args: argparse.Namespace) -> int:
     from uavturb.commands.generate import generate_flight_command
+    from uavturb.sim.flights.condition_schema import condition_fields
 
     rec = generate_flight_command(vehicle=args.vehicle, effects=args.effects, duration=args.duration,
                                   kind=args.kind, seed=args.seed, noise=args.noise, out=args.out,
-                                  no_imu=args.no_imu, rate_hz=args.rate_hz, jitter_ms=args.jitter_ms,
-                                  fixed_heading=args.fixed_heading, motor_commands=args.motor_commands,
-                                  wind_speed=args.wind_speed, accel_bias_walk=args.accel_bias_walk,
-                                  sensor_frame=args.sensor_frame, mass_error=args.mass_error,
-                                  ground_contact_s=args.ground_contact_s, position_hold_hz=args.position_hold_hz,
-                                  rotor_hold_hz=args.rotor_hold_hz, rotor_delay_s=args.rotor_delay_s,
-                                  thrust_level=args.thrust_level, thrust_tilt_deg=args.thrust_tilt_deg,
-                                  thrust_tilt_azimuth_deg=args.thrust_tilt_azimuth_deg,
-                                  rotor_plane_z=args.rotor_plane_z, measured_rotors=args.measured_rotors,
-                                  battery_voltage=args.battery_voltage, heading_deg=args.heading_deg)
+                                  **{f.name: getattr(args, f.name) for f in condition_fields()})
     gt = rec.ground_truth
     print(f"wrote {args.out}: {len(gt)} ground-truth rows, {(gt.t_ns[-1] - gt.t_ns[0]) * 1e-9:.1f} s, "
           f"effects {args.effects}")
@@ -486,7 +477,8 @@ def _generate_sim(args: argparse.Namespace) -> int:
     from uavturb.commands.generate import generate_sim, preset_overrides
 
     print(generate_sim(args.preset, args.out, workers=args.workers, seed=args.seed, shard=args.shard,
-                       executor=args.executor, address=args.address, **preset_overrides(args.preset_set)))
+                       executor=args.executor, address=args.address,
+                       **preset_overrides([*args.preset_set, *args.overrides], args.preset)))
     return 0
 
 
@@ -494,7 +486,7 @@ def _generate_normals(args: argparse.Namespace) -> int:
     from uavturb.commands.generate import generate_normals, preset_overrides
 
     print(generate_normals(args.preset, args.out, workers=args.workers, seed=args.seed, irs=args.irs,
-                           size=args.size, **preset_overrides(args.preset_set)))
+                           size=args.size, **preset_overrides([*args.preset_set, *args.overrides], args.preset)))
     return 0
 
 
@@ -545,7 +537,7 @@ def _train(args: argparse.Namespace) -> int:
 def _sweep(args: argparse.Namespace) -> int:
     from uavturb.runs.sweep import sweep
 
-    res = sweep(args.spec, preset=args.preset, seeds=args.seeds, overrides=args.overrides,
+    res = sweep(args.spec, profile=args.profile, seeds=args.seeds, overrides=args.overrides,
                 experiment=args.mlflow_experiment, conf_dir=args.config_dir, executor=args.executor,
                 address=args.address, max_retries=args.max_retries)
     print(res["table"])

@@ -64,7 +64,7 @@ def bench_readers(rows: int = 1_000_000) -> dict[str, float]:
 
 
 def bench_sweep(seeds: int = 1) -> dict[str, float]:
-    """Wall time of the quick sweep (``sweeps/ablation.yaml --preset quick``) run one after another
+    """Wall time of the quick sweep (``sweeps/ablation.yaml --profile quick``) run one after another
     and on a local Ray instance (all this machine's CPUs), in one call so the ratio is like for like.
 
     Both sweeps use the same synthetic data (generated first, not timed) and a temporary MLflow
@@ -91,7 +91,7 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
             for executor in ("sequential", "ray"):
                 store.create_experiment(f"bench-{executor}", artifact_location=f"{tmp}/mlruns/{executor}")
                 t = time.perf_counter()
-                res = sweep(DEFAULT_SPEC, preset="quick", seeds=seeds, experiment=f"bench-{executor}",
+                res = sweep(DEFAULT_SPEC, profile="quick", seeds=seeds, experiment=f"bench-{executor}",
                             overrides=[*data, f"trainer.default_root_dir={tmp}/runs-{executor}"], executor=executor)
                 out[f"quick sweep, {executor} (s)"] = time.perf_counter() - t
                 metrics[executor] = {(r["row"], r["seed"]): r["metrics"] for r in res["runs"]}

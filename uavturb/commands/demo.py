@@ -123,7 +123,7 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     summary["seconds"]["simulator"] = time.perf_counter() - t
 
     t = _step(2, "Table 1: the paper's ablation sweep, one seed (MLflow)")
-    res = sweep(preset="quick", seeds=1, overrides=[*SWEEP_DATA, f"data.root={out / 'sim'}",
+    res = sweep(profile="quick", seeds=1, overrides=[*SWEEP_DATA, f"data.root={out / 'sim'}",
                                                      f"data.pairs_root={out / 'pairs'}",
                                                      f"trainer.default_root_dir={out / 'runs'}"])
     table1 = compare(parent_run_id=res["parent_run_id"], experiment=res["experiment"], out=out / "table1", overwrite=True)

@@ -98,7 +98,7 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     run_id : MLflow run of a height training (its checkpoint; ``checkpoint`` overrides)
     recordings : recording folders; the first identifies the vehicle and ``(alpha, beta)``
     out : output folder (replaced when ``overwrite``)
-    vehicle : preset or vehicle.yaml for folders without one (raw EuRoC)
+    vehicle : built-in vehicle, shipped (firefly) or vehicle.yaml for folders without one (raw EuRoC)
     frame_dt : s, frame period where a recording has no cam0 frames (default: the model
         camera's, the training data's; else 0.05)
     ge_fraction : the ground-effect region's threshold (law / thrust)

@@ -204,7 +204,7 @@ def import_csv(log: str | Path, map_file: str | Path, out: str | Path, *, vehicl
     log : the CSV file
     map_file : its map (:mod:`uavturb.io.csv_map`)
     out : recording folder to create
-    vehicle : ``vehicle.yaml`` path, preset or Vehicle: the rotor order of ``rotors0`` is its order
+    vehicle : ``vehicle.yaml`` path, built-in vehicle or Vehicle: the rotor order of ``rotors0`` is its order
     floor_z : m, height of a flat floor in W (z up) written as ``pointcloud0``; ``None``: no point cloud
     rotor_plane_z : m, overrides the vehicle's ``rotor_plane_z``
     overwrite : replace an existing ``out`` (one uavturb wrote)

@@ -11,7 +11,7 @@ EuRoC's body frame), so the recording's ``T_BS`` (pose of S in B) is its inverse
 (9.2, 0.0, -3.3) m/s^2 in S, reads (0.0, -0.1, 9.8) m/s^2 in B with the V1 sequences' values.
 (That rotation is close to a half-turn, so ``R`` and ``R^T`` both send the specific force up; the
 lever arm tells them apart: ``t_BS = -R^T t``, not ``t``.) Without an ASL folder, the vehicle's
-own ``T_BS`` (``uavturb/presets/firefly.yaml``: the V1 sequences' value) is used. Either way
+own ``T_BS`` (``uavturb/vehicles/firefly.yaml``: the V1 sequences' value) is used. Either way
 the import stops when the thrust axis disagrees with the data
 (:func:`uavturb.io.consistency.check_thrust_axis`).
 """

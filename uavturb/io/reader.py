@@ -233,7 +233,7 @@ def _read_battery(root: Path) -> Battery | None:
 def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None = None) -> list[Recording]:
     """Read recording folders for physics (``identify``, ``residuals``, ``gap``, ``evaluate``): in
     the rotor frame B, rotor speeds required, and checked (:func:`uavturb.io.consistency.check_recording`:
-    thrust axis against the data, no dead or frozen rotor column). ``vehicle`` (preset name,
+    thrust axis against the data, no dead or frozen rotor column). ``vehicle`` (built-in vehicle name,
     yaml path or Vehicle) serves folders without a ``vehicle.yaml``."""
     from uavturb.io.consistency import check_recording
 

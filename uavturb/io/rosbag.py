@@ -10,7 +10,7 @@ Topics read (names configurable):
   accelerations removed).
 - ``/vicon/firefly_sbx/firefly_sbx``: ``geometry_msgs/TransformStamped`` (or ``PoseStamped``),
   the ground truth: position and attitude of the Vicon body frame, taken as the rotor frame B
-  (EuRoC's Firefly: its Vicon frame is aligned with the rotors, see ``uavturb/presets/firefly.yaml``);
+  (EuRoC's Firefly: its Vicon frame is aligned with the rotors, see ``uavturb/vehicles/firefly.yaml``);
   velocity by differentiating the position; biases 0.
 
 The returned recording is in B (``Recording.frame``); writing it stores the ground truth and

@@ -226,7 +226,7 @@ def import_ulog(log_file: str | Path, out: str | Path, *, vehicle: str | Vehicle
     ----------
     log_file : the ``.ulg`` file
     out : recording folder to create
-    vehicle : ``vehicle.yaml`` path, preset or Vehicle (rotor geometry in its own order)
+    vehicle : ``vehicle.yaml`` path, built-in vehicle or Vehicle (rotor geometry in its own order)
     motor_order : vehicle rotor ``i`` is ESC / actuator output ``motor_order[i]`` (default ``0..N-1``)
     rotors : ``auto`` (ESC rpm where the log has any, else actuator outputs), ``esc`` or ``outputs``
     thrust_map : YAML file (or ThrustMap) turning actuator outputs into thrust (:mod:`uavturb.io.thrust_map`)

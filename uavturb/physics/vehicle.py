@@ -1,4 +1,4 @@
-"""Multirotor description: geometry, known constants, presets, and ``vehicle.yaml``.
+"""Multirotor description: geometry, known constants, the built-in vehicles, and ``vehicle.yaml``.
 
 The rotor geometry and the rotor-force model are those of ``recordings.md`` (the
 paper's eq. 1, after Furrer et al., RotorS): rotor ``i`` sits at angle ``a_i`` from body
@@ -297,7 +297,7 @@ def checked_transform(value: Any, where: str | Path, key: str = "T_BS") -> tuple
     return tuple(tuple(float(x) for x in r) for r in value)
 
 
-# --- presets ------------------------------------------------------------------------
+# --- built-in vehicles ------------------------------------------------------------------
 
 #: The paper's simulated quadrotor: 50 g class, k_T = 5.45e-6 N/(rad/s)^2 and r = 0.01 m
 #: (paper, Fig. "ground effect": hover at 150 rad/s per rotor). The paper gives neither arm
@@ -330,7 +330,8 @@ HEXAROTOR = Vehicle(
     max_rotor_speed=838.0,
 )
 
-PRESETS: dict[str, Vehicle] = {"quad": QUADROTOR, "hex": HEXAROTOR}
+#: vehicles by name (``--vehicle quad``); the shipped vehicle files are ``uavturb/vehicles/*.yaml``
+BUILTIN_VEHICLES: dict[str, Vehicle] = {"quad": QUADROTOR, "hex": HEXAROTOR}
 
 
 

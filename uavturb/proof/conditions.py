@@ -48,7 +48,8 @@ from uavturb.gap.finder import analyse
 from uavturb.io.reader import load_recordings
 from uavturb.proof.scoring import param_error, with_hidden_bias
 from uavturb.proof.sindy_peer import sindy_names
-from uavturb.sim.flights.conditions import Conditions, generate_conditioned_flight, read_truth
+from uavturb.sim.flights.condition_schema import Conditions
+from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
 
 #: relative error within which a target counts as named right (issue: wind within 30 %)
 TOLERANCE = 0.30
@@ -68,7 +69,7 @@ class Condition:
     targets: tuple[str, ...] = ()
     kind: str = "mixed"
     hidden_bias: bool = False  # an accelerometer bias the state file does not know (needs an IMU)
-    vehicle: str = "hex"  # preset of both flights
+    vehicle: str = "hex"  # built-in vehicle of both flights
     second: Conditions | None = None  # the second flight's conditions (default: ``conditions``)
     look_alikes: tuple[str, ...] = ()  # names of troubles that are no effect but may be named (module docstring)
 

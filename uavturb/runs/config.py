@@ -16,15 +16,18 @@ Composition (``load_config``), later wins::
 Every layer is merged into the :class:`TrainConfig` schema, so a misspelt key or a value of
 the wrong type raises :class:`~uavturb.errors.InputError` naming the key and the allowed keys;
 then every value is checked against the range or choices declared next to its field
-(:class:`Allowed`), so ``trainer.max_epochs=0`` fails naming the key, the value and what is
+(:func:`uavturb.schema.allowed`, checked by :func:`uavturb.schema.check_values` as every settings
+schema of the package is), so ``trainer.max_epochs=0`` fails naming the key, the value and what is
 allowed, before any data is read or any run opened.
 
 Sweep files (``sweeps/ablation.yaml``) have their schema here too (:class:`SweepSpec`, read by
 :func:`load_spec`): a typo fails naming the file and the key. The shipped sweep files are
 package data (``uavturb/sweeps``, :data:`SWEEPS_DIR`); a sweep is named by a path to a file or by
 the name of a shipped one (``ablation``; ``sweeps/ablation.yaml`` too, where no such file exists
-in the working folder): :func:`resolve_spec`. A sweep's rows and presets hold overrides in the
-one syntax of :func:`load_config` (``key=value``, ``group=choice``).
+in the working folder): :func:`resolve_spec`. A sweep's rows and profiles hold overrides in the
+one syntax of :func:`load_config` (``key=value``, ``group=choice``). A sweep's profile
+(:class:`SweepProfile`, ``uavturb sweep --profile quick``) is how it runs -- seeds and overrides --
+not a dataset preset: the data a profile trains on is one of its overrides.
 """
 
 from __future__ import annotations
@@ -39,70 +42,14 @@ from typing import Any
 from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from uavturb import schema
 from uavturb.errors import InputError
 from uavturb.io.yaml_mapping import read_yaml_mapping
+from uavturb.schema import allowed
 
 #: the shipped config folder (package data)
 CONF_DIR = Path(str(resources.files("uavturb") / "conf"))
 GROUPS = ("model", "data", "trainer")
-
-
-@dataclass(frozen=True)
-class Allowed:
-    """The values a config field accepts, declared once next to the field (``field(metadata=...)``)
-    and checked by :func:`validate` before anything starts.
-
-    A number must lie within the given bounds (``ge``, ``gt``, ``le``, ``lt``; floats also finite)
-    or be one of ``also`` (sentinels such as ``-1`` = off); a string must be one of ``choices``,
-    match ``pattern`` (a full-match regular expression) or, with ``nonempty``, not be empty.
-    ``None`` passes where the field's type allows it.
-    """
-
-    ge: float | None = None
-    gt: float | None = None
-    le: float | None = None
-    lt: float | None = None
-    also: tuple[Any, ...] = ()
-    choices: tuple[str, ...] | None = None
-    pattern: str | None = None
-    nonempty: bool = False
-    text: str | None = None             # how the allowed values are described (else generated)
-
-    def accepts(self, value: Any) -> bool:
-        import math
-        import re
-
-        if value is None or value in self.also:
-            return True
-        if self.choices is not None and value not in self.choices:
-            return False
-        if self.pattern is not None and not re.fullmatch(self.pattern, str(value)):
-            return False
-        if self.nonempty and not str(value).strip():
-            return False
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            if isinstance(value, float) and not math.isfinite(value):
-                return False
-            return ((self.ge is None or value >= self.ge) and (self.gt is None or value > self.gt)
-                    and (self.le is None or value <= self.le) and (self.lt is None or value < self.lt))
-        return True
-
-    def describe(self, noun: str = "a number") -> str:
-        if self.text:
-            return self.text
-        if self.choices is not None:
-            return "one of " + ", ".join(self.choices)
-        if self.nonempty:
-            return "a non-empty string"
-        bounds = [f"{op} {b:g}" for op, b in ((">=", self.ge), (">", self.gt), ("<=", self.le), ("<", self.lt))
-                  if b is not None]
-        out = f"{noun} " + " and ".join(bounds) if bounds else noun
-        return out + "".join(f" or {a}" for a in self.also)
-
-
-def allowed(default: Any, **kw: Any) -> Any:
-    """A dataclass field with default ``default`` whose values are limited by :class:`Allowed` (``kw``)."""
-    return field(default=default, metadata={"allowed": Allowed(**kw)})
 
 
 _POSITIVE_INT = {"ge": 1}
@@ -222,37 +169,6 @@ class TrainConfig:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
 
 
-def check_values(cfg: DictConfig, cls: Any = TrainConfig, prefix: str = "") -> None:
-    """Check every value of ``cfg`` against the :class:`Allowed` declared on its field.
-
-    Raises
-    ------
-    InputError : naming the first key whose value is not allowed, the value and what is.
-    """
-    for f in dataclasses.fields(cls):
-        value = cfg.get(f.name)
-        key = f"{prefix}{f.name}"
-        sub = typing.get_type_hints(cls)[f.name]
-        if dataclasses.is_dataclass(sub):
-            check_values(value, sub, key + ".")
-            continue
-        rule = f.metadata.get("allowed")
-        if rule is not None and not rule.accepts(value):
-            noun = "an integer" if sub is int else "a number"
-            hint = _did_you_mean(rule, value)
-            raise InputError(key, f"{value!r} is not allowed; allowed: {rule.describe(noun)}{hint}")
-
-
-def _did_you_mean(rule: Allowed, value: Any) -> str:
-    """`` (did you mean 'bf16-mixed'?)`` for a string close to one of ``rule.choices``; else ``""``."""
-    import difflib
-
-    if rule.choices is None or not isinstance(value, str):
-        return ""
-    close = difflib.get_close_matches(value.lower(), rule.choices, n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
 def allowed_keys(path: str) -> list[str]:
     """Keys allowed under a dotted path of :class:`TrainConfig` (``""`` = top level)."""
     cls: Any = TrainConfig
@@ -269,14 +185,20 @@ def _merge(base: DictConfig, layer: Any, source: str) -> DictConfig:
         return OmegaConf.merge(base, layer)
     except OmegaConfBaseException as e:
         key = str(getattr(e, "full_key", "") or getattr(e, "key", "") or "?")
-        parent = key.rsplit(".", 1)[0] if "." in key else ""
-        allowed = allowed_keys(parent)
+        parent, _, last = key.rpartition(".")
         msg = str(e).splitlines()[0]
         if "not in" in msg or "Missing key" in msg or "ConfigKeyError" in type(e).__name__:
-            problem = f"unknown key (in {source}); allowed: {', '.join(allowed)}"
+            known = allowed_keys(parent)
+            problem = f"unknown key (in {source}){schema.did_you_mean(last, known)}; allowed: {', '.join(known)}"
         else:
             problem = f"bad value (in {source}): {msg}"
         raise InputError(key, problem) from None
+
+
+def override_layer(overrides: list[str]) -> dict[str, Any]:
+    """``key=value`` overrides as a nested layer to merge, each value typed by :class:`TrainConfig`
+    (:func:`uavturb.schema.parse_overrides`, the one override syntax of every command)."""
+    return schema.nested(schema.parse_overrides(overrides, TrainConfig))
 
 
 def _read_config_file(path: Path) -> dict[str, Any]:
@@ -324,10 +246,10 @@ def _defaults(d: dict[str, Any], path: Path) -> dict[str, str]:
 
 
 def validate(cfg: DictConfig | TrainConfig | dict) -> DictConfig:
-    """Merge into the schema (types, unknown keys) and check every value (:func:`check_values`)."""
-    schema = OmegaConf.structured(TrainConfig)
-    cfg = _merge(schema, cfg, "config")
-    check_values(cfg)
+    """Merge into the schema (types, unknown keys) and check every value against its declared range
+    (:func:`uavturb.schema.check_values`)."""
+    cfg = _merge(OmegaConf.structured(TrainConfig), cfg, "config")
+    schema.check_values(cfg, TrainConfig)
     return cfg
 
 
@@ -337,7 +259,7 @@ def load_config(overrides: list[str] | None = None, experiment: str | None = Non
 
     Parameters
     ----------
-    overrides : ``key=value`` strings (OmegaConf dot-list: ``model.use_gru=false``); also
+    overrides : ``key=value`` strings (:func:`uavturb.schema.parse_overrides`: ``model.use_gru=false``); also
         ``<group>=<choice>`` (``model=none_gru``) and ``experiment=<name>``.
     experiment : name of a ``conf/experiment/*.yaml`` bundle.
     conf_dir : a user's config folder, searched before the shipped one (see :func:`search_path`).
@@ -356,9 +278,7 @@ def load_config(overrides: list[str] | None = None, experiment: str | None = Non
     group_choice: dict[str, str] = {}
     dotlist: list[str] = []
     for item in overrides:
-        if "=" not in item:
-            raise InputError(item, "override must be key=value")
-        key, value = item.split("=", 1)
+        key, value = schema.split_override(item)
         if key == "experiment":
             experiment = value
         elif key in GROUPS and "." not in value and not value.startswith(("{", "[")):
@@ -387,11 +307,7 @@ def load_config(overrides: list[str] | None = None, experiment: str | None = Non
             cfg = _merge(cfg, {group: _read_config_file(path)}, str(path))
     if exp:
         cfg = _merge(cfg, exp, f"experiment {experiment}")
-    try:
-        layer = OmegaConf.from_dotlist(dotlist)
-    except OmegaConfBaseException as e:
-        raise InputError(" ".join(dotlist), f"malformed override: {str(e).splitlines()[0]}") from None
-    cfg = _merge(cfg, layer, "overrides")
+    cfg = _merge(cfg, override_layer(dotlist), "overrides")
     return validate(cfg)
 
 
@@ -453,7 +369,16 @@ class RowSpec:
 
 
 @dataclass
-class PresetSpec:
+class SweepProfile:
+    """How a sweep runs (``uavturb sweep --profile NAME``; ``--preset`` is its old spelling): the
+    number of seeds and the overrides of every run, of the pre-training runs and of the rows' runs.
+
+    Not a dataset preset (``generate sim --preset``): a profile names the data it trains on in its
+    overrides. The shipped ``ablation`` sweep's ``quick`` trains on synthetic box rooms
+    (``data=synthetic``), ``medium`` on the simulator preset ``medium``'s shards, ``paper`` and
+    ``gpu`` on the shards of ``data.root`` (those of ``generate sim --preset paper`` for the paper).
+    """
+
     seeds: int = 1
     overrides: list[str] = field(default_factory=list)   # every run
     pretrain: list[str] = field(default_factory=list)    # pre-training runs
@@ -466,13 +391,15 @@ class SweepSpec:
     experiment: str = "uavturb-ablation"
     rows: list[RowSpec] = field(default_factory=list)
     pretraining: dict[str, str] = field(default_factory=dict)  # model.pretraining -> conf/experiment bundle
-    presets: dict[str, PresetSpec] = field(default_factory=dict)
+    profiles: dict[str, SweepProfile] = field(default_factory=dict)
 
 
 def load_spec(path: str | Path = DEFAULT_SPEC) -> DictConfig:
     """Read and check a sweep file; a typo fails naming the file and the key."""
     path = resolve_spec(path)
     body = read_yaml_mapping(path, expected="a mapping of sweep keys")
+    if "presets" in body and "profiles" not in body:  # the key's old name, in a user's sweep file
+        body["profiles"] = body.pop("presets")
     try:
         spec = OmegaConf.merge(OmegaConf.structured(SweepSpec), body)
         OmegaConf.to_container(spec, throw_on_missing=True)
@@ -484,7 +411,7 @@ def load_spec(path: str | Path = DEFAULT_SPEC) -> DictConfig:
     names = [r.name for r in spec.rows]
     if len(set(names)) != len(names):
         raise InputError(f"{path}: rows", f"row names repeat: {names}")
-    if not spec.presets:
-        raise InputError(f"{path}: presets", "no presets")
+    if not spec.profiles:
+        raise InputError(f"{path}: profiles", "no profiles")
     return spec
 

@@ -18,7 +18,7 @@ from uavturb.errors import InputError
 from uavturb.io.checkpoint import read_checkpoint
 from uavturb.io.yaml_mapping import read_yaml_mapping
 from uavturb.runs import store
-from uavturb.runs.config import load_config, to_flat_dict, validate
+from uavturb.runs.config import load_config, override_layer, to_flat_dict, validate
 from uavturb.runs.processes import process_alive
 
 #: keys a resumed run may change (how long and where it trains, not what it learns); any other
@@ -81,7 +81,7 @@ def resume_config(run_id: str, overrides: list[str] | None = None, experiment: s
     overrides = list(overrides or [])
     if experiment is None and all(o.split("=", 1)[0] in RESUMABLE_KEYS for o in overrides):
         base = run_config(run_id)
-        return validate(OmegaConf.merge(base, OmegaConf.from_dotlist(overrides)))
+        return validate(OmegaConf.merge(base, override_layer(overrides)))
     return load_config(overrides, experiment=experiment)
 
 

@@ -2,14 +2,15 @@
 
 A sweep file (``sweeps/ablation.yaml``, schema :class:`SweepSpec`) declares the rows (each a
 ``conf/model`` choice plus overrides), the pre-training variants (each a ``conf/experiment``
-bundle) and presets (config overrides for every run, the pre-training runs and the height
+bundle) and profiles (config overrides for every run, the pre-training runs and the height
 runs). :func:`sweep` runs, for each seed ``n = 0 .. N-1``:
 
 1. every pre-training variant the rows need, once (stage ``pretrain``);
 2. every row (stage ``height``), its encoder from that seed's pre-training checkpoint.
 
-Tracking: one MLflow parent run per (sweep file, preset, overrides) -- tags ``sweep``,
-``sweep_hash``, ``preset`` -- and one nested child per run (tag ``mlflow.parentRunId``):
+Tracking: one MLflow parent run per (sweep file, profile, overrides) -- tags ``sweep``,
+``sweep_hash``, ``preset`` (the profile's name: the tag and the parent's param keep the name they had
+before profiles were called so, for the stores that exist) -- and one nested child per run (tag ``mlflow.parentRunId``):
 height runs tagged ``ablation=<row>`` and ``seed=<n>`` with final metrics ``test/rmse_d`` [m],
 ``test/rmse_fa`` [N] and ``test/rmse_fa_1e-4N``, and the pre-training run they start from as tag
 ``pretrain_run_id``; pre-training runs tagged ``pretrain=<variant>`` and ``seed=<n>``. Every run
@@ -55,10 +56,11 @@ def _spec_name(path: Path) -> str:
     return f"{path.stem} (shipped)" if path.resolve().parent == SWEEPS_DIR.resolve() else store.project_path(path)
 
 
-def _spec_hash(spec: DictConfig, preset: str, overrides: list[str]) -> str:
+def _spec_hash(spec: DictConfig, profile: str, overrides: list[str]) -> str:
     body = OmegaConf.to_container(spec)
-    body["presets"] = {preset: {k: v for k, v in body["presets"][preset].items() if k != "seeds"}}
-    return config_hash({"spec": body, "preset": preset, "overrides": list(overrides)})
+    # hashed under the keys' names before profiles were called so: a sweep's hash (its resumption) is unchanged
+    body["presets"] = {profile: {k: v for k, v in body.pop("profiles")[profile].items() if k != "seeds"}}
+    return config_hash({"spec": body, "preset": profile, "overrides": list(overrides)})
 
 
 class _SweepRuns:
@@ -68,7 +70,7 @@ class _SweepRuns:
         self.experiment_id = store.ensure_experiment(experiment)
         self.experiment = experiment
 
-    def parent(self, name: str, sweep_hash: str, preset: str, params: dict[str, Any]) -> tuple[str, bool]:
+    def parent(self, name: str, sweep_hash: str, profile: str, params: dict[str, Any]) -> tuple[str, bool]:
         """(run id, resumed): the latest parent of this sweep hash, else a new one. Two sweeps started
         together find the same parent (a lock per sweep hash)."""
         with named_lock(f"sweep-{sweep_hash}", store.tracking_uri()):
@@ -76,9 +78,9 @@ class _SweepRuns:
             if run is not None:
                 store.reopen_run(run.info.run_id)
                 return run.info.run_id, True
-            tags = {"sweep": name, "sweep_hash": sweep_hash, "preset": preset,
-                    store.NOTE_TAG: f"Sweep `{name}`, preset `{preset}`: running."}
-            return store.start_run(self.experiment_id, f"sweep-{name}-{preset}", tags, params=params,
+            tags = {"sweep": name, "sweep_hash": sweep_hash, "preset": profile,  # its old name: existing stores
+                    store.NOTE_TAG: f"Sweep `{name}`, profile `{profile}`: running."}
+            return store.start_run(self.experiment_id, f"sweep-{name}-{profile}", tags, params=params,
                                    experiment_is_id=True), False
 
     def children(self, parent_id: str, status: str | None = None) -> list[Any]:
@@ -171,7 +173,7 @@ class _Plan:
 
     spec_path: Path
     spec: DictConfig
-    preset: str
+    profile: str
     seeds: int
     overrides: list[str]
     experiment: str
@@ -188,14 +190,14 @@ class _Plan:
         return cfg
 
 
-def _resolve_plan(spec: str | Path, preset: str, seeds: int | None, overrides: list[str] | None,
+def _resolve_plan(spec: str | Path, profile: str, seeds: int | None, overrides: list[str] | None,
                   experiment: str | None, conf_dir: str | Path | None) -> _Plan:
     """Read the sweep file and resolve every run's config; raises :class:`InputError` before anything runs."""
     spec_path = resolve_spec(spec)
     sp = load_spec(spec_path)
-    if preset not in sp.presets:
-        raise InputError("--preset", f"no preset {preset!r} in {spec_path}; choices: {', '.join(sp.presets)}")
-    pre = sp.presets[preset]
+    if profile not in sp.profiles:
+        raise InputError("--profile", f"no profile {profile!r} in {spec_path}; choices: {', '.join(sp.profiles)}")
+    pre = sp.profiles[profile]
     n_seeds = int(seeds if seeds is not None else pre.seeds)
     if n_seeds < 1:
         raise InputError("--seeds", f"must be at least 1, got {n_seeds}")
@@ -212,18 +214,18 @@ def _resolve_plan(spec: str | Path, preset: str, seeds: int | None, overrides: l
         base_pretrain[v] = load_config([*pre.overrides, *pre.pretrain, *overrides], experiment=sp.pretraining[v],
                                        conf_dir=conf_dir)
         base_pretrain[v].model.pretraining = v
-    return _Plan(spec_path, sp, preset, n_seeds, overrides, experiment or sp.experiment, rows, base_height,
+    return _Plan(spec_path, sp, profile, n_seeds, overrides, experiment or sp.experiment, rows, base_height,
                  variants, base_pretrain)
 
 
 def _open_parent(plan: _Plan, runs_of: _SweepRuns, sweep_hash: str) -> tuple[str, bool]:
     """(parent run id, resumed): the sweep's parent run found or created, with its seed count and sweep file."""
-    params = {"sweep_file": _spec_name(plan.spec_path), "preset": plan.preset,
+    params = {"sweep_file": _spec_name(plan.spec_path), "preset": plan.profile,  # its old name: existing stores
               "overrides": json.dumps(plan.overrides), "rows": json.dumps([r.name for r in plan.rows])}
-    parent_id, resumed = runs_of.parent(plan.spec.name, sweep_hash, plan.preset, params)
+    parent_id, resumed = runs_of.parent(plan.spec.name, sweep_hash, plan.profile, params)
     store.set_tags(parent_id, {"seeds": str(plan.seeds)})
     store.log_texts(parent_id, {"sweep.yaml": OmegaConf.to_yaml(plan.spec)})
-    _say(f"sweep {plan.spec.name} ({plan.preset}, {plan.seeds} seed(s), {len(plan.rows)} rows): MLflow experiment "
+    _say(f"sweep {plan.spec.name} ({plan.profile}, {plan.seeds} seed(s), {len(plan.rows)} rows): MLflow experiment "
          f"{plan.experiment!r}, parent run {parent_id}{' (resumed)' if resumed else ''}")
     return parent_id, resumed
 
@@ -338,14 +340,14 @@ def _finish_parent(plan: _Plan, runs_of: _SweepRuns, parent_id: str, sweep_hash:
     parent run as artifacts and description, the parent closed, the view saved."""
     table = compare(experiment=plan.experiment, parent_run_id=parent_id, spec=plan.spec_path, out=None)
     store.log_texts(parent_id, {"table1.md": table["markdown_text"], "table1.csv": table["csv_text"]})
-    store.finish_run(parent_id, note=f"Sweep `{plan.spec.name}`, preset `{plan.preset}`, {plan.seeds} seed(s); one "
+    store.finish_run(parent_id, note=f"Sweep `{plan.spec.name}`, profile `{plan.profile}`, {plan.seeds} seed(s); one "
                                      f"child run per row and seed.\n\n{table['markdown_text']}")
-    view = table1_view(runs_of, plan.spec.name, plan.preset, sweep_hash)
+    view = table1_view(runs_of, plan.spec.name, plan.profile, sweep_hash)
     _say(f"Table 1 in the MLflow UI: {store.ui_url(view)}")
     return table, view
 
 
-def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | None = None,
+def sweep(spec: str | Path = DEFAULT_SPEC, profile: str = "quick", seeds: int | None = None,
           overrides: list[str] | None = None, experiment: str | None = None,
           conf_dir: str | Path | None = None, executor: str = "sequential", address: str | None = None,
           max_retries: int = 1) -> dict[str, Any]:
@@ -354,9 +356,9 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
     Parameters
     ----------
     spec : the sweep file, or a shipped sweep's name (default: the shipped ``ablation``).
-    preset : a key of the file's ``presets`` (``quick``, ``paper``).
-    seeds : number of seeds ``0 .. seeds-1`` (default: the preset's).
-    overrides : ``key=value`` config overrides for every run (after the preset's).
+    profile : a key of the file's ``profiles`` (``quick``, ``paper``).
+    seeds : number of seeds ``0 .. seeds-1`` (default: the profile's).
+    overrides : ``key=value`` config overrides for every run (after the profile's).
     experiment : MLflow experiment (default: the file's ``experiment``).
     conf_dir : a user's config folder, searched before the shipped one.
     executor : ``sequential`` (one run after another, here) or ``ray`` (Ray tasks;
@@ -373,15 +375,15 @@ def sweep(spec: str | Path = DEFAULT_SPEC, preset: str = "quick", seeds: int | N
 
     Raises
     ------
-    InputError : bad sweep file, unknown preset, bad override (before anything runs).
+    InputError : bad sweep file, unknown profile, bad override (before anything runs).
     RunsFailed : some runs failed after their retries (the parent run is then FAILED).
     """
-    plan = _resolve_plan(spec, preset, seeds, overrides, experiment, conf_dir)
+    plan = _resolve_plan(spec, profile, seeds, overrides, experiment, conf_dir)
     ex = make_executor(executor, address=address, max_retries=max_retries)
     for cfg in [*plan.base_pretrain.values(), *plan.base_height.values()]:
         ex.check(cfg)  # e.g. the GPUs Ray is to reserve
     quiet_lightning()
-    sweep_hash = _spec_hash(plan.spec, preset, plan.overrides)
+    sweep_hash = _spec_hash(plan.spec, profile, plan.overrides)
     runs_of = _SweepRuns(plan.experiment)
     parent_id, resumed = _open_parent(plan, runs_of, sweep_hash)
     children = _Children(plan, runs_of, parent_id, sweep_hash, ex)
@@ -405,8 +407,8 @@ TABLE1_COLUMNS = ["tags.`ablation`", "tags.`seed`", f"metrics.`{store.RMSE_D}`",
                   f"metrics.`{store.RMSE_FA}`"]
 
 
-def table1_view(runs_of: _SweepRuns, name: str, preset: str, sweep_hash: str) -> str:
+def table1_view(runs_of: _SweepRuns, name: str, profile: str, sweep_hash: str) -> str:
     """A saved view of the experiment listing this sweep's Table 1 runs with their test metrics."""
-    return store.save_view(runs_of.experiment_id, f"table1-{sweep_hash}", f"Table 1 ({name}, {preset})",
+    return store.save_view(runs_of.experiment_id, f"table1-{sweep_hash}", f"Table 1 ({name}, {profile})",
                      search_filter=f"tags.sweep_hash = '{sweep_hash}' and tags.ablation LIKE '%'",
                      columns=TABLE1_COLUMNS, order_by="tags.`ablation`")

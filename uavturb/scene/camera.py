@@ -64,7 +64,7 @@ class CameraSpec:
     intrinsics : (fu, fv, cu, cv) px at the native resolution, pixel centres at integers
     rate_hz : Hz, frame rate
     T_SC : 4x4, camera (optical frame) pose in S, ``x_S = T_SC x_C`` [m] (EuRoC's ``T_BS``)
-    vehicle : shipped vehicle file (``uavturb/presets/<vehicle>.yaml``) whose ``T_BS`` places S in B
+    vehicle : shipped vehicle file (``uavturb/vehicles/<vehicle>.yaml``) whose ``T_BS`` places S in B
     distortion_model, distortion : lens model and coefficients (recorded, not applied)
     source : where the numbers come from
     """
@@ -106,7 +106,7 @@ EUROC_CAM0 = CameraSpec(
           (0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768),
           (-0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949),
           (0.0, 0.0, 0.0, 1.0)),  # x_S = T_SC x_C, translation in m
-    vehicle="firefly",  # S in B: uavturb/presets/firefly.yaml (the inverse of V1's vicon0 T_BS)
+    vehicle="firefly",  # S in B: uavturb/vehicles/firefly.yaml (the inverse of V1's vicon0 T_BS)
     distortion_model="radial-tangential",
     distortion=(-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05),  # k1, k2, p1, p2
     source="EuRoC MAV dataset, mav0/cam0/sensor.yaml (Burri et al. 2016)",

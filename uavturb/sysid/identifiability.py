@@ -54,7 +54,7 @@ REL_SE_MAX = 0.3
 COND_MAX = 1.0e3
 #: m/s^2, largest standard error of an identified accelerometer bias component
 BIAS_SE_MAX = 0.05
-#: how far J_k may exceed J_i + J_j: RotorS's Firefly inertia, used by the hexarotor preset
+#: how far J_k may exceed J_i + J_j: RotorS's Firefly inertia, used by the built-in hexarotor
 #: and the shipped firefly.yaml, exceeds it by 21 % (J_z = 0.0977 > 0.0806): a model estimate
 TRIANGLE_SLACK = 0.3
 

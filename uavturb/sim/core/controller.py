@@ -24,7 +24,7 @@ Cascade, evaluated once per control period:
 
 Gains are given as bandwidths [rad/s] and damping ratios and scaled by the vehicle's
 mass and inertia, so the same :class:`ControllerGains` fly the 50 g quadrotor and the
-1.5 kg hexarotor presets.
+1.5 kg hexarotor built-in vehicles.
 """
 
 from __future__ import annotations

@@ -10,6 +10,11 @@ seed write identical arrays.
 the key ``preset`` of every manifest's config, so part of its hash). Vehicles are built-in
 (``quad``, ``hex``) or shipped (``firefly``), never presets.
 
+A preset's fields are changed with the one override syntax of the package
+(``uavturb generate sim --preset quick --out DIR width=64 effects.ground_effect.mu=2.5``; ``--set
+KEY=VALUE`` is an alias): :func:`parse_preset_overrides` types each value by :class:`SimPreset`'s
+fields, which declare their ranges (:func:`uavturb.schema.allowed`).
+
 =========  ======  =========  ============  ==========  ===========  ============
 preset     scenes  split      trajectories  samples     image        pairs
 =========  ======  =========  ============  ==========  ===========  ============
@@ -31,7 +36,7 @@ data": 68 scenes, 43/9/16, 531 trajectories, 358,828 samples; IRS pre-training o
 depth/normal pairs). ``quick`` finishes in a few minutes on 2 cores and is what ``make demo``
 uses; ``tiny`` is for tests. ``medium`` is the smallest scale at which Table 1's rows can
 separate on a 2-core CPU (18 training scenes instead of quick's 5, 6 test scenes, 32 x 32 px
-so that the ablation sweep ``sweeps/ablation.yaml --preset medium`` takes ~10.5 min per seed;
+so that the ablation sweep ``sweeps/ablation.yaml --profile medium`` takes ~10.5 min per seed;
 generation ~1 min with 2 workers); it is written to ``data/medium/sim`` and
 ``data/medium/pairs`` by convention.
 
@@ -40,17 +45,21 @@ Units: seconds, hertz, metres, degrees, pixels.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 from uavturb.errors import InputError
 from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.scene.camera import CAMERA_NAMES
+from uavturb.schema import allowed, apply_overrides, check_keys, check_values, parse_overrides
 
 
 @dataclass(frozen=True)
 class SimPreset:
     """What a simulated dataset is made of.
+
+    Each field declares the values it accepts (:func:`uavturb.schema.allowed`); :meth:`check`
+    tests them and the relations between fields.
 
     Attributes
     ----------
@@ -90,7 +99,8 @@ class SimPreset:
     rgb : bool
         Also store a colour image per sample (``rgb.npy``, uint8, beside the contract's arrays).
     vehicle : str
-        Vehicle preset (:func:`uavturb.physics.vehicle.preset`).
+        Built-in vehicle (``quad``, ``hex``), shipped (``firefly``) or ``vehicle.yaml``
+        (:func:`uavturb.io.vehicle_file.named_vehicle`).
     effects : dict
         Effects of ``effects.md`` simulated (``{name: {param: value}}``); ``ground_effect``
         gives the ``mu`` of the stored ``f_a``.
@@ -110,30 +120,30 @@ class SimPreset:
     """
 
     name: str = "custom"
-    n_scenes: int = 8
-    n_train: int = 5
-    n_val: int = 1
-    n_test: int = 2
+    n_scenes: int = allowed(8, ge=1)
+    n_train: int = allowed(5, ge=1)
+    n_val: int = allowed(1, ge=0)
+    n_test: int = allowed(2, ge=0)
     split_seed: int = 0
-    trajectories: int = 16
-    plan_points: tuple = (1, 2)
-    max_seconds: float = 0.0
-    plan: dict = field(default_factory=dict)
-    camera_hz: float = 20.0
-    width: int = 128
-    height: int = 128
-    yfov_deg: float = 70.0
-    pitch_deg: float = 20.0
-    camera: str = "forward"
+    trajectories: int = allowed(16, ge=1)
+    plan_points: tuple = allowed((1, 2), ge=1, nonempty=True, text="a non-empty list of integers >= 1")
+    max_seconds: float = allowed(0.0, ge=0)                  # s
+    plan: dict = field(default_factory=dict)               # keys: PlanConfig's (checked in check())
+    camera_hz: float = allowed(20.0, gt=0)                  # Hz
+    width: int = allowed(128, ge=1)                         # px
+    height: int = allowed(128, ge=1)                        # px
+    yfov_deg: float = allowed(70.0, gt=0, lt=180)           # deg
+    pitch_deg: float = 20.0                                 # deg
+    camera: str = allowed("forward", choices=CAMERA_NAMES)
     normals: bool = False
     rgb: bool = False
     vehicle: str = "quad"
     effects: dict = field(default_factory=lambda: {k: dict(v) for k, v in DEFAULT_EFFECTS.items()})
-    controller: str = "auto"
-    physics_dt: float = 0.01
-    geometric_dt: float = 0.005
-    pairs: int = 400
-    pairs_chunk: int = 256
+    controller: str = allowed("auto", choices=("auto", "mpc", "geometric"))
+    physics_dt: float = allowed(0.01, gt=0)                 # s
+    geometric_dt: float = allowed(0.005, gt=0)              # s
+    pairs: int = allowed(400, ge=1)
+    pairs_chunk: int = allowed(256, ge=1)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict of every field (``camera`` left out when it is ``forward``)."""
@@ -152,40 +162,27 @@ class SimPreset:
         return cls(**d)
 
     def check(self) -> "SimPreset":
-        """Raise :class:`InputError` naming the field when a value is out of range."""
+        """Raise :class:`InputError` naming the field when a value is not allowed: each field's
+        range from its declaration (:func:`uavturb.schema.check_values`), then the relations
+        between fields (:meth:`_check_relations`)."""
+        check_values(self, prefix=f"preset {self.name}: ")
+        self._check_relations()
+        return self
+
+    def _check_relations(self) -> None:
+        """The split sums to the scenes, the plan's keys are PlanConfig's, the time steps divide the
+        sample period, the effects hold the ground effect."""
         def bad(key: str, problem: str) -> InputError:
             return InputError(f"preset {self.name}: {key}", problem)
 
-        for key in ("n_scenes", "trajectories", "width", "height", "pairs", "pairs_chunk"):
-            if int(getattr(self, key)) < 1:
-                raise bad(key, f"must be at least 1, got {getattr(self, key)}")
         if self.n_train + self.n_val + self.n_test != self.n_scenes:
             raise bad("n_train/n_val/n_test", f"sum to {self.n_train + self.n_val + self.n_test}, "
                                               f"not n_scenes = {self.n_scenes}")
-        if min(self.n_train, self.n_val, self.n_test) < 0 or self.n_train < 1:
-            raise bad("n_train", "every split size must be >= 0 and n_train >= 1")
-        if not self.plan_points or any(int(k) < 1 for k in self.plan_points):
-            raise bad("plan_points", f"must be a non-empty list of integers >= 1, got {self.plan_points}")
-        if self.max_seconds < 0:
-            raise bad("max_seconds", f"must be >= 0, got {self.max_seconds}")
-
         # late: the CLI lists the presets while it builds its parser, and planning pulls in the scene's meshes
         from uavturb.sim.dataset.planning import PlanConfig
 
-        known = {f.name for f in fields(PlanConfig)} - {"n_points"}
-        bad_keys = sorted(set(self.plan) - known)
-        if bad_keys:
-            raise bad(f"plan.{bad_keys[0]}", f"unknown PlanConfig field (known: {', '.join(sorted(known))})")
-        for key in ("camera_hz", "physics_dt", "geometric_dt"):
-            if not float(getattr(self, key)) > 0:
-                raise bad(key, f"must be positive, got {getattr(self, key)}")
-        if not 0 < self.yfov_deg < 180:
-            raise bad("yfov_deg", f"must be in (0, 180), got {self.yfov_deg}")
-
-        if self.camera not in CAMERA_NAMES:
-            raise bad("camera", f"unknown camera {self.camera!r} (known: {', '.join(CAMERA_NAMES)})")
-        if self.controller not in ("auto", "mpc", "geometric"):
-            raise bad("controller", f"expected auto, mpc or geometric, got {self.controller!r}")
+        known = sorted({f.name for f in fields(PlanConfig)} - {"n_points"})
+        check_keys(self.plan, known, lambda k: f"preset {self.name}: plan.{k}", noun="PlanConfig field")
         rec = 1.0 / self.camera_hz
         for key in ("physics_dt", "geometric_dt"):
             step = getattr(self, key)
@@ -194,7 +191,6 @@ class SimPreset:
                 raise bad(key, f"1 / camera_hz = {rec:g} s must be a whole multiple of it, got {step}")
         if "ground_effect" not in self.effects:
             raise bad("effects", "must hold ground_effect (its mu defines the stored f_a)")
-        return self
 
 
 PRESETS: dict[str, SimPreset] = {
@@ -208,13 +204,17 @@ PRESETS: dict[str, SimPreset] = {
 }
 
 
-def get_preset(name: str | SimPreset, **overrides: Any) -> SimPreset:
+def get_preset(name: str | SimPreset, /, **overrides: Any) -> SimPreset:
     """A preset by name (``tiny``, ``quick``, ``medium``, ``paper``) with fields overridden.
+
+    ``overrides``: field values (``width=64``) or, with dotted keys as
+    :func:`uavturb.schema.parse_overrides` gives them, values inside a mapping field
+    (``**{"effects.ground_effect.mu": 2.0}``).
 
     Raises
     ------
     InputError
-        Unknown preset, unknown field (named), or a value out of range.
+        Unknown preset, unknown field (named, with the closest one), or a value out of range.
     """
     if isinstance(name, SimPreset):
         base = name
@@ -222,8 +222,11 @@ def get_preset(name: str | SimPreset, **overrides: Any) -> SimPreset:
         base = PRESETS[name]
     else:
         raise InputError("--preset", f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
-    known = {f.name for f in fields(SimPreset)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise InputError(f"preset {base.name}", f"unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
-    return replace(base, **overrides).check() if overrides else base.check()
+    return apply_overrides(base, overrides, lambda k: f"preset {base.name}: {k}").check()
+
+
+def parse_preset_overrides(items: list[str], name: str = "custom", option: str = "override") -> dict[str, Any]:
+    """``KEY=VALUE`` strings (``uavturb generate sim|normals``) as overrides of :func:`get_preset`,
+    typed by :class:`SimPreset` (:func:`uavturb.schema.parse_overrides`): ``width=abc`` fails naming
+    ``preset NAME: width``."""
+    return parse_overrides(items, SimPreset, lambda k: f"preset {name}: {k}", option=option)

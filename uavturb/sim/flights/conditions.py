@@ -2,7 +2,8 @@
 
 ``uavturb generate flight`` simulates a flight (:func:`uavturb.sim.flights.simulate.simulate_flight`:
 true states, rotor speeds, accelerations, and the clean 200 Hz recording of ``recordings.md``
-in B). The :class:`Conditions` here make it look like a real recording, each trouble written
+in B). The :class:`~uavturb.sim.flights.condition_schema.Conditions` (their schema: ranges, help
+texts, the command's options) make it look like a real recording, each trouble written
 down in ``truth.yaml`` (:func:`truth_document`) so that tests and the gap proof can score
 against it:
 
@@ -111,7 +112,6 @@ from typing import Any
 import numpy as np
 import yaml
 
-from uavturb.errors import InputError
 from uavturb.io import align
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.io.vehicle_file import named_vehicle
@@ -122,6 +122,7 @@ from uavturb.physics.dynamics import GRAVITY, IDX_W, dynamics_for, physical_para
 from uavturb.physics.effects import EFFECTS, parse_effects
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sim.flights import euroc_standin
+from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.core.signals import Constant, Reference
 from uavturb.sim.flights.ground_contact import with_ground_contact
 from uavturb.sim.flights.sensors import SensorNoise
@@ -145,91 +146,10 @@ EUROC_T_BS = np.array([[_S, 0.0, _C, 0.08],
                        [0.0, -1.0, 0.0, 0.0],
                        [_C, 0.0, -_S, -0.06],
                        [0.0, 0.0, 0.0, 1.0]])
-SENSOR_FRAMES = ("body", "euroc")
 #: file of the truth, at the recording's root
 TRUTH_FILE = "truth.yaml"
 BIAS_FILE = "truth/accel_bias.csv"
 ROTOR_TRUTH_FILE = "truth/rotor_speeds.csv"
-
-
-@dataclass(frozen=True)
-class Conditions:
-    """The troubles of a real recording to reproduce (all off by default; see the module)."""
-
-    no_imu: bool = False
-    rate_hz: float | None = None
-    jitter_ms: float = 0.0
-    fixed_heading: bool = False
-    heading_deg: float | None = None
-    motor_commands: bool = False
-    wind_speed: tuple[float, float] | None = None
-    accel_bias_walk: float = 0.0
-    sensor_frame: str = "body"
-    mass_error: float = 0.0
-    ground_contact_s: float = 0.0
-    position_hold_hz: float | None = None
-    rotor_hold_hz: float | None = None
-    rotor_delay_s: float = 0.0
-    thrust_level: float = 1.0
-    thrust_tilt_deg: float = 0.0
-    thrust_tilt_azimuth_deg: float = 0.0
-    rotor_plane_z: float = 0.0
-    measured_rotors: bool = False
-    battery_voltage: float | None = None
-
-    def __post_init__(self) -> None:
-        self._check_original()
-        self._check_real_troubles()
-
-    def _check_original(self) -> None:
-        if self.rate_hz is not None and not 0 < self.rate_hz <= 200:
-            raise InputError("--rate-hz", f"must be in (0, 200] Hz (the simulator records at 200 Hz), got {self.rate_hz}")
-        if self.jitter_ms < 0:
-            raise InputError("--jitter-ms", f"must be >= 0, got {self.jitter_ms}")
-        period_ms = 1000.0 / (self.rate_hz or 200.0)
-        if self.jitter_ms >= period_ms / 2:
-            raise InputError("--jitter-ms", f"must be under half the sampling period ({period_ms / 2:g} ms) so that "
-                                            f"timestamps stay in order, got {self.jitter_ms}")
-        if self.accel_bias_walk < 0:
-            raise InputError("--accel-bias-walk", f"must be >= 0, got {self.accel_bias_walk}")
-        if self.sensor_frame not in SENSOR_FRAMES:
-            raise InputError("--sensor-frame", f"unknown frame '{self.sensor_frame}' (allowed: {', '.join(SENSOR_FRAMES)})")
-        if not -0.5 < self.mass_error < 0.5:
-            raise InputError("--mass-error", f"must be a fraction in (-0.5, 0.5), got {self.mass_error}")
-        if self.heading_deg is not None and (not self.fixed_heading or not np.isfinite(self.heading_deg)):
-            raise InputError("--heading-deg", f"needs --fixed-heading and a finite angle, got {self.heading_deg}")
-        if self.no_imu and self.accel_bias_walk > 0:
-            raise InputError("--accel-bias-walk", "needs an IMU (it cannot be combined with --no-imu)")
-        if self.wind_speed is not None and (len(self.wind_speed) != 2 or not np.all(np.isfinite(self.wind_speed))):
-            raise InputError("--wind-speed", f"expected two finite numbers vx,vy [m/s], got {self.wind_speed}")
-
-    def _check_real_troubles(self) -> None:
-        if not 0 <= self.ground_contact_s <= 30:
-            raise InputError("--ground-contact-s", f"must be in [0, 30] s, got {self.ground_contact_s}")
-        row_hz = self.rate_hz or 200.0
-        for flag, hz in (("--position-hold-hz", self.position_hold_hz), ("--rotor-hold-hz", self.rotor_hold_hz)):
-            if hz is not None and not 0 < hz < row_hz:
-                raise InputError(flag, f"must be in (0, {row_hz:g}) Hz (below the stream's row rate), got {hz}")
-        if not 0 <= self.rotor_delay_s < 1:
-            raise InputError("--rotor-delay-s", f"must be in [0, 1) s, got {self.rotor_delay_s}")
-        if not 0.5 < self.thrust_level < 1.5:
-            raise InputError("--thrust-level", f"must be a factor in (0.5, 1.5), got {self.thrust_level}")
-        if not 0 <= self.thrust_tilt_deg < 10 or not np.isfinite(self.thrust_tilt_azimuth_deg):
-            raise InputError("--thrust-tilt-deg", f"must be in [0, 10) deg with a finite azimuth, got "
-                                                  f"{self.thrust_tilt_deg} towards {self.thrust_tilt_azimuth_deg}")
-        if self.thrust_tilt_deg > 0 and self.sensor_frame != "body":
-            raise InputError("--thrust-tilt-deg", "cannot be combined with --sensor-frame euroc")
-        if not -0.5 < self.rotor_plane_z < 0.5:
-            raise InputError("--rotor-plane-z", f"must be in (-0.5, 0.5) m, got {self.rotor_plane_z}")
-        if self.measured_rotors and self.motor_commands:
-            raise InputError("--measured-rotors", "cannot be combined with --motor-commands (rotors0 holds one or "
-                                                  "the other)")
-        if self.battery_voltage is not None and not 0 < self.battery_voltage < 100:
-            raise InputError("--battery-voltage", f"must be in (0, 100) V, got {self.battery_voltage}")
-
-    @property
-    def resampled(self) -> bool:
-        return self.rate_hz is not None or self.jitter_ms > 0
 
 
 # --- before the simulation: the reference and the physics ------------------------------------------

@@ -11,7 +11,7 @@ the flights of the paper's Table 2:
   floor, so that cam0, 0.13 m under it, stays 3 cm over the floor (ours: the geometry of the
   mount, not a measurement of the Firefly);
 - **the sensor frame**: ground truth and IMU in EuRoC's S (the VI-sensor's IMU), placed in B by
-  ``vehicle.yaml``'s ``T_BS``: the Firefly's (``uavturb/presets/firefly.yaml``) unless the vehicle
+  ``vehicle.yaml``'s ``T_BS``: the Firefly's (``uavturb/vehicles/firefly.yaml``) unless the vehicle
   has its own (:func:`with_vi_sensor`);
 - **cam0**: ``mav0/cam0/sensor.yaml`` of EuRoC's cam0 (:data:`uavturb.scene.camera.EUROC_CAM0`:
   intrinsics, 752 x 480, 20 Hz, radial-tangential distortion, ``T_BS`` relative to S), no images:
@@ -81,7 +81,7 @@ def flyable(vehicle: Vehicle) -> Vehicle:
 
 def with_vi_sensor(vehicle: Vehicle) -> Vehicle:
     """``vehicle`` carrying EuRoC's VI-sensor: its ``T_BS`` (S in B) kept when it has one, else the
-    Firefly's (``uavturb/presets/firefly.yaml``)."""
+    Firefly's (``uavturb/vehicles/firefly.yaml``)."""
     if not vehicle.sensor_is_body:
         return vehicle
     return vehicle.with_params(T_BS=load_vehicle(SHIPPED_DIR / f"{EUROC_CAM0.vehicle}.yaml").T_BS)
