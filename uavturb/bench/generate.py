@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -27,8 +28,6 @@ def benchmark(preset: str = "quick", workers: int = 2, seed: int = 0, out: str |
     -------
     dict of printable figures (names carry units).
     """
-    import tempfile
-
     with tempfile.TemporaryDirectory(prefix="uavturb-bench-") as tmp:
         root = Path(out) if out is not None else Path(tmp) / "sim"
         if root.exists():

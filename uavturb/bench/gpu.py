@@ -28,6 +28,7 @@ whole measurement on the CPU at a small size (the CPU reference is then its own 
 from __future__ import annotations
 
 import os
+import resource
 import sys
 import tempfile
 import time
@@ -35,7 +36,10 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+import lightning as L
 import numpy as np
+import torch
+from lightning.pytorch.callbacks import Callback
 
 from uavturb.data.synthetic import make_synthetic_dataset, make_synthetic_pairs
 from uavturb.errors import InputError
@@ -58,15 +62,11 @@ DEVICE_DEFAULTS = {"cuda": {"size": 128, "steps": 100, "workers": None},
 
 def _synchronize(on_cuda: bool) -> None:
     if on_cuda:
-        import torch
-
         torch.cuda.synchronize()
 
 
 def _clock(on_cuda: bool):
     """A Lightning callback timing epochs and the waits for batches (module docstring)."""
-    from lightning.pytorch.callbacks import Callback
-
     class Clock(Callback):
         def __init__(self):
             self.epochs: list[dict[str, float]] = []
@@ -136,11 +136,6 @@ def measure_stage(cfg, data_root: Path, on_cuda: bool) -> dict[str, float]:
     ``dataloader_share`` [0-1], ``epoch_s`` (an epoch of the timed steps), ``peak_memory_mb`` (GPU:
     allocated by torch; CPU: the process's peak resident memory so far).
     """
-    import resource
-
-    import lightning as L
-    import torch
-
     quiet_lightning()
     set_torch_flags(cfg.trainer)
     L.seed_everything(cfg.trainer.seed, workers=True, verbose=False)
@@ -175,8 +170,6 @@ def _paper_epoch_s(stage: str, samples_per_s: float) -> float:
 def _cpu_reference(data: tuple[Path, Path], size: int, batch_size: int, steps: int, threads: int,
                    runs: Path) -> dict[str, dict[str, float]]:
     """Float32 figures of both stages on the CPU with ``threads`` torch threads and no workers."""
-    import torch
-
     before = torch.get_num_threads()
     try:
         out = {}
@@ -190,11 +183,8 @@ def _cpu_reference(data: tuple[Path, Path], size: int, batch_size: int, steps: i
 
 
 def _device_line(device: str) -> str:
-    import lightning
-    import torch
-
     where = torch.cuda.get_device_name(0) if device == "cuda" else f"CPU, {torch.get_num_threads()} torch threads"
-    return f"{where}; torch {torch.__version__}, Lightning {lightning.__version__}, {os.cpu_count()} cores"
+    return f"{where}; torch {torch.__version__}, Lightning {L.__version__}, {os.cpu_count()} cores"
 
 
 def bench_gpu(device: str = "cuda", *, size: int | None = None, batch_size: int = 16, workers: int | None = None,

@@ -25,6 +25,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+import onnxruntime as ort
+import torch
+import torch.nn.functional as F
 
 from uavturb.commands.export import ONNX_FILE, PT2_FILE, export_streaming
 from uavturb.data.datamodules import ShardWindowsDataModule
@@ -76,9 +79,6 @@ def bench_train(root: str | Path | None = None, *, size: int = 64, window: int =
 
 def _bench_train_once(root, size: int, window: int, batch_size: int, num_workers: int, steps: int,
                       use_gru: bool) -> dict[str, float]:
-    import torch
-    import torch.nn.functional as F
-
     dm = ShardWindowsDataModule(str(root), window=window, batch_size=batch_size, num_workers=num_workers)
     dm.setup("fit")
     torch.manual_seed(0)
@@ -172,8 +172,6 @@ def bench_infer(model_dir: str | Path | None = None, *, size: int = 128, frames:
     -------
     dict of the printed figures.
     """
-    import torch
-
     tmp = None
     if model_dir is None:
         tmp = tempfile.TemporaryDirectory(prefix="uavturb-bench-")
@@ -208,9 +206,6 @@ def _time_exported(model_dir: Path, frames: int, batch: int
     """(per-frame latencies [s] of batch 1 with the state carried over, throughputs [frames/s] of ``batch``,
     the model's (H, W, rotors, GRU layers, state size)) of ``model.onnx`` (ONNX Runtime) and ``model.pt2``
     in ``model_dir``, on the threads torch and ONNX Runtime are given (one)."""
-    import onnxruntime as ort
-    import torch
-
     program = torch.export.load(str(model_dir / PT2_FILE)).module()
     opts = ort.SessionOptions()
     opts.intra_op_num_threads, opts.inter_op_num_threads = 1, 1

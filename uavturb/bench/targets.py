@@ -1,11 +1,23 @@
-"""``uavturb bench``: benchmarks that print figures (never timed tests)."""
+"""``uavturb bench``: benchmarks that print figures (never timed tests).
+
+cli.py builds ``uavturb bench``'s parser from :data:`TARGETS` beside all the others, so this
+module is imported on each start of ``uavturb``: it imports only what is cheap at the top, and
+each target imports what it measures inside its branch (the stacks of the others also stay out
+of the process it times).
+"""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from uavturb.errors import InputError
 
 #: ``uavturb bench`` targets: what each measures (the ``--help`` text comes from here)
 TARGETS: dict[str, str] = {
@@ -38,12 +50,7 @@ def bench_readers(rows: int = 1_000_000) -> dict[str, float]:
     """Read a ground-truth CSV of ``rows`` rows (17 columns, written first, not timed) in a fresh
     process: wall time and the process's peak resident memory (the kernel's ``VmHWM``) above what
     its imports take, against the file's size and the arrays returned."""
-    import os
-    import subprocess
-    import sys
-    import tempfile
-
-    from uavturb.io import euroc_csv
+    from uavturb.io import euroc_csv  # late: pandas, ~1 s on every start of uavturb (module docstring)
 
     rng = np.random.default_rng(0)
     t_ns = 1403636579763555584 + np.arange(rows, dtype=np.int64) * 5_000_000
@@ -71,9 +78,7 @@ def bench_sweep(seeds: int = 1) -> dict[str, float]:
     store (created first, not timed); Ray's start-up is timed. Also prints the largest difference
     of a test metric between the two (same seeds: the same runs).
     """
-    import os
-    import tempfile
-
+    # late: torch, Lightning, MLflow and Ray, seconds on every start of uavturb (module docstring)
     from uavturb.runs import store
     from uavturb.runs.config import DEFAULT_SPEC, load_config
     from uavturb.runs.sweep import sweep
@@ -152,6 +157,7 @@ def bench(what: str) -> None:
 
         gap_proof(Path("gap_proof"))
     elif what == "physics":
+        # late: CasADi, ~0.1 s on every start of uavturb (module docstring)
         from uavturb.physics.dynamics import dynamics_for, physical_params
         from uavturb.physics.vehicle import HEXAROTOR
 
@@ -182,8 +188,6 @@ def bench_target(what: str, options: dict | None = None) -> None:
     ------
     InputError : an option given to a target other than ``gpu``, or a bad option of ``gpu``.
     """
-    from uavturb.errors import InputError
-
     options = {k: v for k, v in (options or {}).items() if v is not None and v != []}
     if what == "gap":  # speed and memory of the gap finder (uavturb.bench.gap)
         from uavturb.bench.gap import bench_gap

@@ -35,6 +35,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from uavturb.errors import InputError
 from uavturb.io import align
@@ -207,8 +208,6 @@ class RecordingWindowsDataset:
         return len(self.index)
 
     def __getitem__(self, k: int) -> dict:
-        import torch
-
         i, s = self.index[k]
         seq, e = self.sequences[i], s + self.window
         return {"depth": torch.from_numpy(np.ascontiguousarray(seq.depth[s:e, None])),

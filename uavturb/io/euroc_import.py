@@ -18,13 +18,21 @@ the import stops when the thrust axis disagrees with the data
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io.align import overlap
+from uavturb.io.body_frame import to_body
+from uavturb.io.consistency import check_recording
+from uavturb.io.reader import read_recording
 from uavturb.io.recording import Recording
+from uavturb.io.rosbag import read_rosbag
+from uavturb.io.sensor_yaml import read_sensor_pose
 from uavturb.io.vehicle_file import named_vehicle
+from uavturb.io.writer import write_recording
 from uavturb.physics.vehicle import Vehicle
 
 VICON_YAML = "mav0/vicon0/sensor.yaml"
@@ -51,16 +59,6 @@ def import_euroc(bag: str | Path, out: str | Path, *, vehicle: str | Vehicle = "
     and only the rotor speeds come from the bag; ``T_BS`` comes from its ``vicon0/sensor.yaml``
     where it has one. Camera frames are not copied (depth comes from the point cloud).
     """
-    from dataclasses import replace
-
-    from uavturb.io.align import overlap
-    from uavturb.io.body_frame import to_body
-    from uavturb.io.consistency import check_recording
-    from uavturb.io.reader import read_recording
-    from uavturb.io.rosbag import read_rosbag
-    from uavturb.io.sensor_yaml import read_sensor_pose
-    from uavturb.io.writer import write_recording
-
     v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     frame_source = f"vehicle '{vehicle}'" if isinstance(vehicle, str) else f"vehicle '{v.name}'"
     if asl is not None and (Path(asl) / VICON_YAML).is_file():

@@ -25,6 +25,7 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.io.consistency import check_rotor_columns, check_thrust_axis, check_vertical_response
 from uavturb.io.recording import Recording
+from uavturb.io.writer import write_recording
 
 #: m, spacing of the flat floor's points: under the 5 cm columns of the height index, so none is empty
 FLOOR_SPACING = 0.04
@@ -143,8 +144,6 @@ def _agreeing_conventions(conventions: dict[str, str], choices: dict[str, tuple[
 
 def finish_import(rec: Recording, out: str | Path, *, floor_z: float | None, overwrite: bool) -> Recording:
     """Add the flat floor (when ``floor_z`` is given) and write ``rec`` atomically to ``out``."""
-    from uavturb.io.writer import write_recording
-
     if floor_z is not None:
         if not np.isfinite(floor_z):
             raise InputError("--floor-z", f"must be a finite height [m], got {floor_z!r}")

@@ -14,6 +14,8 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io import align, euroc_csv, ply, sensor_yaml
+from uavturb.io.body_frame import to_body
+from uavturb.io.consistency import check_recording
 from uavturb.io.recording import Battery, Camera, GroundTruth, Imu, Poses, Recording, Rotors
 from uavturb.io.vehicle_file import load_vehicle, named_vehicle
 from uavturb.physics import quaternion as quat
@@ -129,8 +131,6 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
         return rec
     if frame != "B":
         raise ValueError(f"frame must be 'B' or 'S', got {frame!r}")
-    from uavturb.io.body_frame import to_body
-
     return to_body(rec)
 
 
@@ -235,8 +235,6 @@ def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None =
     the rotor frame B, rotor speeds required, and checked (:func:`uavturb.io.consistency.check_recording`:
     thrust axis against the data, no dead or frozen rotor column). ``vehicle`` (built-in vehicle name,
     yaml path or Vehicle) serves folders without a ``vehicle.yaml``."""
-    from uavturb.io.consistency import check_recording
-
     v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     recs = [read_recording(p, vehicle=v, require_rotors=True) for p in paths]
     for r in recs:

@@ -461,8 +461,6 @@ def dataset_hash(root: str | Path) -> str:
 
     Hidden entries (temporary folders of an interrupted writer) are left out.
     """
-    from uavturb.io.shards import files_hash
-
     root = Path(root)
     if not root.is_dir():
         raise InputError(root, "dataset folder not found")

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from pyulog import ULog
 
 from uavturb.errors import InputError
 from uavturb.io.log_frames import BODIES, RECORDING_WORLD, WORLDS, attitude_to_recording, body_vectors, \
@@ -69,8 +70,6 @@ class _Log:
 
 def _load(path: Path) -> _Log:
     """Read the topics of :data:`TOPICS` with pyulog; their times sorted, repeated times dropped."""
-    from pyulog import ULog
-
     if not path.is_file():
         raise InputError(path, "file not found")
     said = io.StringIO()  # pyulog prints its warnings (a corrupt file): they become one note

@@ -13,6 +13,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io import euroc_csv, ply, sensor_yaml
+from uavturb.io.body_frame import to_sensor
 from uavturb.io.publish import publish_folder
 from uavturb.io.reader import (
     BATTERY_CSV,
@@ -33,8 +34,6 @@ from uavturb.io.vehicle_file import save_vehicle
 
 def _write_streams(rec: Recording, root: Path) -> None:
     """Every file of ``rec`` under ``root`` (an empty folder); ground truth and IMU in S, as stored."""
-    from uavturb.io.body_frame import to_sensor
-
     rec = to_sensor(rec)  # a recording in B goes back into S with vehicle.yaml's T_BS
     save_vehicle(rec.vehicle, root / VEHICLE_YAML)
     gt = rec.ground_truth

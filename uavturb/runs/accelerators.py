@@ -19,6 +19,8 @@ from __future__ import annotations
 import os
 from typing import Any
 
+import torch
+
 from uavturb.errors import InputError
 
 #: ``trainer.accelerator`` values that mean a CUDA GPU
@@ -31,15 +33,11 @@ BF16_PRECISIONS = ("bf16-mixed", "bf16-true", "bf16")
 
 def cuda_device_count() -> int:
     """CUDA devices torch sees (0 on a build without CUDA or where ``CUDA_VISIBLE_DEVICES`` hides them)."""
-    import torch
-
     return int(torch.cuda.device_count()) if torch.cuda.is_available() else 0
 
 
 def no_cuda_reason() -> str:
     """Why torch sees no CUDA device, in words (torch build, ``CUDA_VISIBLE_DEVICES``)."""
-    import torch
-
     build = f"torch {torch.__version__}, " + ("built without CUDA" if torch.version.cuda is None
                                               else f"CUDA {torch.version.cuda}")
     visible = os.environ.get("CUDA_VISIBLE_DEVICES")
@@ -97,8 +95,6 @@ def check_trainer_device(trainer: Any) -> None:
         raise InputError("trainer.precision", f"{precision}: fp16 needs a CUDA device; on the CPU use bf16-mixed "
                                               "(or 32-true)")
     if precision in BF16_PRECISIONS and on_cuda:
-        import torch
-
         if not torch.cuda.is_bf16_supported():
             raise InputError("trainer.precision", f"{precision}: this GPU ({torch.cuda.get_device_name(0)}) has no "
                                                   "bf16 (compute capability < 8.0); use 16-mixed or 32-true")

@@ -21,9 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.io import align
+from uavturb.io.body_frame import to_body
 from uavturb.io.differentiate import local_quadratic
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.physics import quaternion as quat
+from uavturb.scene.heights import SurfaceIndex
 from uavturb.sysid.streams import update_mask
 
 
@@ -140,9 +143,6 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     heights : compute ``d_down``/``d_up`` from the point cloud when there is one
     time_base : ``auto`` (IMU if present), ``imu`` or ``groundtruth``
     """
-    from uavturb.io import align
-    from uavturb.io.body_frame import to_body
-
     rec = to_body(rec)  # no-op for the readers' recordings, already in B
     where = rec.path or rec.name
     if rec.rotors is None:
@@ -190,8 +190,6 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
 
     d_down = d_up = None
     if heights and rec.points is not None:
-        from uavturb.scene.heights import SurfaceIndex
-
         index = SurfaceIndex(rec.points)
         # surface effects depend on the rotor plane's height, not the body origin's (recordings.md)
         rotor_plane = rec.vehicle.rotor_plane_positions(p, quat.to_rotation_matrix(q))

@@ -29,8 +29,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
+from scipy.signal import savgol_coeffs
 
 from uavturb.errors import InputError
+from uavturb.io.differentiate import local_quadratic, window_samples
 from uavturb.io.publish import publish_file
 from uavturb.io.recording import Recording
 from uavturb.physics import quaternion as quat
@@ -87,10 +90,6 @@ def noise_floor(t: np.ndarray, r: np.ndarray, window_s: float = NOISE_WINDOW_S) 
     Its robust spread, ``1.4826 MAD``, is divided by ``sqrt(1 - h)`` (``h`` the fit's own weight at
     the centre sample, so that white noise is not understated).
     """
-    from scipy.signal import savgol_coeffs
-
-    from uavturb.io.differentiate import local_quadratic, window_samples
-
     r = np.asarray(r, float).reshape(len(r), -1)
     n = window_samples(np.asarray(t, float), window_s)
     if n < 5:
@@ -166,8 +165,6 @@ RESIDUAL_COLUMNS = [
 
 def residual_table(res: Residuals):
     """The residual time series as a pandas DataFrame (columns :data:`RESIDUAL_COLUMNS`)."""
-    import pandas as pd
-
     fd = res.data
     nan = np.full(len(res.t), np.nan)
     cols = [res.t, fd.t_ns, *res.force.T, *res.force_body.T, *res.torque.T, res.thrust, res.sum_omega2,
