@@ -344,3 +344,26 @@ def test_two_identical_sweeps_started_together_train_each_child_once(tmp_path, s
     trained = [(t.get("pretrain") or t["ablation"], t["seed"]) for _, t in fake.calls]
     assert len(trained) == len(set(trained)) == 2 + len(ROWS)  # every child once
     assert len(_children(store, results[0]["parent_run_id"])) == 2 + len(ROWS)
+
+
+def test_a_sweep_on_changed_training_data_is_not_resumed(tmp_path, store, monkeypatch):
+    """The same sweep command on the same data folder resumes its parent and reuses every finished run; once
+    the folder's content changes (data generated again, another build), a new parent trains every row again
+    instead of computing Table 1 from models of other data."""
+    data = tmp_path / "sim"
+    data.mkdir()
+    np.save(data / "depth.npy", np.zeros((4, 8, 8), np.float32))
+    fake = FakeTrain(tmp_path)
+    monkeypatch.setattr(sweep_mod, "train", fake)
+    args = dict(profile="quick", seeds=1, experiment=store[1], overrides=[f"data.root={data}"])
+    first = sweep(DEFAULT_SPEC, **args)
+    n = len(fake.calls)
+    again = sweep(DEFAULT_SPEC, **args)
+    assert again["resumed"] and again["parent_run_id"] == first["parent_run_id"] and len(fake.calls) == n
+    np.save(data / "depth.npy", np.ones((4, 8, 8), np.float32))
+    changed = sweep(DEFAULT_SPEC, **args)
+    assert not changed["resumed"] and changed["parent_run_id"] != first["parent_run_id"]
+    assert len([c for c, _ in fake.calls[n:] if c.stage == "height"]) == len(ROWS)
+    parent = mlflow.MlflowClient(store[0]).get_run(changed["parent_run_id"])
+    assert parent.data.tags[sweep_mod.DATA_TAG] and parent.data.tags[sweep_mod.DATA_TAG] != \
+        mlflow.MlflowClient(store[0]).get_run(first["parent_run_id"]).data.tags[sweep_mod.DATA_TAG]

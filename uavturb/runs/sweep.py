@@ -41,7 +41,7 @@ from filelock import Timeout
 from omegaconf import DictConfig, OmegaConf
 
 from uavturb.errors import InputError, Interrupted
-from uavturb.io.shards import config_hash
+from uavturb.io.shards import config_hash, dataset_hash
 from uavturb.runs import store
 from uavturb.runs.config import DEFAULT_SPEC, SWEEPS_DIR, load_config, load_spec, resolve_spec
 from uavturb.runs.executors import PRETRAIN_RUN, Job, make_executor
@@ -49,6 +49,7 @@ from uavturb.runs.mutex import named_lock
 from uavturb.runs.processes import process_alive
 from uavturb.runs.table1 import compare
 from uavturb.runs.train import quiet_lightning, train
+from uavturb.runs.training_data import stage_data_root
 
 
 def _spec_name(path: Path) -> str:
@@ -63,6 +64,10 @@ def _spec_hash(spec: DictConfig, profile: str, overrides: list[str]) -> str:
     return config_hash({"spec": body, "preset": profile, "overrides": list(overrides)})
 
 
+#: parent-run tag naming the training data a sweep's runs were trained on (:func:`_data_key`)
+DATA_TAG = "data_key"
+
+
 class _SweepRuns:
     """The sweep's MLflow experiment: parent run, and children looked up by tags (:mod:`uavturb.runs.store`)."""
 
@@ -70,16 +75,28 @@ class _SweepRuns:
         self.experiment_id = store.ensure_experiment(experiment)
         self.experiment = experiment
 
-    def parent(self, name: str, sweep_hash: str, profile: str, params: dict[str, Any]) -> tuple[str, bool]:
-        """(run id, resumed): the latest parent of this sweep hash, else a new one. Two sweeps started
-        together find the same parent (a lock per sweep hash)."""
+    def parent(self, name: str, sweep_hash: str, profile: str, params: dict[str, Any], data_key: str = ""
+               ) -> tuple[str, bool]:
+        """(run id, resumed): the latest parent of this sweep hash trained on the same data, else a new
+        one. Two sweeps started together find the same parent (a lock per sweep hash).
+
+        ``data_key`` (:func:`_data_key`) names the training data as it is now; a parent whose data differ
+        is not resumed (its finished runs would be reused, and Table 1 computed from models of other
+        data: a store kept across ``make demo`` builds did so). A parent that names no data (its sweep
+        made its own synthetic data, or an older store) is resumed, and takes the data's name."""
         with named_lock(f"sweep-{sweep_hash}", store.tracking_uri()):
             run = store.latest_run(self.experiment_id, f"tags.sweep = '{name}' and tags.sweep_hash = '{sweep_hash}'")
-            if run is not None:
+            known = run.data.tags.get(DATA_TAG, "") if run is not None else ""
+            if run is not None and (not known or not data_key or known == data_key):
                 store.reopen_run(run.info.run_id)
+                if data_key and not known:
+                    store.set_tags(run.info.run_id, {DATA_TAG: data_key})
                 return run.info.run_id, True
+            if run is not None:
+                _say(f"sweep {name}: the training data changed since parent run {run.info.run_id} (data {known}, "
+                     f"now {data_key}): a new parent run, every row trained again")
             tags = {"sweep": name, "sweep_hash": sweep_hash, "preset": profile,  # its old name: existing stores
-                    store.NOTE_TAG: f"Sweep `{name}`, profile `{profile}`: running."}
+                    DATA_TAG: data_key, store.NOTE_TAG: f"Sweep `{name}`, profile `{profile}`: running."}
             return store.start_run(self.experiment_id, f"sweep-{name}-{profile}", tags, params=params,
                                    experiment_is_id=True), False
 
@@ -218,11 +235,27 @@ def _resolve_plan(spec: str | Path, profile: str, seeds: int | None, overrides: 
                  variants, base_pretrain)
 
 
+def _data_key(plan: _Plan) -> str:
+    """The training data the sweep's runs read, as the folders are now: a hash of each existing data
+    folder's content hash (:func:`uavturb.io.shards.dataset_hash`), ``""`` where none exists yet (the runs
+    make their synthetic data from their configs)."""
+    hashes: dict[str, str] = {}
+    for cfg in [*plan.base_pretrain.values(), *plan.base_height.values()]:
+        root = stage_data_root(cfg).resolve()
+        if str(root) in hashes or not root.is_dir():
+            continue
+        try:
+            hashes[str(root)] = dataset_hash(root)
+        except InputError:  # no dataset files yet: the runs write them
+            continue
+    return config_hash(hashes) if hashes else ""
+
+
 def _open_parent(plan: _Plan, runs_of: _SweepRuns, sweep_hash: str) -> tuple[str, bool]:
     """(parent run id, resumed): the sweep's parent run found or created, with its seed count and sweep file."""
     params = {"sweep_file": _spec_name(plan.spec_path), "preset": plan.profile,  # its old name: existing stores
               "overrides": json.dumps(plan.overrides), "rows": json.dumps([r.name for r in plan.rows])}
-    parent_id, resumed = runs_of.parent(plan.spec.name, sweep_hash, plan.profile, params)
+    parent_id, resumed = runs_of.parent(plan.spec.name, sweep_hash, plan.profile, params, _data_key(plan))
     store.set_tags(parent_id, {"seeds": str(plan.seeds)})
     store.log_texts(parent_id, {"sweep.yaml": OmegaConf.to_yaml(plan.spec)})
     _say(f"sweep {plan.spec.name} ({plan.profile}, {plan.seeds} seed(s), {len(plan.rows)} rows): MLflow experiment "

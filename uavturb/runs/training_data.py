@@ -14,6 +14,15 @@ from uavturb.io import shards
 from uavturb.physics.effects import ALPHA_PAPER, BETA_PAPER
 
 
+def stage_data_root(cfg: DictConfig) -> Path:
+    """The dataset folder this stage reads, as it is now (nothing generated): the pairs of
+    ``data.pairs_root`` (its ``pairs/`` folder where there is one), or the shards of ``data.root``."""
+    if cfg.stage == "pretrain":
+        root = Path(cfg.data.pairs_root)
+        return root / shards.PAIRS_DIR if (root / shards.PAIRS_DIR).is_dir() else root
+    return Path(cfg.data.root)
+
+
 def prepare_data(cfg: DictConfig) -> Path:
     """The dataset folder of this stage, generated when ``data.synthetic.enabled`` and missing
     (pre-training: depth/target pairs under ``data.pairs_root``; height: shards under ``data.root``)."""
@@ -23,7 +32,7 @@ def prepare_data(cfg: DictConfig) -> Path:
         root = Path(cfg.data.pairs_root)
         if syn.enabled and not (root / shards.PAIRS_DIR / "meta.json").is_file():
             synthetic.make_synthetic_pairs(root, M=syn.pairs, size=size, seed=syn.seed)
-        return root / shards.PAIRS_DIR if (root / shards.PAIRS_DIR).is_dir() else root
+        return stage_data_root(cfg)
     root = Path(cfg.data.root)
     if syn.enabled and not (root / shards.MANIFEST).is_file():
         synthetic.make_synthetic_dataset(root, n_scenes=syn.n_scenes, trajs_per_scene=syn.trajs_per_scene, T=syn.T,
