@@ -52,7 +52,8 @@ class FlightData:
     window : int, Savitzky-Golay window [samples]
     rotor_fresh : (K,) bool or None, where the rotor stream is held (:func:`held_updates`): the rows
         nearest each of its updates, the only rows whose rotor speeds were measured rather than
-        interpolated between updates (None: the stream updates on every row)
+        interpolated between updates (None: the stream updates on every row, or its repeats are those of
+        its resolution, :func:`_quantisation_steps`)
     """
 
     name: str
@@ -148,7 +149,7 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     if rec.rotors is None:
         raise InputError(f"{where}/mav0/rotors0/data.csv", "rotor speeds are needed but the recording has none")
     gt, rotors = held_updates(rec)
-    rotors_held = len(rotors.t_ns) < len(rec.rotors.t_ns)
+    rotors_held = len(rotors.t_ns) < len(rec.rotors.t_ns) and not _quantisation_steps(rotors.speeds)
     use_imu = rec.imu is not None and time_base in ("auto", "imu")
     if time_base == "imu" and rec.imu is None:
         raise InputError(f"{where}/mav0/imu0/data.csv", "file not found (time_base=imu)")
@@ -196,6 +197,17 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         d_down, d_up = index.d_down(rotor_plane), index.d_up(rotor_plane)
     fresh = _nearest_rows(t_ns, rotors.t_ns) if rotors_held else None
     return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh)
+
+
+def _quantisation_steps(updates: np.ndarray) -> bool:
+    """Whether a stream's updates ``(U, N)`` mostly move by one step of its resolution (rotor speeds
+    rounded to 1 rad/s in a steady hover: repeats of rounding, not of a slow logger, and the values
+    between are as well known as at the changes)."""
+    steps = np.max(np.abs(np.diff(updates, axis=0)), axis=1)
+    steps = steps[steps > 0]
+    if len(steps) < 3:
+        return False
+    return bool(np.median(steps) <= 1.5 * np.min(steps))
 
 
 def _nearest_rows(t_ns: np.ndarray, update_ns: np.ndarray) -> np.ndarray:
