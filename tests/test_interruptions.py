@@ -19,6 +19,7 @@ import pytest
 
 import uavturb
 from uavturb.cli import main
+from uavturb.errors import Interrupted, raise_on_signals, signals_deferred
 
 REPO = Path(uavturb.__file__).resolve().parents[1]
 
@@ -305,3 +306,16 @@ def test_an_interrupted_migration_names_the_table_to_drop():
     msg = str(_store_problem("sqlite:///x/mlflow.db", e))
     assert "DROP TABLE _alembic_tmp_experiments" in msg and "mlflow db upgrade sqlite:///x/mlflow.db" in msg
     assert "\n" not in msg
+
+
+def test_a_signal_during_a_store_write_waits_for_the_write_to_end():
+    """SIGTERM while a run-store write is under way (an SQLite transaction, cut short, leaves the database
+    locked for the write that marks the run KILLED): the write ends first, then Interrupted is raised."""
+    done = []
+    with pytest.raises(Interrupted) as caught:
+        with raise_on_signals():
+            with signals_deferred():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.05)  # the handler has run by now, and raised nothing here
+                done.append("write finished")
+    assert done == ["write finished"] and caught.value.signum == signal.SIGTERM

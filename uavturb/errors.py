@@ -68,6 +68,30 @@ class Interrupted(BaseException):
         return "; ".join([f"interrupted by {self.signame}", *self.notes])
 
 
+#: depth of :func:`signals_deferred` blocks, and a signal that arrived in one (raised when it ends)
+_DEFERRING = [0]
+_PENDING: list[int] = []
+#: the signals :func:`raise_on_signals` has raised (a second one ends the process at once)
+_SEEN: list[int] = []
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Under :func:`raise_on_signals`, hold SIGTERM and SIGINT until the block ends, then raise
+    :class:`Interrupted`: a write to the run store (an SQLite transaction) cut in the middle leaves its
+    database locked, and the write that marks the run KILLED then fails ("database is locked"). A second
+    signal still ends the process at once."""
+    _DEFERRING[0] += 1
+    try:
+        yield
+    finally:
+        _DEFERRING[0] -= 1
+        if not _DEFERRING[0] and _PENDING:
+            signum = _PENDING.pop()
+            _SEEN.append(signum)
+            raise Interrupted(signum)
+
+
 @contextlib.contextmanager
 def raise_on_signals() -> Iterator[None]:
     """While the block runs, SIGTERM and SIGINT raise :class:`Interrupted` in this (the main) process.
@@ -87,17 +111,21 @@ def raise_on_signals() -> Iterator[None]:
         yield
         return
     main_pid = os.getpid()
-    seen: list[int] = []
+    seen = _SEEN
+    seen.clear()
 
     def handler(signum, frame):
         if os.getpid() != main_pid:
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
-        if seen:
+        if seen or _PENDING:
             print(f"interrupted again by {signal.Signals(signum).name}: stopping without cleaning up",
                   file=sys.stderr, flush=True)
             os._exit(128 + signum)
+        if _DEFERRING[0]:  # a write to the run store is under way: it ends first (signals_deferred)
+            _PENDING.append(signum)
+            return
         seen.append(signum)
         raise Interrupted(signum)
 
