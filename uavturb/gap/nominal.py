@@ -40,7 +40,7 @@ BLOCK_S = 1.0
 LEVEL_PRACTICAL = 0.005
 #: chi^2 per degree of freedom of the levels' differences above which they differ (with honest errors)
 LEVEL_CHI2 = 9.0
-#: rows a recording needs in a reference (far from surfaces, or one height bin) to measure its level there
+#: rows a recording needs far from surfaces to measure its level there
 LEVEL_MIN_ROWS = 50
 #: most height bins (pooled quantiles of the rotor plane's height) of :func:`matched_height_levels`; fewer
 #: where the recordings are short (a bin per :data:`MATCHED_ROWS_PER_BIN` rows of the shortest), never under 3
@@ -128,8 +128,6 @@ class ThrustLevels:
     basis : where the levels were measured: ``"far from surfaces"``, ``"matched heights"`` (``k_T`` then
         holds each recording's coefficient at those heights, the surfaces' common lift included) or
         ``"none"``
-    relative, relative_stderr : (G,) -, each recording's measured level over their weighted mean, and its
-        error (nan where not measured)
     """
 
     k_T: np.ndarray
@@ -138,8 +136,15 @@ class ThrustLevels:
     differ: bool
     why: str
     basis: str = "far from surfaces"
-    relative: np.ndarray | None = None
-    relative_stderr: np.ndarray | None = None
+
+    @property
+    def relative(self) -> np.ndarray:
+        """(G,) -, each recording's measured level over their weighted mean (nan where not measured)."""
+        ok = np.isfinite(self.k_T) & np.isfinite(self.stderr)
+        if not ok.any():
+            return np.full(len(self.k_T), np.nan)
+        w = 1.0 / np.maximum(self.stderr[ok], 1e-300) ** 2
+        return self.k_T / float(np.sum(w * self.k_T[ok]) / np.sum(w))
 
     @property
     def spread_percent(self) -> float:
@@ -171,8 +176,6 @@ def _judged(k: np.ndarray, se: np.ndarray, names: list[str], basis: str, where: 
     mean = float(np.sum(w * k[ok]) / np.sum(w))
     chi2_dof = float(np.sum(w * (k[ok] - mean) ** 2) / (ok.sum() - 1))
     spread = float(np.ptp(k[ok]) / mean)
-    rel, rel_se = np.full(len(k), np.nan), np.full(len(k), np.nan)
-    rel[ok], rel_se[ok] = k[ok] / mean, se[ok] / mean
     listing = ", ".join(f"{n} {100 * (kg / mean - 1):+.1f} %" for n, kg, o in zip(names, k, ok) if o)
     differ = chi2_dof > LEVEL_CHI2 and spread > LEVEL_PRACTICAL
     if differ:
@@ -182,7 +185,7 @@ def _judged(k: np.ndarray, se: np.ndarray, names: list[str], basis: str, where: 
     else:
         why = (f"the recordings' thrust levels {where} agree ({listing}; chi^2/dof = {chi2_dof:.1f}, "
                f"spread {100 * spread:.1f} %): one thrust coefficient")
-    return ThrustLevels(k, se, level, differ, why, basis, rel, rel_se)
+    return ThrustLevels(k, se, level, differ, why, basis)
 
 
 def matched_height_levels(group: np.ndarray, t: np.ndarray, y_thrust: np.ndarray, S: np.ndarray,

@@ -136,7 +136,6 @@ def honest_stderr(budget: dict[str, dict[str, float]]) -> dict[str, float]:
     return {k: b["stderr"] for k, b in budget.items()}
 
 
-
 def with_curve_check(budget: dict[str, dict[str, float]], params: dict[str, float], param: str,
                      curve_value: float) -> dict[str, dict[str, float]]:
     """``budget`` with the **surface curve** term of the module docstring for ``param``: half the

@@ -236,9 +236,10 @@ def _resolve_plan(spec: str | Path, profile: str, seeds: int | None, overrides: 
 
 
 def _data_key(plan: _Plan) -> str:
-    """The training data the sweep's runs read, as the folders are now: a hash of each existing data
-    folder's content hash (:func:`uavturb.io.shards.dataset_hash`), ``""`` where none exists yet (the runs
-    make their synthetic data from their configs)."""
+    """The training data the sweep's runs read, as the folders are now: a hash of the existing data
+    folders' content hashes (:func:`uavturb.io.shards.dataset_hash`; their paths left out, so a clone
+    elsewhere names the same data alike), ``""`` where none exists yet (the runs make their synthetic
+    data from their configs)."""
     hashes: dict[str, str] = {}
     for cfg in [*plan.base_pretrain.values(), *plan.base_height.values()]:
         root = stage_data_root(cfg).resolve()
@@ -248,7 +249,7 @@ def _data_key(plan: _Plan) -> str:
             hashes[str(root)] = dataset_hash(root)
         except InputError:  # no dataset files yet: the runs write them
             continue
-    return config_hash(hashes) if hashes else ""
+    return config_hash(sorted(hashes.values())) if hashes else ""
 
 
 def _open_parent(plan: _Plan, runs_of: _SweepRuns, sweep_hash: str) -> tuple[str, bool]:

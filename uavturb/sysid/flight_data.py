@@ -214,7 +214,8 @@ def _nearest_rows(t_ns: np.ndarray, update_ns: np.ndarray) -> np.ndarray:
     """(K,) bool, the rows of the time base ``t_ns`` nearest each update time in ``update_ns`` that falls
     within it (a held stream's last row, which only marks where the stream ends, excepted)."""
     fresh = np.zeros(len(t_ns), bool)
-    u = update_ns[(update_ns >= t_ns[0]) & (update_ns <= t_ns[-1])][:-1]
+    u = update_ns[:-1]
+    u = u[(u >= t_ns[0]) & (u <= t_ns[-1])]
     if len(u) and len(t_ns) > 1:
         i = np.clip(np.searchsorted(t_ns, u), 1, len(t_ns) - 1)
         fresh[np.where(u - t_ns[i - 1] <= t_ns[i] - u, i - 1, i)] = True
