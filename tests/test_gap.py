@@ -2,6 +2,7 @@
 
 import json
 
+import mlflow
 import pytest
 
 from uavturb.errors import InputError
@@ -51,6 +52,18 @@ def test_clean_flight_names_nothing(tmp_path, flights):
     assert report["effects"] == []
     assert report["protocol"] == "last-30%-of-each-recording"
     assert report["schema"] == "uavturb.gap/1"
+
+
+def test_the_gap_run_is_logged_to_mlflow_with_the_report(tmp_path, flights, module_mlflow_store):
+    out = tmp_path / "report"
+    report = gap([str(flights["drag"])], out, sim_effects="none")  # logged from a second process
+    client = mlflow.MlflowClient(module_mlflow_store)
+    runs = client.search_runs([client.get_experiment_by_name("uavturb-gap").experiment_id])
+    assert len(runs) == 1
+    run = runs[0]
+    assert run.data.metrics["gap/final_heldout_rmse_N"] == pytest.approx(report["final"]["heldout_rmse_N"])
+    assert run.data.tags["effects"] == ",".join(e["name"] for e in report["effects"])
+    assert "report.json" in {a.path for a in client.list_artifacts(run.info.run_id)}
 
 
 def test_rotor_drag_is_named_and_fitted(tmp_path, flights):
