@@ -2,9 +2,6 @@
 Savitzky-Golay values and derivatives in every window / derivative / layout the package uses, edges and
 short inputs; the first-order lag against lfilter with its initial state and the closed-form step response."""
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from scipy import signal
@@ -104,9 +101,3 @@ def test_first_order_lag_step_response_and_layouts():
     with pytest.raises(ValueError, match="not in"):
         first_order_lag(np.ones(3), 1.5, 0.0)
 
-
-def test_the_gap_command_does_not_import_scipy_signal_or_stats():
-    code = ("import sys, uavturb.commands.gap, uavturb.cli; uavturb.cli._parser();"
-            "print(sorted(m for m in sys.modules if m.split('.')[:2] in (['scipy', 'signal'], ['scipy', 'stats'])))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.strip() == "[]"
