@@ -10,10 +10,12 @@ with what the commands load anyway (numpy, ``scipy.ndimage.convolve1d``, ``scipy
   same names compute, the same way (least-squares coefficients, a convolution, a polynomial fitted to
   the first and the last window for the edges: scipy's ``mode="interp"``, the only mode here), so
   their results agree with scipy's to rounding (``tests/test_filters.py``).
-- :func:`first_order_lag` is ``scipy.signal.lfilter([1 - a], [1, -a], x, zi=a * y_before)``, by
-  blocks: inside a block of :data:`LAG_BLOCK` samples one matrix product, across blocks the same
-  recurrence on the blocks' last samples (recursively). Only powers ``a^k <= 1`` appear, so it is
-  stable for ``0 <= a <= 1`` at any length; it runs about as fast as ``lfilter`` on 10^6 rows.
+- :func:`first_order_lag` is ``scipy.signal.lfilter([1 - a], [1, -a], x, zi=a * y_before)`` by
+  recursive doubling: ``y[s:] += a^s y[:-s]`` for ``s = 1, 2, 4, ...``, at most ``log2(N)`` whole-array
+  passes, fewer where ``a^s`` underflows to 0 first. Only powers ``a^s <= 1`` appear, so it is stable
+  for ``0 <= a <= 1`` at any length; it agrees with ``lfilter`` to a few units in the last place (not
+  bitwise: a different order of the same sums) and takes 1.5 to 3 times its time (15,000 x 4 rows:
+  0.9 against 0.6 ms; 10^6 x 4: 0.09-0.12 against 0.04 s on the 2-core machine, quiet).
 """
 
 from __future__ import annotations
@@ -23,9 +25,6 @@ import math
 import numpy as np
 from scipy.linalg import lstsq
 from scipy.ndimage import convolve1d
-
-#: samples per block of :func:`first_order_lag` (32 to 64 were the fastest on 10^6 x 4)
-LAG_BLOCK = 32
 
 
 def savgol_coeffs(window: int, polyorder: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
@@ -137,26 +136,12 @@ def first_order_lag(x: np.ndarray, a: float, y_before: np.ndarray) -> np.ndarray
     x = np.asarray(x, dtype=np.float64)
     if len(x) == 0:
         return x.copy()
-    before = np.broadcast_to(np.asarray(y_before, dtype=np.float64), x.shape[1:])
-    # in deviations from the start: smaller numbers, and an input that stays at the start stays exact
-    rows = ((1.0 - a) * (x - before)).reshape(len(x), -1).T  # (columns, N): the recurrence along the last axis
-    return np.ascontiguousarray(_recurrence(rows, a, np.zeros(len(rows))).T).reshape(x.shape) + before
-
-
-def _recurrence(u: np.ndarray, a: float, before: np.ndarray) -> np.ndarray:
-    """``y[:, n] = a y[:, n-1] + u[:, n]`` with ``y[:, -1] = before``, for (C, N) ``u`` and (C,) ``before``."""
-    C, N = u.shape
-    L = LAG_BLOCK
-    nb = -(-N // L)
-    blocks = np.zeros((C, nb * L))
-    blocks[:, :N] = u
-    i = np.arange(L)
-    T = np.tril(a ** np.maximum(i[:, None] - i[None, :], 0))  # T[i, j] = a^(i - j), i >= j
-    y = (blocks.reshape(C * nb, L) @ T.T).reshape(C, nb, L)  # each block's response from rest
-    if nb > 1:  # the outputs before each block: the same recurrence on the blocks' last samples, pole a^L
-        ends = _recurrence(y[:, :, -1], a**L, before)
-        start = np.concatenate([before[:, None], ends[:, :-1]], axis=1)
-    else:
-        start = before[:, None]
-    y += start[:, :, None] * a ** (i + 1)
-    return y.reshape(C, nb * L)[:, :N]
+    before = np.asarray(y_before, dtype=np.float64)
+    # in deviations from the start (which makes the start 0): smaller numbers, and an input that
+    # stays at the start gives exactly the start
+    y = (1.0 - a) * (x - before)
+    s, power = 1, a  # power = a^s
+    while s < len(y) and power != 0.0:  # after the pass for s, y[n] holds sum_{k = 0 .. 2s-1} a^k u[n - k]
+        y[s:] += power * y[:-s]
+        s, power = 2 * s, power * power
+    return y + before
