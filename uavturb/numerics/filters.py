@@ -1,15 +1,15 @@
 """Savitzky-Golay filters and the first-order lag filter, without ``scipy.signal``.
 
 Why not ``scipy.signal``: its ``__init__`` imports ``scipy.stats``, the window functions, the LTI
-systems and ``scipy.interpolate``: about 1.2 s of the 2.4 s that ``import uavturb.commands.gap`` took
-(``python -X importtime``, the 2-core development machine, scipy 1.17), paid by every command that
-smooths a stream, ``uavturb gap`` first. uavturb uses three of its functions; they are written here
+systems and ``scipy.interpolate``: 1.2 s of the 2.4 s that ``import uavturb.commands.gap`` took
+(``python -X importtime``, the 2-core development machine, scipy 1.17; 1.55 s without it and
+``scipy.stats``), paid by every command that smooths a stream, ``uavturb gap`` first. uavturb uses three of its functions; they are written here
 with what the commands load anyway (numpy, ``scipy.ndimage.convolve1d``, ``scipy.linalg.lstsq``).
 
 - :func:`savgol_coeffs` and :func:`savgol_filter` compute what ``scipy.signal``'s functions of the
   same names compute, the same way (least-squares coefficients, a convolution, a polynomial fitted to
   the first and the last window for the edges: scipy's ``mode="interp"``, the only mode here), so
-  their results agree with scipy's to rounding (``tests/test_filters.py``).
+  their results are scipy's (bitwise on the windows the package uses; ``tests/test_numerics_filters.py``).
 - :func:`first_order_lag` is ``scipy.signal.lfilter([1 - a], [1, -a], x, zi=a * y_before)`` by
   recursive doubling: ``y[s:] += a^s y[:-s]`` for ``s = 1, 2, 4, ...``, at most ``log2(N)`` whole-array
   passes, fewer where ``a^s`` underflows to 0 first. Only powers ``a^s <= 1`` appear, so it is stable
