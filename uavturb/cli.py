@@ -42,6 +42,26 @@ def _renamed(new: str) -> type[argparse.Action]:
 VEHICLE_HELP = "built-in vehicle (quad, hex), shipped (firefly) or vehicle.yaml"
 
 
+class _Later:
+    """Names a help text lists, looked up only when that help page is printed: the modules holding them
+    are slow to import (the presets load numpy and scipy, the sweep file OmegaConf; ~1.5 s), which neither
+    ``uavturb --help`` nor any command's start-up should pay. The library checks the value given
+    (an unknown preset or profile: one line naming the option and listing the allowed values)."""
+
+    def __init__(self, lookup: Callable[[], str]) -> None:
+        self.lookup = lookup
+
+    def __str__(self) -> str:
+        return self.lookup()
+
+
+def _later(action: argparse.Action, **names: Callable[[], str]) -> None:
+    """Let ``action``'s help text show ``%(KEY)s`` for each of ``names``, filled when the help is printed
+    (argparse fills a help text's ``%(...)s`` from the action's attributes, as it does ``%(default)s``)."""
+    for key, lookup in names.items():
+        setattr(action, key, _Later(lookup))
+
+
 def _sim_presets() -> str:
     from uavturb.sim.dataset.presets import PRESETS
 
@@ -132,10 +152,9 @@ def _add_import_euroc(sub: argparse._SubParsersAction) -> None:
 def _add_generate(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("generate", help="generate data")
     gsub = s.add_subparsers(dest="what", required=True, metavar="WHAT")
-    sim_presets = _sim_presets()
     _add_generate_flight(gsub)
-    _add_generate_sim(gsub, sim_presets)
-    _add_generate_normals(gsub, sim_presets)
+    _add_generate_sim(gsub)
+    _add_generate_normals(gsub)
     g = gsub.add_parser("merge", help="join the folders of `generate sim --shard` runs into one dataset")
     g.add_argument("dirs", nargs="+", metavar="DIR")
     g.add_argument("--out", required=True, metavar="DIR", help="merged dataset folder (may be one of DIR)")
@@ -178,9 +197,9 @@ def _add_conditions(group: argparse._ArgumentGroup) -> None:
         group.add_argument(option_name(f.name), default=f.default, **kw)  # a pair stays text: read by the schema
 
 
-def _add_generate_sim(gsub: argparse._SubParsersAction, sim_presets: str) -> None:
+def _add_generate_sim(gsub: argparse._SubParsersAction) -> None:
     g = gsub.add_parser("sim", help="training shards: simulated flights through procedural scenes (resumable)")
-    g.add_argument("--preset", default="quick", help=f"{sim_presets} (default quick)")
+    _later(g.add_argument("--preset", default="quick", help="%(presets)s (default quick)"), presets=_sim_presets)
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (manifest.json, traj_*/)")
     g.add_argument("--workers", type=int, metavar="N", default=1, help="processes, one renderer each (default 1)")
     g.add_argument("--seed", type=int, default=0)
@@ -192,9 +211,9 @@ def _add_generate_sim(gsub: argparse._SubParsersAction, sim_presets: str) -> Non
     _add_preset_overrides(g, "width=64 trajectories=4")
 
 
-def _add_generate_normals(gsub: argparse._SubParsersAction, sim_presets: str) -> None:
+def _add_generate_normals(gsub: argparse._SubParsersAction) -> None:
     g = gsub.add_parser("normals", help="depth/normal pre-training pairs from training scenes, or from IRS")
-    g.add_argument("--preset", default="quick", help=f"{sim_presets} (default quick)")
+    _later(g.add_argument("--preset", default="quick", help="%(presets)s (default quick)"), presets=_sim_presets)
     g.add_argument("--out", required=True, metavar="DIR", help="dataset folder (the pairs go to DIR/pairs)")
     g.add_argument("--workers", type=int, metavar="N", default=1)
     g.add_argument("--seed", type=int, default=0)
@@ -259,9 +278,10 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
 def _add_sweep(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("sweep", help="run an ablation sweep (sweeps/ablation.yaml: the paper's Table 1) in MLflow")
     s.add_argument("spec", metavar="SWEEP", help="a sweep file, or a shipped sweep's name (ablation)")
-    s.add_argument("--profile", "--preset", dest="profile", default="quick", metavar="PROFILE",
-                   help=f"how the sweep runs: a profile of the sweep file (ablation: {_sweep_profiles()}; default "
-                        "quick): seeds and overrides, not a dataset preset; --preset is its old spelling")
+    _later(s.add_argument("--profile", "--preset", dest="profile", default="quick", metavar="PROFILE",
+                          help="how the sweep runs: a profile of the sweep file (ablation: %(profiles)s; default "
+                               "quick): seeds and overrides, not a dataset preset; --preset is its old spelling"),
+           profiles=_sweep_profiles)
     s.add_argument("--seeds", type=int, help="number of seeds (default: the profile's)")
     _add_mlflow_experiment(s)
     s.add_argument("--config-dir", metavar="DIR", help=CONFIG_DIR_HELP)

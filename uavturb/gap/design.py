@@ -28,9 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scipy.signal import savgol_filter
-
 from uavturb.gap.nominal import ThrustLevels, anchored_bias, thrust_levels
+from uavturb.numerics.filters import savgol_filter
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, EffectInputs, lag_rotor_speeds
@@ -186,7 +185,7 @@ def _smooth_height(t: np.ndarray, z: np.ndarray, window_s: float) -> np.ndarray:
     """``z`` [m] through a quadratic Savitzky-Golay filter of ``window_s`` [s]."""
     dt = float(np.median(np.diff(t)))
     n = max(5, int(round(window_s / dt)) | 1)
-    return savgol_filter(z, n, 2, mode="interp") if len(z) > n else z
+    return savgol_filter(z, n, 2) if len(z) > n else z
 
 
 def _in_flight(fd: FlightData, mass: float, k_T_guess: float | None, min_thrust_ratio: float,

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
-from scipy.signal import savgol_filter
 
 from uavturb.gap.design import GapData
+from uavturb.numerics.filters import savgol_filter
 from uavturb.sysid.streams import noise_from_updates
 
 AXES = "xyz"
@@ -123,7 +123,7 @@ def features(data: GapData) -> dict[str, np.ndarray]:
     for g in np.unique(data.group):
         m = data.group == g
         dt = float(np.median(np.diff(data.t[m])))
-        rate[m] = savgol_filter(wsum[m], 11, 2, deriv=1, delta=dt, mode="interp") if m.sum() > 11 else 0.0
+        rate[m] = savgol_filter(wsum[m], 11, 2, deriv=1, delta=dt) if m.sum() > 11 else 0.0
     f = {
         "d_down": np.minimum(data.d_down, FAR),
         "d_up": np.minimum(data.d_up, FAR),

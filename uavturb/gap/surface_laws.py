@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 from scipy.optimize import least_squares
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtrc  # chi^2 survival function (scipy.stats' chi2.sf) without scipy.stats
 
 from uavturb.errors import InputError
 from uavturb.gap.design import GapData, dependent_columns
@@ -275,7 +275,7 @@ def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False
     in_range = spec.physical_range.violation({spec.params[0]: float(z[0])}, None) is None
     fit = LawFit(law, spec.params[0], float(z[0]), stderr, float(se_fit[0]), se_jack, float(spread),
                  float(z[1]) if free_level else 1.0, float(se_fit[1]) if free_level else 0.0, chi2, dof, chi2_dof,
-                 float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan"), binned.bins(z),
+                 float(chdtrc(dof, chi2)) if dof > 0 else float("nan"), binned.bins(z),
                  bool(np.isfinite(chi2_dof) and chi2_dof < LAW_FITS_CHI2_DOF), in_range, "",
                  lambda dd: binned.at(dd, z))
     fit.why = _why(fit, d[keep], res, spec)

@@ -15,7 +15,8 @@ holds at least :data:`MIN_WINDOW_SAMPLES` samples (a quadratic through 3 points 
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import savgol_filter
+
+from uavturb.numerics.filters import savgol_filter
 
 #: fewest samples in a window (at 50 Hz a 0.05 s window would hold 3)
 MIN_WINDOW_SAMPLES = 5
@@ -54,7 +55,7 @@ def local_quadratic(t: np.ndarray, x: np.ndarray, window: int, deriv: int = 1) -
     dt = float(np.median(step))
     if dt > 0 and float(np.max(np.abs(step - dt))) <= UNIFORM_TOLERANCE * dt:
         # uniform sampling: the same fits by Savitzky-Golay's convolution (equal to 1e-10), ~50x faster
-        return savgol_filter(x, n, 2, deriv=deriv, delta=dt, axis=0, mode="interp")
+        return savgol_filter(x, n, 2, deriv=deriv, delta=dt, axis=0)
     out = np.empty_like(flat)
     for a in range(0, N, CHUNK_ROWS):  # in chunks: the (rows, n, 3) fits of an hour at 200 Hz would take GBs
         rows = np.arange(a, min(a + CHUNK_ROWS, N))

@@ -33,13 +33,13 @@ from rosbags.rosbag1 import Reader, ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
-from scipy.signal import savgol_filter
 
 from uavturb.errors import InputError
 from uavturb.io import align
 from uavturb.io.body_frame import imu_to_body
 from uavturb.io.reader import check_rotor_speeds, checked_quaternions
 from uavturb.io.recording import GroundTruth, Imu, Poses, Recording, Rotors
+from uavturb.numerics.filters import savgol_filter
 from uavturb.physics.vehicle import Vehicle
 
 MOTOR_TOPIC = "/fcu/motor_speed"

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy.signal import lfilter
 
 from uavturb.errors import InputError
+from uavturb.numerics.filters import first_order_lag
 from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
 from uavturb.physics.constants import GRAVITY
@@ -156,9 +156,9 @@ def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray
 
     Notes
     -----
-    The recurrence runs as a scipy filter (C speed) on each stretch between dropouts (steps over
-    :data:`LAG_GAP` times the median step; the lag restarts from the command after one, as it has
-    long settled). On a stretch whose steps are jittered by less than :data:`LAG_JITTER` of their
+    The recurrence runs vectorised (:func:`uavturb.numerics.filters.first_order_lag`) on each
+    stretch between dropouts (steps over :data:`LAG_GAP` times the median step; the lag restarts
+    from the command after one, as it has long settled). On a stretch whose steps are jittered by less than :data:`LAG_JITTER` of their
     mean the filter uses the mean step: the error is of the order of the jitter times the lag's own
     small effect. Stretches jittered more run the exact loop over time.
     """
@@ -191,8 +191,7 @@ def _lag_stretch(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray:
     if float(np.std(dt)) <= LAG_JITTER * mean:
         ak = float(np.exp(-mean / tau))
         # w_k = a w_{k-1} + (1 - a) w_cmd_{k-1}: the input delayed by one sample
-        y, _ = lfilter([1 - ak], [1, -ak], w_cmd[:-1], axis=0, zi=np.atleast_2d(ak * w_cmd[0]))
-        out[1:] = y
+        out[1:] = first_order_lag(w_cmd[:-1], ak, w_cmd[0])
         return out
     a = np.exp(-dt / tau)
     for k in range(1, len(w_cmd)):

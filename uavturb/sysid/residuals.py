@@ -30,12 +30,12 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.signal import savgol_coeffs
 
 from uavturb.errors import InputError
 from uavturb.io.differentiate import local_quadratic, window_samples
 from uavturb.io.publish import publish_file
 from uavturb.io.recording import Recording
+from uavturb.numerics.filters import savgol_coeffs
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY, dynamics_for, physical_params
 from uavturb.physics.vehicle import Vehicle

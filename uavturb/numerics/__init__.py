@@ -1,0 +1,1 @@
+"""Numerical building blocks below the physics: nothing here knows about drones or recordings."""
