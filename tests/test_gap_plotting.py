@@ -7,7 +7,7 @@ import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, stride_sample
+from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, scatter_rows, stride_sample
 
 
 def test_envelope_keeps_each_columns_extremes_and_the_ends_in_time_order():
@@ -62,6 +62,8 @@ def test_bad_arguments_are_refused():
         column_envelope(np.arange(5.0), np.arange(5.0), 0)
     with pytest.raises(ValueError, match="max_points"):
         stride_sample(5, 0)
+    with pytest.raises(ValueError, match="shape of x"):
+        scatter_rows(np.arange(10.0), (np.arange(9.0),), max_points=3)
 
 
 def _line_pixels(x, y, width_px=600, lw=0.3):
@@ -98,3 +100,26 @@ def test_stride_sample_bounds_points_deterministically():
         idx = stride_sample(n)
         assert 0 < len(idx) <= 20_000 and idx[0] == 0 and len(np.unique(np.diff(idx))) <= 1  # one fixed stride
         assert len(idx) > 20_000 // 2 or n <= 20_000  # the smallest stride that fits: not needlessly sparse
+
+
+def test_scatter_rows_keep_the_extremes_so_the_limits_stay():
+    rng = np.random.default_rng(5)
+    n = 50_001
+    x = rng.uniform(0.0, 0.5, n)  # m
+    before, after = rng.normal(0.0, 0.01, n), rng.normal(0.0, 0.005, n)  # N
+    x[7], before[12_346], after[33_334], after[4] = 0.9, 0.2, -0.3, np.nan  # off the stride of 3
+    rows = scatter_rows(x, (before, after))
+    assert np.all(np.diff(rows) > 0) and len(rows) <= 20_000 + 6
+    assert {7, 12_346, 33_334} <= set(rows.tolist()) and 4 not in rows  # the extremes, not the NaN
+    assert set(stride_sample(n).tolist()) <= set(rows.tolist())
+    limits = []
+    for r in (np.arange(n), rows):
+        fig = Figure(figsize=(11, 4), dpi=100)
+        FigureCanvasAgg(fig)
+        ax = fig.subplots(1, 2, sharey=True)
+        ax[0].scatter(x[r], before[r], s=1)
+        ax[1].scatter(x[r], after[r], s=1)
+        limits.append((ax[0].get_xlim(), ax[1].get_xlim(), ax[0].get_ylim()))
+    assert limits[0] == limits[1]
+    short = np.arange(100.0)
+    assert scatter_rows(short, (short,)).tolist() == list(range(100))

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from uavturb.gap.locate import AXES, features
-from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, stride_sample
+from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, scatter_rows
 from uavturb.gap.surface_curve import SurfaceCurve
 from uavturb.gap.surface_laws import LawFit
 
@@ -111,7 +111,7 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
         j = int(np.argmax(np.var(baseline_rs, axis=0)))
         fig = _figure((11, 4))
         ax = fig.subplots(1, 2, sharey=True)
-        shown = stride_sample(len(x))  # the mean per bin below is of every row
+        shown = scatter_rows(x, (baseline_rs[:, j], final_rs[:, j]))  # the mean per bin below is of every row
         for a, r, title in ((ax[0], baseline_rs, BEFORE_ALL), (ax[1], final_rs, "after")):
             a.scatter(x[shown], r[shown, j], s=1, alpha=0.3)
             edges = np.unique(np.quantile(x, np.linspace(0, 1, 25)))
