@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import gc
+
 import numpy as np
 import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, scatter_rows, stride_sample
+from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, gc_paused, scatter_rows, stride_sample
 
 
 def test_envelope_keeps_each_columns_extremes_and_the_ends_in_time_order():
@@ -123,3 +125,23 @@ def test_scatter_rows_keep_the_extremes_so_the_limits_stay():
     assert limits[0] == limits[1]
     short = np.arange(100.0)
     assert scatter_rows(short, (short,)).tolist() == list(range(100))
+
+
+def test_gc_paused_restores_the_collectors_state_also_on_errors():
+    @gc_paused
+    def state(fail=False):
+        if fail:
+            raise RuntimeError("boom")
+        return gc.isenabled()
+
+    assert gc.isenabled()
+    assert state() is False and gc.isenabled()
+    with pytest.raises(RuntimeError, match="boom"):
+        state(fail=True)
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        assert state() is False
+        assert not gc.isenabled()  # paused by the caller: left paused
+    finally:
+        gc.enable()

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from uavturb.gap.locate import AXES, features
-from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, scatter_rows
+from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, gc_paused, scatter_rows
 from uavturb.gap.surface_curve import SurfaceCurve
 from uavturb.gap.surface_laws import LawFit
 
@@ -77,6 +77,7 @@ def _plot_time(ax, t: np.ndarray, y: np.ndarray, pixels: int, **kw) -> None:
     ax.plot(t[keep], y[keep], **kw)
 
 
+@gc_paused
 def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, segs, top_driver: str | None,
                 heldout_before, heldout_after) -> list[str]:
     """Three figures a person needs to believe the report; returns their file names."""
@@ -317,6 +318,7 @@ def _jsonable(o):
     raise TypeError(type(o))
 
 
+@gc_paused
 def plot_surface_curve(folder: Path, curve: SurfaceCurve, fits: dict[str, LawFit]) -> str:
     """``folder/surface_curve.png``: measured ratio against rotor-plane height with error bars and counts,
     and each fitted law; returns the file name."""
