@@ -1,4 +1,4 @@
-"""Thinning what the gap report's plots draw to what a raster image can show.
+"""Drawing the gap report's plots fast: only what a raster image can show, and without collector pauses.
 
 A line over time drawn through many more rows than its axes have pixel columns costs Agg time
 for nothing: within a narrow column only the extremes are visible (the line covers the column from
