@@ -15,7 +15,9 @@ written), one that was asked finishes its short write first.
 
 from __future__ import annotations
 
+import importlib
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -84,10 +86,20 @@ class StoreProcess:
         # its output pipes are closed by the garbage collector; it exits on its own after its imports
 
 
+#: modules that opening a SQLite store and logging a run import on first use (MLflow 3.x; listed from
+#: ``sys.modules`` before and after a ``log_run``): imported during the warm-up instead, ~0.5 s
+WARM_MODULES = ("mlflow", "mlflow.store.tracking.sqlalchemy_store", "mlflow.store.tracking.sqlalchemy_workspace_store",
+                "mlflow.tracing.processor.otel", "mlflow.tracing.export", "alembic.command", "alembic.config",
+                "sqlalchemy.dialects.sqlite", "opentelemetry.sdk.metrics")
+
+
 def _warm_up() -> None:
     """Import what opening and writing the store needs, without touching any store."""
-    import mlflow  # noqa: F401 - the point is the import
-    from mlflow.store.tracking import sqlalchemy_store  # noqa: F401
+    for name in WARM_MODULES:
+        try:
+            importlib.import_module(name)
+        except ImportError:  # another MLflow version: that module is then imported when it is needed
+            pass
     from sqlalchemy.orm import configure_mappers
 
     configure_mappers()
@@ -106,11 +118,15 @@ def _serve() -> int:
         with raise_on_signals():  # a SIGTERM waits for a store write to end (errors.signals_deferred)
             run_id = log_run(experiment, artifacts=None if artifacts is None else Path(artifacts), **request)
     except Exception as e:  # noqa: BLE001 - the caller reports any failure as one line
-        print(json.dumps({"error": f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"}))
+        print(json.dumps({"error": f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"}), flush=True)
         return 1
-    print(json.dumps({"run_id": run_id}))
+    print(json.dumps({"run_id": run_id}), flush=True)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(_serve())
+    code = _serve()
+    # the run is written and the answer flushed: skip the interpreter's teardown of MLflow, SQLAlchemy and
+    # OpenTelemetry (~0.5 s the caller would wait for)
+    sys.stderr.flush()
+    os._exit(code)
