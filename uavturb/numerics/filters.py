@@ -114,6 +114,11 @@ def _fit_edge(x: np.ndarray, y: np.ndarray, axis: int, start: int, rows: tuple[i
     ys[rows[0]:rows[1]] = (values / delta**deriv).reshape((rows[1] - rows[0], *ys.shape[1:]))
 
 
+#: a^s under which the recursive doubling of :func:`first_order_lag` stops (its terms are then below float64's
+#: resolution, 2.2e-16, of the largest output)
+_NEGLIGIBLE = 1e-17
+
+
 def first_order_lag(x: np.ndarray, a: float, y_before: np.ndarray) -> np.ndarray:
     """``y[n] = a y[n-1] + (1 - a) x[n]`` along axis 0, started from ``y[-1] = y_before``.
 
@@ -141,7 +146,9 @@ def first_order_lag(x: np.ndarray, a: float, y_before: np.ndarray) -> np.ndarray
     # stays at the start gives exactly the start
     y = (1.0 - a) * (x - before)
     s, power = 1, a  # power = a^s
-    while s < len(y) and power != 0.0:  # after the pass for s, y[n] holds sum_{k = 0 .. 2s-1} a^k u[n - k]
+    # after the pass for s, y[n] holds sum_{k = 0 .. 2s-1} a^k u[n - k]; once a^s is under _NEGLIGIBLE, what
+    # the next passes would add is below float64's resolution of the largest |y| (a = 0.9: 9 passes, not 13)
+    while s < len(y) and power >= _NEGLIGIBLE:
         y[s:] += power * y[:-s]
         s, power = 2 * s, power * power
     return y + before
