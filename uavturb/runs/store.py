@@ -61,7 +61,8 @@ from uavturb.runs.processes import process_alive, process_tags
 def _whole(write: Any) -> Any:
     """A write to the store that SIGTERM or SIGINT does not cut in the middle (:func:`uavturb.errors.signals_deferred`:
     an SQLite transaction cut short leaves the database locked for the write that marks the run KILLED).
-    Lightning's ``MLFlowLogger`` writes metrics outside these; a signal there is rarer (one short write an epoch)."""
+    Lightning's ``MLFlowLogger`` writes metrics outside this module: :class:`uavturb.runs.trainer.StageMetricsLogger`
+    holds signals over its writes the same way."""
     @functools.wraps(write)
     def wrapped(*args: Any, **kwargs: Any) -> Any:
         with signals_deferred():

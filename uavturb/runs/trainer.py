@@ -27,7 +27,7 @@ from lightning.pytorch.loggers import MLFlowLogger
 from omegaconf import DictConfig
 
 from uavturb.data.datamodules import PairsDataModule, ShardWindowsDataModule, dataset_camera
-from uavturb.errors import InputError
+from uavturb.errors import InputError, signals_deferred
 from uavturb.runs import store
 from uavturb.runs.accelerators import pin_memory
 from uavturb.runs.training_data import resolve_ground_effect_law
@@ -49,14 +49,27 @@ def stage_metric_names(stage: str, metrics: dict[str, float]) -> dict[str, float
 
 
 class StageMetricsLogger(MLFlowLogger):
-    """Lightning's MLFlowLogger that logs the stage's metric names (:func:`stage_metric_names`)."""
+    """Lightning's MLFlowLogger that logs the stage's metric names (:func:`stage_metric_names`), each of its
+    writes whole: a SIGTERM or SIGINT that arrives during one takes effect when it ends
+    (:func:`uavturb.errors.signals_deferred`, as for :mod:`uavturb.runs.store`'s writes). Cut short, an SQLite
+    transaction left the database locked, and the write that then marks the run ended failed ("database is
+    locked": the run FAILED with an internal error instead of KILLED, seen under load)."""
 
     def __init__(self, stage: str, **kwargs: Any):
         super().__init__(**kwargs)
         self.stage = stage
 
     def log_metrics(self, metrics, step=None):
-        super().log_metrics(stage_metric_names(self.stage, dict(metrics)), step)
+        with signals_deferred():
+            super().log_metrics(stage_metric_names(self.stage, dict(metrics)), step)
+
+    def log_hyperparams(self, params):
+        with signals_deferred():
+            super().log_hyperparams(params)
+
+    def finalize(self, status: str = "success") -> None:
+        with signals_deferred():
+            super().finalize(status)
 
 
 def _limit(x: float) -> int | float:
