@@ -50,3 +50,15 @@ def test_a_store_that_cannot_be_opened_is_one_line(report_folder, tmp_path, monk
     with StoreProcess() as proc, pytest.raises(StoreError) as e:
         proc.log_run("uavturb-gap", run_name="gap a", params={}, metrics={}, artifacts=report_folder)
     assert "\n" not in str(e.value) and "not_a_folder" in str(e.value)
+
+
+def test_without_a_second_process_the_run_is_logged_in_this_one(report_folder, tmp_path, monkeypatch):
+    def no_process(*args, **kwargs):
+        raise OSError("no more processes")
+
+    monkeypatch.setattr("uavturb.runs.store_process.subprocess.Popen", no_process)
+    with StoreProcess() as proc:
+        rid = proc.log_run("uavturb-gap", run_name="gap c", params={"seed": 1}, metrics={"m": 2.0},
+                           artifacts=report_folder)
+    run = mlflow.MlflowClient(f"sqlite:///{tmp_path / 'mlflow.db'}").get_run(rid)
+    assert run.data.metrics["m"] == 2.0 and run.info.status == "FINISHED"

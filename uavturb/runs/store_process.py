@@ -34,13 +34,17 @@ class StoreProcess:
     """A second process, started now, that will log one run (:func:`uavturb.runs.store.log_run`).
 
     Use it as a context manager around the work whose result it logs: leaving the block without
-    :meth:`log_run` (an error) lets the process end without opening the store.
+    :meth:`log_run` (an error) lets the process end without opening the store. Where no second process can
+    be started, :meth:`log_run` logs in this one.
     """
 
     def __init__(self) -> None:
-        self._proc = subprocess.Popen([sys.executable, "-m", "uavturb.runs.store_process"], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                      start_new_session=True)
+        try:
+            self._proc: subprocess.Popen | None = subprocess.Popen(
+                [sys.executable, "-m", "uavturb.runs.store_process"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE, text=True, start_new_session=True)
+        except OSError:  # no second process here (no interpreter path, process limits): log in this one
+            self._proc = None
 
     def __enter__(self) -> StoreProcess:
         return self
@@ -56,6 +60,8 @@ class StoreProcess:
         ------
         StoreError : the run could not be logged (one line: the other process's error)
         """
+        if self._proc is None:
+            return log_run(experiment, artifacts=None if artifacts is None else Path(artifacts), **kwargs)
         request = json.dumps({"experiment": experiment, "artifacts": None if artifacts is None else str(artifacts),
                               **kwargs})
         try:
@@ -78,6 +84,8 @@ class StoreProcess:
 
     def close(self) -> None:
         """Let the process end without logging (no-op once it has logged)."""
+        if self._proc is None:
+            return
         if self._proc.poll() is None and self._proc.stdin is not None and not self._proc.stdin.closed:
             try:
                 self._proc.stdin.close()
