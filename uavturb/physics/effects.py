@@ -158,8 +158,8 @@ def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray
     -----
     The recurrence runs vectorised (:func:`uavturb.numerics.filters.first_order_lag`) on each
     stretch between dropouts (steps over :data:`LAG_GAP` times the median step; the lag restarts
-    from the command after one, as it has long settled). On a stretch whose steps are jittered by less than :data:`LAG_JITTER` of their
-    mean the filter uses the mean step: the error is of the order of the jitter times the lag's own
+    from the command after one, as it has long settled). On a stretch whose steps are jittered by
+    less than :data:`LAG_JITTER` of their mean the filter uses the mean step: the error is of the order of the jitter times the lag's own
     small effect. Stretches jittered more run the exact loop over time.
     """
     w_cmd = np.asarray(w_cmd, float)

@@ -58,7 +58,7 @@ from uavturb.runs.mutex import sqlite_path, store_lock
 from uavturb.runs.processes import process_alive, process_tags
 
 
-def _whole(write: Any) -> Any:
+def whole_write(write: Any) -> Any:
     """A write to the store that SIGTERM or SIGINT does not cut in the middle (:func:`uavturb.errors.signals_deferred`:
     an SQLite transaction cut short leaves the database locked for the write that marks the run KILLED).
     Lightning's ``MLFlowLogger`` writes metrics outside this module: :class:`uavturb.runs.trainer.StageMetricsLogger`
@@ -194,7 +194,7 @@ def run_tags(tags: dict[str, str] | None = None) -> dict[str, str]:
     return resolve_tags({**source_tags(), **process_tags(), **(tags or {})})
 
 
-@_whole
+@whole_write
 def claim_run(c: Any, run_id: str) -> None:
     """Mark ``run_id`` RUNNING and kept by this process (resuming a run, or a sweep's parent)."""
     c.update_run(run_id, status="RUNNING")
@@ -202,7 +202,7 @@ def claim_run(c: Any, run_id: str) -> None:
         c.set_tag(run_id, k, v)
 
 
-@_whole
+@whole_write
 def close_run(c: Any, run_id: str, exc: BaseException | None = None, *, note: str | None = None,
               resume_hint: bool = False) -> str:
     """End a run: FINISHED without ``exc``, KILLED for :class:`~uavturb.errors.Interrupted` (and
@@ -311,7 +311,7 @@ def on_conflict_retry(write: Any, *args: Any, **kwargs: Any) -> Any:
     return write(*args, **kwargs)  # the last attempt: its error, whatever it is, is the caller's
 
 
-@_whole
+@whole_write
 def log_dataset(mlflow_client, run_id: str, root: str | Path, digest: str, context: str = "training") -> None:
     """The dataset folder as the run's input (name, digest, local source): the UI's Dataset column."""
     from mlflow.entities import Dataset, DatasetInput, InputTag
@@ -323,7 +323,7 @@ def log_dataset(mlflow_client, run_id: str, root: str | Path, digest: str, conte
                       datasets=[DatasetInput(dataset, [InputTag("mlflow.data.context", context)])])
 
 
-@_whole
+@whole_write
 def log_run(experiment: str | None, *, run_name: str, params: dict[str, Any], metrics: dict[str, float],
             tags: dict[str, str] | None = None, artifacts: Path | None = None, artifact_path: str | None = None,
             parent_run_id: str | None = None, note: str | None = None) -> str:
@@ -365,7 +365,7 @@ def log_run(experiment: str | None, *, run_name: str, params: dict[str, Any], me
 VIEW_TAG_PREFIX = "mlflow.sharedViewState."
 
 
-@_whole
+@whole_write
 def save_view(experiment_id: str, key: str, name: str, *, search_filter: str,
               columns: list[str], order_by: str | None = None, ascending: bool = True) -> str:
     """A saved view of the experiment's runs table (the UI's "Views" menu); returns its URL fragment.
@@ -512,7 +512,7 @@ def latest_run(experiment_id: str, filter_string: str) -> Any | None:
     return runs[0] if runs else None
 
 
-@_whole
+@whole_write
 def start_run(experiment: str, run_name: str, tags: dict[str, str], *, params: dict[str, Any] | None = None,
               texts: dict[str, str] | None = None, dataset: tuple[Path, str, str] | None = None,
               experiment_is_id: bool = False) -> str:
@@ -538,7 +538,7 @@ def start_run(experiment: str, run_name: str, tags: dict[str, str], *, params: d
     return run_id
 
 
-@_whole
+@whole_write
 def reopen_run(run_id: str, tags: dict[str, str] | None = None) -> None:
     """Mark ``run_id`` RUNNING and kept by this process again (:func:`claim_run`), with ``tags`` set."""
     c = client()
@@ -546,7 +546,7 @@ def reopen_run(run_id: str, tags: dict[str, str] | None = None) -> None:
     set_tags(run_id, tags or {})
 
 
-@_whole
+@whole_write
 def set_tags(run_id: str, tags: dict[str, str]) -> None:
     """Tags of a run, set (or replaced)."""
     c = client()
@@ -554,7 +554,7 @@ def set_tags(run_id: str, tags: dict[str, str]) -> None:
         c.set_tag(run_id, k, str(v))
 
 
-@_whole
+@whole_write
 def log_params(run_id: str, params: dict[str, Any]) -> None:
     """Params of a run."""
     c = client()
@@ -562,14 +562,14 @@ def log_params(run_id: str, params: dict[str, Any]) -> None:
         c.log_param(run_id, k, v)
 
 
-@_whole
+@whole_write
 def finish_run(run_id: str, exc: BaseException | None = None, *, note: str | None = None,
                resume_hint: bool = False) -> str:
     """:func:`close_run` on the configured store: the run's end, with its description ``note``."""
     return close_run(client(), run_id, exc, note=note, resume_hint=resume_hint)
 
 
-@_whole
+@whole_write
 def log_texts(run_id: str, texts: dict[str, str]) -> None:
     """Text artifacts ``{path: text}`` of a run."""
     c = client()
@@ -582,13 +582,13 @@ def download_artifact(run_id: str, path: str, dst: str | Path) -> Path:
     return Path(client().download_artifacts(run_id, path, str(dst)))
 
 
-@_whole
+@whole_write
 def log_figure(run_id: str, figure: Any, path: str) -> None:
     """A matplotlib figure as the run's artifact ``path`` (``plots/test_heights.png``)."""
     client().log_figure(run_id, figure, path)
 
 
-@_whole
+@whole_write
 def record_failure(experiment: str, tags: dict[str, str], since_ms: int, error: BaseException, message: str,
                    traceback_text: str, run_name: str | None) -> None:
     """Leave the runs tagged ``tags`` and started since ``since_ms`` FAILED (KILLED when interrupted),
@@ -666,7 +666,7 @@ def run_checkpoint(run: str | Any, cache_dir: str | Path | None = None, local: s
                              f"no 'checkpoint' tag, no .ckpt artifact, nothing in {folder})")
 
 
-@_whole
+@whole_write
 def log_checkpoint(run_id: str, best: str | None) -> None:
     """The best checkpoint as artifact :data:`CHECKPOINT_ARTIFACT`; its local path as tag ``checkpoint``."""
     if not best:
@@ -731,7 +731,7 @@ def _update_best_alias(c: Any, name: str) -> str | None:
     return best
 
 
-@_whole
+@whole_write
 def log_onnx_model(run_id: str, onnx_path: Path, *, name: str, key: str, signature: Any,
                    input_example: dict[str, np.ndarray], metadata: dict[str, Any], artifacts: list[Path],
                    artifact_path: str, metrics: dict[str, float], tags: dict[str, str],

@@ -27,7 +27,7 @@ from lightning.pytorch.loggers import MLFlowLogger
 from omegaconf import DictConfig
 
 from uavturb.data.datamodules import PairsDataModule, ShardWindowsDataModule, dataset_camera
-from uavturb.errors import InputError, signals_deferred
+from uavturb.errors import InputError
 from uavturb.runs import store
 from uavturb.runs.accelerators import pin_memory
 from uavturb.runs.training_data import resolve_ground_effect_law
@@ -51,7 +51,7 @@ def stage_metric_names(stage: str, metrics: dict[str, float]) -> dict[str, float
 class StageMetricsLogger(MLFlowLogger):
     """Lightning's MLFlowLogger that logs the stage's metric names (:func:`stage_metric_names`), each of its
     writes whole: a SIGTERM or SIGINT that arrives during one takes effect when it ends
-    (:func:`uavturb.errors.signals_deferred`, as for :mod:`uavturb.runs.store`'s writes). Cut short, an SQLite
+    (:func:`uavturb.runs.store.whole_write`, as for the store's own writes). Cut short, an SQLite
     transaction left the database locked, and the write that then marks the run ended failed ("database is
     locked": the run FAILED with an internal error instead of KILLED, seen under load)."""
 
@@ -59,17 +59,17 @@ class StageMetricsLogger(MLFlowLogger):
         super().__init__(**kwargs)
         self.stage = stage
 
+    @store.whole_write
     def log_metrics(self, metrics, step=None):
-        with signals_deferred():
-            super().log_metrics(stage_metric_names(self.stage, dict(metrics)), step)
+        super().log_metrics(stage_metric_names(self.stage, dict(metrics)), step)
 
+    @store.whole_write
     def log_hyperparams(self, params):
-        with signals_deferred():
-            super().log_hyperparams(params)
+        super().log_hyperparams(params)
 
+    @store.whole_write
     def finalize(self, status: str = "success") -> None:
-        with signals_deferred():
-            super().finalize(status)
+        super().finalize(status)
 
 
 def _limit(x: float) -> int | float:
