@@ -13,7 +13,15 @@ from uavturb.gap.finder import _nominal
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.gap.nominal import (ThrustLevels, anchored_bias, block_mean_and_se, matched_height_levels,
                                  thrust_levels)
-from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr, with_curve_check
+from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, timing_interval
+from uavturb.gap.uncertainty import (
+    HEIGHT_REFERENCE_M,
+    error_budget,
+    honest_stderr,
+    timing_term,
+    with_curve_check,
+    with_systematic,
+)
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.ground_effect import force_ratio
@@ -188,3 +196,32 @@ def test_a_disagreeing_surface_curve_widens_the_stated_error():
     assert wide["limited_by"] == "surface_curve" and budget["mu"]["stderr"] == 0.64  # the input is left alone
     close = with_curve_check(budget, {"mu": 3.6}, "mu", 3.4)["mu"]
     assert close["surface_curve"] == pytest.approx(0.1) and close["stderr"] == 0.64 and close["limited_by"] == "sample"
+
+
+def test_rotor_timing_term_is_half_the_change_across_the_timing_interval():
+    """mu 1.8 and 2.2 at the two ends of the rotor stream's timing interval: the term is 0.2 and, above the
+    other terms, sets the stated error; a fit that failed at either end leaves the term unknown (nan), never
+    a confident zero, and the stated error as it was."""
+    budget = {"mu": {"sample": 0.05, "height_reference": 0.1, "between_recordings": 0.08, "stderr": 0.11,
+                     "limited_by": "height_reference", "fits": 2}}
+    term = timing_term({"mu": 1.8}, {"mu": 2.2}, ("mu",))
+    assert term == {"mu": pytest.approx(0.2)}
+    out = with_systematic(budget, "rotor_timing", term)["mu"]
+    assert out["stderr"] == pytest.approx(0.2) and out["limited_by"] == "rotor_timing"
+    unknown = with_systematic(budget, "rotor_timing", timing_term(None, {"mu": 2.2}, ("mu",)))["mu"]
+    assert np.isnan(unknown["rotor_timing"]) and unknown["stderr"] == 0.11
+
+
+@pytest.mark.parametrize("found, interval", [
+    ({"lag_s": 0.06, "stderr_s": 0.004, "resolvable": True, "applied": True}, (-0.004, 0.004)),
+    ({"lag_s": 0.003, "stderr_s": 0.01, "resolvable": True, "applied": False}, (0.0, 0.013)),
+    ({"lag_s": 0.002, "stderr_s": 0.001, "resolvable": True, "applied": False}, (0.0, MIN_DELAY_S)),
+    ({"lag_s": 0.095, "stderr_s": 0.036, "resolvable": False, "applied": False}, (0.0, TELEMETRY_DELAY_MAX_S)),
+    ({"lag_s": float("nan"), "stderr_s": float("nan"), "resolvable": False, "applied": False},
+     (0.0, TELEMETRY_DELAY_MAX_S)),
+    ({"lag_s": 0.003, "stderr_s": 0.004, "resolvable": True, "applied": True}, (-0.003, 0.004)),
+])
+def test_timing_interval_covers_what_is_left_uncertain_of_a_delay(found, interval):
+    """One standard error either side of a delay taken out (never before a zero delay), up to one beyond a
+    timed delay too small to take out, and 0 to 80 ms (``recordings.md``) where none could be timed."""
+    assert timing_interval(found) == pytest.approx(interval)

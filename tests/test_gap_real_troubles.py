@@ -4,12 +4,15 @@ said, and the delay of late rotor telemetry is found and taken out."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+
+import numpy as np
 
 import pytest
 
 from uavturb.errors import InputError
-from uavturb.gap.finder import analyse
+from uavturb.gap.finder import _timing_checked, analyse
 from uavturb.io.reader import load_recordings
 from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
@@ -38,12 +41,14 @@ def test_contact_at_both_ends_is_left_out_and_the_ground_effect_named(tmp_path):
         found = [(c["t_start"], c["t_end"]) for c in report["ground_contact"] if c["recording"] == str(path)]
         for a, b in truth:  # every true contact is covered by a reported one
             assert any(fa <= a + 0.3 and fb >= b - 0.3 for fa, fb in found), (truth, found)
+    # commanded rotor speeds: no telemetry delay to be unsure of (their lag is the motor_lag effect)
+    assert report["streams"]["delays"] == [] and "rotor_timing" not in named["ground_effect"]["error_budget"]["mu"]
 
 
 def test_held_and_late_measured_rotors(tmp_path):
     paths = _flights(tmp_path, "held", Conditions(rate_hz=50, position_hold_hz=9, rotor_hold_hz=3,
                                                    rotor_delay_s=0.06, measured_rotors=True))
-    report, _ = analyse(load_recordings(paths), {})
+    report, extras = analyse(load_recordings(paths), {})
     named = {e["name"]: e for e in report["effects"]}
     assert "ground_effect" in named and named["ground_effect"]["params"]["mu"] == pytest.approx(2.0, rel=0.15)
     assert "battery_sag" not in named and "motor_lag" not in named
@@ -53,6 +58,19 @@ def test_held_and_late_measured_rotors(tmp_path):
         assert not d["applied"] or d["lag_s"] == pytest.approx(0.06, abs=3 * d["stderr_s"])
     assert any("rotors0" in why and "too slow" in why for why in report["streams"]["stream_limits"])
     assert any(n["name"] == "battery_sag" for n in report["not_testable"])
+    assert {d["recording"] for d in delays} == {str(p) for p in paths}
+    for e in report["effects"]:  # every named parameter's error counts what is left uncertain of the timing
+        for b in e["error_budget"].values():
+            assert np.isfinite(b["rotor_timing"]) and b["stderr"] >= b["rotor_timing"]
+    # the term is the named model refitted across the timing interval: none for no interval, more for more
+    recordings = load_recordings(paths)
+    finals = {}
+    for name, interval in (("none", [0.0, 0.0]), ("wide", [0.0, 0.3])):
+        effects = copy.deepcopy(report["effects"])
+        wide = [d | {"uncertain_s": interval} for d in delays]
+        _timing_checked(effects, extras["final"], recordings, [str(p) for p in paths], wide)
+        finals[name] = effects[0]["error_budget"]["mu"]["rotor_timing"]
+    assert finals["none"] == 0.0 and finals["wide"] > 0.01
 
 
 @pytest.mark.slow

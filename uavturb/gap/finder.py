@@ -23,12 +23,20 @@ from uavturb.gap.design import GapData, apply_thrust_levels, gap_data, rotor_qua
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.nominal import ThrustLevels
-from uavturb.gap.preparation import contact_masks, prepared
+from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted
 from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, select
 from uavturb.gap.surface_curve import lift_z
 from uavturb.gap.surface_laws import finder_surface_curve
-from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, error_budget, honest_stderr, with_curve_check
+from uavturb.gap.uncertainty import (
+    HEIGHT_REFERENCE_M,
+    error_budget,
+    honest_stderr,
+    timing_term,
+    with_curve_check,
+    with_systematic,
+)
 from uavturb.physics.dynamics import GRAVITY
+from uavturb.sysid.flight_data import flight_data
 from uavturb.physics.effects import (
     DEFAULT_EFFECTS,
     EFFECTS,
@@ -120,10 +128,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     vehicle = recordings[0].vehicle
     paths = [str(r.path) if r.path else r.name for r in recordings]
     recordings, fds, held = prepared(recordings, paths)
-    contact, contact_report = contact_masks(fds, vehicle.mass, vehicle.thrust_coefficient, paths)
-    data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient,
-                    arm_length=vehicle.arm_length, exclude=contact)
-    del fds, contact  # the aligned streams live on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
+    data, contact_report = _flight_rows(fds, vehicle, paths)
+    del fds  # the aligned streams live on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
     if len(data) < MIN_ROWS and data.dense is not None:
         where = f"{recordings[0].path or recordings[0].name}/mav0/rotors0/data.csv"
         raise InputError(where, f"only {len(data)} rotor-speed updates in flight (the stream updates at "
@@ -154,6 +160,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / draws)))
     curve_report, curve, curve_fits = finder_surface_curve(data, final)
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty), curve_fits)
+    named = _timing_checked(named, final, recordings, paths, held["delays"])
     report = {
         "schema": SCHEMA,
         "recordings": paths,
@@ -191,6 +198,40 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     extras = dict(data=data, r0=base.r0, rs0=rs0, rf=rf, rsf=rsf, segs=segs, drivers=drv, base_ho=base_ho,
                   final_ho=sel.final_heldout, final=final, curve=curve, curve_fits=curve_fits)
     return report, extras
+
+
+def _flight_rows(fds: Sequence, vehicle: Any, paths: Sequence[str]) -> tuple[GapData, list[dict[str, Any]]]:
+    """The flights' rows in the air (ground contact found and left out) and the report's ``ground_contact``."""
+    contact, contact_report = contact_masks(fds, vehicle.mass, vehicle.thrust_coefficient, paths)
+    data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient,
+                    arm_length=vehicle.arm_length, exclude=contact)
+    return data, contact_report
+
+
+def _timing_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: Sequence, paths: Sequence[str],
+                    delays: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``effects`` with the **rotor timing** term of :mod:`uavturb.gap.uncertainty` in each budget: the named
+    model refitted with every measured rotor stream's delay at the earliest, then at the latest, end of what is
+    still uncertain of it (:func:`uavturb.gap.preparation.timing_interval`). Recordings with commanded rotor
+    speeds have no term (their lag is the ``motor_lag`` effect)."""
+    if not effects or not delays:
+        return effects
+    interval = {d["recording"]: d["uncertain_s"] for d in delays}
+    ends = []
+    for side in (0, 1):
+        recs = [rotor_shifted(r, interval[p][side]) if p in interval else r for r, p in zip(recordings, paths)]
+        try:
+            data, _ = _flight_rows([flight_data(r) for r in recs], recordings[0].vehicle, paths)
+            apply_thrust_levels(data)
+            ends.append(fit_model(data, final.effects, with_stderr=False))
+        except (InputError, np.linalg.LinAlgError, ValueError):
+            ends.append(None)
+    for e in effects:
+        low, high = (None if f is None else f.effect_params(e["name"])[0] for f in ends)
+        e["error_budget"] = with_systematic(e["error_budget"], "rotor_timing",
+                                            timing_term(low, high, tuple(e["params"])))
+        e["stderr"] = honest_stderr(e["error_budget"])
+    return effects
 
 
 @dataclass

@@ -8,7 +8,9 @@ late, ground contact).
   arrive 40-80 ms late on real logs. Their delay against the thrust the motion capture or the IMU
   says was needed is estimated (:func:`uavturb.sysid.streams.estimate_lag`) and, where resolved,
   taken out of the rotor timestamps (:func:`delay_corrected`). Commanded speeds are left alone: their
-  lag behind the rotors is the ``motor_lag`` effect, which the finder tests.
+  lag behind the rotors is the ``motor_lag`` effect, which the finder tests. What is left uncertain of
+  the delay is an interval (:func:`timing_interval`) over which the finder refits its named effects
+  (:func:`rotor_shifted`; the ``rotor_timing`` term of :mod:`uavturb.gap.uncertainty`).
 - **Ground contact**: rows where the floor carries the vehicle (:func:`uavturb.sysid.contact.ground_contact`)
   are left out of every fit and listed in the report.
 """
@@ -40,6 +42,9 @@ SURFACE_CROSSING_S = 0.2
 CONTACT_LIMITS = ContactLimits()
 #: s, smallest delay of the rotor telemetry worth taking out
 MIN_DELAY_S = 0.01
+#: s, the longest delay of rotor telemetry ``recordings.md`` names ("40-80 ms late"): where a stream's
+#: delay cannot be timed, its true delay is taken to lie anywhere between 0 and this
+TELEMETRY_DELAY_MAX_S = 0.08
 
 
 def needed_thrust(fd: FlightData, mass: float) -> np.ndarray:
@@ -60,12 +65,34 @@ def delay_corrected(rec: Recording, fd: FlightData) -> tuple[Recording, dict[str
     lag = estimate_lag(fd.t, needed_thrust(fd, rec.vehicle.mass), t_sig, signal)
     found = {"stream": "rotors0", "lag_s": lag.lag_s, "stderr_s": lag.stderr_s, "r2": lag.r2,
              "resolvable": lag.resolvable, "describe": lag.describe("rotors0 (measured rotor speeds)")}
-    if not lag.resolvable or lag.lag_s < max(MIN_DELAY_S, 2.0 * lag.stderr_s):
-        found["applied"] = False
+    found["applied"] = bool(lag.resolvable and lag.lag_s >= max(MIN_DELAY_S, 2.0 * lag.stderr_s))
+    found["uncertain_s"] = list(timing_interval(found))
+    if not found["applied"]:
         return rec, found
-    shift = int(round(lag.lag_s * 1e9))
-    found["applied"] = True
-    return dataclasses.replace(rec, rotors=Rotors(t_ns=rec.rotors.t_ns - shift, speeds=rec.rotors.speeds)), found
+    return rotor_shifted(rec, lag.lag_s), found
+
+
+def timing_interval(found: dict[str, Any]) -> tuple[float, float]:
+    """s, ``(earliest, latest)`` the rotor stream's true delay may still be, relative to what was taken out
+    of its timestamps (``found``: :func:`delay_corrected`'s account of one stream).
+
+    - delay taken out: one standard error either side of it;
+    - a delay timed but too small to take out: between none and one standard error beyond it;
+    - a delay that could not be timed: between none and :data:`TELEMETRY_DELAY_MAX_S` (``recordings.md``).
+    Telemetry is never early, so an interval never reaches below a delay of zero.
+    """
+    lag, se = float(found["lag_s"]), float(found["stderr_s"])
+    if found["applied"]:
+        return max(-se, -lag), se
+    if found["resolvable"] and np.isfinite(lag) and np.isfinite(se):
+        return 0.0, min(max(lag + se, MIN_DELAY_S), TELEMETRY_DELAY_MAX_S)
+    return 0.0, TELEMETRY_DELAY_MAX_S
+
+
+def rotor_shifted(rec: Recording, delay_s: float) -> Recording:
+    """``rec`` with its rotor stream's timestamps moved ``delay_s`` [s] earlier (a delay taken out)."""
+    shift = int(round(delay_s * 1e9))
+    return dataclasses.replace(rec, rotors=Rotors(t_ns=rec.rotors.t_ns - shift, speeds=rec.rotors.speeds))
 
 
 def stream_limits(rec: Recording) -> tuple[list[str], list[str], float]:
@@ -135,11 +162,11 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
     (``streams``, ``stream_limits``, ``delays``)."""
     recs, fds, delays, lines, limits = [], [], [], [], []
     slowest = np.inf
-    for rec in recordings:
+    for rec, path in zip(recordings, paths):
         fd = flight_data(rec)
         rec2, found = delay_corrected(rec, fd)
         if found is not None:
-            delays.append(found)
+            delays.append({"recording": path} | found)
             if found["applied"]:
                 fd = flight_data(rec2)
         recs.append(rec2)

@@ -245,6 +245,16 @@ def _surface_curve_lines(curve: dict | None) -> list[str]:
     return L
 
 
+def _delay_line(d: dict) -> str:
+    """One late stream: its delay, whether it was taken out, and what is still uncertain of it."""
+    line = f"- {Path(d.get('recording', '')).name}: {d['describe']}"
+    line += " (taken out of the timestamps" if d.get("applied") else " (not taken out"
+    lo, hi = d.get("uncertain_s") or (0.0, 0.0)
+    what = "delay" if d.get("applied") else "true delay"
+    return line + (f"; the {what} may still be off by {1e3 * lo:+.0f} to {1e3 * hi:+.0f} ms, over which every "
+                   f"named effect was refitted: the rotor timing term of its error)")
+
+
 def _recording_lines(report: dict) -> list[str]:
     """Ground contact left out, what each stream holds, late streams, thrust levels."""
     L: list[str] = []
@@ -256,8 +266,7 @@ def _recording_lines(report: dict) -> list[str]:
     if streams:
         L += ["", "## What the streams hold"] + [f"- {line}" for line in streams.get("streams", [])]
         L += [f"- **Too slow**: {why}" for why in streams.get("stream_limits", [])]
-        L += [f"- {d['describe']}{' (taken out of the timestamps)' if d.get('applied') else ''}"
-              for d in streams.get("delays", [])]
+        L += [_delay_line(d) for d in streams.get("delays", [])]
     nominal = report.get("nominal", {})
     if nominal.get("thrust_level_note"):
         L += ["", f"Thrust levels: {nominal['thrust_level_note']}."]

@@ -21,6 +21,11 @@ while recordings differed by 3.6 %. The error stated for each parameter here is 
   that disagree say a systematic error is at work (a 3 Hz rotor stream interpolated between its
   updates, sessions' thrust levels pooled: 3.6 against the curve's 1.6 for a true 2.0), and the stated
   error must cover it.
+- **rotor timing** (measured rotor speeds, ESC telemetry): half the change of the parameter between fits
+  with the rotor stream's delay at either end of what is still uncertain of it
+  (:func:`uavturb.gap.preparation.timing_interval`: one standard error either side of a delay taken out,
+  up to 80 ms where none could be timed). A thrust that is read 60 ms late moves every law that reads
+  the thrust.
 
 The report keeps every term (``error_budget``) and names the one that limits the parameter.
 """
@@ -136,13 +141,32 @@ def honest_stderr(budget: dict[str, dict[str, float]]) -> dict[str, float]:
     return {k: b["stderr"] for k, b in budget.items()}
 
 
+def with_systematic(budget: dict[str, dict[str, float]], term: str, values: dict[str, float]
+                    ) -> dict[str, dict[str, float]]:
+    """``budget`` with a systematic ``term`` (``{param: value}``, e.g. **surface curve** or **rotor timing**
+    of the module docstring) beside the others; each parameter's stated error becomes its largest term."""
+    out = dict(budget)
+    for param, value in values.items():
+        b = dict(budget[param])
+        b[term] = float(value)
+        if np.isfinite(b[term]) and not b[term] <= b["stderr"]:
+            b["stderr"], b["limited_by"] = b[term], term
+        out[param] = b
+    return out
+
+
 def with_curve_check(budget: dict[str, dict[str, float]], params: dict[str, float], param: str,
                      curve_value: float) -> dict[str, dict[str, float]]:
     """``budget`` with the **surface curve** term of the module docstring for ``param``: half the
     difference between the finder's value ``params[param]`` and ``curve_value``, the same law fitted to
     the measured curve; the stated error becomes the largest term."""
-    b = dict(budget[param])
-    b["surface_curve"] = abs(float(params[param]) - float(curve_value)) / 2.0
-    if np.isfinite(b["surface_curve"]) and not b["surface_curve"] <= b["stderr"]:
-        b["stderr"], b["limited_by"] = b["surface_curve"], "surface_curve"
-    return {**budget, param: b}
+    return with_systematic(budget, "surface_curve", {param: abs(float(params[param]) - float(curve_value)) / 2.0})
+
+
+def timing_term(low: dict[str, float] | None, high: dict[str, float] | None, keys: tuple[str, ...]
+                ) -> dict[str, float]:
+    """The **rotor timing** term: half the change of each parameter between the fits at the two ends of
+    the rotor stream's timing interval (nan where a fit failed)."""
+    if low is None or high is None:
+        return {k: float("nan") for k in keys}
+    return {k: abs(float(high[k]) - float(low[k])) / 2.0 for k in keys}
