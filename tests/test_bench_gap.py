@@ -1,0 +1,33 @@
+"""``uavturb bench gap`` on two short flights: the figures it prints are measured in fresh processes, each
+reporting its own peak memory (not the largest of every process the benchmark ever started)."""
+
+from __future__ import annotations
+
+import pytest
+
+from uavturb.bench.gap import HOUR_ROWS, bench_gap
+from uavturb.sim.flights.simulate import generate_flight
+
+
+def test_bench_gap_measures_the_analysis_and_its_own_memory(tmp_path, capsys):
+    paths = []
+    for k in range(2):
+        path = tmp_path / f"flight{k}"
+        generate_flight(vehicle="hex", effects="ground_effect:mu=2", duration=30.0, kind="mixed", seed=7 + k, out=path)
+        paths.append(str(path))
+    fig = bench_gap(paths)
+    assert fig["flights"] == 2 and fig["flight time [s]"] == pytest.approx(60.0, abs=0.1)
+    assert fig["rows (IMU or ground truth)"] == pytest.approx(2 * 30 * 200, abs=4)  # 200 Hz IMU
+    assert fig["first halves: rows"] == pytest.approx(fig["rows (IMU or ground truth)"] / 2, abs=4)
+    # the reading and the analysis are measured above what the imports left resident: they hold the flights
+    # (two 30 s flights: at least their 12,000 rows of 7 float64 columns), and nothing near a gigabyte
+    assert 12_000 * 7 * 8 / 2**20 < fig["read + analyse: peak above that [MB]"] < 1024
+    assert 100 < fig["resident after imports [MB]"] <= fig["interpreter and imports, peak [MB]"]
+    assert fig["peak memory [MB]"] == max(fig["interpreter and imports, peak [MB]"],
+                                          fig["resident after imports [MB]"] + fig["read + analyse: peak above that [MB]"])
+    assert fig["per flight-hour at 200 Hz: peak memory [MB]"] >= fig["resident after imports [MB]"]
+    # the per-hour line passes through both measurements: never below the whole run's figure
+    assert fig["per flight-hour at 200 Hz: seconds"] >= fig["read [s]"] + fig["analyse [s]"]
+    assert HOUR_ROWS == 720_000
+    printed = capsys.readouterr().out
+    assert "per flight-hour at 200 Hz: peak memory [MB]" in printed and "effects named" in printed
