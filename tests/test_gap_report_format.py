@@ -27,3 +27,21 @@ def test_report_lists_segments_largest_first_and_params_readably(tmp_path):
     rows = [line for line in text.splitlines() if line.startswith("| hex_0 |")]
     assert [float(r.split("|")[5]) for r in rows] == [0.9, 0.5, 0.2]
     assert "simulator mu = 2, fitted mu = 1.871" in text and "{" not in text
+
+
+def test_late_streams_say_what_is_left_uncertain_of_their_delay(tmp_path):
+    delays = [{"recording": "a/px4-0", "describe": "rotors0 (measured rotor speeds) late by 61 ± 4 ms",
+               "applied": True, "uncertain_s": [-0.004, 0.004]},
+              {"recording": "a/px4-1", "describe": "rotors0 (measured rotor speeds): delay not resolvable",
+               "applied": False, "uncertain_s": [0.0, 0.08]}]
+    report = {"recordings": ["a/px4-0", "a/px4-1"], "sim_effects": [], "protocol": "leave-one-recording-out",
+              "residual_source": "ground_truth", "baseline": {"heldout_rmse_N": 0.27, "rmse_N": 0.26},
+              "final": {"heldout_rmse_N": 0.2}, "noise": {"rms_N": 0.075}, "effects": [],
+              "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 0.01, "drivers": []},
+              "streams": {"streams": [], "stream_limits": [], "delays": delays}}
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert ("- px4-0: rotors0 (measured rotor speeds) late by 61 ± 4 ms (taken out of the timestamps; the delay "
+            "taken out may be off by -4 to +4 ms") in text
+    assert "- px4-1: rotors0 (measured rotor speeds): delay not resolvable (not taken out; the true delay may be " \
+           "anywhere from 0 to 80 ms" in text

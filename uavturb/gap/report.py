@@ -250,9 +250,9 @@ def _delay_line(d: dict) -> str:
     line = f"- {Path(d.get('recording', '')).name}: {d['describe']}"
     line += " (taken out of the timestamps" if d.get("applied") else " (not taken out"
     lo, hi = d.get("uncertain_s") or (0.0, 0.0)
-    what = "delay" if d.get("applied") else "true delay"
-    return line + (f"; the {what} may still be off by {1e3 * lo:+.0f} to {1e3 * hi:+.0f} ms, over which every "
-                   f"named effect was refitted: the rotor timing term of its error)")
+    where = (f"the delay taken out may be off by {1e3 * lo:+.0f} to {1e3 * hi:+.0f} ms" if d.get("applied") else
+             f"the true delay may be anywhere from {1e3 * lo:.0f} to {1e3 * hi:.0f} ms")
+    return line + f"; {where}, and every named effect was refitted over that range: the rotor timing term of its error)"
 
 
 def _recording_lines(report: dict) -> list[str]:
