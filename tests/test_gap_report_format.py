@@ -38,7 +38,7 @@ def test_late_streams_say_what_is_left_uncertain_of_their_delay(tmp_path):
               "residual_source": "ground_truth", "baseline": {"heldout_rmse_N": 0.27, "rmse_N": 0.26},
               "final": {"heldout_rmse_N": 0.2}, "noise": {"rms_N": 0.075}, "effects": [],
               "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 0.01, "drivers": []},
-              "streams": {"streams": [], "stream_limits": [], "delays": delays}}
+              "sim_effect_params": {}, "streams": {"streams": [], "stream_limits": [], "delays": delays}}
     write_markdown(tmp_path, report, [])
     text = (tmp_path / "report.md").read_text()
     assert ("- px4-0: rotors0 (measured rotor speeds) late by 61 ± 4 ms (taken out of the timestamps; the delay "
