@@ -38,10 +38,17 @@ def test_late_streams_say_what_is_left_uncertain_of_their_delay(tmp_path):
               "residual_source": "ground_truth", "baseline": {"heldout_rmse_N": 0.27, "rmse_N": 0.26},
               "final": {"heldout_rmse_N": 0.2}, "noise": {"rms_N": 0.075}, "effects": [],
               "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 0.01, "drivers": []},
-              "sim_effect_params": {}, "streams": {"streams": [], "stream_limits": [], "delays": delays}}
+              "sim_effect_params": {}, "streams": {"streams": [], "stream_limits": [], "delays": delays, "dropouts": [
+                  {"recording": "a/px4-0", "stream": "mav0/rotors0/data.csv", "t_start": 12.0, "t_end": 15.5},
+                  {"recording": "a/px4-0", "stream": "mav0/rotors0/data.csv", "t_start": 40.0, "t_end": 40.25},
+                  {"recording": "a/px4-1", "stream": "mav0/imu0/data.csv", "t_start": 3.0, "t_end": 3.5}]}}
     write_markdown(tmp_path, report, [])
     text = (tmp_path / "report.md").read_text()
     assert ("- px4-0: rotors0 (measured rotor speeds) late by 61 ± 4 ms (taken out of the timestamps; the delay "
             "taken out may be off by -4 to +4 ms") in text
     assert "- px4-1: rotors0 (measured rotor speeds): delay not resolvable (not taken out; the true delay may be " \
            "anywhere from 0 to 80 ms" in text
+    # dropouts: one line per recording and stream
+    assert "- **Dropout**: px4-0/rotors0 has no sample for 2 stretches, 3.75 s in all (the longest 3.50 s " \
+           "(12.00-15.50 s)): the rows there" in text
+    assert "- **Dropout**: px4-1/imu0 has no sample for 0.50 s (3.00-3.50 s): the rows there" in text

@@ -191,7 +191,7 @@ def _smooth_height(t: np.ndarray, z: np.ndarray, window_s: float) -> np.ndarray:
 def _in_flight(fd: FlightData, mass: float, k_T_guess: float | None, min_thrust_ratio: float,
                exclude: np.ndarray | None) -> np.ndarray:
     """(K,) bool: rows away from the derivative filter's edges whose rotors carry more than
-    ``min_thrust_ratio`` of the weight, outside ``exclude`` (ground contact)."""
+    ``min_thrust_ratio`` of the weight, outside ``exclude`` (ground contact) and a stream's dropouts."""
     S = np.sum(fd.rotor_speeds**2, axis=1)
     keep = np.ones(len(fd), bool)
     keep[: fd.window] = keep[-fd.window:] = False
@@ -199,6 +199,8 @@ def _in_flight(fd: FlightData, mass: float, k_T_guess: float | None, min_thrust_
     keep &= thr > min_thrust_ratio * mass * GRAVITY
     if exclude is not None:
         keep &= ~exclude
+    if fd.covered is not None:  # a stream's dropouts are not interpolated across
+        keep &= fd.covered
     return keep
 
 

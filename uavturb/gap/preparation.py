@@ -62,7 +62,8 @@ def delay_corrected(rec: Recording, fd: FlightData) -> tuple[Recording, dict[str
         return rec, None
     t_sig = rec.seconds(rec.rotors.t_ns)
     signal = np.sum(rec.rotors.speeds**2, axis=1)
-    lag = estimate_lag(fd.t, needed_thrust(fd, rec.vehicle.mass), t_sig, signal)
+    ok = slice(None) if fd.covered is None else fd.covered  # not across a stream's dropout
+    lag = estimate_lag(fd.t[ok], needed_thrust(fd, rec.vehicle.mass)[ok], t_sig, signal)
     found = {"stream": "rotors0", "lag_s": lag.lag_s, "stderr_s": lag.stderr_s, "r2": lag.r2,
              "resolvable": lag.resolvable, "describe": lag.describe("rotors0 (measured rotor speeds)")}
     found["applied"] = bool(lag.resolvable and lag.lag_s >= max(MIN_DELAY_S, 2.0 * lag.stderr_s))
@@ -159,11 +160,13 @@ def contact_masks(fds: Sequence[FlightData], mass: float, k_T: float | None, pat
 def prepared(recordings: Sequence[Recording], paths: Sequence[str]
              ) -> tuple[list[Recording], list[FlightData], dict[str, Any]]:
     """The recordings with late telemetry corrected, their flight data, and what was found
-    (``streams``, ``stream_limits``, ``delays``)."""
-    recs, fds, delays, lines, limits = [], [], [], [], []
+    (``streams``, ``stream_limits``, ``delays``, ``dropouts``: stretches where a stream has no sample, whose rows
+    every fit leaves out)."""
+    recs, fds, delays, lines, limits, gaps = [], [], [], [], [], []
     slowest = np.inf
     for rec, path in zip(recordings, paths):
         fd = flight_data(rec)
+        gaps += [{"recording": path, "stream": stream, "t_start": a, "t_end": b} for stream, a, b in fd.gaps]
         rec2, found = delay_corrected(rec, fd)
         if found is not None:
             delays.append({"recording": path} | found)
@@ -175,4 +178,5 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
         lines += ln
         limits += lim
         slowest = min(slowest, rate)
-    return recs, fds, {"streams": lines, "stream_limits": limits, "delays": delays, "slowest_update_hz": slowest}
+    return recs, fds, {"streams": lines, "stream_limits": limits, "delays": delays, "dropouts": gaps,
+                       "slowest_update_hz": slowest}

@@ -245,6 +245,22 @@ def _surface_curve_lines(curve: dict | None) -> list[str]:
     return L
 
 
+def _dropout_lines(gaps: list[dict]) -> list[str]:
+    """One line per recording and stream with dropouts: how many, the longest, and the time they take."""
+    by: dict[tuple[str, str], list[dict]] = {}
+    for g in gaps:
+        by.setdefault((Path(g["recording"]).name, Path(g["stream"]).parent.name), []).append(g)
+    lines = []
+    for (rec, stream), gs in by.items():
+        long = max(gs, key=lambda g: g["t_end"] - g["t_start"])
+        span = f"{long['t_end'] - long['t_start']:.2f} s ({long['t_start']:.2f}-{long['t_end']:.2f} s)"
+        total = sum(g["t_end"] - g["t_start"] for g in gs)
+        desc = f"{len(gs)} stretches, {total:.2f} s in all (the longest {span})" if len(gs) > 1 else span
+        lines.append(f"- **Dropout**: {rec}/{stream} has no sample for {desc}: the rows there, and within a "
+                     f"derivative window of them, are left out of every fit, not interpolated across")
+    return lines
+
+
 def _delay_line(d: dict) -> str:
     """One late stream: its delay, whether it was taken out, and what is still uncertain of it."""
     line = f"- {Path(d.get('recording', '')).name}: {d['describe']}"
@@ -267,6 +283,7 @@ def _recording_lines(report: dict) -> list[str]:
         L += ["", "## What the streams hold"] + [f"- {line}" for line in streams.get("streams", [])]
         L += [f"- **Too slow**: {why}" for why in streams.get("stream_limits", [])]
         L += [_delay_line(d) for d in streams.get("delays", [])]
+        L += _dropout_lines(streams.get("dropouts", []))
     nominal = report.get("nominal", {})
     if nominal.get("thrust_level_note"):
         L += ["", f"Thrust levels: {nominal['thrust_level_note']}."]

@@ -11,12 +11,15 @@ timestamps too); the window holds at least 5 samples, so at 50 Hz a 0.05 s windo
 0.1 s. The same filter smooths regressors, so that fits compare like with like. Streams at
 other rates (rotor speeds at 50 Hz, jittered) are interpolated linearly at their true times.
 Streams a logger writes faster than they update (sample-and-hold repeats) are read on their
-updates (:func:`held_updates`).
+updates (:func:`held_updates`). A stream that stops for a while (a logger's or a radio's dropout, motion
+capture losing the markers) is not interpolated across: the rows in its dropouts, and those within a
+derivative window of them, are marked (:attr:`FlightData.covered`) for fits to leave out
+(:func:`dropouts`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -54,6 +57,9 @@ class FlightData:
         nearest each of its updates, the only rows whose rotor speeds were measured rather than
         interpolated between updates (None: the stream updates on every row, or its repeats are those of
         its resolution, :func:`_quantisation_steps`)
+    covered : (K,) bool or None, rows where every stream the physics reads has samples around them (None:
+        no stream has a dropout); see :func:`dropouts`
+    gaps : the dropouts, ``(stream file, t_start, t_end)`` [s since the first ground-truth row]
     """
 
     name: str
@@ -71,6 +77,8 @@ class FlightData:
     d_up: np.ndarray | None
     window: int
     rotor_fresh: np.ndarray | None = None
+    covered: np.ndarray | None = None
+    gaps: list[tuple[str, float, float]] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -90,13 +98,19 @@ class FlightData:
             return None if a is None else a[mask]
         return FlightData(self.name, self.t_ns[mask], self.t[mask], self.p[mask], self.q[mask], self.v[mask],
                           self.w[mask], pick(self.acc), self.rotor_speeds[mask], self.dv[mask], self.dw[mask],
-                          pick(self.d_down), pick(self.d_up), self.window, pick(self.rotor_fresh))
+                          pick(self.d_down), pick(self.d_up), self.window, pick(self.rotor_fresh),
+                          pick(self.covered), list(self.gaps))
 
 
 #: share of repeated rows above which a stream may be held (read on its updates only: sample-and-hold loggers)
 HELD_SHARE = 0.2
 #: share of a held stream's updates that its logger repeats at least once
 HELD_UPDATES = 0.8
+#: a stream with no update for longer than this many of its median update steps, and at least
+#: :data:`MIN_DROPOUT_S`, has a dropout (jittered loggers space a few rows by two or three steps)
+DROPOUT_STEPS = 5
+#: s, shortest dropout (a 200 Hz stream missing a few rows is jitter, not a dropout)
+MIN_DROPOUT_S = 0.05
 
 
 def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
@@ -196,7 +210,37 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         rotor_plane = rec.vehicle.rotor_plane_positions(p, quat.to_rotation_matrix(q))
         d_down, d_up = index.d_down(rotor_plane), index.d_up(rotor_plane)
     fresh = _nearest_rows(t_ns, rotors.t_ns) if rotors_held else None
-    return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh)
+    covered, gaps = _covered(t_ns, rec.t0_ns, window, streams)
+    return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh, covered, gaps)
+
+
+def dropouts(t_ns: np.ndarray) -> list[tuple[int, int]]:
+    """``(last sample before, first sample after)`` [ns] of each stretch longer than :data:`DROPOUT_STEPS`
+    median steps (and :data:`MIN_DROPOUT_S`) with no sample in the increasing timestamps ``t_ns`` (a stream's
+    updates)."""
+    if len(t_ns) < 3:
+        return []
+    d = np.diff(t_ns)
+    limit = max(DROPOUT_STEPS * float(np.median(d)), MIN_DROPOUT_S * 1e9)
+    i = np.flatnonzero(d > limit)
+    return [(int(t_ns[k]), int(t_ns[k + 1])) for k in i]
+
+
+def _covered(t_ns: np.ndarray, t0_ns: int, window: int, streams: list[tuple[str, np.ndarray]]
+             ) -> tuple[np.ndarray | None, list[tuple[str, float, float]]]:
+    """(rows of the time base ``t_ns`` away from every stream's dropouts by more than ``window`` rows, or
+    None where there is none; the dropouts as ``(stream file, t_start, t_end)`` [s from ``t0_ns``])."""
+    gaps = [(name, a, b) for name, ts in streams for a, b in dropouts(ts)]
+    if not gaps:
+        return None, []
+    mark = np.zeros(len(t_ns) + 1, int)
+    for _, a, b in gaps:
+        lo = max(int(np.searchsorted(t_ns, a, side="right")) - window, 0)
+        hi = min(int(np.searchsorted(t_ns, b, side="left")) + window, len(t_ns))
+        mark[lo] += 1
+        mark[hi] -= 1
+    covered = np.cumsum(mark[:-1]) == 0
+    return covered, [(name, (a - t0_ns) * 1e-9, (b - t0_ns) * 1e-9) for name, a, b in gaps]
 
 
 def _quantisation_steps(updates: np.ndarray) -> bool:

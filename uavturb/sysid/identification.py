@@ -180,7 +180,8 @@ def usable_mask(fd: FlightData, vehicle: Vehicle, *, min_height_radii: float = 6
 
     A row is kept when the vehicle is more than ``min_height_radii`` rotor radii from the
     surfaces below and above (Cheeseman-Bennett: ``rho < mu/576``, under 0.5 % for
-    ``mu <= 3``), and its rotors carry at least ``min_thrust_ratio`` of the weight.
+    ``mu <= 3``), its rotors carry at least ``min_thrust_ratio`` of the weight, and no stream has a
+    dropout there (:attr:`FlightData.covered`).
     """
     keep = np.ones(len(fd), dtype=bool)
     h = min_height_radii * vehicle.rotor_radius
@@ -197,6 +198,8 @@ def usable_mask(fd: FlightData, vehicle: Vehicle, *, min_height_radii: float = 6
     edge = fd.window
     keep[:edge] = False
     keep[-edge:] = False
+    if fd.covered is not None:  # a stream's dropouts are not interpolated across
+        keep &= fd.covered
     return keep
 
 
