@@ -76,3 +76,22 @@ def test_the_gap_finder_leaves_a_dropout_out_and_says_where(cut_flights):
     # no row of the fits lies where the rotor speeds were missing (interpolated across, they were a 3 s ramp)
     data = extras["data"]
     assert not np.any((data.t > 12.0) & (data.t < 15.0)) and np.sum(data.t < 12.0) > 100
+
+
+def test_a_value_that_holds_while_its_rows_go_on_is_no_dropout(tmp_path):
+    """Rotor speeds repeating one value for 5 s (quantised in a steady hover, or a logger holding them) are rows,
+    not a gap: nothing is left out as a dropout (the rows' timestamps count, not the value's changes)."""
+    path = tmp_path / "steady"
+    generate_flight(vehicle="hex", effects="", duration=20.0, kind="low_passes", seed=5, out=path)
+    csv = path / "mav0" / "rotors0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    t0 = int(lines[1].split(",")[0])
+    steady = lines[1].split(",", 1)[1]
+
+    def rounded(ln):  # speeds quantised to 5 rad/s (most updates repeat), and one value for 5-10 s
+        t = int(ln.split(",")[0])
+        w = ",".join(f"{5 * round(float(x) / 5):.1f}" for x in ln.split(",")[1:])
+        return f"{t},{steady}" if 5.0 <= (t - t0) / NS < 10.0 else f"{t},{w}"
+    csv.write_text("\n".join([lines[0]] + [rounded(ln) for ln in lines[1:]]) + "\n")
+    fd = flight_data(load_recordings([path])[0])
+    assert fd.gaps == [] and fd.covered is None

@@ -210,14 +210,17 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         rotor_plane = rec.vehicle.rotor_plane_positions(p, quat.to_rotation_matrix(q))
         d_down, d_up = index.d_down(rotor_plane), index.d_up(rotor_plane)
     fresh = _nearest_rows(t_ns, rotors.t_ns) if rotors_held else None
-    covered, gaps = _covered(t_ns, rec.t0_ns, window, streams)
+    # a dropout is a stretch with no row: a held stream's rows go on while its value holds, and a quantised
+    # one's updates can be seconds apart in a steady hover
+    rows = [("mav0/state_groundtruth_estimate0/data.csv", rec.ground_truth.t_ns), ("mav0/rotors0/data.csv",
+                                                                                 rec.rotors.t_ns)]
+    covered, gaps = _covered(t_ns, rec.t0_ns, window, rows + streams[2:])
     return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh, covered, gaps)
 
 
 def dropouts(t_ns: np.ndarray) -> list[tuple[int, int]]:
-    """``(last sample before, first sample after)`` [ns] of each stretch longer than :data:`DROPOUT_STEPS`
-    median steps (and :data:`MIN_DROPOUT_S`) with no sample in the increasing timestamps ``t_ns`` (a stream's
-    updates)."""
+    """``(last row before, first row after)`` [ns] of each stretch longer than :data:`DROPOUT_STEPS`
+    median steps (and :data:`MIN_DROPOUT_S`) with no row in a stream's increasing timestamps ``t_ns``."""
     if len(t_ns) < 3:
         return []
     d = np.diff(t_ns)
