@@ -7,7 +7,9 @@ import shutil
 import numpy as np
 import pytest
 
+from uavturb import progress
 from uavturb.cli import main
+from uavturb.gap.finder import STAGES
 from uavturb.sim.flights.simulate import generate_flight
 
 
@@ -47,7 +49,19 @@ def test_good_recording_runs_with_exit_0(tmp_path, capsys, good):
     out = tmp_path / "report"
     assert main(["gap", str(good), "--out", str(out), "--sim-effects", "none", "--no-mlflow"]) == 0
     assert (out / "report.json").exists() and (out / "report.md").exists()
-    assert "effects named: none" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "effects named: none" in captured.out
+    assert captured.err == ""  # a short run in a log: no progress line (one every 10 s)
+
+
+def test_a_long_run_in_a_log_says_which_stage_runs(tmp_path, capsys, good, monkeypatch):
+    monkeypatch.setattr(progress, "FILE_INTERVAL", 0.0)  # as if every stage took longer than the interval
+    out = tmp_path / "report"
+    assert main(["gap", str(good), "--out", str(out), "--sim-effects", "none", "--no-mlflow"]) == 0
+    lines = capsys.readouterr().err.splitlines()
+    stages = [line.rsplit(", ", 1)[-1] for line in lines if line.startswith("uavturb gap: ")]
+    assert stages[-len(STAGES) + 1:] == STAGES[:-1], lines  # each stage in order (no MLflow: not the last)
+    assert any(line.startswith("uavturb gap: 4/9 stages (44 %)") for line in lines), lines
 
 
 def test_missing_folder(tmp_path, capsys):

@@ -39,3 +39,23 @@ def test_synthetic_data_progress_is_lines(tmp_path, capsys):
     make_synthetic_dataset(tmp_path / "ds", n_scenes=3, trajs_per_scene=1, T=4, size=8, progress=True)
     err = capsys.readouterr().err
     assert "\r" not in err and err.splitlines()[-1].startswith("synthetic shards: 3/3 trajectories")
+
+
+def test_stages_show_the_stage_running_and_leave_nothing_behind(monkeypatch):
+    """A command's stages in a log file: a line per update naming the stage that runs, with the stages before
+    it counted done; a terminal's bar is cleared at the end."""
+    monkeypatch.setattr(progress, "FILE_INTERVAL", 0.0)
+    log = io.StringIO()
+    names = ["reading", "aligning streams", "selecting effects", "writing the report"]
+    with progress.Stages("uavturb gap", names, stream=log) as stage:
+        for name in names:
+            stage(name)
+    lines = log.getvalue().splitlines()
+    assert any(line.startswith("uavturb gap: 2/4 stages (50 %)") and line.endswith("selecting effects")
+               for line in lines), lines
+    term = _Terminal()
+    with progress.Stages("uavturb gap", names, stream=term) as stage:
+        stage("aligning streams")
+    drawn = term.getvalue()
+    assert "1/4" in drawn and "aligning streams" in drawn
+    assert drawn.split("\r")[-2].strip() == "" and drawn.endswith("\r")  # the last drawing is blanks

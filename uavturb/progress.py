@@ -65,3 +65,43 @@ def show_rate(bar: tqdm, count: int, what: str) -> None:
     """Show a second count beside the items (``"6274 samples, 669 samples/s"``) at the bar's next refresh."""
     elapsed = max(bar.format_dict.get("elapsed", 0.0), 1e-9)
     bar.set_postfix_str(f"{count} {what}, {count / elapsed:.0f} {what}/s", refresh=False)
+
+
+class Stages:
+    """A progress bar over the named stages of one command, for work that is a few long steps rather than
+    many short items (``uavturb gap``: reading, aligning, selecting effects, ...).
+
+    Call it with a stage's name as that stage starts: the stages before it count as done and its name shows
+    beside the bar. The bar is cleared when closed: on a terminal it leaves no trace, in a log file the
+    status lines written while the work ran (one every :data:`FILE_INTERVAL` seconds) stay, so a short
+    command prints nothing and a failure's one line stays the only one.
+
+    Parameters
+    ----------
+    desc : the command, e.g. ``"uavturb gap"``
+    names : the stages in the order they run
+    stream : where to write (default stderr)
+    """
+
+    def __init__(self, desc: str, names: list[str], stream: IO[str] | None = None):
+        self.names = list(names)
+        # in a log, the first line comes after FILE_INTERVAL, like every later one
+        self.terminal = is_terminal(stream)
+        delay = 0.0 if self.terminal else FILE_INTERVAL
+        self.bar = progress_bar(len(self.names), desc, "stages", stream=stream, leave=False, delay=delay)
+
+    def __call__(self, name: str) -> None:
+        """Stage ``name`` (one of ``names``) starts."""
+        self.bar.set_postfix_str(name, refresh=False)
+        self.bar.update(self.names.index(name) - self.bar.n)
+        if self.terminal:  # a few stages: each is drawn as it starts
+            self.bar.refresh()
+
+    def close(self) -> None:
+        self.bar.close()
+
+    def __enter__(self) -> "Stages":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -11,12 +11,13 @@ from pathlib import Path
 from typing import Sequence
 
 from uavturb.errors import InputError
-from uavturb.gap.finder import analyse, parse_sim_effects
+from uavturb.gap.finder import STAGES, analyse, parse_sim_effects
 from uavturb.gap.report import plot_surface_curve, write_json, write_markdown, write_plots
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M
 from uavturb.io.physics_config import load_physics_config, write_physics_config
 from uavturb.io.publish import check_output_file, check_output_folder, publish_folder
 from uavturb.io.reader import load_recordings
+from uavturb.progress import Stages
 from uavturb.runs.store_process import StoreProcess
 
 
@@ -42,14 +43,18 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
     check_output_folder(out, overwrite=overwrite)
     if apply is not None:
         check_output_file(apply, overwrite=overwrite)
-    recs = load_recordings(recordings, vehicle)
-    # MLflow's imports (~4.5 s) run in a second process while the analysis runs (uavturb.runs.store_process)
-    with StoreProcess() if log_mlflow else contextlib.nullcontext() as store:
-        report, ex = analyse(recs, sim, seed=seed, height_uncertainty=height_uncertainty)
-        report["seconds_analysis"] = time.perf_counter() - t0
-        _publish(out, report, ex, apply=apply, overwrite=overwrite)
-        if store is not None:
-            _log(store, report, seed, out)
+    with Stages("uavturb gap", STAGES if log_mlflow else STAGES[:-1]) as stage:
+        stage("reading the recordings")
+        recs = load_recordings(recordings, vehicle)
+        # MLflow's imports (~4.5 s) run in a second process while the analysis runs (uavturb.runs.store_process)
+        with StoreProcess() if log_mlflow else contextlib.nullcontext() as store:
+            report, ex = analyse(recs, sim, seed=seed, height_uncertainty=height_uncertainty, progress=stage)
+            report["seconds_analysis"] = time.perf_counter() - t0
+            stage("writing the report")
+            _publish(out, report, ex, apply=apply, overwrite=overwrite)
+            if store is not None:
+                stage("logging the run")
+                _log(store, report, seed, out)
     return report
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -46,6 +46,11 @@ from uavturb.physics.effects import (
 )
 
 SCHEMA = "uavturb.gap/1"
+#: the stages of ``uavturb gap``, for its progress bar (:class:`uavturb.progress.Stages`); :func:`analyse`
+#: announces those between the reading and the writing
+STAGES = ["reading the recordings", "aligning the streams", "the nominal model", "locating the mismatch",
+          "selecting effects", "deciding what the data support", "the surface curve", "honest errors",
+          "writing the report", "logging the run"]
 #: rows in flight the analysis needs (a minute of 3 Hz rotor telemetry over two flights has ~150)
 MIN_ROWS = 100
 
@@ -107,9 +112,15 @@ def _open_loop(data: GapData, force: np.ndarray, horizon_s: float = 0.5, stride_
     return float(np.sqrt(np.mean(errs))) if errs else float("nan")
 
 
+def _silent(stage: str) -> None:
+    """No progress shown."""
+
+
 def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0,
-            height_uncertainty: float = HEIGHT_REFERENCE_M) -> tuple[dict, dict]:
-    """The analysis without any writing: returns the report dictionary and what the plots need.
+            height_uncertainty: float = HEIGHT_REFERENCE_M, progress: Callable[[str], None] = _silent
+            ) -> tuple[dict, dict]:
+    """The analysis without any writing: returns the report dictionary and what the plots need;
+    ``progress`` is called with the name of each of :data:`STAGES` it runs, as it starts.
 
     BLAS runs single-threaded: the fits are tall and thin (a few columns), where threaded
     BLAS only adds synchronisation (a threaded ``ddot`` over 50 000 rows took 15 ms instead of
@@ -117,16 +128,18 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):
-        return _analyse(recordings, sim, seed=seed, height_uncertainty=height_uncertainty)
+        return _analyse(recordings, sim, seed=seed, height_uncertainty=height_uncertainty, progress=progress)
 
 
 def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0,
-             height_uncertainty: float = HEIGHT_REFERENCE_M) -> tuple[dict, dict]:
+             height_uncertainty: float = HEIGHT_REFERENCE_M, progress: Callable[[str], None] = _silent
+             ) -> tuple[dict, dict]:
     if not (0.0 <= height_uncertainty <= 0.5):
         raise InputError("--height-uncertainty", f"must be between 0 and 0.5 m, got {height_uncertainty:.3g}")
     np.random.seed(seed)
     vehicle = recordings[0].vehicle
     paths = [str(r.path) if r.path else r.name for r in recordings]
+    progress("aligning the streams")
     recordings, fds, held = prepared(recordings, paths)
     data, contact_report = _flight_rows(fds, vehicle, paths)
     del fds  # the aligned streams live on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
@@ -137,11 +150,13 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                                 f"updates); too few to analyse: longer or more flights, or faster rotor telemetry")
     if len(data) < MIN_ROWS:
         raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
+    progress("the nominal model")
     levels = apply_thrust_levels(data)
 
     base = _simulator_baseline(data, sim)
     protocol, fm = folds(data)
     base_ho = heldout(data, frozenset(), fm, offset=base.offset)
+    progress("locating the mismatch")
     step = 1.0 / held["slowest_update_hz"] if np.isfinite(held["slowest_update_hz"]) else 0.0
     segs, rs0, sigma = locate.segments(data, base.r0, update_step_s=step)
     drv = locate.drivers(data, rs0)
@@ -149,8 +164,10 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     candidates, not_testable, sim_fit_base = _testable_candidates(data, sim, measured_rotor_speeds(recordings))
     quantum = max((rotor_quantum(r.rotors.speeds) for r in recordings), default=0.0)
     floor = rounding_floor(data, base.nominal.coef["k_T"], quantum)
+    progress("selecting effects")
     sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor,
                  curve=nominal_curve_evidence(data, base.least_squares))
+    progress("deciding what the data support")
     sel, ambiguous, rejected = _decide(data, sel, candidates)
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
@@ -158,7 +175,9 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     _, rsf, _ = locate.segments(data, rf, update_step_s=step)
     _, draws = locate.window_rows(data, 0.5, step)
     beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / draws)))
+    progress("the surface curve")
     curve_report, curve, curve_fits = finder_surface_curve(data, final)
+    progress("honest errors")
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
     report = {
