@@ -108,6 +108,7 @@ class GapData:
     _S: np.ndarray | None = field(default=None, repr=False)
     _lag_cache: dict = field(default_factory=dict, repr=False)
     _plan: list | None = field(default=None, repr=False)
+    _zb: np.ndarray | None = field(default=None, repr=False)
     dense: "GapData | None" = field(default=None, repr=False)
 
     def __len__(self) -> int:
@@ -119,6 +120,14 @@ class GapData:
         if self._S is None:
             self._S = sum_of_squares(self.rotor_speeds)
         return self._S
+
+    @property
+    def z_body_rows(self) -> np.ndarray:
+        """(3, K) -, the body z axis in W (``R[:, :, 2]``) as three contiguous rows (computed once: every
+        evaluation of a fit's thrust column reads it)."""
+        if self._zb is None:
+            self._zb = np.ascontiguousarray(self.R[:, :, 2].T)
+        return self._zb
 
     @property
     def geometry(self) -> dict:
@@ -432,15 +441,22 @@ def surface_extra(data: GapData, effects: set[str], nonlinear: dict[str, float])
 
 
 def thrust_columns(data: GapData, effects: set[str], S: np.ndarray, surf: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """:func:`dependent_columns` from the effective ``S`` (K,) and the surface laws' ``surf`` (K,)."""
-    zb = data.R[:, :, 2]
-    thrust = S[:, None] * zb
-    thrust[:, 2] += S * surf
-    cols, names = [thrust], ["k_T"]
-    if "battery_sag" in effects:
-        cols.append(-(data.t * S)[:, None] * zb)
-        names.append("k_T*s")
-    return np.stack([c.T.reshape(-1) for c in cols], axis=1), names
+    """:func:`dependent_columns` from the effective ``S`` (K,) and the surface laws' ``surf`` (K,).
+
+    The thrust column is ``S R e_z`` with ``S surf`` added along ``z`` of W (``k_T``), the battery's
+    ``-t S R e_z`` (``k_T*s``); written straight into the ``(3K, 1 or 2)`` array, each axis of W from the
+    body z axis's contiguous row (:attr:`GapData.z_body_rows`): the columns are the fits' innermost work."""
+    names = ["k_T"] + (["k_T*s"] if "battery_sag" in effects else [])
+    K, zb = len(S), data.z_body_rows
+    D = np.empty((3 * K, len(names)))
+    for j in range(3):
+        np.multiply(S, zb[j], out=D[j * K:(j + 1) * K, 0])
+    D[2 * K:, 0] += S * surf
+    if len(names) > 1:
+        ts = -(data.t * S)
+        for j in range(3):
+            np.multiply(ts, zb[j], out=D[j * K:(j + 1) * K, 1])
+    return D, names
 
 
 def fixed_columns(data: GapData, effects: set[str]) -> tuple[np.ndarray, list[str]]:
