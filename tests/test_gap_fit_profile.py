@@ -77,3 +77,22 @@ def test_fit_finds_the_known_lag_and_ground_effect():
     assert fit.nonlinear["motor_lag"] == pytest.approx(truth["tau"], rel=0.05)
     assert fit.nonlinear["ground_effect"] == pytest.approx(truth["mu"], rel=0.05)
     assert fit.coef["k_T"] == pytest.approx(truth["k_T"], rel=0.01)
+
+
+def test_selection_fits_each_effect_set_once_and_finish_agrees(monkeypatch):
+    """select() asks for the same held-out fits again (backward check, finish): each set is fitted once, and the
+    selection is the one a fresh finish() computes."""
+    from uavturb.gap import selection
+
+    data, truth = _hover(K=4000)
+    calls = []
+    real = selection.fit_model
+    monkeypatch.setattr(selection, "fit_model", lambda d, effects, **kw: calls.append(
+        (len(d), d.t[0], d.t[-1], frozenset(effects), kw.get("with_stderr", True))) or real(d, effects, **kw))
+    sel = selection.select(data, ["ground_effect", "motor_lag", "wind"])
+    assert set(sel.chosen) == {"ground_effect", "motor_lag"}
+    assert len(calls) == len(set(calls))  # no fit repeated on the same rows
+    monkeypatch.setattr(selection, "fit_model", real)
+    again = selection.finish(data, frozenset(), sel.steps)
+    assert again.final.coef == sel.final.coef and again.final.nonlinear == sel.final.nonlinear
+    assert again.final_heldout.rmse == sel.final_heldout.rmse and again.base_heldout.rmse == sel.base_heldout.rmse
