@@ -75,6 +75,13 @@ def test_lagged_sums_are_the_plain_ones_on_flights_and_subsets():
         expect = np.bincount(blocks.block_of, weights=full[blocks.rows]) / np.bincount(blocks.block_of)
         assert np.array_equal(blocks.S_lag(tau), expect)
         assert np.array_equal(blocks.S_lag(tau * (1 + 1e-4)), expect)  # the same cached value of tau
+    # a subset's recordings are filtered first, the others when asked for
+    fresh = _flights()
+    one = fresh.subset(fresh.group == 0)
+    assert np.array_equal(one.S_lag(0.05), _plain(fresh, 0.05)[fresh.group == 0])
+    assert fresh._lag_done[lag_key(0.05)] == {0}
+    assert np.array_equal(fresh.S_lag(0.05), _plain(fresh, 0.05))
+    assert fresh._lag_done[lag_key(0.05)] == {0, 1}
     # the samples of a recording need not be consecutive
     mixed = _flights(K=1000)
     order = np.argsort(np.r_[np.arange(1000) * 2, np.arange(1000) * 2 + 1], kind="stable")

@@ -108,6 +108,8 @@ class GapData:
     _S: np.ndarray | None = field(default=None, repr=False)
     _lag_cache: dict = field(default_factory=dict, repr=False)
     _plan: list | None = field(default=None, repr=False)
+    _lag_done: dict = field(default_factory=dict, repr=False)
+    _groups: frozenset | None = field(default=None, repr=False)
     _zb: np.ndarray | None = field(default=None, repr=False)
     dense: "GapData | None" = field(default=None, repr=False)
 
@@ -158,32 +160,52 @@ class GapData:
 
     def S_lag(self, tau: float) -> np.ndarray:
         """``sum(w_lag^2)`` with rotor speeds lagging the records by ``tau`` [s] (per recording),
-        computed on the contiguous flights when these rows are a subset of them."""
+        computed on the contiguous flights when these rows are a subset of them (on the recordings these rows
+        hold only: a fold's search needs its training recordings')."""
         key = lag_key(tau)
+        if self.contiguous is None:
+            return self._lagged_sums(key, None)
         if key not in self._lag_cache:
-            if self.contiguous is not None:  # a search returns to values it tried: the block means are kept too
-                out = self.gather(self.contiguous.S_lag(key))
-            else:
-                out = np.empty(len(self))
-                for rows, stretches in self._lag_plan():
-                    out[rows] = sum_of_squares(lag_rotor_speeds(self.t[rows], self.rotor_speeds[rows], key, stretches))
-            while len(self._lag_cache) * out.nbytes > LAG_CACHE_BYTES and self._lag_cache:
-                self._lag_cache.pop(next(iter(self._lag_cache)))  # the oldest first
-            self._lag_cache[key] = out
+            if self._groups is None:
+                self._groups = frozenset(np.unique(self.group).tolist())
+            # a search returns to values it tried: the block means are kept too
+            self._keep_lagged(key, self.gather(self.contiguous._lagged_sums(key, self._groups)))
         return self._lag_cache[key]
 
+    def _lagged_sums(self, key: float, groups: frozenset | None) -> np.ndarray:
+        """(K,) the lagged sums at the cached ``tau`` ``key``, filled on the rows of the recordings ``groups``
+        at least (None: all); each recording's lag is filtered once per ``key``."""
+        out = self._lag_cache.get(key)
+        if out is None:
+            out = self._keep_lagged(key, np.empty(len(self)))
+        done = self._lag_done.setdefault(key, set())
+        for g, rows, stretches in self._lag_plan():
+            if g not in done and (groups is None or g in groups):
+                out[rows] = sum_of_squares(lag_rotor_speeds(self.t[rows], self.rotor_speeds[rows], key, stretches))
+                done.add(g)
+        return out
+
+    def _keep_lagged(self, key: float, out: np.ndarray) -> np.ndarray:
+        """Keep ``out`` as the lagged sums at ``key``, the oldest dropped beyond :data:`LAG_CACHE_BYTES`."""
+        while len(self._lag_cache) * out.nbytes > LAG_CACHE_BYTES and self._lag_cache:
+            old = next(iter(self._lag_cache))
+            self._lag_cache.pop(old)
+            self._lag_done.pop(old, None)
+        self._lag_cache[key] = out
+        return out
+
     def _lag_plan(self) -> list:
-        """``[(rows, stretches)]`` per recording: its rows (a slice where a recording's rows are consecutive, as
+        """``[(recording, rows, stretches)]``: each recording's rows (a slice where they are consecutive, as
         :func:`gap_data` stacks them) and their :func:`~uavturb.physics.effects.lag_stretches`; found once, as
         they depend on the times only and :meth:`S_lag` runs at many ``tau``."""
         if self._plan is None:
             g = self.group
             if len(g) and np.all(g[1:] >= g[:-1]):
                 edges = np.r_[0, np.flatnonzero(np.diff(g)) + 1, len(g)]
-                parts = [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+                parts = [(int(g[a]), slice(int(a), int(b))) for a, b in zip(edges[:-1], edges[1:])]
             else:
-                parts = [np.flatnonzero(g == k) for k in np.unique(g)]
-            self._plan = [(rows, lag_stretches(self.t[rows])) for rows in parts]
+                parts = [(int(k), np.flatnonzero(g == k)) for k in np.unique(g)]
+            self._plan = [(k, rows, lag_stretches(self.t[rows])) for k, rows in parts]
         return self._plan
 
     def subset(self, mask: np.ndarray) -> "GapData":
