@@ -88,3 +88,18 @@ def test_lagged_sums_are_the_plain_ones_on_flights_and_subsets():
     shuffled = GapData(mixed.group[order], mixed.t[order], mixed.p, mixed.y, mixed.R, mixed.rotor_speeds[order],
                        mixed.v, mixed.d_down, mixed.d_up, 1.5, 0.1, ["a", "b"], "mocap")
     assert np.array_equal(shuffled.S_lag(0.03)[np.argsort(order)], _plain(mixed, 0.03))
+
+
+def test_lagged_sums_stay_right_when_the_cache_drops_old_values(monkeypatch):
+    from uavturb.gap import design
+
+    data = _flights(K=2000)
+    monkeypatch.setattr(design, "LAG_CACHE_BYTES", 2 * len(data) * 8)  # two values of tau
+    monkeypatch.setattr(design, "ROWS_LAG_CACHE_BYTES", (len(data) // 2) * 8)  # one, of the subset
+    sub = data.subset(data.group == 1)
+    taus = (0.01, 0.02, 0.04, 0.01, 0.08, 0.02)
+    for tau in taus:
+        assert np.array_equal(sub.S_lag(tau), _plain(data, tau)[data.group == 1])
+        assert np.array_equal(data.S_lag(tau), _plain(data, tau))
+        assert len(data._lag_cache) <= 3 and set(data._lag_done) == set(data._lag_cache)  # the limit, and one more
+        assert len(sub._lag_cache) <= 2

@@ -43,6 +43,8 @@ NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items()
 
 #: bytes of lagged rotor-speed sums kept per flight set (:meth:`GapData.S_lag`; 34 taus of a flight-hour at 200 Hz)
 LAG_CACHE_BYTES = 200 << 20
+#: bytes of their block means kept per set of rows (a subset or the block means; 46 taus of a flight-hour at 25 Hz)
+ROWS_LAG_CACHE_BYTES = 32 << 20
 
 #: Hz, the rate the gap finder analyses at (block means of faster recordings; :func:`gap_data`)
 RATE_HZ = 25.0
@@ -186,8 +188,10 @@ class GapData:
         return out
 
     def _keep_lagged(self, key: float, out: np.ndarray) -> np.ndarray:
-        """Keep ``out`` as the lagged sums at ``key``, the oldest dropped beyond :data:`LAG_CACHE_BYTES`."""
-        while len(self._lag_cache) * out.nbytes > LAG_CACHE_BYTES and self._lag_cache:
+        """Keep ``out`` as the lagged sums at ``key``, the oldest dropped beyond :data:`LAG_CACHE_BYTES`
+        (:data:`ROWS_LAG_CACHE_BYTES` for rows of contiguous flights)."""
+        limit = LAG_CACHE_BYTES if self.contiguous is None else ROWS_LAG_CACHE_BYTES
+        while len(self._lag_cache) * out.nbytes > limit and self._lag_cache:
             old = next(iter(self._lag_cache))
             self._lag_cache.pop(old)
             self._lag_done.pop(old, None)
