@@ -94,12 +94,26 @@ class HeldOut:
 def heldout(data: GapData, effects: frozenset[str], fold_masks, *, fixed: dict[str, float] | None = None,
             offset: np.ndarray | None = None) -> HeldOut:
     """Fit on each fold's training part, evaluate on its test part."""
-    errs, blocks, ts, gs = [], [], [], []
+    return _heldout_on(fold_parts(data, fold_masks, offset), effects, fixed)
+
+
+def fold_parts(data: GapData, fold_masks, offset: np.ndarray | None = None) -> list[tuple[GapData, GapData]]:
+    """Each fold's (training, test) rows, ``offset`` (K, 3) [N] taken off their ``y``."""
+    parts = []
     for train, test in fold_masks:
         tr, te = data.subset(train), data.subset(test)
         if offset is not None:
             tr.y = tr.y - offset[train]
             te.y = te.y - offset[test]
+        parts.append((tr, te))
+    return parts
+
+
+def _heldout_on(parts: list[tuple[GapData, GapData]], effects: frozenset[str],
+                fixed: dict[str, float] | None = None) -> HeldOut:
+    """:func:`heldout` on the folds' rows (:func:`fold_parts`)."""
+    errs, blocks, ts, gs = [], [], [], []
+    for tr, te in parts:
         fit = fit_model(tr, effects, fixed_nonlinear=fixed, with_stderr=False)
         errs.append(fit.residual(te))
         blocks.append(te.group * 100000 + np.floor(te.t).astype(int))
@@ -315,17 +329,21 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
 
 class _Known:
     """Held-out errors and fits on all data of one selection, by effect set: the forward steps, the backward
-    check and :func:`finish` ask for the same sets again (each is computed once; the same numbers)."""
+    check and :func:`finish` ask for the same sets again (each is computed once; the same numbers). The folds'
+    rows are cut once too (with what they cache: lagged sums, :meth:`GapData.S_lag`)."""
 
     def __init__(self, data: GapData, fold_masks, offset: np.ndarray | None, full: GapData, lag: int):
         self.data, self.fold_masks, self.offset, self.full, self.lag = data, fold_masks, offset, full, lag
+        self._parts: list[tuple[GapData, GapData]] | None = None
         self._heldout: dict[frozenset[str], HeldOut] = {}
         self._fit: dict[frozenset[str], ModelFit] = {}
 
     def heldout(self, effects: frozenset[str]) -> HeldOut:
         key = frozenset(effects)
         if key not in self._heldout:
-            self._heldout[key] = heldout(self.data, key, self.fold_masks, offset=self.offset)
+            if self._parts is None:
+                self._parts = fold_parts(self.data, self.fold_masks, self.offset)
+            self._heldout[key] = _heldout_on(self._parts, key)
         return self._heldout[key]
 
     def fit(self, effects: frozenset[str]) -> ModelFit:
