@@ -101,3 +101,13 @@ def test_first_order_lag_step_response_and_layouts():
     with pytest.raises(ValueError, match="not in"):
         first_order_lag(np.ones(3), 1.5, 0.0)
 
+
+def test_first_order_lag_into_a_slice_of_a_larger_array():
+    """``out``: the output written in place (rows of a larger array), the same numbers to the bit."""
+    x = 1000.0 + 100.0 * np.random.default_rng(5).normal(size=(700, 4))
+    big = np.full((702, 4), -1.0)
+    y = first_order_lag(x, 0.95, x[0], out=big[1:701])
+    assert np.shares_memory(y, big)
+    assert np.array_equal(big[1:701], first_order_lag(x, 0.95, x[0]))
+    assert np.all(big[[0, 701]] == -1.0)  # nothing written outside
+

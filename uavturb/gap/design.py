@@ -32,7 +32,7 @@ from uavturb.gap.nominal import ThrustLevels, anchored_bias, thrust_levels
 from uavturb.numerics.filters import savgol_filter
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.physics.effects import EFFECTS, EffectInputs, lag_rotor_speeds
+from uavturb.physics.effects import EFFECTS, EffectInputs, lag_rotor_speeds, lag_stretches
 from uavturb.sysid.flight_data import FlightData
 
 #: nonlinear parameter of each effect whose law is not linear in it, with its search bounds
@@ -43,6 +43,8 @@ NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items()
 
 #: bytes of lagged rotor-speed sums kept per flight set (:meth:`GapData.S_lag`; 34 taus of a flight-hour at 200 Hz)
 LAG_CACHE_BYTES = 200 << 20
+#: bytes of their block means kept per set of rows (a subset or the block means; 46 taus of a flight-hour at 25 Hz)
+ROWS_LAG_CACHE_BYTES = 32 << 20
 
 #: Hz, the rate the gap finder analyses at (block means of faster recordings; :func:`gap_data`)
 RATE_HZ = 25.0
@@ -107,6 +109,10 @@ class GapData:
     arm_length: float = float("nan")
     _S: np.ndarray | None = field(default=None, repr=False)
     _lag_cache: dict = field(default_factory=dict, repr=False)
+    _plan: list | None = field(default=None, repr=False)
+    _lag_done: dict = field(default_factory=dict, repr=False)
+    _groups: frozenset | None = field(default=None, repr=False)
+    _zb: np.ndarray | None = field(default=None, repr=False)
     dense: "GapData | None" = field(default=None, repr=False)
 
     def __len__(self) -> int:
@@ -116,8 +122,16 @@ class GapData:
     def S(self) -> np.ndarray:
         """(K,) (rad/s)^2, ``sum(w_i^2)`` (computed once: the fits read it thousands of times)."""
         if self._S is None:
-            self._S = np.sum(self.rotor_speeds**2, axis=1)
+            self._S = sum_of_squares(self.rotor_speeds)
         return self._S
+
+    @property
+    def z_body_rows(self) -> np.ndarray:
+        """(3, K) -, the body z axis in W (``R[:, :, 2]``) as three contiguous rows (computed once: every
+        evaluation of a fit's thrust column reads it)."""
+        if self._zb is None:
+            self._zb = np.ascontiguousarray(self.R[:, :, 2].T)
+        return self._zb
 
     @property
     def geometry(self) -> dict:
@@ -148,19 +162,55 @@ class GapData:
 
     def S_lag(self, tau: float) -> np.ndarray:
         """``sum(w_lag^2)`` with rotor speeds lagging the records by ``tau`` [s] (per recording),
-        computed on the contiguous flights when these rows are a subset of them."""
-        if self.contiguous is not None:
-            return self.gather(self.contiguous.S_lag(tau))
+        computed on the contiguous flights when these rows are a subset of them (on the recordings these rows
+        hold only: a fold's search needs its training recordings')."""
         key = lag_key(tau)
+        if self.contiguous is None:
+            return self._lagged_sums(key, None)
         if key not in self._lag_cache:
-            out = np.empty(len(self))
-            for g in np.unique(self.group):
-                m = self.group == g
-                out[m] = np.sum(lag_rotor_speeds(self.t[m], self.rotor_speeds[m], key) ** 2, axis=1)
-            while len(self._lag_cache) * out.nbytes > LAG_CACHE_BYTES and self._lag_cache:
-                self._lag_cache.pop(next(iter(self._lag_cache)))  # the oldest first
-            self._lag_cache[key] = out
+            if self._groups is None:
+                self._groups = frozenset(np.unique(self.group).tolist())
+            # a search returns to values it tried: the block means are kept too
+            self._keep_lagged(key, self.gather(self.contiguous._lagged_sums(key, self._groups)))
         return self._lag_cache[key]
+
+    def _lagged_sums(self, key: float, groups: frozenset | None) -> np.ndarray:
+        """(K,) the lagged sums at the cached ``tau`` ``key``, filled on the rows of the recordings ``groups``
+        at least (None: all); each recording's lag is filtered once per ``key``."""
+        out = self._lag_cache.get(key)
+        if out is None:
+            out = self._keep_lagged(key, np.empty(len(self)))
+        done = self._lag_done.setdefault(key, set())
+        for g, rows, stretches in self._lag_plan():
+            if g not in done and (groups is None or g in groups):
+                out[rows] = sum_of_squares(lag_rotor_speeds(self.t[rows], self.rotor_speeds[rows], key, stretches))
+                done.add(g)
+        return out
+
+    def _keep_lagged(self, key: float, out: np.ndarray) -> np.ndarray:
+        """Keep ``out`` as the lagged sums at ``key``, the oldest dropped beyond :data:`LAG_CACHE_BYTES`
+        (:data:`ROWS_LAG_CACHE_BYTES` for rows of contiguous flights)."""
+        limit = LAG_CACHE_BYTES if self.contiguous is None else ROWS_LAG_CACHE_BYTES
+        while len(self._lag_cache) * out.nbytes > limit and self._lag_cache:
+            old = next(iter(self._lag_cache))
+            self._lag_cache.pop(old)
+            self._lag_done.pop(old, None)
+        self._lag_cache[key] = out
+        return out
+
+    def _lag_plan(self) -> list:
+        """``[(recording, rows, stretches)]``: each recording's rows (a slice where they are consecutive, as
+        :func:`gap_data` stacks them) and their :func:`~uavturb.physics.effects.lag_stretches`; found once, as
+        they depend on the times only and :meth:`S_lag` runs at many ``tau``."""
+        if self._plan is None:
+            g = self.group
+            if len(g) and np.all(g[1:] >= g[:-1]):
+                edges = np.r_[0, np.flatnonzero(np.diff(g)) + 1, len(g)]
+                parts = [(int(g[a]), slice(int(a), int(b))) for a, b in zip(edges[:-1], edges[1:])]
+            else:
+                parts = [(int(k), np.flatnonzero(g == k)) for k in np.unique(g)]
+            self._plan = [(k, rows, lag_stretches(self.t[rows])) for k, rows in parts]
+        return self._plan
 
     def subset(self, mask: np.ndarray) -> "GapData":
         """The rows where ``mask`` holds; they keep a reference to the contiguous flights."""
@@ -338,6 +388,17 @@ def surface_law_extra(data: GapData, name: str, value: float) -> np.ndarray:
     return np.where(np.isfinite(ratio), ratio - 1.0, 0.0)
 
 
+def sum_of_squares(w: np.ndarray) -> np.ndarray:
+    """(K,) ``sum(w_i^2)`` over the columns of ``w`` (K, N): ``np.sum(w**2, axis=1)`` to the bit, 4 times as
+    fast for fewer than 8 columns (numpy sums so few in order, one row at a time; here a column at a time)."""
+    if w.ndim != 2 or w.shape[1] >= 8 or w.shape[1] == 0:
+        return np.sum(w**2, axis=1)
+    out = np.square(w[:, 0])
+    for j in range(1, w.shape[1]):
+        out += np.square(w[:, j])
+    return out
+
+
 def lag_key(tau: float) -> float:
     """s, the motor lag's ``tau`` at which :meth:`GapData.S_lag` filters: three significant digits (0.5 % at
     most, far under its honest error), so that the searches of every fold and candidate land on the same
@@ -408,15 +469,22 @@ def surface_extra(data: GapData, effects: set[str], nonlinear: dict[str, float])
 
 
 def thrust_columns(data: GapData, effects: set[str], S: np.ndarray, surf: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """:func:`dependent_columns` from the effective ``S`` (K,) and the surface laws' ``surf`` (K,)."""
-    zb = data.R[:, :, 2]
-    thrust = S[:, None] * zb
-    thrust[:, 2] += S * surf
-    cols, names = [thrust], ["k_T"]
-    if "battery_sag" in effects:
-        cols.append(-(data.t * S)[:, None] * zb)
-        names.append("k_T*s")
-    return np.stack([c.T.reshape(-1) for c in cols], axis=1), names
+    """:func:`dependent_columns` from the effective ``S`` (K,) and the surface laws' ``surf`` (K,).
+
+    The thrust column is ``S R e_z`` with ``S surf`` added along ``z`` of W (``k_T``), the battery's
+    ``-t S R e_z`` (``k_T*s``); written straight into the ``(3K, 1 or 2)`` array, each axis of W from the
+    body z axis's contiguous row (:attr:`GapData.z_body_rows`): the columns are the fits' innermost work."""
+    names = ["k_T"] + (["k_T*s"] if "battery_sag" in effects else [])
+    K, zb = len(S), data.z_body_rows
+    D = np.empty((3 * K, len(names)))
+    for j in range(3):
+        np.multiply(S, zb[j], out=D[j * K:(j + 1) * K, 0])
+    D[2 * K:, 0] += S * surf
+    if len(names) > 1:
+        ts = -(data.t * S)
+        for j in range(3):
+            np.multiply(ts, zb[j], out=D[j * K:(j + 1) * K, 1])
+    return D, names
 
 
 def fixed_columns(data: GapData, effects: set[str]) -> tuple[np.ndarray, list[str]]:

@@ -17,6 +17,7 @@ from uavturb.gap.design import (
     design,
     effective_S,
     fixed_columns,
+    lag_key,
     stack_target,
     surface_extra,
     thrust_columns,
@@ -105,6 +106,9 @@ class _Profile:
         self._S: dict[float, np.ndarray] = {}
         self._surf: dict[tuple, np.ndarray] = {}
         self._surface = [EFFECTS[e].params[0] for e in sorted(self.effects) if EFFECTS[e].surface is not None]
+        # the error at each value the columns are really computed at (a search returns to values it tried, and
+        # taus one cached grid step apart, design.lag_key, give the same columns)
+        self._sse: dict[tuple, float] = {}
 
     def _columns(self, values: dict[str, float]) -> np.ndarray:
         tau = round(values["tau"], 12) if "motor_lag" in self.effects else 0.0
@@ -116,7 +120,14 @@ class _Profile:
         return thrust_columns(self.data, self.effects, self._S[tau], self._surf[key])[0]
 
     def sse(self, nl: dict[str, float]) -> float:
-        D = self._columns(_nl_values(nl))
+        values = _nl_values(nl)
+        key = (lag_key(values["tau"]) if "motor_lag" in self.effects else 0.0,) + tuple(values[p] for p in self._surface)
+        if key not in self._sse:
+            self._sse[key] = self._sse_at(values)
+        return self._sse[key]
+
+    def _sse_at(self, values: dict[str, float]) -> float:
+        D = self._columns(values)
         nd = D.shape[1]
         G = np.empty((nd + self.FF.shape[0],) * 2)
         G[:nd, :nd] = D.T @ D

@@ -94,12 +94,26 @@ class HeldOut:
 def heldout(data: GapData, effects: frozenset[str], fold_masks, *, fixed: dict[str, float] | None = None,
             offset: np.ndarray | None = None) -> HeldOut:
     """Fit on each fold's training part, evaluate on its test part."""
-    errs, blocks, ts, gs = [], [], [], []
+    return _heldout_on(fold_parts(data, fold_masks, offset), effects, fixed)
+
+
+def fold_parts(data: GapData, fold_masks, offset: np.ndarray | None = None) -> list[tuple[GapData, GapData]]:
+    """Each fold's (training, test) rows, ``offset`` (K, 3) [N] taken off their ``y``."""
+    parts = []
     for train, test in fold_masks:
         tr, te = data.subset(train), data.subset(test)
         if offset is not None:
             tr.y = tr.y - offset[train]
             te.y = te.y - offset[test]
+        parts.append((tr, te))
+    return parts
+
+
+def _heldout_on(parts: list[tuple[GapData, GapData]], effects: frozenset[str],
+                fixed: dict[str, float] | None = None) -> HeldOut:
+    """:func:`heldout` on the folds' rows (:func:`fold_parts`)."""
+    errs, blocks, ts, gs = [], [], [], []
+    for tr, te in parts:
         fit = fit_model(tr, effects, fixed_nonlinear=fixed, with_stderr=False)
         errs.append(fit.residual(te))
         blocks.append(te.group * 100000 + np.floor(te.t).astype(int))
@@ -260,7 +274,8 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         full = data.subset(np.ones(len(data), bool))
         full.y = data.y - offset
     current = frozenset(base)
-    base_ho = heldout(data, current, fm, offset=offset)
+    known = _Known(data, fm, offset, full, lag)
+    base_ho = known.heldout(current)
     cur_ho = base_ho
     steps: list[Step] = []
     tried: dict[str, dict[str, float]] = {}
@@ -269,7 +284,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         best = None  # the best held-out fit among the candidates that pass the guards
         passed: dict[str, tuple] = {}
         for c in remaining:
-            ho = heldout(data, current | {c}, fm, offset=offset)
+            ho = known.heldout(current | {c})
             t = improvement_z(cur_ho, ho)
             tried.setdefault(c, {})[f"step{len(steps) + 1}_z"] = t
             tried[c][f"step{len(steps) + 1}_heldout_rmse_N"] = ho.rmse
@@ -286,7 +301,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         if best is None:
             break
         c, ho, t = _standard_law(best, passed, z_improve, tried, len(steps) + 1, curve)
-        fit = fit_model(full, current | {c}, lag=lag)
+        fit = known.fit(current | {c})
         # with the curve's evidence beside it, a parameter needs the same two standard errors as its held-out gain
         if not _signed_ok(fit, c, Z_WITH_CURVE if t < z_improve else z_min):
             tried[c]["rejected"] = 1.0
@@ -303,31 +318,61 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         changed = False
         for s in list(steps):
             without = current - {s.name}
-            ho = heldout(data, without, fm, offset=offset)
+            ho = known.heldout(without)
             z_keep = improvement_z(ho, cur_ho)
             if z_keep < z_improve and not curve.supports(s.name, z_keep):
                 steps.remove(s)
                 current, cur_ho, changed = without, ho, True
                 break
-    return finish(data, frozenset(base), steps, offset=offset, lag=lag, tried=tried)
+    return finish(data, frozenset(base), steps, offset=offset, lag=lag, tried=tried, known=known)
+
+
+class _Known:
+    """Held-out errors and fits on all data of one selection, by effect set: the forward steps, the backward
+    check and :func:`finish` ask for the same sets again (each is computed once; the same numbers). The folds'
+    rows are cut once too (with what they cache: lagged sums, :meth:`GapData.S_lag`)."""
+
+    def __init__(self, data: GapData, fold_masks, offset: np.ndarray | None, full: GapData, lag: int):
+        self.data, self.fold_masks, self.offset, self.full, self.lag = data, fold_masks, offset, full, lag
+        self._parts: list[tuple[GapData, GapData]] | None = None
+        self._heldout: dict[frozenset[str], HeldOut] = {}
+        self._fit: dict[frozenset[str], ModelFit] = {}
+
+    def heldout(self, effects: frozenset[str]) -> HeldOut:
+        key = frozenset(effects)
+        if key not in self._heldout:
+            if self._parts is None:
+                self._parts = fold_parts(self.data, self.fold_masks, self.offset)
+            self._heldout[key] = _heldout_on(self._parts, key)
+        return self._heldout[key]
+
+    def fit(self, effects: frozenset[str]) -> ModelFit:
+        """The model with ``effects`` fitted on all data (offset taken off), with standard errors."""
+        key = frozenset(effects)
+        if key not in self._fit:
+            self._fit[key] = fit_model(self.full, key, lag=self.lag)
+        return self._fit[key]
 
 
 def finish(data: GapData, base: frozenset[str], steps: list[Step], *, offset: np.ndarray | None = None,
-           lag: int = 50, tried: dict | None = None) -> Selection:
+           lag: int = 50, tried: dict | None = None, known: _Known | None = None) -> Selection:
     """The selection made of ``base`` plus ``steps``: the final fit on all data, and each step's
-    held-out error before and after along the chain (also after steps were dropped later)."""
+    held-out error before and after along the chain (also after steps were dropped later). ``known``: what
+    :func:`select` computed already on the same data, folds, offset and lag."""
     protocol, fm = folds(data)
-    full = data
-    if offset is not None:
-        full = data.subset(np.ones(len(data), bool))
-        full.y = data.y - offset
+    if known is None:
+        full = data
+        if offset is not None:
+            full = data.subset(np.ones(len(data), bool))
+            full.y = data.y - offset
+        known = _Known(data, fm, offset, full, lag)
     current = frozenset(base) | {s.name for s in steps}
-    base_ho = heldout(data, frozenset(base), fm, offset=offset)
-    final = fit_model(full, current, lag=lag)
+    base_ho = known.heldout(frozenset(base))
+    final = known.fit(current)
     chain_ho, chain = base_ho, frozenset(base)
     for s in steps:
         chain = chain | {s.name}
-        ho = heldout(data, chain, fm, offset=offset)
+        ho = known.heldout(chain)
         s.heldout_before, s.heldout_after = chain_ho.rmse, ho.rmse
         chain_ho = ho
     return Selection(protocol, frozenset(base), steps, final, chain_ho, base_ho, tried or {})

@@ -119,7 +119,7 @@ def _fit_edge(x: np.ndarray, y: np.ndarray, axis: int, start: int, rows: tuple[i
 _NEGLIGIBLE = 1e-17
 
 
-def first_order_lag(x: np.ndarray, a: float, y_before: np.ndarray) -> np.ndarray:
+def first_order_lag(x: np.ndarray, a: float, y_before: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``y[n] = a y[n-1] + (1 - a) x[n]`` along axis 0, started from ``y[-1] = y_before``.
 
     The discrete first-order lag (exponential smoothing): ``a = exp(-dt / tau)`` for a lag of time
@@ -131,24 +131,27 @@ def first_order_lag(x: np.ndarray, a: float, y_before: np.ndarray) -> np.ndarray
     x : (N, ...) input samples (units of the output)
     a : pole, ``0 <= a <= 1``
     y_before : (...) the output before the first sample
+    out : (N, ...) float64, where to write the output (a slice of a larger array saves a copy; not ``x``'s memory)
 
     Returns
     -------
-    (N, ...) float64 output.
+    (N, ...) float64 output (``out`` where given).
     """
     if not 0.0 <= a <= 1.0:
         raise ValueError(f"first_order_lag: the pole a = {a} is not in [0, 1]")
     x = np.asarray(x, dtype=np.float64)
     if len(x) == 0:
-        return x.copy()
+        return x.copy() if out is None else out
     before = np.asarray(y_before, dtype=np.float64)
     # in deviations from the start (which makes the start 0): smaller numbers, and an input that
     # stays at the start gives exactly the start
-    y = (1.0 - a) * (x - before)
+    y = np.subtract(x, before, out=out)
+    y *= 1.0 - a
     s, power = 1, a  # power = a^s
     # after the pass for s, y[n] holds sum_{k = 0 .. 2s-1} a^k u[n - k]; once a^s is under _NEGLIGIBLE, what
     # the next passes would add is below float64's resolution of the largest |y| (a = 0.9: 9 passes, not 13)
     while s < len(y) and power >= _NEGLIGIBLE:
         y[s:] += power * y[:-s]
         s, power = 2 * s, power * power
-    return y + before
+    y += before
+    return y

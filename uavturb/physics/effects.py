@@ -142,7 +142,8 @@ def battery_sag_force(x: EffectInputs, s: float) -> np.ndarray:
     return -(s * t * x.thrust)[:, None] * x.z_body
 
 
-def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray:
+def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float,
+                     stretches: list[tuple[int, int, float | None]] | None = None) -> np.ndarray:
     """Actual rotor speeds under first-order lag ``tau dw/dt = w_cmd - w``.
 
     Exact discretisation for commands held between samples (zero-order hold), started at
@@ -153,6 +154,8 @@ def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray
     t : (K,) s, increasing
     w_cmd : (K, N) rad/s, the recorded (commanded) speeds
     tau : s, time constant (0 returns the commands)
+    stretches : :func:`lag_stretches` of ``t``, where the caller filters the same times at many ``tau``
+        (computed here otherwise; the result is the same)
 
     Notes
     -----
@@ -166,11 +169,9 @@ def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray
     if tau <= 0 or len(w_cmd) < 2:
         return w_cmd.copy()
     t = np.asarray(t, float)
-    dt = np.diff(t)
-    breaks = np.flatnonzero(dt > LAG_GAP * float(np.median(dt))) + 1
     out = np.empty_like(w_cmd)
-    for a, b in zip(np.r_[0, breaks], np.r_[breaks, len(t)]):
-        out[a:b] = _lag_stretch(t[a:b], w_cmd[a:b], tau)
+    for a, b, mean in lag_stretches(t) if stretches is None else stretches:
+        _lag_stretch(t[a:b], w_cmd[a:b], tau, mean, out[a:b])
     return out
 
 
@@ -180,23 +181,38 @@ LAG_GAP = 3.0
 LAG_JITTER = 0.25
 
 
-def _lag_stretch(t: np.ndarray, w_cmd: np.ndarray, tau: float) -> np.ndarray:
-    """:func:`lag_rotor_speeds` on one stretch without dropouts."""
-    out = np.empty_like(w_cmd)
+def lag_stretches(t: np.ndarray) -> list[tuple[int, int, float | None]]:
+    """The stretches ``[a, b)`` of the times ``t`` (K,) [s] between dropouts (:func:`lag_rotor_speeds`),
+    each with its mean step [s] where its steps are jittered by less than :data:`LAG_JITTER` (None where
+    the exact loop over time must run). They depend on the times only: a filter at many ``tau`` finds
+    them once."""
+    t = np.asarray(t, float)
+    if len(t) < 2:
+        return [(0, len(t), None)]
+    dt = np.diff(t)
+    breaks = np.flatnonzero(dt > LAG_GAP * float(np.median(dt))) + 1
+    out = []
+    for a, b in zip(np.r_[0, breaks], np.r_[breaks, len(t)]):
+        d = dt[a:b - 1]  # the steps inside the stretch (np.diff(t[a:b]))
+        mean = float(d.mean()) if len(d) else float("nan")
+        out.append((int(a), int(b), mean if len(d) and float(np.std(d)) <= LAG_JITTER * mean else None))
+    return out
+
+
+def _lag_stretch(t: np.ndarray, w_cmd: np.ndarray, tau: float, mean: float | None, out: np.ndarray) -> None:
+    """:func:`lag_rotor_speeds` on one stretch without dropouts (``mean``: its even step [s], or None), written
+    into ``out`` (the stretch's rows of the output)."""
     out[0] = w_cmd[0]
     if len(t) < 2:
-        return out
-    dt = np.diff(t)
-    mean = float(dt.mean())
-    if float(np.std(dt)) <= LAG_JITTER * mean:
+        return
+    if mean is not None:
         ak = float(np.exp(-mean / tau))
         # w_k = a w_{k-1} + (1 - a) w_cmd_{k-1}: the input delayed by one sample
-        out[1:] = first_order_lag(w_cmd[:-1], ak, w_cmd[0])
-        return out
-    a = np.exp(-dt / tau)
+        first_order_lag(w_cmd[:-1], ak, w_cmd[0], out=out[1:])
+        return
+    a = np.exp(-np.diff(t) / tau)
     for k in range(1, len(w_cmd)):
         out[k] = a[k - 1] * out[k - 1] + (1 - a[k - 1]) * w_cmd[k - 1]
-    return out
 
 
 def motor_lag_force(x: EffectInputs, tau: float) -> np.ndarray:

@@ -1,0 +1,98 @@
+"""The fit's profiled error (``fit._Profile``) and its thrust columns: what makes them fast gives the numbers of
+the plain computation to the bit (the nonlinear searches compare errors, so a rounding change could move them)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from uavturb.gap.design import GapData, lag_key, stack_target, thrust_columns
+from uavturb.gap.fit import _Profile, fit_model
+from uavturb.physics import quaternion as quat
+from uavturb.physics.dynamics import GRAVITY
+from uavturb.physics.effects import lag_rotor_speeds
+
+
+def _hover(K: int = 3000, seed: int = 2) -> tuple[GapData, dict]:
+    """A tilting hover at 200 Hz over a floor 0.05-0.5 m below, rotor commands held 0.1 s through a 30 ms lag,
+    ground effect mu = 2; the truth."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(K) * 0.005
+    mass, k_T, r, mu, tau = 1.2, 8e-6, 0.1, 2.0, 0.03
+    hover = np.sqrt(mass * GRAVITY / (4 * k_T))
+    w = np.repeat(hover * (1 + 0.08 * rng.uniform(-1, 1, (K // 20, 4))), 20, axis=0)
+    q = quat.from_euler(0.1 * np.sin(t), 0.1 * np.cos(0.7 * t), 0.3 * t)  # roll, pitch, yaw [rad]
+    R = quat.to_rotation_matrix(q)
+    d = 0.05 + 0.45 * (0.5 + 0.5 * np.sin(0.4 * t))
+    S = np.sum(lag_rotor_speeds(t, w, tau) ** 2, axis=1)
+    rho = mu * (r / (4 * d)) ** 2
+    y = k_T * S[:, None] * R[:, :, 2]
+    y[:, 2] += k_T * S * rho / (1 - rho)
+    y += rng.normal(0, 0.02, (K, 3))
+    data = GapData(np.zeros(K, int), t, np.zeros((K, 3)), y, R, w, rng.normal(0, 1, (K, 3)), d, np.full(K, np.inf),
+                   mass, r, ["hover"], "mocap", imu=np.zeros(K, bool), fits_bias=False)
+    return data, {"k_T": k_T, "mu": mu, "tau": tau}
+
+
+def _plain_thrust_columns(data: GapData, battery: bool, S: np.ndarray, surf: np.ndarray) -> np.ndarray:
+    """The columns as first written (stacked copies of ``S R e_z``)."""
+    zb = data.R[:, :, 2]
+    thrust = S[:, None] * zb
+    thrust[:, 2] += S * surf
+    cols = [thrust] + ([-(data.t * S)[:, None] * zb] if battery else [])
+    return np.stack([c.T.reshape(-1) for c in cols], axis=1)
+
+
+@pytest.mark.parametrize("effects", [{"ground_effect"}, {"ground_effect", "battery_sag"}])
+def test_thrust_columns_are_the_plain_ones_to_the_bit(effects):
+    data, _ = _hover()
+    S = data.S * 1.01
+    surf = np.linspace(0.0, 0.2, len(data))
+    D, names = thrust_columns(data, effects, S, surf)
+    assert names == (["k_T", "k_T*s"] if "battery_sag" in effects else ["k_T"])
+    assert D.shape == (3 * len(data), len(names)) and D.flags.c_contiguous
+    assert np.array_equal(D, _plain_thrust_columns(data, "battery_sag" in effects, S, surf))
+    # the first column is S R e_z with the surface's extra along z of W
+    k = 17
+    assert np.allclose(D[[k, len(data) + k, 2 * len(data) + k], 0], S[k] * data.R[k, :, 2] + [0, 0, S[k] * surf[k]])
+
+
+def test_profile_remembers_errors_at_the_values_it_computes_at():
+    data, _ = _hover()
+    prof = _Profile(data, frozenset({"motor_lag", "ground_effect"}), stack_target(data.y))
+    tau = 0.0301
+    assert lag_key(tau * (1 + 1e-4)) == lag_key(tau)
+    first = prof.sse({"motor_lag": tau, "ground_effect": 2.0})
+    # one cached step of tau: the same columns, so the same error, and no new evaluation
+    assert prof.sse({"motor_lag": tau * (1 + 1e-4), "ground_effect": 2.0}) == first
+    assert len(prof._sse) == 1
+    assert prof.sse({"motor_lag": tau, "ground_effect": 2.0 * (1 + 1e-9)}) != first  # mu is taken as given
+    fresh = _Profile(data, frozenset({"motor_lag", "ground_effect"}), stack_target(data.y))
+    assert fresh.sse({"motor_lag": tau * (1 + 1e-4), "ground_effect": 2.0}) == first
+
+
+def test_fit_finds_the_known_lag_and_ground_effect():
+    data, truth = _hover()
+    fit = fit_model(data, {"motor_lag", "ground_effect"}, with_stderr=False)
+    assert fit.nonlinear["motor_lag"] == pytest.approx(truth["tau"], rel=0.05)
+    assert fit.nonlinear["ground_effect"] == pytest.approx(truth["mu"], rel=0.05)
+    assert fit.coef["k_T"] == pytest.approx(truth["k_T"], rel=0.01)
+
+
+def test_selection_fits_each_effect_set_once_and_finish_agrees(monkeypatch):
+    """select() asks for the same held-out fits again (backward check, finish): each set is fitted once, and the
+    selection is the one a fresh finish() computes."""
+    from uavturb.gap import selection
+
+    data, truth = _hover(K=4000)
+    calls = []
+    real = selection.fit_model
+    monkeypatch.setattr(selection, "fit_model", lambda d, effects, **kw: calls.append(
+        (len(d), d.t[0], d.t[-1], frozenset(effects), kw.get("with_stderr", True))) or real(d, effects, **kw))
+    sel = selection.select(data, ["ground_effect", "motor_lag", "wind"])
+    assert set(sel.chosen) == {"ground_effect", "motor_lag"}
+    assert len(calls) == len(set(calls))  # no fit repeated on the same rows
+    monkeypatch.setattr(selection, "fit_model", real)
+    again = selection.finish(data, frozenset(), sel.steps)
+    assert again.final.coef == sel.final.coef and again.final.nonlinear == sel.final.nonlinear
+    assert again.final_heldout.rmse == sel.final_heldout.rmse and again.base_heldout.rmse == sel.base_heldout.rmse
