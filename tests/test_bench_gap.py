@@ -28,6 +28,7 @@ def test_bench_gap_measures_the_analysis_and_its_own_memory(tmp_path, capsys):
     assert fig["per flight-hour at 200 Hz: peak memory [MB]"] >= fig["resident after imports [MB]"]
     # the per-hour line passes through both measurements: never below the whole run's figure
     assert fig["per flight-hour at 200 Hz: seconds"] >= fig["read [s]"] + fig["analyse [s]"]
+    assert 0 < fig["per flight-hour at 200 Hz: CPU seconds"] < 10 * fig["per flight-hour at 200 Hz: seconds"]
     assert HOUR_ROWS == 720_000
     printed = capsys.readouterr().out
     assert "per flight-hour at 200 Hz: peak memory [MB]" in printed and "effects named" in printed

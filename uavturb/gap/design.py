@@ -41,8 +41,9 @@ NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items()
              if e.search is not None and e.fitted_by_finder}
 
 
-#: bytes of lagged rotor-speed sums kept per flight set (:meth:`GapData.S_lag`; 34 taus of a flight-hour at 200 Hz)
-LAG_CACHE_BYTES = 200 << 20
+#: bytes of lagged rotor-speed sums kept per flight set (:meth:`GapData.S_lag`; 11 taus of a flight-hour at 200 Hz;
+#: a 200 MB cap held a fifth of a 10^6-row flight's peak memory and saved no time measured)
+LAG_CACHE_BYTES = 64 << 20
 #: bytes of their block means kept per set of rows (a subset or the block means; 46 taus of a flight-hour at 25 Hz)
 ROWS_LAG_CACHE_BYTES = 32 << 20
 
@@ -304,10 +305,14 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
         parts.append(dict(group=np.full(len(fd), g), t=fd.t, p=fd.p, y=y, R=R, rotor_speeds=fd.rotor_speeds, v=fd.v,
                           d_down=d_down, d_up=d_up, keep=keep, fresh=fresh, imu=np.full(len(fd), use_imu),
                           src="imu" if use_imu else "mocap"))
-    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "src"}
+    sources = "+".join(sorted({p.pop("src") for p in parts}))
+    # one column at a time, each flight's own arrays let go as they are joined (a single flight's are used as
+    # they are): at 200 Hz the columns take ~230 bytes a row, and the flights' aligned streams are held besides
+    cat = {k: parts[0].pop(k) if len(parts) == 1 else np.concatenate([p.pop(k) for p in parts])
+           for k in list(parts[0])}
     keep, fresh = cat.pop("keep"), cat.pop("fresh")
     full = GapData(**cat, mass=mass, rotor_radius=rotor_radius, names=[f.name for f in flights],
-                   source="+".join(sorted({p["src"] for p in parts})),
+                   source=sources,
                    fits_bias=bool(np.any(cat["imu"])) and not anchor_bias, arm_length=arm_length)
     full.anchored = anchored
     n = block_size(full, rate_hz)
