@@ -453,7 +453,9 @@ def _decide(data: GapData, sel: Selection, candidates: list[str]
         if drop is None:
             break
         steps.remove(drop)
-        sel = finish(data, sel.base, steps, tried=sel.tried)  # as select() fitted it: sim effects in the base
+        # as select() fitted it (sim effects in the base), reusing its fits of the same effect sets
+        sel = finish(data, sel.base, steps, tried=sel.tried, known=sel.known)
+    sel.known = None  # its folds' rows and fits are not needed past the decisions (memory)
     final = sel.final
     facts = flight_facts(data, final.coef["k_T"])
     named = {a for entry in ambiguous for a in entry["candidates"]}

@@ -215,6 +215,8 @@ class Selection:
     final_heldout: HeldOut
     base_heldout: HeldOut
     tried: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: the selection's fits by effect set (:class:`_Known`), for a later :func:`finish` on the same data
+    known: "_Known | None" = field(default=None, repr=False)
 
     @property
     def chosen(self) -> list[str]:
@@ -375,4 +377,4 @@ def finish(data: GapData, base: frozenset[str], steps: list[Step], *, offset: np
         ho = known.heldout(chain)
         s.heldout_before, s.heldout_after = chain_ho.rmse, ho.rmse
         chain_ho = ho
-    return Selection(protocol, frozenset(base), steps, final, chain_ho, base_ho, tried or {})
+    return Selection(protocol, frozenset(base), steps, final, chain_ho, base_ho, tried or {}, known)
