@@ -36,7 +36,6 @@ from uavturb.gap.uncertainty import (
     with_systematic,
 )
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.sysid.flight_data import flight_data
 from uavturb.physics.effects import (
     DEFAULT_EFFECTS,
     EFFECTS,
@@ -44,6 +43,7 @@ from uavturb.physics.effects import (
     defaults,
     total_force,
 )
+from uavturb.sysid.flight_data import flight_data
 
 SCHEMA = "uavturb.gap/1"
 #: the stages of ``uavturb gap``, for its progress bar (:class:`uavturb.progress.Stages`); :func:`analyse`
