@@ -85,10 +85,12 @@ class Stages:
 
     def __init__(self, desc: str, names: list[str], stream: IO[str] | None = None):
         self.names = list(names)
-        # in a log, the first line comes after FILE_INTERVAL, like every later one
         self.terminal = is_terminal(stream)
-        delay = 0.0 if self.terminal else FILE_INTERVAL
-        self.bar = progress_bar(len(self.names), desc, "stages", stream=stream, leave=False, delay=delay)
+        # in a log, the first line comes after FILE_INTERVAL, like every later one; on a terminal no rate
+        # (stages are not alike: "1.6 s/stages" says nothing)
+        extra = {"bar_format": "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} stages [{elapsed}{postfix}]"} \
+            if self.terminal else {"delay": FILE_INTERVAL}
+        self.bar = progress_bar(len(self.names), desc, "stages", stream=stream, leave=False, **extra)
 
     def __call__(self, name: str) -> None:
         """Stage ``name`` (one of ``names``) starts."""
