@@ -9,7 +9,8 @@ import pytest
 from uavturb.gap.finder import analyse
 from uavturb.io.reader import load_recordings
 from uavturb.sim.flights.simulate import generate_flight
-from uavturb.sysid.flight_data import MIN_DROPOUT_S, dropouts, flight_data
+from uavturb.sysid.flight_data import flight_data
+from uavturb.sysid.streams import MIN_DROPOUT_S, dropouts
 from uavturb.sysid.identification import usable_mask
 
 NS = 1_000_000_000

@@ -14,7 +14,7 @@ Streams a logger writes faster than they update (sample-and-hold repeats) are re
 updates (:func:`held_updates`). A stream that stops for a while (a logger's or a radio's dropout, motion
 capture losing the markers) is not interpolated across: the rows in its dropouts, and those within a
 derivative window of them, are marked (:attr:`FlightData.covered`) for fits to leave out
-(:func:`dropouts`).
+(:func:`uavturb.sysid.streams.dropouts`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from uavturb.io.differentiate import local_quadratic
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.scene.heights import SurfaceIndex
-from uavturb.sysid.streams import update_mask
+from uavturb.sysid.streams import dropouts, update_mask
 
 
 @dataclass
@@ -58,7 +58,7 @@ class FlightData:
         interpolated between updates (None: the stream updates on every row, or its repeats are those of
         its resolution, :func:`_quantisation_steps`)
     covered : (K,) bool or None, rows where every stream the physics reads has samples around them (None:
-        no stream has a dropout); see :func:`dropouts`
+        no stream has a dropout); see :func:`uavturb.sysid.streams.dropouts`
     gaps : the dropouts, ``(stream file, t_start, t_end)`` [s since the first ground-truth row]
     """
 
@@ -106,11 +106,6 @@ class FlightData:
 HELD_SHARE = 0.2
 #: share of a held stream's updates that its logger repeats at least once
 HELD_UPDATES = 0.8
-#: a stream with no update for longer than this many of its median update steps, and at least
-#: :data:`MIN_DROPOUT_S`, has a dropout (jittered loggers space a few rows by two or three steps)
-DROPOUT_STEPS = 5
-#: s, shortest dropout (a 200 Hz stream missing a few rows is jitter, not a dropout)
-MIN_DROPOUT_S = 0.05
 
 
 def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
@@ -216,17 +211,6 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
                                                                                  rec.rotors.t_ns)]
     covered, gaps = _covered(t_ns, rec.t0_ns, window, rows + streams[2:])
     return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh, covered, gaps)
-
-
-def dropouts(t_ns: np.ndarray) -> list[tuple[int, int]]:
-    """``(last row before, first row after)`` [ns] of each stretch longer than :data:`DROPOUT_STEPS`
-    median steps (and :data:`MIN_DROPOUT_S`) with no row in a stream's increasing timestamps ``t_ns``."""
-    if len(t_ns) < 3:
-        return []
-    d = np.diff(t_ns)
-    limit = max(DROPOUT_STEPS * float(np.median(d)), MIN_DROPOUT_S * 1e9)
-    i = np.flatnonzero(d > limit)
-    return [(int(t_ns[k]), int(t_ns[k + 1])) for k in i]
 
 
 def _covered(t_ns: np.ndarray, t0_ns: int, window: int, streams: list[tuple[str, np.ndarray]]

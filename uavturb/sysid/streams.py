@@ -6,7 +6,8 @@ at 3 Hz and 40-80 ms late (``recordings.md``, "Streams that may be missing"). Re
 bit-identical, so an update is a row whose value differs from the previous row's. What a
 stream can tell is set by its updates, not its rows: differences of held rows are mostly
 zero (a noise level from them is far too small), a staircase is late by half its step, and an
-effect faster than the updates cannot be seen.
+effect faster than the updates cannot be seen. A stream can also stop for a while (a logger's or a
+radio's dropout, motion capture losing the markers): its rows then leave a gap (:func:`dropouts`).
 
 Times are seconds (``t``) or integer nanoseconds (``t_ns``) as named; values keep their units.
 """
@@ -121,6 +122,24 @@ def stream_updates(name: str, t_ns: np.ndarray, values: np.ndarray) -> StreamUpd
     return StreamUpdates(name=name, rows=len(t), updates=int(m.sum()), row_rate_hz=row_rate,
                          update_rate_hz=1.0 / float(np.mean(usual)) if len(usual) else float("nan"),
                          held_share=1.0 - m.sum() / len(t), max_gap_s=float(gaps.max()) if len(gaps) else 0.0)
+
+
+#: a stream with no row for longer than this many of its median steps, and at least
+#: :data:`MIN_DROPOUT_S`, has a dropout (jittered loggers space a few rows by two or three steps)
+DROPOUT_STEPS = 5
+#: s, shortest dropout (a 200 Hz stream missing a few rows is jitter, not a dropout)
+MIN_DROPOUT_S = 0.05
+
+
+def dropouts(t_ns: np.ndarray) -> list[tuple[int, int]]:
+    """``(last row before, first row after)`` [ns] of each stretch longer than :data:`DROPOUT_STEPS`
+    median steps (and :data:`MIN_DROPOUT_S`) with no row in a stream's increasing timestamps ``t_ns``."""
+    if len(t_ns) < 3:
+        return []
+    d = np.diff(t_ns)
+    limit = max(DROPOUT_STEPS * float(np.median(d)), MIN_DROPOUT_S * 1e9)
+    i = np.flatnonzero(d > limit)
+    return [(int(t_ns[k]), int(t_ns[k + 1])) for k in i]
 
 
 def needed_rate_hz(timescale_s: float, samples: float = 2.0) -> float:
