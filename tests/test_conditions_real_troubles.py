@@ -5,6 +5,8 @@ written recording and checked against ``truth.yaml``."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import yaml
@@ -93,6 +95,16 @@ def test_ground_contact_needs_a_landed_flight(hover_flight, landing_flight):
     with pytest.raises(InputError, match="battery_sag"):
         C.condition(*landing_flight, Conditions(ground_contact_s=1.0), true_vehicle=HEXAROTOR, effects=eff)
     assert "battery_sag" in eff
+
+
+def test_ground_contact_needs_a_flight_that_ends_on_its_gear(landing_flight):
+    """A flight cut short 1.7 cm over where it took off would "rest" in the air: refused in one line."""
+    rec, truth = landing_flight
+    d_down = truth.d_down.copy()
+    d_down[-1] = d_down[0] + 0.017
+    with pytest.raises(InputError, match=r"this one ends \+1.7 cm from it \(give a longer --duration\)"):
+        C.condition(rec, dataclasses.replace(truth, d_down=d_down), Conditions(ground_contact_s=1.0),
+                    true_vehicle=HEXAROTOR, effects=GE)
 
 
 def test_held_streams_repeat_bit_for_bit_at_their_update_rate(landing_flight, tmp_path):

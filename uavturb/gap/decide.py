@@ -39,10 +39,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavturb.gap.design import GapData, bias_count, design, difference_points, unstack
+from uavturb.gap.design import GapData, bias_count, design, difference_points, stack_target, unstack
 from uavturb.gap.fit import ModelFit, _nl_values
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
+from uavturb.sysid.least_squares import lstsq
 
 #: uncentred R^2 above which two sets of regressors are taken as indistinguishable (VIF > 100)
 R2_AMBIGUOUS = 0.99
@@ -55,6 +56,12 @@ DRAG_BLOCK_S = 1.0
 #: mounts, frame flex and an attitude estimate's levelling leave 1-2 deg (the 1-1.5 deg pushes of real
 #: indoor sessions); a larger tilt makes a vehicle drift visibly in hover and is trimmed out in tuning
 TILT_MAX_DEG = 3.0
+#: standard errors a push must stand from zero beside a thrust-axis tilt to be named wind rather than taken for it
+TILT_SEPARATION_Z = 4.0
+#: s, correlation length of the residual for the errors of that test (the 1 s blocks of the finder's honest errors)
+TILT_LAG_S = 1.0
+#: share of the push under which what is left of it beside a tilt says the tilt explains it
+TILT_EXPLAINS = 0.25
 #: share of the weight an effect's force must reach where it acts to be a discovery (practical size): a push
 #: a thousandth of the weight is none; the concealed effects of ``uavturb gap-proof`` (a 0.036 N push on a
 #: 14.7 N hexarotor, 0.25 %) are the smallest the proof asks for
@@ -259,10 +266,16 @@ def thrust_tilt_alike(data: GapData, fit: ModelFit, facts: FlightFacts) -> dict 
 
     A thrust axis tilted by ``delta`` from the recorded attitude gives a horizontal force
     ``T delta`` along the body's x/y axes (columns ``T R e_x``, ``T R e_y``): it turns with the body
-    and scales with the thrust, while a wind's push stays fixed in the world. Where the push's
-    columns are a combination of the tilt's and the fit's other columns (uncentred R^2 above
-    :data:`R2_AMBIGUOUS`: a fixed heading and a steady thrust), the data cannot tell them apart; the
-    tilt it would take is ``atan(push / T_hover)``. A tilt beyond :data:`TILT_MAX_DEG` is no
+    and scales with the thrust, while a wind's push stays fixed in the world. The push is taken for a
+    tilt where the data cannot tell them apart:
+
+    - its columns are a combination of the tilt's and the fit's other columns (uncentred R^2 above
+      :data:`R2_AMBIGUOUS`: a fixed heading and a steady thrust), or
+    - with the tilt in the model beside it, what is left of the push stands fewer than
+      :data:`TILT_SEPARATION_Z` standard errors from zero (:func:`push_beyond_tilt`): the headings flown
+      turned the tilt too little, or too rarely, to pin a push apart from it.
+
+    The tilt it would take is ``atan(push / T_hover)``. A tilt beyond :data:`TILT_MAX_DEG` is no
     plausible reading, and the push stays named."""
     if "wind" not in fit.effects:
         return None
@@ -277,16 +290,54 @@ def thrust_tilt_alike(data: GapData, fit: ModelFit, facts: FlightFacts) -> dict 
     own = effect_columns(names, "wind")
     rest = [i for i in range(A.shape[1]) if i not in own]
     r2 = collinearity(A[:, own], np.hstack([tilt_cols, A[:, rest]]))
-    if r2 < R2_AMBIGUOUS:
-        return None
-    return {"candidates": ["wind", "thrust_axis_tilt"],
-            "why": (f"a steady push of {push:.3g} N ({100 * push / (data.mass * GRAVITY):.2g} % of the weight) is also what "
-                    f"a thrust axis tilted by {tilt:.2f} deg from the recorded attitude gives; the heading changed by "
-                    f"{facts.heading_span_deg:.0f} deg and the thrust stayed steady, so the two look alike "
-                    f"(R^2 = {r2:.3f}); indoors the tilt is the likelier reading"),
-            "to_separate": "fly the same pattern at two or more headings 90 deg apart (a tilt turns with the body, "
-                           "a wind does not), or check the thrust axis against the attitude on a bench",
-            "params_if_named": wind, "thrust_axis_tilt_deg": tilt, "r2": round(r2, 4)}
+    share = f"{push:.3g} N ({100 * push / (data.mass * GRAVITY):.2g} % of the weight)"
+    if r2 >= R2_AMBIGUOUS:
+        why = (f"a steady push of {share} is also what a thrust axis tilted by {tilt:.2f} deg from the recorded "
+               f"attitude gives; the heading changed by {facts.heading_span_deg:.0f} deg and the thrust stayed steady, "
+               f"so the two look alike (R^2 = {r2:.3f}); indoors the tilt is the likelier reading")
+        found = {"r2": round(r2, 4)}
+    else:
+        left, left_se, z = push_beyond_tilt(data, A, tilt_cols, own)
+        if z >= TILT_SEPARATION_Z:
+            return None
+        verdict = ("the tilt explains it" if left < TILT_EXPLAINS * push else
+                   "these flights do not tell it from the tilt; indoors the tilt is the likelier reading")
+        why = (f"a steady push of {share} is also what a thrust axis tilted by {tilt:.2f} deg from the recorded "
+               f"attitude gives; the heading changed by {facts.heading_span_deg:.0f} deg, and with such a tilt in the "
+               f"model the push left is {left:.2g} ± {left_se:.2g} N, {z:.1f} standard errors from none (a push needs "
+               f"{TILT_SEPARATION_Z:.0f}): {verdict}")
+        found = {"r2": round(r2, 4), "push_beyond_tilt_N": left, "push_beyond_tilt_stderr_N": left_se,
+                 "push_beyond_tilt_z": round(z, 2)}
+    return {"candidates": ["wind", "thrust_axis_tilt"], "why": why,
+            "to_separate": "fly the same pattern at two or more headings 90 deg apart, holding each for a while (a "
+                           "tilt turns with the body, a wind does not), or check the thrust axis against the attitude "
+                           "on a bench",
+            "params_if_named": wind, "thrust_axis_tilt_deg": tilt} | found
+
+
+def push_beyond_tilt(data: GapData, A: np.ndarray, tilt_cols: np.ndarray, own: list[int]) -> tuple[float, float, float]:
+    """How far a steady push stands apart from a thrust-axis tilt on these rows: the model's columns ``A``
+    (3K, p), whose ``own`` columns are the push's, refitted with the tilt's columns ``tilt_cols`` (3K, 2)
+    beside them (Newey-West errors over :data:`TILT_LAG_S`, recordings independent).
+
+    Returns
+    -------
+    push : N, the size of the push left beside the tilt
+    stderr : N, its standard error (along the push)
+    z : the push's Wald statistic's square root, ``sqrt(f^T C^-1 f)`` (C: the push's 2x2 covariance)
+    """
+    y = stack_target(data.y)
+    J = np.hstack([A, tilt_cols])
+    step = float(np.median(np.diff(data.t))) if len(data) > 1 else 1.0
+    lag = max(1, int(round(TILT_LAG_S / max(step, 1e-6))))
+    groups = np.concatenate([data.group + 1000 * k for k in range(3)])
+    fit = lstsq(J, y, lag=lag, groups=groups)
+    f = fit.coef[own]
+    C = fit.cov[np.ix_(own, own)]
+    push = float(np.hypot(*f))
+    z = float(np.sqrt(max(f @ np.linalg.pinv(C) @ f, 0.0)))
+    along = f / push if push > 0 else np.array([1.0, 0.0])
+    return push, float(np.sqrt(max(along @ C @ along, 0.0))), z
 
 
 def _drag_gains(x: list[np.ndarray], y: list[np.ndarray], cluster: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

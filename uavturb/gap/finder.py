@@ -221,7 +221,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
 
 def _flight_rows(fds: Sequence, vehicle: Any, paths: Sequence[str]) -> tuple[GapData, list[dict[str, Any]]]:
     """The flights' rows in the air (ground contact found and left out) and the report's ``ground_contact``."""
-    contact, contact_report = contact_masks(fds, vehicle.mass, vehicle.thrust_coefficient, paths)
+    contact, contact_report = contact_masks(fds, vehicle, paths)
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient,
                     arm_length=vehicle.arm_length, exclude=contact)
     return data, contact_report

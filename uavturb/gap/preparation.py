@@ -27,6 +27,8 @@ from uavturb.gap.nominal import mocap_specific_force
 from uavturb.io.recording import Recording, Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.physics.constants import GRAVITY
+from uavturb.physics.effects import strongest_surface_lift
+from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.contact import ContactLimits, ground_contact
 from uavturb.sysid.flight_data import FlightData, flight_data
 from uavturb.sysid.streams import estimate_lag, needed_rate_hz, slow_for, stream_updates
@@ -36,9 +38,10 @@ MOTOR_LAG_S = 0.02
 #: s, time to cross the height range where a ground effect changes (0.1 m at 0.5 m/s)
 SURFACE_CROSSING_S = 0.2
 #: contact thresholds (:class:`~uavturb.sysid.contact.ContactLimits`'s defaults). A hover close to the
-#: floor also reads a thrust 5-10 % under the weight (the ground effect itself), so a still vehicle at the
-#: lowest height a recording reaches is left out even then: losing a second of the lowest hover costs
-#: less than counting the floor's reaction as aerodynamics
+#: floor also reads a thrust 5-25 % under the weight (the ground effect itself): a still vehicle within
+#: ``skim_m`` of the lowest height a recording reaches is left out even then (losing a second of the lowest
+#: hover costs less than counting the floor's reaction as aerodynamics); above that, only where its thrust
+#: could not hold a hover under the registry's strongest surface lift (:func:`contact_masks`)
 CONTACT_LIMITS = ContactLimits()
 #: s, smallest delay of the rotor telemetry worth taking out
 MIN_DELAY_S = 0.01
@@ -133,13 +136,22 @@ def _vehicle_landed_height(fds: Sequence[FlightData]) -> float | None:
     return min(lows) if lows else None
 
 
-def contact_masks(fds: Sequence[FlightData], mass: float, k_T: float | None, paths: Sequence[str]
+def contact_masks(fds: Sequence[FlightData], vehicle: Vehicle, paths: Sequence[str]
                   ) -> tuple[list[np.ndarray], list[dict[str, Any]]]:
     """Per flight, the rows where the floor carries the vehicle, and the report's ``ground_contact``.
 
     The recordings are of one vehicle and ``d_down`` is measured to the surface below, so the vehicle's
     landed rotor-plane height is the lowest over all of them: a recording that never came down within
-    ``skim_m`` of it skims nothing (its lowest hover is a hover)."""
+    ``skim_m`` of it skims nothing (its lowest hover is a hover). A still stretch that stays higher than
+    ``skim_m`` over its recording's landed height is a rest only where its thrust could not hold a hover
+    there under the strongest ground-effect law of the registry at the top of its range, for this
+    vehicle's rotors (:func:`uavturb.physics.effects.strongest_surface_lift`)."""
+    mass, k_T = vehicle.mass, vehicle.thrust_coefficient
+    geometry = {"arm_length": vehicle.arm_length, "rotor_count": vehicle.rotor_count}
+
+    def hover_lift(h: np.ndarray) -> np.ndarray:
+        return strongest_surface_lift(h, "d_down", vehicle.rotor_radius, **geometry)
+
     masks, report = [], []
     skim_top = _vehicle_landed_height(fds)
     if skim_top is not None:
@@ -151,7 +163,8 @@ def contact_masks(fds: Sequence[FlightData], mass: float, k_T: float | None, pat
         thrust = k_T * S if k_T else S / np.median(S) * mass * GRAVITY
         d_down = fd.d_down if fd.d_down is not None and np.any(np.isfinite(fd.d_down)) else None
         mask, intervals = ground_contact(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass, d_down=d_down,
-                                         limits=CONTACT_LIMITS, skim_top=skim_top if d_down is not None else None)
+                                         limits=CONTACT_LIMITS, skim_top=skim_top if d_down is not None else None,
+                                         hover_lift=hover_lift)
         masks.append(mask)
         report += [iv.to_report(path) for iv in intervals]
     return masks, report

@@ -341,6 +341,16 @@ class EffectSpec:
     alternative_to: str | None = None
     absent_at_zero: bool = True
 
+    def strongest_ratio(self, d: np.ndarray, rotor_radius: float, **geometry) -> np.ndarray:
+        """(K,) -, ``T_IGE/T_OGE`` of this surface law at the top of its physical range at rotor-plane
+        heights ``d`` [m] (K,): the most it could raise the thrust there (``inf`` where the law does not
+        hold, e.g. inside the Cheeseman-Bennett clip). The range of a surface law is on its one parameter."""
+        if self.surface is None or self.ratio is None:
+            return np.ones(np.shape(d))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.asarray(self.ratio(np.asarray(d, float), self.physical_range.hi, rotor_radius, **geometry), float)
+        return np.where(np.isfinite(r) & (r > 0), r, np.inf)
+
     def surface_reach(self, rotor_radius: float, share: float = 0.01, **geometry) -> float:
         """m, the height under which this surface law, at the top of its physical range, adds at
         least ``share`` of the thrust: flights that never come closer cannot decide it.
@@ -559,6 +569,22 @@ def force_on_state(effects: dict[str, dict[str, float]], q: np.ndarray, v: np.nd
                        k_T=k_T, rotor_radius=rotor_radius, d_down=np.array([d_down]), d_up=np.array([d_up]),
                        t=np.array([t]), R=None if R is None else np.asarray(R)[None], arm_length=arm_length)
     return total_force(effects, inp)[0]
+
+
+def strongest_surface_lift(d: np.ndarray, surface: str, rotor_radius: float, **geometry) -> np.ndarray:
+    """(K,) -, the most any surface law of the registry, at the top of its physical range, could raise the
+    thrust at heights ``d`` [m] (K,) from ``surface`` (``"d_down"``, ``"d_up"``); its inverse is the least
+    share of the weight that could hold a hover there. A law that cannot be evaluated even far from the
+    surface (the multirotor law with the arm length unknown: ``geometry`` holds ``arm_length`` [m] and
+    ``rotor_count``) does not count."""
+    d = np.asarray(d, float)
+    lift = np.ones(d.shape)
+    far = np.array([1000.0 * rotor_radius])
+    for spec in EFFECTS.values():
+        if spec.surface == surface and spec.ratio is not None and np.isfinite(
+                spec.ratio(far, spec.physical_range.hi, rotor_radius, **geometry)).all():
+            lift = np.maximum(lift, spec.strongest_ratio(d, rotor_radius, **geometry))
+    return lift
 
 
 def get_spec(name: str) -> EffectSpec:

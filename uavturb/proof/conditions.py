@@ -39,7 +39,7 @@ Further rules for the troubles of real recordings near surfaces:
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +79,10 @@ class Condition:
 
 
 GROUND_EFFECT = {"ground_effect": {"mu": 2.0}}
+#: a medium multirotor's PX4 log in a motion-capture room (the issue's first vehicle): every trouble at once
+PX4_LOG = Conditions(no_imu=True, rate_hz=60, jitter_ms=3.0, position_hold_hz=9, rotor_hold_hz=3, rotor_delay_s=0.06,
+                     measured_rotors=True, ground_contact_s=3.0, rotor_plane_z=0.15, battery_voltage=16.0,
+                     thrust_tilt_deg=1.2)
 
 CONDITIONS: tuple[Condition, ...] = (
     Condition("wind tunnel: MoCap 50 Hz, no IMU, fixed heading, motor commands, 4 m/s wind",
@@ -116,6 +120,13 @@ CONDITIONS: tuple[Condition, ...] = (
     Condition("measured rotor speeds (30 ms motor lag), battery sag in the physics, battery0",
               Conditions(measured_rotors=True, battery_voltage=16.8),
               {"battery_sag": {"s": 1e-3}, "motor_lag": {"tau": 0.03}}),
+    Condition("all of a PX4 log at once: no IMU, state held at 9 Hz, measured rotor speeds held at 3 Hz and 60 ms "
+              "late, 3 s on the landing gear at both ends, rotors 15 cm above the body origin, thrust level "
+              "1.00 / 1.04 and axis tilted 1.2 deg at other azimuths, "
+              "ground effect mu = 4",
+              PX4_LOG, {"ground_effect": {"mu": 4.0}}, ("ground_effect",), "low_passes",
+              second=replace(PX4_LOG, thrust_level=1.04, thrust_tilt_azimuth_deg=120.0),
+              look_alikes=(THRUST_TILT,)),
 )
 
 

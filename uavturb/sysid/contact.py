@@ -11,7 +11,12 @@ it is still and level and its attitude steady; and its rotors carry less than it
 (once they carry more, it lifts off). Thrust guesses from rotor speeds can be 10-20 % off
 (unknown ``k_T``), so the thrust is first scaled so that it carries the weight in the air,
 and height and stillness decide first: a hover a few centimetres above the landed height is
-in the air however low its thrust reads (ground effect). Rotors off or idling hold no hover, so such a
+in the air however low its thrust reads (ground effect). Closer than that, a still stretch is a
+rest where its heights come within :attr:`ContactLimits.skim_m` of the landed height (the gear may
+touch there); a still stretch that stays above that is a rest only where its thrust could not hold a
+hover there even under the strongest surface lift the effects registry allows (``hover_lift``, row by row):
+a hover a centimetre over the landed height in a strong ground effect reads 75-95 % of the weight,
+and those are the rows that tell the ground effect best. Rotors off or idling hold no hover, so such a
 rest counts however short (on real Crazyflies a drop to the floor with the motors off, 0.15 s still,
 then a restart: while the rotors spun up the thrust read off commanded speeds led the real one by the
 motor lag, up to 15 % over the weight for 0.2 s with the vehicle still on the floor, which the margins
@@ -29,6 +34,7 @@ forces newtons; angles degrees.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
@@ -103,7 +109,8 @@ class ContactLimits:
 def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.ndarray, thrust: np.ndarray,
                    mass: float, *, d_down: np.ndarray | None = None, group: np.ndarray | None = None,
                    update: np.ndarray | None = None, landed_height: float | None = None, calibrate: bool = True,
-                   limits: ContactLimits | None = None, skim_top: float | None = None
+                   limits: ContactLimits | None = None, skim_top: float | None = None,
+                   hover_lift: Callable[[np.ndarray], np.ndarray] | None = None
                    ) -> tuple[np.ndarray, list[ContactInterval]]:
     """Rows where the floor carries the vehicle, and the contact intervals with why.
 
@@ -127,6 +134,12 @@ def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.nda
     skim_top : m, height (of ``d_down`` where given, else of ``z``) under which rows may skim the floor;
         default ``skim_m`` over the landed height. Give the vehicle's landed height over all its
         recordings plus ``skim_m`` so that a recording that never came down there skims nothing
+    hover_lift : with ``d_down``: ``(h) -> lift``, the most a surface could raise the thrust at rotor-plane
+        heights ``h`` [m] (e.g. :func:`uavturb.physics.effects.strongest_surface_lift`). A still row more than
+        ``skim_m`` above the landed height is then resting only where its thrust times that lift stays under
+        the weight, or its rotors idle (else it may be a hover in ground effect); where the lift is infinite
+        (inside a law's pole, no bound), and with None, any still row within ``height_tol_m`` with the thrust
+        under the weight may rest
 
     Returns
     -------
@@ -150,7 +163,8 @@ def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.nda
                else np.asarray(update, bool)[rows].copy())
         rec = _Recording(t[rows], h[rows], v[rows], np.asarray(tilt_deg, float)[rows],
                          np.asarray(thrust, float)[rows], upd)
-        m, found = _contact_in(rec, mass, landed_height, calibrate, lim, d_down is not None, skim_top)
+        m, found = _contact_in(rec, mass, landed_height, calibrate, lim, d_down is not None, skim_top,
+                               hover_lift if d_down is not None else None)
         mask[rows] = m
         intervals += [ContactInterval(a, b, why, int(g)) for a, b, why in found]
     return mask, intervals
@@ -169,7 +183,8 @@ class _Recording:
 
 
 def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: bool, lim: ContactLimits,
-                rotor_plane: bool, skim_top: float | None) -> tuple[np.ndarray, list[tuple[float, float, str]]]:
+                rotor_plane: bool, skim_top: float | None, hover_lift: Callable[[np.ndarray], np.ndarray] | None
+                ) -> tuple[np.ndarray, list[tuple[float, float, str]]]:
     """Contact rows (margins included) and ``(t_start, t_end, why)`` of one recording."""
     n = len(rec.t)
     out = np.zeros(n, bool)
@@ -193,16 +208,25 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
     fresh = update_mask(rec.thrust) | (rec.thrust <= 0)
     ratio = _window_median(rec.t, np.interp(rec.t, rec.t[fresh], rec.thrust[fresh]) * scale / weight, lim.window_s)
     resting &= ratio < 1.0  # once the rotors carry the weight, it lifts off
+    hover_at = np.zeros(n)  # the least share of the weight that could hold a hover, on rows where that decides
+    if hover_lift is not None:
+        above = resting & (rec.h > h0 + lim.skim_m)  # beyond the gear's reach: a still hover in ground effect?
+        lift = np.asarray(hover_lift(rec.h[above]), float)
+        above[above] = np.isfinite(lift)  # where no law bounds the lift (inside its pole), height alone decides
+        hover_at[above] = 1.0 / lift[np.isfinite(lift)]
+        resting &= ~above | (ratio < hover_at) | (ratio < lim.idle_ratio)  # idling rotors hold no hover
     found = []
     for a, b in _runs(resting):
         lowest = float(np.min(ratio[a:b]))
         # rotors off or idling (a drop to the floor before a restart) cannot hold a hover however short the rest
-        if (rec.t[b - 1] - rec.t[a] < lim.min_s and lowest >= lim.idle_ratio) or np.median(ratio[a:b]) >= lim.thrust_ratio:
+        median = float(np.median(ratio[a:b]))
+        if (rec.t[b - 1] - rec.t[a] < lim.min_s and lowest >= lim.idle_ratio) or median >= lim.thrust_ratio:
             continue
         out |= (rec.t >= rec.t[a] - lim.margin_s) & (rec.t <= rec.t[b - 1] + lim.margin_s)
         core = slice(a, b)
+        decides = hover_at[core] > 0
         found.append(_why(rec, core, h0, landed is not None, rotor_plane, float(np.max(speed_u[pos[core]])),
-                          float(np.median(ratio[core])), scale, lim))
+                          median, scale, lim, float(np.min(hover_at[core][decides])) if decides.any() else None))
     top = h0 + lim.skim_m if skim_top is None else skim_top
     skim = (last >= 0) & np.isfinite(rec.h) & (rec.h <= top) & ~out
     name = "rotor-plane height" if rotor_plane else "height"
@@ -221,7 +245,7 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
 
 def _joined_why(found: list[tuple[float, float, str]], t0: float, t1: float) -> str:
     """The sentences of the contact cores inside ``[t0, t1]``, joined (several merge where margins overlap)."""
-    return "; ".join(w for a, b, w in found if a >= t0 - 1e-9 and b <= t1 + 1e-9)
+    return "; ".join(dict.fromkeys(w for a, b, w in found if a >= t0 - 1e-9 and b <= t1 + 1e-9))
 
 
 def _resting_updates(rec: _Recording, u: np.ndarray, h0: float, lim: ContactLimits) -> tuple[np.ndarray, np.ndarray]:
@@ -265,15 +289,19 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _why(rec: _Recording, core: slice, h0: float, given: bool, rotor_plane: bool, speed: float, ratio: float,
-         scale: float, lim: ContactLimits) -> tuple[float, float, str]:
+         scale: float, lim: ContactLimits, hover_at: float | None = None) -> tuple[float, float, str]:
     """``(t_start, t_end, sentence)`` of one contact core (margins not included in the times); ``ratio``
-    is the share of the weight the thrust carried there (median)."""
+    is the share of the weight the thrust carried there (median); ``hover_at`` the least share that could
+    have held a hover on its rows beyond the gear's reach (None: none there)."""
     h = rec.h[core]
     name = "rotor-plane height" if rotor_plane else "height"
     ref = (f"the landed height given, {h0:.3f} m" if given
            else f"within {100 * lim.height_tol_m:.1f} cm of the lowest the recording reached, {h0:.3f} m")
     scaled = f" (thrust scaled by {scale:.2f} so that it carries the weight in the air)" if abs(scale - 1) > 0.02 else ""
+    hover = ("" if hover_at is None else
+             f"; more than {100 * lim.skim_m:.1f} cm up it stayed under the {100 * hover_at:.0f} % that could hold a hover there "
+             f"in the strongest ground effect allowed")
     why = (f"on the landing gear: {name} {np.min(h):.3f}-{np.max(h):.3f} m ({ref}), speed under {speed:.2f} m/s, "
            f"level within {np.max(rec.tilt[core]):.0f} deg and thrust {100 * ratio:.0f} % of the weight"
-           f"{scaled}: the floor carries the rest ({lim.margin_s:.1f} s margins either side)")
+           f"{scaled}{hover}: the floor carries the rest ({lim.margin_s:.1f} s margins either side)")
     return float(rec.t[core.start]), float(rec.t[core.stop - 1]), why

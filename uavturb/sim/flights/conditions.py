@@ -148,6 +148,8 @@ EUROC_T_BS = np.array([[_S, 0.0, _C, 0.08],
                        [0.0, 0.0, 0.0, 1.0]])
 #: file of the truth, at the recording's root
 TRUTH_FILE = "truth.yaml"
+#: s, flown past a plan that outlasts the duration asked for, so that a flight with ground contact ends landed
+LANDING_SETTLE_S = 3.0
 BIAS_FILE = "truth/accel_bias.csv"
 ROTOR_TRUTH_FILE = "truth/rotor_speeds.csv"
 
@@ -515,7 +517,7 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
     vehicle : built-in vehicle (``hex``, ``quad``), ``vehicle.yaml`` path or Vehicle (the simulated, true vehicle; the shipped
         ``firefly`` flies with RotorS's constants, :func:`uavturb.sim.flights.euroc_standin.flyable`)
     effects : ``"wind:f_x=0.5,rotor_drag"`` or the parsed dict (``effects.md``)
-    duration : s; kind : flight kind (:data:`uavturb.sim.flights.simulate.KINDS`; ``euroc_room`` adds EuRoC's
+    duration : s (with ground contact, longer where the plan's take-off and landing need it); kind : flight kind (:data:`uavturb.sim.flights.simulate.KINDS`; ``euroc_room`` adds EuRoC's
         VI-sensor frame and cam0, :mod:`uavturb.sim.flights.euroc_standin`); seed : reference and noise
     conditions : Conditions
     noise : SensorNoise (default realistic); ``accel_bias_walk`` sets its ``acc_random_walk``
@@ -536,6 +538,8 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
     if conditions.accel_bias_walk > 0:
         noise = replace(noise, acc_random_walk=float(conditions.accel_bias_walk))
     ref = make_reference(kind, duration, seed, v, room)
+    if conditions.ground_contact_s > 0 and ref.duration > duration:  # take-off and landing needed longer:
+        duration = ref.duration + LANDING_SETTLE_S  # it must land before its rest on the gear is spliced on
     if conditions.fixed_heading:
         ref = hold_heading(ref, None if conditions.heading_deg is None else np.radians(conditions.heading_deg))
     wind = None

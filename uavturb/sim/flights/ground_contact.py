@@ -47,6 +47,10 @@ LIFT_FRACTION = (0.4, 0.7)
 MAX_LANDED_HEIGHT = 0.3
 #: m/s, fastest a flight may still move at its ends to touch down there
 MAX_LANDING_SPEED = 0.1
+#: m, most the rotor plane may end over the height it started resting at: the landing gear is the same at both
+#: ends, so a flight cut short of its last set-point would "rest" in the air (1.7 cm up on a 60 s low_passes
+#: flight). A flight settled at its last set-point ends within 1 cm of it (0.9 cm on a 12 s flight in ground effect)
+MAX_LANDED_OFFSET = 0.012
 #: effects whose law depends on the time since the recording's start
 TIMED_EFFECTS = ("battery_sag",)
 
@@ -193,6 +197,11 @@ def with_ground_contact(rec: Recording, truth: Truth, seconds: float, *, vehicle
     if speed.max() > MAX_LANDING_SPEED:
         raise InputError("--ground-contact-s", f"needs a flight that ends landed; this one still moves at "
                                                f"{speed[1]:.2f} m/s at its end (give a longer --duration)")
+    offset = float(truth.d_down[-1] - truth.d_down[0])
+    if abs(offset) > MAX_LANDED_OFFSET:
+        raise InputError("--ground-contact-s", f"needs a flight that ends on its landing gear, at the rotor-plane height "
+                                               f"it started from ({truth.d_down[0]:.3f} m over the surface below); this "
+                                               f"one ends {100 * offset:+.1f} cm from it (give a longer --duration)")
     dt = float(truth.t[1] - truth.t[0])
     n = max(1, int(round(seconds / dt)))
     ramp = np.linspace(LIFT_FRACTION[0], LIFT_FRACTION[1], n)
