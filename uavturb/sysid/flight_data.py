@@ -30,7 +30,7 @@ from uavturb.io.differentiate import local_quadratic
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.scene.heights import SurfaceIndex
-from uavturb.sysid.streams import dropouts, update_mask
+from uavturb.sysid.streams import column_update_masks, dropouts, staggered, update_mask
 
 
 @dataclass
@@ -112,15 +112,31 @@ def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
     """The ground truth and rotor speeds on their updates (``recordings.md``: "what a stream really holds
     is its updates"): where a logger repeats the last value in more than :data:`HELD_SHARE` of a
     stream's rows, the repeats are dropped, so that derivatives and interpolation work between real
-    updates instead of on steps. Streams that update on every row are returned as they are."""
+    updates instead of on steps. Rotor speeds whose columns update on their own (:func:`uavturb.sysid.streams.
+    staggered`: one ESC reported at a time) keep every row where some column updated, each column
+    interpolated between its own updates. Streams that update on every row are returned as they are."""
     gt, rotors = rec.ground_truth, rec.rotors
     m = _updates(np.hstack([gt.p, gt.q, gt.v]))
     if m is not None:
         gt = GroundTruth(t_ns=gt.t_ns[m], p=gt.p[m], q=gt.q[m], v=gt.v[m], b_w=gt.b_w[m], b_a=gt.b_a[m])
     m = _updates(rotors.speeds)
-    if m is not None:
+    if m is not None and staggered(rotors.speeds):
+        rotors = _columns_on_their_updates(rotors, m)
+    elif m is not None:
         rotors = Rotors(t_ns=rotors.t_ns[m], speeds=rotors.speeds[m])
     return gt, rotors
+
+
+def _columns_on_their_updates(rotors: Rotors, rows: np.ndarray) -> Rotors:
+    """A staggered held stream (each rotor's speed updating on its own) on the rows ``rows`` where any
+    column updated, each column interpolated between its own updates (and the stream's last row): a column
+    held since its last update is a third of a second stale at 3 Hz."""
+    own = column_update_masks(rotors.speeds)
+    own[:, -1] = True
+    t = rotors.t_ns[rows]
+    speeds = np.column_stack([align.interpolate(rotors.t_ns[m], rotors.speeds[m, c], t)
+                              for c, m in enumerate(own)])
+    return Rotors(t_ns=t, speeds=speeds)
 
 
 def _updates(values: np.ndarray) -> np.ndarray | None:

@@ -65,6 +65,40 @@ def updates_only(t_ns: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.n
     return np.asarray(t_ns)[m], np.asarray(values)[m]
 
 
+#: a multi-column stream whose columns each change on fewer than this share of the rows where any of them
+#: changes updates its columns on their own (staggered: round-robin ESC telemetry reports one motor at a time)
+STAGGER_SHARE = 0.6
+
+
+def column_update_masks(values: np.ndarray) -> np.ndarray:
+    """(C, N) bool, each column's own update rows (:func:`update_mask` of that column alone) of a stream's
+    rows ``values`` (N, C)."""
+    x = np.asarray(values)
+    x = x[:, None] if x.ndim == 1 else x
+    return np.stack([update_mask(x[:, c]) for c in range(x.shape[1])])
+
+
+def staggered(values: np.ndarray) -> bool:
+    """Whether a multi-column stream ``values`` (N, C) updates its columns on their own: the median column
+    changes on fewer than :data:`STAGGER_SHARE` of the rows where any column changes (held rotor speeds
+    reported one ESC at a time). A stream whose columns change together is not, nor is one column."""
+    x = np.asarray(values)
+    if x.ndim == 1 or x.shape[1] < 2 or len(x) < 3:
+        return False
+    own = column_update_masks(x)[:, 1:].sum(axis=1)
+    union = int(update_mask(x)[1:].sum())
+    return union > 0 and float(np.median(own)) < STAGGER_SHARE * union
+
+
+def _update_rate(t: np.ndarray, m: np.ndarray) -> tuple[float, float]:
+    """(Hz, 1 / mean step between the update rows ``m`` of times ``t`` [s], steps over three times the
+    median left out (dropouts); s, the longest step)."""
+    gaps = np.diff(t[m])
+    usual = gaps[gaps <= 3.0 * np.median(gaps)] if len(gaps) else gaps  # dropouts left out
+    return (1.0 / float(np.mean(usual)) if len(usual) else float("nan"),
+            float(gaps.max()) if len(gaps) else 0.0)
+
+
 @dataclass
 class StreamUpdates:
     """How often a stream's value really changes.
@@ -80,6 +114,10 @@ class StreamUpdates:
         0.32 and 0.34 s for 3 Hz in 50 Hz rows, would bias a median.)
     held_share : share of rows that repeat the previous row (0: every row is new)
     max_gap_s : s, the longest time between consecutive updates (0 with fewer than two)
+    staggered : the columns update on their own (:func:`staggered`); ``update_rate_hz`` and ``max_gap_s`` are
+        then the median column's, each value's own, and ``updates`` counts the rows where any column changed
+    any_column_rate_hz : Hz, staggered streams: the rate of rows where any column changed (else equal to
+        ``update_rate_hz``)
     """
 
     name: str
@@ -89,9 +127,15 @@ class StreamUpdates:
     update_rate_hz: float
     held_share: float
     max_gap_s: float
+    staggered: bool = False
+    any_column_rate_hz: float = float("nan")
 
     def describe(self) -> str:
         """One line for reports, e.g. ``rotors0: 1200 rows at 50 Hz hold 36 updates at 3.0 Hz (97 % repeats)``."""
+        if self.staggered:
+            return (f"{self.name}: {self.rows} rows at {self.row_rate_hz:.0f} Hz, each column updating on its own at "
+                    f"{self.update_rate_hz:.1f} Hz, staggered ({self.updates} rows with a new value in some column, "
+                    f"{self.any_column_rate_hz:.1f} Hz; longest gap of a column {self.max_gap_s:.2f} s)")
         return (f"{self.name}: {self.rows} rows at {self.row_rate_hz:.0f} Hz hold {self.updates} updates at "
                 f"{self.update_rate_hz:.1f} Hz ({100 * self.held_share:.0f} % repeats, longest gap "
                 f"{self.max_gap_s:.2f} s)")
@@ -115,13 +159,17 @@ def stream_updates(name: str, t_ns: np.ndarray, values: np.ndarray) -> StreamUpd
         raise InputError(name, f"{len(t_ns)} timestamps for {len(values)} rows of values (need as many, at least one)")
     m = update_mask(values)
     t = (t_ns - t_ns[0]) * 1e-9
-    tu = t[m]
     row_rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
-    gaps = np.diff(tu)
-    usual = gaps[gaps <= 3.0 * np.median(gaps)] if len(gaps) else gaps  # dropouts left out
-    return StreamUpdates(name=name, rows=len(t), updates=int(m.sum()), row_rate_hz=row_rate,
-                         update_rate_hz=1.0 / float(np.mean(usual)) if len(usual) else float("nan"),
-                         held_share=1.0 - m.sum() / len(t), max_gap_s=float(gaps.max()) if len(gaps) else 0.0)
+    rate, max_gap = _update_rate(t, m)
+    out = StreamUpdates(name=name, rows=len(t), updates=int(m.sum()), row_rate_hz=row_rate, update_rate_hz=rate,
+                        held_share=1.0 - m.sum() / len(t), max_gap_s=max_gap, any_column_rate_hz=rate)
+    if staggered(values):
+        own = column_update_masks(values)
+        own[:, 0] &= own.sum(axis=1) <= 2  # a column's first row is the log's start, not one of its updates
+        per_column = np.array([_update_rate(t, mc) for mc in own])
+        c = int(np.argsort(per_column[:, 0])[len(per_column) // 2])  # the median column
+        out.staggered, out.update_rate_hz, out.max_gap_s = True, float(per_column[c, 0]), float(per_column[c, 1])
+    return out
 
 
 #: a stream with no row for longer than this many of its median steps, and at least
