@@ -129,6 +129,23 @@ def test_held_rows_known_answer():
     np.testing.assert_array_equal(held_rows(t, 9.0), [0, 0, 0, 0, 0, 0, 6, 6, 6, 6])  # next update at 111 ms
     with pytest.raises(InputError, match="--rotor-hold-hz"):
         Conditions(rate_hz=50, rotor_hold_hz=50)
+    # a quarter period later (round-robin ESC 1 of 4): updates at 27.8 and 138.9 ms, the first row's value before
+    np.testing.assert_array_equal(held_rows(t, 9.0, 0.25), [0, 0, 2, 2, 2, 2, 2, 7, 7, 7])
+    with pytest.raises(InputError, match="--rotor-hold-staggered: needs --rotor-hold-hz"):
+        Conditions(rotor_hold_staggered=True)
+
+
+def test_staggered_rotor_telemetry_updates_one_rotor_after_another(landing_flight, tmp_path):
+    c, rec, path = _write(*landing_flight, tmp_path, rate_hz=50, rotor_hold_hz=3, rotor_hold_staggered=True)
+    speeds = rec.rotors.speeds
+    n = speeds.shape[1]
+    first = [int(np.flatnonzero(np.diff(speeds[:, r]) != 0)[0]) + 1 for r in range(n)]
+    # rotor r's first update at (r / n) / 3 Hz (rotor 0 at its first period's end), each in the first row at or after it
+    expected = [int(np.ceil(round(((r / n) if r else 1.0) / 3 * 50, 9))) for r in range(n)]
+    assert first == expected
+    changed = np.diff(speeds, axis=0) != 0
+    assert changed.any(axis=0).all() and (changed.sum(axis=1) <= 1).mean() > 0.95  # one rotor at a time
+    assert c.truth["conditions"]["held_streams"]["rotors0"]["staggered"].startswith("rotor c of n")
 
 
 def test_late_measured_rotor_speeds_cross_correlate_at_the_delay(landing_flight, tmp_path):

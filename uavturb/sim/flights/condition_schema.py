@@ -54,6 +54,8 @@ class Conditions:
                                                   "(bit-identical repeats)")
     rotor_hold_hz: float | None = allowed(None, gt=0, unit="Hz", metavar="HZ",
                                           help="rotors0 rows keep their rate but update at HZ (bit-identical repeats)")
+    rotor_hold_staggered: bool = allowed(False, help="with --rotor-hold-hz: each rotor's speed updates at HZ on its "
+                                                     "own, one ESC after another (round-robin telemetry)")
     rotor_delay_s: float = allowed(0.0, ge=0, lt=1, unit="s", metavar="S",
                                    help="rotors0 timestamps S seconds late (the row at t holds the value at t - S)")
     thrust_level: float = allowed(1.0, gt=0.5, lt=1.5, metavar="FACTOR",
@@ -89,6 +91,8 @@ class Conditions:
         for flag, hz in (("--position-hold-hz", self.position_hold_hz), ("--rotor-hold-hz", self.rotor_hold_hz)):
             if hz is not None and not hz < row_hz:
                 raise InputError(flag, f"must be in (0, {row_hz:g}) Hz (below the stream's row rate), got {hz}")
+        if self.rotor_hold_staggered and self.rotor_hold_hz is None:
+            raise InputError("--rotor-hold-staggered", "needs --rotor-hold-hz (the rate each rotor's speed updates at)")
         if self.thrust_tilt_deg > 0 and self.sensor_frame != "body":
             raise InputError("--thrust-tilt-deg", "cannot be combined with --sensor-frame euroc")
         if self.measured_rotors and self.motor_commands:

@@ -64,6 +64,10 @@ against it:
     value only updates at the hold rate: each update, at ``t0 + k / hold_hz``, appears in the first
     row at or after it with that row's own value, and is repeated bit for bit until the next
     (:func:`~uavturb.sim.flights.stream_troubles.held_rows`). ``truth.yaml``: the update rates and counts.
+``rotor_hold_staggered``
+    with ``rotor_hold_hz``: each rotor's column is held on its own, rotor ``c`` of ``n`` updating at
+    ``t0 + (k + c / n) / rotor_hold_hz`` (round-robin ESC telemetry, as PX4's DShot telemetry asks one
+    ESC at a time): the rows change ``n`` times as often as any one rotor's speed.
 ``rotor_delay_s``
     the ``rotors0`` timestamps are late: the row at ``t`` holds the rotor value in force at
     ``t - delay`` (the 200 Hz stream shifted before any resampling or holding; the first value
@@ -442,9 +446,13 @@ def _held_streams(rec: Recording, cond: Conditions, doc: dict[str, Any]) -> Reco
                                                "updates": int(len(np.unique(k)))}
     if cond.rotor_hold_hz is not None:
         rot = rec.rotors
-        k = held_rows(rot.t_ns, cond.rotor_hold_hz)
-        rec = replace(rec, rotors=Rotors(rot.t_ns, rot.speeds[k]))
-        held["rotors0"] = {"update_hz": cond.rotor_hold_hz, "row_hz": row_hz, "updates": int(len(np.unique(k)))}
+        n = rot.speeds.shape[1]
+        phases = [c / n if cond.rotor_hold_staggered else 0.0 for c in range(n)]
+        ks = [held_rows(rot.t_ns, cond.rotor_hold_hz, phase) for phase in phases]
+        rec = replace(rec, rotors=Rotors(rot.t_ns, np.column_stack([rot.speeds[k, c] for c, k in enumerate(ks)])))
+        held["rotors0"] = {"update_hz": cond.rotor_hold_hz, "row_hz": row_hz, "updates": int(len(np.unique(ks[0])))}
+        if cond.rotor_hold_staggered:
+            held["rotors0"]["staggered"] = "rotor c of n updates at t0 + (k + c / n) / update_hz"
     if held:
         doc["held_streams"] = {**held, "law": "update k at t0 + k / update_hz appears in the first row at or after "
                                               "it and repeats bit for bit until the next"}

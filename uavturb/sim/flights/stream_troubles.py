@@ -25,23 +25,26 @@ BATTERY_NOISE_V = 0.005
 BATTERY_QUANTUM_V = 0.01
 
 
-def held_rows(t_ns: np.ndarray, hold_hz: float) -> np.ndarray:
+def held_rows(t_ns: np.ndarray, hold_hz: float, phase: float = 0.0) -> np.ndarray:
     """Row each row's value comes from when a stream only updates at ``hold_hz`` [Hz].
 
-    Updates arrive at ``t0 + k / hold_hz``; each is written in the first row at or after it, with
-    that row's own (fresh) value, and repeated bit for bit until the next one.
+    Updates arrive at ``t0 + (k + phase) / hold_hz``; each is written in the first row at or after it,
+    with that row's own (fresh) value, and repeated bit for bit until the next one (the first row's
+    value holds until the first update).
 
     Parameters
     ----------
     t_ns : (K,) int64 ns, the stream's row times (increasing)
     hold_hz : Hz, the update rate (below the row rate)
+    phase : share of an update period [0, 1) by which the updates come after ``t0 + k / hold_hz``
+        (round-robin telemetry: ESC ``c`` of ``n`` at ``c / n``)
 
     Returns
     -------
     (K,) int index into the rows.
     """
     t_ns = np.asarray(t_ns, np.int64)
-    update = np.floor((t_ns - t_ns[0]) * (hold_hz * 1e-9)).astype(np.int64)  # update in force at each row
+    update = np.floor((t_ns - t_ns[0]) * (hold_hz * 1e-9) - phase).astype(np.int64)  # update in force at each row
     first = np.r_[True, update[1:] != update[:-1]]
     return np.maximum.accumulate(np.where(first, np.arange(len(t_ns)), 0))
 
