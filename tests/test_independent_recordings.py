@@ -17,6 +17,8 @@ import pytest
 from synthetic import inverse_dynamics_flight
 
 from uavturb.cli import main
+from uavturb.gap.preparation import prepared
+from uavturb.io.reader import load_recordings
 from uavturb.physics.vehicle import HEXAROTOR
 
 GT_HEADER = ("#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], "
@@ -103,8 +105,6 @@ CORRUPTIONS = {
                     lambda p: _corrupt_lines(p, lambda l: l[:7] + [l[7].replace(",", ",abc,", 1)[:-4]] + l[8:])),
     "timestamps out of order": ("mav0/state_groundtruth_estimate0/data.csv",
                                 lambda p: _corrupt_lines(p, lambda l: l[:20] + [l[21], l[20]] + l[22:])),
-    "duplicated timestamp": ("mav0/imu0/data.csv",
-                             lambda p: _corrupt_lines(p, lambda l: l[:30] + [l[30], l[30]] + l[31:])),
     "quaternion far from unit norm": ("mav0/state_groundtruth_estimate0/data.csv",
                                       lambda p: _corrupt_lines(p, lambda l: l[:40] + [
                                           ", ".join(x if i != 4 else "2.0" for i, x in enumerate(l[40].split(", ")))
@@ -124,6 +124,25 @@ CORRUPTIONS = {
                                         str(int(x.split(",")[0]) + 10**12) + "," + x.split(",", 1)[1]
                                         for x in l[1:]])),
 }
+
+
+def test_repeated_timestamps_are_merged_and_said(recording, tmp_path, capsys):
+    """A logger's rows stamped alike (an exact copy in the IMU, two ground-truth rows with one timestamp) are
+    no malformed file: the last of each is kept, identify runs on, and stderr names the file and the rows."""
+    rep = tmp_path / "repeats"
+    shutil.copytree(recording, rep)
+    _corrupt_lines(rep / "mav0/imu0/data.csv", lambda l: l[:30] + [l[30], l[30]] + l[31:])
+    gt = rep / "mav0/state_groundtruth_estimate0/data.csv"
+    _corrupt_lines(gt, lambda l: l[:40] + [l[41].split(",", 1)[0] + "," + l[40].split(",", 1)[1]] + l[41:])
+    assert main(["identify", str(rep)]) == 0
+    err = capsys.readouterr().err
+    assert f"{rep}/mav0/imu0/data.csv: 1 row repeats the next row's timestamp (1 exact copy; first at line 31)" in err
+    assert f"{gt}: 1 row repeats the next row's timestamp (1 with other values; first at line 41)" in err
+    rec = load_recordings([rep])[0]
+    assert len(rec.read_notes) == 2 and np.all(np.diff(rec.ground_truth.t_ns) > 0)
+    assert len(rec.imu.t_ns) == len(load_recordings([recording])[0].imu.t_ns)
+    _, _, found = prepared([rec], [str(rep)])  # gap's report lists them with what the streams hold
+    assert found["streams"][:2] == list(rec.read_notes)
 
 
 @pytest.mark.parametrize("case", sorted(CORRUPTIONS))

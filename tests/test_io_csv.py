@@ -61,6 +61,22 @@ def test_read_csv_malformed(tmp_path, text, expected):
     assert str(path) in str(e.value) and expected in str(e.value)
 
 
+def test_read_csv_merges_repeated_timestamps_where_asked(tmp_path):
+    """Loggers stamp two messages alike: with ``repeated_times`` the last row of each timestamp is kept and one
+    sentence says how many rows went and of which kind; a time going back is refused all the same."""
+    path = write(tmp_path, "#h\n1,2,3\n1,2,3\n2,3,4\n3,5,6\n3,7,8\n3,9,9\n4,1,1\n", "rep.csv")
+    notes: list[str] = []
+    t, x, lines = euroc_csv.read_csv(path, 3, "test", return_lines=True, repeated_times=notes)
+    assert t.tolist() == [1, 2, 3, 4] and x.tolist() == [[2, 3], [3, 4], [9, 9], [1, 1]]
+    assert lines.tolist() == [3, 4, 7, 8]
+    assert notes == [f"{path}: 3 rows repeat the next row's timestamp (1 exact copy, 2 with other values; first at "
+                     "line 2): the last row of each timestamp kept"]
+    t, x = euroc_csv.read_csv(write(tmp_path, "#h\n1,2,3\n2,3,4\n", "ok.csv"), 3, repeated_times=notes)
+    assert t.tolist() == [1, 2] and len(notes) == 1  # nothing repeated, nothing said
+    with pytest.raises(InputError, match="line 4: timestamp 4 is out of order"):
+        euroc_csv.read_csv(write(tmp_path, "#h\n5,2,3\n5,3,4\n4,3,4\n", "back.csv"), 3, repeated_times=[])
+
+
 def test_read_csv_missing_file(tmp_path):
     with pytest.raises(InputError, match="nope.csv: file not found"):
         euroc_csv.read_csv(tmp_path / "nope.csv", 3)

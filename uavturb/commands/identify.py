@@ -11,6 +11,7 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.io.publish import check_output_file
 from uavturb.io.reader import load_recordings
+from uavturb.io.recording import Recording
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.identification import Identification, identify
 from uavturb.sysid.residuals import Residuals, residual_forces, write_residuals
@@ -20,7 +21,15 @@ def identify_recordings(paths: Sequence[str | Path], *, model: str = "auto",
                         vehicle: str | Vehicle | None = None) -> Identification:
     """``uavturb identify``: the paper's least-squares identification over one or more flights."""
     recs = load_recordings(paths, vehicle)
+    _say_read_notes("identify", recs)
     return identify(recs, recs[0].vehicle, model=model)
+
+
+def _say_read_notes(command: str, recs: Sequence[Recording]) -> None:
+    """What the reader changed in the files' rows (merged repeated timestamps), on stderr."""
+    for rec in recs:
+        for note in rec.read_notes:
+            print(f"uavturb {command}: {note}", file=sys.stderr)
 
 
 def format_identification(ident: Identification) -> str:
@@ -76,6 +85,7 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
         raise InputError(out.parent, "output folder does not exist")
     check_output_file(out, overwrite=overwrite)
     (rec,) = load_recordings([path], vehicle)
+    _say_read_notes("residuals", [rec])
     if params == "identified":
         v = _identified_for_forces(identify([rec], rec.vehicle), rec.vehicle)
     elif params == "nominal":

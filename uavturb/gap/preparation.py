@@ -188,7 +188,7 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
         recs.append(rec2)
         fds.append(fd)
         ln, lim, rate = stream_limits(rec)
-        lines += ln
+        lines += list(rec.read_notes) + ln
         limits += lim
         slowest = min(slowest, rate)
     return recs, fds, {"streams": lines, "stream_limits": limits, "delays": delays, "dropouts": gaps,

@@ -193,10 +193,11 @@ def _timestamps_are_integers(rows: _Block) -> bool:
     return bool(_TIMESTAMP_BYTES[rows.buf[np.where(inside, at, 0)]][inside].all())
 
 
-def _check_times(path: Path, lines: np.ndarray, t_ns: np.ndarray) -> None:
-    """Timestamps strictly increasing, else InputError naming the first bad line."""
+def _check_times(path: Path, lines: np.ndarray, t_ns: np.ndarray, allow_repeats: bool = False) -> None:
+    """Timestamps strictly increasing (non-decreasing with ``allow_repeats``), else InputError naming the first
+    bad line."""
     d = np.diff(t_ns)
-    bad = np.flatnonzero(d <= 0)
+    bad = np.flatnonzero(d < 0 if allow_repeats else d <= 0)
     if len(bad):
         k = bad[0] + 1
         kind = "duplicated" if d[bad[0]] == 0 else "out of order"
@@ -256,8 +257,25 @@ def _check_row_count(path: Path, rows: int, read: int, size: int, n: int) -> Non
                                f"reading it would need about {need:.1f} GB of memory: split the recording")
 
 
+def _last_of_each_time(path: Path, lines: np.ndarray, t_ns: np.ndarray, values: np.ndarray
+                       ) -> tuple[np.ndarray, str | None]:
+    """(rows to keep: the last of each run of rows sharing a timestamp; a sentence on what was merged, or None).
+    ``t_ns`` non-decreasing."""
+    same = t_ns[1:] == t_ns[:-1]
+    if not same.any():
+        return np.ones(len(t_ns), bool), None
+    keep = np.r_[~same, True]
+    dropped = np.flatnonzero(~keep)
+    copies = int(np.all(values[dropped] == values[dropped + 1], axis=1).sum())
+    n = len(dropped)
+    kinds = [f"{copies} exact {'copy' if copies == 1 else 'copies'}"] if copies else []
+    kinds += [f"{n - copies} with other values"] if n - copies else []
+    return keep, (f"{path}: {n} {'row repeats' if n == 1 else 'rows repeat'} the next row's timestamp "
+                  f"({', '.join(kinds)}; first at line {lines[dropped[0]]}): the last row of each timestamp kept")
+
+
 def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
-             return_lines: bool = False) -> tuple[np.ndarray, ...]:
+             return_lines: bool = False, repeated_times: list[str] | None = None) -> tuple[np.ndarray, ...]:
     """Read an EuRoC-style numeric CSV file, in blocks, within this module's bounds.
 
     Parameters
@@ -273,12 +291,16 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
     values : (N, K) float64, the other ``K = n_cols - 1`` columns, all finite
     lines : (N,) int64, the line number of each row in the file (only with ``return_lines``),
         for callers whose own checks name a line
+    repeated_times : where given, rows sharing a timestamp (loggers write them: two messages stamped
+        alike) are not refused: the last row of each timestamp is kept and one sentence saying how many
+        rows went, and whether they were exact copies, is appended to this list. Timestamps going back
+        are refused all the same.
 
     Raises
     ------
     InputError
         Naming ``path`` and the line: missing file, no data rows, wrong column count,
-        non-numeric or non-finite value, timestamps duplicated or out of order, a bound
+        non-numeric or non-finite value, timestamps out of order (or repeated, without ``repeated_times``), a bound
         exceeded (:data:`MAX_COLUMNS`, :data:`MAX_LINE_BYTES`, :data:`MAX_ROWS`).
     """
     path = Path(path)
@@ -290,7 +312,12 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
         raise InputError(path, f"no data rows (empty {what} file)")
     lines, values, t_ns = (np.concatenate(p) if len(parts) > 1 else p[0] for p in zip(*parts))
     del parts
-    _check_times(path, lines, t_ns)
+    _check_times(path, lines, t_ns, allow_repeats=repeated_times is not None)
+    if repeated_times is not None:
+        keep, note = _last_of_each_time(path, lines, t_ns, values)
+        if note is not None:
+            lines, values, t_ns = lines[keep], values[keep], t_ns[keep]
+            repeated_times.append(note)
     return (t_ns, values, lines) if return_lines else (t_ns, values)
 
 

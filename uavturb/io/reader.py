@@ -105,6 +105,8 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
     Recording
         Ground truth always; ``imu``, ``rotors`` (rad/s, scaled by ``rotor_speed_scale``),
         ``points``, ``cam0`` (frames listed, not loaded), ``vicon`` and ``battery`` when present.
+        Rows of a stream sharing a timestamp (loggers write them) are merged, the last kept, and said in
+        ``read_notes``.
 
     Raises
     ------
@@ -121,12 +123,14 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
         raise InputError(root, "not a recording folder (it is a file)")
     check_links(root)
     vehicle = _folder_vehicle(root, vehicle)
-    gt = _read_ground_truth(root)
-    imu = _read_imu(root, gt.t_ns, required=require_imu)
-    rotors = _read_rotors(root, gt.t_ns, vehicle, required=require_rotors)
+    notes: list[str] = []  # rows sharing a timestamp, merged (loggers write them)
+    gt = _read_ground_truth(root, notes)
+    imu = _read_imu(root, gt.t_ns, notes, required=require_imu)
+    rotors = _read_rotors(root, gt.t_ns, vehicle, notes, required=require_rotors)
     points = ply.read_ply(root / POINTS_PLY) if load_points and (root / POINTS_PLY).is_file() else None
     rec = Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors, points=points, cam0=_read_camera(root),
-                    vicon=_read_vicon(root), battery=_read_battery(root), path=root, frame="S")
+                    vicon=_read_vicon(root, notes), battery=_read_battery(root, notes), path=root, frame="S",
+                    read_notes=tuple(notes))
     if frame == "S":
         return rec
     if frame != "B":
@@ -157,22 +161,23 @@ def _folder_vehicle(root: Path, vehicle: Vehicle | None) -> Vehicle:
     return vehicle
 
 
-def _read_ground_truth(root: Path) -> GroundTruth:
+def _read_ground_truth(root: Path, notes: list[str]) -> GroundTruth:
     """``state_groundtruth_estimate0`` (required), its quaternions checked."""
     gt_file = root / GROUNDTRUTH_CSV
-    t_gt, x, lines = euroc_csv.read_csv(gt_file, euroc_csv.GROUNDTRUTH_COLUMNS, "ground truth", return_lines=True)
+    t_gt, x, lines = euroc_csv.read_csv(gt_file, euroc_csv.GROUNDTRUTH_COLUMNS, "ground truth", return_lines=True,
+                                        repeated_times=notes)
     return GroundTruth(t_ns=t_gt, p=x[:, 0:3], q=checked_quaternions(gt_file, x[:, 3:7], lines), v=x[:, 7:10],
                        b_w=x[:, 10:13], b_a=x[:, 13:16])
 
 
-def _read_imu(root: Path, t_gt: np.ndarray, *, required: bool) -> Imu | None:
+def _read_imu(root: Path, t_gt: np.ndarray, notes: list[str], *, required: bool) -> Imu | None:
     """``imu0`` with its ``sensor.yaml`` (pose, rate) when present; it must overlap the ground truth."""
     imu_file = root / IMU_CSV
     if not imu_file.is_file():
         if required:
             raise InputError(imu_file, "file not found (IMU data are required)")
         return None
-    t, x = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU")
+    t, x = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU", repeated_times=notes)
     align.require_overlap(t_gt, t, imu_file)
     imu = Imu(t_ns=t, gyro=x[:, 0:3], acc=x[:, 3:6], T_BS=np.eye(4))
     if (root / IMU_YAML).is_file():
@@ -181,7 +186,8 @@ def _read_imu(root: Path, t_gt: np.ndarray, *, required: bool) -> Imu | None:
     return imu
 
 
-def _read_rotors(root: Path, t_gt: np.ndarray, vehicle: Vehicle, *, required: bool) -> Rotors | None:
+def _read_rotors(root: Path, t_gt: np.ndarray, vehicle: Vehicle, notes: list[str], *, required: bool
+                 ) -> Rotors | None:
     """``rotors0`` in rad/s (scaled by ``rotor_speed_scale``), checked against the vehicle; it must overlap
     the ground truth."""
     rotors_file = root / ROTORS_CSV
@@ -189,7 +195,7 @@ def _read_rotors(root: Path, t_gt: np.ndarray, vehicle: Vehicle, *, required: bo
         if required:
             raise InputError(rotors_file, "file not found (rotor speeds are required)")
         return None
-    t, x, lines = euroc_csv.read_csv(rotors_file, None, "rotor speed", return_lines=True)
+    t, x, lines = euroc_csv.read_csv(rotors_file, None, "rotor speed", return_lines=True, repeated_times=notes)
     check_rotor_speeds(rotors_file, x, vehicle, lines)
     align.require_overlap(t_gt, t, rotors_file)
     return Rotors(t_ns=t, speeds=x * vehicle.rotor_speed_scale)
@@ -206,21 +212,22 @@ def _read_camera(root: Path) -> Camera | None:
     return cam0
 
 
-def _read_vicon(root: Path) -> Poses | None:
+def _read_vicon(root: Path, notes: list[str]) -> Poses | None:
     """``vicon0`` poses when present, their quaternions checked."""
     vicon_file = root / VICON_CSV
     if not vicon_file.is_file():
         return None
-    t, x, lines = euroc_csv.read_csv(vicon_file, euroc_csv.VICON_COLUMNS, "vicon", return_lines=True)
+    t, x, lines = euroc_csv.read_csv(vicon_file, euroc_csv.VICON_COLUMNS, "vicon", return_lines=True,
+                                     repeated_times=notes)
     return Poses(t_ns=t, p=x[:, 0:3], q=checked_quaternions(vicon_file, x[:, 3:7], lines))
 
 
-def _read_battery(root: Path) -> Battery | None:
+def _read_battery(root: Path, notes: list[str]) -> Battery | None:
     """``battery0`` when present: voltage [V] and, in a third column, current [A]."""
     battery_file = root / BATTERY_CSV
     if not battery_file.is_file():
         return None
-    t, x = euroc_csv.read_csv(battery_file, None, "battery")
+    t, x = euroc_csv.read_csv(battery_file, None, "battery", repeated_times=notes)
     if x.shape[1] > 2:
         raise InputError(battery_file, f"has {x.shape[1] + 1} columns; expected timestamp, voltage [V] "
                                        "and optionally current [A]")

@@ -118,6 +118,7 @@ class Recording:
     battery: Battery | None = None
     path: Path | None = None
     frame: str = "B"
+    read_notes: tuple[str, ...] = ()  # what the reader changed in the files' rows (merged repeated timestamps)
 
     @property
     def t0_ns(self) -> int:
