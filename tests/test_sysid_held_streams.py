@@ -131,3 +131,18 @@ def test_rotor_speeds_reported_one_esc_at_a_time_are_read_column_by_column():
     held = np.sum(stag.rotors.speeds[np.searchsorted(stag.rotors.t_ns, rotors.t_ns)] ** 2, axis=1)
     err_read = np.sqrt(np.mean((read - S_true)[inner] ** 2))
     assert err_read < 0.3 * np.sqrt(np.mean((held - S_true)[inner] ** 2))
+
+
+def test_a_quantised_stream_whose_columns_change_at_random_is_not_staggered():
+    """A position logged in millimetres at rest, or rotor speeds rounded to 1 rad/s in a hover: the columns
+    change one at a time but at random intervals, which is no round-robin telemetry."""
+    rng = np.random.default_rng(0)
+    at_rest = np.round(np.array([0.1, -0.2, 0.05]) + rng.normal(0, 3e-4, (3000, 3)), 3)
+    hover = np.round(600 + rng.normal(0, 0.3, (4000, 4)))
+    assert not staggered(at_rest) and not staggered(hover)
+    assert not stream_updates("state", np.arange(3000) * 10_000_000, at_rest).staggered
+    # speeds that move (so that every update shows) read round-robin, each held 40 rows, one rotor after another
+    rows = np.arange(4000)
+    moving = hover + rows[:, None] / 40
+    held = np.column_stack([moving[np.maximum((rows - 10 * c) // 40 * 40 + 10 * c, 0), c] for c in range(4)])
+    assert staggered(held) and not staggered(moving)

@@ -65,9 +65,13 @@ def updates_only(t_ns: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.n
     return np.asarray(t_ns)[m], np.asarray(values)[m]
 
 
-#: a multi-column stream whose columns each change on fewer than this share of the rows where any of them
-#: changes updates its columns on their own (staggered: round-robin ESC telemetry reports one motor at a time)
-STAGGER_SHARE = 0.6
+#: a staggered stream (round-robin ESC telemetry reports one motor at a time): its median column changes on
+#: fewer than ``STAGGER_SHARE`` of the rows where any column changes, at least ``STAGGER_ONE_SHARE`` of those rows
+#: change one column only, and a column's updates come at regular intervals (median absolute deviation of its
+#: intervals under ``STAGGER_REGULARITY`` of their median, in rows). Columns of a quantised stream also change
+#: one at a time where the values barely move (a position at rest in millimetres), but at random intervals,
+#: often flickering for a single row.
+STAGGER_SHARE, STAGGER_ONE_SHARE, STAGGER_REGULARITY = 0.6, 0.8, 0.25
 
 
 def column_update_masks(values: np.ndarray) -> np.ndarray:
@@ -79,15 +83,27 @@ def column_update_masks(values: np.ndarray) -> np.ndarray:
 
 
 def staggered(values: np.ndarray) -> bool:
-    """Whether a multi-column stream ``values`` (N, C) updates its columns on their own: the median column
-    changes on fewer than :data:`STAGGER_SHARE` of the rows where any column changes (held rotor speeds
-    reported one ESC at a time). A stream whose columns change together is not, nor is one column."""
+    """Whether a multi-column stream ``values`` (N, C) updates its columns on their own, one after another
+    (held rotor speeds reported one ESC at a time; the thresholds: :data:`STAGGER_SHARE`). A stream whose
+    columns change together is not, nor a quantised one whose columns change at random, nor one column."""
     x = np.asarray(values)
     if x.ndim == 1 or x.shape[1] < 2 or len(x) < 3:
         return False
-    own = column_update_masks(x)[:, 1:].sum(axis=1)
-    union = int(update_mask(x)[1:].sum())
-    return union > 0 and float(np.median(own)) < STAGGER_SHARE * union
+    own = column_update_masks(x)[:, 1:]
+    changed = own.sum(axis=0)  # columns changing at each row
+    union = int((changed > 0).sum())
+    if union == 0 or not np.median(own.sum(axis=1)) < STAGGER_SHARE * union:
+        return False
+    if not (changed == 1).sum() >= STAGGER_ONE_SHARE * union:
+        return False
+    spread = []
+    for rows in own:
+        steps = np.diff(np.flatnonzero(rows))
+        if len(steps) >= 3:
+            med = float(np.median(steps))
+            # a held column's value stays two rows or more (a quantised value flickering for one row does not)
+            spread.append(float(np.median(np.abs(steps - med))) / med if med >= 2 else np.inf)
+    return bool(spread) and float(np.median(spread)) <= STAGGER_REGULARITY
 
 
 def _update_rate(t: np.ndarray, m: np.ndarray) -> tuple[float, float]:
