@@ -3,13 +3,14 @@
 
 from __future__ import annotations
 
+import copy
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from uavturb.gap.design import GapData, apply_thrust_levels
-from uavturb.gap.finder import _nominal
+from uavturb.gap.finder import _cross_checked, _nominal
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.gap.nominal import (ThrustLevels, anchored_bias, block_mean_and_se, matched_height_levels,
                                  thrust_levels)
@@ -225,3 +226,17 @@ def test_timing_interval_covers_what_is_left_uncertain_of_a_delay(found, interva
     """One standard error either side of a delay taken out (never before a zero delay), up to one beyond a
     timed delay too small to take out, and 0 to 80 ms (``recordings.md``) where none could be timed."""
     assert timing_interval(found) == pytest.approx(interval)
+
+
+def test_a_law_whose_shape_misses_the_curve_still_carries_the_curve_term():
+    """The named law's value (mu 5.0, fitted on every row) against the same law fitted to a measured curve
+    whose shape it does not fit (mu 7.0, chi^2/dof 10): the two weigh the heights differently, and the stated
+    error covers half their difference; a law without a finite curve value is left as it was."""
+    budget = {"mu": {"sample": 0.3, "height_reference": 0.5, "stderr": 0.58, "limited_by": "sample", "fits": 1}}
+    effects = [{"name": "ground_effect", "params": {"mu": 5.0}, "stderr": {"mu": 0.58}, "error_budget": budget}]
+    misfit = SimpleNamespace(law_fits=False, value=7.0, param="mu")
+    out = _cross_checked(copy.deepcopy(effects), {"ground_effect": misfit})[0]
+    assert out["error_budget"]["mu"]["surface_curve"] == pytest.approx(1.0)
+    assert out["stderr"]["mu"] == pytest.approx(1.0) and out["error_budget"]["mu"]["limited_by"] == "surface_curve"
+    none = SimpleNamespace(law_fits=False, value=float("nan"), param="mu")
+    assert _cross_checked(copy.deepcopy(effects), {"ground_effect": none})[0] == effects[0]

@@ -402,11 +402,12 @@ def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
 
 def _cross_checked(effects: list[dict[str, Any]], curve_fits: dict) -> list[dict[str, Any]]:
     """``effects`` with each surface law's error covering its disagreement with the same law fitted to the
-    measured surface curve, where that law's shape fits the curve
-    (:func:`uavturb.gap.uncertainty.with_curve_check`)."""
+    measured surface curve (:func:`uavturb.gap.uncertainty.with_curve_check`), whether or not the law's shape
+    fits the curve: where it does not, the two estimators weigh the heights differently, and what they
+    disagree by is not known either."""
     for e in effects:
         fit = curve_fits.get(e["name"])
-        if fit is None or not fit.law_fits or not np.isfinite(fit.value) or fit.param not in e["params"]:
+        if fit is None or not np.isfinite(fit.value) or fit.param not in e["params"]:
             continue
         e["error_budget"] = with_curve_check(e["error_budget"], e["params"], fit.param, fit.value)
         e["stderr"] = honest_stderr(e["error_budget"])

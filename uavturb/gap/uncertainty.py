@@ -15,12 +15,14 @@ while recordings differed by 3.6 %. The error stated for each parameter here is 
 - **height reference** (surface effects): half the change of the parameter when every height is
   moved by ``+-`` :data:`HEIGHT_REFERENCE_M` (the rotor plane's height above the body origin and the
   floor's height are rarely known better than a centimetre), added in quadrature to the sample error;
-- **surface curve** (surface laws whose shape fits the measured curve, :func:`with_curve_check`): half
-  the difference between the finder's value, fitted on every row in time, and the same law fitted to the
-  measured thrust ratio per height bin, a model-free second estimate. Two estimators of one parameter
-  that disagree say a systematic error is at work (a 3 Hz rotor stream interpolated between its
-  updates, sessions' thrust levels pooled: 3.6 against the curve's 1.6 for a true 2.0), and the stated
-  error must cover it.
+- **surface curve** (surface laws, :func:`with_curve_check`): half the difference between the finder's
+  value, fitted on every row in time, and the same law fitted to the measured thrust ratio per height
+  bin, a model-free second estimate. Two estimators of one parameter that disagree say a systematic
+  error is at work (a 3 Hz rotor stream interpolated between its updates, sessions' thrust levels
+  pooled: 3.6 against the curve's 1.6 for a true 2.0), and the stated error must cover it. Where the
+  law's shape does not fit the curve the term counts all the same: the two estimators then weigh the
+  heights differently (every row in time against the bins' own errors), and which heights should
+  decide is not known.
 - **rotor timing** (measured rotor speeds, ESC telemetry): half the change of the parameter between fits
   with the rotor stream's delay at either end of what is still uncertain of it
   (:func:`uavturb.gap.preparation.timing_interval`: one standard error either side of a delay taken out,
