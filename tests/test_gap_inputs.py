@@ -104,6 +104,27 @@ def test_streams_do_not_overlap_in_time(tmp_path, capsys, good):
     _gap_fails(tmp_path, capsys, [rec], match="overlap")
 
 
+def test_timestamps_in_microseconds_are_refused(tmp_path, capsys, good):
+    """A logger's microseconds written where nanoseconds belong make a 200 Hz stream 200 kHz (and a
+    half-second window 100k rows): refused before any work, naming the stream."""
+    rec = _copy(good, tmp_path)
+    for stream in ("state_groundtruth_estimate0", "imu0", "rotors0"):
+        _rewrite_csv(rec / "mav0" / stream / "data.csv",
+                     lambda i, l: ",".join([str(int(l.split(",")[0]) // 1000)] + l.split(",")[1:]))
+    line = _gap_fails(tmp_path, capsys, [rec], match="state_groundtruth_estimate0/data.csv: timestamps step by")
+    assert line.endswith("they must be integer nanoseconds; these look like microseconds or milliseconds")
+
+
+def test_rotor_speeds_that_never_lift_the_vehicle_are_refused(tmp_path, capsys, good):
+    """Rotor speeds in Hz where rad/s belong carry 2.5 % of the weight with vehicle.yaml's thrust coefficient:
+    one line naming rotors0 and the likely causes (was an internal error on an empty array)."""
+    rec = _copy(good, tmp_path)
+    _rewrite_csv(rec / "mav0" / "rotors0" / "data.csv",
+                 lambda i, l: ",".join([l.split(",")[0]] + [f"{float(x) / (2 * np.pi):.6g}" for x in l.split(",")[1:]]))
+    line = _gap_fails(tmp_path, capsys, [rec], match="rotors0/data.csv: its rotor speeds never carry more than")
+    assert "speeds in other units than rad/s" in line
+
+
 def test_nan_in_imu(tmp_path, capsys, good):
     rec = _copy(good, tmp_path)
     _rewrite_csv(rec / "mav0" / "imu0" / "data.csv",

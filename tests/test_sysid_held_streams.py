@@ -146,3 +146,13 @@ def test_a_quantised_stream_whose_columns_change_at_random_is_not_staggered():
     moving = hover + rows[:, None] / 40
     held = np.column_stack([moving[np.maximum((rows - 10 * c) // 40 * 40 + 10 * c, 0), c] for c in range(4)])
     assert staggered(held) and not staggered(moving)
+
+
+def test_a_flight_with_no_row_in_the_air_gives_empty_gap_data():
+    """Every row excluded (a recording that rests on its gear throughout): no rows, no error deep in the block
+    means (the finder then says 'only 0 samples in flight' in one line)."""
+    rec, _ = _bobbing()
+    fd = flight_data(rec, window_s=0.3)
+    data = gap_data([fd], HEXAROTOR.mass, HEXAROTOR.rotor_radius, k_T_guess=HEXAROTOR.thrust_coefficient,
+                    exclude=[np.ones(len(fd), bool)])
+    assert len(data) == 0 and data.dense is None

@@ -149,7 +149,10 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                                 f"{held['slowest_update_hz']:.2g} Hz or slower, and the thrust is known only at its "
                                 f"updates); too few to analyse: longer or more flights, or faster rotor telemetry")
     if len(data) < MIN_ROWS:
-        raise InputError(recordings[0].path or "recording", f"only {len(data)} samples in flight; too short to analyse")
+        where = paths[0] if len(paths) == 1 else ", ".join(paths)
+        raise InputError(where, f"only {len(data)} samples in flight (rotors carrying over 30 % of the weight, "
+                                f"off the ground, away from stream dropouts) in {len(paths)} recording(s); too "
+                                "few to analyse")
     progress("the nominal model")
     levels = apply_thrust_levels(data)
 
@@ -220,7 +223,18 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
 
 
 def _flight_rows(fds: Sequence, vehicle: Any, paths: Sequence[str]) -> tuple[GapData, list[dict[str, Any]]]:
-    """The flights' rows in the air (ground contact found and left out) and the report's ``ground_contact``."""
+    """The flights' rows in the air (ground contact found and left out) and the report's ``ground_contact``.
+    Rotor speeds that never carry a third of the weight with ``vehicle.yaml``'s thrust coefficient are refused
+    in one line (rotors0 in other units than rad/s, or a thrust coefficient off)."""
+    if vehicle.thrust_coefficient:
+        for fd, path in zip(fds, paths):
+            most = float(np.max(vehicle.thrust_coefficient * np.sum(fd.rotor_speeds**2, axis=1)))
+            if most < 0.3 * vehicle.mass * GRAVITY:
+                raise InputError(f"{path}/mav0/rotors0/data.csv",
+                                 f"its rotor speeds never carry more than {100 * most / (vehicle.mass * GRAVITY):.2g} "
+                                 f"% of the weight with vehicle.yaml's thrust_coefficient {vehicle.thrust_coefficient:.4g}"
+                                 " N/(rad/s)^2: a flight that never took off, speeds in other units than rad/s (Hz, "
+                                 "rpm: rotor_speed_scale converts) or a thrust coefficient off")
     contact, contact_report = contact_masks(fds, vehicle, paths)
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient,
                     arm_length=vehicle.arm_length, exclude=contact)

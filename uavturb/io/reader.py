@@ -84,6 +84,21 @@ def check_rotor_speeds(path: str | Path, speeds: np.ndarray, vehicle: Vehicle, l
         raise InputError(path, f"{unit} {at}: negative rotor speed {speeds[k, c]} for rotor {c}")
 
 
+#: ns: a stream whose rows are closer than this (over 100 kHz) holds timestamps in other units than nanoseconds
+MIN_STEP_NS = 10_000
+
+
+def check_time_unit(path: str | Path, t_ns: np.ndarray) -> None:
+    """Timestamps in integer nanoseconds (``recordings.md``): a median step under :data:`MIN_STEP_NS` is refused
+    in one line (microseconds or milliseconds read as nanoseconds make a 200 Hz stream 200 kHz or 200 MHz)."""
+    if len(t_ns) < 10:
+        return
+    step = float(np.median(np.diff(t_ns)))
+    if step < MIN_STEP_NS:
+        raise InputError(path, f"timestamps step by {step:.4g} ns ({1e9 / step:.3g} Hz): they must be integer "
+                               "nanoseconds; these look like microseconds or milliseconds")
+
+
 def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_rotors: bool = False,
                    require_imu: bool = False, load_points: bool = True, frame: str = "B") -> Recording:
     """Read a recording folder.
@@ -166,6 +181,7 @@ def _read_ground_truth(root: Path, notes: list[str]) -> GroundTruth:
     gt_file = root / GROUNDTRUTH_CSV
     t_gt, x, lines = euroc_csv.read_csv(gt_file, euroc_csv.GROUNDTRUTH_COLUMNS, "ground truth", return_lines=True,
                                         repeated_times=notes)
+    check_time_unit(gt_file, t_gt)
     return GroundTruth(t_ns=t_gt, p=x[:, 0:3], q=checked_quaternions(gt_file, x[:, 3:7], lines), v=x[:, 7:10],
                        b_w=x[:, 10:13], b_a=x[:, 13:16])
 
@@ -178,6 +194,7 @@ def _read_imu(root: Path, t_gt: np.ndarray, notes: list[str], *, required: bool)
             raise InputError(imu_file, "file not found (IMU data are required)")
         return None
     t, x = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU", repeated_times=notes)
+    check_time_unit(imu_file, t)
     align.require_overlap(t_gt, t, imu_file)
     imu = Imu(t_ns=t, gyro=x[:, 0:3], acc=x[:, 3:6], T_BS=np.eye(4))
     if (root / IMU_YAML).is_file():
@@ -196,6 +213,7 @@ def _read_rotors(root: Path, t_gt: np.ndarray, vehicle: Vehicle, notes: list[str
             raise InputError(rotors_file, "file not found (rotor speeds are required)")
         return None
     t, x, lines = euroc_csv.read_csv(rotors_file, None, "rotor speed", return_lines=True, repeated_times=notes)
+    check_time_unit(rotors_file, t)
     check_rotor_speeds(rotors_file, x, vehicle, lines)
     align.require_overlap(t_gt, t, rotors_file)
     return Rotors(t_ns=t, speeds=x * vehicle.rotor_speed_scale)
