@@ -143,23 +143,35 @@ def improvement_z(before: HeldOut, after: HeldOut, block_s: tuple[float, ...] = 
     u_k = np.sum(ea * delta, axis=1)
     t = before.t if before.t is not None else np.zeros(len(eb))
     g = before.group if before.group is not None else np.zeros(len(eb), int)
-    zs = []
-    span = sum(float(np.ptp(t[g == k])) for k in np.unique(g)) if len(t) else 0.0
-    # a short held-out part (the last 30 % of an 18 s take-off) has fewer than MIN_BLOCKS blocks of
-    # every length: its blocks are then as long as MIN_BLOCKS of them allow
-    lengths = [L for L in block_s if span / L >= MIN_BLOCKS] or ([span / MIN_BLOCKS] if span > 0 else [])
-    for L in lengths:
-        labels = g.astype(np.int64) * 10**7 + np.floor(t / L).astype(np.int64)
-        _, inv = np.unique(labels, return_inverse=True)
-        if inv.max(initial=0) + 1 < MIN_BLOCKS:
-            continue
+    def blocks(L: float) -> np.ndarray:
+        _, inv = np.unique(g.astype(np.int64) * 10**7 + np.floor(t / L).astype(np.int64), return_inverse=True)
+        return inv
+
+    def z(inv: np.ndarray) -> float:
         spread = 2.0 * float(np.sqrt(np.sum(np.bincount(inv, weights=u_k) ** 2)))
-        zs.append(gain / spread if spread > 0 else (0.0 if gain <= 0 else float(np.inf)))
-    return min(zs) if zs else 0.0
+        return gain / spread if spread > 0 else (0.0 if gain <= 0 else float(np.inf))
+
+    if not len(t):
+        return 0.0
+    zs = [z(inv) for inv in map(blocks, block_s) if inv.max(initial=0) + 1 >= MIN_BLOCKS]
+    if zs:
+        return min(zs)
+    # a short held-out part (the last 30 % of an 18 s take-off), or one whose rows stand in a few clusters
+    # (ground contact cut out between them), has fewer than MIN_BLOCKS blocks of every length: its blocks are
+    # then as long as MIN_BLOCKS of them allow, halved from span / MIN_BLOCKS until they number enough
+    span = sum(float(np.ptp(t[g == k])) for k in np.unique(g))
+    L = min(span / MIN_BLOCKS, min(block_s))
+    while L >= MIN_BLOCK_S:
+        inv = blocks(L)
+        if inv.max(initial=0) + 1 >= MIN_BLOCKS:
+            return z(inv)
+        L /= 2.0
+    return 0.0
 
 
-#: blocks the spread of a held-out gain needs at least
-MIN_BLOCKS = 8
+#: blocks the spread of a held-out gain needs at least, and s, the shortest block it is estimated over (errors
+#: are correlated over tenths of seconds: shorter blocks would pass for independent what is not)
+MIN_BLOCKS, MIN_BLOCK_S = 8, 0.25
 #: held-out z a ground law needs where the measured surface curve shows the lift on its own (module docstring)
 Z_WITH_CURVE = 2.0
 #: standard errors above 1 the measured curve must show near the surface for that
