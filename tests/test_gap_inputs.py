@@ -125,6 +125,33 @@ def test_rotor_speeds_that_never_lift_the_vehicle_are_refused(tmp_path, capsys, 
     assert "speeds in other units than rad/s" in line
 
 
+def _scaled_columns(columns, factor):
+    def rewrite(i, line):
+        x = line.split(",")
+        return ",".join(f"{float(v) * factor:.9g}" if k in columns else v for k, v in enumerate(x))
+    return rewrite
+
+
+@pytest.mark.parametrize("stream, rewrite, match", [
+    ("state_groundtruth_estimate0", _scaled_columns({1, 2, 3}, 1000.0),
+     "state_groundtruth_estimate0/data.csv: on axis x the positions move 1e+03 times as far as the velocities say"),
+    ("state_groundtruth_estimate0", _scaled_columns({8, 9, 10}, 0.0),
+     "positions move infinitely many times as far as the velocities say"),
+    ("imu0", _scaled_columns({4, 5, 6}, 1 / 9.81),
+     "imu0/data.csv: the accelerometer reads 0.102 times the specific force the motion capture shows in flight, "
+     "in the same directions: it must be in m/s^2 (not g)"),
+    ("state_groundtruth_estimate0",  # quaternions written x, y, z, w
+     lambda i, l: ",".join(l.split(",")[:4] + l.split(",")[5:8] + [l.split(",")[4]] + l.split(",")[8:]),
+     "quaternions must be w, x, y, z and rotate S into the world"),
+])
+def test_units_and_frames_that_pass_the_format_are_refused(tmp_path, capsys, good, stream, rewrite, match):
+    """Positions in millimetres, velocities left at zero, an accelerometer in g, quaternions in x, y, z, w order:
+    each reads as a valid file and had given a report naming nothing over a residual the size of the weight."""
+    rec = _copy(good, tmp_path)
+    _rewrite_csv(rec / "mav0" / stream / "data.csv", rewrite)
+    _gap_fails(tmp_path, capsys, [rec], match=match)
+
+
 def test_nan_in_imu(tmp_path, capsys, good):
     rec = _copy(good, tmp_path)
     _rewrite_csv(rec / "mav0" / "imu0" / "data.csv",

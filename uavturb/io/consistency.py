@@ -154,7 +154,124 @@ def check_rotor_columns(rec: Recording) -> None:
                                     f"while the other rotors vary: not a rotor speed of a flying vehicle")
 
 
+#: s, windows over which positions are compared with the integrated velocity, and the accelerometer with the
+#: motion capture's specific force (block means: vibration and held values average out)
+POSITION_WINDOW_S, FORCE_WINDOW_S = 1.0, 0.25
+#: a position axis must move this much [m rms over windows] for its scale against the velocity to be read
+MIN_AXIS_MOTION_M = 0.02
+#: allowed ratio of displacement to integrated velocity (units or frames off give 0.001, 1000, -1, 0)
+VELOCITY_SCALE_RANGE = (0.8, 1.25)
+#: allowed ratio of the accelerometer to the motion capture's specific force (g for m/s^2 gives 0.1), and
+#: the largest rms disagreement [share of g] of their block means (an attitude turned wrong gives ~1 g)
+ACCEL_SCALE_RANGE, MAX_FORCE_DISAGREEMENT_G = (0.8, 1.25), 0.35
+
+
+def _window_edges(t: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, ends) [s] of consecutive windows of ``window_s`` over ``t`` [s] that hold no gap in ``t``
+    longer than a tenth of a window."""
+    edges = np.arange(t[0], t[-1], window_s)
+    starts, ends = edges[:-1], edges[1:]
+    big = np.flatnonzero(np.diff(t) > 0.1 * window_s)
+    if len(big):  # a window spanning a gap of the stream is left out
+        gap_a, gap_b = t[big], t[big + 1]
+        bad = np.zeros(len(starts), bool)
+        for a, b in zip(gap_a, gap_b):
+            bad |= (starts < b) & (ends > a)
+        starts, ends = starts[~bad], ends[~bad]
+    return starts, ends
+
+
+def check_position_velocity(rec: Recording) -> None:
+    """Positions move as far as the velocities say, axis by axis (both in W, m and m/s: ``recordings.md``).
+
+    Over windows of :data:`POSITION_WINDOW_S`, the displacement is compared with the integral of the velocity;
+    the least-squares ratio of each axis that moves (:data:`MIN_AXIS_MOTION_M`) must lie in
+    :data:`VELOCITY_SCALE_RANGE`. Positions in millimetres, velocities in the body frame or left at zero, one
+    axis flipped in one and not the other: each passes every format check and spoils the physics.
+
+    Raises
+    ------
+    InputError
+        ``<rec>/mav0/state_groundtruth_estimate0/data.csv: on axis z the positions move -1 times as far ...``
+    """
+    gt = rec.ground_truth
+    if len(gt) < MIN_FLIGHT_ROWS:
+        return
+    t = (gt.t_ns - gt.t_ns[0]) * 1e-9
+    integral = np.vstack([np.zeros(3), np.cumsum(0.5 * (gt.v[1:] + gt.v[:-1]) * np.diff(t)[:, None], axis=0)])
+    a, b = _window_edges(t, POSITION_WINDOW_S)
+    if len(a) < 5:
+        return
+    dp = np.stack([np.interp(b, t, gt.p[:, k]) - np.interp(a, t, gt.p[:, k]) for k in range(3)], 1)
+    dv = np.stack([np.interp(b, t, integral[:, k]) - np.interp(a, t, integral[:, k]) for k in range(3)], 1)
+    for k, axis in enumerate("xyz"):
+        moved, said = np.sqrt(np.mean(dp[:, k] ** 2)), np.sqrt(np.mean(dv[:, k] ** 2))
+        if max(moved, said) < MIN_AXIS_MOTION_M:
+            continue
+        ratio = float(np.sum(dp[:, k] * dv[:, k]) / np.sum(dv[:, k] ** 2)) if said > 0 else np.inf
+        if not VELOCITY_SCALE_RANGE[0] <= ratio <= VELOCITY_SCALE_RANGE[1]:
+            shown = "infinitely many" if not np.isfinite(ratio) else f"{ratio:.3g}"
+            raise InputError(_where(rec, "mav0/state_groundtruth_estimate0/data.csv"),
+                             f"on axis {axis} the positions move {shown} times as far as the velocities say (over "
+                             f"{POSITION_WINDOW_S:g} s windows): positions in m and velocities in m/s, both in the "
+                             "world frame, z up")
+
+
+def check_accelerometer(rec: Recording) -> None:
+    """The accelerometer reads the specific force the motion capture shows, in B (``recordings.md``:
+    ``a_imu = R_BS^T R_WB^T (F_thrust + F_ext) / m``): block means over :data:`FORCE_WINDOW_S` in flight, their
+    least-squares ratio in :data:`ACCEL_SCALE_RANGE` and their rms disagreement under
+    :data:`MAX_FORCE_DISAGREEMENT_G` of g. An accelerometer in g, or quaternions in another order or direction
+    than ``q_RS`` (w, x, y, z, S to world), fail it. Needs the recording in B and an IMU; else nothing.
+
+    Raises
+    ------
+    InputError
+        ``<rec>/mav0/imu0/data.csv: the accelerometer reads 0.102 times ...``
+    """
+    if rec.imu is None or len(rec.imu) < MIN_FLIGHT_ROWS or len(rec.ground_truth) < MIN_FLIGHT_ROWS or rec.frame != "B":
+        return
+    gt = rec.ground_truth
+    t = (gt.t_ns - gt.t_ns[0]) * 1e-9
+    f_mocap = quat.rotate_inverse(gt.q, derivative(t, gt.v, MOCAP_DERIVATIVE_WINDOW_S) + np.array([0, 0, GRAVITY]))
+    inside = (rec.imu.t_ns >= gt.t_ns[0]) & (rec.imu.t_ns <= gt.t_ns[-1])
+    if inside.sum() < MIN_FLIGHT_ROWS:
+        return
+    t_imu = (rec.imu.t_ns[inside] - gt.t_ns[0]) * 1e-9
+    f_imu = rec.imu.acc[inside] - align.interpolate(gt.t_ns, gt.b_a, rec.imu.t_ns[inside])
+    a, b = _window_edges(t, FORCE_WINDOW_S)
+    flying = in_flight(rec, gt.t_ns)
+    means = []
+    for tt, f in ((t, f_mocap), (t_imu, f_imu)):
+        c = np.vstack([np.zeros(3), np.cumsum(f, axis=0)])
+        lo, hi = np.searchsorted(tt, a), np.searchsorted(tt, b)
+        means.append((c[hi] - c[lo]) / np.maximum(hi - lo, 1)[:, None])
+    ok = (np.searchsorted(t, b) - np.searchsorted(t, a) > 0) & (np.searchsorted(t_imu, b) > np.searchsorted(t_imu, a))
+    ok &= np.interp(0.5 * (a + b), t, flying.astype(float)) > 0.5
+    if ok.sum() < 5:
+        return
+    m_mocap, m_imu = means[0][ok], means[1][ok]
+    ratio = float(np.sum(m_imu * m_mocap) / np.sum(m_mocap**2))
+    miss = float(np.sqrt(np.mean(np.sum((m_imu - m_mocap) ** 2, axis=1)))) / GRAVITY
+    scaled_miss = float(np.sqrt(np.mean(np.sum((m_imu - ratio * m_mocap) ** 2, axis=1)))) / GRAVITY
+    where = _where(rec, "mav0/imu0/data.csv")
+    in_range = ACCEL_SCALE_RANGE[0] <= ratio <= ACCEL_SCALE_RANGE[1]
+    if not in_range and ratio > 0 and scaled_miss * ratio <= MAX_FORCE_DISAGREEMENT_G * min(ratio, 1.0):
+        raise InputError(where, f"the accelerometer reads {ratio:.3g} times the specific force the motion capture "
+                                "shows in flight, in the same directions: it must be in m/s^2 (not g)")
+    if not in_range or miss > MAX_FORCE_DISAGREEMENT_G:
+        raise InputError(where, f"the accelerometer and the motion capture's specific force (R^T (dv/dt + g), "
+                                f"{FORCE_WINDOW_S:g} s means in flight, body frame) differ by {miss:.2g} g rms "
+                                f"(least-squares ratio {ratio:.2g}): quaternions must be w, x, y, z and rotate S "
+                                "into the world (q_RS), the world's z must point up, and the IMU must be stamped "
+                                "on the ground truth's clock")
+
+
 def check_recording(rec: Recording) -> None:
-    """:func:`check_rotor_columns` then :func:`check_thrust_axis` (the checks physics commands run)."""
+    """The checks physics commands run: :func:`check_rotor_columns`, :func:`check_thrust_axis`,
+    :func:`check_position_velocity` and :func:`check_accelerometer` (:func:`check_vertical_response` runs on
+    imported logs only: flights that barely climb read correlations near zero either way)."""
     check_rotor_columns(rec)
     check_thrust_axis(rec)
+    check_position_velocity(rec)
+    check_accelerometer(rec)
