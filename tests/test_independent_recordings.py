@@ -111,6 +111,8 @@ CORRUPTIONS = {
                                       ] + l[41:])),
     "vehicle.yaml missing a key": ("vehicle.yaml",
                                    lambda p: p.write_text(VEHICLE_YAML.replace("rotor_radius: 0.1\n", ""))),
+    "vehicle.yaml in millimetres": ("vehicle.yaml",
+                                    lambda p: p.write_text(VEHICLE_YAML.replace("arm_length: 0.215", "arm_length: 215"))),
     "vehicle.yaml list of the wrong length": ("vehicle.yaml",
                                               lambda p: p.write_text(VEHICLE_YAML.replace(
                                                   "[1, -1, 1, -1, 1, -1]", "[1, -1, 1, -1]"))),
@@ -124,6 +126,25 @@ CORRUPTIONS = {
                                         str(int(x.split(",")[0]) + 10**12) + "," + x.split(",", 1)[1]
                                         for x in l[1:]])),
 }
+
+
+def test_identify_says_when_k_T_disagrees_with_vehicle_yaml(recording, tmp_path, capsys):
+    """Rotor speeds written in rpm where rad/s belong: the identified k_T is right for the numbers as given
+    ((2 pi / 60)^2 = 0.011 of the true one) and printed, with one line on stderr saying it is 0.011 times
+    vehicle.yaml's and what to check; agreeing values say nothing."""
+    rpm = tmp_path / "rpm"
+    shutil.copytree(recording, rpm)
+    (rpm / "vehicle.yaml").write_text(VEHICLE_YAML + f"thrust_coefficient: {HEXAROTOR.thrust_coefficient}\n")
+    shutil.copytree(rpm, tmp_path / "agree")
+    _corrupt_lines(rpm / "mav0/rotors0/data.csv", lambda l: [l[0]] + [
+        ",".join([x.split(",")[0]] + [f"{float(w) * 60 / (2 * np.pi):.9g}" for w in x.split(",")[1:]]) for x in l[1:]])
+    assert main(["identify", str(rpm), "--json"]) == 0
+    k = json.loads(capsys.readouterr().out)["thrust_coefficient"]
+    assert k == pytest.approx(HEXAROTOR.thrust_coefficient * (2 * np.pi / 60) ** 2, rel=0.02)
+    assert main(["identify", str(rpm)]) == 0
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("uavturb identify: the identified k_T") and "is 0.011 times vehicle.yaml's" in err
+    assert main(["identify", str(tmp_path / "agree")]) == 0 and capsys.readouterr().err == ""
 
 
 def test_repeated_timestamps_are_merged_and_said(recording, tmp_path, capsys):

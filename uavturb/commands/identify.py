@@ -22,7 +22,30 @@ def identify_recordings(paths: Sequence[str | Path], *, model: str = "auto",
     """``uavturb identify``: the paper's least-squares identification over one or more flights."""
     recs = load_recordings(paths, vehicle)
     _say_read_notes("identify", recs)
-    return identify(recs, recs[0].vehicle, model=model)
+    ident = identify(recs, recs[0].vehicle, model=model)
+    note = thrust_coefficient_disagreement(ident, recs[0].vehicle)
+    if note:
+        print(f"uavturb identify: {note}", file=sys.stderr)
+    return ident
+
+
+#: identified k_T over vehicle.yaml's beyond which the two cannot both describe these rotor speeds
+KT_DISAGREEMENT = 1.5
+
+
+def thrust_coefficient_disagreement(ident: Identification, vehicle: Vehicle) -> str | None:
+    """A sentence where the identified thrust coefficient and ``vehicle.yaml``'s differ by more than a factor
+    :data:`KT_DISAGREEMENT` (rotor speeds in rpm read as rad/s give 91 times less, a mass off by two twice
+    as much), else None. The identified value is right for the numbers as given; the units may not be."""
+    k_nominal, k = vehicle.thrust_coefficient, float(ident.thrust_coefficient)
+    if not k_nominal or not np.isfinite(k) or k <= 0:
+        return None
+    ratio = k / k_nominal
+    if 1 / KT_DISAGREEMENT <= ratio <= KT_DISAGREEMENT:
+        return None
+    return (f"the identified k_T {k:.4g} N/(rad/s)^2 is {ratio:.3g} times vehicle.yaml's thrust_coefficient "
+            f"{k_nominal:.4g}: check that rotors0 holds rad/s (rotor_speed_scale converts rpm or raw values) and "
+            "vehicle.yaml's mass")
 
 
 def _say_read_notes(command: str, recs: Sequence[Recording]) -> None:

@@ -263,16 +263,28 @@ class Vehicle:
         if d.get("T_BS") is not None:
             kwargs["T_BS"] = checked_transform(d["T_BS"], where)
         name = d.get("name") or Path(str(where)).parent.name or "vehicle"
+        mass, arm, radius = number("mass"), number("arm_length"), number("rotor_radius")
+        for key, value, top, unit in (("mass", mass, MAX_MASS_KG, "kg"), ("arm_length", arm, MAX_SIZE_M, "m"),
+                                      ("rotor_radius", radius, MAX_SIZE_M, "m"),
+                                      ("rotor_plane_z", abs(kwargs.get("rotor_plane_z", 0.0)), MAX_SIZE_M, "m")):
+            if value > top:
+                raise InputError(where, f"key '{key}' is {value:g} {unit}, over {top:g} {unit}: vehicle.yaml is in SI "
+                                        "units (kg, m), not grams or millimetres")
         return cls(
             name=str(name),
-            mass=number("mass"),
-            arm_length=number("arm_length"),
+            mass=mass,
+            arm_length=arm,
             rotor_angles_deg=tuple(angles),
             rotor_directions=tuple(int(s) for s in dirs),
-            rotor_radius=number("rotor_radius"),
+            rotor_radius=radius,
             extra={k: d[k] for k in unknown},
             **kwargs,
         )
+
+#: kg and m: no multirotor this project reads is heavier, or has arms, rotors or a rotor plane offset larger (a
+#: vehicle.yaml in grams or millimetres is)
+MAX_MASS_KG, MAX_SIZE_M = 1000.0, 5.0
+
 
 def checked_transform(value: Any, where: str | Path, key: str = "T_BS") -> tuple[tuple[float, ...], ...]:
     """Validate a rigid transform given as 4 rows of 4 numbers; returns it as a tuple of tuples.
