@@ -250,6 +250,7 @@ def check_accelerometer(rec: Recording) -> None:
     ok &= np.interp(0.5 * (a + b), t, flying.astype(float)) > 0.5
     if ok.sum() < 5:
         return
+    _check_imu_clock(rec, t, f_mocap[:, 2], t_imu, f_imu[:, 2], flying)
     m_mocap, m_imu = means[0][ok], means[1][ok]
     ratio = float(np.sum(m_imu * m_mocap) / np.sum(m_mocap**2))
     miss = float(np.sqrt(np.mean(np.sum((m_imu - m_mocap) ** 2, axis=1)))) / GRAVITY
@@ -265,6 +266,36 @@ def check_accelerometer(rec: Recording) -> None:
                                 f"(least-squares ratio {ratio:.2g}): quaternions must be w, x, y, z and rotate S "
                                 "into the world (q_RS), the world's z must point up, and the IMU must be stamped "
                                 "on the ground truth's clock")
+
+
+#: s, offsets between the IMU's and the ground truth's clocks searched, and the smallest one refused; the
+#: correlation the best offset must reach, and by how much it must beat the recording's own stamps
+IMU_CLOCK_SEARCH_S, IMU_CLOCK_MAX_S, IMU_CLOCK_MIN_CORRELATION, IMU_CLOCK_GAIN = 0.6, 0.05, 0.6, 0.1
+
+
+def _check_imu_clock(rec: Recording, t: np.ndarray, f_mocap_z: np.ndarray, t_imu: np.ndarray, f_imu_z: np.ndarray,
+                     flying: np.ndarray) -> None:
+    """The IMU's vertical specific force matches the motion capture's best at its own timestamps: an IMU
+    stamped on another clock (0.3 s late) leaves a residual of half the weight's swings that no effect
+    explains. Refused where another offset of up to :data:`IMU_CLOCK_SEARCH_S` matches clearly better."""
+    rows = flying & np.isfinite(f_mocap_z)
+    rows &= (t > t[0] + IMU_CLOCK_SEARCH_S) & (t < t[-1] - IMU_CLOCK_SEARCH_S)
+    if rows.sum() < MIN_FLIGHT_ROWS or np.std(f_mocap_z[rows]) == 0:
+        return
+    step = max(float(np.median(np.diff(t))), 0.005)
+    lags = np.arange(-IMU_CLOCK_SEARCH_S, IMU_CLOCK_SEARCH_S + step / 2, step)
+    y = f_mocap_z[rows]
+    corr = np.array([np.corrcoef(y, np.interp(t[rows] + lag, t_imu, f_imu_z))[0, 1] for lag in lags])
+    if not np.any(np.isfinite(corr)):
+        return
+    k = int(np.nanargmax(corr))
+    at_zero = float(corr[int(np.argmin(np.abs(lags)))])
+    if abs(lags[k]) >= IMU_CLOCK_MAX_S and corr[k] >= IMU_CLOCK_MIN_CORRELATION and corr[k] - at_zero >= IMU_CLOCK_GAIN:
+        late = "late" if lags[k] > 0 else "early"
+        raise InputError(_where(rec, "mav0/imu0/data.csv"),
+                         f"its specific force matches the motion capture's best {abs(lags[k]):.2f} s {late} "
+                         f"(correlation {corr[k]:.2f}, against {at_zero:.2f} as stamped): the IMU must be stamped "
+                         "on the ground truth's clock")
 
 
 def check_recording(rec: Recording) -> None:
