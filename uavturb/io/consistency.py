@@ -268,41 +268,110 @@ def check_accelerometer(rec: Recording) -> None:
                                 "on the ground truth's clock")
 
 
-#: s, offsets between the IMU's and the ground truth's clocks searched, and the smallest one refused; the
-#: correlation the best offset must reach, and by how much it must beat the recording's own stamps
-IMU_CLOCK_SEARCH_S, IMU_CLOCK_MAX_S, IMU_CLOCK_MIN_CORRELATION, IMU_CLOCK_GAIN = 0.6, 0.05, 0.6, 0.1
+#: s, offsets between a stream's clock and the ground truth's searched; by how much the best offset's correlation
+#: must beat the recording's own stamps' (and be at least twice it), and the least correlation it must reach, on
+#: signals high-passed (:func:`_high_passed`). Measured at the true offset: an IMU against the motion capture
+#: 0.73-0.98, the rotors' thrust 0.56-0.86 (real Crazyflie and simulated flights); a spurious peak of a flight
+#: whose rotors barely vary reached 0.36
+CLOCK_SEARCH_S, CLOCK_GAIN = 0.6, 0.1
+IMU_CLOCK_MIN_CORRELATION, ROTOR_CLOCK_MIN_CORRELATION = 0.5, 0.5
+#: rows at most in a clock's correlation (a flight-hour at 200 Hz is thinned to one row in 36)
+CLOCK_ROWS = 20_000
+#: s, the smallest offset refused: an IMU samples the force at once; commanded rotor speeds lead the force by a
+#: motor lag (60-90 ms on the Crazyflie logs), ESC telemetry trails it by 40-80 ms (``recordings.md``) and, read
+#: one ESC at a time at 3 Hz, by half a column's period more (0.18 s in all measured), all of which gap models
+IMU_CLOCK_MAX_S, ROTOR_CLOCK_MAX_S = 0.05, 0.25
+
+
+def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal: np.ndarray
+                 ) -> tuple[float, float, float]:
+    """(s, the offset ``d`` within ``+-`` :data:`CLOCK_SEARCH_S` at which ``signal(t + d)`` correlates best with
+    ``reference(t)``; that correlation; the correlation at ``d = 0``), or nans where the rows cannot tell."""
+    rows = np.isfinite(reference) & (t > t_sig[0] + CLOCK_SEARCH_S) & (t < t_sig[-1] - CLOCK_SEARCH_S)
+    if rows.sum() < MIN_FLIGHT_ROWS or np.std(reference[rows]) == 0 or np.std(signal) == 0:
+        return float("nan"), float("nan"), float("nan")
+    step = max(float(np.median(np.diff(t))), 0.005)
+    lags = np.arange(-CLOCK_SEARCH_S, CLOCK_SEARCH_S + step / 2, step)
+    idx = np.flatnonzero(rows)
+    idx = idx[:: max(1, len(idx) // CLOCK_ROWS)]  # a long flight's rows thinned evenly: the time stays bounded
+    tr = t[idx]
+    y = _high_passed(tr, reference[idx])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = np.array([np.corrcoef(y, _high_passed(tr, np.interp(tr + lag, t_sig, signal)))[0, 1] for lag in lags])
+    if not np.any(np.isfinite(corr)):
+        return float("nan"), float("nan"), float("nan")
+    k = int(np.nanargmax(corr))
+    return float(lags[k]), float(corr[k]), float(corr[int(np.argmin(np.abs(lags)))])
+
+
+#: s, the slow part taken off both signals before they are timed (a surface lifting the vehicle changes the thrust
+#: over seconds; the clock shows in the faster swings)
+CLOCK_HIGH_PASS_S = 2.0
+
+
+def _high_passed(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``x`` less its centred moving mean over :data:`CLOCK_HIGH_PASS_S` (rows at times ``t`` [s])."""
+    c = np.r_[0.0, np.cumsum(x)]
+    lo = np.searchsorted(t, t - CLOCK_HIGH_PASS_S / 2)
+    hi = np.searchsorted(t, t + CLOCK_HIGH_PASS_S / 2, side="right")
+    return x - (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
+
+
+def _refuse_clock(rec: Recording, stream: str, offset: tuple[float, float, float], smallest_s: float,
+                  least_correlation: float, what: str) -> None:
+    """InputError naming ``stream`` where its :func:`clock_offset` is at least ``smallest_s`` [s] and clearly better
+    than its own stamps (correlation at least ``least_correlation``, :data:`CLOCK_GAIN` more and twice as much)."""
+    lag, best, at_zero = offset
+    if (np.isfinite(lag) and abs(lag) >= smallest_s and best >= least_correlation and best - at_zero >= CLOCK_GAIN
+            and best >= 2.0 * at_zero):
+        raise InputError(_where(rec, f"mav0/{stream}/data.csv"),
+                         f"{what} matches the motion capture's best {abs(lag):.2f} s {'late' if lag > 0 else 'early'} "
+                         f"(correlation {best:.2f}, against {at_zero:.2f} as stamped): it must be stamped on the "
+                         "ground truth's clock")
 
 
 def _check_imu_clock(rec: Recording, t: np.ndarray, f_mocap_z: np.ndarray, t_imu: np.ndarray, f_imu_z: np.ndarray,
                      flying: np.ndarray) -> None:
     """The IMU's vertical specific force matches the motion capture's best at its own timestamps: an IMU
     stamped on another clock (0.3 s late) leaves a residual of half the weight's swings that no effect
-    explains. Refused where another offset of up to :data:`IMU_CLOCK_SEARCH_S` matches clearly better."""
-    rows = flying & np.isfinite(f_mocap_z)
-    rows &= (t > t[0] + IMU_CLOCK_SEARCH_S) & (t < t[-1] - IMU_CLOCK_SEARCH_S)
-    if rows.sum() < MIN_FLIGHT_ROWS or np.std(f_mocap_z[rows]) == 0:
+    explains. Refused where an offset of :data:`IMU_CLOCK_MAX_S` or more matches clearly better."""
+    ref = np.where(flying, f_mocap_z, np.nan)
+    _refuse_clock(rec, "imu0", clock_offset(t, ref, t_imu, f_imu_z), IMU_CLOCK_MAX_S, IMU_CLOCK_MIN_CORRELATION,
+                  "its specific force")
+
+
+def check_rotor_clock(rec: Recording) -> None:
+    """The rotors' vertical thrust ``(R e_z)_z sum(w^2)`` follows the vertical force the vehicle shows (IMU, else
+    motion capture) at the rotor stream's own timestamps, within a motor lag or a telemetry delay: refused in
+    one line where an offset of :data:`ROTOR_CLOCK_MAX_S` or more matches clearly better (a stream on
+    another clock)."""
+    gt = rec.ground_truth
+    if rec.rotors is None or len(rec.rotors) < MIN_FLIGHT_ROWS or len(gt) < MIN_FLIGHT_ROWS:
         return
-    step = max(float(np.median(np.diff(t))), 0.005)
-    lags = np.arange(-IMU_CLOCK_SEARCH_S, IMU_CLOCK_SEARCH_S + step / 2, step)
-    y = f_mocap_z[rows]
-    corr = np.array([np.corrcoef(y, np.interp(t[rows] + lag, t_imu, f_imu_z))[0, 1] for lag in lags])
-    if not np.any(np.isfinite(corr)):
-        return
-    k = int(np.nanargmax(corr))
-    at_zero = float(corr[int(np.argmin(np.abs(lags)))])
-    if abs(lags[k]) >= IMU_CLOCK_MAX_S and corr[k] >= IMU_CLOCK_MIN_CORRELATION and corr[k] - at_zero >= IMU_CLOCK_GAIN:
-        late = "late" if lags[k] > 0 else "early"
-        raise InputError(_where(rec, "mav0/imu0/data.csv"),
-                         f"its specific force matches the motion capture's best {abs(lags[k]):.2f} s {late} "
-                         f"(correlation {corr[k]:.2f}, against {at_zero:.2f} as stamped): the IMU must be stamped "
-                         "on the ground truth's clock")
+    t = (gt.t_ns - gt.t_ns[0]) * 1e-9
+    if rec.imu is not None and len(rec.imu) >= MIN_FLIGHT_ROWS and rec.frame == "B":
+        a_z = align.interpolate(rec.imu.t_ns, rec.imu.acc[:, 2], gt.t_ns)  # specific force along z_B
+        need = a_z * quat.to_rotation_matrix(gt.q)[:, 2, 2]
+    else:
+        need = derivative(t, gt.v[:, 2], MOCAP_DERIVATIVE_WINDOW_S) + GRAVITY
+    w = rec.rotors.speeds
+    fresh = np.r_[True, np.any(w[1:] != w[:-1], axis=1)]  # a held stream on its updates (its steps lag by half
+    fresh[-1] = True                                        # a step: 0.17 s at 3 Hz)
+    S = np.sum(w[fresh] ** 2, axis=1)
+    t_rot = (rec.rotors.t_ns[fresh] - gt.t_ns[0]) * 1e-9
+    R33 = np.interp(t_rot, t, quat.to_rotation_matrix(gt.q)[:, 2, 2])
+    ref = np.where(in_flight(rec, gt.t_ns), need, np.nan)
+    _refuse_clock(rec, "rotors0", clock_offset(t, ref, t_rot, R33 * S), ROTOR_CLOCK_MAX_S, ROTOR_CLOCK_MIN_CORRELATION,
+                  "its vertical thrust")
 
 
 def check_recording(rec: Recording) -> None:
     """The checks physics commands run: :func:`check_rotor_columns`, :func:`check_thrust_axis`,
-    :func:`check_position_velocity` and :func:`check_accelerometer` (:func:`check_vertical_response` runs on
+    :func:`check_position_velocity`, :func:`check_accelerometer` and :func:`check_rotor_clock`
+    (:func:`check_vertical_response` runs on
     imported logs only: flights that barely climb read correlations near zero either way)."""
     check_rotor_columns(rec)
     check_thrust_axis(rec)
     check_position_velocity(rec)
     check_accelerometer(rec)
+    check_rotor_clock(rec)
