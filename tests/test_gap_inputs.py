@@ -140,13 +140,16 @@ def _scaled_columns(columns, factor):
     ("imu0", _scaled_columns({4, 5, 6}, 1 / 9.81),
      "imu0/data.csv: the accelerometer reads 0.102 times the specific force the motion capture shows in flight, "
      "in the same directions: it must be in m/s^2 (not g)"),
+    ("imu0", _scaled_columns({1, 2, 3}, 180 / np.pi),
+     "the rate the motion capture's attitude turns at (0.25 s means in flight, body frame): it must be in rad/s"),
     ("state_groundtruth_estimate0",  # quaternions written x, y, z, w
      lambda i, l: ",".join(l.split(",")[:4] + l.split(",")[5:8] + [l.split(",")[4]] + l.split(",")[8:]),
      "quaternions must be w, x, y, z and rotate S into the world"),
 ])
 def test_units_and_frames_that_pass_the_format_are_refused(tmp_path, capsys, good, stream, rewrite, match):
     """Positions in millimetres, velocities left at zero, an accelerometer in g, quaternions in x, y, z, w order:
-    each reads as a valid file and had given a report naming nothing over a residual the size of the weight."""
+    each reads as a valid file and had given a report naming nothing over a residual the size of the weight (a
+    gyroscope in deg/s, an inertia 57 times off from identify)."""
     rec = _copy(good, tmp_path)
     _rewrite_csv(rec / "mav0" / stream / "data.csv", rewrite)
     _gap_fails(tmp_path, capsys, [rec], match=match)

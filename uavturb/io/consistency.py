@@ -217,6 +217,42 @@ def check_position_velocity(rec: Recording) -> None:
                              "world frame, z up")
 
 
+def _paired_means(a: np.ndarray, b: np.ndarray, *series: tuple[np.ndarray, np.ndarray]
+                  ) -> tuple[list[np.ndarray], np.ndarray]:
+    """Means of each ``(times [s], values (N, 3))`` series over the windows ``[a, b)``, and (W,) bool: the windows
+    every series has a row in."""
+    means, ok = [], np.ones(len(a), bool)
+    for tt, f in series:
+        c = np.vstack([np.zeros(3), np.cumsum(f, axis=0)])
+        lo, hi = np.searchsorted(tt, a), np.searchsorted(tt, b)
+        means.append((c[hi] - c[lo]) / np.maximum(hi - lo, 1)[:, None])
+        ok &= hi > lo
+    return means, ok
+
+
+#: rad/s: the attitude must turn this fast (rms of 0.25 s means) for the gyroscope's scale to be read; and the
+#: ratio of gyroscope to attitude rate allowed (deg/s for rad/s gives 57)
+MIN_TURN_RATE, GYRO_SCALE_RANGE = 0.01, (0.7, 1.4)  # rms 0.017 rad/s read 0.95 on a 12 s simulated flight
+
+
+def _check_gyroscope(rec: Recording, a: np.ndarray, b: np.ndarray, t: np.ndarray, t_imu: np.ndarray,
+                     inside: np.ndarray) -> None:
+    """The gyroscope reads the rate the motion capture's attitude turns at, in B (windows ``[a, b)`` in flight):
+    a gyroscope in deg/s spoils the inertia ``identify`` gives."""
+    w_mocap = quat.angular_velocity_body(t, rec.ground_truth.q)
+    gyro = rec.imu.gyro[inside] - align.interpolate(rec.ground_truth.t_ns, rec.ground_truth.b_w, rec.imu.t_ns[inside])
+    (m_mocap, m_gyro), ok = _paired_means(a, b, (t, w_mocap), (t_imu, gyro))
+    m_mocap, m_gyro = m_mocap[ok], m_gyro[ok]
+    if len(m_mocap) < 5 or np.sqrt(np.mean(np.sum(m_mocap**2, axis=1))) < MIN_TURN_RATE:
+        return
+    ratio = float(np.sum(m_gyro * m_mocap) / np.sum(m_mocap**2))
+    if not GYRO_SCALE_RANGE[0] <= ratio <= GYRO_SCALE_RANGE[1]:
+        raise InputError(_where(rec, "mav0/imu0/data.csv"),
+                         f"the gyroscope reads {ratio:.3g} times the rate the motion capture's attitude turns at "
+                         f"({FORCE_WINDOW_S:g} s means in flight, body frame): it must be in rad/s (not deg/s), in "
+                         "the frame of q_RS")
+
+
 def check_accelerometer(rec: Recording) -> None:
     """The accelerometer reads the specific force the motion capture shows, in B (``recordings.md``:
     ``a_imu = R_BS^T R_WB^T (F_thrust + F_ext) / m``): block means over :data:`FORCE_WINDOW_S` in flight, their
@@ -241,16 +277,12 @@ def check_accelerometer(rec: Recording) -> None:
     f_imu = rec.imu.acc[inside] - align.interpolate(gt.t_ns, gt.b_a, rec.imu.t_ns[inside])
     a, b = _window_edges(t, FORCE_WINDOW_S)
     flying = in_flight(rec, gt.t_ns)
-    means = []
-    for tt, f in ((t, f_mocap), (t_imu, f_imu)):
-        c = np.vstack([np.zeros(3), np.cumsum(f, axis=0)])
-        lo, hi = np.searchsorted(tt, a), np.searchsorted(tt, b)
-        means.append((c[hi] - c[lo]) / np.maximum(hi - lo, 1)[:, None])
-    ok = (np.searchsorted(t, b) - np.searchsorted(t, a) > 0) & (np.searchsorted(t_imu, b) > np.searchsorted(t_imu, a))
+    means, ok = _paired_means(a, b, (t, f_mocap), (t_imu, f_imu))
     ok &= np.interp(0.5 * (a + b), t, flying.astype(float)) > 0.5
     if ok.sum() < 5:
         return
     _check_imu_clock(rec, t, f_mocap[:, 2], t_imu, f_imu[:, 2], flying)
+    _check_gyroscope(rec, a[ok], b[ok], t, t_imu, inside)
     m_mocap, m_imu = means[0][ok], means[1][ok]
     ratio = float(np.sum(m_imu * m_mocap) / np.sum(m_mocap**2))
     miss = float(np.sqrt(np.mean(np.sum((m_imu - m_mocap) ** 2, axis=1)))) / GRAVITY
