@@ -176,6 +176,13 @@ def test_rotor_speeds_on_another_clock_are_refused(tmp_path, capsys, good):
                                                "best 0.30 s late")
 
 
+def test_one_recording_given_twice_is_refused(tmp_path, capsys, good):
+    """The same folder twice (once through a link) would count as two agreeing sessions."""
+    rec = _copy(good, tmp_path)
+    (tmp_path / "again").symlink_to(rec)
+    _gap_fails(tmp_path, capsys, [rec, tmp_path / "again"], match=f"{tmp_path / 'again'}: is given twice (also as {rec})")
+
+
 def test_nan_in_imu(tmp_path, capsys, good):
     rec = _copy(good, tmp_path)
     _rewrite_csv(rec / "mav0" / "imu0" / "data.csv",

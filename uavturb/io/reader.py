@@ -261,6 +261,12 @@ def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None =
     thrust axis against the data, no dead or frozen rotor column). ``vehicle`` (built-in vehicle name,
     yaml path or Vehicle) serves folders without a ``vehicle.yaml``."""
     v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
+    seen: dict[Path, str | Path] = {}
+    for p in paths:  # one flight twice would count as two recordings that agree (errors too small by sqrt(2))
+        key = Path(p).resolve()
+        if key in seen:
+            raise InputError(p, f"is given twice (also as {seen[key]}): each recording once")
+        seen[key] = p
     recs = [read_recording(p, vehicle=v, require_rotors=True) for p in paths]
     for r in recs:
         check_recording(r)
