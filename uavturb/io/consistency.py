@@ -317,8 +317,9 @@ def check_imu(rec: Recording) -> None:
 #: whose rotors barely vary reached 0.36
 CLOCK_SEARCH_S, CLOCK_GAIN = 0.6, 0.1
 IMU_CLOCK_MIN_CORRELATION, ROTOR_CLOCK_MIN_CORRELATION = 0.5, 0.5
-#: rows at most in a clock's correlation (a flight-hour at 200 Hz is thinned to one row in 36)
-CLOCK_ROWS = 20_000
+#: rows at most in a clock's correlation (a flight-hour at 200 Hz is thinned to one row in 72), and s, the steps of
+#: the coarse and the fine search of its offset
+CLOCK_ROWS, CLOCK_STEPS_S = 10_000, (0.02, 0.005)
 #: s, the smallest offset refused: an IMU samples the force at once; commanded rotor speeds lead the force by a
 #: motor lag (60-90 ms on the Crazyflie logs), ESC telemetry trails it by 40-80 ms (``recordings.md``) and, read
 #: one ESC at a time at 3 Hz, by half a column's period more (0.18 s in all measured), all of which gap models
@@ -332,18 +333,25 @@ def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
     rows = np.isfinite(reference) & (t > t_sig[0] + CLOCK_SEARCH_S) & (t < t_sig[-1] - CLOCK_SEARCH_S)
     if rows.sum() < MIN_FLIGHT_ROWS or np.std(reference[rows]) == 0 or np.std(signal) == 0:
         return float("nan"), float("nan"), float("nan")
-    step = max(float(np.median(np.diff(t))), 0.005)
-    lags = np.arange(-CLOCK_SEARCH_S, CLOCK_SEARCH_S + step / 2, step)
     idx = np.flatnonzero(rows)
     idx = idx[:: max(1, len(idx) // CLOCK_ROWS)]  # a long flight's rows thinned evenly: the time stays bounded
     tr = t[idx]
     y = _high_passed(tr, reference[idx])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = np.array([np.corrcoef(y, _high_passed(tr, np.interp(tr + lag, t_sig, signal)))[0, 1] for lag in lags])
+
+    def correlation(lag: float) -> float:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return float(np.corrcoef(y, _high_passed(tr, np.interp(tr + lag, t_sig, signal)))[0, 1])
+
+    # a coarse grid, then the best of it refined on a fine one
+    coarse = np.arange(-CLOCK_SEARCH_S, CLOCK_SEARCH_S + CLOCK_STEPS_S[0] / 2, CLOCK_STEPS_S[0])
+    corr = np.array([correlation(lag) for lag in coarse])
     if not np.any(np.isfinite(corr)):
         return float("nan"), float("nan"), float("nan")
-    k = int(np.nanargmax(corr))
-    return float(lags[k]), float(corr[k]), float(corr[int(np.argmin(np.abs(lags)))])
+    centre = coarse[int(np.nanargmax(corr))]
+    fine = centre + np.arange(-CLOCK_STEPS_S[0], CLOCK_STEPS_S[0] + CLOCK_STEPS_S[1] / 2, CLOCK_STEPS_S[1])
+    fine_corr = np.array([correlation(lag) for lag in fine])
+    k = int(np.nanargmax(fine_corr))
+    return float(fine[k]), float(fine_corr[k]), correlation(0.0)
 
 
 #: s, the slow part taken off both signals before they are timed (a surface lifting the vehicle changes the thrust
