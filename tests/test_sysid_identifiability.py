@@ -126,6 +126,11 @@ def test_physical_bounds():
     est, se = _est(k_M=2e-6)  # drag torque above thrust x radius
     st = idf.assess(est, se, EXCITED, {}, has_imu=True, **GEOMETRY)
     assert st["k_M"].reason == "physically impossible"
+    # rotor columns in another order: theta_1 = l k_T / J_x 58 times too small puts J_x at 2.28 kg m^2; theta_1 is
+    # no result either (it had been printed as one, +- 28 %)
+    est, se = _est(theta_1=8.07e-7, J_x=0.215 * 8.56e-6 / 8.07e-7)
+    st = idf.assess(est, se, EXCITED, {}, has_imu=True, **GEOMETRY)
+    assert st["theta_1"].reason == "physically impossible" and "J_x = l k_T / theta_1 at 2.28 kg m^2" in st["theta_1"].why
 
 
 def test_collinear_columns_are_ill_conditioned():

@@ -24,7 +24,8 @@ the reason, the others are added to the explanation):
     above :data:`BIAS_SE_MAX`.
 ``physically impossible``
     a value no rigid multirotor has: ``k_T``, ``k_M`` or an inertia not positive; an inertia
-    above ``m (l + r)^2`` (the whole mass at the propeller tips); ``k_M > k_T r`` (a rotor
+    above ``m (l + r)^2`` (the whole mass at the propeller tips), or a ``theta_1`` that puts ``J_x``
+    there (rotor columns in another order than ``vehicle.yaml``'s angles); ``k_M > k_T r`` (a rotor
     whose drag torque exceeds thrust times radius: blades with more drag than lift); the
     triangle inequality of principal moments ``J_k <= J_i + J_j`` broken by more than
     :data:`TRIANGLE_SLACK` beyond two standard errors (the least certain of the three is
@@ -301,6 +302,10 @@ class _Assessment:
                 _not_excited(f, ex, [(axis, "rate"), (axis, "acc")])
                 _conditioning(f, est[theta], se[theta], self.conds, fits)
                 self._positive(f, theta, theta)
+                if np.isfinite(est[name]) and est[name] > self.j_max:  # what it says of the vehicle is impossible
+                    f.add(IMPOSSIBLE, f"it puts {name} = l k_T / {theta} at {est[name]:.3g} kg m^2, above m (l + r)^2 = "
+                                      f"{self.j_max:.3g} kg m^2 (rotor columns in another order than vehicle.yaml's "
+                                      "angles?)")
                 self._decide(theta, f)
             f = _Findings()
             _not_excited(f, ex, [(axis, "rate"), (axis, "acc")])
