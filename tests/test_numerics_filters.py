@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from uavturb.numerics.filters import first_order_lag, savgol_coeffs, savgol_filter
+from uavturb.numerics.filters import first_order_lag, high_passed, savgol_coeffs, savgol_filter
 
 
 def close(a, b, tol=1e-12):
@@ -111,3 +111,15 @@ def test_first_order_lag_into_a_slice_of_a_larger_array():
     assert np.array_equal(big[1:701], first_order_lag(x, 0.95, x[0]))
     assert np.all(big[[0, 701]] == -1.0)  # nothing written outside
 
+
+
+def test_high_passed_keeps_what_changes_faster_than_its_window():
+    """A constant and a ramp's interior are taken off; a 2 Hz swing over a 2 s window stays (its mean over four
+    whole periods is nil); columns are filtered alike."""
+    t = np.arange(0.0, 20.0, 0.01)
+    assert np.allclose(high_passed(t, np.full(len(t), 3.0), 2.0), 0.0)
+    inner = (t > 1.5) & (t < 18.5)
+    assert np.allclose(high_passed(t, 0.5 * t, 2.0)[inner], 0.0, atol=3e-3)  # one row more on a side: half a step
+    swing = np.sin(2 * np.pi * 2.0 * t)
+    out = high_passed(t, np.column_stack([swing + 5.0, 2 * swing]), 2.0)
+    assert np.allclose(out[inner, 0], swing[inner], atol=0.01) and np.allclose(out[inner, 1], 2 * swing[inner], atol=0.02)

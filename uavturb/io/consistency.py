@@ -32,6 +32,7 @@ from uavturb.errors import InputError
 from uavturb.io import align
 from uavturb.io.differentiate import derivative
 from uavturb.io.recording import Recording
+from uavturb.numerics.filters import high_passed
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 
@@ -312,7 +313,7 @@ def check_imu(rec: Recording) -> None:
 
 #: s, offsets between a stream's clock and the ground truth's searched; by how much the best offset's correlation
 #: must beat the recording's own stamps' (and be at least twice it), and the least correlation it must reach, on
-#: signals high-passed (:func:`_high_passed`). Measured at the true offset: an IMU against the motion capture
+#: signals high-passed (:func:`uavturb.numerics.filters.high_passed`). Measured at the true offset: an IMU against the motion capture
 #: 0.73-0.98, the rotors' thrust 0.56-0.86 (real Crazyflie and simulated flights); a spurious peak of a flight
 #: whose rotors barely vary reached 0.36
 CLOCK_SEARCH_S, CLOCK_GAIN = 0.6, 0.1
@@ -336,11 +337,11 @@ def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
     idx = np.flatnonzero(rows)
     idx = idx[:: max(1, len(idx) // CLOCK_ROWS)]  # a long flight's rows thinned evenly: the time stays bounded
     tr = t[idx]
-    y = _high_passed(tr, reference[idx])
+    y = high_passed(tr, reference[idx], CLOCK_HIGH_PASS_S)
 
     def correlation(lag: float) -> float:
         with np.errstate(invalid="ignore", divide="ignore"):
-            return float(np.corrcoef(y, _high_passed(tr, np.interp(tr + lag, t_sig, signal)))[0, 1])
+            return float(np.corrcoef(y, high_passed(tr, np.interp(tr + lag, t_sig, signal), CLOCK_HIGH_PASS_S))[0, 1])
 
     # a coarse grid, then the best of it refined on a fine one
     coarse = np.arange(-CLOCK_SEARCH_S, CLOCK_SEARCH_S + CLOCK_STEPS_S[0] / 2, CLOCK_STEPS_S[0])
@@ -357,14 +358,6 @@ def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
 #: s, the slow part taken off both signals before they are timed (a surface lifting the vehicle changes the thrust
 #: over seconds; the clock shows in the faster swings)
 CLOCK_HIGH_PASS_S = 2.0
-
-
-def _high_passed(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``x`` less its centred moving mean over :data:`CLOCK_HIGH_PASS_S` (rows at times ``t`` [s])."""
-    c = np.r_[0.0, np.cumsum(x)]
-    lo = np.searchsorted(t, t - CLOCK_HIGH_PASS_S / 2)
-    hi = np.searchsorted(t, t + CLOCK_HIGH_PASS_S / 2, side="right")
-    return x - (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
 
 
 def _refuse_clock(rec: Recording, stream: str, offset: tuple[float, float, float], smallest_s: float,
