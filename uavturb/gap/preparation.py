@@ -30,7 +30,7 @@ from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import strongest_surface_lift
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.contact import ContactLimits, ground_contact
-from uavturb.sysid.flight_data import FlightData, flight_data
+from uavturb.sysid.flight_data import FlightData, flight_data, held_updates
 from uavturb.sysid.streams import estimate_lag, needed_rate_hz, slow_for, stream_updates
 
 #: s, motor time constant a motor_lag test must resolve (effects.md: 12.5-25 ms)
@@ -58,14 +58,23 @@ def needed_thrust(fd: FlightData, mass: float) -> np.ndarray:
     return mass * mocap_specific_force(quat.to_rotation_matrix(fd.q), fd.dv)[:, 2]
 
 
+#: rows whose sum(w^2) is at least this share of its 95th percentile time the rotor stream (hover dominates a
+#: flight; idling and resting on the gear are far below)
+FLYING_SHARE = 0.5
+
+
 def delay_corrected(rec: Recording, fd: FlightData) -> tuple[Recording, dict[str, Any] | None]:
     """``rec`` with its measured rotor speeds' delay taken out of their timestamps, and what was found
     (None for commanded speeds)."""
     if rec.vehicle.rotor_speed_source != "measured" or rec.rotors is None:
         return rec, None
-    t_sig = rec.seconds(rec.rotors.t_ns)
-    signal = np.sum(rec.rotors.speeds**2, axis=1)
-    ok = slice(None) if fd.covered is None else fd.covered  # not across a stream's dropout
+    _, rotors = held_updates(rec)  # a held stream on its updates, a staggered one column by column
+    t_sig = rec.seconds(rotors.t_ns)
+    signal = np.sum(rotors.speeds**2, axis=1)
+    S = np.sum(fd.rotor_speeds**2, axis=1)
+    ok = S >= FLYING_SHARE * np.percentile(S, 95)  # in the air: on the gear the floor takes what the rotors do not
+    if fd.covered is not None:
+        ok &= fd.covered  # not across a stream's dropout
     lag = estimate_lag(fd.t[ok], needed_thrust(fd, rec.vehicle.mass)[ok], t_sig, signal)
     found = {"stream": "rotors0", "lag_s": lag.lag_s, "stderr_s": lag.stderr_s, "r2": lag.r2,
              "resolvable": lag.resolvable, "describe": lag.describe("rotors0 (measured rotor speeds)")}
