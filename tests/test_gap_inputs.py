@@ -141,10 +141,12 @@ def _scaled_columns(columns, factor):
      "imu0/data.csv: the accelerometer reads 0.102 times the specific force the motion capture shows in flight, "
      "in the same directions: it must be in m/s^2 (not g)"),
     ("imu0", _scaled_columns({1, 2, 3}, 180 / np.pi),
-     "the rate the motion capture's attitude turns at (0.25 s means in flight, body frame): it must be in rad/s"),
+     "the rate the motion capture's attitude turns at (0.25 s means in flight, body frame): it must be in rad/s, not deg/s"),
     ("state_groundtruth_estimate0",  # quaternions written x, y, z, w
      lambda i, l: ",".join(l.split(",")[:4] + l.split(",")[5:8] + [l.split(",")[4]] + l.split(",")[8:]),
      "quaternions must be w, x, y, z and rotate S into the world"),
+    ("rotors0", lambda i, l: ",".join([l.split(",")[0]] + ["524"] * (len(l.split(",")) - 1)),
+     "rotors0/data.csv: every rotor column holds one value throughout while the vehicle moves up and down"),
 ])
 def test_units_and_frames_that_pass_the_format_are_refused(tmp_path, capsys, good, stream, rewrite, match):
     """Positions in millimetres, velocities left at zero, an accelerometer in g, quaternions in x, y, z, w order:

@@ -149,6 +149,9 @@ def check_rotor_columns(rec: Recording) -> None:
     where = _where(rec, "mav0/rotors0/data.csv")
     spins = np.any(w > 0, axis=0)
     varies = np.ptp(w, axis=0) > 0
+    if np.any(spins) and not np.any(varies) and np.ptp(rec.ground_truth.p[:, 2]) > MIN_AXIS_MOTION_M:
+        raise InputError(where, "every rotor column holds one value throughout while the vehicle moves up and down: "
+                                "not the rotor speeds of a flying vehicle")
     for c in range(w.shape[1]):
         others = np.delete(np.arange(w.shape[1]), c)
         if not spins[c] and np.any(spins[others]):
@@ -253,10 +256,12 @@ def _check_gyroscope(rec: Recording, a: np.ndarray, b: np.ndarray, t: np.ndarray
         return
     ratio = float(np.sum(m_gyro * m_mocap) / np.sum(m_mocap**2))
     if not GYRO_SCALE_RANGE[0] <= ratio <= GYRO_SCALE_RANGE[1]:
+        degrees = 0.7 * np.degrees(1.0) <= ratio <= 1.4 * np.degrees(1.0)
+        cause = ("it must be in rad/s, not deg/s" if degrees else
+                 "quaternions must be w, x, y, z and rotate S into the world (q_RS), and the gyroscope in rad/s in S")
         raise InputError(_where(rec, "mav0/imu0/data.csv"),
                          f"the gyroscope reads {ratio:.3g} times the rate the motion capture's attitude turns at "
-                         f"({FORCE_WINDOW_S:g} s means in flight, body frame): it must be in rad/s (not deg/s), in "
-                         "the frame of q_RS")
+                         f"({FORCE_WINDOW_S:g} s means in flight, body frame): {cause}")
 
 
 def check_imu(rec: Recording) -> None:
