@@ -224,7 +224,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
 
 def _flight_rows(fds: Sequence, vehicle: Any, paths: Sequence[str]) -> tuple[GapData, list[dict[str, Any]]]:
     """The flights' rows in the air (ground contact found and left out) and the report's ``ground_contact``.
-    Rotor speeds that never carry a third of the weight with ``vehicle.yaml``'s thrust coefficient are refused
+    Rotor speeds that never carry 30 % of the weight with ``vehicle.yaml``'s thrust coefficient are refused
     in one line (rotors0 in other units than rad/s, or a thrust coefficient off)."""
     if vehicle.thrust_coefficient:
         for fd, path in zip(fds, paths):

@@ -24,6 +24,7 @@ import numpy as np
 from scipy.ndimage import median_filter
 
 from uavturb.gap.nominal import mocap_specific_force
+from uavturb.io.consistency import FLIGHT_SHARE
 from uavturb.io.recording import Recording, Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.physics.constants import GRAVITY
@@ -58,11 +59,6 @@ def needed_thrust(fd: FlightData, mass: float) -> np.ndarray:
     return mass * mocap_specific_force(quat.to_rotation_matrix(fd.q), fd.dv)[:, 2]
 
 
-#: rows whose sum(w^2) is at least this share of its 95th percentile time the rotor stream (hover dominates a
-#: flight; idling and resting on the gear are far below)
-FLYING_SHARE = 0.5
-
-
 def delay_corrected(rec: Recording, fd: FlightData) -> tuple[Recording, dict[str, Any] | None]:
     """``rec`` with its measured rotor speeds' delay taken out of their timestamps, and what was found
     (None for commanded speeds)."""
@@ -72,7 +68,7 @@ def delay_corrected(rec: Recording, fd: FlightData) -> tuple[Recording, dict[str
     t_sig = rec.seconds(rotors.t_ns)
     signal = np.sum(rotors.speeds**2, axis=1)
     S = np.sum(fd.rotor_speeds**2, axis=1)
-    ok = S >= FLYING_SHARE * np.percentile(S, 95)  # in the air: on the gear the floor takes what the rotors do not
+    ok = S >= FLIGHT_SHARE * np.percentile(S, 95)  # in the air: on the gear the floor takes what the rotors do not
     if fd.covered is not None:
         ok &= fd.covered  # not across a stream's dropout
     lag = estimate_lag(fd.t[ok], needed_thrust(fd, rec.vehicle.mass)[ok], t_sig, signal)
