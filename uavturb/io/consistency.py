@@ -397,9 +397,10 @@ def check_rotor_clock(rec: Recording) -> None:
     if rec.rotors is None or len(rec.rotors) < MIN_FLIGHT_ROWS or len(gt) < MIN_FLIGHT_ROWS:
         return
     t = (gt.t_ns - gt.t_ns[0]) * 1e-9
+    up = quat.to_rotation_matrix(gt.q)[:, 2, 2]  # (R e_z)_z: the share of z_B that points up
     if rec.imu is not None and len(rec.imu) >= MIN_FLIGHT_ROWS and rec.frame == "B":
         a_z = align.interpolate(rec.imu.t_ns, rec.imu.acc[:, 2], gt.t_ns)  # specific force along z_B
-        need = a_z * quat.to_rotation_matrix(gt.q)[:, 2, 2]
+        need = a_z * up
     else:
         need = derivative(t, gt.v[:, 2], MOCAP_DERIVATIVE_WINDOW_S) + GRAVITY
     w = rec.rotors.speeds
@@ -408,7 +409,7 @@ def check_rotor_clock(rec: Recording) -> None:
     fresh[-1] = True
     S = np.sum(w[fresh] ** 2, axis=1)
     t_rot = (rec.rotors.t_ns[fresh] - gt.t_ns[0]) * 1e-9
-    R33 = np.interp(t_rot, t, quat.to_rotation_matrix(gt.q)[:, 2, 2])
+    R33 = np.interp(t_rot, t, up)
     ref = np.where(in_flight(rec, gt.t_ns), need, np.nan)
     _refuse_clock(rec, "rotors0", clock_offset(t, ref, t_rot, R33 * S), ROTOR_CLOCK_MAX_S, ROTOR_CLOCK_MIN_CORRELATION,
                   "its vertical thrust")
