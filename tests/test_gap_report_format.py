@@ -52,3 +52,21 @@ def test_late_streams_say_what_is_left_uncertain_of_their_delay(tmp_path):
     assert "- **Dropout**: px4-0/rotors0 has no sample for 2 stretches, 3.75 s in all (the longest 3.50 s " \
            "(12.00-15.50 s)): the rows there" in text
     assert "- **Dropout**: px4-1/imu0 has no sample for 0.50 s (3.00-3.50 s): the rows there" in text
+
+
+def test_a_law_named_from_the_surface_curve_says_which_law_found_it(tmp_path):
+    exp = {"name": "ground_effect_exponential", "params": {"A": 0.411, "lam": 1.66}, "stderr": {"A": 0.11, "lam": 0.19},
+           "explanation": "Extra lift ...", "heldout_rmse_before_N": 0.0323, "heldout_rmse_after_N": 0.0229,
+           "z_heldout": 7.6, "named_from": "surface_curve",
+           "error_budget": {"A": {"sample": 0.037, "height_reference": 0.108, "between_recordings": 0.087,
+                                  "stderr": 0.115, "limited_by": "height_reference"}},
+           "time_domain": {"name": "ground_effect", "params": {"mu": 6.217}, "stderr": {"mu": 3.45}}}
+    report = {"recordings": ["a/to67"], "sim_effects": [], "protocol": "leave-one-recording-out",
+              "residual_source": "imu", "baseline": {"heldout_rmse_N": 0.0323, "rmse_N": 0.0323},
+              "final": {"heldout_rmse_N": 0.0201}, "noise": {"rms_N": 0.015}, "effects": [exp],
+              "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 0.01, "drivers": []},
+              "sim_effect_params": {}}
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert "| `ground_effect_exponential` | A = 0.41 ± 0.11, lam = 1.66 ± 0.19 |" in text
+    assert "  - named from the measured surface curve; found in time as `ground_effect` (mu = 6.2 ± 3.5)" in text

@@ -26,7 +26,8 @@ def inputs(K=4, yaw=0.0, v=(1.0, 0.0, 0.0), w=500.0, d_down=0.5, d_up=1.5, t=10.
 def test_vocabulary_is_the_contract():
     assert {n: e.params for n, e in EFFECTS.items()} == {
         "ground_effect": ("mu",), "ceiling_effect": ("kappa",), "rotor_drag": ("k_d",), "body_drag": ("c_d",),
-        "wind": ("f_x", "f_y"), "battery_sag": ("s",), "motor_lag": ("tau",), "ground_effect_multirotor": ("K_b",)}
+        "wind": ("f_x", "f_y"), "battery_sag": ("s",), "motor_lag": ("tau",), "ground_effect_multirotor": ("K_b",),
+        "ground_effect_exponential": ("A", "lam")}
 
 
 def test_ground_effect_law_values():

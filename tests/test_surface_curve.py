@@ -292,3 +292,97 @@ def test_a_held_out_gain_on_rows_in_clusters_is_scored_on_blocks_that_fit_them()
     few = slice(0, 10)  # 0.4 s of rows: not eight blocks of 0.25 s
     assert improvement_z(HeldOut(before[few], np.zeros(10), t[few], g[few]),
                          HeldOut(after[few], np.zeros(10), t[few], g[few])) == 0.0
+
+
+# --- the exponential law: two shape parameters, fitted to the curve only ------------------------------------
+
+
+def exponential(A, lam):
+    return lambda d: ge.exponential_thrust_ratio(d, A, lam, R)
+
+
+def test_exponential_ratio_and_force_hand_computed():
+    # one decay length over the floor: 1 + A/e; at the floor 1 + A; no surface: 1; under it: nan
+    d = np.array([1.7 * R, 1e-9, np.inf, 0.0, -0.01])
+    ratio = ge.exponential_thrust_ratio(d, 0.4, 1.7, R)
+    assert ratio[0] == pytest.approx(1 + 0.4 / np.e) and ratio[1] == pytest.approx(1.4) and ratio[2] == 1.0
+    assert np.isnan(ratio[3]) and np.isnan(ratio[4])
+    assert np.all(np.isnan(ge.exponential_thrust_ratio(d, 0.4, 0.0, R)))
+    # the force: e_z T A exp(-d/(lam r)), T = k_T sum(w^2); on the floor (d <= 0) the law's value at it
+    w = np.full((3, 4), 2000.0)
+    x = EffectInputs(q=np.tile([1.0, 0, 0, 0], (3, 1)), v=np.zeros((3, 3)), rotor_speeds=w, k_T=2e-8,
+                     rotor_radius=R, d_down=np.array([2 * R, 0.0, np.inf]))
+    F = effect_force("ground_effect_exponential", {"A": 0.4, "lam": 1.7}, x)
+    T = 2e-8 * 4 * 2000.0**2
+    assert F[:, 2] == pytest.approx([T * 0.4 * np.exp(-2 / 1.7), T * 0.4, 0.0])
+    assert np.all(F[:, :2] == 0)
+    spec = EFFECTS["ground_effect_exponential"]
+    assert spec.ratio_at(np.array([1.7 * R]), [0.4, 1.7], R)[0] == pytest.approx(1 + 0.4 / np.e)
+    # its range is on the extra thrust at two rotor radii (23 % is Cheeseman-Bennett's at mu = 12)
+    assert spec.physical_range.violation({"A": 0.4, "lam": 1.7}, None) is None
+    assert "outside" in spec.physical_range.violation({"A": 2.0, "lam": 8.0}, None)
+
+
+def test_exponential_law_is_fitted_to_the_curve_and_not_by_the_finder():
+    """Declared once, with two parameters: the curve fitter reads its bounds; the finder's design leaves it out,
+    and so do the heights that decide ground contact and thrust levels (its range has no top to reach from)."""
+    spec = EFFECTS["ground_effect_exponential"]
+    assert not spec.fitted_by_finder and "ground_effect_exponential" not in design.NONLINEAR
+    assert spec.shape_bounds == ((0.0, 2.0), (0.2, 10.0)) and EFFECTS["ground_effect"].shape_bounds == ((0.05, 40.0),)
+    assert np.all(spec.strongest_ratio(np.array([0.01, 0.1]), R) == 1.0)
+    with pytest.raises(ValueError):
+        spec.surface_reach(R)
+
+
+def test_exponential_curve_recovered_and_cheeseman_bennett_shape_rejected():
+    samples = hovers(exponential(0.4, 1.7), levels=(1.0, 1.03), seed=11)
+    curve = curve_of(samples)
+    exp = fit_law(curve, "ground_effect_exponential", R)
+    cb = fit_law(curve, "ground_effect", R)
+    assert set(exp.params) == {"A", "lam"} and exp.param == "A" and exp.value == exp.params["A"]
+    for k, truth in (("A", 0.4), ("lam", 1.7)):
+        assert abs(exp.params[k] - truth) < 2 * exp.stderrs[k] and exp.stderrs[k] < 0.2 * truth, (k, exp.params)
+    assert exp.law_fits and exp.in_range and exp.dof == len(curve.bins) - 2
+    assert "A = " in exp.why and "lam = " in exp.why
+    assert not cb.law_fits  # the 1/d^2 tail misses a curve that fades within a few radii
+    report = surface_curve_report(curve, {"ground_effect": cb, "ground_effect_exponential": exp})
+    assert report["law"] == "ground_effect_exponential" and set(report["params"]) == {"A", "lam"}
+    assert set(report["stderr"]) == {"A", "lam"}
+
+
+def test_a_law_named_from_the_curve_replaces_one_whose_shape_misses_it():
+    """The finder's rule (``finder._better_surface_law``): its Cheeseman-Bennett entry, found in time, is replaced
+    by the exponential law fitted to the curve where only the latter fits; its budget covers the recordings'
+    spread and the height reference; the time-domain law stays beside it. A curve Cheeseman-Bennett fits keeps it."""
+    from types import SimpleNamespace
+
+    from uavturb.gap.finder import _better_surface_law
+    from uavturb.physics.effects import FlightFacts
+
+    facts = FlightFacts(mass=0.067, rotor_count=4, rotor_radius=R, k_T=2e-8, wsum_hover=8000.0, speed_p90=0.3,
+                        heading_span_deg=0.0, has_imu=True, d_down_min=0.03, d_up_min=np.inf, duration_s=60.0)
+    data = SimpleNamespace(rotor_radius=R, geometry=GEOMETRY)
+    td = {"name": "ground_effect", "params": {"mu": 6.2}, "stderr": {"mu": 3.4}, "explanation": "...",
+          "heldout_rmse_before_N": 0.032, "heldout_rmse_after_N": 0.023, "z_heldout": 7.6,
+          "error_budget": {"mu": {"sample": 0.3, "stderr": 3.4, "limited_by": "height_reference"}}}
+    lag = {"name": "motor_lag", "params": {"tau": 0.06}, "stderr": {"tau": 0.01}}
+    curve = curve_of(hovers(exponential(0.4, 1.7), levels=(1.0, 1.03), height_offsets=[-0.002, 0.002], seed=12))
+    fits = {n: fit_law(curve, n, R, **GEOMETRY) for n in ("ground_effect", "ground_effect_exponential")}
+    report = surface_curve_report(curve, fits, "ground_effect")
+    effects, new = _better_surface_law([td, lag], report, curve, fits, data, facts, 0.01)
+    exp = effects[0]
+    assert exp["name"] == "ground_effect_exponential" and exp["named_from"] == "surface_curve" and effects[1] is lag
+    assert exp["params"] == fits["ground_effect_exponential"].params and exp["time_domain"]["params"] == {"mu": 6.2}
+    assert exp["heldout_rmse_after_N"] == 0.023 and "ground_effect" in exp["explanation"]
+    for k in ("A", "lam"):
+        b = exp["error_budget"][k]
+        assert b["stderr"] == exp["stderr"][k] >= max(b["sample"], b["between_recordings"])
+        assert b["height_reference"] > 0  # a centimetre of height moves the law's values
+    assert new["law"] == "ground_effect_exponential" and new["named"]["agrees"] and new["law_fits"]
+    assert [b["law"] for b in new["bins"]] == pytest.approx(list(fits["ground_effect_exponential"].values))
+    # a Cheeseman-Bennett curve: the finder's law fits it and stays
+    curve = curve_of(hovers(cheeseman_bennett(3.0), levels=(1.0, 1.03), seed=13))
+    fits = {n: fit_law(curve, n, R, **GEOMETRY) for n in ("ground_effect", "ground_effect_exponential")}
+    report = surface_curve_report(curve, fits, "ground_effect")
+    assert fits["ground_effect"].law_fits
+    assert _better_surface_law([td], report, curve, fits, data, facts, 0.01) == ([td], report)

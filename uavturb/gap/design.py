@@ -371,7 +371,8 @@ def apply_thrust_levels(data: GapData) -> ThrustLevels:
     """Measure each recording's thrust level far from surfaces, or at matched heights where the flights
     stay within a surface's reach (:func:`uavturb.gap.nominal.thrust_levels`), and, where they differ,
     give each row its recording's level (``data.level``)."""
-    reach = max(e.surface_reach(data.rotor_radius, **data.geometry) for e in EFFECTS.values() if e.surface)
+    reach = max(e.surface_reach(data.rotor_radius, **data.geometry) for e in EFFECTS.values()
+                if e.surface and e.fitted_by_finder)
     rows = data if data.dense is None else data.dense  # sums: every row in flight counts
     far = (rows.d_down > reach) & (rows.d_up > reach)
     y_thrust = np.einsum("ki,ki->k", rows.y, rows.R[:, :, 2])

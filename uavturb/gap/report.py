@@ -187,6 +187,10 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                                   if t not in ("stderr", "limited_by", "fits") and v is not None and np.isfinite(v))
                 L.append(f"  - error of {k}: ± {b['stderr']:.3g}, limited by {b['limited_by'].replace('_', ' ')} "
                          f"({terms})")
+            if e.get("time_domain"):
+                td = e["time_domain"]
+                L.append(f"  - named from the measured surface curve; found in time as `{td['name']}` "
+                         f"({format_params(td['params'], td.get('stderr'))})")
     L += _undecided_lines(report)
     L += _surface_curve_lines(report.get("surface_curve"))
     L += _recording_lines(report)
@@ -364,8 +368,8 @@ def surface_figure(curve: SurfaceCurve, fits: dict[str, LawFit]):
     if len(d):
         grid = np.linspace(min(b.lo for b in curve.bins), max(b.hi for b in curve.bins), 300)
         for name, lf in fits.items():
-            ax.plot(grid, lf.evaluate(grid), lw=1.2,
-                    label=f"{name}: {lf.param} = {lf.value:.3g}, chi²/dof = {lf.chi2_dof:.2f}")
+            values = ", ".join(f"{k} = {v:.3g}" for k, v in lf.params.items())
+            ax.plot(grid, lf.evaluate(grid), lw=1.2, label=f"{name}: {values}, chi²/dof = {lf.chi2_dof:.2f}")
     ax.axhline(1.0, color="0.6", lw=0.8, ls="--")
     ax.set_xlabel("rotor-plane height over the ground d [m]")
     ax.set_ylabel("thrust ratio T_IGE / T_OGE [-]")

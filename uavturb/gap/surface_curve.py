@@ -28,7 +28,7 @@ Choices (each stated where it is made):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -242,6 +242,12 @@ def measured_curve(d, thrust_needed, thrust_modelled, group, *, hover, far_m: fl
         out.append(SurfaceBin(float(edges[k]), float(edges[k + 1]), float(np.mean(dn[m])), int(m.sum()), mean,
                               float(np.hypot(se, se_level)), nb, recs, se_level))
     return SurfaceCurve(out, far, levels, notes, level_error, dn, ratio, gn, bn, edges)
+
+
+def shifted_curve(curve: SurfaceCurve, dz: float) -> SurfaceCurve:
+    """``curve`` with every height moved by ``dz`` [m] (the height reference off by ``dz``), ratios unchanged."""
+    bins = [replace(b, lo=b.lo + dz, hi=b.hi + dz, d_m=b.d_m + dz) for b in curve.bins]
+    return replace(curve, bins=bins, d=curve.d + dz, edges=curve.edges + dz)
 
 
 #: rotor radii within which the measured curve's bins count as lift evidence (Cheeseman-Bennett at mu = 3

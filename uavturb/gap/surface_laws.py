@@ -27,7 +27,7 @@ from scipy.special import chdtrc  # chi^2 survival function (scipy.stats' chi2.s
 from uavturb.errors import InputError
 from uavturb.gap.design import GapData, dependent_columns
 from uavturb.gap.fit import ModelFit, _nl_values
-from uavturb.gap.surface_curve import SurfaceCurve, bin_of, bin_stats, measured_curve
+from uavturb.gap.surface_curve import SurfaceCurve, bin_of, bin_stats, measured_curve, shifted_curve
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import EFFECTS
 
@@ -45,11 +45,14 @@ class LawFit:
 
     Attributes
     ----------
-    law : effect name; param : its parameter's name
-    value : fitted value; stderr : its honest error, ``max(stderr_fit, spread_between)`` with two or more
+    law : effect name; param : its (first) parameter's name
+    value : fitted value of ``param``; stderr : its honest error, ``max(stderr_fit, spread_between)`` with two or more
         recordings (``max(stderr_fit, stderr_jackknife)`` with one): what a recording's own fit may
         differ from ``value`` by (``gap-report.md``: an error bar covers the spread between recordings);
         with many recordings it exceeds the standard error of the joint value (``stderr_jackknife``)
+    params, stderrs : every parameter's fitted value and honest error, by name (laws with several parameters)
+    fit_errors, resampled : every parameter's ``stderr_fit`` and its ``spread_between`` (two or more
+        recordings) or ``stderr_jackknife`` (one), by name
     stderr_fit : from the weighted fit (scaled by ``sqrt(chi2/dof)`` where > 1)
     stderr_jackknife : standard error of the joint value, jackknife over recordings (over time blocks
         with one recording); nan where it cannot be formed
@@ -80,6 +83,14 @@ class LawFit:
     in_range: bool
     why: str
     evaluate: Callable[[np.ndarray], np.ndarray] = field(repr=False)
+    params: dict[str, float] = field(default_factory=dict)
+    stderrs: dict[str, float] = field(default_factory=dict)
+    fit_errors: dict[str, float] = field(default_factory=dict)
+    resampled: dict[str, float] = field(default_factory=dict)
+
+    def describe(self) -> str:
+        """``mu = 2.1 ± 0.3`` (every parameter, with its honest error)."""
+        return ", ".join(f"{k} = {v:.3g} ± {self.stderrs.get(k, float('nan')):.2g}" for k, v in self.params.items())
 
 
 class _BinnedLaw:
@@ -107,8 +118,10 @@ class _BinnedLaw:
             self.sub_bin = np.arange(nb * _SUB_BINS) // _SUB_BINS
 
     def at(self, d: np.ndarray, z: np.ndarray) -> np.ndarray:
-        level = z[1] if self.free_level else 1.0
-        return level * self.spec.ratio(np.asarray(d, float), float(z[0]), self.r, **self.geometry)
+        """The law at heights ``d`` [m] with ``z``: its parameters, then the far level where it is free."""
+        n = len(self.spec.params)
+        level = z[n] if self.free_level else 1.0
+        return level * self.spec.ratio_at(d, z[:n], self.r, **self.geometry)
 
     def bins(self, z: np.ndarray) -> np.ndarray:
         """(B,) the law in each bin, over all its samples."""
@@ -137,8 +150,9 @@ def _weighted_fit(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, se: 
                   free_level: bool, chol: np.ndarray | None = None):
     """Least squares of ``(y - model(z)) / se`` over the law's search bounds (bins where ``y`` is finite),
     or of ``chol^-1 (y - model(z))`` with ``chol`` the Cholesky factor of the covariance of those bins;
-    a grid picks the start. Returns ``(z, whitened residuals, jacobian)``."""
-    lo, hi = spec.search
+    a grid picks the start (a grid of each parameter for laws with several). Returns ``(z, whitened residuals,
+    jacobian)``, ``z`` the parameters in ``spec.params``' order, then the level where it is free."""
+    bounds = spec.shape_bounds
     ok = np.isfinite(y)
 
     def resid(z: np.ndarray) -> np.ndarray:
@@ -146,16 +160,24 @@ def _weighted_fit(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, se: 
         raw = np.where(np.isfinite(m), y[ok] - m, _POLE_RESIDUAL * se[ok])
         return raw / se[ok] if chol is None else solve_triangular(chol, raw, lower=True)
 
-    grid = np.concatenate([np.linspace(lo, hi, 41), np.geomspace(max(lo, 1e-3), hi, 41)])
+    if len(bounds) == 1:
+        lo, hi = bounds[0]
+        axes = [np.concatenate([np.linspace(lo, hi, 41), np.geomspace(max(lo, 1e-3), hi, 41)])]
+    else:
+        axes = [np.unique(np.concatenate([np.linspace(lo, hi, 8), np.geomspace(max(lo, 1e-3 * hi), hi, 8)]))
+                for lo, hi in bounds]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(bounds))
     level0 = 1.0
     if free_level:  # the level that matches the upper half of the bins at the grid's middle value
         far = ok & (np.arange(len(y)) >= len(y) // 2)
-        level0 = float(np.clip(np.median(y[far] / model(np.array([np.median(grid), 1.0]))[far]), 0.6, 1.4))
-    costs = [np.sum(resid(np.array([p, level0])) ** 2) for p in grid]
-    z0 = np.array([grid[int(np.argmin(costs))], level0])[: 2 if free_level else 1]
-    bounds = ([lo, 0.5], [hi, 1.5]) if free_level else ([lo], [hi])
-    z0 = np.clip(z0, np.array(bounds[0]) + 1e-9, np.array(bounds[1]) - 1e-9)
-    sol = least_squares(resid, z0, bounds=bounds, x_scale="jac")
+        middle = np.array([np.median(a) for a in axes] + [1.0])
+        level0 = float(np.clip(np.median(y[far] / model(middle)[far]), 0.6, 1.4))
+    tail = [level0] if free_level else []
+    costs = [np.sum(resid(np.array([*p, *tail])) ** 2) for p in grid]
+    z0 = np.array([*grid[int(np.argmin(costs))], *tail])
+    box = ([b[0] for b in bounds] + ([0.5] if free_level else []), [b[1] for b in bounds] + ([1.5] if free_level else []))
+    z0 = np.clip(z0, np.array(box[0]) + 1e-9, np.array(box[1]) - 1e-9)
+    sol = least_squares(resid, z0, bounds=box, x_scale="jac")
     return sol.x, resid(sol.x), sol.jac
 
 
@@ -189,34 +211,36 @@ def _rebin(curve: SurfaceCurve, law: _BinnedLaw, use: np.ndarray) -> tuple[np.nd
 
 
 def _refit(curve: SurfaceCurve, law: _BinnedLaw, keep_bins: np.ndarray, se: np.ndarray | None, free_level: bool,
-           use: np.ndarray) -> float:
-    """The law's parameter fitted to the bins rebinned (same edges) from the samples where ``use``, weighted
-    by ``se`` (by their own errors where None); nan with too few bins."""
+           use: np.ndarray) -> np.ndarray:
+    """(P,) the law's parameters fitted to the bins rebinned (same edges) from the samples where ``use``,
+    weighted by ``se`` (by their own errors where None); nan with too few bins."""
+    n = len(law.spec.params)
     means, own = _rebin(curve, law, use)
     weights = own if se is None else se
     means = np.where(keep_bins & np.isfinite(weights) & (weights > 0), means, np.nan)
-    if np.isfinite(means).sum() < (3 if free_level else 2):
-        return float("nan")
-    return float(_weighted_fit(law.over(use), means, weights, law.spec, free_level)[0][0])
+    if np.isfinite(means).sum() < n + (2 if free_level else 1):
+        return np.full(n, np.nan)
+    return np.asarray(_weighted_fit(law.over(use), means, weights, law.spec, free_level)[0][:n], float)
 
 
 def _resampled(curve: SurfaceCurve, law: _BinnedLaw, keep_bins: np.ndarray, se: np.ndarray, free_level: bool
-               ) -> tuple[float, float]:
-    """``(jackknife standard error of the parameter, standard deviation of single-recording values)``:
-    leave out each recording in turn (each of up to 10 chunks of time blocks with one recording) and
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """``(jackknife standard error of each parameter, standard deviation of single-recording values)``, each
+    (P,): leave out each recording in turn (each of up to 10 chunks of time blocks with one recording) and
     refit; and, with two or more recordings, fit each recording alone. nan where they cannot be formed."""
+    nan = np.full(len(law.spec.params), np.nan)
     if len(curve.d) == 0:
-        return float("nan"), float("nan")
+        return nan, nan
     labels, units = _units(curve)
     loo = np.array([_refit(curve, law, keep_bins, se, free_level, labels != u) for u in units])
-    loo = loo[np.isfinite(loo)]
-    se_jack = (float(np.sqrt((len(loo) - 1) / len(loo) * np.sum((loo - loo.mean()) ** 2))) if len(loo) >= 2
-               else float("nan"))
+    loo = loo[np.all(np.isfinite(loo), axis=1)]
+    se_jack = np.sqrt((len(loo) - 1) / len(loo) * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)) if len(loo) >= 2 \
+        else nan
     if len(np.unique(curve.group)) < 2:
-        return se_jack, float("nan")
+        return se_jack, nan
     alone = np.array([_refit(curve, law, keep_bins, None, free_level, curve.group == g) for g in units])
-    alone = alone[np.isfinite(alone)]
-    return se_jack, float(np.std(alone, ddof=1)) if len(alone) >= 2 else float("nan")
+    alone = alone[np.all(np.isfinite(alone), axis=1)]
+    return se_jack, np.std(alone, axis=0, ddof=1) if len(alone) >= 2 else nan
 
 
 def _bin_covariance(curve: SurfaceCurve, binned: _BinnedLaw) -> np.ndarray:
@@ -251,12 +275,13 @@ def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False
     geometry : ``arm_length`` [m], ``rotor_count`` (laws that use the rotor spacing)
     """
     spec = EFFECTS.get(law)
-    if spec is None or spec.ratio is None or spec.search is None:
+    if spec is None or spec.ratio is None or not spec.shape_bounds:
         known = ", ".join(n for n, e in EFFECTS.items() if e.ratio is not None)
         raise InputError("surface curve", f"'{law}' is no surface law with a thrust ratio (known: {known})")
     d, y, se = curve.columns()
     keep = np.isfinite(se) & (se > 0)
-    npar = 2 if free_level else 1
+    nlaw = len(spec.params)
+    npar = nlaw + (1 if free_level else 0)
     if keep.sum() < npar + 1:
         raise InputError("surface curve", f"{int(keep.sum())} bins with errors: too few to fit {law}")
     binned = _BinnedLaw(curve, spec, r, geometry, free_level)
@@ -269,17 +294,54 @@ def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False
     except np.linalg.LinAlgError:
         cov = np.full((npar, npar), np.nan)
     se_fit = np.sqrt(np.maximum(np.diag(cov), 0.0)) * (np.sqrt(max(chi2_dof, 1.0)) if np.isfinite(chi2_dof) else 1.0)
-    se_jack, spread = _resampled(curve, binned, keep, se, free_level) if resample else (float("nan"), float("nan"))
+    nan = np.full(nlaw, np.nan)
+    se_jack, spread = _resampled(curve, binned, keep, se, free_level) if resample else (nan, nan)
     between = len(np.unique(curve.group)) >= 2
-    stderr = float(np.nanmax([se_fit[0], spread if between else se_jack]))
-    in_range = spec.physical_range.violation({spec.params[0]: float(z[0])}, None) is None
-    fit = LawFit(law, spec.params[0], float(z[0]), stderr, float(se_fit[0]), se_jack, float(spread),
-                 float(z[1]) if free_level else 1.0, float(se_fit[1]) if free_level else 0.0, chi2, dof, chi2_dof,
-                 float(chdtrc(dof, chi2)) if dof > 0 else float("nan"), binned.bins(z),
+    stderrs = [_larger(se_fit[i], (spread if between else se_jack)[i]) for i in range(nlaw)]
+    params = {k: float(v) for k, v in zip(spec.params, z[:nlaw])}
+    in_range = spec.physical_range.violation(params, None) is None
+    fit = LawFit(law, spec.params[0], float(z[0]), stderrs[0], float(se_fit[0]), float(se_jack[0]), float(spread[0]),
+                 float(z[nlaw]) if free_level else 1.0, float(se_fit[nlaw]) if free_level else 0.0, chi2, dof,
+                 chi2_dof, float(chdtrc(dof, chi2)) if dof > 0 else float("nan"), binned.bins(z),
                  bool(np.isfinite(chi2_dof) and chi2_dof < LAW_FITS_CHI2_DOF), in_range, "",
-                 lambda dd: binned.at(dd, z))
+                 lambda dd: binned.at(dd, z), params, dict(zip(spec.params, stderrs)),
+                 {k: float(v) for k, v in zip(spec.params, se_fit)},
+                 {k: float(v) for k, v in zip(spec.params, spread if between else se_jack)})
     fit.why = _why(fit, d[keep], res, spec)
     return fit
+
+
+def _larger(a: float, b: float) -> float:
+    """The larger of two errors, ignoring nan (nan where both are)."""
+    finite = [float(x) for x in (a, b) if np.isfinite(x)]
+    return max(finite) if finite else float("nan")
+
+
+def curve_budget(curve: SurfaceCurve, fit: LawFit, r: float, height_reference_m: float, **geometry
+                 ) -> dict[str, dict[str, float]]:
+    """The error budget (:mod:`uavturb.gap.uncertainty`'s terms and layout) of a law named from the measured
+    curve: **sample** (the weighted fit's error), **height reference** (half the change of each parameter when
+    every height is moved by ``+-height_reference_m`` [m], added in quadrature to the sample term) and
+    **between recordings** (each recording's curve fitted alone) or, with one recording, **between blocks**
+    (the jackknife over time blocks); the stated error is the largest."""
+    moved = []
+    for dz in (height_reference_m, -height_reference_m):
+        try:
+            moved.append(fit_law(shifted_curve(curve, dz), fit.law, r, resample=False, **geometry).params)
+        except (InputError, ValueError, np.linalg.LinAlgError):
+            moved.append(None)
+    label = "between_recordings" if len(np.unique(curve.group)) >= 2 else "between_blocks"
+    budget = {}
+    for k in fit.params:
+        sample, spread = fit.fit_errors.get(k, float("nan")), fit.resampled.get(k, float("nan"))
+        height = (abs(moved[0][k] - moved[1][k]) / 2.0 if all(m is not None for m in moved) else float("nan")) \
+            if height_reference_m > 0 else 0.0
+        terms = {"sample": sample, "height_reference": height, label: spread}
+        finite = {t: v for t, v in terms.items() if np.isfinite(v)}
+        widened = float(np.hypot(sample, height)) if np.isfinite(height) else sample
+        budget[k] = terms | {"stderr": _larger(widened, spread),
+                             "limited_by": max(finite, key=finite.get) if finite else "unknown"}
+    return budget
 
 
 def _why(fit: LawFit, d: np.ndarray, res: np.ndarray, spec) -> str:
@@ -287,9 +349,9 @@ def _why(fit: LawFit, d: np.ndarray, res: np.ndarray, spec) -> str:
     verdict = ("its shape fits the measured curve" if fit.law_fits else
                "its shape does not fit the measured curve")
     level = "" if fit.level == 1.0 else f" and a far level of {fit.level:.4f}"
-    rng = "" if fit.in_range else (f"; {fit.param} lies outside its physical range "
+    rng = "" if fit.in_range else (f"; {spec.physical_range.quantity} lies outside its physical range "
                                    f"[{spec.physical_range.lo:.3g}, {spec.physical_range.hi:.3g}]")
-    return (f"{fit.law} with {fit.param} = {fit.value:.3g} ± {fit.stderr:.2g}{level} gives chi^2/dof = "
+    return (f"{fit.law} with {fit.describe()}{level} gives chi^2/dof = "
             f"{fit.chi2_dof:.2f} over {len(d)} bins ({fit.dof} dof; a fitting law gives about 1, the threshold is "
             f"{LAW_FITS_CHI2_DOF:g}): {verdict} (largest miss {abs(res[worst]):.1f} standard errors at "
             f"{d[worst]:.3f} m){rng}.")
@@ -308,8 +370,8 @@ def surface_curve_report(curve: SurfaceCurve, fits: dict[str, LawFit], chosen: s
     fit = fits[chosen]
 
     def law_entry(lf: LawFit) -> dict:
-        params = {lf.param: lf.value} | ({} if lf.level == 1.0 else {"level": lf.level})
-        stderr = {lf.param: lf.stderr} | ({} if lf.level == 1.0 else {"level": lf.level_stderr})
+        params = dict(lf.params) | ({} if lf.level == 1.0 else {"level": lf.level})
+        stderr = dict(lf.stderrs) | ({} if lf.level == 1.0 else {"level": lf.level_stderr})
         return {"law": lf.law, "params": params, "stderr": stderr, "chi2_dof": lf.chi2_dof, "dof": lf.dof,
                 "p_value": lf.p_value, "law_fits": lf.law_fits, "in_range": lf.in_range, "why": lf.why,
                 "values": [float(v) for v in lf.values]}
@@ -324,10 +386,10 @@ def surface_curve_report(curve: SurfaceCurve, fits: dict[str, LawFit], chosen: s
             "alternatives": [law_entry(lf) for name, lf in fits.items() if name != chosen]}
 
 
-def law_in_bins(curve: SurfaceCurve, law: str, value: float, r: float, **geometry) -> np.ndarray:
-    """(B,) the surface law ``law`` at its parameter ``value`` in each bin of ``curve`` (averaged over the
-    bin's samples, as :func:`fit_law` compares it)."""
-    return _BinnedLaw(curve, EFFECTS[law], r, geometry, False).bins(np.array([float(value), 1.0]))
+def law_in_bins(curve: SurfaceCurve, law: str, value, r: float, **geometry) -> np.ndarray:
+    """(B,) the surface law ``law`` at its parameter ``value`` (a sequence in its parameters' order for a law
+    with several) in each bin of ``curve`` (averaged over the bin's samples, as :func:`fit_law` compares it)."""
+    return _BinnedLaw(curve, EFFECTS[law], r, geometry, False).bins(np.append(np.atleast_1d(value), 1.0).astype(float))
 
 
 #: m/s^2 and deg: hover-like samples for the measured curve (the law is a steady-flow law)

@@ -109,6 +109,17 @@ def ground_effect_multirotor_force(x: EffectInputs, K_b: float) -> np.ndarray:
     return out
 
 
+def ground_effect_exponential_force(x: EffectInputs, A: float, lam: float) -> np.ndarray:
+    """Ground effect decaying exponentially with height: ``F = e_z T A exp(-d_down / (lam r))``
+    (:func:`uavturb.physics.ground_effect.exponential_thrust_ratio`); at and under the surface
+    (``d_down <= 0``, ground contact) the law's value at the surface, ``A T``."""
+    d = np.maximum(x.need("ground_effect_exponential", "d_down"), 0.0)
+    out = np.zeros((len(d), 3))
+    out[:, 2] = x.thrust * (np.nan_to_num(ge.exponential_thrust_ratio(np.maximum(d, 1e-12), A, lam, x.rotor_radius),
+                                          nan=1.0) - 1.0)
+    return out
+
+
 def ceiling_effect_force(x: EffectInputs, kappa: float) -> np.ndarray:
     """Ceiling effect: ``F = e_z T rho/(1-rho)``, ``rho = kappa (r/(4 d_up))^2``. Clipped like the
     ground effect (``effects.md`` gives no clip for it; the pole is the same)."""
@@ -311,10 +322,14 @@ class EffectSpec:
     manoeuvre : str, the flight that excites this effect apart from the others (for ``ambiguous``)
     ratio : surface laws only: ``(d, param, r, **geometry) -> T_IGE/T_OGE`` [-], the thrust per rotor
         speed squared over its value far from the surface at rotor-plane height ``d`` [m] (``nan``
-        where the law does not hold); ``geometry`` holds ``arm_length`` [m] and ``rotor_count``
-        (laws that do not need them ignore them). Used by :mod:`uavturb.gap.surface_laws`.
+        where the law does not hold); ``param`` is the parameter's value, or the tuple of all of them
+        for a law with several (in ``params``' order); ``geometry`` holds ``arm_length`` [m] and
+        ``rotor_count`` (laws that do not need them ignore them). Used by :mod:`uavturb.gap.surface_laws`.
+    bounds : surface laws with several parameters: the ``(lo, hi)`` bounds of each (in ``params``' order)
+        within which a fit to the measured curve searches (one-parameter laws use ``search``)
     fitted_by_finder : the gap finder's model (:mod:`uavturb.gap.design`) fits this effect; False for
-        laws it cannot fit yet (they are fitted to the measured surface curve only)
+        laws it cannot fit yet (they are fitted to the measured surface curve only, and named where the
+        finder's own law of the same physics does not fit that curve and they do)
     alternative_to : another law of the same physics (``ground_effect_multirotor`` for ``ground_effect``):
         the finder names at most one of them, the alternative only where it beats the other on
         held-out data beyond noise
@@ -340,12 +355,27 @@ class EffectSpec:
     fitted_by_finder: bool = True
     alternative_to: str | None = None
     absent_at_zero: bool = True
+    bounds: tuple[tuple[float, float], ...] = ()
+
+    @property
+    def shape_bounds(self) -> tuple[tuple[float, float], ...]:
+        """The ``(lo, hi)`` search bounds of each parameter of a surface law (``bounds``, or ``search`` for a
+        one-parameter law); ``()`` for other effects."""
+        return self.bounds or ((self.search,) if self.search is not None else ())
+
+    def ratio_at(self, d: np.ndarray, values, rotor_radius: float, **geometry) -> np.ndarray:
+        """(K,) -, ``T_IGE/T_OGE`` of this surface law at heights ``d`` [m] with ``values`` (a sequence in
+        ``params``' order, or one number for a one-parameter law)."""
+        v = np.atleast_1d(np.asarray(values, float))
+        param = float(v[0]) if len(self.params) == 1 else tuple(float(x) for x in v[:len(self.params)])
+        return np.asarray(self.ratio(np.asarray(d, float), param, rotor_radius, **geometry), float)
 
     def strongest_ratio(self, d: np.ndarray, rotor_radius: float, **geometry) -> np.ndarray:
         """(K,) -, ``T_IGE/T_OGE`` of this surface law at the top of its physical range at rotor-plane
         heights ``d`` [m] (K,): the most it could raise the thrust there (``inf`` where the law does not
-        hold, e.g. inside the Cheeseman-Bennett clip). The range of a surface law is on its one parameter."""
-        if self.surface is None or self.ratio is None:
+        hold, e.g. inside the Cheeseman-Bennett clip). The range of a surface law the finder fits is on its one
+        parameter; laws with several (fitted to the measured curve only) have no top and give 1."""
+        if self.surface is None or self.ratio is None or len(self.params) != 1:
             return np.ones(np.shape(d))
         with np.errstate(divide="ignore", invalid="ignore"):
             r = np.asarray(self.ratio(np.asarray(d, float), self.physical_range.hi, rotor_radius, **geometry), float)
@@ -359,6 +389,8 @@ class EffectSpec:
         Cheeseman-Bennett closed form without them, or where the law cannot be evaluated (arm unknown)."""
         if self.surface is None:
             return float("inf")
+        if len(self.params) != 1:
+            raise ValueError(f"{self.name} has several parameters: no top of its range to reach from")
         rho = share / (1.0 + share)  # rho/(1-rho) = share
         closed = rotor_radius / 4.0 * float(np.sqrt(self.physical_range.hi / rho))
         if self.ratio is None or not geometry:
@@ -423,6 +455,20 @@ def _multirotor_ratio(d: np.ndarray, K_b: float, r: float, *, arm_length: float,
     return ge.multirotor_thrust_ratio(d, K_b, r, spacing, opposite)
 
 
+def _exponential_ratio(d: np.ndarray, params: tuple[float, float], r: float, **geometry) -> np.ndarray:
+    """``T_IGE/T_OGE`` of the exponential law at ``params = (A, lam)`` (``geometry`` unused)."""
+    A, lam = params
+    return ge.exponential_thrust_ratio(d, A, lam, r)
+
+
+def _explain_ground_exponential(p: dict, f: FlightFacts) -> str:
+    extra = p["A"] * np.exp(-2.0 / p["lam"]) if p["lam"] > 0 else float("nan")
+    return (f"Extra lift near the surface below fades exponentially with height (after He et al. 2019): "
+            f"+{100 * extra:.1f} % thrust at two rotor radii, with a decay length of {p['lam']:.2g} rotor radii "
+            f"({100 * p['lam'] * f.rotor_radius:.1f} cm); these flights came within {f.d_down_min:.2f} m of it. "
+            f"Model the ground effect with this law.")
+
+
 def _explain_ceiling(p: dict, f: FlightFacts) -> str:
     d = 2 * f.rotor_radius
     rho = p["kappa"] * (f.rotor_radius / (4 * d)) ** 2
@@ -466,6 +512,9 @@ def _explain_motor_lag(p: dict, f: FlightFacts) -> str:
 _SURFACE_RANGE_SOURCE = ("Cheeseman & Bennett 1955 give mu = 1 for one rotor; 1-3 fits most small "
                          "multirotors (effects.md), up to ~6 with rotor interaction (Sanchez-Cuevas et al. 2017)")
 
+_EXPONENTIAL_RANGE_SOURCE = ("the Cheeseman-Bennett law at the top of its range (mu = 12) adds 23 % at two rotor radii; "
+                             "small multirotors show 4-11 % a rotor radius or two above the floor (effects.md)")
+
 _MULTIROTOR_RANGE_SOURCE = ("Sanchez-Cuevas, Heredia & Ollero 2017 (Int. J. Aerospace Eng., doi 10.1155/2017/1823056) "
                             "fit K_b to their quadrotor's measured curve; implementations quote 0.5-2. Far from the "
                             "ground the body term is K_b times the rotors' images: at K_b = 6 the body would lift "
@@ -486,6 +535,16 @@ EFFECTS: dict[str, EffectSpec] = {
                    _explain_ground_multirotor, search=(0.01, 20.0), along_thrust=True, surface="d_down",
                    manoeuvre="hover over the floor at several heights from one to ten rotor radii",
                    ratio=_multirotor_ratio, alternative_to="ground_effect", absent_at_zero=False),
+        EffectSpec("ground_effect_exponential", ("A", "lam"), ("-", "rotor radii"), (0.4, 1.7),
+                   ground_effect_exponential_force, False,
+                   "ground effect fading exponentially with height (after He et al. 2019)",
+                   PhysicalRange("extra thrust at two rotor radii, A exp(-2/lam) [-]", 0.0, 0.25,
+                                 lambda p, f: p["A"] * np.exp(-2.0 / p["lam"]) if p["lam"] > 0 else np.nan,
+                                 _EXPONENTIAL_RANGE_SOURCE),
+                   _explain_ground_exponential, along_thrust=True, surface="d_down",
+                   manoeuvre="hover over the floor at several heights from one to ten rotor radii",
+                   ratio=_exponential_ratio, fitted_by_finder=False, alternative_to="ground_effect",
+                   bounds=((0.0, 2.0), (0.2, 10.0))),
         EffectSpec("ceiling_effect", ("kappa",), ("-",), (2.0,), ceiling_effect_force, False,
                    "ceiling effect: suction towards the surface above",
                    PhysicalRange("kappa", 0.25, 12.0, lambda p, f: p["kappa"], _SURFACE_RANGE_SOURCE),
@@ -576,12 +635,13 @@ def strongest_surface_lift(d: np.ndarray, surface: str, rotor_radius: float, **g
     thrust at heights ``d`` [m] (K,) from ``surface`` (``"d_down"``, ``"d_up"``); its inverse is the least
     share of the weight that could hold a hover there. A law that cannot be evaluated even far from the
     surface (the multirotor law with the arm length unknown: ``geometry`` holds ``arm_length`` [m] and
-    ``rotor_count``) does not count."""
+    ``rotor_count``) does not count, nor do laws fitted to the measured curve only (``fitted_by_finder``
+    False: their range bounds a derived quantity, not a parameter to put at its top)."""
     d = np.asarray(d, float)
     lift = np.ones(d.shape)
     far = np.array([1000.0 * rotor_radius])
     for spec in EFFECTS.values():
-        if spec.surface == surface and spec.ratio is not None and np.isfinite(
+        if spec.surface == surface and spec.ratio is not None and spec.fitted_by_finder and np.isfinite(
                 spec.ratio(far, spec.physical_range.hi, rotor_radius, **geometry)).all():
             lift = np.maximum(lift, spec.strongest_ratio(d, rotor_radius, **geometry))
     return lift

@@ -1,6 +1,8 @@
-"""Cheeseman-Bennett ground effect (Cheeseman & Bennett 1955; the paper's eq. "ground effect"), and
+"""Cheeseman-Bennett ground effect (Cheeseman & Bennett 1955; the paper's eq. "ground effect"),
 Sanchez-Cuevas et al.'s multirotor law (2017; :func:`multirotor_thrust_ratio`), which adds the images
-of the other rotors and the lift of the body.
+of the other rotors and the lift of the body, and an exponential decay in height
+(:func:`exponential_thrust_ratio`, after He et al. 2019), whose extra thrust fades within a few rotor
+radii instead of as ``1/d^2``.
 
 Force on the vehicle, vertical, in newtons::
 
@@ -148,6 +150,36 @@ def multirotor_thrust_ratio(z: np.ndarray, K_b: float, r: float, spacing: float,
     den = 1.0 - rotors - K_b * body
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(den > 0.0, 1.0 / den, np.nan)
+
+
+def exponential_thrust_ratio(d: np.ndarray, A: float, lam: float, r: float) -> np.ndarray:
+    """``T_IGE / T_OGE = 1 + A exp(-d / (lam r))`` [-]: extra thrust decaying exponentially with height.
+
+    He, Kou, Calaf & Leang (2019, ASME J. Dyn. Sys., Meas., Control 141(7) 071013) model a quadrotor's
+    quasi-steady in-ground effect by an exponential in height; this is that shape with the decay length
+    in rotor radii, so that one value compares across vehicles. Unlike the Cheeseman-Bennett law it stays
+    finite at the surface (``1 + A``) and its tail falls faster than ``1/d^2``: measured multirotor
+    curves that flatten near the floor and vanish within a few radii (Neural-Swarm's Crazyflies: ``lam``
+    about 1.6 r) follow it where Cheeseman-Bennett's shape does not.
+
+    Parameters
+    ----------
+    d : (K,) rotor-plane height over the surface below [m] (``inf`` where none: ratio 1)
+    A : extra thrust share at the surface [-]
+    lam : decay length [rotor radii]
+    r : rotor radius [m]
+
+    Returns
+    -------
+    (K,) thrust per rotor speed squared over its value far from the surface; ``nan`` where ``d <= 0``
+    (the rotor plane at or under the surface) or ``lam <= 0``.
+    """
+    d = np.asarray(d, dtype=float)
+    if not lam > 0 or not r > 0:
+        return np.full(d.shape, np.nan)
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = 1.0 + A * np.exp(-d / (lam * r))
+    return np.where(d > 0, out, np.nan)
 
 
 def phi(d: np.ndarray, thrust: np.ndarray, mu: float, r: float) -> np.ndarray:

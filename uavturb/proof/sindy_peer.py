@@ -25,7 +25,8 @@ def sindy_library(data: GapData) -> tuple[np.ndarray, list[str]]:
     """PySINDy's candidate library ``Theta (3K, P)`` and labels: the regressors of
     :func:`uavturb.gap.design.design` with every effect in, surface laws at ``mu = kappa = 2``
     split out of the thrust column, plus a first-order motor-lag column."""
-    effects = set(EFFECTS) - {"motor_lag", "ground_effect_multirotor"}  # the peer's vocabulary: effects.md's seven
+    # the peer's vocabulary: effects.md's seven (no alternative laws of one physics, lag as its own column)
+    effects = {n for n, e in EFFECTS.items() if e.alternative_to is None} - {"motor_lag"}
     A, names = design(data, effects, {"mu": 2.0, "kappa": 2.0, "tau": 0.0})
     base, _ = design(data, set(), {"mu": 0.0, "kappa": 0.0, "tau": 0.0})
     Ag, _ = design(data, {"ground_effect"}, {"mu": 2.0, "kappa": 0.0, "tau": 0.0})
