@@ -234,6 +234,27 @@ def test_thrust_level_and_rotor_plane_through_the_cli(tmp_path):
     assert truth["conditions"]["rotor_plane_z"]["rotor_plane_height_min_m"] >= 0.015
 
 
+def test_a_rotor_plane_given_the_wrong_sign_is_refused_where_it_dips_under_the_floor(tmp_path):
+    """Rotors 15 cm above the body origin written as 15 cm below it: near the floor the rotor plane would turn
+    inside it. ``flight_data`` refuses vehicle.yaml in one line (the gap finder had named nothing over a 0.22 N
+    residual); the right sign, and a Crazyflie-like rotor plane 2.5 cm below the origin, pass."""
+    from uavturb.sysid.flight_data import flight_data
+
+    out = tmp_path / "rec"
+    assert main(["generate", "flight", "--kind", "low_passes", "--duration", "10", "--seed", "4",
+                 "--rotor-plane-z", "0.15", "--out", str(out)]) == 0
+    assert flight_data(read_recording(out)).d_down.min() > 0.0
+    yml = out / "vehicle.yaml"
+    yml.write_text(yml.read_text().replace("rotor_plane_z: 0.15", "rotor_plane_z: -0.15"))
+    with pytest.raises(InputError, match=r"vehicle.yaml: rotor_plane_z -0.15 m puts the rotor plane up to 0.1\d m "
+                                         r"under the floor .* its sign may be wrong"):
+        flight_data(read_recording(out))
+    below = tmp_path / "quad"
+    assert main(["generate", "flight", "--vehicle", "quad", "--kind", "low_passes", "--duration", "10", "--seed", "3",
+                 "--rotor-plane-z", "-0.025", "--out", str(below)]) == 0
+    assert flight_data(read_recording(below)).d_down.min() > 0.01
+
+
 @pytest.mark.parametrize("args, named", [(["--rotor-hold-hz", "250"], "--rotor-hold-hz"),
                                          (["--thrust-level", "2"], "--thrust-level"),
                                          (["--thrust-tilt-deg", "12"], "--thrust-tilt-deg"),

@@ -220,6 +220,7 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         # surface effects depend on the rotor plane's height, not the body origin's (recordings.md)
         rotor_plane = rec.vehicle.rotor_plane_positions(p, quat.to_rotation_matrix(q))
         d_down, d_up = index.d_down(rotor_plane), index.d_up(rotor_plane)
+        _check_rotor_plane_above_surfaces(rec, index, p, t, d_up)
     fresh = _nearest_rows(t_ns, rotors.t_ns) if rotors_held else None
     # a dropout is a stretch with no row: a held stream's rows go on while its value holds, and a quantised
     # one's updates can be seconds apart in a steady hover
@@ -227,6 +228,43 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
                                                                                  rec.rotors.t_ns)]
     covered, gaps = _covered(t_ns, rec.t0_ns, window, rows + streams[2:])
     return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh, covered, gaps)
+
+
+#: m, how far under the surface below the body origin the rotor plane may seem to dip (a scan's noise, a
+#: height reference off by a centimetre) before ``rotor_plane_z`` is refused
+UNDER_SURFACE_M = 0.02
+#: rows the rotor plane must spend that far under the surface to be refused (a single bad row of a
+#: position stream is no evidence of a wrong vehicle file)
+UNDER_SURFACE_ROWS = 5
+
+
+def _check_rotor_plane_above_surfaces(rec: Recording, index: SurfaceIndex, p: np.ndarray, t: np.ndarray,
+                                      d_up: np.ndarray) -> None:
+    """Refuse a ``rotor_plane_z`` (``vehicle.yaml``) that puts the rotor plane under the surface the body origin
+    stands over: rotors cannot turn inside the floor, so its sign (or the point cloud's floor) is wrong.
+
+    A rotor plane below the body origin (``rotor_plane_z < 0``) that dips into the floor sees the floor *above*
+    it (``d_up``, (K,) m, of the rotor plane) while the body origin ``p`` (K, 3) [m, W] sees it below: the
+    rows where the rotor plane's ``d_up`` is within ``|rotor_plane_z|`` are checked against the body origin's
+    own height. Refused where :data:`UNDER_SURFACE_ROWS` rows or more lie over :data:`UNDER_SURFACE_M` under it.
+    (A rotor plane above the body origin given the wrong sign stays above the floor: nothing shows it here.)
+    """
+    z_r = float(rec.vehicle.rotor_plane_z)
+    if z_r >= 0.0:
+        return
+    rows = np.flatnonzero(np.isfinite(d_up) & (d_up <= -z_r))
+    if not len(rows):
+        return
+    body = index.d_down(p[rows])  # the body origin's height over the surface below it
+    depth = np.where(np.isfinite(body) & (body < -z_r), d_up[rows], 0.0)  # the rotor plane under that surface
+    under = rows[depth > UNDER_SURFACE_M]
+    if len(under) < UNDER_SURFACE_ROWS:
+        return
+    where = f"{rec.path}/vehicle.yaml" if rec.path is not None else f"{rec.name}: vehicle.yaml"
+    raise InputError(where, f"rotor_plane_z {z_r:.3g} m puts the rotor plane up to {float(depth.max()):.2f} m under the "
+                            f"floor (or the surface below the body origin) in {len(under)} rows ({t[under[0]]:.1f}-"
+                            f"{t[under[-1]]:.1f} s): it is the height of the rotor discs above the body origin along "
+                            "z_B, negative below it; its sign may be wrong, or the point cloud's floor too high")
 
 
 def _covered(t_ns: np.ndarray, t0_ns: int, window: int, streams: list[tuple[str, np.ndarray]]
