@@ -322,6 +322,11 @@ def check_imu(rec: Recording) -> None:
 #: 0.73-0.98, the rotors' thrust 0.56-0.86 (real Crazyflie and simulated flights); a spurious peak of a flight
 #: whose rotors barely vary reached 0.36
 CLOCK_SEARCH_S, CLOCK_GAIN = 0.6, 0.1
+#: s, offsets searched beyond ``CLOCK_SEARCH_S`` (a stream stamped on another clock by seconds: rotors 1 s late
+#: had left a 0.5 N residual and a report naming the right effect beside it), and the step of that coarse search
+CLOCK_WIDE_S, CLOCK_WIDE_STEP_S = 5.0, 0.05
+#: rows at most in the wide search (a correlation over 4000 rows has a noise of about 0.02, far under CLOCK_GAIN)
+CLOCK_WIDE_ROWS = 4_000
 IMU_CLOCK_MIN_CORRELATION, ROTOR_CLOCK_MIN_CORRELATION = 0.5, 0.5
 #: rows at most in a clock's correlation (a flight-hour at 200 Hz is thinned to one row in 72), and s, the steps of
 #: the coarse and the fine search of its offset
@@ -335,7 +340,8 @@ IMU_CLOCK_MAX_S, ROTOR_CLOCK_MAX_S = 0.05, 0.25
 def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal: np.ndarray
                  ) -> tuple[float, float, float]:
     """(s, the offset ``d`` within ``+-`` :data:`CLOCK_SEARCH_S` at which ``signal(t + d)`` correlates best with
-    ``reference(t)``; that correlation; the correlation at ``d = 0``), or nans where the rows cannot tell."""
+    ``reference(t)``, or within ``+-`` :data:`CLOCK_WIDE_S` where a farther offset correlates clearly better
+    (:func:`_wide_offset`); that correlation; the correlation at ``d = 0``), or nans where the rows cannot tell."""
     rows = np.isfinite(reference) & (t > t_sig[0] + CLOCK_SEARCH_S) & (t < t_sig[-1] - CLOCK_SEARCH_S)
     if rows.sum() < MIN_FLIGHT_ROWS or np.std(reference[rows]) == 0 or np.std(signal) == 0:
         return float("nan"), float("nan"), float("nan")
@@ -357,7 +363,42 @@ def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
     fine = centre + np.arange(-CLOCK_STEPS_S[0], CLOCK_STEPS_S[0] + CLOCK_STEPS_S[1] / 2, CLOCK_STEPS_S[1])
     fine_corr = np.array([correlation(lag) for lag in fine])
     k = int(np.nanargmax(fine_corr))
-    return float(fine[k]), float(fine_corr[k]), correlation(0.0)
+    at_zero = correlation(0.0)
+    flying = np.isfinite(reference)  # every row: a far offset leaves the near search's edges out of its overlap
+    wide = _wide_offset(t[flying], reference[flying], t_sig, signal, float(fine_corr[k]))
+    if wide is not None:
+        return wide[0], wide[1], at_zero
+    return float(fine[k]), float(fine_corr[k]), at_zero
+
+
+def _wide_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal: np.ndarray, near_best: float
+                 ) -> tuple[float, float] | None:
+    """(s, correlation) of an offset beyond ``CLOCK_SEARCH_S`` and within ``CLOCK_WIDE_S`` that correlates better
+    than ``near_best`` (the best within ``CLOCK_SEARCH_S``) by :data:`CLOCK_GAIN`, or None. Both signals are
+    high-passed once on their own rows (a moving mean commutes with a shift) and compared on the reference's
+    rows whose shifted times the signal covers; the coarse search's best is refined in steps of
+    ``CLOCK_STEPS_S[1]``."""
+    idx = np.arange(0, len(t), max(1, len(t) // CLOCK_WIDE_ROWS))
+    tr, y = t[idx], high_passed(t[idx], reference[idx], CLOCK_HIGH_PASS_S)
+    sig = high_passed(t_sig, signal, CLOCK_HIGH_PASS_S)
+
+    def correlation(lag: float) -> float:
+        ok = (tr + lag >= t_sig[0]) & (tr + lag <= t_sig[-1])
+        if ok.sum() < MIN_FLIGHT_ROWS:
+            return float("nan")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return float(np.corrcoef(y[ok], np.interp(tr[ok] + lag, t_sig, sig))[0, 1])
+
+    lags = np.arange(-CLOCK_WIDE_S, CLOCK_WIDE_S + CLOCK_WIDE_STEP_S / 2, CLOCK_WIDE_STEP_S)
+    lags = lags[np.abs(lags) > CLOCK_SEARCH_S]
+    corr = np.array([correlation(lag) for lag in lags])
+    if not np.any(np.isfinite(corr)) or np.nanmax(corr) < near_best + CLOCK_GAIN:
+        return None
+    centre = lags[int(np.nanargmax(corr))]
+    fine = centre + np.arange(-CLOCK_WIDE_STEP_S, CLOCK_WIDE_STEP_S + CLOCK_STEPS_S[1] / 2, CLOCK_STEPS_S[1])
+    fine_corr = np.array([correlation(lag) for lag in fine])
+    k = int(np.nanargmax(fine_corr))
+    return float(fine[k]), float(fine_corr[k])
 
 
 #: s, the slow part taken off both signals before they are timed (a surface lifting the vehicle changes the thrust
