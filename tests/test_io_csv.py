@@ -46,6 +46,7 @@ def test_read_csv_infers_column_count(tmp_path):
     ("#timestamp,a,b\n", "no data rows"),
     ("#h\n1,2,3\n2,3\n", "line 3: expected 3 columns, found 2"),
     ("#h\n1,2,3\n2,3,4,5\n", "line 3: expected 3 columns, found 4"),
+    ("#h\n1,2,3\n2,3,4,\n", "line 3: expected 3 columns, found 4 (the row ends with a comma: EuRoC rows do not)"),
     ("#h\n1,2,3\n2,abc,4\n", "line 3, column 2: expected a number, found 'abc'"),
     ("#h\n1,2,3\n2,,4\n", "line 3, column 2"),
     ("#h\n1.5e3,2,3\n", "line 2, column 1: expected a timestamp"),

@@ -178,7 +178,9 @@ def _check_columns(path: Path, rows: _Block, n_cols: int | None) -> int:
     bad = np.flatnonzero(counts != expected)
     if len(bad):
         k = bad[0]
-        raise InputError(path, f"line {rows.lines[k]}: expected {expected} columns, found {counts[k]}")
+        row = rows.body[rows.starts[k]:rows.ends[k]].rstrip()
+        why = " (the row ends with a comma: EuRoC rows do not)" if counts[k] == expected + 1 and row.endswith(b",") else ""
+        raise InputError(path, f"line {rows.lines[k]}: expected {expected} columns, found {counts[k]}{why}")
     return expected
 
 
