@@ -10,6 +10,7 @@ import pytest
 
 from uavturb import progress
 from uavturb.cli import main
+from uavturb.io.ply import read_ply, write_ply
 from uavturb.gap.finder import STAGES
 from uavturb.sim.flights.simulate import generate_flight
 
@@ -185,6 +186,36 @@ def test_rotor_speeds_on_another_clock_are_refused(tmp_path, capsys, good, secon
     line = _gap_fails(tmp_path, capsys, [rec], match="rotors0/data.csv: its vertical thrust matches the motion capture's "
                                                       "best ")
     assert re.search(f"best {said} ", line), line
+
+
+@pytest.fixture(scope="module")
+def landed(tmp_path_factory):
+    """A flight that rests 3 s on its landing gear at both ends (the contact its cloud must agree with)."""
+    path = tmp_path_factory.mktemp("gapland") / "landed"
+    assert main(["generate", "flight", "--kind", "low_passes", "--duration", "20", "--seed", "5",
+                 "--effects", "ground_effect:mu=2", "--ground-contact-s", "3", "--out", str(path)]) == 0
+    return path
+
+
+def test_a_landed_flight_with_its_cloud_passes(tmp_path, landed):
+    assert main(["gap", str(landed), "--out", str(tmp_path / "r"), "--sim-effects", "none", "--no-mlflow"]) == 0
+
+
+@pytest.mark.parametrize("move, said", [
+    (lambda p: p + [0.0, 0.0, 0.5] * (p[:, 2:3] < 0.05), "puts no surface under its rotor plane there"),
+    (lambda p: p - [0.0, 0.0, 0.5] * (p[:, 2:3] < 0.05), "m over the surface below it there (a landing gear is at most 0.5 m)"),
+    (lambda p: p * 1000.0, "puts no surface under its rotor plane there"),
+])
+def test_a_point_cloud_whose_floor_is_not_under_the_landed_vehicle_is_refused(tmp_path, capsys, landed, move, said):
+    """The floor of the cloud 0.5 m up, 0.5 m down, or the cloud in millimetres: the contact found from the
+    cloud's heights missed the vehicle resting on its gear, whose floor reaction was analysed as flight (a 2.7 N
+    residual, nothing named, on the probe's flights; a cloud in millimetres gave no heights at all)."""
+    rec = _copy(landed, tmp_path)
+    cloud = rec / "mav0" / "pointcloud0" / "data.ply"
+    write_ply(cloud, move(read_ply(cloud)))
+    line = _gap_fails(tmp_path, capsys, [rec], match="pointcloud0/data.ply: the vehicle rests on its landing gear (")
+    assert said in line and line.endswith("the cloud's floor is not where the ground truth lands (its height, units or "
+                                          "frame off)")
 
 
 def test_one_recording_given_twice_is_refused(tmp_path, capsys, good):

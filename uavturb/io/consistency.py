@@ -327,6 +327,10 @@ CLOCK_SEARCH_S, CLOCK_GAIN = 0.6, 0.1
 CLOCK_WIDE_S, CLOCK_WIDE_STEP_S = 5.0, 0.05
 #: rows at most in the wide search (a correlation over 4000 rows has a noise of about 0.02, far under CLOCK_GAIN)
 CLOCK_WIDE_ROWS = 4_000
+#: the least correlation of an offset beyond ``CLOCK_SEARCH_S``, and s, how far from it another peak must stay
+#: ``CLOCK_GAIN`` lower: a flight that repeats itself correlates with itself a period away (a noise-free simulated
+#: flight whose thrust hardly varied read 0.59 at 3.4 s, -0.04 as stamped); true offsets read 0.82-0.97
+CLOCK_WIDE_MIN_CORRELATION, CLOCK_WIDE_PEAK_S = 0.7, 0.25
 IMU_CLOCK_MIN_CORRELATION, ROTOR_CLOCK_MIN_CORRELATION = 0.5, 0.5
 #: rows at most in a clock's correlation (a flight-hour at 200 Hz is thinned to one row in 72), and s, the steps of
 #: the coarse and the fine search of its offset
@@ -374,7 +378,9 @@ def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
 def _wide_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal: np.ndarray, near_best: float
                  ) -> tuple[float, float] | None:
     """(s, correlation) of an offset beyond ``CLOCK_SEARCH_S`` and within ``CLOCK_WIDE_S`` that correlates better
-    than ``near_best`` (the best within ``CLOCK_SEARCH_S``) by :data:`CLOCK_GAIN`, or None. Both signals are
+    than ``near_best`` (the best within ``CLOCK_SEARCH_S``) by :data:`CLOCK_GAIN`, reaches
+    :data:`CLOCK_WIDE_MIN_CORRELATION` and stands :data:`CLOCK_GAIN` above every other offset farther than
+    :data:`CLOCK_WIDE_PEAK_S` from it, or None. Both signals are
     high-passed once on their own rows (a moving mean commutes with a shift) and compared on the reference's
     rows whose shifted times the signal covers; the coarse search's best is refined in steps of
     ``CLOCK_STEPS_S[1]``."""
@@ -392,9 +398,12 @@ def _wide_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
     lags = np.arange(-CLOCK_WIDE_S, CLOCK_WIDE_S + CLOCK_WIDE_STEP_S / 2, CLOCK_WIDE_STEP_S)
     lags = lags[np.abs(lags) > CLOCK_SEARCH_S]
     corr = np.array([correlation(lag) for lag in lags])
-    if not np.any(np.isfinite(corr)) or np.nanmax(corr) < near_best + CLOCK_GAIN:
+    if not np.any(np.isfinite(corr)) or np.nanmax(corr) < max(near_best + CLOCK_GAIN, CLOCK_WIDE_MIN_CORRELATION):
         return None
     centre = lags[int(np.nanargmax(corr))]
+    others = corr[np.abs(lags - centre) > CLOCK_WIDE_PEAK_S]
+    if np.any(np.isfinite(others)) and np.nanmax(corr) < np.nanmax(others) + CLOCK_GAIN:
+        return None  # no single peak: a flight that repeats itself
     fine = centre + np.arange(-CLOCK_WIDE_STEP_S, CLOCK_WIDE_STEP_S + CLOCK_STEPS_S[1] / 2, CLOCK_STEPS_S[1])
     fine_corr = np.array([correlation(lag) for lag in fine])
     k = int(np.nanargmax(fine_corr))
