@@ -203,7 +203,7 @@ def _check_cloud_under_rests(path: str, t: np.ndarray, d_down: np.ndarray, rests
     finite = np.isfinite(h)
     if np.mean(finite) >= 0.5 and float(np.median(h[finite])) <= CONTACT_LIMITS.gear_max_m:
         return
-    where = (f"puts no surface under its rotor plane there" if np.mean(finite) < 0.5 else
+    where = ("puts no surface under its rotor plane there" if np.mean(finite) < 0.5 else
              f"puts its rotor plane {float(np.median(h[finite])):.2f} m over the surface below it there (a landing gear "
              f"is at most {CONTACT_LIMITS.gear_max_m:g} m)")
     first = t[np.flatnonzero(rests)[0]]
