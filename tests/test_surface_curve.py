@@ -9,7 +9,7 @@ from uavturb.gap import design
 from uavturb.gap.selection import LIFT_Z, SHAPE_DELTA_CHI2, Z_WITH_CURVE, CurveEvidence, HeldOut, improvement_z
 from uavturb.gap.report import plot_surface_curve, surface_figure
 from uavturb.gap.surface_curve import lift_z, measured_curve
-from uavturb.gap.surface_laws import LAW_FITS_CHI2_DOF, fit_law, surface_curve_report
+from uavturb.gap.surface_laws import LAW_FITS_CHI2_DOF, fit_law, law_named_from_curve, surface_curve_report
 from uavturb.physics import ground_effect as ge
 from uavturb.gap.fit import fit_model
 from uavturb.physics.effects import EFFECTS, EffectInputs, EffectSpec, PhysicalRange, effect_force
@@ -351,12 +351,11 @@ def test_exponential_curve_recovered_and_cheeseman_bennett_shape_rejected():
 
 
 def test_a_law_named_from_the_curve_replaces_one_whose_shape_misses_it():
-    """The finder's rule (``finder._better_surface_law``): its Cheeseman-Bennett entry, found in time, is replaced
+    """The finder's rule (``surface_laws.law_named_from_curve``): its Cheeseman-Bennett entry, found in time, is replaced
     by the exponential law fitted to the curve where only the latter fits; its budget covers the recordings'
     spread and the height reference; the time-domain law stays beside it. A curve Cheeseman-Bennett fits keeps it."""
     from types import SimpleNamespace
 
-    from uavturb.gap.finder import _better_surface_law
     from uavturb.physics.effects import FlightFacts
 
     facts = FlightFacts(mass=0.067, rotor_count=4, rotor_radius=R, k_T=2e-8, wsum_hover=8000.0, speed_p90=0.3,
@@ -369,7 +368,7 @@ def test_a_law_named_from_the_curve_replaces_one_whose_shape_misses_it():
     curve = curve_of(hovers(exponential(0.4, 1.7), levels=(1.0, 1.03), height_offsets=[-0.002, 0.002], seed=12))
     fits = {n: fit_law(curve, n, R, **GEOMETRY) for n in ("ground_effect", "ground_effect_exponential")}
     report = surface_curve_report(curve, fits, "ground_effect")
-    effects, new = _better_surface_law([td, lag], report, curve, fits, data, facts, 0.01)
+    effects, new = law_named_from_curve([td, lag], report, curve, fits, data, facts, 0.01)
     exp = effects[0]
     assert exp["name"] == "ground_effect_exponential" and exp["named_from"] == "surface_curve" and effects[1] is lag
     assert exp["params"] == fits["ground_effect_exponential"].params and exp["time_domain"]["params"] == {"mu": 6.2}
@@ -385,4 +384,4 @@ def test_a_law_named_from_the_curve_replaces_one_whose_shape_misses_it():
     fits = {n: fit_law(curve, n, R, **GEOMETRY) for n in ("ground_effect", "ground_effect_exponential")}
     report = surface_curve_report(curve, fits, "ground_effect")
     assert fits["ground_effect"].law_fits
-    assert _better_surface_law([td], report, curve, fits, data, facts, 0.01) == ([td], report)
+    assert law_named_from_curve([td], report, curve, fits, data, facts, 0.01) == ([td], report)

@@ -26,7 +26,7 @@ from uavturb.gap.nominal import ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted
 from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, select
 from uavturb.gap.surface_curve import lift_z
-from uavturb.gap.surface_laws import AGREEMENT, curve_budget, finder_surface_curve, law_in_bins, surface_curve_report
+from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     error_budget,
@@ -183,7 +183,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("honest errors")
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
-    named, curve_report = _better_surface_law(named, curve_report, curve, curve_fits, data, facts, height_uncertainty)
+    named, curve_report = law_named_from_curve(named, curve_report, curve, curve_fits, data, facts,
+                                               height_uncertainty)
     report = {
         "schema": SCHEMA,
         "recordings": paths,
@@ -427,69 +428,6 @@ def _cross_checked(effects: list[dict[str, Any]], curve_fits: dict) -> list[dict
         e["error_budget"] = with_curve_check(e["error_budget"], e["params"], fit.param, fit.value)
         e["stderr"] = honest_stderr(e["error_budget"])
     return effects
-
-
-def _better_surface_law(effects: list[dict[str, Any]], curve_report: dict | None, curve: Any, curve_fits: dict,
-                        data: GapData, facts: Any, height_uncertainty: float) -> tuple[list[dict[str, Any]], dict | None]:
-    """``effects`` and the report's ``surface_curve`` with a surface law the finder named replaced by a better
-    law of the registry where the named law's shape does not fit the measured curve and the other's does
-    (``effects.md``: "a law from the literature that fits better may be named instead").
-
-    The finder found the surface effect in time (its held-out gain stays with the entry); a law it cannot
-    fit in time (``fitted_by_finder`` False: the exponential law's two shape parameters) is named with the
-    values fitted to the measured curve, whose honest errors cover the spread between recordings and the
-    height reference (:func:`uavturb.gap.surface_laws.curve_budget`). The law it replaces is kept under
-    ``time_domain``. Among several laws that fit, the lowest ``chi2/dof``; only laws inside their physical
-    range that describe every bin within :data:`~uavturb.gap.surface_laws.AGREEMENT` (2 % of thrust) and closer
-    than the finder's law at its value: a ``chi2/dof`` under 3 alone lets a law miss a bin with a large error
-    by 8 % (a simulated Cheeseman-Bennett flight whose lowest bin read 1.19 for the law's 1.10)."""
-    if curve_report is None or curve is None:
-        return effects, curve_report
-    _, ratio, _ = curve.columns()
-    named_miss = float((curve_report.get("named") or {}).get("largest_difference", np.inf))
-
-    def describes(f) -> bool:  # within AGREEMENT of every bin, and closer than the finder's own law
-        miss = float(np.nanmax(np.abs(ratio - f.values)))
-        return miss <= AGREEMENT and miss < named_miss
-
-    out = []
-    for e in effects:
-        own = curve_fits.get(e["name"])
-        spec = EFFECTS[e["name"]]
-        better = [f for n, f in curve_fits.items() if not EFFECTS[n].fitted_by_finder
-                  and EFFECTS[n].surface == spec.surface and f.law_fits and f.in_range and describes(f)]
-        if spec.surface is None or own is None or own.law_fits or not better:
-            out.append(e)
-            continue
-        fit = min(better, key=lambda f: f.chi2_dof)
-        budget = curve_budget(curve, fit, data.rotor_radius, height_uncertainty, **data.geometry)
-        out.append({
-            "name": fit.law, "params": dict(fit.params), "stderr": honest_stderr(budget),
-            "explanation": (f"{explanation(fit.law, fit.params, facts)} The finder found the effect in time with "
-                            f"{e['name']}, whose held-out gain this entry reports; that law's shape misses the measured "
-                            f"surface curve (chi^2/dof {own.chi2_dof:.1f}) where this one fits it ({fit.chi2_dof:.1f}), "
-                            f"so these values are this law's fit to the curve."),
-            "heldout_rmse_before_N": e["heldout_rmse_before_N"], "heldout_rmse_after_N": e["heldout_rmse_after_N"],
-            "z_heldout": e.get("z_heldout"), "error_budget": budget, "named_from": "surface_curve",
-            "time_domain": {k: e[k] for k in ("name", "params", "stderr", "error_budget") if k in e},
-        })
-        curve_report = _curve_report_naming(curve, curve_fits, fit, own, data)
-    return out, curve_report
-
-
-def _curve_report_naming(curve: Any, curve_fits: dict, fit: Any, replaced: Any, data: GapData) -> dict:
-    """The report's ``surface_curve`` for the law ``fit`` named from the measured curve in place of ``replaced``."""
-    report = surface_curve_report(curve, curve_fits, fit.law)
-    law = law_in_bins(curve, fit.law, list(fit.params.values()), data.rotor_radius, **data.geometry)
-    for b, v in zip(report["bins"], law):
-        b["law_fitted_to_curve"], b["law"] = b["law"], float(v)  # the same law and values: named from this fit
-    worst = float(np.nanmax(np.abs([b["ratio"] - b["law"] for b in report["bins"]])))
-    report["named"] = {"law": fit.law, "params": dict(fit.params), "largest_difference": worst,
-                       "agrees": worst <= AGREEMENT}
-    report["why"] += (f" The finder's {replaced.law} does not fit this curve (chi^2/dof {replaced.chi2_dof:.2f}); "
-                      f"{fit.law} does and is named, differing from the measured ratio by at most {100 * worst:.1f} % "
-                      f"of thrust in a bin.")
-    return report
 
 
 def _decide(data: GapData, sel: Selection, candidates: list[str]

@@ -1,6 +1,6 @@
 """The effect registry's surface laws against a measured surface curve (:mod:`uavturb.gap.surface_curve`):
-weighted fits with honest errors, the report's ``surface_curve``, and the finder's curve
-(:func:`finder_surface_curve`).
+weighted fits with honest errors, the report's ``surface_curve``, the finder's curve
+(:func:`finder_surface_curve`), and a better law named from it (:func:`law_named_from_curve`).
 
 - **Honest errors**: a law's parameter error is the larger of the fit's (scaled by ``sqrt(chi2/dof)``
   where that exceeds 1; the fit uses the bins' full covariance, in which a recording's normalisation
@@ -17,7 +17,7 @@ weighted fits with honest errors, the report's ``surface_curve``, and the finder
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
@@ -26,10 +26,12 @@ from scipy.special import chdtrc  # chi^2 survival function (scipy.stats' chi2.s
 
 from uavturb.errors import InputError
 from uavturb.gap.design import GapData, dependent_columns
+from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, _nl_values
 from uavturb.gap.surface_curve import SurfaceCurve, bin_of, bin_stats, measured_curve, shifted_curve
+from uavturb.gap.uncertainty import honest_stderr
 from uavturb.physics.constants import GRAVITY
-from uavturb.physics.effects import EFFECTS
+from uavturb.physics.effects import EFFECTS, FlightFacts
 
 #: chi^2/dof under which a law's shape fits the bins (module docstring)
 LAW_FITS_CHI2_DOF = 3.0
@@ -398,6 +400,72 @@ HOVER_TILT_DEG = 15.0
 #: largest difference [share of thrust] between the named law and the measured ratio in a bin for the
 #: report to call them in agreement
 AGREEMENT = 0.02
+
+
+def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | None, curve: SurfaceCurve | None,
+                         curve_fits: dict[str, LawFit], data: GapData, facts: FlightFacts, height_uncertainty: float
+                         ) -> tuple[list[dict[str, Any]], dict | None]:
+    """``effects`` and the report's ``surface_curve`` with a surface law the finder named replaced by a better
+    law of the registry where the named law's shape does not fit the measured curve and the other's does
+    (``effects.md``: "a law from the literature that fits better may be named instead").
+
+    The finder found the surface effect in time (its held-out gain stays with the entry); a law it cannot
+    fit in time (``fitted_by_finder`` False: the exponential law's two shape parameters) is named with the
+    values fitted to the measured curve, whose honest errors cover the spread between recordings and the
+    height reference (:func:`uavturb.gap.surface_laws.curve_budget`). The law it replaces is kept under
+    ``time_domain``. Among several laws that fit, the lowest ``chi2/dof``; only laws inside their physical
+    range that describe every bin within :data:`~uavturb.gap.surface_laws.AGREEMENT` (2 % of thrust) and closer
+    than the finder's law at its value: a ``chi2/dof`` under 3 alone lets a law miss a bin with a large error
+    by 8 % (a simulated Cheeseman-Bennett flight whose lowest bin read 1.19 for the law's 1.10). Called by the finder
+    (:mod:`uavturb.gap.finder`) on its named effects' entries (``effects``) and its ``surface_curve``."""
+    if curve_report is None or curve is None:
+        return effects, curve_report
+    _, ratio, _ = curve.columns()
+    named_miss = float((curve_report.get("named") or {}).get("largest_difference", np.inf))
+
+    def describes(f) -> bool:  # within AGREEMENT of every bin, and closer than the finder's own law
+        miss = float(np.nanmax(np.abs(ratio - f.values)))
+        return miss <= AGREEMENT and miss < named_miss
+
+    out = []
+    for e in effects:
+        own = curve_fits.get(e["name"])
+        spec = EFFECTS[e["name"]]
+        better = [f for n, f in curve_fits.items() if not EFFECTS[n].fitted_by_finder
+                  and EFFECTS[n].surface == spec.surface and f.law_fits and f.in_range and describes(f)]
+        if spec.surface is None or own is None or own.law_fits or not better:
+            out.append(e)
+            continue
+        fit = min(better, key=lambda f: f.chi2_dof)
+        budget = curve_budget(curve, fit, data.rotor_radius, height_uncertainty, **data.geometry)
+        out.append({
+            "name": fit.law, "params": dict(fit.params), "stderr": honest_stderr(budget),
+            "explanation": (f"{explanation(fit.law, fit.params, facts)} The finder found the effect in time with "
+                            f"{e['name']}, whose held-out gain this entry reports; that law's shape misses the measured "
+                            f"surface curve (chi^2/dof {own.chi2_dof:.1f}) where this one fits it ({fit.chi2_dof:.1f}), "
+                            f"so these values are this law's fit to the curve."),
+            "heldout_rmse_before_N": e["heldout_rmse_before_N"], "heldout_rmse_after_N": e["heldout_rmse_after_N"],
+            "z_heldout": e.get("z_heldout"), "error_budget": budget, "named_from": "surface_curve",
+            "time_domain": {k: e[k] for k in ("name", "params", "stderr", "error_budget") if k in e},
+        })
+        curve_report = _curve_report_naming(curve, curve_fits, fit, own, data)
+    return out, curve_report
+
+
+def _curve_report_naming(curve: SurfaceCurve, curve_fits: dict[str, LawFit], fit: LawFit, replaced: LawFit,
+                         data: GapData) -> dict:
+    """The report's ``surface_curve`` for the law ``fit`` named from the measured curve in place of ``replaced``."""
+    report = surface_curve_report(curve, curve_fits, fit.law)
+    law = law_in_bins(curve, fit.law, list(fit.params.values()), data.rotor_radius, **data.geometry)
+    for b, v in zip(report["bins"], law):
+        b["law_fitted_to_curve"], b["law"] = b["law"], float(v)  # the same law and values: named from this fit
+    worst = float(np.nanmax(np.abs([b["ratio"] - b["law"] for b in report["bins"]])))
+    report["named"] = {"law": fit.law, "params": dict(fit.params), "largest_difference": worst,
+                       "agrees": worst <= AGREEMENT}
+    report["why"] += (f" The finder's {replaced.law} does not fit this curve (chi^2/dof {replaced.chi2_dof:.2f}); "
+                      f"{fit.law} does and is named, differing from the measured ratio by at most {100 * worst:.1f} % "
+                      f"of thrust in a bin.")
+    return report
 
 
 def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = True
