@@ -319,3 +319,40 @@ def test_a_signal_during_a_store_write_waits_for_the_write_to_end():
                 time.sleep(0.05)  # the handler has run by now, and raised nothing here
                 done.append("write finished")
     assert done == ["write finished"] and caught.value.signum == signal.SIGTERM
+
+
+@pytest.mark.parametrize("opening", ["start", "reopen"])
+def test_a_signal_while_a_run_is_opened_ends_it_killed_with_the_hint(tmp_path, monkeypatch, opening):
+    """SIGTERM while ``start_run`` writes the new run (or ``reopen_run`` claims one): held until the writes end,
+    then raised where the run's id is known, so that the run ends KILLED and the one line says how to continue
+    it (raised after the return, the caller had no id: "interrupted by SIGTERM" alone, a flaky test under load)."""
+    import mlflow
+
+    from uavturb.runs import store
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    c = store.client()
+    old = c.create_run(store.experiment_id(c, "sig"), tags=store.run_tags({})).info.run_id
+    c.set_terminated(old, "KILLED")
+    real, sent = mlflow.MlflowClient.set_tag, []
+
+    def signalled(self, *args, **kwargs):  # one signal arrives in the middle of the writes (a second ends the process)
+        if not sent:
+            sent.append(os.kill(os.getpid(), signal.SIGTERM))
+            time.sleep(0.05)
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(mlflow.MlflowClient, "log_text", lambda self, *a, **k: signalled(self, a[0], "x", "y"))
+    monkeypatch.setattr(mlflow.MlflowClient, "set_tag", signalled)
+    with pytest.raises(Interrupted) as caught:
+        with raise_on_signals():
+            if opening == "start":
+                store.start_run("sig", "run", {}, texts={"a.txt": "a"})
+            else:
+                store.reopen_run(old, {"resumed": "1"})
+    monkeypatch.setattr(mlflow.MlflowClient, "set_tag", real)
+    (run,) = [r for r in store.client().search_runs([store.experiment_id(c, "sig")]) if r.info.run_id != old] \
+        if opening == "start" else [store.client().get_run(old)]
+    assert run.info.status == "KILLED"
+    assert caught.value.message() == (f"interrupted by SIGTERM; run {run.info.run_id} marked KILLED; continue it with "
+                                      f"`uavturb train --resume {run.info.run_id}`")

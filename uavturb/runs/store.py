@@ -512,38 +512,48 @@ def latest_run(experiment_id: str, filter_string: str) -> Any | None:
     return runs[0] if runs else None
 
 
-@whole_write
 def start_run(experiment: str, run_name: str, tags: dict[str, str], *, params: dict[str, Any] | None = None,
               texts: dict[str, str] | None = None, dataset: tuple[Path, str, str] | None = None,
               experiment_is_id: bool = False) -> str:
     """A new RUNNING run kept by this process (:func:`run_tags`) with its params (in batches of 100),
     text artifacts ``{path: text}`` and dataset ``(root, digest, context)`` (:func:`log_dataset`);
-    its id. A failure (or a signal) while it is being filled closes it (:func:`close_run`)."""
+    its id. A failure while it is being filled closes it (:func:`close_run`); so does a signal, held until
+    the run is written whole (:func:`uavturb.errors.signals_deferred`) and raised here, where the run's id
+    is known (raised after the return, it had left the caller without the id: no "continue it with" hint)."""
     from mlflow.entities import Param
 
     c = client()
-    exp_id = experiment if experiment_is_id else experiment_id(c, experiment)
-    run_id = c.create_run(exp_id, run_name=run_name, tags=run_tags(tags)).info.run_id
+    run_id = None
     try:
-        batch = [Param(k, str(v)) for k, v in (params or {}).items()]
-        for i in range(0, len(batch), 100):
-            c.log_batch(run_id, params=batch[i:i + 100])
-        for path, text in (texts or {}).items():
-            c.log_text(run_id, text, path)
-        if dataset is not None:
-            log_dataset(c, run_id, *dataset)
+        with signals_deferred():
+            exp_id = experiment if experiment_is_id else experiment_id(c, experiment)
+            run_id = c.create_run(exp_id, run_name=run_name, tags=run_tags(tags)).info.run_id
+            batch = [Param(k, str(v)) for k, v in (params or {}).items()]
+            for i in range(0, len(batch), 100):
+                c.log_batch(run_id, params=batch[i:i + 100])
+            for path, text in (texts or {}).items():
+                c.log_text(run_id, text, path)
+            if dataset is not None:
+                log_dataset(c, run_id, *dataset)
     except BaseException as e:
-        close_run(c, run_id, e, resume_hint=True)
+        if run_id is not None:
+            close_run(c, run_id, e, resume_hint=True)
         raise
     return run_id
 
 
-@whole_write
 def reopen_run(run_id: str, tags: dict[str, str] | None = None) -> None:
-    """Mark ``run_id`` RUNNING and kept by this process again (:func:`claim_run`), with ``tags`` set."""
+    """Mark ``run_id`` RUNNING and kept by this process again (:func:`claim_run`), with ``tags`` set; a signal
+    held over these writes ends the run KILLED here, with the hint how to continue it (as :func:`start_run`)."""
     c = client()
-    claim_run(c, run_id)
-    set_tags(run_id, tags or {})
+    try:
+        with signals_deferred():
+            claim_run(c, run_id)
+            for k, v in (tags or {}).items():
+                c.set_tag(run_id, k, str(v))
+    except Interrupted as e:
+        close_run(c, run_id, e, resume_hint=True)
+        raise
 
 
 @whole_write
