@@ -202,14 +202,19 @@ def claim_run(c: Any, run_id: str) -> None:
         c.set_tag(run_id, k, v)
 
 
+#: the note an interrupted training run gets (:func:`close_run`)
+TRAIN_RESUME_HINT = "run {run_id} marked {status}; continue it with `uavturb train --resume {run_id}`"
+
+
 @whole_write
 def close_run(c: Any, run_id: str, exc: BaseException | None = None, *, note: str | None = None,
-              resume_hint: bool = False) -> str:
+              resume_hint: bool | str = False) -> str:
     """End a run: FINISHED without ``exc``, KILLED for :class:`~uavturb.errors.Interrupted` (and
     KeyboardInterrupt), FAILED for any other error. Returns the status set.
 
     ``note``: the run's description (:data:`NOTE_TAG`) set first. ``resume_hint``: an
-    Interrupted ``exc`` gets the note how to continue the run (``uavturb train --resume``).
+    Interrupted ``exc`` gets the note how to continue the run (True: ``uavturb train --resume``; a text:
+    that note, with ``{run_id}`` and ``{status}`` filled in).
     """
     if exc is None:
         status = "FINISHED"
@@ -221,12 +226,13 @@ def close_run(c: Any, run_id: str, exc: BaseException | None = None, *, note: st
         c.set_tag(run_id, NOTE_TAG, note)
     c.set_terminated(run_id, status)
     if resume_hint and isinstance(exc, Interrupted):
-        exc.notes.append(f"run {run_id} marked {status}; continue it with `uavturb train --resume {run_id}`")
+        hint = TRAIN_RESUME_HINT if resume_hint is True else str(resume_hint)
+        exc.notes.append(hint.format(run_id=run_id, status=status))
     return status
 
 
 @contextlib.contextmanager
-def closing_run(c: Any, run_id: str, *, resume_hint: bool = False) -> Iterator[None]:
+def closing_run(c: Any, run_id: str, *, resume_hint: bool | str = False) -> Iterator[None]:
     """The block's run closed by :func:`close_run` on an error (and the error raised again), FINISHED
     when the block completes."""
     try:
@@ -514,12 +520,13 @@ def latest_run(experiment_id: str, filter_string: str) -> Any | None:
 
 def start_run(experiment: str, run_name: str, tags: dict[str, str], *, params: dict[str, Any] | None = None,
               texts: dict[str, str] | None = None, dataset: tuple[Path, str, str] | None = None,
-              experiment_is_id: bool = False) -> str:
+              experiment_is_id: bool = False, resume_hint: bool | str = True) -> str:
     """A new RUNNING run kept by this process (:func:`run_tags`) with its params (in batches of 100),
     text artifacts ``{path: text}`` and dataset ``(root, digest, context)`` (:func:`log_dataset`);
     its id. A failure while it is being filled closes it (:func:`close_run`); so does a signal, held until
     the run is written whole (:func:`uavturb.errors.signals_deferred`) and raised here, where the run's id
-    is known (raised after the return, it had left the caller without the id: no "continue it with" hint)."""
+    is known (raised after the return, it had left the caller without the id: no "continue it with" hint);
+    ``resume_hint`` as :func:`close_run`'s."""
     from mlflow.entities import Param
 
     c = client()
@@ -537,14 +544,14 @@ def start_run(experiment: str, run_name: str, tags: dict[str, str], *, params: d
                 log_dataset(c, run_id, *dataset)
     except BaseException as e:
         if run_id is not None:
-            close_run(c, run_id, e, resume_hint=True)
+            close_run(c, run_id, e, resume_hint=resume_hint)
         raise
     return run_id
 
 
-def reopen_run(run_id: str, tags: dict[str, str] | None = None) -> None:
+def reopen_run(run_id: str, tags: dict[str, str] | None = None, *, resume_hint: bool | str = True) -> None:
     """Mark ``run_id`` RUNNING and kept by this process again (:func:`claim_run`), with ``tags`` set; a signal
-    held over these writes ends the run KILLED here, with the hint how to continue it (as :func:`start_run`)."""
+    held over these writes ends the run KILLED here, with ``resume_hint`` (as :func:`start_run`)."""
     c = client()
     try:
         with signals_deferred():
@@ -552,7 +559,7 @@ def reopen_run(run_id: str, tags: dict[str, str] | None = None) -> None:
             for k, v in (tags or {}).items():
                 c.set_tag(run_id, k, str(v))
     except Interrupted as e:
-        close_run(c, run_id, e, resume_hint=True)
+        close_run(c, run_id, e, resume_hint=resume_hint)
         raise
 
 
@@ -574,7 +581,7 @@ def log_params(run_id: str, params: dict[str, Any]) -> None:
 
 @whole_write
 def finish_run(run_id: str, exc: BaseException | None = None, *, note: str | None = None,
-               resume_hint: bool = False) -> str:
+               resume_hint: bool | str = False) -> str:
     """:func:`close_run` on the configured store: the run's end, with its description ``note``."""
     return close_run(client(), run_id, exc, note=note, resume_hint=resume_hint)
 

@@ -68,6 +68,10 @@ def _spec_hash(spec: DictConfig, profile: str, overrides: list[str]) -> str:
 DATA_TAG = "data_key"
 
 
+#: the note an interrupted sweep gets (:func:`uavturb.runs.store.close_run`)
+SWEEP_RESUME_HINT = "sweep parent run {run_id} marked {status}; run the same command again to resume it"
+
+
 class _SweepRuns:
     """The sweep's MLflow experiment: parent run, and children looked up by tags (:mod:`uavturb.runs.store`)."""
 
@@ -88,7 +92,7 @@ class _SweepRuns:
             run = store.latest_run(self.experiment_id, f"tags.sweep = '{name}' and tags.sweep_hash = '{sweep_hash}'")
             known = run.data.tags.get(DATA_TAG, "") if run is not None else ""
             if run is not None and (not known or not data_key or known == data_key):
-                store.reopen_run(run.info.run_id)
+                store.reopen_run(run.info.run_id, resume_hint=SWEEP_RESUME_HINT)
                 if data_key and not known:
                     store.set_tags(run.info.run_id, {DATA_TAG: data_key})
                 return run.info.run_id, True
@@ -98,7 +102,7 @@ class _SweepRuns:
             tags = {"sweep": name, "sweep_hash": sweep_hash, "preset": profile,  # its old name: existing stores
                     DATA_TAG: data_key, store.NOTE_TAG: f"Sweep `{name}`, profile `{profile}`: running."}
             return store.start_run(self.experiment_id, f"sweep-{name}-{profile}", tags, params=params,
-                                   experiment_is_id=True), False
+                                   experiment_is_id=True, resume_hint=SWEEP_RESUME_HINT), False
 
     def children(self, parent_id: str, status: str | None = None) -> list[Any]:
         """Child runs of a parent (nested through tag ``mlflow.parentRunId``), latest first; only
@@ -428,7 +432,7 @@ def sweep(spec: str | Path = DEFAULT_SPEC, profile: str = "quick", seeds: int | 
     except BaseException as e:
         status = store.finish_run(parent_id, e)
         if isinstance(e, Interrupted):
-            e.notes.append(f"sweep parent run {parent_id} marked {status}; run the same command again to resume it")
+            e.notes.append(SWEEP_RESUME_HINT.format(run_id=parent_id, status=status))
         raise
     results, pretrain = children.collect()
     table, view = _finish_parent(plan, runs_of, parent_id, sweep_hash)
