@@ -448,17 +448,15 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
             "z_heldout": e.get("z_heldout"), "error_budget": budget, "named_from": "surface_curve",
             "time_domain": {k: e[k] for k in ("name", "params", "stderr", "error_budget") if k in e},
         })
-        curve_report = _curve_report_naming(curve, curve_fits, fit, own, data)
+        curve_report = _curve_report_naming(curve, curve_fits, fit, own)
     return out, curve_report
 
 
-def _curve_report_naming(curve: SurfaceCurve, curve_fits: dict[str, LawFit], fit: LawFit, replaced: LawFit,
-                         data: GapData) -> dict:
+def _curve_report_naming(curve: SurfaceCurve, curve_fits: dict[str, LawFit], fit: LawFit, replaced: LawFit) -> dict:
     """The report's ``surface_curve`` for the law ``fit`` named from the measured curve in place of ``replaced``."""
-    report = surface_curve_report(curve, curve_fits, fit.law)
-    law = law_in_bins(curve, fit.law, list(fit.params.values()), data.rotor_radius, **data.geometry)
-    for b, v in zip(report["bins"], law):
-        b["law_fitted_to_curve"], b["law"] = b["law"], float(v)  # the same law and values: named from this fit
+    report = surface_curve_report(curve, curve_fits, fit.law)  # its bins' law: this fit's values
+    for b in report["bins"]:
+        b["law_fitted_to_curve"] = b["law"]  # named from this fit: the same values
     worst = float(np.nanmax(np.abs([b["ratio"] - b["law"] for b in report["bins"]])))
     report["named"] = {"law": fit.law, "params": dict(fit.params), "largest_difference": worst,
                        "agrees": worst <= AGREEMENT}
