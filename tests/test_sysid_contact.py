@@ -8,7 +8,7 @@ import pytest
 from uavturb.errors import InputError
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.sysid.contact import ContactLimits, ground_contact
-from uavturb.sysid.streams import update_mask
+from uavturb.numerics.stream_updates import update_mask
 
 MASS = 1.5  # kg
 Z_LAND = 0.013  # m, height of the body origin when resting on the gear

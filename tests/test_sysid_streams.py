@@ -8,8 +8,9 @@ from scipy.ndimage import uniform_filter1d
 
 from uavturb.errors import InputError
 from uavturb.gap.locate import noise_sigma
+from uavturb.numerics.stream_updates import update_mask
 from uavturb.sysid.streams import (estimate_lag, needed_rate_hz, noise_from_updates, slow_for, stream_updates,
-                                   update_mask, updates_only)
+                                   updates_only)
 
 ROW_S = 0.02  # s, logger rows at 50 Hz
 

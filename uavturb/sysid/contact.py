@@ -23,7 +23,7 @@ motor lag, up to 15 % over the weight for 0.2 s with the vehicle still on the fl
 cover). A vehicle that skids or bounces along the floor is not still: rows within
 :attr:`ContactLimits.skim_m` of the landed height where the thrust dips under the weight are left
 out too. Stillness is judged on the rows where
-the state updated (:func:`uavturb.sysid.streams.update_mask`): held positions must not make a
+the state updated (:func:`uavturb.numerics.stream_updates.update_mask`): held positions must not make a
 flying vehicle look still. Each contact interval is widened by a margin on either side so that
 the transients of lift-off and touch-down are left out too.
 
@@ -41,7 +41,7 @@ from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
 
 from uavturb.errors import InputError
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.sysid.streams import update_mask
+from uavturb.numerics.stream_updates import update_mask
 
 
 @dataclass

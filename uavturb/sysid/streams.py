@@ -19,33 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.numerics.stream_updates import update_mask
 
 MAD_TO_SIGMA = 1.4826  # sigma of a normal distribution per median absolute deviation
-
-
-def update_mask(values: np.ndarray) -> np.ndarray:
-    """Rows whose value differs from the previous row's (any column; exact equality).
-
-    Parameters
-    ----------
-    values : (N,) or (N, C) array, a stream's rows in time order
-
-    Returns
-    -------
-    (N,) bool, True where the row is an update; the first row is always one. NaN repeated
-    after NaN counts as a repeat.
-    """
-    x = np.asarray(values)
-    if x.ndim == 1:
-        x = x[:, None]
-    out = np.ones(len(x), bool)
-    if len(x) > 1:
-        a, b = x[1:], x[:-1]
-        same = a == b
-        if np.issubdtype(x.dtype, np.floating):
-            same |= np.isnan(a) & np.isnan(b)
-        out[1:] = ~np.all(same, axis=1)
-    return out
 
 
 def updates_only(t_ns: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

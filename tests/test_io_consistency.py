@@ -1,0 +1,55 @@
+"""The "in flight" rows of the readers' checks (:func:`uavturb.io.consistency.in_flight`) on rotor streams held
+at a slow update rate: known answers on rotor speeds made here."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from uavturb.io.consistency import hold_period_s, in_flight
+from uavturb.io.recording import Rotors
+
+HOVER, IDLE = 2000.0, 600.0  # rad/s
+TAKE_OFF, TOUCH_DOWN = 2.0, 8.0  # s
+ROW_S = 0.01  # s, logger rows at 100 Hz
+
+
+def _rotors(hold_hz: float | None, delay_s: float = 0.0, *, one_at_a_time: bool = False
+            ) -> tuple[np.ndarray, SimpleNamespace]:
+    """Rows at 100 Hz over 10 s, the rotors at hover (varying by 1 %) between take-off and touchdown, idling on
+    the ground; with ``hold_hz``, written as a logger repeats ESC telemetry updated at that rate, ``delay_s``
+    late, all motors together or ``one_at_a_time`` (round robin, each motor at ``hold_hz``)."""
+    rng = np.random.default_rng(0)
+    t = np.arange(1000) * ROW_S
+    true = np.where((t >= TAKE_OFF) & (t < TOUCH_DOWN), HOVER, IDLE)[:, None] * (1 + 0.01 * rng.random((len(t), 4)))
+    if hold_hz is None:
+        w = true
+    else:
+        w = np.empty_like(true)
+        for c in range(4):
+            phase = c / (4 * hold_hz) if one_at_a_time else 0.0
+            update = np.floor((t - phase) * hold_hz) / hold_hz + phase  # each column's last update at or before a row
+            source = np.clip(np.round((update - delay_s) / ROW_S).astype(int), 0, len(t) - 1)
+            w[:, c] = true[source, c]
+    return t, SimpleNamespace(rotors=Rotors(t_ns=np.round(t * 1e9).astype(np.int64), speeds=w))
+
+
+def test_a_fresh_stream_flies_between_take_off_and_touchdown():
+    t, rec = _rotors(None)
+    assert hold_period_s(rec.rotors.t_ns, rec.rotors.speeds) == pytest.approx(ROW_S)
+    flying = in_flight(rec, rec.rotors.t_ns)
+    assert np.array_equal(flying, (t >= TAKE_OFF - 1e-9) & (t < TOUCH_DOWN - ROW_S - 1e-9))  # one row less at the end
+
+
+@pytest.mark.parametrize("one_at_a_time", [False, True], ids=["together", "round-robin"])
+def test_a_held_stream_stops_flying_an_update_period_before_its_held_values_do(one_at_a_time):
+    """ESC telemetry at 3 Hz and 60 ms late keeps its hover values up to 0.39 s into the touchdown: those rows (a
+    real take-off's landing impacts) are not flight. Each interval in flight ends one update period earlier."""
+    t, rec = _rotors(3.0, 0.06, one_at_a_time=one_at_a_time)
+    assert hold_period_s(rec.rotors.t_ns, rec.rotors.speeds) == pytest.approx(1 / 3, abs=ROW_S)
+    flying = in_flight(rec, rec.rotors.t_ns)
+    lingers = rec.rotors.speeds.max(axis=1) > 0.9 * HOVER
+    assert lingers[(t > TOUCH_DOWN + 0.1) & (t < TOUCH_DOWN + 0.4)].any()  # the held values linger past touchdown
+    assert not flying[t >= TOUCH_DOWN + 0.06].any() and not flying[t < TAKE_OFF].any()
+    assert np.all(np.diff(np.flatnonzero(flying)) == 1)  # one interval, most of the flight
+    assert flying.sum() * ROW_S > TOUCH_DOWN - TAKE_OFF - 1.0
