@@ -6,12 +6,14 @@ import pytest
 
 from uavturb.errors import InputError
 from uavturb.gap import design
+from uavturb.gap.decide import surface_reach as decide_reach
+from uavturb.gap.fit import fit_model
 from uavturb.gap.selection import LIFT_Z, SHAPE_DELTA_CHI2, Z_WITH_CURVE, CurveEvidence, HeldOut, improvement_z
 from uavturb.gap.report import plot_surface_curve, surface_figure
 from uavturb.gap.surface_curve import lift_z, measured_curve
 from uavturb.gap.surface_laws import LAW_FITS_CHI2_DOF, fit_law, law_named_from_curve, surface_curve_report
 from uavturb.physics import ground_effect as ge
-from uavturb.gap.fit import fit_model
+from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, EffectInputs, EffectSpec, PhysicalRange, effect_force
 
 R = 0.0231  # m, Crazyflie rotor radius
@@ -80,7 +82,7 @@ def test_multirotor_effect_is_one_registry_entry_the_finder_fits():
     """Declared once: the finder's design reads the law's ``ratio`` from the registry (no code of its own)."""
     spec = EFFECTS["ground_effect_multirotor"]
     assert spec.params == ("K_b",) and spec.surface == "d_down" and spec.along_thrust and spec.ratio is not None
-    assert spec.fitted_by_finder and design.NONLINEAR["ground_effect_multirotor"] == ("K_b", 0.01, 20.0)
+    assert design.NONLINEAR["ground_effect_multirotor"] == ("K_b", 0.01, 20.0)
     K = 4
     d = np.array([0.05, 0.08, 0.2, np.inf])
     data = design.GapData(np.zeros(K, int), np.arange(K) * 0.01, np.zeros((K, 3)), np.zeros((K, 3)),
@@ -323,15 +325,53 @@ def test_exponential_ratio_and_force_hand_computed():
     assert "outside" in spec.physical_range.violation({"A": 2.0, "lam": 8.0}, None)
 
 
-def test_exponential_law_is_fitted_to_the_curve_and_not_by_the_finder():
-    """Declared once, with two parameters: the curve fitter reads its bounds; the finder's design leaves it out,
-    and so do the heights that decide ground contact and thrust levels (its range has no top to reach from)."""
+def test_exponential_law_is_one_entry_the_finder_fits_with_its_amplitude_as_a_column():
+    """Declared once, with two parameters: the curve fitter reads its bounds; the finder's design searches its
+    decay length and gives its amplitude a column along z of W (``k_T*A``: its shape times the thrust's
+    ``sum(w^2)``); the heights that decide ground contact and thrust levels leave it out (its range has no top
+    to reach from), and the flights it needs are Cheeseman-Bennett's."""
     spec = EFFECTS["ground_effect_exponential"]
-    assert not spec.fitted_by_finder and "ground_effect_exponential" not in design.NONLINEAR
+    assert design.NONLINEAR["ground_effect_exponential"] == ("lam", 0.2, 10.0) and spec.searched_param == "lam"
+    assert design.AMPLITUDE == {"ground_effect_exponential": "k_T*A"}
     assert spec.shape_bounds == ((0.0, 2.0), (0.2, 10.0)) and EFFECTS["ground_effect"].shape_bounds == ((0.05, 40.0),)
     assert np.all(spec.strongest_ratio(np.array([0.01, 0.1]), R) == 1.0)
     with pytest.raises(ValueError):
         spec.surface_reach(R)
+    K = 4
+    d = np.array([0.05, 0.08, 0.0, np.inf])
+    data = design.GapData(np.zeros(K, int), np.arange(K) * 0.01, np.zeros((K, 3)), np.zeros((K, 3)),
+                          np.tile(np.eye(3), (K, 1, 1)), np.full((K, 4), 2000.0), np.zeros((K, 3)), d,
+                          np.full(K, np.inf), 0.032, R, ["synthetic"], "mocap", arm_length=ARM, fits_bias=False)
+    A, names = design.design(data, {"ground_effect_exponential", "battery_sag"}, {"lam": 1.7, "tau": 0.0})
+    assert names == ["k_T", "k_T*s", "k_T*A"]
+    S = 4 * 2000.0**2
+    np.testing.assert_allclose(A[2 * K:, 0], S)  # the thrust column is the bare thrust: the law has its own
+    # the amplitude's column: S exp(-d / (lam r)) along z of W; on the floor the law's value there; none far off
+    np.testing.assert_allclose(A[2 * K:, 2], S * np.array([np.exp(-0.05 / (1.7 * R)), np.exp(-0.08 / (1.7 * R)), 1, 0]))
+    assert np.all(A[:2 * K, 2] == 0)
+    assert decide_reach(data, "ground_effect_exponential").reach_m == decide_reach(data, "ground_effect").reach_m
+
+
+def test_exponential_law_fitted_in_time_known_answer():
+    """Forces of a hover over a floor at 3-30 cm with the exponential law (A = 0.4, lam = 1.7): the finder's fit
+    recovers A and lam, within three stated errors and 5 %, and k_T to 0.5 %."""
+    rng = np.random.default_rng(4)
+    K, mass, k_T, A_true, lam_true = 4000, 0.067, 3e-8, 0.4, 1.7
+    t = np.arange(K) * 0.04
+    d = 0.03 + 0.27 * (0.5 + 0.5 * np.sin(0.15 * t)) ** 2
+    w = np.full((K, 4), np.sqrt(mass * GRAVITY / (4 * k_T))) * (1 + 0.05 * rng.uniform(-1, 1, (K, 1)))
+    Rm = np.tile(np.eye(3), (K, 1, 1))
+    S = np.sum(w**2, axis=1)
+    y = np.zeros((K, 3))
+    y[:, 2] = k_T * S * (1 + A_true * np.exp(-d / (lam_true * R)))
+    y += rng.normal(0, 0.004, (K, 3))
+    data = design.GapData(np.zeros(K, int), t, np.zeros((K, 3)), y, Rm, w, np.zeros((K, 3)), d, np.full(K, np.inf),
+                          mass, R, ["hover"], "mocap", arm_length=ARM, fits_bias=False)
+    fit = fit_model(data, {"ground_effect_exponential"})
+    params, stderr = fit.effect_params("ground_effect_exponential")
+    for k, truth in (("A", A_true), ("lam", lam_true)):
+        assert abs(params[k] - truth) < 3 * stderr[k] and params[k] == pytest.approx(truth, rel=0.05), (k, params)
+    assert fit.coef["k_T"] == pytest.approx(k_T, rel=5e-3)
 
 
 def test_exponential_curve_recovered_and_cheeseman_bennett_shape_rejected():

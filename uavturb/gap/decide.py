@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavturb.gap.design import GapData, bias_count, design, difference_points, stack_target, unstack
+from uavturb.gap.design import AMPLITUDE, GapData, bias_count, design, difference_points, stack_target, unstack
 from uavturb.gap.fit import ModelFit, _nl_values
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
@@ -124,10 +124,13 @@ class Reach:
 
 
 def surface_reach(data: GapData, name: str) -> Reach:
-    """Can the surface law ``name`` be tested on ``data``? (module docstring, point 1)"""
+    """Can the surface law ``name`` be tested on ``data``? (module docstring, point 1) A law with several
+    parameters, whose range bounds a derived quantity and has no top to reach from (the exponential law),
+    needs the flights its standard law needs (``alternative_to``)."""
     spec = EFFECTS[name]
     d = data.d_down if spec.surface == "d_down" else data.d_up
-    reach = spec.surface_reach(data.rotor_radius, **data.geometry)
+    law = spec if len(spec.params) == 1 or spec.alternative_to is None else EFFECTS[spec.alternative_to]
+    reach = law.surface_reach(data.rotor_radius, **data.geometry)
     near = np.isfinite(d) & (d <= reach)
     dt = float(np.median(np.diff(data.t))) if len(data) > 1 else 0.0
     near_s = float(near.sum()) * dt
@@ -181,20 +184,27 @@ def _columns(data: GapData, fit: ModelFit) -> tuple[np.ndarray, list[str]]:
 
 
 def effect_columns(names: list[str], effect: str) -> list[int]:
-    """Indices of the coefficients that belong to ``effect`` (battery_sag's is ``k_T*s``)."""
-    keys = ("k_T*s",) if effect == "battery_sag" else (() if EFFECTS[effect].search is not None
-                                                         else EFFECTS[effect].params)
+    """Indices of the coefficients that belong to ``effect`` (battery_sag's is ``k_T*s``, a surface law's
+    amplitude ``k_T*A``; none for a law searched in its one parameter)."""
+    if effect == "battery_sag":
+        keys: tuple[str, ...] = ("k_T*s",)
+    elif effect in AMPLITUDE:
+        keys = (AMPLITUDE[effect],)
+    else:
+        keys = () if EFFECTS[effect].search is not None else EFFECTS[effect].params
     return [i for i, n in enumerate(names) if n in keys]
 
 
 def nonlinear_column(data: GapData, fit: ModelFit, effect: str) -> np.ndarray:
-    """(3K, 1) the change of the thrust column per unit change of a nonlinear effect's parameter
-    (central difference at its fitted value), i.e. how the effect shows in the data."""
+    """(3K, 1) the change of the force per unit change of a nonlinear effect's searched parameter (central
+    difference at its fitted value, of the thrust column or, for a law with an amplitude, of its own column),
+    i.e. how the effect shows in the data."""
     hi, lo = difference_points(effect, fit.nonlinear[effect])
     Ap, names = design(data, set(fit.effects), _nl_values(fit.nonlinear | {effect: hi}))
     Am, _ = design(data, set(fit.effects), _nl_values(fit.nonlinear | {effect: lo}))
-    k = names.index("k_T")
-    return ((Ap[:, k] - Am[:, k]) * fit.coef["k_T"] / (hi - lo))[:, None]
+    coef = AMPLITUDE.get(effect, "k_T")
+    k = names.index(coef)
+    return ((Ap[:, k] - Am[:, k]) * fit.coef[coef] / (hi - lo))[:, None]
 
 
 def look_alikes(data: GapData, fit: ModelFit, effect: str) -> list[tuple[str, float]]:
@@ -203,8 +213,8 @@ def look_alikes(data: GapData, fit: ModelFit, effect: str) -> list[tuple[str, fl
     each alone, then all of them together (``"all"``)."""
     A, names = _columns(data, fit)
     if EFFECTS[effect].search is not None:
-        target = nonlinear_column(data, fit, effect)
-        own: list[int] = []
+        own = effect_columns(names, effect)  # a law with an amplitude: its column beside its shape's change
+        target = np.hstack([A[:, own], nonlinear_column(data, fit, effect)])
     else:
         own = effect_columns(names, effect)
         target = A[:, own]

@@ -36,9 +36,10 @@ from uavturb.physics.effects import EFFECTS, EffectInputs, lag_rotor_speeds, lag
 from uavturb.sysid.flight_data import FlightData
 
 #: nonlinear parameter of each effect whose law is not linear in it, with its search bounds
-#: (from the registry)
-NONLINEAR = {n: (e.params[0], *e.search) for n, e in EFFECTS.items()
-             if e.search is not None and e.fitted_by_finder}
+#: (from the registry; a law with an ``amplitude`` is searched over its other parameter)
+NONLINEAR = {n: (e.searched_param, *e.search) for n, e in EFFECTS.items() if e.search is not None}
+#: surface laws with a linear amplitude: their coefficient's name in :func:`design` (``k_T*A``)
+AMPLITUDE = {n: f"k_T*{e.amplitude}" for n, e in EFFECTS.items() if e.amplitude is not None}
 
 
 #: bytes of lagged rotor-speed sums kept per flight set (:meth:`GapData.S_lag`; 11 taus of a flight-hour at 200 Hz;
@@ -372,7 +373,7 @@ def apply_thrust_levels(data: GapData) -> ThrustLevels:
     stay within a surface's reach (:func:`uavturb.gap.nominal.thrust_levels`), and, where they differ,
     give each row its recording's level (``data.level``)."""
     reach = max(e.surface_reach(data.rotor_radius, **data.geometry) for e in EFFECTS.values()
-                if e.surface and e.fitted_by_finder)
+                if e.surface and len(e.params) == 1)  # laws with several have no top of their range
     rows = data if data.dense is None else data.dense  # sums: every row in flight counts
     far = (rows.d_down > reach) & (rows.d_up > reach)
     y_thrust = np.einsum("ki,ki->k", rows.y, rows.R[:, :, 2])
@@ -388,11 +389,17 @@ def apply_thrust_levels(data: GapData) -> ThrustLevels:
 
 def surface_law_extra(data: GapData, name: str, value: float) -> np.ndarray:
     """(K,) -, the extra thrust per unit thrust, ``T_IGE/T_OGE - 1``, of the surface law ``name`` of the
-    registry at its parameter ``value``, at each row's height to its surface (its ``ratio``; 0 where the
-    law does not hold, under its pole, as the paper clips the ground effect)."""
+    registry at its searched parameter's ``value``, at each row's height to its surface (its ``ratio``; 0 where
+    the law does not hold, under its pole, as the paper clips the ground effect). A law with an ``amplitude``
+    gives its shape: the extra thrust at amplitude 1, at and under the surface its value there (as its force)."""
     spec = EFFECTS[name]
     d = data.d_down if spec.surface == "d_down" else data.d_up
-    ratio = spec.ratio(d, value, data.rotor_radius, **data.geometry)
+    if spec.amplitude is not None:
+        d = np.maximum(d, 1e-12)
+        values = tuple(1.0 if p == spec.amplitude else value for p in spec.params)
+        ratio = spec.ratio_at(d, values, data.rotor_radius, **data.geometry)
+    else:
+        ratio = spec.ratio(d, value, data.rotor_radius, **data.geometry)
     return np.where(np.isfinite(ratio), ratio - 1.0, 0.0)
 
 
@@ -444,20 +451,22 @@ def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tup
     ----------
     data : samples
     effects : the effects in the model (names of ``effects.md``)
-    nonlinear : values of ``mu``, ``kappa``, ``tau`` for the nonlinear effects in ``effects``
+    nonlinear : values of ``mu``, ``kappa``, ``tau``, ``lam`` for the nonlinear effects in ``effects``
     """
     Ad, dnames = dependent_columns(data, effects, nonlinear)
     Af, fnames = fixed_columns(data, effects)
-    # order: k_T, biases, k_T*s, then the linear effects
+    # order: k_T, biases, k_T*s and the amplitudes (k_T*A), then the linear effects
     nb = bias_count(data)
     return (np.hstack([Ad[:, :1], Af[:, :nb], Ad[:, 1:], Af[:, nb:]]),
             dnames[:1] + fnames[:nb] + dnames[1:] + fnames[nb:])
 
 
 def dependent_columns(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tuple[np.ndarray, list[str]]:
-    """The columns of :func:`design` that depend on ``mu``, ``kappa``, ``tau``: thrust with the
-    surface effects (``k_T``) and, with ``battery_sag``, its decay (``k_T*s``). ``(3K, 1 or 2)``."""
-    return thrust_columns(data, effects, effective_S(data, effects, nonlinear), surface_extra(data, effects, nonlinear))
+    """The columns of :func:`design` that depend on ``mu``, ``kappa``, ``tau``, ``lam``: thrust with the
+    surface effects (``k_T``), with ``battery_sag`` its decay (``k_T*s``), and the shape of each surface law
+    with an amplitude (``k_T*A``). ``(3K, 1 + ...)``."""
+    return thrust_columns(data, effects, effective_S(data, effects, nonlinear), surface_extra(data, effects, nonlinear),
+                          amplitude_shapes(data, effects, nonlinear))
 
 
 def effective_S(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> np.ndarray:
@@ -468,30 +477,50 @@ def effective_S(data: GapData, effects: set[str], nonlinear: dict[str, float]) -
 
 
 def surface_extra(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> np.ndarray:
-    """(K,) -, the extra thrust per unit thrust of every surface law in ``effects`` at its parameter."""
+    """(K,) -, the extra thrust per unit thrust of every surface law in ``effects`` without an amplitude, at
+    its parameter."""
     surf = np.zeros(len(data))
     for name in sorted(effects):
-        if EFFECTS[name].surface is not None:
-            surf += surface_law_extra(data, name, nonlinear[EFFECTS[name].params[0]])
+        if EFFECTS[name].surface is not None and name not in AMPLITUDE:
+            surf += surface_law_extra(data, name, nonlinear[EFFECTS[name].searched_param])
     return surf
 
 
-def thrust_columns(data: GapData, effects: set[str], S: np.ndarray, surf: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """:func:`dependent_columns` from the effective ``S`` (K,) and the surface laws' ``surf`` (K,).
+def amplitude_shapes(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> list[np.ndarray]:
+    """(K,) -, the shape of each surface law in ``effects`` with an amplitude (:data:`AMPLITUDE`, in name order)
+    at its searched parameter: its extra thrust per unit thrust at amplitude 1."""
+    return [surface_law_extra(data, name, nonlinear[EFFECTS[name].searched_param])
+            for name in sorted(effects) if name in AMPLITUDE]
+
+
+def amplitude_names(effects: set[str] | frozenset[str]) -> list[str]:
+    """The coefficients of :func:`amplitude_shapes`' columns (``k_T*A``), in their order."""
+    return [AMPLITUDE[name] for name in sorted(effects) if name in AMPLITUDE]
+
+
+def thrust_columns(data: GapData, effects: set[str], S: np.ndarray, surf: np.ndarray,
+                   shapes: list[np.ndarray] = ()) -> tuple[np.ndarray, list[str]]:
+    """:func:`dependent_columns` from the effective ``S`` (K,), the surface laws' ``surf`` (K,) and the shapes
+    of the laws with an amplitude (:func:`amplitude_shapes`).
 
     The thrust column is ``S R e_z`` with ``S surf`` added along ``z`` of W (``k_T``), the battery's
-    ``-t S R e_z`` (``k_T*s``); written straight into the ``(3K, 1 or 2)`` array, each axis of W from the
-    body z axis's contiguous row (:attr:`GapData.z_body_rows`): the columns are the fits' innermost work."""
-    names = ["k_T"] + (["k_T*s"] if "battery_sag" in effects else [])
+    ``-t S R e_z`` (``k_T*s``), each amplitude's ``S shape`` along ``z`` of W (``k_T*A``); written straight
+    into the ``(3K, P)`` array, each axis of W from the body z axis's contiguous row
+    (:attr:`GapData.z_body_rows`): the columns are the fits' innermost work."""
+    battery = "battery_sag" in effects
+    names = ["k_T"] + (["k_T*s"] if battery else []) + amplitude_names(effects)
     K, zb = len(S), data.z_body_rows
     D = np.empty((3 * K, len(names)))
     for j in range(3):
         np.multiply(S, zb[j], out=D[j * K:(j + 1) * K, 0])
     D[2 * K:, 0] += S * surf
-    if len(names) > 1:
+    if battery:
         ts = -(data.t * S)
         for j in range(3):
             np.multiply(ts, zb[j], out=D[j * K:(j + 1) * K, 1])
+    for c, shape in enumerate(shapes, start=2 if battery else 1):
+        D[:2 * K, c] = 0.0
+        np.multiply(S, shape, out=D[2 * K:, c])
     return D, names
 
 

@@ -312,11 +312,9 @@ def _testable_candidates(data: GapData, sim: dict[str, dict[str, float]], measur
     cannot test, with why and what would; the simulator's testable effects, fitted from the start).
 
     Surface effects need flights within their reach; ``battery_sag`` needs commanded rotor speeds
-    (``effects.md``: a measured rotor speed already shows the battery's sag). Laws the finder's model
-    cannot fit (``fitted_by_finder`` False) are left to the surface curve."""
-    fitted = [e for e, spec in EFFECTS.items() if spec.fitted_by_finder]
-    reach = {e: surface_reach(data, e) for e in fitted if EFFECTS[e].surface is not None}
-    testable = {e for e in fitted if e not in reach or reach[e].testable}
+    (``effects.md``: a measured rotor speed already shows the battery's sag)."""
+    reach = {e: surface_reach(data, e) for e, spec in EFFECTS.items() if spec.surface is not None}
+    testable = {e for e in EFFECTS if e not in reach or reach[e].testable}
     not_testable = [{"name": e, "why": r.why(), "to_separate": r.to_separate()}
                     for e, r in reach.items() if not r.testable]
     if measured:

@@ -11,7 +11,9 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from uavturb.gap.design import (
+    AMPLITUDE,
     NONLINEAR,
+    amplitude_shapes,
     GapData,
     difference_points,
     design,
@@ -56,19 +58,30 @@ class ModelFit:
     def residual(self, data: GapData) -> np.ndarray:
         return data.y - self.predict(data)
 
+    def _over_k_T(self, coef: str) -> tuple[float, float]:
+        """A coefficient that carries ``k_T`` (``k_T*s``, ``k_T*A``) over ``k_T``, and its standard error (the
+        two errors combined as if independent)."""
+        kT, kx = self.coef["k_T"], self.coef[coef]
+        x = kx / kT
+        se = abs(x) * np.hypot(self.stderr.get(coef, np.nan) / max(abs(kx), 1e-300), self.stderr.get("k_T", np.nan) / kT)
+        return x, se
+
     def _nl(self) -> dict[str, float]:
         return _nl_values(self.nonlinear)
 
     def effect_params(self, name: str) -> tuple[dict[str, float], dict[str, float]]:
         """Parameters of one effect in ``effects.md`` names and units, with standard errors."""
+        if name in AMPLITUDE:  # a surface law's amplitude (k_T*A over k_T) and its searched parameter
+            a, se_a = self._over_k_T(AMPLITUDE[name])
+            p = NONLINEAR[name][0]
+            values = {EFFECTS[name].amplitude: a, p: self.nonlinear[name]}
+            errors = {EFFECTS[name].amplitude: se_a, p: self.stderr.get(p, float("nan"))}
+            return ({k: values[k] for k in EFFECTS[name].params}, {k: errors[k] for k in EFFECTS[name].params})
         if name in NONLINEAR:
             p = NONLINEAR[name][0]
             return {p: self.nonlinear[name]}, {p: self.stderr.get(p, float("nan"))}
         if name == "battery_sag":
-            kT, ks = self.coef["k_T"], self.coef["k_T*s"]
-            s = ks / kT
-            se = abs(s) * np.hypot(self.stderr.get("k_T*s", np.nan) / max(abs(ks), 1e-300),
-                                   self.stderr.get("k_T", np.nan) / kT)
+            s, se = self._over_k_T("k_T*s")
             return {"s": s}, {"s": se}
         keys = EFFECTS[name].params
         return {k: self.coef[k] for k in keys}, {k: self.stderr.get(k, float("nan")) for k in keys}
@@ -104,8 +117,8 @@ class _Profile:
         # the effective rotor speeds depend on tau only, the surface laws on mu / kappa only: a profile over
         # one of them reuses the other's (a lagged sum over a flight-hour costs more than the whole fit)
         self._S: dict[float, np.ndarray] = {}
-        self._surf: dict[tuple, np.ndarray] = {}
-        self._surface = [EFFECTS[e].params[0] for e in sorted(self.effects) if EFFECTS[e].surface is not None]
+        self._surf: dict[tuple, tuple[np.ndarray, list[np.ndarray]]] = {}
+        self._surface = [EFFECTS[e].searched_param for e in sorted(self.effects) if EFFECTS[e].surface is not None]
         # the error at each value the columns are really computed at (a search returns to values it tried, and
         # taus one cached grid step apart, design.lag_key, give the same columns)
         self._sse: dict[tuple, float] = {}
@@ -116,8 +129,9 @@ class _Profile:
             self._S = {tau: effective_S(self.data, self.effects, values)}
         key = tuple(round(values[p], 12) for p in self._surface)
         if key not in self._surf:
-            self._surf = {key: surface_extra(self.data, self.effects, values)}
-        return thrust_columns(self.data, self.effects, self._S[tau], self._surf[key])[0]
+            self._surf = {key: (surface_extra(self.data, self.effects, values),
+                                amplitude_shapes(self.data, self.effects, values))}
+        return thrust_columns(self.data, self.effects, self._S[tau], *self._surf[key])[0]
 
     def sse(self, nl: dict[str, float]) -> float:
         values = _nl_values(nl)

@@ -409,11 +409,12 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
     law of the registry where the named law's shape does not fit the measured curve and the other's does
     (``effects.md``: "a law from the literature that fits better may be named instead").
 
-    The finder found the surface effect in time (its held-out gain stays with the entry); a law it cannot
-    fit in time (``fitted_by_finder`` False: the exponential law's two shape parameters) is named with the
-    values fitted to the measured curve, whose honest errors cover the spread between recordings and the
-    height reference (:func:`uavturb.gap.surface_laws.curve_budget`). The law it replaces is kept under
-    ``time_domain``. Among several laws that fit, the lowest ``chi2/dof``; only laws inside their physical
+    The finder found the surface effect in time (its held-out gain stays with the entry) with a law whose shape
+    misses the curve; another law of the same surface, which the finder tried in time without beating it on
+    held-out forces beyond noise (a shape differs most near the floor, where a flight spends a few seconds),
+    is named with the values fitted to the measured curve, whose honest errors cover the spread between
+    recordings and the height reference (:func:`uavturb.gap.surface_laws.curve_budget`). The law it replaces
+    is kept under ``time_domain``. Among several laws that fit, the lowest ``chi2/dof``; only laws inside their physical
     range that describe every bin within :data:`~uavturb.gap.surface_laws.AGREEMENT` (2 % of thrust) and closer
     than the finder's law at its value: a ``chi2/dof`` under 3 alone lets a law miss a bin with a large error
     by 8 % (a simulated Cheeseman-Bennett flight whose lowest bin read 1.19 for the law's 1.10). Called by the finder
@@ -431,7 +432,7 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
     for e in effects:
         own = curve_fits.get(e["name"])
         spec = EFFECTS[e["name"]]
-        better = [f for n, f in curve_fits.items() if not EFFECTS[n].fitted_by_finder
+        better = [f for n, f in curve_fits.items() if n != e["name"]
                   and EFFECTS[n].surface == spec.surface and f.law_fits and f.in_range and describes(f)]
         if spec.surface is None or own is None or own.law_fits or not better:
             out.append(e)
@@ -509,19 +510,24 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
     chosen = named[0] if named and named[0] in fits else None
     report = surface_curve_report(curve, fits, chosen)
     if named:
-        p = EFFECTS[named[0]].params[0]
-        value = final.nonlinear[named[0]]
+        spec = EFFECTS[named[0]]
+        params, _ = final.effect_params(named[0])
+        values = [params[k] for k in spec.params]
         # normalised as the measured curve is, by the law's value far from the floor (the finder's k_T
         # carries the law's far tail)
         far_d = data.d_down[hover & (data.d_down > curve.far_m) & np.isfinite(data.d_down)]
-        far = float(np.nanmean(EFFECTS[named[0]].ratio(far_d, value, data.rotor_radius, **geometry))) \
-            if len(far_d) else 1.0
-        law = law_in_bins(curve, named[0], value, data.rotor_radius, **geometry) / far
+        far = float(np.nanmean(spec.ratio_at(far_d, values, data.rotor_radius, **geometry))) if len(far_d) else 1.0
+        law = law_in_bins(curve, named[0], values, data.rotor_radius, **geometry) / far
         for b, v in zip(report["bins"], law):
             b["law_fitted_to_curve"], b["law"] = b["law"], float(v)
         worst = float(np.nanmax(np.abs([b["ratio"] - b["law"] for b in report["bins"]])))
-        report["named"] = {"law": named[0], "params": {p: final.nonlinear[named[0]]},
-                           "largest_difference": worst, "agrees": worst <= AGREEMENT}
-        report["why"] += (f" The named {named[0]} at the finder's {p} = {final.nonlinear[named[0]]:.3g} differs from "
-                          f"the measured ratio by at most {100 * worst:.1f} % of thrust in a bin.")
+        report["named"] = {"law": named[0], "params": dict(params), "largest_difference": worst,
+                           "agrees": worst <= AGREEMENT}
+        report["why"] += (f" The named {named[0]} at the finder's {_values_text(params)} differs from the measured "
+                          f"ratio by at most {100 * worst:.1f} % of thrust in a bin.")
     return report, curve, fits
+
+
+def _values_text(params: dict[str, float]) -> str:
+    """``mu = 6.36`` or ``A = 0.401, lam = 1.72``."""
+    return ", ".join(f"{k} = {v:.3g}" for k, v in params.items())

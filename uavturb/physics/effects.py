@@ -327,14 +327,15 @@ class EffectSpec:
         ``rotor_count`` (laws that do not need them ignore them). Used by :mod:`uavturb.gap.surface_laws`.
     bounds : surface laws with several parameters: the ``(lo, hi)`` bounds of each (in ``params``' order)
         within which a fit to the measured curve searches (one-parameter laws use ``search``)
-    fitted_by_finder : the gap finder's model (:mod:`uavturb.gap.design`) fits this effect; False for
-        laws it cannot fit yet (they are fitted to the measured surface curve only, and named where the
-        finder's own law of the same physics does not fit that curve and they do)
     alternative_to : another law of the same physics (``ground_effect_multirotor`` for ``ground_effect``):
         the finder names at most one of them, the alternative only where it beats the other on
         held-out data beyond noise
     absent_at_zero : parameters all zero mean no effect (False for the multirotor law, whose rotor images
         act at ``K_b = 0``): only then does a parameter within noise of zero say the effect is not there
+    amplitude : a surface law with two parameters whose ``ratio - 1`` is proportional to one of them (the
+        exponential law's ``A``): the finder fits that one by least squares, as a column along the thrust whose
+        coefficient carries ``k_T`` (``k_T*A``, as battery sag's ``k_T*s``), and searches the other over
+        ``search``; None for every other law
     """
 
     name: str
@@ -352,10 +353,15 @@ class EffectSpec:
     positive: bool = True
     manoeuvre: str = ""
     ratio: Callable[..., np.ndarray] | None = None
-    fitted_by_finder: bool = True
     alternative_to: str | None = None
     absent_at_zero: bool = True
     bounds: tuple[tuple[float, float], ...] = ()
+    amplitude: str | None = None
+
+    @property
+    def searched_param(self) -> str:
+        """The parameter a nonlinear law's fit searches over ``search``: the one that is not its ``amplitude``."""
+        return next(p for p in self.params if p != self.amplitude)
 
     @property
     def shape_bounds(self) -> tuple[tuple[float, float], ...]:
@@ -543,8 +549,8 @@ EFFECTS: dict[str, EffectSpec] = {
                                  _EXPONENTIAL_RANGE_SOURCE),
                    _explain_ground_exponential, along_thrust=True, surface="d_down",
                    manoeuvre="hover over the floor at several heights from one to ten rotor radii",
-                   ratio=_exponential_ratio, fitted_by_finder=False, alternative_to="ground_effect",
-                   bounds=((0.0, 2.0), (0.2, 10.0))),
+                   search=(0.2, 10.0), ratio=_exponential_ratio, alternative_to="ground_effect",
+                   bounds=((0.0, 2.0), (0.2, 10.0)), amplitude="A"),
         EffectSpec("ceiling_effect", ("kappa",), ("-",), (2.0,), ceiling_effect_force, False,
                    "ceiling effect: suction towards the surface above",
                    PhysicalRange("kappa", 0.25, 12.0, lambda p, f: p["kappa"], _SURFACE_RANGE_SOURCE),
@@ -635,13 +641,13 @@ def strongest_surface_lift(d: np.ndarray, surface: str, rotor_radius: float, **g
     thrust at heights ``d`` [m] (K,) from ``surface`` (``"d_down"``, ``"d_up"``); its inverse is the least
     share of the weight that could hold a hover there. A law that cannot be evaluated even far from the
     surface (the multirotor law with the arm length unknown: ``geometry`` holds ``arm_length`` [m] and
-    ``rotor_count``) does not count, nor do laws fitted to the measured curve only (``fitted_by_finder``
-    False: their range bounds a derived quantity, not a parameter to put at its top)."""
+    ``rotor_count``) does not count, nor do laws with several parameters (the exponential law: their range
+    bounds a derived quantity, not a parameter to put at its top)."""
     d = np.asarray(d, float)
     lift = np.ones(d.shape)
     far = np.array([1000.0 * rotor_radius])
     for spec in EFFECTS.values():
-        if spec.surface == surface and spec.ratio is not None and spec.fitted_by_finder and np.isfinite(
+        if spec.surface == surface and spec.ratio is not None and len(spec.params) == 1 and np.isfinite(
                 spec.ratio(far, spec.physical_range.hi, rotor_radius, **geometry)).all():
             lift = np.maximum(lift, spec.strongest_ratio(d, rotor_radius, **geometry))
     return lift
