@@ -218,3 +218,16 @@ def test_excitation_identifies_inertia(vehicle):
     J_z = 0.5 * ((J_y - coef[0][1] * J_x) + (J_x + coef[1][1] * J_y))
     assert np.allclose([J_x, J_y, J_z], vehicle.inertia, rtol=0.1)
     assert J_z / J_x == pytest.approx(vehicle.inertia[2] / vehicle.inertia[0], rel=0.1)
+
+
+def test_a_vehicle_resting_in_ground_effect_starts_without_sinking():
+    """The controller starts as if it had rested in the effect force at the rotor plane's heights, where the
+    laws act: preloaded at the body origin's, a hexarotor whose rotors sit 15 cm above it started with an
+    exponential ground law's lift 15 cm lower (17.7 % of the weight for 7.3 %) and sank 2.6 cm through the
+    floor it rested on."""
+    vehicle = HEXAROTOR.with_params(rotor_plane_z=0.15)
+    ref = make_reference("low_passes", 3.0, seed=2000, vehicle=vehicle)
+    _, truth = simulate_flight(vehicle, ref, effects=parse_effects("ground_effect_exponential:A=0.2,lam=1.7"),
+                               noise=SensorNoise.none())
+    z = truth.x[:, 2]
+    assert z[truth.t < 1.5].min() > z[0] - 0.006  # m: the take-off's first dip, as without any effect
