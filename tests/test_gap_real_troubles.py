@@ -101,6 +101,33 @@ def test_all_of_a_px4_logs_troubles_at_once(tmp_path):
     assert len(report["ground_contact"]) >= 6  # both ends of each flight
 
 
+@pytest.mark.slow
+def test_an_exponential_ground_law_under_a_px4_logs_troubles(tmp_path):
+    """The same troubles (a thrust axis tilted 1.2 deg besides), the ground lift fading exponentially (A = 0.4,
+    decay length 1.7 rotor radii: 13 % at two radii, where Cheeseman-Bennett's shape does not fit): the finder
+    names the exponential law in time, each parameter within 15 % and two stated errors of the truth. (Before the
+    simulator preloaded its controller at the rotor plane's heights, these flights sank 2.6 cm through the floor
+    after their rest, and nothing was named over a 2.4 N residual.)"""
+    base = Conditions(no_imu=True, rate_hz=60, jitter_ms=3.0, position_hold_hz=9, rotor_hold_hz=3,
+                      rotor_delay_s=0.06, measured_rotors=True, ground_contact_s=3.0, rotor_plane_z=0.15,
+                      battery_voltage=16.0, thrust_tilt_deg=1.2)
+    truth = {"ground_effect_exponential": {"A": 0.4, "lam": 1.7}}
+    paths = []
+    for k, (level, azimuth) in enumerate(((1.0, 0.0), (1.04, 120.0))):
+        path = tmp_path / f"px4-exp-{k}"
+        generate_conditioned_flight("hex", truth, duration=60.0, kind="low_passes", seed=2000 + k, out=path,
+                                    conditions=dataclasses.replace(base, thrust_level=level,
+                                                                   thrust_tilt_azimuth_deg=azimuth))
+        paths.append(path)
+    report, _ = analyse(load_recordings(paths), {})
+    named = {e["name"]: e for e in report["effects"]}
+    assert list(named) == ["ground_effect_exponential"]
+    for key, value in truth["ground_effect_exponential"].items():
+        fitted, se = named["ground_effect_exponential"]["params"][key], named["ground_effect_exponential"]["stderr"][key]
+        assert fitted == pytest.approx(value, rel=0.15) and abs(fitted - value) < 2 * se, (key, fitted, se)
+    assert report["surface_curve"]["law_fits"] and len(report["ground_contact"]) >= 4
+
+
 def test_rotor_telemetry_too_slow_to_analyse_says_so(tmp_path):
     """Rotor speeds updating at 1 Hz over 20 s of flight: too few updates for any fit, and the one line names
     the rotor stream and its rate, not a generic 'too short'."""
