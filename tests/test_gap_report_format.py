@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from uavturb.gap.finder import height_reference
 from uavturb.gap.report import format_effect, format_params, write_markdown
 
 
@@ -70,3 +71,28 @@ def test_a_law_named_from_the_surface_curve_says_which_law_found_it(tmp_path):
     text = (tmp_path / "report.md").read_text()
     assert "| `ground_effect_exponential` | A = 0.41 ± 0.11, lam = 1.66 ± 0.19 |" in text
     assert "  - named from the measured surface curve; found in time as `ground_effect` (mu = 6.2 ± 3.5)" in text
+
+
+def test_the_surface_curve_says_where_heights_are_measured_from(tmp_path):
+    """The report states the rotor plane's offset behind every height, and where a surface law is named on the
+    body origin's heights (rotor_plane_z 0 or absent), says to check it: mu moves 2-3x with it on real vehicles."""
+    assert height_reference(-0.025, 0.01, True) == {"rotor_plane_z_m": -0.025, "uncertainty_m": 0.01, "note": None}
+    assert height_reference(0.0, 0.01, False)["note"] is None  # no surface law named: nothing rests on it
+    note = height_reference(0.0, 0.01, True)["note"]
+    assert "rotor_plane_z is 0 or absent" in note and "+-1 cm" in note
+    curve = {"far_m": 0.23, "law": "ground_effect", "params": {"mu": 5.1}, "stderr": {"mu": 0.6}, "chi2_dof": 1.2,
+             "law_fits": True, "why": "it fits.", "bins": [{"d_m": 0.05, "n": 40, "ratio": 1.08, "stderr": 0.01,
+                                                            "law": 1.07}]}
+    report = {"recordings": ["a/rw32a"], "sim_effects": [], "protocol": "last-30%-of-each-recording",
+              "residual_source": "imu", "baseline": {"heldout_rmse_N": 0.011, "rmse_N": 0.011},
+              "final": {"heldout_rmse_N": 0.008}, "noise": {"rms_N": 0.005}, "effects": [],
+              "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 0.004, "drivers": []},
+              "sim_effect_params": {}, "surface_curve": curve, "height_reference": height_reference(-0.025, 0.01, True)}
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert "by the rotor plane's height (rotor_plane_z: 2.5 cm below the body origin, +-1 cm in every stated error)" in text
+    assert "Height reference" not in text
+    report["height_reference"] = height_reference(0.0, 0.01, True)
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert "(rotor_plane_z: the body origin, +-1 cm" in text and "**Height reference**: vehicle.yaml's rotor_plane_z" in text

@@ -201,6 +201,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                      "drivers": drv},
         "effects": named,
         "height_uncertainty_m": height_uncertainty,
+        "height_reference": height_reference(vehicle.rotor_plane_z, height_uncertainty,
+                                             any(EFFECTS[e["name"]].surface for e in named)),
         "sim_effect_params": {name: {"sim": p, "fitted": final.effect_params(name)[0] if name in final.effects
                                      else {}} for name, p in sim.items()},
         "nominal": _nominal(data, final, levels),
@@ -298,6 +300,20 @@ def nominal_curve_evidence(data: GapData, nominal: ModelFit) -> CurveEvidence:
     its lift near the floor and each surface law's shape fit (:class:`~uavturb.gap.selection.CurveEvidence`)."""
     _, curve, fits = finder_surface_curve(data, nominal, resample=False)  # the shape's chi^2 is all it reads
     return CurveEvidence(lift_z(curve, data.rotor_radius), {n: f.chi2 for n, f in fits.items()})
+
+
+def height_reference(rotor_plane_z: float, uncertainty: float, surface_named: bool) -> dict[str, Any]:
+    """Where the surface heights are measured from (``recordings.md``, "Heights over surfaces"): the rotor plane
+    at ``rotor_plane_z`` [m] along z_B from the body origin, give or take ``uncertainty`` [m] (each stated error's
+    height-reference term), and, where a surface law is named and the plane is the body origin, what to check."""
+    out: dict[str, Any] = {"rotor_plane_z_m": float(rotor_plane_z), "uncertainty_m": float(uncertainty),
+                           "note": None}
+    if surface_named and rotor_plane_z == 0.0:
+        out["note"] = ("vehicle.yaml's rotor_plane_z is 0 or absent: the rotor discs are taken to be at the body "
+                       "origin. Where they sit elsewhere (a Crazyflie's 2.5 cm below it, a frame's motion-capture "
+                       "origin 10-20 cm below them), set it: the surface law's parameters depend on it beyond the "
+                       f"+-{100 * uncertainty:.0f} cm each stated error covers.")
+    return out
 
 
 def measured_rotor_speeds(recordings: Sequence) -> bool:

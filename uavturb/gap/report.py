@@ -192,7 +192,7 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                 L.append(f"  - named from the measured surface curve; found in time as `{td['name']}` "
                          f"({format_params(td['params'], td.get('stderr'))})")
     L += _undecided_lines(report)
-    L += _surface_curve_lines(report.get("surface_curve"))
+    L += _surface_curve_lines(report.get("surface_curve"), report.get("height_reference"))
     L += _recording_lines(report)
     if report["sim_effect_params"]:
         L.append("")
@@ -230,13 +230,19 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
     (folder / "report.md").write_text("\n".join(L) + "\n")
 
 
-def _surface_curve_lines(curve: dict | None) -> list[str]:
-    """The measured surface curve beside the named law, and whether the law's shape fits it."""
+def _surface_curve_lines(curve: dict | None, height: dict | None = None) -> list[str]:
+    """The measured surface curve beside the named law, whether the law's shape fits it, and where the heights
+    are measured from (``height``: the report's ``height_reference``)."""
     if not curve:
         return []
+    plane = ""
+    if height:
+        z = height["rotor_plane_z_m"]
+        where = "the body origin" if z == 0.0 else f"{100 * abs(z):.1f} cm {'above' if z > 0 else 'below'} the body origin"
+        plane = f" (rotor_plane_z: {where}, +-{100 * height['uncertainty_m']:.0f} cm in every stated error)"
     L = ["", "## Measured surface curve",
          f"Thrust per rotor speed squared over its value far from the floor (above {curve['far_m']:.2f} m), by the "
-         f"rotor plane's height; law: `{curve['law']}` ({format_params(curve['params'], curve['stderr'])} fitted to the "
+         f"rotor plane's height{plane}; law: `{curve['law']}` ({format_params(curve['params'], curve['stderr'])} fitted to the "
          f"curve, chi^2/dof = {curve['chi2_dof']:.2f}). {'The law fits the curve' if curve['law_fits'] else 'The law does not fit the curve'}: "
          f"{curve['why']}", "", "| rotor-plane height [m] | samples | measured ratio | ± | law |", "|---|---|---|---|---|"]
     for b in curve["bins"]:
@@ -246,6 +252,8 @@ def _surface_curve_lines(curve: dict | None) -> list[str]:
                  f"{alt['chi2_dof']:.2f} ({'fits' if alt['law_fits'] else 'does not fit'}).")
     for note in curve.get("notes", []):
         L.append(f"\nNote: {note}")
+    if height and height.get("note"):
+        L.append(f"\n**Height reference**: {height['note']}")
     return L
 
 
