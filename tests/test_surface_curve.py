@@ -425,3 +425,14 @@ def test_a_law_named_from_the_curve_replaces_one_whose_shape_misses_it():
     report = surface_curve_report(curve, fits, "ground_effect")
     assert fits["ground_effect"].law_fits
     assert law_named_from_curve([td], report, curve, fits, data, facts, 0.01) == ([td], report)
+
+
+def test_ground_laws_are_one_physics_whichever_two():
+    """At most one ground law is named: a law and its alternative, and two alternatives of the same law (after
+    the exponential law was chosen, the multirotor law had stayed a candidate for the next steps)."""
+    from uavturb.gap.selection import _same_physics
+
+    laws = ("ground_effect", "ground_effect_multirotor", "ground_effect_exponential")
+    assert all(_same_physics(a, b) for a in laws for b in laws)
+    assert not any(_same_physics(a, b) for a in laws for b in ("ceiling_effect", "rotor_drag", "motor_lag"))
+    assert _same_physics("wind", "wind") and not _same_physics("wind", "body_drag")

@@ -201,8 +201,9 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                      "drivers": drv},
         "effects": named,
         "height_uncertainty_m": height_uncertainty,
-        "height_reference": height_reference(vehicle.rotor_plane_z, height_uncertainty,
-                                             any(EFFECTS[e["name"]].surface for e in named)),
+        "height_reference": height_reference(vehicle.rotor_plane_z, height_uncertainty, any(
+            EFFECTS[n].surface for n in [e["name"] for e in named + rejected]
+            + [c for a in ambiguous for c in a["candidates"] if c in EFFECTS])),
         "sim_effect_params": {name: {"sim": p, "fitted": final.effect_params(name)[0] if name in final.effects
                                      else {}} for name, p in sim.items()},
         "nominal": _nominal(data, final, levels),
@@ -302,17 +303,21 @@ def nominal_curve_evidence(data: GapData, nominal: ModelFit) -> CurveEvidence:
     return CurveEvidence(lift_z(curve, data.rotor_radius), {n: f.chi2 for n, f in fits.items()})
 
 
-def height_reference(rotor_plane_z: float, uncertainty: float, surface_named: bool) -> dict[str, Any]:
+def height_reference(rotor_plane_z: float, uncertainty: float, surface_found: bool) -> dict[str, Any]:
     """Where the surface heights are measured from (``recordings.md``, "Heights over surfaces"): the rotor plane
     at ``rotor_plane_z`` [m] along z_B from the body origin, give or take ``uncertainty`` [m] (each stated error's
-    height-reference term), and, where a surface law is named and the plane is the body origin, what to check."""
+    height-reference term), and, where a surface law was found (``surface_found``: named, rejected or left
+    ambiguous) and the plane is the body origin, what to check. (Neural-Swarm's 67 g walks without their
+    ``rotor_plane_z``: the exponential law's lift at two rotor radii came out 0.259, outside its range, and was
+    rejected; 3 cm lower, where the rotors are, it is 0.12.)"""
     out: dict[str, Any] = {"rotor_plane_z_m": float(rotor_plane_z), "uncertainty_m": float(uncertainty),
                            "note": None}
-    if surface_named and rotor_plane_z == 0.0:
+    if surface_found and rotor_plane_z == 0.0:
         out["note"] = ("vehicle.yaml's rotor_plane_z is 0 or absent: the rotor discs are taken to be at the body "
                        "origin. Where they sit elsewhere (a Crazyflie's 2.5 cm below it, a frame's motion-capture "
-                       "origin 10-20 cm below them), set it: the surface law's parameters depend on it beyond the "
-                       f"+-{100 * uncertainty:.0f} cm each stated error covers.")
+                       "origin 10-20 cm below them), set it: a surface law's parameters, and whether they fall "
+                       f"inside its range, depend on it beyond the +-{100 * uncertainty:.0f} cm each stated error "
+                       "covers.")
     return out
 
 

@@ -250,8 +250,9 @@ def _signed_ok(fit: ModelFit, name: str, z_min: float) -> bool:
 
 
 def _same_physics(a: str, b: str) -> bool:
-    """Two laws of one physics (``EffectSpec.alternative_to``): at most one of them is named."""
-    return EFFECTS[a].alternative_to == b or EFFECTS[b].alternative_to == a
+    """Two laws of one physics (``EffectSpec.alternative_to``: one the other's alternative, or both alternatives
+    of the same law, as the multirotor and the exponential ground laws): at most one of them is named."""
+    return (EFFECTS[a].alternative_to or a) == (EFFECTS[b].alternative_to or b)
 
 
 def _standard_law(best: tuple, passed: dict[str, tuple], z_improve: float, tried: dict, step: int,
