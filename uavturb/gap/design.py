@@ -508,7 +508,10 @@ def thrust_columns(data: GapData, effects: set[str], S: np.ndarray, surf: np.nda
     into the ``(3K, P)`` array, each axis of W from the body z axis's contiguous row
     (:attr:`GapData.z_body_rows`): the columns are the fits' innermost work."""
     battery = "battery_sag" in effects
-    names = ["k_T"] + (["k_T*s"] if battery else []) + amplitude_names(effects)
+    amplitudes = amplitude_names(effects)
+    if len(shapes) != len(amplitudes):
+        raise ValueError(f"{len(shapes)} shapes given for the amplitudes {amplitudes}")
+    names = ["k_T"] + (["k_T*s"] if battery else []) + amplitudes
     K, zb = len(S), data.z_body_rows
     D = np.empty((3 * K, len(names)))
     for j in range(3):

@@ -13,8 +13,8 @@ from scipy.optimize import minimize_scalar
 from uavturb.gap.design import (
     AMPLITUDE,
     NONLINEAR,
-    amplitude_shapes,
     GapData,
+    amplitude_shapes,
     difference_points,
     design,
     effective_S,
