@@ -103,3 +103,17 @@ def test_lagged_sums_stay_right_when_the_cache_drops_old_values(monkeypatch):
         assert np.array_equal(data.S_lag(tau), _plain(data, tau))
         assert len(data._lag_cache) <= 3 and set(data._lag_done) == set(data._lag_cache)  # the limit, and one more
         assert len(sub._lag_cache) <= 2
+
+
+def test_the_cache_keeps_as_many_values_of_tau_whatever_the_flights_length():
+    """A short flight keeps no more values of tau than a flight-hour's byte cap allows (the benchmark's line
+    through a 5- and a 10-minute flight had carried a cache growing with the flight to an hour)."""
+    from uavturb.gap import design
+
+    data = _flights(K=500)
+    sub = data.subset(data.group == 0)
+    for tau in np.geomspace(0.005, 0.2, 60):
+        assert np.array_equal(sub.S_lag(tau), _plain(data, tau)[data.group == 0])
+        assert np.array_equal(data.S_lag(tau), _plain(data, tau))
+    assert 0 < len(data._lag_cache) <= design.LAG_CACHE_TAUS and set(data._lag_done) == set(data._lag_cache)
+    assert 0 < len(sub._lag_cache) <= design.ROWS_LAG_CACHE_TAUS
