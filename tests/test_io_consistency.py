@@ -6,8 +6,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from uavturb.io.consistency import hold_period_s, in_flight
+from uavturb.io.consistency import in_flight
 from uavturb.io.recording import Rotors
+from uavturb.numerics.stream_updates import hold_period_s
 
 HOVER, IDLE = 2000.0, 600.0  # rad/s
 TAKE_OFF, TOUCH_DOWN = 2.0, 8.0  # s

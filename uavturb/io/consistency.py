@@ -33,7 +33,7 @@ from uavturb.io import align
 from uavturb.io.differentiate import derivative
 from uavturb.io.recording import Recording
 from uavturb.numerics.filters import high_passed
-from uavturb.numerics.stream_updates import update_mask
+from uavturb.numerics.stream_updates import hold_period_s, update_mask
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 
@@ -55,7 +55,8 @@ def in_flight(rec: Recording, t_ns: np.ndarray) -> np.ndarray:
     95th-percentile ``sum(w^2)``; all rows when there are no rotor speeds or too few such rows.
 
     A held rotor stream (ESC telemetry updated at 3 Hz, one motor at a time or all together) keeps its last
-    value until the next update: each interval in flight ends one update period (:func:`hold_period_s`)
+    value until the next update: each interval in flight ends one update period
+    (:func:`uavturb.numerics.stream_updates.hold_period_s`)
     before the held values say. Rotor speeds held at 3 Hz and 60 ms late had kept their hover value 0.3 s
     into each touchdown of a real take-off flight, and the landing impacts let in had hidden a correctly
     stamped IMU's clock (correlation 0.14 instead of 0.93) behind a spurious 0.12 s offset."""
@@ -70,21 +71,6 @@ def in_flight(rec: Recording, t_ns: np.ndarray) -> np.ndarray:
         ends = np.append(t[np.flatnonzero(flying[:-1] & ~flying[1:]) + 1], np.inf)  # first rows after each interval
         flying &= ends[np.searchsorted(ends, t)] - t > hold
     return flying if flying.sum() >= MIN_FLIGHT_ROWS else np.ones(len(t_ns), bool)
-
-
-def hold_period_s(t_ns: np.ndarray, values: np.ndarray) -> float:
-    """s, how long a stream's columns hold a value: the median over columns of the median interval between a
-    column's own updates (:func:`uavturb.numerics.stream_updates.update_mask`); one row's period for a stream
-    whose every row is fresh, a third of a second for ESC telemetry at 3 Hz; 0 with fewer than two updates."""
-    x = np.asarray(values)
-    x = x[:, None] if x.ndim == 1 else x
-    t = (np.asarray(t_ns, np.int64) - int(t_ns[0])) * 1e-9
-    periods = []
-    for c in range(x.shape[1]):
-        steps = np.diff(t[update_mask(x[:, c])])
-        if len(steps):
-            periods.append(float(np.median(steps)))
-    return float(np.median(periods)) if periods else 0.0
 
 
 def mean_specific_force(rec: Recording) -> tuple[np.ndarray, str]:

@@ -34,3 +34,18 @@ def update_mask(values: np.ndarray) -> np.ndarray:
             same |= np.isnan(a) & np.isnan(b)
         out[1:] = ~np.all(same, axis=1)
     return out
+
+
+def hold_period_s(t_ns: np.ndarray, values: np.ndarray) -> float:
+    """s, how long a stream's columns hold a value: the median over columns of the median interval between a
+    column's own updates (:func:`update_mask`); one row's period for a stream
+    whose every row is fresh, a third of a second for ESC telemetry at 3 Hz; 0 with fewer than two updates."""
+    x = np.asarray(values)
+    x = x[:, None] if x.ndim == 1 else x
+    t = (np.asarray(t_ns, np.int64) - int(t_ns[0])) * 1e-9
+    periods = []
+    for c in range(x.shape[1]):
+        steps = np.diff(t[update_mask(x[:, c])])
+        if len(steps):
+            periods.append(float(np.median(steps)))
+    return float(np.median(periods)) if periods else 0.0
