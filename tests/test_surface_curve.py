@@ -1,6 +1,8 @@
 """The measured surface curve (uavturb.gap.surface_curve), the laws fitted to it (uavturb.gap.surface_laws)
 and the multirotor ground-effect law, on hover samples made from known laws (no recorded data)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -419,12 +421,32 @@ def test_a_law_named_from_the_curve_replaces_one_whose_shape_misses_it():
         assert b["height_reference"] > 0  # a centimetre of height moves the law's values
     assert new["law"] == "ground_effect_exponential" and new["named"]["agrees"] and new["law_fits"]
     assert [b["law"] for b in new["bins"]] == pytest.approx(list(fits["ground_effect_exponential"].values))
+    # the same curve, the exponential law's lift not pinned (its amplitude's statistical error over half its value,
+    # as an 18 s take-off at 50 Hz gave): the finder's law stays, whatever the decay length's error
+    loose = dataclasses.replace(fits["ground_effect_exponential"],
+                                fit_errors={"A": 0.6 * fits["ground_effect_exponential"].params["A"], "lam": 0.01})
+    assert law_named_from_curve([td], report, curve, fits | {"ground_effect_exponential": loose}, data, facts,
+                                0.01) == ([td], report)
     # a Cheeseman-Bennett curve: the finder's law fits it and stays
     curve = curve_of(hovers(cheeseman_bennett(3.0), levels=(1.0, 1.03), seed=13))
     fits = {n: fit_law(curve, n, R, **GEOMETRY) for n in ("ground_effect", "ground_effect_exponential")}
     report = surface_curve_report(curve, fits, "ground_effect")
     assert fits["ground_effect"].law_fits
     assert law_named_from_curve([td], report, curve, fits, data, facts, 0.01) == ([td], report)
+
+
+def test_an_amplitude_says_whether_the_law_is_there():
+    """The exponential law is there or not by its amplitude, never by its decay length (which is far from zero
+    whatever the lift): significance and "pinned" read the amplitude only."""
+    from uavturb.gap.uncertainty import presence_z
+
+    assert EFFECTS["ground_effect_exponential"].presence_params == ("A",)
+    assert EFFECTS["wind"].presence_params == ("f_x", "f_y") and EFFECTS["ground_effect"].presence_params == ("mu",)
+    budget = {"A": {"sample": 0.2, "between_recordings": 0.5, "height_reference": 9.0},
+              "lam": {"sample": 0.05, "between_recordings": 0.1, "height_reference": 0.0}}
+    params = {"A": 0.4, "lam": 1.7}
+    assert presence_z(budget, params, ("A",)) == pytest.approx(0.8)  # the larger statistical term; no height
+    assert presence_z(budget, params, ("A", "lam")) == pytest.approx(17.0)
 
 
 def test_ground_laws_are_one_physics_whichever_two():

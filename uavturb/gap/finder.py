@@ -29,8 +29,11 @@ from uavturb.gap.surface_curve import lift_z
 from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
+    HONEST_Z,
     error_budget,
     honest_stderr,
+    presence_z,
+    statistical_errors,
     timing_term,
     with_curve_check,
     with_systematic,
@@ -385,10 +388,6 @@ def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels) -> dict[str, 
     return out
 
 
-#: |value| / honest standard error a named effect's parameter must reach (:mod:`uavturb.gap.uncertainty`)
-HONEST_Z = 2.0
-
-
 def _budget(data: GapData, final: ModelFit, name: str,
             height_uncertainty: float = HEIGHT_REFERENCE_M) -> dict[str, dict[str, float]]:
     """:func:`uavturb.gap.uncertainty.error_budget` of ``name`` in ``final`` (a surface law's recordings
@@ -400,19 +399,17 @@ def _budget(data: GapData, final: ModelFit, name: str,
 
 
 def not_pinned(data: GapData, final: ModelFit, name: str) -> str | None:
-    """Why ``name`` is no discovery when none of its parameters stands :data:`HONEST_Z` honest standard
-    errors from zero (the spread between recordings or blocks counted), else None."""
+    """Why ``name`` is no discovery when none of its parameters that say it is there
+    (:attr:`~uavturb.physics.effects.EffectSpec.presence_params`) stands :data:`HONEST_Z` honest standard errors
+    from zero (the spread between recordings or blocks counted), else None."""
     if not EFFECTS[name].absent_at_zero:
         return None
     params, _ = final.effect_params(name)
-    # the statistical terms only: the height reference's uncertainty moves a surface law's parameter
-    # but cannot make a lift near the floor that the held-out fit found disappear
     budget = _budget(data, final, name, height_uncertainty=0.0)
-    se = {k: float(np.nanmax([b["sample"], b.get("between_recordings", np.nan), b.get("between_blocks", np.nan)]))
-          for k, b in budget.items()}
-    z = max((abs(v) / se[k] if se[k] > 0 else np.inf) for k, v in params.items())
+    z = presence_z(budget, params, EFFECTS[name].presence_params)
     if not np.isfinite(z) or z >= HONEST_Z:
         return None
+    se = statistical_errors(budget)
     return (f"its fitted value ({', '.join(f'{k} = {v:.3g} ± {se[k]:.2g}' for k, v in params.items())}) lies within "
             f"{HONEST_Z:.0f} standard errors of zero once the spread between recordings or blocks is counted")
 

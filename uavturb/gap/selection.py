@@ -237,7 +237,7 @@ class Selection:
 
 def _signed_ok(fit: ModelFit, name: str, z_min: float) -> bool:
     params, se = fit.effect_params(name)
-    zs = [abs(v) / s if s > 0 else np.inf for v, s in ((params[k], se[k]) for k in params)]
+    zs = [abs(v) / s if s > 0 else np.inf for v, s in ((params[k], se[k]) for k in EFFECTS[name].presence_params)]
     if name in POSITIVE and any(v <= 0 for v in params.values()):
         return False
     if name in NONLINEAR:

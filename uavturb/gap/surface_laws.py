@@ -29,7 +29,7 @@ from uavturb.gap.design import GapData, dependent_columns
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, _nl_values
 from uavturb.gap.surface_curve import SurfaceCurve, bin_of, bin_stats, measured_curve, shifted_curve
-from uavturb.gap.uncertainty import honest_stderr
+from uavturb.gap.uncertainty import HONEST_Z, honest_stderr, presence_z
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
 
@@ -415,8 +415,9 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
     is named with the values fitted to the measured curve, whose honest errors cover the spread between
     recordings and the height reference (:func:`uavturb.gap.surface_laws.curve_budget`). The law it replaces
     is kept under ``time_domain``. Among several laws that fit, the lowest ``chi2/dof``; only laws inside their physical
-    range that describe every bin within :data:`~uavturb.gap.surface_laws.AGREEMENT` (2 % of thrust) and closer
-    than the finder's law at its value: a ``chi2/dof`` under 3 alone lets a law miss a bin with a large error
+    range, whose lift stands :data:`~uavturb.gap.uncertainty.HONEST_Z` statistical errors from zero (as every
+    named effect's), and that describe every bin within :data:`~uavturb.gap.surface_laws.AGREEMENT` (2 % of
+    thrust) and closer than the finder's law at its value: a ``chi2/dof`` under 3 alone lets a law miss a bin with a large error
     by 8 % (a simulated Cheeseman-Bennett flight whose lowest bin read 1.19 for the law's 1.10). Called by the finder
     (:mod:`uavturb.gap.finder`) on its named effects' entries (``effects``) and its ``surface_curve``."""
     if curve_report is None or curve is None:
@@ -439,6 +440,9 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
             continue
         fit = min(better, key=lambda f: f.chi2_dof)
         budget = curve_budget(curve, fit, data.rotor_radius, height_uncertainty, **data.geometry)
+        if not presence_z(budget, fit.params, EFFECTS[fit.law].presence_params) >= HONEST_Z:
+            out.append(e)  # its lift not pinned (an 18 s take-off at 50 Hz: A = 1.33 +- 1.23): the finder's law stays
+            continue
         out.append({
             "name": fit.law, "params": dict(fit.params), "stderr": honest_stderr(budget),
             "explanation": (f"{explanation(fit.law, fit.params, facts)} The finder found the effect in time with "

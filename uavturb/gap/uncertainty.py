@@ -46,6 +46,8 @@ from uavturb.physics.effects import EFFECTS
 HEIGHT_REFERENCE_M = 0.01
 #: contiguous blocks of a single recording for the jackknife
 TIME_BLOCKS = 5
+#: |value| / statistical standard error (:func:`presence_z`) a parameter that says an effect is there must reach
+HONEST_Z = 2.0
 
 
 def _params(fit: ModelFit, name: str) -> dict[str, float]:
@@ -136,6 +138,21 @@ def error_budget(data: GapData, final: ModelFit, name: str,
         finite = {t: v for t, v in terms.items() if v is not None and np.isfinite(v)}
         b["limited_by"] = max(finite, key=finite.get) if finite else "unknown"
     return budget
+
+
+def presence_z(budget: dict[str, dict[str, float]], params: dict[str, float], keys) -> float:
+    """The largest ``|value| / error`` over the parameters ``keys`` (those that say an effect is there,
+    :attr:`~uavturb.physics.effects.EffectSpec.presence_params`), the error the budget's statistical terms only
+    (sample, between recordings, between blocks): the height reference moves a surface law's parameter but
+    cannot make a lift near the floor disappear."""
+    se = statistical_errors(budget)
+    return max(abs(params[k]) / se[k] if se[k] > 0 else np.inf for k in keys)
+
+
+def statistical_errors(budget: dict[str, dict[str, float]]) -> dict[str, float]:
+    """``{param: the largest of its sample, between-recordings and between-blocks terms}`` of an error budget."""
+    return {k: float(np.nanmax([b["sample"], b.get("between_recordings", np.nan), b.get("between_blocks", np.nan)]))
+            for k, b in budget.items()}
 
 
 def honest_stderr(budget: dict[str, dict[str, float]]) -> dict[str, float]:

@@ -359,6 +359,12 @@ class EffectSpec:
     amplitude: str | None = None
 
     @property
+    def presence_params(self) -> tuple[str, ...]:
+        """The parameters whose distance from zero says whether the effect is there: the ``amplitude`` of a law
+        that has one (the exponential law's decay length is never near zero, whatever the lift), else all."""
+        return (self.amplitude,) if self.amplitude is not None else self.params
+
+    @property
     def searched_param(self) -> str:
         """The parameter a nonlinear law's fit searches over ``search``: the one that is not its ``amplitude``."""
         return next(p for p in self.params if p != self.amplitude)
