@@ -298,7 +298,7 @@ def test_a_held_out_gain_on_rows_in_clusters_is_scored_on_blocks_that_fit_them()
                          HeldOut(after[few], np.zeros(10), t[few], g[few])) == 0.0
 
 
-# --- the exponential law: two shape parameters, fitted to the curve only ------------------------------------
+# --- the exponential law: two parameters, its amplitude a column of the fit in time ---------------------------
 
 
 def exponential(A, lam):

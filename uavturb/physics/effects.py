@@ -385,8 +385,8 @@ class EffectSpec:
     def strongest_ratio(self, d: np.ndarray, rotor_radius: float, **geometry) -> np.ndarray:
         """(K,) -, ``T_IGE/T_OGE`` of this surface law at the top of its physical range at rotor-plane
         heights ``d`` [m] (K,): the most it could raise the thrust there (``inf`` where the law does not
-        hold, e.g. inside the Cheeseman-Bennett clip). The range of a surface law the finder fits is on its one
-        parameter; laws with several (fitted to the measured curve only) have no top and give 1."""
+        hold, e.g. inside the Cheeseman-Bennett clip). The range of a one-parameter surface law is on its one
+        parameter; laws with several (their range bounds a derived quantity) have no top and give 1."""
         if self.surface is None or self.ratio is None or len(self.params) != 1:
             return np.ones(np.shape(d))
         with np.errstate(divide="ignore", invalid="ignore"):
