@@ -527,6 +527,9 @@ _SURFACE_RANGE_SOURCE = ("Cheeseman & Bennett 1955 give mu = 1 for one rotor; 1-
 _EXPONENTIAL_RANGE_SOURCE = ("the Cheeseman-Bennett law at the top of its range (mu = 12) adds 23 % at two rotor radii; "
                              "small multirotors show 4-11 % a rotor radius or two above the floor (effects.md)")
 
+#: rotor radii, the exponential law's decay length ``lam`` searched, in time (``search``) and on the curve (``bounds``)
+_DECAY_RADII = (0.2, 10.0)
+
 _MULTIROTOR_RANGE_SOURCE = ("Sanchez-Cuevas, Heredia & Ollero 2017 (Int. J. Aerospace Eng., doi 10.1155/2017/1823056) "
                             "fit K_b to their quadrotor's measured curve; implementations quote 0.5-2. Far from the "
                             "ground the body term is K_b times the rotors' images: at K_b = 6 the body would lift "
@@ -555,8 +558,8 @@ EFFECTS: dict[str, EffectSpec] = {
                                  _EXPONENTIAL_RANGE_SOURCE),
                    _explain_ground_exponential, along_thrust=True, surface="d_down",
                    manoeuvre="hover over the floor at several heights from one to ten rotor radii",
-                   search=(0.2, 10.0), ratio=_exponential_ratio, alternative_to="ground_effect",
-                   bounds=((0.0, 2.0), (0.2, 10.0)), amplitude="A"),
+                   search=_DECAY_RADII, ratio=_exponential_ratio, alternative_to="ground_effect",
+                   bounds=((0.0, 2.0), _DECAY_RADII), amplitude="A"),
         EffectSpec("ceiling_effect", ("kappa",), ("-",), (2.0,), ceiling_effect_force, False,
                    "ceiling effect: suction towards the surface above",
                    PhysicalRange("kappa", 0.25, 12.0, lambda p, f: p["kappa"], _SURFACE_RANGE_SOURCE),
