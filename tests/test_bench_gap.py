@@ -15,7 +15,7 @@ def test_bench_gap_measures_the_analysis_and_its_own_memory(tmp_path, capsys):
         path = tmp_path / f"flight{k}"
         generate_flight(vehicle="hex", effects="ground_effect:mu=2", duration=30.0, kind="mixed", seed=7 + k, out=path)
         paths.append(str(path))
-    fig = bench_gap(paths)
+    fig = bench_gap(paths, hour_s=120.0)  # 'an hour' of two minutes: the two flights twice
     assert fig["flights"] == 2 and fig["flight time [s]"] == pytest.approx(60.0, abs=0.1)
     assert fig["rows (IMU or ground truth)"] == pytest.approx(2 * 30 * 200, abs=4)  # 200 Hz IMU
     assert fig["first halves: rows"] == pytest.approx(fig["rows (IMU or ground truth)"] / 2, abs=4)
@@ -30,5 +30,12 @@ def test_bench_gap_measures_the_analysis_and_its_own_memory(tmp_path, capsys):
     assert fig["per flight-hour at 200 Hz: seconds"] >= fig["read [s]"] + fig["analyse [s]"]
     assert 0 < fig["per flight-hour at 200 Hz: CPU seconds"] < 10 * fig["per flight-hour at 200 Hz: seconds"]
     assert HOUR_ROWS == 720_000
+    # measured whole on repeats, each a recording of its own (the reader refuses one recording given twice)
+    assert fig["hour measured: recordings (repeats)"] == 4
+    assert fig["hour measured: flight time [s]"] == pytest.approx(120.0, abs=0.2)
+    assert fig["hour measured: rows"] == 2 * fig["rows (IMU or ground truth)"]
+    assert fig["hour measured: read + analyse [s]"] > 0
+    assert fig["hour measured: peak memory [MB]"] >= fig["resident after imports [MB]"]
     printed = capsys.readouterr().out
     assert "per flight-hour at 200 Hz: peak memory [MB]" in printed and "effects named" in printed
+    assert "hour measured: peak memory [MB]" in printed

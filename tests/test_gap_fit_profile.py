@@ -96,3 +96,55 @@ def test_selection_fits_each_effect_set_once_and_finish_agrees(monkeypatch):
     again = selection.finish(data, frozenset(), sel.steps)
     assert again.final.coef == sel.final.coef and again.final.nonlinear == sel.final.nonlinear
     assert again.final_heldout.rmse == sel.final_heldout.rmse and again.base_heldout.rmse == sel.base_heldout.rmse
+
+
+@pytest.mark.parametrize("true_k", [0, 1, 333, 700, 1024])
+def test_lattice_minimum_finds_the_lattice_point_of_a_smooth_minimum_in_few_evaluations(true_k):
+    from uavturb.gap.fit import GRID_POINTS, LATTICE_STEPS, lattice_minimum
+
+    top = (GRID_POINTS - 1) * LATTICE_STEPS
+    calls = []
+
+    def f(k):  # smooth, asymmetric, its minimum 0.3 lattice steps off a lattice point (clipped to the range)
+        calls.append(k)
+        x = (k - min(true_k + 0.3, top)) / top
+        return x**2 + 0.5 * x**3 + 1.0
+
+    assert lattice_minimum(f) == true_k
+    assert len(calls) == len(set(calls)) and len(calls) <= GRID_POINTS + 8 + 12
+    assert all(0 <= k <= top for k in calls)
+
+
+def test_lattice_values_span_the_search_range_with_the_coarse_grid_on_it():
+    from uavturb.gap.design import NONLINEAR
+    from uavturb.gap.fit import GRID_POINTS, LATTICE_STEPS, lattice_value
+
+    name, lo, hi = "motor_lag", NONLINEAR["motor_lag"][1], NONLINEAR["motor_lag"][2]
+    top = (GRID_POINTS - 1) * LATTICE_STEPS
+    assert lattice_value(name, 0) == pytest.approx(lo) and lattice_value(name, top) == pytest.approx(hi)
+    grid = np.geomspace(lo, hi, GRID_POINTS)
+    assert [lattice_value(name, i * LATTICE_STEPS) for i in range(GRID_POINTS)] == pytest.approx(grid, rel=1e-12)
+    step = lattice_value(name, 501) / lattice_value(name, 500) - 1
+    assert 0.002 < step < 0.01  # finer than the honest errors, coarse enough for searches to meet
+
+
+@pytest.mark.parametrize("recordings", [1, 3])
+def test_folds_fitted_together_are_the_fits_on_each_folds_rows(recordings):
+    """The held-out test's folds fitted from one profile cut in pieces give the residuals of fitting each fold on
+    its own training rows (same nonlinear values, coefficients to rounding), both protocols."""
+    from uavturb.gap.selection import FoldFits, folds
+
+    data, _ = _hover(K=3000)
+    data.group = np.repeat(np.arange(recordings), -(-len(data) // recordings))[: len(data)]
+    data.names = [f"rec{g}" for g in range(recordings)]
+    effects = frozenset({"ground_effect", "motor_lag"})
+    protocol, masks = folds(data)
+    assert protocol == ("leave-one-recording-out" if recordings > 1 else "last-30%-of-each-recording")
+    together = FoldFits(data, masks).heldout(effects)
+    apart = []
+    for train, test in masks:
+        fit = fit_model(data.subset(train), effects, with_stderr=False)
+        apart.append(fit.residual(data.subset(test)))
+    apart = np.concatenate(apart)
+    assert together.resid.shape == apart.shape == (sum(int(te.sum()) for _, te in masks), 3)
+    assert np.allclose(together.resid, apart, rtol=1e-7, atol=1e-9 * np.abs(apart).max())

@@ -338,6 +338,9 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     gp = s.add_argument_group("TARGET gap")
     gp.add_argument("recordings", nargs="*", metavar="REC", help="recordings to analyse (default: two generated flights)")
     gp.add_argument("--minutes", type=float, help="length of each generated flight (default 5)")
+    gp.add_argument("--measured-hour", action=argparse.BooleanOptionalAction, default=None,
+                    help="also measure an hour whole: the recordings repeated to an hour of flight, one "
+                         "recording each repeat (default: on)")
     g = s.add_argument_group("TARGET gpu")
     g.add_argument("--device", choices=["cuda", "cpu"], help="cuda (default; refused where none is seen) or cpu "
                                                              "(the same measurement, small)")

@@ -179,7 +179,7 @@ def bench(what: str) -> None:
 
 
 #: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.bench.gpu.bench_gpu`)
-BENCH_OPTIONS = ("recordings", "minutes", "device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
+BENCH_OPTIONS = ("recordings", "minutes", "measured_hour", "device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
 
 
 def bench_target(what: str, options: dict | None = None) -> None:
@@ -198,6 +198,7 @@ def bench_target(what: str, options: dict | None = None) -> None:
         return
     options.pop("recordings", None)
     options.pop("minutes", None)
+    options.pop("measured_hour", None)
     if what == "gpu":  # both training stages on a CUDA device (uavturb.bench.gpu)
         from uavturb.bench.gpu import bench_gpu
 

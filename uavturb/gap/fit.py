@@ -6,9 +6,9 @@ Newey-West covariance (``physics/least_squares.py``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from uavturb.gap.design import (
     AMPLITUDE,
@@ -105,23 +105,93 @@ def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
     return c / scale, float(r @ r)
 
 
-class _Profile:
-    """Least-squares error as a function of the nonlinear parameters, fast: the Gram matrix of
-    the fixed columns (bias, linear effects) and their products with ``y`` are computed once;
-    each evaluation then needs only the dependent columns' products (``design.thrust_columns``)."""
+#: the values a search of a nonlinear parameter may take: a log lattice from its lower to its upper bound with
+#: this many steps between two points of the coarse grid (0.6-1.2 % apart: far under any honest error). Every
+#: search lands on the same values, so that the folds of a held-out test, searched apart, share the columns and
+#: the sums of products they computed (:class:`_Profile`'s pieces)
+LATTICE_STEPS = 128
+#: parabolic steps at most after the grids (each one evaluation; 3-4 are enough on a smooth minimum)
+MAX_REFINE = 12
 
-    def __init__(self, data: GapData, effects: frozenset[str], y: np.ndarray):
+
+def lattice_value(effect: str, k: int) -> float:
+    """The value of ``effect``'s searched parameter at lattice index ``k`` (0: the lower bound,
+    ``(GRID_POINTS - 1) * LATTICE_STEPS``: the upper)."""
+    lo, hi = NONLINEAR[effect][1], NONLINEAR[effect][2]
+    return float(lo * (hi / lo) ** (k / ((GRID_POINTS - 1) * LATTICE_STEPS)))
+
+
+def lattice_minimum(f: Callable[[int], float]) -> int:
+    """The lattice index ``k`` that minimises ``f`` (:data:`LATTICE_STEPS`): the coarse grid of
+    :data:`GRID_POINTS` values, quarter steps either side of its best, then parabolic steps through the
+    best value and its evaluated neighbours (a bisection of the wider side where the parabola does not
+    help, or where the best value is the last evaluated on one side, as at a bound of the range) until its
+    neighbours on the lattice are known. ``f`` is called once per index."""
+    seen: dict[int, float] = {}
+
+    def at(k: int) -> float:
+        if k not in seen:
+            seen[k] = f(k)
+        return seen[k]
+
+    top = (GRID_POINTS - 1) * LATTICE_STEPS
+    i = min(range(0, top + 1, LATTICE_STEPS), key=at)
+    for k in range(max(0, i - LATTICE_STEPS), min(top, i + LATTICE_STEPS) + 1, LATTICE_STEPS // 4):
+        at(k)
+    for _ in range(MAX_REFINE):
+        best = min(seen, key=lambda k: (seen[k], k))
+        left = max((k for k in seen if k < best), default=None)
+        right = min((k for k in seen if k > best), default=None)
+        gap_left, gap_right = (best - left if left is not None else 0), (right - best if right is not None else 0)
+        if max(gap_left, gap_right) <= 1:
+            break  # the best value's neighbours on the lattice are known (or it sits at a bound)
+        k = None
+        if left is not None and right is not None:  # the parabola's vertex through the three
+            fl, fb, fr = seen[left], seen[best], seen[right]
+            den = (best - left) * (fb - fr) - (best - right) * (fb - fl)
+            if den:
+                k = int(round(best - 0.5 * ((best - left) ** 2 * (fb - fr) - (best - right) ** 2 * (fb - fl)) / den))
+        if k is None or not (best - gap_left < k < best + gap_right) or k in seen:  # no parabolic step: halve
+            k = best + gap_right // 2 if gap_right >= gap_left else best - gap_left // 2  # the wider side
+        at(k)
+    return min(seen, key=lambda k: (seen[k], k))
+
+
+class _Profile:
+    """Least-squares error as a function of the nonlinear parameters, fast: the sums of products of the fixed
+    columns (bias, linear effects) with each other and with ``y`` are computed once; each evaluation then
+    needs only the dependent columns' products (``design.thrust_columns``).
+
+    ``pieces`` (row indices of the samples) split the rows: the sums are kept per piece, and the error is that
+    of the fit on any union of pieces (``use``, one flag a piece). The folds of a held-out test are such unions
+    (each recording a piece, or the first 70 % and last 30 % of one): they share every evaluation, each a
+    pass over the rows, instead of repeating it on their own rows."""
+
+    def __init__(self, data: GapData, effects: frozenset[str], y: np.ndarray,
+                 pieces: list[np.ndarray] | None = None):
         self.data, self.effects, self.y = data, set(effects), y
-        self.F, _ = fixed_columns(data, self.effects)
-        self.FF, self.Fy, self.yy = self.F.T @ self.F, self.F.T @ y, float(y @ y)
+        K = len(data)
+        pieces = [np.arange(K)] if pieces is None else pieces
+        # each piece's rows of the stacked (x, y, z) design: three slices where its samples are consecutive
+        self._rows = [[slice(int(p[0]) + j * K, int(p[-1]) + 1 + j * K) for j in range(3)]
+                      if len(p) and p[-1] - p[0] + 1 == len(p) else [p + j * K for j in range(3)] for p in pieces]
+        self.n = np.array([len(p) for p in pieces])
+        F, self.fixed_names = fixed_columns(data, self.effects)
+        self.F = F
+        self.FF = np.stack([sum(F[r].T @ F[r] for r in rows) for rows in self._rows])
+        self.Fy = np.stack([sum(F[r].T @ y[r] for r in rows) for rows in self._rows])
+        self.yy = np.array([sum(float(y[r] @ y[r]) for r in rows) for rows in self._rows])
         # the effective rotor speeds depend on tau only, the surface laws on mu / kappa only: a profile over
         # one of them reuses the other's (a lagged sum over a flight-hour costs more than the whole fit)
         self._S: dict[float, np.ndarray] = {}
         self._surf: dict[tuple, tuple[np.ndarray, list[np.ndarray]]] = {}
         self._surface = [EFFECTS[e].searched_param for e in sorted(self.effects) if EFFECTS[e].surface is not None]
-        # the error at each value the columns are really computed at (a search returns to values it tried, and
-        # taus one cached grid step apart, design.lag_key, give the same columns)
+        # the sums at each value the columns are really computed at (a search returns to values it tried, the
+        # folds try the same lattice values, and taus one cached grid step apart, design.lag_key, give the same
+        # columns), and the dependent columns' names
+        self._sums: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._sse: dict[tuple, float] = {}
+        self.dependent_names: list[str] = []
 
     def _columns(self, values: dict[str, float]) -> np.ndarray:
         tau = round(values["tau"], 12) if "motor_lag" in self.effects else 0.0
@@ -131,28 +201,70 @@ class _Profile:
         if key not in self._surf:
             self._surf = {key: (surface_extra(self.data, self.effects, values),
                                 amplitude_shapes(self.data, self.effects, values))}
-        return thrust_columns(self.data, self.effects, self._S[tau], *self._surf[key])[0]
+        D, self.dependent_names = thrust_columns(self.data, self.effects, self._S[tau], *self._surf[key])
+        return D
 
-    def sse(self, nl: dict[str, float]) -> float:
-        values = _nl_values(nl)
-        key = (lag_key(values["tau"]) if "motor_lag" in self.effects else 0.0,) + tuple(values[p] for p in self._surface)
-        if key not in self._sse:
-            self._sse[key] = self._sse_at(values)
-        return self._sse[key]
+    def _key(self, values: dict[str, float]) -> tuple:
+        return (lag_key(values["tau"]) if "motor_lag" in self.effects else 0.0,) + tuple(values[p] for p in self._surface)
 
-    def _sse_at(self, values: dict[str, float]) -> float:
-        D = self._columns(values)
-        nd = D.shape[1]
-        G = np.empty((nd + self.FF.shape[0],) * 2)
-        G[:nd, :nd] = D.T @ D
-        G[:nd, nd:] = D.T @ self.F
+    def _sums_at(self, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per piece: ``D^T D``, ``D^T F``, ``D^T y`` of the dependent columns ``D`` at ``values``."""
+        key = self._key(values)
+        if key not in self._sums:
+            D = self._columns(values)
+            self._sums[key] = (np.stack([sum(D[r].T @ D[r] for r in rows) for rows in self._rows]),
+                               np.stack([sum(D[r].T @ self.F[r] for r in rows) for rows in self._rows]),
+                               np.stack([sum(D[r].T @ self.y[r] for r in rows) for rows in self._rows]))
+        return self._sums[key]
+
+    def _solved(self, values: dict[str, float], use: np.ndarray | None) -> tuple[np.ndarray, float]:
+        """Coefficients (dependent columns, then fixed) and the error of the fit on the pieces ``use``."""
+        DD, DF, Dy = self._sums_at(values)
+        u = slice(None) if use is None else use
+        nd = DD.shape[1]
+        G = np.empty((nd + self.FF.shape[1],) * 2)
+        G[:nd, :nd] = DD[u].sum(axis=0)
+        G[:nd, nd:] = DF[u].sum(axis=0)
         G[nd:, :nd] = G[:nd, nd:].T
-        G[nd:, nd:] = self.FF
-        b = np.concatenate([D.T @ self.y, self.Fy])
+        G[nd:, nd:] = self.FF[u].sum(axis=0)
+        b = np.concatenate([Dy[u].sum(axis=0), self.Fy[u].sum(axis=0)])
         d = np.sqrt(np.diag(G))
         d[d == 0] = 1.0
         c = np.linalg.lstsq(G / np.outer(d, d), b / d, rcond=1e-13)[0]
-        return max(self.yy - float(c @ (b / d)), 0.0)
+        return c / d, max(float(self.yy[u].sum()) - float(c @ (b / d)), 0.0)
+
+    def sse(self, nl: dict[str, float], use: np.ndarray | None = None) -> float:
+        """Least-squares error [N^2] with the nonlinear parameters ``nl`` on the pieces ``use`` (None: all)."""
+        values = _nl_values(nl)
+        key = (self._key(values), None if use is None else use.tobytes())
+        if key not in self._sse:
+            self._sse[key] = self._solved(values, use)[1]
+        return self._sse[key]
+
+    def fit(self, nl: dict[str, float], use: np.ndarray | None = None) -> ModelFit:
+        """The model at ``nl`` fitted on the pieces ``use`` (no standard errors)."""
+        values = _nl_values(nl)
+        c, sse = self._solved(values, use)
+        n = int(self.n.sum() if use is None else self.n[use].sum())
+        return ModelFit(frozenset(self.effects), dict(nl), dict(zip(self.dependent_names + self.fixed_names, map(float, c))),
+                        {}, float(np.sqrt(sse / max(n, 1))))
+
+
+def search_nonlinear(prof: _Profile, effects: frozenset[str], fixed: dict[str, float] | None = None,
+                     use: np.ndarray | None = None) -> dict[str, float]:
+    """The nonlinear parameters of ``effects`` that minimise the profile's error on the pieces ``use``:
+    coordinate descent over :func:`lattice_minimum` (twice round where two are free); those in ``fixed``
+    are held. A parameter whose effect fits best absent is 0 (a simulator effect the real flights lack),
+    not its lattice's lower bound."""
+    fixed = dict(fixed or {})
+    free = [e for e in sorted(effects) if e in NONLINEAR and e not in fixed]
+    nl = {e: fixed.get(e, lattice_value(e, (GRID_POINTS - 1) * LATTICE_STEPS // 2)) for e in effects if e in NONLINEAR}
+    for _ in range(2 if len(free) > 1 else 1):
+        for e in free:
+            nl[e] = lattice_value(e, lattice_minimum(lambda k: prof.sse(nl | {e: lattice_value(e, k)}, use)))
+            if prof.sse(nl | {e: 0.0}, use) <= prof.sse(nl, use):
+                nl[e] = 0.0
+    return nl
 
 
 def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 50,
@@ -170,22 +282,8 @@ def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 5
     y = stack_target(data.y)
     fixed = dict(fixed_nonlinear or {})
     free = [e for e in sorted(effects) if e in NONLINEAR and e not in fixed]
-    nl = {e: fixed.get(e, np.sqrt(NONLINEAR[e][1] * NONLINEAR[e][2])) for e in effects if e in NONLINEAR}
-    prof = _Profile(data, effects, y) if free else None
-    for _ in range(2 if len(free) > 1 else 1):  # coordinate descent over the nonlinear parameters
-        for e in free:
-            lo, hi = NONLINEAR[e][1], NONLINEAR[e][2]
-            grid = np.geomspace(lo, hi, GRID_POINTS)
-            sse = [prof.sse(nl | {e: g}) for g in grid]
-            i = int(np.argmin(sse))
-            a, b = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
-            res = minimize_scalar(lambda z: prof.sse(nl | {e: np.exp(z)}), bounds=(a, b),
-                                  method="bounded", options={"xatol": 1e-2})  # 1 %: far under any honest error
-            nl[e] = float(np.exp(res.x)) if res.fun <= sse[i] else float(grid[i])
-            # the effect may be absent altogether (a simulator effect the real flights lack):
-            # its parameter is then 0, not the grid's lower bound
-            if prof.sse(nl | {e: 0.0}) <= min(res.fun, sse[i]):
-                nl[e] = 0.0
+    nl = search_nonlinear(_Profile(data, effects, y), effects, fixed) if free else \
+        {e: fixed[e] for e in effects if e in NONLINEAR}
     A, names = design(data, effects, _nl_values(nl))
     coef, sse = _solve(A, y)
     stderr: dict[str, float] = {}
