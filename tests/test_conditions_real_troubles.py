@@ -279,3 +279,31 @@ def test_two_flights_at_one_fixed_heading(tmp_path, capsys):
         np.testing.assert_allclose(np.degrees(yaw), 60.0, atol=0.5)
     assert main(["generate", "flight", "--duration", "2", "--out", str(tmp_path / "bad"), "--heading-deg", "60"]) == 2
     assert "--heading-deg" in capsys.readouterr().err
+
+
+def test_residuals_flag_the_rows_on_the_ground(landing_flight, tmp_path, capsys):
+    """``uavturb residuals`` on a flight with 1.5 s on its landing gear at both ends: the rows the floor carries are
+    flagged (the floor's reaction, up to the part of the weight the rotors leave, is in their residual) and the
+    printed RMS is the one in flight."""
+    import pandas as pd
+
+    rec0, truth0 = landing_flight
+    c, rec, path = _write(rec0, truth0, tmp_path, noise=SensorNoise(), ground_contact_s=1.5)
+    out = tmp_path / "r.csv"
+    # all low passes: no free flight away from the floor to identify on, the vehicle's own constants
+    assert main(["residuals", str(path), "--out", str(out), "--params", "nominal"]) == 0
+    table = pd.read_csv(out)
+    flagged = table["ground_contact"].to_numpy() == 1
+    t = table["t [s]"].to_numpy()
+    for lo, hi in c.truth["conditions"]["ground_contact"]["intervals_s"]:
+        assert flagged[(t >= lo) & (t <= hi)].all()  # every row of each rest
+    # and nothing in the air: the flight's own rests before take-off and after landing are flagged too, at the
+    # landed height (with the margins' few centimetres of lift-off and touch-down); no row 10 cm up is
+    d = table["d_down [m]"].to_numpy()
+    assert np.all(d[flagged] < d.min() + 0.05) and (d > d.min() + 0.10).sum() > 500
+    weight = HEXAROTOR.mass * GRAVITY
+    on_gear = flagged & (np.abs(t - t[-1]) > 0.3) & (t > 0.3)
+    assert np.median(table.loc[on_gear, "F_z [N]"]) > 0.02 * weight  # the floor's push, no aerodynamic law
+    air = np.sqrt(np.mean(np.sum(table.loc[~flagged, ["F_x [N]", "F_y [N]", "F_z [N]"]].to_numpy() ** 2, axis=1)))
+    printed = capsys.readouterr().out
+    assert f"residual RMS in flight {air:.4f} N ({flagged.sum()} on the ground" in printed

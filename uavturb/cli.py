@@ -442,7 +442,10 @@ def _residuals(args: argparse.Namespace) -> int:
 
     res, path = residuals_to_file(args.recording, args.out, source=args.source, derivative=args.derivative,
                                   params=args.params, vehicle=args.vehicle, overwrite=args.overwrite)
-    print(f"wrote {path}: {len(res.t)} samples, source {res.source}, residual RMS {res.rmse:.4f} N")
+    contact = (f" ({res.on_ground} on the ground, flagged in column ground_contact and left out of it: the floor's "
+               f"reaction is in their residual)" if res.on_ground else "")
+    print(f"wrote {path}: {len(res.t)} samples, source {res.source}, residual RMS in flight "
+          f"{res.rmse_in_flight:.4f} N{contact}")
     return 0
 
 

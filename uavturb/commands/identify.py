@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -9,6 +10,7 @@ from typing import Sequence
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.gap.preparation import contact_masks
 from uavturb.io.publish import check_output_file
 from uavturb.io.reader import load_recordings
 from uavturb.io.recording import Recording
@@ -100,7 +102,8 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
                       params: str = "identified", vehicle: str | Vehicle | None = None,
                       overwrite: bool = False) -> tuple[Residuals, Path]:
     """``uavturb residuals``: the residual force series of one flight, written to CSV or Parquet
-    (an existing ``out`` is replaced only with ``overwrite``)."""
+    (an existing ``out`` is replaced only with ``overwrite``), its rows on the ground flagged
+    (``ground_contact``: the floor's reaction is in their residual, as ``uavturb gap`` finds it)."""
     out = Path(out)
     if out.suffix not in (".csv", ".parquet"):
         raise InputError(out, "output must end in .csv or .parquet")
@@ -119,5 +122,7 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     else:
         raise InputError("--params", f"unknown value '{params}' (allowed: identified, nominal)")
     res = residual_forces(rec, v, source=source, derivative=derivative)
+    (contact,), _ = contact_masks([res.data], v, [str(path)])  # the rows the gap finder leaves out
+    res = dataclasses.replace(res, ground_contact=contact)
     return res, write_residuals(res, out, overwrite=overwrite)
 

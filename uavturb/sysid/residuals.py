@@ -60,6 +60,8 @@ class Residuals:
     sum_omega2 : (K,) rad^2/s^2
     source : ``imu`` or ``mocap``
     data : the aligned flight the residual was computed on
+    ground_contact : (K,) bool, rows where the floor carries the vehicle (its reaction is in ``force``: no
+        aerodynamic law explains it), or None where not looked for
     """
 
     t: np.ndarray
@@ -70,11 +72,24 @@ class Residuals:
     sum_omega2: np.ndarray
     source: str
     data: FlightData
+    ground_contact: np.ndarray | None = None
 
     @property
     def rmse(self) -> float:
         """Root mean square of the force norm [N]."""
         return float(np.sqrt(np.mean(np.sum(self.force**2, axis=1))))
+
+    @property
+    def on_ground(self) -> int:
+        """Rows where the floor carries the vehicle (0 where not looked for)."""
+        return 0 if self.ground_contact is None else int(np.sum(self.ground_contact))
+
+    @property
+    def rmse_in_flight(self) -> float:
+        """Root mean square of the force norm [N] off the ground (:attr:`ground_contact` left out; nan where
+        the vehicle never left it)."""
+        air = np.ones(len(self.t), bool) if self.ground_contact is None else ~self.ground_contact
+        return float(np.sqrt(np.mean(np.sum(self.force[air] ** 2, axis=1)))) if air.any() else float("nan")
 
     def noise_floor(self, window_s: float = NOISE_WINDOW_S) -> np.ndarray:
         """Per-axis noise level of ``force`` [N] (3,), W: see :func:`noise_floor`."""
@@ -159,16 +174,18 @@ RESIDUAL_COLUMNS = [
     "F_x [N]", "F_y [N]", "F_z [N]",
     "F_Bx [N]", "F_By [N]", "F_Bz [N]",
     "tau_Bx [N m]", "tau_By [N m]", "tau_Bz [N m]",
-    "thrust [N]", "sum_omega2 [rad^2 s^-2]", "d_down [m]", "d_up [m]",
+    "thrust [N]", "sum_omega2 [rad^2 s^-2]", "d_down [m]", "d_up [m]", "ground_contact",
 ]
 
 
 def residual_table(res: Residuals):
-    """The residual time series as a pandas DataFrame (columns :data:`RESIDUAL_COLUMNS`)."""
+    """The residual time series as a pandas DataFrame (columns :data:`RESIDUAL_COLUMNS`; ``ground_contact`` 1 on
+    the rows where the floor carries the vehicle, 0 elsewhere, empty where it was not looked for)."""
     fd = res.data
     nan = np.full(len(res.t), np.nan)
+    contact = nan if res.ground_contact is None else res.ground_contact.astype(int)  # 1: on the ground
     cols = [res.t, fd.t_ns, *res.force.T, *res.force_body.T, *res.torque.T, res.thrust, res.sum_omega2,
-            fd.d_down if fd.d_down is not None else nan, fd.d_up if fd.d_up is not None else nan]
+            fd.d_down if fd.d_down is not None else nan, fd.d_up if fd.d_up is not None else nan, contact]
     return pd.DataFrame(dict(zip(RESIDUAL_COLUMNS, cols)))
 
 
