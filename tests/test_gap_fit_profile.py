@@ -1,4 +1,4 @@
-"""The fit's profiled error (``fit._Profile``) and its thrust columns: what makes them fast gives the numbers of
+"""The fit's profiled error (``fit.Profile``) and its thrust columns: what makes them fast gives the numbers of
 the plain computation to the bit (the nonlinear searches compare errors, so a rounding change could move them)."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from uavturb.gap.design import GapData, lag_key, stack_target, thrust_columns
-from uavturb.gap.fit import _Profile, fit_model
+from uavturb.gap.fit import Profile, fit_model
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import lag_rotor_speeds
@@ -59,7 +59,7 @@ def test_thrust_columns_are_the_plain_ones_to_the_bit(effects):
 
 def test_profile_remembers_errors_at_the_values_it_computes_at():
     data, _ = _hover()
-    prof = _Profile(data, frozenset({"motor_lag", "ground_effect"}), stack_target(data.y))
+    prof = Profile(data, frozenset({"motor_lag", "ground_effect"}), stack_target(data.y))
     tau = 0.0301
     assert lag_key(tau * (1 + 1e-4)) == lag_key(tau)
     first = prof.sse({"motor_lag": tau, "ground_effect": 2.0})
@@ -67,7 +67,7 @@ def test_profile_remembers_errors_at_the_values_it_computes_at():
     assert prof.sse({"motor_lag": tau * (1 + 1e-4), "ground_effect": 2.0}) == first
     assert len(prof._sse) == 1
     assert prof.sse({"motor_lag": tau, "ground_effect": 2.0 * (1 + 1e-9)}) != first  # mu is taken as given
-    fresh = _Profile(data, frozenset({"motor_lag", "ground_effect"}), stack_target(data.y))
+    fresh = Profile(data, frozenset({"motor_lag", "ground_effect"}), stack_target(data.y))
     assert fresh.sse({"motor_lag": tau * (1 + 1e-4), "ground_effect": 2.0}) == first
 
 

@@ -108,7 +108,7 @@ def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
 #: the values a search of a nonlinear parameter may take: a log lattice from its lower to its upper bound with
 #: this many steps between two points of the coarse grid (0.6-1.2 % apart: far under any honest error). Every
 #: search lands on the same values, so that the folds of a held-out test, searched apart, share the columns and
-#: the sums of products they computed (:class:`_Profile`'s pieces)
+#: the sums of products they computed (:class:`Profile`'s pieces)
 LATTICE_STEPS = 128
 #: parabolic steps at most after the grids (each one evaluation; 3-4 are enough on a smooth minimum)
 MAX_REFINE = 12
@@ -157,7 +157,7 @@ def lattice_minimum(f: Callable[[int], float]) -> int:
     return min(seen, key=lambda k: (seen[k], k))
 
 
-class _Profile:
+class Profile:
     """Least-squares error as a function of the nonlinear parameters, fast: the sums of products of the fixed
     columns (bias, linear effects) with each other and with ``y`` are computed once; each evaluation then
     needs only the dependent columns' products (``design.thrust_columns``).
@@ -250,7 +250,7 @@ class _Profile:
                         {}, float(np.sqrt(sse / max(n, 1))))
 
 
-def search_nonlinear(prof: _Profile, effects: frozenset[str], fixed: dict[str, float] | None = None,
+def search_nonlinear(prof: Profile, effects: frozenset[str], fixed: dict[str, float] | None = None,
                      use: np.ndarray | None = None) -> dict[str, float]:
     """The nonlinear parameters of ``effects`` that minimise the profile's error on the pieces ``use``:
     coordinate descent over :func:`lattice_minimum` (twice round where two are free); those in ``fixed``
@@ -282,7 +282,7 @@ def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 5
     y = stack_target(data.y)
     fixed = dict(fixed_nonlinear or {})
     free = [e for e in sorted(effects) if e in NONLINEAR and e not in fixed]
-    nl = search_nonlinear(_Profile(data, effects, y), effects, fixed) if free else \
+    nl = search_nonlinear(Profile(data, effects, y), effects, fixed) if free else \
         {e: fixed[e] for e in effects if e in NONLINEAR}
     A, names = design(data, effects, _nl_values(nl))
     coef, sse = _solve(A, y)

@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from uavturb.gap.design import NONLINEAR, THRUST_AXIS, GapData, stack_target
-from uavturb.gap.fit import ModelFit, _Profile, fit_model, search_nonlinear
+from uavturb.gap.fit import ModelFit, Profile, fit_model, search_nonlinear
 from uavturb.physics.effects import EFFECTS
 
 #: effects whose parameters are positive by physics (from the registry)
@@ -109,7 +109,7 @@ def _offset_taken_off(data: GapData, offset: np.ndarray | None) -> GapData:
 class FoldFits:
     """The folds of a held-out test on ``data``'s rows, fitted together: the rows are cut into pieces (the
     samples each fold trains on, or not, alike: a recording, or the first 70 % and last 30 % of one), and
-    every fold's fit is the fit on its union of pieces from one :class:`~uavturb.gap.fit._Profile` per effect
+    every fold's fit is the fit on its union of pieces from one :class:`~uavturb.gap.fit.Profile` per effect
     set. The folds' searches try the same lattice of nonlinear values and share each evaluation, one pass over
     the rows; fitted apart, twelve recordings had repeated each pass eleven times (a flight-hour in twelve
     recordings took 38 s and 1.4 GB, two recordings 12 s and 0.9 GB)."""
@@ -125,7 +125,7 @@ class FoldFits:
 
     def heldout(self, effects: frozenset[str], fixed: dict[str, float] | None = None) -> HeldOut:
         """Held-out residuals of the model with ``effects`` (nonlinear parameters in ``fixed`` held)."""
-        prof = _Profile(self.data, frozenset(effects), stack_target(self.data.y), self.pieces)
+        prof = Profile(self.data, frozenset(effects), stack_target(self.data.y), self.pieces)
         errs, blocks, ts, gs = [], [], [], []
         for use, te in zip(self.uses, self.tests):
             fit = prof.fit(search_nonlinear(prof, frozenset(effects), fixed, use), use)
