@@ -110,7 +110,7 @@ def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
 #: search lands on the same values, so that the folds of a held-out test, searched apart, share the columns and
 #: the sums of products they computed (:class:`Profile`'s pieces)
 LATTICE_STEPS = 128
-#: parabolic steps at most after the grids (each one evaluation; 3-4 are enough on a smooth minimum)
+#: refining steps at most after the grids (parabolic, or bisections; each one evaluation, 3-6 on a smooth minimum)
 MAX_REFINE = 12
 
 
