@@ -156,3 +156,17 @@ def test_a_flight_with_no_row_in_the_air_gives_empty_gap_data():
     data = gap_data([fd], HEXAROTOR.mass, HEXAROTOR.rotor_radius, k_T_guess=HEXAROTOR.thrust_coefficient,
                     exclude=[np.ones(len(fd), bool)])
     assert len(data) == 0 and data.dense is None
+
+
+def test_gap_data_releasing_its_flights_builds_the_same_rows():
+    """``release`` frees each flight as it is read (memory): the rows are the same, the list holds None."""
+    rec, _ = _bobbing()
+    fds = [flight_data(rec, window_s=0.3), flight_data(rec, window_s=0.3)]
+    kept = gap_data(list(fds), HEXAROTOR.mass, HEXAROTOR.rotor_radius, k_T_guess=HEXAROTOR.thrust_coefficient)
+    released = gap_data(fds, HEXAROTOR.mass, HEXAROTOR.rotor_radius, k_T_guess=HEXAROTOR.thrust_coefficient,
+                        release=True)
+    assert fds == [None, None]
+    assert released.names == kept.names == [rec.name, rec.name] and len(released) == len(kept) > 100
+    for name in ("group", "t", "p", "y", "R", "rotor_speeds", "v", "d_down", "d_up"):
+        np.testing.assert_array_equal(getattr(released, name), getattr(kept, name))
+    np.testing.assert_array_equal(released.S_lag(0.03), kept.S_lag(0.03))

@@ -145,7 +145,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("aligning the streams")
     recordings, fds, held = prepared(recordings, paths)
     data, contact_report = _flight_rows(fds, vehicle, paths)
-    del fds  # the aligned streams live on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
+    del fds  # emptied as the rows were built; what they keep lives on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
     if len(data) < MIN_ROWS and data.dense is not None:
         where = f"{recordings[0].path or recordings[0].name}/mav0/rotors0/data.csv"
         raise InputError(where, f"only {len(data)} rotor-speed updates in flight (the stream updates at "
@@ -230,10 +230,11 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     return report, extras
 
 
-def _flight_rows(fds: Sequence, vehicle: Any, paths: Sequence[str]) -> tuple[GapData, list[dict[str, Any]]]:
+def _flight_rows(fds: list, vehicle: Any, paths: Sequence[str]) -> tuple[GapData, list[dict[str, Any]]]:
     """The flights' rows in the air (ground contact found and left out) and the report's ``ground_contact``.
     Rotor speeds that never carry 30 % of the weight with ``vehicle.yaml``'s thrust coefficient are refused
-    in one line (rotors0 in other units than rad/s, or a thrust coefficient off)."""
+    in one line (rotors0 in other units than rad/s, or a thrust coefficient off). ``fds`` is emptied as the
+    rows are built (its places set to None: :func:`~uavturb.gap.design.gap_data`'s ``release``)."""
     if vehicle.thrust_coefficient:
         for fd, path in zip(fds, paths):
             most = float(np.max(vehicle.thrust_coefficient * np.sum(fd.rotor_speeds**2, axis=1)))
@@ -244,7 +245,7 @@ def _flight_rows(fds: Sequence, vehicle: Any, paths: Sequence[str]) -> tuple[Gap
                                  " N/(rad/s)^2: a flight that never took off, speeds in other units than rad/s (Hz, "
                                  "rpm: rotor_speed_scale converts) or a thrust coefficient off")
     contact, contact_report = contact_masks(fds, vehicle, paths)
-    data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient,
+    data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient, release=True,
                     arm_length=vehicle.arm_length, exclude=contact)
     return data, contact_report
 
