@@ -18,9 +18,11 @@ from uavturb.io.vehicle_file import named_vehicle
 from uavturb.io.writer import write_recording
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
+from uavturb.physics.effects import EFFECTS, defaults
 from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights import conditions as C
 from uavturb.sim.flights.condition_schema import Conditions
+from uavturb.sim.flights.ground_contact import contact_speeds, level
 from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import low_heights, make_reference, simulate_flight
 from uavturb.sim.core.signals import hover
@@ -105,6 +107,21 @@ def test_ground_contact_needs_a_flight_that_ends_on_its_gear(landing_flight):
     with pytest.raises(InputError, match=r"this one ends \+1.7 cm from it \(give a longer --duration\)"):
         C.condition(rec, dataclasses.replace(truth, d_down=d_down), Conditions(ground_contact_s=1.0),
                     true_vehicle=HEXAROTOR, effects=GE)
+
+
+@pytest.mark.parametrize("law", [n for n, s in EFFECTS.items() if s.surface == "d_down"])
+def test_rotor_speeds_on_the_gear_carry_the_stated_lift_under_every_ground_law(law):
+    """Known answer: under each ground law of the registry (those that need the rotor spacing too), the
+    equal rotor speeds of a vehicle on its gear give thrust T with T * ratio(d_down) = the lift asked for."""
+    spec = EFFECTS[law]
+    d, lift = 0.12, np.array([0.4, 0.7]) * HEXAROTOR.mass * GRAVITY  # m (rotor plane over the floor), N
+    w = contact_speeds(HEXAROTOR, {law: defaults(law)}, lift, level(0.3), np.zeros(3), d, np.inf)
+    assert w.shape == (2, HEXAROTOR.rotor_count) and np.all(w == w[:, :1])
+    thrust = HEXAROTOR.thrust_coefficient * np.sum(w**2, axis=1)
+    ratio = spec.ratio_at(np.array([d]), list(defaults(law).values()), HEXAROTOR.rotor_radius,
+                          arm_length=HEXAROTOR.arm_length, rotor_count=HEXAROTOR.rotor_count)[0]
+    assert ratio > 1.01  # the law lifts noticeably at this height
+    np.testing.assert_allclose(thrust * ratio, lift, rtol=1e-9)
 
 
 def test_held_streams_repeat_bit_for_bit_at_their_update_rate(landing_flight, tmp_path):

@@ -9,6 +9,8 @@ from uavturb.errors import InputError
 from uavturb.commands.gap import gap
 from uavturb.io.physics_config import load_physics_config
 from uavturb.physics.effects import DEFAULT_EFFECTS
+from uavturb.sim.flights.condition_schema import Conditions
+from uavturb.sim.flights.conditions import generate_conditioned_flight
 from uavturb.sim.flights.simulate import generate_flight
 
 REQUIRED = {"schema", "recordings", "sim_effects", "protocol", "baseline", "mismatch", "effects",
@@ -104,6 +106,20 @@ def test_simulator_effects_are_refitted_not_named(tmp_path, flights):
     p = report["sim_effect_params"]["ground_effect"]
     assert p["sim"] == DEFAULT_EFFECTS["ground_effect"]
     assert p["fitted"]["mu"] == pytest.approx(2.0, rel=0.15)
+
+
+def test_a_simulator_law_that_needs_the_rotor_spacing_is_refitted(tmp_path):
+    """``--sim-effects ground_effect_multirotor`` on a flight in that law (K_b = 1.5): the law reads the
+    recording's arm length (it used to stop at "needs 'arm_length'", in the simulator's ground contact
+    and in the finder), is refitted to its true K_b and not named again."""
+    path = tmp_path / "multirotor"
+    generate_conditioned_flight(vehicle="hex", effects="ground_effect_multirotor:K_b=1.5", duration=45.0,
+                                kind="low_passes", seed=13, out=path, conditions=Conditions(ground_contact_s=1.0))
+    report = run(tmp_path, [path], sim_effects="ground_effect_multirotor")
+    assert report["sim_effect_params"]["ground_effect_multirotor"]["sim"] == {"K_b": 1.0}
+    assert report["sim_effect_params"]["ground_effect_multirotor"]["fitted"]["K_b"] == pytest.approx(1.5, rel=0.2)
+    assert not {"ground_effect", "ground_effect_exponential"} & {e["name"] for e in report["effects"]}
+    assert report["ground_contact"]
 
 
 def test_malformed_recording_writes_no_report(tmp_path, flights):

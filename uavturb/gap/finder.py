@@ -84,7 +84,7 @@ def _sim_offset(data: GapData, sim: dict[str, dict[str, float]], k_T: float) -> 
         m = full.group == g
         x = EffectInputs(q=None, v=full.v[m], rotor_speeds=full.rotor_speeds[m], k_T=k_T,
                          rotor_radius=full.rotor_radius, d_down=full.d_down[m], d_up=full.d_up[m], t=full.t[m],
-                         R=full.R[m])
+                         R=full.R[m], arm_length=full.arm_length)
         out[m] = total_force(sim, x)
     return out if data.rows is None else data.gather(out)
 

@@ -96,7 +96,7 @@ def _inputs(vehicle: Vehicle, q: np.ndarray, airspeed: np.ndarray, w: np.ndarray
     K = len(q)
     return EffectInputs(q=q, v=airspeed, rotor_speeds=w, k_T=float(vehicle.thrust_coefficient),
                         rotor_radius=float(vehicle.rotor_radius), d_down=np.full(K, d_down), d_up=np.full(K, d_up),
-                        t=np.zeros(K))
+                        t=np.zeros(K), arm_length=float(vehicle.arm_length))
 
 
 def contact_segment(vehicle: Vehicle, effects: dict[str, dict[str, float]], *, p: np.ndarray, yaw: float,
