@@ -136,15 +136,23 @@ def test_multirotor_curve_rejects_cheeseman_bennett():
     assert chosen["law_fits"] is False and chosen["why"] == cb.why
 
 
-def test_free_level_absorbs_a_normalisation_that_still_feels_the_floor():
-    # normalised at 0.30-0.32 m, where this law still adds 0.4 %: a fixed level pulls K_b down, a free one does not
+def test_a_law_is_normalised_as_the_curve_is():
+    """Normalised at 0.30-0.32 m, where this law still adds 0.4 %: the law is divided by its value at the
+    recording's median far height, so K_b = 2 comes back (read as the law itself it came out at 1.8, under
+    1.85); a free level then stays at 1."""
     samples = hovers(multirotor(2.0), levels=(1.0,), heights=np.r_[NEAR, 0.3, 0.32], seed=1, hold_s=20.0)
     curve = curve_of(samples, far_m=0.25)
+    assert list(curve.far_d) == [0] and 0.3 <= curve.far_d[0] <= 0.32
+    law = multirotor(2.0)
+    assert curve.far_level(law) == pytest.approx(float(law(np.array([curve.far_d[0]]))[0]), rel=1e-12)
+    assert curve.far_level(law) == pytest.approx(1.004, abs=0.001)
     free = fit_law(curve, "ground_effect_multirotor", R, free_level=True, **GEOMETRY)
     fixed = fit_law(curve, "ground_effect_multirotor", R, **GEOMETRY)
-    true_level = 1 / np.mean(multirotor(2.0)(np.array([0.3, 0.32])))
-    assert abs(free.value - 2.0) < 2 * free.stderr and abs(free.level - true_level) < 3 * free.level_stderr
-    assert fixed.value < 1.85 and fixed.level == 1.0
+    assert abs(fixed.value - 2.0) < 2 * fixed.stderr and fixed.value > 1.9 and fixed.level == 1.0
+    assert abs(free.value - 2.0) < 2 * free.stderr and abs(free.level - 1.0) < 3 * free.level_stderr
+    # the values the fit compares are the law over each bin, divided by its far level
+    d, _, _ = curve.columns()
+    assert fixed.values == pytest.approx(law(d) / curve.far_level(law), abs=0.01)
     assert "far level" in free.why and "far level" not in fixed.why
 
 

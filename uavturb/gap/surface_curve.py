@@ -14,9 +14,11 @@ Choices (each stated where it is made):
 
 - **Far from the surface** (normalisation): ``d > far_m``; by default ``far_m = FAR_RADII r``
   (10 rotor radii: Cheeseman-Bennett at ``mu = 3`` adds 0.2 % there; a multirotor law with a strong body
-  term can still add ~1 %, which a free level in :func:`uavturb.gap.surface_laws.fit_law` absorbs). Without ``r``, the top of the
-  flights: ``FAR_SHARE`` of the highest hover height of all recordings. A recording with fewer than
-  :data:`MIN_FAR` samples above ``far_m`` cannot be normalised: it is left out, with a note.
+  term can still add ~1 %). Without ``r``, the top of the flights: ``FAR_SHARE`` of the highest hover height
+  of all recordings. A recording with fewer than :data:`MIN_FAR` samples above ``far_m`` cannot be
+  normalised: it is left out, with a note. A law is compared with the curve normalised as the curve is
+  (:meth:`SurfaceCurve.far_level`): what the law still adds at each recording's median far height is
+  divided out, so a slowly fading law is not read as 0.4-1 % weaker than it is.
 - **Bins** (near range ``d <= far_m``, where the laws are steep): adaptive, consecutive in height, each
   with at least :data:`MIN_BIN_N` samples and :data:`MIN_BLOCKS` time blocks (about
   ``n / MAX_BINS`` samples each), or the edges given.
@@ -29,6 +31,7 @@ Choices (each stated where it is made):
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
 
@@ -71,6 +74,8 @@ class SurfaceCurve:
     ----------
     bins : list of SurfaceBin, by height
     far_m : m, normalisation height; levels : {group: median raw ratio above far_m}
+    far_d : {group: median rotor-plane height [m] of the samples its level is the median of} (``inf`` where
+        those mostly had no surface below)
     notes : sentences on what was left out and why
     level_error : {group: relative standard error of its level} (cluster-robust over time blocks, times
         ``sqrt(pi/2)`` for a median)
@@ -88,6 +93,25 @@ class SurfaceCurve:
     group: np.ndarray = field(repr=False)
     block: np.ndarray = field(repr=False)
     edges: np.ndarray = field(repr=False)
+    far_d: dict[int, float] = field(default_factory=dict)
+
+    def far_points(self, use: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(heights [m], weights)`` at which a law's far level is taken (:meth:`far_level`): each normalised
+        recording's median far height, weighted by its share of the near samples (where ``use``; all where None)."""
+        sel = np.ones(len(self.group), bool) if use is None else np.asarray(use, bool)
+        gs = [g for g in sorted(self.far_d) if np.any(sel & (self.group == g))]
+        w = np.array([np.sum(sel & (self.group == g)) for g in gs], float)
+        return np.array([self.far_d[g] for g in gs], float), (w / w.sum() if len(w) else w)
+
+    def far_level(self, law: Callable[[np.ndarray], np.ndarray], use: np.ndarray | None = None) -> float:
+        """What the normalisation makes of a surface law ``law`` (``d [m] -> ratio``): its value at each
+        recording's median far height (a law monotone in height has its median there), weighted as
+        :meth:`far_points`; 1 where no far height is known. A measured ratio that follows the law reads
+        ``law(d) / far_level(law)``."""
+        d, w = self.far_points(use)
+        if not len(d):
+            return 1.0
+        return float(np.sum(w * np.asarray(law(d), float)))
 
     def columns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(d_m, ratio, stderr)`` of the bins, each ``(B,)``."""
@@ -117,10 +141,11 @@ def _far_height(d: np.ndarray, ok: np.ndarray, far_m: float | None, r: float | N
     return FAR_SHARE * float(finite.max()) if len(finite) else np.inf
 
 
-def _normalise(raw, d, ok, group, block, far_m, names) -> tuple[dict[int, float], dict[int, float], list[str]]:
-    """Median raw ratio above ``far_m`` per recording, its relative standard error, and notes for
-    recordings that never went far."""
-    levels, errors, notes = {}, {}, []
+def _normalise(raw, d, ok, group, block, far_m, names
+               ) -> tuple[dict[int, float], dict[int, float], dict[int, float], list[str]]:
+    """Median raw ratio above ``far_m`` per recording, its relative standard error, the median height of
+    those samples [m], and notes for recordings that never went far."""
+    levels, errors, heights, notes = {}, {}, {}, []
     for g in np.unique(group[ok]):
         far = ok & (group == g) & (d > far_m)
         if far.sum() < MIN_FAR:
@@ -129,9 +154,10 @@ def _normalise(raw, d, ok, group, block, far_m, names) -> tuple[dict[int, float]
                          f"{int(far.sum())} samples (needs {MIN_FAR}), so its thrust level cannot be normalised")
             continue
         levels[int(g)] = float(np.median(raw[far]))
+        heights[int(g)] = float(np.median(d[far]))
         _, se, _, _ = bin_stats(raw[far], group[far], block[far])
         errors[int(g)] = float(np.nan_to_num(se) * np.sqrt(np.pi / 2) / levels[int(g)])
-    return levels, errors, notes
+    return levels, errors, heights, notes
 
 
 def _blocks(group: np.ndarray, t: np.ndarray | None, block_s: float) -> np.ndarray:
@@ -217,13 +243,13 @@ def measured_curve(d, thrust_needed, thrust_modelled, group, *, hover, far_m: fl
     with np.errstate(divide="ignore", invalid="ignore"):
         raw = need / model
     blocks = _blocks(group, tt, block_s)
-    levels, level_error, notes = _normalise(raw, d, ok, group, blocks, far, names)
+    levels, level_error, far_d, notes = _normalise(raw, d, ok, group, blocks, far, names)
     near = ok & np.isin(group, list(levels)) & np.isfinite(d) & (d <= far)
     ratio = raw[near] / np.array([levels[int(g)] for g in group[near]])
     dn, gn, bn = d[near], group[near], blocks[near]
     if len(dn) < MIN_BIN_N:
         notes.append(f"only {len(dn)} hover samples under {far:.3f} m: no surface curve")
-        return SurfaceCurve([], far, levels, notes, level_error, dn, ratio, gn, bn, np.array([]))
+        return SurfaceCurve([], far, levels, notes, level_error, dn, ratio, gn, bn, np.array([]), far_d)
     if bins is None:
         edges = _adaptive_edges(dn, bn)
     elif np.ndim(bins) == 0:
@@ -241,13 +267,14 @@ def measured_curve(d, thrust_needed, thrust_modelled, group, *, hover, far_m: fl
         se_level = mean * float(np.sqrt(np.sum((share * np.array([level_error[g] for g in recs])) ** 2)))
         out.append(SurfaceBin(float(edges[k]), float(edges[k + 1]), float(np.mean(dn[m])), int(m.sum()), mean,
                               float(np.hypot(se, se_level)), nb, recs, se_level))
-    return SurfaceCurve(out, far, levels, notes, level_error, dn, ratio, gn, bn, edges)
+    return SurfaceCurve(out, far, levels, notes, level_error, dn, ratio, gn, bn, edges, far_d)
 
 
 def shifted_curve(curve: SurfaceCurve, dz: float) -> SurfaceCurve:
     """``curve`` with every height moved by ``dz`` [m] (the height reference off by ``dz``), ratios unchanged."""
     bins = [replace(b, lo=b.lo + dz, hi=b.hi + dz, d_m=b.d_m + dz) for b in curve.bins]
-    return replace(curve, bins=bins, d=curve.d + dz, edges=curve.edges + dz)
+    return replace(curve, bins=bins, d=curve.d + dz, edges=curve.edges + dz,
+                   far_d={g: h + dz for g, h in curve.far_d.items()})
 
 
 #: rotor radii within which the measured curve's bins count as lift evidence (Cheeseman-Bennett at mu = 3

@@ -8,7 +8,8 @@ weighted fits with honest errors, the report's ``surface_curve``, the finder's c
   values fitted to each recording alone, because a recording's offset moves all its bins together, which
   per-bin errors do not show, and ``gap-report.md`` asks that each recording's own fit land within about
   two errors of the joint value; with one recording, a jackknife over time blocks. A law is compared with
-  each bin's mean ratio through its own mean over the bin's samples.
+  each bin's mean ratio through its own mean over the bin's samples, normalised as the curve is (divided
+  by its value at the recordings' far heights, :meth:`~uavturb.gap.surface_curve.SurfaceCurve.far_level`).
 - **A law fits** where ``chi2/dof <`` :data:`LAW_FITS_CHI2_DOF` (3): with honest errors the right law
   gives ``chi2/dof`` about 1 (standard deviation ``sqrt(2/dof)``, 0.5 at 8 dof), so 3 is four such
   deviations above it, and a p-value under 1 % from 5 dof on.
@@ -99,10 +100,12 @@ class _BinnedLaw:
     """A law's ratio averaged over each bin's samples (exact against the bin's mean ratio, whatever the
     spread of heights in it); at the bins' mean heights where the curve holds no samples. For speed the
     samples of each bin are grouped in :data:`_SUB_BINS` equal slices of its height range and the law is
-    evaluated at each slice's mean height, weighted by its count."""
+    evaluated at each slice's mean height, weighted by its count. Every value is divided by the law's far
+    level over the samples compared (:meth:`~uavturb.gap.surface_curve.SurfaceCurve.far_level`)."""
 
     def __init__(self, curve: SurfaceCurve, spec, r: float, geometry: dict, free_level: bool):
         self.curve, self.spec, self.r, self.geometry, self.free_level = curve, spec, r, geometry, free_level
+        self.len_params = len(spec.params)
         self.idx = bin_of(curve.d, curve.edges) if len(curve.d) else np.array([], int)
         lo_edges = curve.edges[:-1]
         self.bin_k = np.array([int(np.searchsorted(lo_edges, b.lo, side="right") - 1) for b in curve.bins], int)
@@ -119,11 +122,15 @@ class _BinnedLaw:
                 self.sub_d = np.where(n > 0, sums / np.maximum(n, 1), np.nan)
             self.sub_bin = np.arange(nb * _SUB_BINS) // _SUB_BINS
 
-    def at(self, d: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """The law at heights ``d`` [m] with ``z``: its parameters, then the far level where it is free."""
-        n = len(self.spec.params)
-        level = z[n] if self.free_level else 1.0
-        return level * self.spec.ratio_at(d, z[:n], self.r, **self.geometry)
+    def at(self, d: np.ndarray, z: np.ndarray, use: np.ndarray | None = None) -> np.ndarray:
+        """The law at heights ``d`` [m] with ``z`` (its parameters, then the far level where it is free), as
+        the curve of the samples where ``use`` (all where None) would read it."""
+        level = z[self.len_params] if self.free_level else 1.0
+        return level * self._ratio(d, z) / self.curve.far_level(lambda h: self._ratio(h, z), use)
+
+    def _ratio(self, d: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """The law's thrust ratio at heights ``d`` [m] with the parameters in ``z`` (not normalised)."""
+        return self.spec.ratio_at(d, z[:self.len_params], self.r, **self.geometry)
 
     def bins(self, z: np.ndarray) -> np.ndarray:
         """(B,) the law in each bin, over all its samples."""
@@ -138,10 +145,15 @@ class _BinnedLaw:
         present = counts > 0
         nb = len(self.curve.edges) - 1
         n = np.bincount(self.sub_bin, weights=counts, minlength=nb)
+        d = self.sub_d[present]
+        far_d, far_w = self.curve.far_points(use)
 
         def law(z: np.ndarray) -> np.ndarray:
+            level = z[self.len_params] if self.free_level else 1.0
+            both = self._ratio(np.concatenate([d, far_d]), z)
+            far = float(np.sum(far_w * both[len(d):])) if len(far_d) else 1.0
             vals = np.zeros(len(self.sub_d))
-            vals[present] = self.at(self.sub_d[present], z)
+            vals[present] = level * both[:len(d)] / far
             sums = np.bincount(self.sub_bin, weights=counts * vals, minlength=nb)
             with np.errstate(invalid="ignore", divide="ignore"):
                 return (sums / n)[self.bin_k]
@@ -390,7 +402,8 @@ def surface_curve_report(curve: SurfaceCurve, fits: dict[str, LawFit], chosen: s
 
 def law_in_bins(curve: SurfaceCurve, law: str, value, r: float, **geometry) -> np.ndarray:
     """(B,) the surface law ``law`` at its parameter ``value`` (a sequence in its parameters' order for a law
-    with several) in each bin of ``curve`` (averaged over the bin's samples, as :func:`fit_law` compares it)."""
+    with several) in each bin of ``curve`` (averaged over the bin's samples and normalised as the curve is, as
+    :func:`fit_law` compares it)."""
     return _BinnedLaw(curve, EFFECTS[law], r, geometry, False).bins(np.append(np.atleast_1d(value), 1.0).astype(float))
 
 
@@ -517,11 +530,9 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
         spec = EFFECTS[named[0]]
         params, _ = final.effect_params(named[0])
         values = [params[k] for k in spec.params]
-        # normalised as the measured curve is, by the law's value far from the floor (the finder's k_T
-        # carries the law's far tail)
-        far_d = data.d_down[hover & (data.d_down > curve.far_m) & np.isfinite(data.d_down)]
-        far = float(np.nanmean(spec.ratio_at(far_d, values, data.rotor_radius, **geometry))) if len(far_d) else 1.0
-        law = law_in_bins(curve, named[0], values, data.rotor_radius, **geometry) / far
+        # normalised as the measured curve is (law_in_bins), by the law's value far from the floor (the
+        # finder's k_T carries the law's far tail)
+        law = law_in_bins(curve, named[0], values, data.rotor_radius, **geometry)
         for b, v in zip(report["bins"], law):
             b["law_fitted_to_curve"], b["law"] = b["law"], float(v)
         worst = float(np.nanmax(np.abs([b["ratio"] - b["law"] for b in report["bins"]])))
