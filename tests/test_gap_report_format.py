@@ -96,3 +96,12 @@ def test_the_surface_curve_says_where_heights_are_measured_from(tmp_path):
     write_markdown(tmp_path, report, [])
     text = (tmp_path / "report.md").read_text()
     assert "(rotor_plane_z: the body origin, +-1 cm" in text and "**Height reference**: vehicle.yaml's rotor_plane_z" in text
+    # no curve: where the finder says why, the report does; where it says nothing, no section
+    report.update(surface_curve=None, surface_curve_missing="recording f0 left out: it hovered above 1.270 m "
+                                                            "(far from the surface) in only 3 samples (needs 30)")
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert "## Measured surface curve\nNot measured: recording f0 left out: it hovered above 1.270 m" in text
+    report["surface_curve_missing"] = None
+    write_markdown(tmp_path, report, [])
+    assert "## Measured surface curve" not in (tmp_path / "report.md").read_text()

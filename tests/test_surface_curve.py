@@ -63,6 +63,29 @@ def curve_of(samples, **kw):
     return measured_curve(d, need, model, g, hover=np.ones(len(d), bool), t=t, r=R, **kw)
 
 
+def test_flights_that_never_hover_ten_radii_up_are_normalised_lower_and_say_so():
+    """A large vehicle in a motion-capture room: two recordings that hover no higher than 6.5 rotor radii.
+    Normalised at ten radii nothing would be left; the curve comes down to half the highest hover height
+    (never under five radii), says so, and Cheeseman-Bennett mu = 3 comes back through the far level
+    the law is divided by (0.5 % of thrust at 6.5 radii)."""
+    heights = np.r_[NEAR, 6.0 * R, 6.5 * R]
+    samples = hovers(cheeseman_bennett(3.0), levels=(1.0, 1.04), heights=heights, seed=3, hold_s=10.0)
+    curve = curve_of(samples)
+    top = float(np.max(samples[0]))
+    assert curve.far_m == pytest.approx(max(5.0 * R, 0.5 * top)) and curve.far_m < 10.0 * R
+    assert curve.notes[0].startswith(f"normalised above {curve.far_m:.2f} m") and "10 rotor radii" in curve.notes[0]
+    assert set(curve.levels) == {0, 1} and all(5.9 * R < h < 6.6 * R for h in curve.far_d.values())
+    fit = fit_law(curve, "ground_effect", R)
+    assert abs(fit.value - 3.0) < 2 * fit.stderr and fit.stderr < 0.5 and fit.law_fits
+    # flights that do go ten radii up keep that height, with no note
+    high = curve_of(hovers(cheeseman_bennett(3.0), heights=np.r_[NEAR, 12.0 * R], seed=3))
+    assert high.far_m == pytest.approx(10.0 * R) and not high.notes
+    # below five radii there is no "far": nothing is normalised, and the note says which recording and why
+    low = curve_of(hovers(cheeseman_bennett(3.0), heights=np.r_[np.linspace(0.03, 0.09, 7), 4.5 * R], seed=3))
+    assert low.far_m == pytest.approx(10.0 * R) and not low.bins and not low.levels
+    assert any(n.startswith("recording 0 left out: it hovered above 0.231 m") for n in low.notes)
+
+
 def test_multirotor_ratio_hand_computed():
     # r = 0.1 m, adjacent rotors 0.3 m apart, opposite ones 0.4 m, rotors 0.1 m over the ground, K_b = 1:
     # 1 - (0.1/0.4)^2 - 0.01*0.1/0.13^1.5 - 0.005*0.1/0.22^1.5 - 2*0.01*0.1/0.2^1.5

@@ -213,6 +213,9 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "ambiguous": ambiguous,
         "ground_contact": contact_report,
         "surface_curve": curve_report,
+        # why no curve was measured, where the flights had a floor below them (its notes: who was left out)
+        "surface_curve_missing": ("; ".join(curve.notes) or None) if curve_report is None and curve is not None
+        else None,
         "streams": held,
         "rejected": rejected,
         "not_testable": not_testable,

@@ -192,7 +192,8 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                 L.append(f"  - named from the measured surface curve; found in time as `{td['name']}` "
                          f"({format_params(td['params'], td.get('stderr'))})")
     L += _undecided_lines(report)
-    L += _surface_curve_lines(report.get("surface_curve"), report.get("height_reference"))
+    L += _surface_curve_lines(report.get("surface_curve"), report.get("height_reference"),
+                              report.get("surface_curve_missing"))
     L += _recording_lines(report)
     if report["sim_effect_params"]:
         L.append("")
@@ -230,11 +231,11 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
     (folder / "report.md").write_text("\n".join(L) + "\n")
 
 
-def _surface_curve_lines(curve: dict | None, height: dict | None = None) -> list[str]:
+def _surface_curve_lines(curve: dict | None, height: dict | None = None, missing: str | None = None) -> list[str]:
     """The measured surface curve beside the named law, whether the law's shape fits it, and where the heights
-    are measured from (``height``: the report's ``height_reference``)."""
+    are measured from (``height``: the report's ``height_reference``); without a curve, why (``missing``)."""
     if not curve:
-        return []
+        return ["", "## Measured surface curve", f"Not measured: {missing}."] if missing else []
     plane = ""
     if height:
         z = height["rotor_plane_z_m"]

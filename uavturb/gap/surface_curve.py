@@ -14,8 +14,12 @@ Choices (each stated where it is made):
 
 - **Far from the surface** (normalisation): ``d > far_m``; by default ``far_m = FAR_RADII r``
   (10 rotor radii: Cheeseman-Bennett at ``mu = 3`` adds 0.2 % there; a multirotor law with a strong body
-  term can still add ~1 %). Without ``r``, the top of the flights: ``FAR_SHARE`` of the highest hover height
-  of all recordings. A recording with fewer than :data:`MIN_FAR` samples above ``far_m`` cannot be
+  term can still add ~1 %). A large vehicle in a motion-capture room may never hover 10 rotor radii up
+  (1.3 m with 10-inch propellers): where a recording has too few samples there, ``far_m`` comes down to
+  ``FAR_SHARE`` of the highest hover height, never under :data:`MIN_FAR_RADII` rotor radii, with a note
+  (the laws are compared normalised the same way, so this moves no fitted value; the ratios then read the
+  extra thrust over that height's). Without ``r``, the top of the flights: ``FAR_SHARE`` of the highest
+  hover height of all recordings. A recording with fewer than :data:`MIN_FAR` samples above ``far_m`` cannot be
   normalised: it is left out, with a note. A law is compared with the curve normalised as the curve is
   (:meth:`SurfaceCurve.far_level`): what the law still adds at each recording's median far height is
   divided out, so a slowly fading law is not read as 0.4-1 % weaker than it is.
@@ -39,6 +43,9 @@ from uavturb.errors import InputError
 
 #: default far height in rotor radii (normalisation above it)
 FAR_RADII = 10.0
+#: lowest far height in rotor radii where the flights never went FAR_RADII up (Cheeseman-Bennett at mu = 3
+#: adds 0.75 % there, divided out of every law compared; the surface's lift is steepest within 2-3 radii)
+MIN_FAR_RADII = 5.0
 #: without a rotor radius: far = this share of the highest hover height over all recordings
 FAR_SHARE = 0.5
 #: samples above ``far_m`` a recording needs to be normalised
@@ -132,13 +139,26 @@ def _check_inputs(d, thrust_needed, thrust_modelled, group, hover, t):
     return out
 
 
-def _far_height(d: np.ndarray, ok: np.ndarray, far_m: float | None, r: float | None) -> float:
+def _far_height(d: np.ndarray, ok: np.ndarray, group: np.ndarray, far_m: float | None, r: float | None
+                ) -> tuple[float, str | None]:
+    """The normalisation height [m] (module docstring) and a note where it came down from ``FAR_RADII r``."""
     if far_m is not None:
-        return float(far_m)
-    if r is not None:
-        return FAR_RADII * float(r)
+        return float(far_m), None
     finite = d[ok & np.isfinite(d)]
-    return FAR_SHARE * float(finite.max()) if len(finite) else np.inf
+    top = FAR_SHARE * float(finite.max()) if len(finite) else np.inf
+    if r is None:
+        return top, None
+    far = FAR_RADII * float(r)
+
+    def short(h: float) -> int:  # recordings with too few samples above h to be normalised
+        return sum(int(np.sum(ok & (group == g) & (d > h)) < MIN_FAR) for g in np.unique(group[ok]))
+
+    lower = max(MIN_FAR_RADII * float(r), min(far, top))
+    if lower >= far or short(far) == 0 or short(lower) >= short(far):
+        return far, None
+    return lower, (f"normalised above {lower:.2f} m ({lower / float(r):.1f} rotor radii) rather than {far:.2f} m "
+                   f"({FAR_RADII:.0f} rotor radii), which the flights hovered above too seldom: the ratios read the "
+                   f"extra thrust over that height's, and every law is compared normalised the same way")
 
 
 def _normalise(raw, d, ok, group, block, far_m, names
@@ -239,11 +259,12 @@ def measured_curve(d, thrust_needed, thrust_modelled, group, *, hover, far_m: fl
     if block_s <= 0:
         raise InputError("surface curve", f"block_s must be positive, got {block_s}")
     ok = hover & np.isfinite(need) & np.isfinite(model) & (model > 0) & ~np.isnan(d) & (d > 0)
-    far = _far_height(d, ok, far_m, r)
+    far, far_note = _far_height(d, ok, group, far_m, r)
     with np.errstate(divide="ignore", invalid="ignore"):
         raw = need / model
     blocks = _blocks(group, tt, block_s)
     levels, level_error, far_d, notes = _normalise(raw, d, ok, group, blocks, far, names)
+    notes = ([far_note] if far_note else []) + notes
     near = ok & np.isin(group, list(levels)) & np.isfinite(d) & (d <= far)
     ratio = raw[near] / np.array([levels[int(g)] for g in group[near]])
     dn, gn, bn = d[near], group[near], blocks[near]
