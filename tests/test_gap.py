@@ -54,6 +54,10 @@ def test_clean_flight_names_nothing(tmp_path, flights):
     assert report["effects"] == []
     assert report["protocol"] == "last-30%-of-each-recording"
     assert report["schema"] == "uavturb.gap/1"
+    # commanded speeds that are the rotors' own: read far from the floor, no offset stands out
+    offset = report["nominal"]["rotor_speed_offset"]
+    assert offset["rows"] > 500 and not offset["counts"] and abs(offset["delta_rad_s"]) < 2 * offset["stderr_rad_s"]
+    assert "Thrust map: at each height (" in (tmp_path / "report" / "report.md").read_text()
 
 
 def test_the_gap_run_is_logged_to_mlflow_with_the_report(tmp_path, flights, module_mlflow_store):

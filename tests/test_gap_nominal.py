@@ -13,12 +13,13 @@ from uavturb.gap.design import GapData, apply_thrust_levels
 from uavturb.gap.finder import _cross_checked, _nominal
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.gap.nominal import (ThrustLevels, anchored_bias, block_mean_and_se, matched_height_levels,
-                                 thrust_levels)
+                                 offset_cells, speed_offset, thrust_levels)
 from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, timing_interval
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     error_budget,
     honest_stderr,
+    thrust_map_term,
     timing_term,
     with_curve_check,
     with_systematic,
@@ -113,6 +114,93 @@ def test_a_thrust_level_between_recordings_does_not_move_mu():
     own = fit_model(data, {"ground_effect"}).nonlinear["ground_effect"]
     assert own == pytest.approx(2.0, rel=0.03)
     assert abs(pooled - 2.0) > abs(own - 2.0)
+
+
+def _floor_flights(speed_offset: float, mu: float = 2.0, seconds: float = 40.0, seed: int = 5) -> GapData:
+    """Two recordings hovering down to the floor and up (rotor plane 0.12-1.5 m), thrust 6 % up and down
+    as they manoeuvre, the controller easing it near the floor so that the Cheeseman-Bennett lift of ``mu``
+    carries the rest; the rotors turn ``speed_offset`` [rad/s] faster than recorded (an idle speed in the
+    command map); motion capture only."""
+    rng = np.random.default_rng(seed)
+    cols = {k: [] for k in ("group", "t", "y", "R", "w", "d")}
+    for g in range(2):
+        K = int(seconds * 100)
+        t = np.arange(K) * 0.01
+        d = 0.12 + 1.4 * (0.5 - 0.5 * np.cos(2 * np.pi * t / 10.0 + g)) ** 2
+        R = quat.to_rotation_matrix(quat.from_euler(0.02 * np.sin(t), 0.02 * np.cos(t), np.zeros(K)))
+        lift = MASS * GRAVITY * (1 + 0.06 * np.sin(1.7 * t))  # N, what the rotors and the floor's lift make
+        thrust = lift / (1 + force_ratio(d, mu, R_ROTOR))  # N, the rotors' own
+        w_true = np.repeat(np.sqrt(thrust / (6 * K_T))[:, None], 6, axis=1)
+        y = thrust[:, None] * R[:, :, 2]
+        y[:, 2] += thrust * force_ratio(d, mu, R_ROTOR)
+        y += rng.normal(0, 0.03, y.shape)
+        for k, x in zip(cols, (np.full(K, g), t, y, R, w_true - speed_offset, d)):
+            cols[k].append(x)
+    c = {k: np.concatenate(v) for k, v in cols.items()}
+    K = len(c["t"])
+    return GapData(c["group"], c["t"], np.zeros((K, 3)), c["y"], c["R"], c["w"], np.zeros((K, 3)), c["d"],
+                   np.full(K, np.inf), MASS, R_ROTOR, ["a", "b"], "mocap", imu=np.zeros(K, bool), fits_bias=False)
+
+
+def test_speed_offset_is_read_far_from_surfaces():
+    """Known answer: thrust K sum((w + delta)^2) with delta a third of the hover speed, recorded as w,
+    thrust 6 % up and down in flight; far from the floor the offset comes back within two of its errors, its
+    error a few percent of the hover speed; without an offset none stands out; too few rows: None."""
+    w_h = np.sqrt(MASS * GRAVITY / (6 * K_T))
+    for delta, seed in ((w_h / 3, 5), (0.0, 6)):
+        data = _floor_flights(delta, mu=0.0, seed=seed)
+        y_thrust = np.einsum("ki,ki->k", data.y, data.R[:, :, 2])
+        cells = offset_cells(data.group, data.d_down, data.d_up, R_ROTOR, reach=1.0)
+        found = speed_offset(y_thrust, data.rotor_speeds, cells, data.t)
+        assert found.w_hover == pytest.approx(w_h - delta, rel=0.01) and found.rows == np.sum(cells >= 0)
+        assert abs(found.delta - delta) < 2 * found.stderr and found.stderr < 0.05 * w_h
+        assert (found.z > 10) == (delta > 0) and (found.sse_ratio < 0.5) == (delta > 0)
+    assert speed_offset(y_thrust[:100], data.rotor_speeds[:100], np.zeros(100, int), data.t[:100]) is None
+
+
+def test_offset_cells_hold_one_recording_at_one_height():
+    """Cells from six rotor radii up (0.6 m here) in 5 % steps of height, one per recording beyond the reach
+    (1.0 m); under six radii of the floor or the ceiling, or in a cell of under 30 rows: left out."""
+    d = np.r_[np.full(40, 0.5), np.full(40, 0.62), np.full(40, 0.64), np.full(40, 1.2), np.full(40, 3.0),
+              np.full(10, 0.8), np.full(40, 0.7)]
+    up = np.r_[np.full(210, np.inf), np.full(40, 0.5)]
+    group = np.r_[np.zeros(200, int), np.ones(10, int), np.zeros(40, int)]
+    cells = offset_cells(group, d, up, 0.1, reach=1.0)
+    assert np.all(cells[:40] == -1) and np.all(cells[200:] == -1)  # under six radii; too few; ceiling near
+    assert len(set(cells[40:80])) == 1 and cells[40] == cells[79] and cells[40] != cells[80]  # 0.62 / 0.64 m
+    assert cells[120] == cells[160 - 1] and cells[120] != cells[80]  # 1.2 and 3.0 m: beyond reach, one cell
+    assert len(np.unique(cells[cells >= 0])) == 3 and cells.max() == 2
+
+
+def test_the_thrust_map_term_covers_a_ground_effect_read_on_offset_speeds():
+    """mu = 2 under rotors a third of the hover speed faster than recorded: fitted on the records mu comes
+    out too large (near the floor the rotors slow down, by less in proportion than the records say);
+    refitted on the speeds moved by the offset read far from the floor it comes back, and the term, half
+    the change, lets the stated error cover the truth. Without an offset there is no term."""
+    w_h = np.sqrt(MASS * GRAVITY / (6 * K_T))
+    data = _floor_flights(w_h / 3)
+    final = fit_model(data, {"ground_effect"})
+    found, terms = thrust_map_term(data, final)
+    mu = final.nonlinear["ground_effect"]
+    moved = fit_model(data.with_speed_offset(found.delta), {"ground_effect"}).nonlinear["ground_effect"]
+    assert abs(mu - 2.0) > 0.1 and moved == pytest.approx(2.0, rel=0.03)
+    assert terms["ground_effect"]["mu"] == pytest.approx(abs(moved - mu) / 2, rel=0.02)
+    budget = with_systematic(error_budget(data, final, "ground_effect"), "thrust_map", terms["ground_effect"])
+    assert budget["mu"]["stderr"] >= budget["mu"]["thrust_map"] and abs(mu - 2.0) <= 2 * budget["mu"]["stderr"]
+    clean = _floor_flights(0.0, seed=6)
+    found0, terms0 = thrust_map_term(clean, fit_model(clean, {"ground_effect"}))
+    assert found0.z < 2 and terms0 == {}
+
+
+def test_speeds_moved_by_an_offset_leave_the_rows_they_came_from_alone():
+    data = _ground_flights(seed=5)
+    S0 = data.S.copy()
+    moved = data.with_speed_offset(50.0)
+    np.testing.assert_allclose(moved.S, np.sum((data.rotor_speeds + 50.0) ** 2, axis=1))
+    np.testing.assert_array_equal(data.S, S0)
+    sub = data.subset(data.d_down < 0.5)  # rows of contiguous flights: the lag filters the moved speeds
+    np.testing.assert_allclose(sub.with_speed_offset(50.0).contiguous.rotor_speeds, data.rotor_speeds + 50.0)
+    assert sub.contiguous is data
 
 
 def test_thrust_levels_at_matched_heights_where_no_recording_flies_far():

@@ -24,7 +24,7 @@ registry (:data:`uavturb.physics.effects.EFFECTS`), never listed here.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -221,6 +221,14 @@ class GapData:
             self._plan = [(k, rows, lag_stretches(self.t[rows])) for k, rows in parts]
         return self._plan
 
+    def with_speed_offset(self, delta: float) -> "GapData":
+        """These rows with every recorded rotor speed moved by ``delta`` [rad/s] (on the contiguous flights
+        too, so the motor lag filters the moved speeds); nothing is shared with ``self`` that the move changes
+        (:mod:`uavturb.gap.nominal`, **Thrust map**)."""
+        contiguous = None if self.contiguous is None else self.contiguous.with_speed_offset(delta)
+        return replace(self, rotor_speeds=self.rotor_speeds + float(delta), contiguous=contiguous, dense=None,
+                       _S=None, _lag_cache={}, _lag_done={}, _groups=None)
+
     def subset(self, mask: np.ndarray) -> "GapData":
         """The rows where ``mask`` holds; they keep a reference to the contiguous flights."""
         block_of = None
@@ -383,12 +391,18 @@ def block_means(full: GapData, keep: np.ndarray, n: int) -> GapData:
     return data
 
 
+def surface_reach_m(data: GapData) -> float:
+    """m, the farthest any one-parameter surface law of the registry reaches at the top of its range (laws
+    with several parameters have no top of their range): beyond it a row is free of surfaces."""
+    return max(e.surface_reach(data.rotor_radius, **data.geometry) for e in EFFECTS.values()
+               if e.surface and len(e.params) == 1)
+
+
 def apply_thrust_levels(data: GapData) -> ThrustLevels:
     """Measure each recording's thrust level far from surfaces, or at matched heights where the flights
     stay within a surface's reach (:func:`uavturb.gap.nominal.thrust_levels`), and, where they differ,
     give each row its recording's level (``data.level``)."""
-    reach = max(e.surface_reach(data.rotor_radius, **data.geometry) for e in EFFECTS.values()
-                if e.surface and len(e.params) == 1)  # laws with several have no top of their range
+    reach = surface_reach_m(data)
     rows = data if data.dense is None else data.dense  # sums: every row in flight counts
     far = (rows.d_down > reach) & (rows.d_up > reach)
     y_thrust = np.einsum("ki,ki->k", rows.y, rows.R[:, :, 2])

@@ -22,7 +22,7 @@ from uavturb.gap.decide import (
 from uavturb.gap.design import GapData, apply_thrust_levels, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
-from uavturb.gap.nominal import ThrustLevels
+from uavturb.gap.nominal import OFFSET_RADII, ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted
 from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, select
 from uavturb.gap.surface_curve import lift_z
@@ -30,10 +30,12 @@ from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     HONEST_Z,
+    OFFSET_Z,
     error_budget,
     honest_stderr,
     presence_z,
     statistical_errors,
+    thrust_map_term,
     timing_term,
     with_curve_check,
     with_systematic,
@@ -186,6 +188,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("honest errors")
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
+    named, speed_map = _thrust_map_checked(named, data, base.offset, final, not measured_rotor_speeds(recordings))
     named, curve_report = law_named_from_curve(named, curve_report, curve, curve_fits, data, facts,
                                                height_uncertainty)
     report = {
@@ -209,7 +212,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
             + [c for a in ambiguous for c in a["candidates"] if c in EFFECTS])),
         "sim_effect_params": {name: {"sim": p, "fitted": final.effect_params(name)[0] if name in final.effects
                                      else {}} for name, p in sim.items()},
-        "nominal": _nominal(data, final, levels),
+        "nominal": _nominal(data, final, levels) | {"rotor_speed_offset": speed_map},
         "ambiguous": ambiguous,
         "ground_contact": contact_report,
         "surface_curve": curve_report,
@@ -277,6 +280,39 @@ def _timing_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: 
                                             timing_term(low, high, tuple(e["params"])))
         e["stderr"] = honest_stderr(e["error_budget"])
     return effects
+
+
+def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, offset: np.ndarray, final: ModelFit,
+                        commanded: bool) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+    """``effects`` with the **thrust map** term of :mod:`uavturb.gap.uncertainty` in each budget, and the
+    report's ``nominal.rotor_speed_offset`` (None with measured rotor speeds, which are the rotors' own, or
+    too few rows high enough over the floor to read it)."""
+    if not commanded:
+        return effects, None
+    rows = data
+    if np.any(offset):
+        rows = data.subset(np.ones(len(data), bool))
+        rows.y = data.y - offset
+    found, terms = thrust_map_term(rows, final)
+    if found is None:
+        return effects, None
+    share = found.delta / found.w_hover
+    counts = found.z >= OFFSET_Z
+    note = (f"at each height ({found.rows} rows in {found.cells} cells of one recording and one height, from "
+            f"{OFFSET_RADII:.0f} rotor radii up) thrust per sum((w + delta)^2) is steadiest at delta = "
+            f"{found.delta:.4g} ± {found.stderr:.2g} rad/s ({100 * share:+.0f} % of the hover speed, "
+            f"{found.w_hover:.4g} rad/s; it leaves {100 * found.sse_ratio:.0f} % of the scatter at delta = 0)")
+    note += (": the recorded (commanded) speeds may be off by an offset, as commands with an idle speed are; the "
+             "named effects' errors carry what that reading changes (thrust map)" if counts else
+             ": no offset beyond its error, the recorded speeds' squares carry the thrust")
+    for e in effects:
+        if e["name"] in terms:
+            e["error_budget"] = with_systematic(e["error_budget"], "thrust_map", terms[e["name"]])
+            e["stderr"] = honest_stderr(e["error_budget"])
+    return effects, {"delta_rad_s": found.delta, "stderr_rad_s": found.stderr, "share_of_hover_speed": share,
+                     "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells,
+                     "sse_ratio": found.sse_ratio,
+                     "counts": bool(counts), "note": note}
 
 
 @dataclass

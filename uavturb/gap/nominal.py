@@ -24,6 +24,21 @@ recording's rows carry their level. Where fewer than two recordings fly beyond a
 measured *at matched heights* instead (:func:`matched_height_levels`): whatever a surface adds at a
 height, it adds to every recording alike, so the recordings' ratios at the same heights give their
 relative levels without any law, and so without swallowing one.
+
+**Thrust map.** The nominal thrust is ``k_T sum(w^2)`` in the *recorded* speeds. Commanded speeds are
+often a normalised command times a scale (``rotor_speed_scale``), while a motor's true speed is affine
+in its command, ``w = a + b u`` with an idle speed ``a``: the recorded speeds are then off by an
+offset, ``w_true ~ beta (w + delta)``, exact at hover and wrong as the speeds move. Near the floor the
+rotors turn slower, so the thrust there is underestimated and the ground effect overestimated (a
+simulated idle of a quarter of the hover speed read an exponential law 6 % of thrust too strong at
+1.3 rotor radii, with a curve that fitted it at chi^2/dof 0.2). :func:`speed_offset` measures
+``delta`` as what makes thrust per ``sum((w + delta)^2)`` constant *within cells* of one recording at one
+height (:func:`offset_cells`): whatever a surface adds at a height it adds to the whole cell, so the
+speeds' rise and fall as the vehicle manoeuvres reads the offset without any surface law (a large vehicle
+in a low room never leaves every law's reach). The finder carries what it does to each named effect in
+its error budget (``thrust map``, :mod:`uavturb.gap.uncertainty`). It is a reading, not a correction: the
+speeds vary by a few percent in flight, and other physics that depends on the thrust level (inflow in a
+climb) leans the same way.
 """
 
 from __future__ import annotations
@@ -298,3 +313,120 @@ def thrust_levels(group: np.ndarray, t: np.ndarray, y_thrust: np.ndarray, S: np.
            "fewer than two recordings fly far enough from surfaces, or share heights enough, to measure "
            "their thrust levels; they share one thrust coefficient")
     return ThrustLevels(k, se, np.ones(G), False, why, "none")
+
+
+#: rad/s per rad/s of hover speed: the offsets :func:`speed_offset` searches (an idle speed up to half
+#: the hover speed reads as delta up to 1 hover speed; a map bent the other way as negative)
+OFFSET_SPAN = (-0.5, 1.0)
+#: time chunks of the rows for the jackknife of :func:`speed_offset`
+OFFSET_CHUNKS = 10
+#: rows :func:`speed_offset` needs, and each cell of :func:`offset_cells`
+OFFSET_MIN_ROWS, OFFSET_CELL_ROWS = 200, 30
+#: rotor radii over the floor from which rows join :func:`offset_cells` (Cheeseman-Bennett at the top of its
+#: range, mu = 12, adds 2 % there) and the cells' width in height (a ratio: 5 %, across which that lift moves
+#: by a tenth of itself, 0.2 % of thrust)
+OFFSET_RADII, OFFSET_CELL_RATIO = 6.0, 1.05
+
+
+@dataclass(frozen=True)
+class SpeedOffset:
+    """The recorded rotor speeds' offset (module docstring, **Thrust map**).
+
+    Attributes
+    ----------
+    delta : rad/s, the offset that makes thrust per ``sum((w + delta)^2)`` constant within each cell
+    stderr : rad/s, jackknife over :data:`OFFSET_CHUNKS` time chunks of the rows used
+    w_hover : rad/s, the median mean rotor speed of those rows
+    rows : how many rows; cells : in how many cells
+    sse_ratio : residual sum of squares at ``delta`` over that at 0 (how much of the thrust's scatter it explains)
+    """
+
+    delta: float
+    stderr: float
+    w_hover: float
+    rows: int
+    cells: int
+    sse_ratio: float
+
+    @property
+    def z(self) -> float:
+        """``|delta| / stderr``."""
+        return abs(self.delta) / self.stderr if self.stderr > 0 else float("inf")
+
+
+def offset_cells(group: np.ndarray, d_down: np.ndarray, d_up: np.ndarray, rotor_radius: float, reach: float
+                 ) -> np.ndarray:
+    """(K,) int, the cell of each row for :func:`speed_offset` (-1: left out): one recording at one height over
+    the floor, heights from :data:`OFFSET_RADII` rotor radii up in steps of :data:`OFFSET_CELL_RATIO`, all
+    heights beyond ``reach`` [m] (every surface law's) one cell; rows with the ceiling within
+    :data:`OFFSET_RADII` rotor radii and cells under :data:`OFFSET_CELL_ROWS` rows are left out (under a flat
+    ceiling one height over the floor is one distance to the ceiling too)."""
+    d = np.asarray(d_down, float)
+    low = OFFSET_RADII * float(rotor_radius)
+    use = (d > low) & (np.asarray(d_up, float) > low)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        step = np.floor(np.log(np.where(use, d, low) / low) / np.log(OFFSET_CELL_RATIO))
+    top = np.floor(np.log(max(reach, low) / low) / np.log(OFFSET_CELL_RATIO)) + 1
+    step = np.where(d > reach, top, step)
+    cell = np.where(use, np.asarray(group, np.int64) * 100_000 + np.minimum(step, top).astype(np.int64), -1)
+    labels, inverse, counts = np.unique(cell, return_inverse=True, return_counts=True)
+    keep = (labels >= 0) & (counts >= OFFSET_CELL_ROWS)
+    ids = np.where(keep, np.cumsum(keep) - 1, -1)
+    return ids[inverse]
+
+
+def _offset_sse(y: np.ndarray, S: np.ndarray, W1: np.ndarray, n: int, cell: np.ndarray, delta: float) -> float:
+    """Residual sum of squares of ``y = k_c (S + 2 delta W1 + n delta^2)``, ``k_c`` fitted per cell."""
+    Sd = S + 2.0 * delta * W1 + n * delta**2
+    sy, ss = np.bincount(cell, Sd * y), np.bincount(cell, Sd * Sd)
+    k = np.divide(sy, ss, out=np.zeros_like(sy), where=ss > 0)
+    return float(np.sum((y - k[cell] * Sd) ** 2))
+
+
+def _best_offset(y: np.ndarray, S: np.ndarray, W1: np.ndarray, n: int, cell: np.ndarray, w_hover: float) -> float:
+    """rad/s, the offset of least residual over :data:`OFFSET_SPAN` (a grid of 61, then a parabola through the
+    best point and its neighbours)."""
+    grid = np.linspace(OFFSET_SPAN[0], OFFSET_SPAN[1], 61) * w_hover
+    sse = np.array([_offset_sse(y, S, W1, n, cell, d) for d in grid])
+    i = int(np.argmin(sse))
+    if 0 < i < len(grid) - 1:
+        a, b, c = sse[i - 1], sse[i], sse[i + 1]
+        curv = a - 2 * b + c
+        if curv > 0:
+            return float(grid[i] + 0.5 * (a - c) / curv * (grid[1] - grid[0]))
+    return float(grid[i])
+
+
+def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarray, t: np.ndarray,
+                 S: np.ndarray | None = None) -> SpeedOffset | None:
+    """The offset ``delta`` [rad/s] that makes thrust per ``sum((w + delta)^2)`` constant within each cell
+    (module docstring, **Thrust map**); None with fewer than :data:`OFFSET_MIN_ROWS` rows in cells.
+
+    Parameters
+    ----------
+    y_thrust : (K,) N, the thrust the rotors must make (measured force along the body z axis, less the named
+        effects other than the thrust)
+    rotor_speeds : (K, N) rad/s, recorded
+    cell : (K,) int, :func:`offset_cells` (-1: not used); t : (K,) s
+    S : (K,) (rad/s)^2, ``sum(w^2)`` where the thrust sees other sums than the records' (the motor lag's);
+        the offset's cross term stays on the recorded speeds
+    """
+    m = (np.asarray(cell) >= 0) & np.isfinite(y_thrust)
+    if m.sum() < OFFSET_MIN_ROWS:
+        return None
+    W = np.asarray(rotor_speeds, float)[m]
+    y, c = np.asarray(y_thrust, float)[m], np.unique(np.asarray(cell)[m], return_inverse=True)[1]
+    S = np.sum(W**2, axis=1) if S is None else np.asarray(S, float)[m]
+    W1, n = np.sum(W, axis=1), W.shape[1]
+    w_hover = float(np.median(W1 / n))
+    delta = _best_offset(y, S, W1, n, c, w_hover)
+    order = np.lexsort((np.asarray(t, float)[m], c))  # cells in turn, each in time
+    loo = []
+    for chunk in np.array_split(order, OFFSET_CHUNKS):
+        keep = np.ones(len(y), bool)
+        keep[chunk] = False
+        loo.append(_best_offset(y[keep], S[keep], W1[keep], n, c[keep], w_hover))
+    loo = np.array(loo)
+    se = float(np.sqrt((len(loo) - 1) / len(loo) * np.sum((loo - loo.mean()) ** 2)))
+    ratio = _offset_sse(y, S, W1, n, c, delta) / _offset_sse(y, S, W1, n, c, 0.0)
+    return SpeedOffset(delta, se, w_hover, int(m.sum()), int(c.max()) + 1, float(ratio))

@@ -305,6 +305,8 @@ def _recording_lines(report: dict) -> list[str]:
         k, se = nominal["thrust_coefficient"], nominal["thrust_coefficient_stderr"]
         limit = "the spread between recordings" if terms["between_recordings"] > terms["sample"] else "sample noise"
         L += [f"Thrust coefficient k_T = {k:.4g} ± {se:.2g} N/(rad/s)^2 ({100 * se / k:.2g} %, limited by {limit})."]
+    if nominal.get("rotor_speed_offset"):
+        L += ["", f"Thrust map: {nominal['rotor_speed_offset']['note']}."]
     return L
 
 

@@ -28,6 +28,12 @@ while recordings differed by 3.6 %. The error stated for each parameter here is 
   (:func:`uavturb.gap.preparation.timing_interval`: one standard error either side of a delay taken out,
   up to 80 ms where none could be timed). A thrust that is read 60 ms late moves every law that reads
   the thrust.
+- **thrust map** (commanded rotor speeds, :func:`thrust_map_term`): half the change of the parameter when
+  the recorded speeds are moved by the offset that makes thrust per ``sum((w + delta)^2)`` constant at
+  each height of each recording (:func:`uavturb.gap.nominal.speed_offset`), where that offset stands
+  :data:`OFFSET_Z` errors from zero. An idle speed in the motors' command map reads as a stronger ground
+  effect (the rotors turn slower near the floor); the data cannot always tell it from other physics that
+  depends on the thrust level, so the named values stay and the error covers the other reading.
 
 The report keeps every term (``error_budget``) and names the one that limits the parameter.
 """
@@ -38,8 +44,9 @@ from typing import Callable
 
 import numpy as np
 
-from uavturb.gap.design import GapData
-from uavturb.gap.fit import ModelFit, fit_model
+from uavturb.gap.design import GapData, effective_S, surface_reach_m
+from uavturb.gap.fit import ModelFit, _nl_values, fit_model
+from uavturb.gap.nominal import SpeedOffset, offset_cells, speed_offset
 from uavturb.physics.effects import EFFECTS
 
 #: m, uncertainty of the height reference (rotor plane over the floor) assumed for surface effects
@@ -48,6 +55,8 @@ HEIGHT_REFERENCE_M = 0.01
 TIME_BLOCKS = 5
 #: |value| / statistical standard error (:func:`presence_z`) a parameter that says an effect is there must reach
 HONEST_Z = 2.0
+#: |offset| / its jackknife error above which the **thrust map** term counts
+OFFSET_Z = 2.0
 
 
 def _params(fit: ModelFit, name: str) -> dict[str, float]:
@@ -189,3 +198,30 @@ def timing_term(low: dict[str, float] | None, high: dict[str, float] | None, key
     if low is None or high is None:
         return {k: float("nan") for k in keys}
     return {k: abs(float(high[k]) - float(low[k])) / 2.0 for k in keys}
+
+
+def thrust_map_term(data: GapData, final: ModelFit) -> tuple[SpeedOffset | None, dict[str, dict[str, float]]]:
+    """The **thrust map** term: the recorded speeds' offset (None where too few rows are at least
+    :data:`~uavturb.gap.nominal.OFFSET_RADII` rotor radii over the floor) and, where it stands :data:`OFFSET_Z` errors from zero, ``{effect: {param: half the change}}`` of
+    every effect of ``final`` between its refit on ``data`` and on ``data`` with the speeds moved by it
+    (``{}`` otherwise).
+
+    ``data``: the rows ``final`` was fitted on (the simulator's own effects already taken off ``y``). The thrust
+    the rotors make is the measured force along the body z axis less every other force of ``final`` (the motor
+    lag's included: the offset is read on the lagged speeds' sums); a surface's lift stays in it, constant
+    within each cell of one height."""
+    cells = offset_cells(data.group, data.d_down, data.d_up, data.rotor_radius, surface_reach_m(data))
+    nl = _nl_values(final.nonlinear)
+    S_thrust = effective_S(data, set(final.effects), nl)  # lagged, times each row's level
+    y_thrust = np.einsum("ki,ki->k", data.y - final.predict(data), data.R[:, :, 2]) + final.coef["k_T"] * S_thrust
+    found = speed_offset(y_thrust, data.rotor_speeds, cells, data.t, S=S_thrust / data.thrust_level)
+    if found is None or found.z < OFFSET_Z or not final.effects:
+        return found, {}
+    effects = frozenset(final.effects)
+    try:
+        before = fit_model(data, effects, with_stderr=False)
+        after = fit_model(data.with_speed_offset(found.delta), effects, with_stderr=False)
+    except (np.linalg.LinAlgError, ValueError):
+        return found, {name: {k: float("nan") for k in _params(final, name)} for name in effects}
+    return found, {name: {k: abs(float(after.effect_params(name)[0][k]) - float(v)) / 2.0
+                          for k, v in _params(before, name).items()} for name in effects}
