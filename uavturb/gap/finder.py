@@ -188,7 +188,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("honest errors")
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
-    named, speed_map = _thrust_map_checked(named, data, base.offset, final, not measured_rotor_speeds(recordings))
+    named, speed_map = _thrust_map_checked(named, data, final, not measured_rotor_speeds(recordings), rf)
     named, curve_report = law_named_from_curve(named, curve_report, curve, curve_fits, data, facts,
                                                height_uncertainty)
     report = {
@@ -282,18 +282,14 @@ def _timing_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: 
     return effects
 
 
-def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, offset: np.ndarray, final: ModelFit,
-                        commanded: bool) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: ModelFit, commanded: bool,
+                        residual: np.ndarray) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
     """``effects`` with the **thrust map** term of :mod:`uavturb.gap.uncertainty` in each budget, and the
     report's ``nominal.rotor_speed_offset`` (None with measured rotor speeds, which are the rotors' own, or
-    too few rows high enough over the floor to read it)."""
+    too few rows high enough over the floor to read it). ``residual``: ``final``'s on ``data`` (K, 3) N."""
     if not commanded:
         return effects, None
-    rows = data
-    if np.any(offset):
-        rows = data.subset(np.ones(len(data), bool))
-        rows.y = data.y - offset
-    found, terms = thrust_map_term(rows, final)
+    found, terms = thrust_map_term(data, final, residual)  # final holds the simulator's effects, refitted
     if found is None:
         return effects, None
     share = found.delta / found.w_hover

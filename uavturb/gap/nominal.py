@@ -375,19 +375,45 @@ def offset_cells(group: np.ndarray, d_down: np.ndarray, d_up: np.ndarray, rotor_
     return ids[inverse]
 
 
-def _offset_sse(y: np.ndarray, S: np.ndarray, W1: np.ndarray, n: int, cell: np.ndarray, delta: float) -> float:
-    """Residual sum of squares of ``y = k_c (S + 2 delta W1 + n delta^2)``, ``k_c`` fitted per cell."""
-    Sd = S + 2.0 * delta * W1 + n * delta**2
-    sy, ss = np.bincount(cell, Sd * y), np.bincount(cell, Sd * Sd)
-    k = np.divide(sy, ss, out=np.zeros_like(sy), where=ss > 0)
-    return float(np.sum((y - k[cell] * Sd) ** 2))
+class _OffsetSums:
+    """Each cell's sums of products of ``y``, ``S`` and ``W1`` (speeds in units of the hover speed), from which
+    the residual of ``y = k_c (S + 2 delta W1 + n delta^2)`` at any ``delta`` follows without the rows (a search
+    and its jackknife read them hundreds of times: an hour of flight holds 700 000 rows)."""
+
+    KEYS = ("yy", "Sy", "Wy", "y", "SS", "WW", "SW", "S", "W", "one")
+
+    def __init__(self, y: np.ndarray, S: np.ndarray, W1: np.ndarray, cell: np.ndarray, chunk: np.ndarray,
+                 n_cells: int, n_chunks: int):
+        terms = {"yy": y * y, "Sy": S * y, "Wy": W1 * y, "y": y, "SS": S * S, "WW": W1 * W1, "SW": S * W1, "S": S,
+                 "W": W1, "one": np.ones(len(y))}
+        idx = cell * n_chunks + chunk
+        size = n_cells * n_chunks
+        self.by_chunk = {k: np.bincount(idx, v, minlength=size).reshape(n_cells, n_chunks) for k, v in terms.items()}
+        self.total = {k: v.sum(axis=1) for k, v in self.by_chunk.items()}
+
+    def without(self, chunk: int | None) -> dict[str, np.ndarray]:
+        """Each cell's sums over every row, or every row but those of ``chunk``."""
+        if chunk is None:
+            return self.total
+        return {k: self.total[k] - self.by_chunk[k][:, chunk] for k in self.KEYS}
 
 
-def _best_offset(y: np.ndarray, S: np.ndarray, W1: np.ndarray, n: int, cell: np.ndarray, w_hover: float) -> float:
-    """rad/s, the offset of least residual over :data:`OFFSET_SPAN` (a grid of 61, then a parabola through the
-    best point and its neighbours)."""
-    grid = np.linspace(OFFSET_SPAN[0], OFFSET_SPAN[1], 61) * w_hover
-    sse = np.array([_offset_sse(y, S, W1, n, cell, d) for d in grid])
+def _offset_sse(sums: dict[str, np.ndarray], n: int, delta: float) -> float:
+    """Residual sum of squares of ``y = k_c (S + 2 delta W1 + n delta^2)``, ``k_c`` fitted per cell (``delta``
+    in units of the hover speed, as the sums' speeds)."""
+    d = float(delta)
+    sy = sums["Sy"] + 2 * d * sums["Wy"] + n * d**2 * sums["y"]
+    ss = (sums["SS"] + 4 * d**2 * sums["WW"] + n**2 * d**4 * sums["one"] + 4 * d * sums["SW"]
+          + 2 * n * d**2 * sums["S"] + 4 * n * d**3 * sums["W"])
+    fit = np.divide(sy * sy, ss, out=np.zeros_like(sy), where=ss > 0)
+    return float(np.sum(sums["yy"] - fit))
+
+
+def _best_offset(sums: dict[str, np.ndarray], n: int) -> float:
+    """The offset [hover speeds] of least residual over :data:`OFFSET_SPAN` (a grid of 61, then a parabola
+    through the best point and its neighbours)."""
+    grid = np.linspace(OFFSET_SPAN[0], OFFSET_SPAN[1], 61)
+    sse = np.array([_offset_sse(sums, n, d) for d in grid])
     i = int(np.argmin(sse))
     if 0 < i < len(grid) - 1:
         a, b, c = sse[i - 1], sse[i], sse[i + 1]
@@ -416,17 +442,16 @@ def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarra
         return None
     W = np.asarray(rotor_speeds, float)[m]
     y, c = np.asarray(y_thrust, float)[m], np.unique(np.asarray(cell)[m], return_inverse=True)[1]
-    S = np.sum(W**2, axis=1) if S is None else np.asarray(S, float)[m]
     W1, n = np.sum(W, axis=1), W.shape[1]
     w_hover = float(np.median(W1 / n))
-    delta = _best_offset(y, S, W1, n, c, w_hover)
+    S = (np.sum(W**2, axis=1) if S is None else np.asarray(S, float)[m]) / w_hover**2
     order = np.lexsort((np.asarray(t, float)[m], c))  # cells in turn, each in time
-    loo = []
-    for chunk in np.array_split(order, OFFSET_CHUNKS):
-        keep = np.ones(len(y), bool)
-        keep[chunk] = False
-        loo.append(_best_offset(y[keep], S[keep], W1[keep], n, c[keep], w_hover))
-    loo = np.array(loo)
+    chunk = np.empty(len(y), np.int64)
+    for k, rows in enumerate(np.array_split(order, OFFSET_CHUNKS)):
+        chunk[rows] = k
+    sums = _OffsetSums(y, S, W1 / w_hover, c, chunk, int(c.max()) + 1, OFFSET_CHUNKS)
+    delta = _best_offset(sums.without(None), n)
+    loo = np.array([_best_offset(sums.without(k), n) for k in range(OFFSET_CHUNKS)])
     se = float(np.sqrt((len(loo) - 1) / len(loo) * np.sum((loo - loo.mean()) ** 2)))
-    ratio = _offset_sse(y, S, W1, n, c, delta) / _offset_sse(y, S, W1, n, c, 0.0)
-    return SpeedOffset(delta, se, w_hover, int(m.sum()), int(c.max()) + 1, float(ratio))
+    ratio = _offset_sse(sums.total, n, delta) / _offset_sse(sums.total, n, 0.0)
+    return SpeedOffset(delta * w_hover, se * w_hover, w_hover, int(m.sum()), int(c.max()) + 1, float(ratio))

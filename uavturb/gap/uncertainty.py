@@ -200,20 +200,22 @@ def timing_term(low: dict[str, float] | None, high: dict[str, float] | None, key
     return {k: abs(float(high[k]) - float(low[k])) / 2.0 for k in keys}
 
 
-def thrust_map_term(data: GapData, final: ModelFit) -> tuple[SpeedOffset | None, dict[str, dict[str, float]]]:
+def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None = None
+                    ) -> tuple[SpeedOffset | None, dict[str, dict[str, float]]]:
     """The **thrust map** term: the recorded speeds' offset (None where too few rows are at least
     :data:`~uavturb.gap.nominal.OFFSET_RADII` rotor radii over the floor) and, where it stands :data:`OFFSET_Z` errors from zero, ``{effect: {param: half the change}}`` of
     every effect of ``final`` between its refit on ``data`` and on ``data`` with the speeds moved by it
     (``{}`` otherwise).
 
-    ``data``: the rows ``final`` was fitted on (the simulator's own effects already taken off ``y``). The thrust
+    ``data``: the rows ``final`` was fitted on (the simulator's own effects among its effects). The thrust
     the rotors make is the measured force along the body z axis less every other force of ``final`` (the motor
     lag's included: the offset is read on the lagged speeds' sums); a surface's lift stays in it, constant
-    within each cell of one height."""
+    within each cell of one height. ``residual``: ``final.residual(data)`` where the caller has it (K, 3) N."""
     cells = offset_cells(data.group, data.d_down, data.d_up, data.rotor_radius, surface_reach_m(data))
     nl = _nl_values(final.nonlinear)
     S_thrust = effective_S(data, set(final.effects), nl)  # lagged, times each row's level
-    y_thrust = np.einsum("ki,ki->k", data.y - final.predict(data), data.R[:, :, 2]) + final.coef["k_T"] * S_thrust
+    rest = final.residual(data) if residual is None else residual
+    y_thrust = np.einsum("ki,ki->k", rest, data.R[:, :, 2]) + final.coef["k_T"] * S_thrust
     found = speed_offset(y_thrust, data.rotor_speeds, cells, data.t, S=S_thrust / data.thrust_level)
     if found is None or found.z < OFFSET_Z or not final.effects:
         return found, {}
