@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from uavturb.gap.design import GapData, apply_thrust_levels
-from uavturb.gap.finder import _cross_checked, _nominal
+from uavturb.gap.finder import _cross_checked, _nominal, curve_named_thrust_map
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.gap.nominal import (ThrustLevels, anchored_bias, block_mean_and_se, matched_height_levels,
                                  offset_cells, speed_offset, thrust_levels)
 from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, timing_interval
+from uavturb.gap.surface_laws import finder_surface_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     error_budget,
@@ -190,6 +191,28 @@ def test_the_thrust_map_term_covers_a_ground_effect_read_on_offset_speeds():
     clean = _floor_flights(0.0, seed=6)
     found0, terms0 = thrust_map_term(clean, fit_model(clean, {"ground_effect"}))
     assert found0.z < 2 and terms0 == {}
+
+
+def test_a_law_named_from_the_curve_carries_the_thrust_map_term_too():
+    """A law named from the measured curve has the curve's values, which offset speeds bias as well: its
+    term is half the change of the law fitted to the curve measured on the moved speeds, which finds the
+    truth (mu = 2) again; the stated error then covers it. Without an offset that counts, nothing changes."""
+    w_h = np.sqrt(MASS * GRAVITY / (6 * K_T))
+    data = _floor_flights(w_h / 3)
+    final = fit_model(data, {"ground_effect"})
+    _, _, fits = finder_surface_curve(data, final, resample=False)
+    mu = fits["ground_effect"].params["mu"]
+    entry = {"name": "ground_effect", "params": {"mu": mu}, "named_from": "surface_curve",
+             "error_budget": {"mu": {"sample": 0.01, "stderr": 0.01, "limited_by": "sample"}}, "stderr": {"mu": 0.01}}
+    found, _ = thrust_map_term(data, final)
+    speed_map = {"counts": True, "delta_rad_s": found.delta}
+    out = curve_named_thrust_map([copy.deepcopy(entry)], data, final, speed_map)[0]
+    moved = data.with_speed_offset(found.delta)
+    _, _, moved_fits = finder_surface_curve(moved, fit_model(moved, {"ground_effect"}), resample=False)
+    assert moved_fits["ground_effect"].params["mu"] == pytest.approx(2.0, rel=0.05) and abs(mu - 2.0) > 0.2
+    assert out["error_budget"]["mu"]["thrust_map"] == pytest.approx(abs(moved_fits["ground_effect"].params["mu"] - mu) / 2)
+    assert out["error_budget"]["mu"]["limited_by"] == "thrust_map" and abs(mu - 2.0) <= 2.1 * out["stderr"]["mu"]
+    assert curve_named_thrust_map([copy.deepcopy(entry)], data, final, speed_map | {"counts": False}) == [entry]
 
 
 def test_speeds_moved_by_an_offset_leave_the_rows_they_came_from_alone():

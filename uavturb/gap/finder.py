@@ -191,6 +191,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     named, speed_map = _thrust_map_checked(named, data, final, not measured_rotor_speeds(recordings), rf)
     named, curve_report = law_named_from_curve(named, curve_report, curve, curve_fits, data, facts,
                                                height_uncertainty)
+    named = curve_named_thrust_map(named, data, final, speed_map)
     report = {
         "schema": SCHEMA,
         "recordings": paths,
@@ -309,6 +310,28 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
                      "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells,
                      "sse_ratio": found.sse_ratio,
                      "counts": bool(counts), "note": note}
+
+
+def curve_named_thrust_map(effects: list[dict[str, Any]], data: GapData, final: ModelFit,
+                           speed_map: dict[str, Any] | None) -> list[dict[str, Any]]:
+    """``effects`` with the **thrust map** term for a law named from the measured surface curve (its values are
+    the curve's, which the speeds' offset moves too): half the change of the law fitted to the curve measured
+    on the speeds moved by the offset (``speed_map``: the report's ``nominal.rotor_speed_offset``), where it
+    counts."""
+    from_curve = [e for e in effects if e.get("named_from") == "surface_curve"]
+    if not from_curve or not speed_map or not speed_map["counts"]:
+        return effects
+    moved = data.with_speed_offset(speed_map["delta_rad_s"])
+    try:
+        _, _, fits = finder_surface_curve(moved, fit_model(moved, final.effects, with_stderr=False), resample=False)
+    except (InputError, np.linalg.LinAlgError, ValueError):
+        fits = {}
+    for e in from_curve:
+        f = fits.get(e["name"])
+        term = {k: abs(float(f.params[k]) - float(v)) / 2.0 if f else float("nan") for k, v in e["params"].items()}
+        e["error_budget"] = with_systematic(e["error_budget"], "thrust_map", term)
+        e["stderr"] = honest_stderr(e["error_budget"])
+    return effects
 
 
 @dataclass
