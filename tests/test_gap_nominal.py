@@ -13,7 +13,7 @@ from uavturb.gap.design import GapData, apply_thrust_levels
 from uavturb.gap.finder import _cross_checked, _nominal, curve_named_thrust_map
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.gap.nominal import (ThrustLevels, anchored_bias, block_mean_and_se, matched_height_levels,
-                                 offset_cells, speed_offset, thrust_levels)
+                                 SpeedOffset, offset_cells, speed_offset, thrust_levels)
 from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, timing_interval
 from uavturb.gap.surface_laws import finder_surface_curve
 from uavturb.gap.uncertainty import (
@@ -156,7 +156,12 @@ def test_speed_offset_is_read_far_from_surfaces():
         assert found.w_hover == pytest.approx(w_h - delta, rel=0.01) and found.rows == np.sum(cells >= 0)
         assert abs(found.delta - delta) < 2 * found.stderr and found.stderr < 0.05 * w_h
         assert (found.z > 10) == (delta > 0) and (found.sse_ratio < 0.5) == (delta > 0)
+        assert found.counts == (delta > 0)
     assert speed_offset(y_thrust[:100], data.rotor_speeds[:100], np.zeros(100, int), data.t[:100]) is None
+    # an offset must matter as well as stand out: 0.25 % of the hover speed at z 5.6 (an hour of the
+    # simulator's own flights) does not count, 3 % at z 3 does, 3 % at z 1.5 does not
+    assert not SpeedOffset(1.36, 0.24, 535.0, 60_000, 120, 0.9994).counts
+    assert SpeedOffset(16.0, 5.3, 535.0, 60_000, 120, 0.99).counts and not SpeedOffset(16.0, 10.7, 535.0, 1, 1, 1).counts
 
 
 def test_offset_cells_hold_one_recording_at_one_height():

@@ -30,7 +30,6 @@ from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     HONEST_Z,
-    OFFSET_Z,
     error_budget,
     honest_stderr,
     presence_z,
@@ -294,14 +293,15 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
     if found is None:
         return effects, None
     share = found.delta / found.w_hover
-    counts = found.z >= OFFSET_Z
+    counts = found.counts
     note = (f"at each height ({found.rows} rows in {found.cells} cells of one recording and one height, from "
             f"{OFFSET_RADII:.0f} rotor radii up) thrust per sum((w + delta)^2) is steadiest at delta = "
             f"{found.delta:.4g} ± {found.stderr:.2g} rad/s ({100 * share:+.0f} % of the hover speed, "
             f"{found.w_hover:.4g} rad/s; it leaves {100 * found.sse_ratio:.0f} % of the scatter at delta = 0)")
     note += (": the recorded (commanded) speeds may be off by an offset, as commands with an idle speed are; the "
              "named effects' errors carry what that reading changes (thrust map)" if counts else
-             ": no offset beyond its error, the recorded speeds' squares carry the thrust")
+             ": no offset that matters (two errors from zero and 2.5 % of the hover speed), the recorded speeds' "
+             "squares carry the thrust")
     for e in effects:
         if e["name"] in terms:
             e["error_budget"] = with_systematic(e["error_budget"], "thrust_map", terms[e["name"]])

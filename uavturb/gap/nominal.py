@@ -326,6 +326,10 @@ OFFSET_MIN_ROWS, OFFSET_CELL_ROWS = 200, 30
 #: range, mu = 12, adds 2 % there) and the cells' width in height (a ratio: 5 %, across which that lift moves
 #: by a tenth of itself, 0.2 % of thrust)
 OFFSET_RADII, OFFSET_CELL_RATIO = 6.0, 1.05
+#: |offset| / its jackknife error, and |offset| / hover speed, from which an offset counts: a smaller one moves
+#: the thrust of a rotor turning 10 % slower than at hover (near the floor) by under 0.5 %, whatever its z
+#: (the simulator's own flights, which have none, read 0.25 % of the hover speed at z 5.6 over an hour)
+OFFSET_Z, OFFSET_PRACTICAL = 2.0, 0.025
 
 
 @dataclass(frozen=True)
@@ -352,6 +356,12 @@ class SpeedOffset:
     def z(self) -> float:
         """``|delta| / stderr``."""
         return abs(self.delta) / self.stderr if self.stderr > 0 else float("inf")
+
+    @property
+    def counts(self) -> bool:
+        """The offset stands :data:`OFFSET_Z` errors from zero and is at least :data:`OFFSET_PRACTICAL` of the
+        hover speed."""
+        return self.z >= OFFSET_Z and abs(self.delta) >= OFFSET_PRACTICAL * self.w_hover
 
 
 def offset_cells(group: np.ndarray, d_down: np.ndarray, d_up: np.ndarray, rotor_radius: float, reach: float

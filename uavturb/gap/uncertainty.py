@@ -30,8 +30,8 @@ while recordings differed by 3.6 %. The error stated for each parameter here is 
   the thrust.
 - **thrust map** (commanded rotor speeds, :func:`thrust_map_term`): half the change of the parameter when
   the recorded speeds are moved by the offset that makes thrust per ``sum((w + delta)^2)`` constant at
-  each height of each recording (:func:`uavturb.gap.nominal.speed_offset`), where that offset stands
-  :data:`OFFSET_Z` errors from zero. An idle speed in the motors' command map reads as a stronger ground
+  each height of each recording (:func:`uavturb.gap.nominal.speed_offset`), where that offset counts (two
+  errors from zero and at least 2.5 % of the hover speed, :attr:`~uavturb.gap.nominal.SpeedOffset.counts`). An idle speed in the motors' command map reads as a stronger ground
   effect (the rotors turn slower near the floor); the data cannot always tell it from other physics that
   depends on the thrust level, so the named values stay and the error covers the other reading.
 
@@ -55,8 +55,6 @@ HEIGHT_REFERENCE_M = 0.01
 TIME_BLOCKS = 5
 #: |value| / statistical standard error (:func:`presence_z`) a parameter that says an effect is there must reach
 HONEST_Z = 2.0
-#: |offset| / its jackknife error above which the **thrust map** term counts
-OFFSET_Z = 2.0
 
 
 def _params(fit: ModelFit, name: str) -> dict[str, float]:
@@ -203,8 +201,8 @@ def timing_term(low: dict[str, float] | None, high: dict[str, float] | None, key
 def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None = None
                     ) -> tuple[SpeedOffset | None, dict[str, dict[str, float]]]:
     """The **thrust map** term: the recorded speeds' offset (None where too few rows are at least
-    :data:`~uavturb.gap.nominal.OFFSET_RADII` rotor radii over the floor) and, where it stands :data:`OFFSET_Z` errors from zero, ``{effect: {param: half the change}}`` of
-    every effect of ``final`` between its refit on ``data`` and on ``data`` with the speeds moved by it
+    :data:`~uavturb.gap.nominal.OFFSET_RADII` rotor radii over the floor) and, where it counts
+    (:attr:`~uavturb.gap.nominal.SpeedOffset.counts`), ``{effect: {param: half the change}}`` of every effect of ``final`` between its refit on ``data`` and on ``data`` with the speeds moved by it
     (``{}`` otherwise).
 
     ``data``: the rows ``final`` was fitted on (the simulator's own effects among its effects). The thrust
@@ -217,7 +215,7 @@ def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None 
     rest = final.residual(data) if residual is None else residual
     y_thrust = np.einsum("ki,ki->k", rest, data.R[:, :, 2]) + final.coef["k_T"] * S_thrust
     found = speed_offset(y_thrust, data.rotor_speeds, cells, data.t, S=S_thrust / data.thrust_level)
-    if found is None or found.z < OFFSET_Z or not final.effects:
+    if found is None or not found.counts or not final.effects:
         return found, {}
     effects = frozenset(final.effects)
     try:
