@@ -293,13 +293,12 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
     if found is None:
         return effects, None
     share = found.delta / found.w_hover
-    counts = found.counts
     note = (f"at each height ({found.rows} rows in {found.cells} cells of one recording and one height, from "
             f"{OFFSET_RADII:.0f} rotor radii up) thrust per sum((w + delta)^2) is steadiest at delta = "
             f"{found.delta:.4g} ± {found.stderr:.2g} rad/s ({100 * share:+.0f} % of the hover speed, "
             f"{found.w_hover:.4g} rad/s; it leaves {100 * found.sse_ratio:.0f} % of the scatter at delta = 0)")
     note += (": the recorded (commanded) speeds may be off by an offset, as commands with an idle speed are; the "
-             "named effects' errors carry what that reading changes (thrust map)" if counts else
+             "named effects' errors carry what that reading changes (thrust map)" if found.counts else
              ": no offset that matters (two errors from zero and 2.5 % of the hover speed), the recorded speeds' "
              "squares carry the thrust")
     for e in effects:
@@ -309,7 +308,7 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
     return effects, {"delta_rad_s": found.delta, "stderr_rad_s": found.stderr, "share_of_hover_speed": share,
                      "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells,
                      "sse_ratio": found.sse_ratio,
-                     "counts": bool(counts), "note": note}
+                     "counts": found.counts, "note": note}
 
 
 def curve_named_thrust_map(effects: list[dict[str, Any]], data: GapData, final: ModelFit,

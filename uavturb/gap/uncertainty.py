@@ -31,9 +31,10 @@ while recordings differed by 3.6 %. The error stated for each parameter here is 
 - **thrust map** (commanded rotor speeds, :func:`thrust_map_term`): half the change of the parameter when
   the recorded speeds are moved by the offset that makes thrust per ``sum((w + delta)^2)`` constant at
   each height of each recording (:func:`uavturb.gap.nominal.speed_offset`), where that offset counts (two
-  errors from zero and at least 2.5 % of the hover speed, :attr:`~uavturb.gap.nominal.SpeedOffset.counts`). An idle speed in the motors' command map reads as a stronger ground
-  effect (the rotors turn slower near the floor); the data cannot always tell it from other physics that
-  depends on the thrust level, so the named values stay and the error covers the other reading.
+  errors from zero and at least 2.5 % of the hover speed, :attr:`~uavturb.gap.nominal.SpeedOffset.counts`).
+  An idle speed in the motors' command map reads as a stronger ground effect (the rotors turn slower near
+  the floor); the data cannot always tell it from other physics that depends on the thrust level, so the
+  named values stay and the error covers the other reading.
 
 The report keeps every term (``error_budget``) and names the one that limits the parameter.
 """
