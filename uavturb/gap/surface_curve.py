@@ -110,12 +110,12 @@ class SurfaceCurve:
         w = np.array([np.sum(sel & (self.group == g)) for g in gs], float)
         return np.array([self.far_d[g] for g in gs], float), (w / w.sum() if len(w) else w)
 
-    def far_level(self, law: Callable[[np.ndarray], np.ndarray], use: np.ndarray | None = None) -> float:
+    def far_level(self, law: Callable[[np.ndarray], np.ndarray]) -> float:
         """What the normalisation makes of a surface law ``law`` (``d [m] -> ratio``): its value at each
         recording's median far height (a law monotone in height has its median there), weighted as
-        :meth:`far_points`; 1 where no far height is known. A measured ratio that follows the law reads
-        ``law(d) / far_level(law)``."""
-        d, w = self.far_points(use)
+        :meth:`far_points` over every sample; 1 where no far height is known. A measured ratio that follows
+        the law reads ``law(d) / far_level(law)``."""
+        d, w = self.far_points()
         if not len(d):
             return 1.0
         return float(np.sum(w * np.asarray(law(d), float)))

@@ -122,11 +122,11 @@ class _BinnedLaw:
                 self.sub_d = np.where(n > 0, sums / np.maximum(n, 1), np.nan)
             self.sub_bin = np.arange(nb * _SUB_BINS) // _SUB_BINS
 
-    def at(self, d: np.ndarray, z: np.ndarray, use: np.ndarray | None = None) -> np.ndarray:
+    def at(self, d: np.ndarray, z: np.ndarray) -> np.ndarray:
         """The law at heights ``d`` [m] with ``z`` (its parameters, then the far level where it is free), as
-        the curve of the samples where ``use`` (all where None) would read it."""
+        the curve reads it (normalised at its far heights)."""
         level = z[self.len_params] if self.free_level else 1.0
-        return level * self._ratio(d, z) / self.curve.far_level(lambda h: self._ratio(h, z), use)
+        return level * self._ratio(d, z) / self.curve.far_level(lambda h: self._ratio(h, z))
 
     def _ratio(self, d: np.ndarray, z: np.ndarray) -> np.ndarray:
         """The law's thrust ratio at heights ``d`` [m] with the parameters in ``z`` (not normalised)."""
