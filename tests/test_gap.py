@@ -1,8 +1,11 @@
 """The gap finder on flights with known, concealed effects (gap-report.md contract)."""
 
+import io
 import json
+import shutil
 
 import mlflow
+import numpy as np
 import pytest
 
 from uavturb.errors import InputError
@@ -154,3 +157,30 @@ def test_simulator_effect_absent_in_reality_is_fitted_to_zero(tmp_path, flights)
     assert [e["name"] for e in report["effects"]] == ["rotor_drag"]
     assert report["sim_effect_params"]["ground_effect"]["fitted"]["mu"] < 0.2
     assert report["final"]["heldout_rmse_N"] < report["baseline"]["heldout_rmse_N"]
+
+
+def test_a_height_that_passes_through_the_floor_tests_no_surface_effect(tmp_path, flights):
+    # a barometer's drift, as in a PX4 log whose local position reads 0.42 m under its take-off floor at
+    # touch-down: the ground-effect flight (near the floor for 6 s, then at 1.25 m) sinks 1.6 m from 12 s to
+    # 42 s, so that it ends up under the floor
+    rec = tmp_path / "drifting"
+    shutil.copytree(flights["ground"], rec)
+    state = rec / "mav0" / "state_groundtruth_estimate0" / "data.csv"
+    header, rows = state.read_text().split("\n", 1)
+    table = np.loadtxt(io.StringIO(rows), delimiter=",")
+    t = (table[:, 0] - table[0, 0]) * 1e-9
+    table[:, 3] -= 1.6 * np.clip((t - 12.0) / 30.0, 0.0, 1.0)
+    with state.open("w") as f:
+        f.write(header + "\n")
+        np.savetxt(f, table, delimiter=",", fmt=["%d"] + ["%.9g"] * (table.shape[1] - 1))
+    report = run(tmp_path, [rec], sim_effects="none")
+    assert not [e for e in report["effects"] if e["name"].startswith("ground_effect")]
+    untestable = {e["name"]: e for e in report["not_testable"]}
+    assert {"ground_effect", "ground_effect_multirotor", "ground_effect_exponential", "ceiling_effect"} <= set(untestable)
+    assert "cannot be trusted" in untestable["ground_effect"]["why"]
+    assert report["surface_curve"] is None
+    broken = report["height_reference"]["passes_floor"]
+    assert broken == report["surface_curve_missing"] and "drifting: in flight the rotor plane is up to" in broken
+    assert "passes through the floor" in (tmp_path / "report" / "report.md").read_text()
+    # the same flight without the drift: its height holds
+    assert run(tmp_path / "held", [flights["ground"]], sim_effects="none")["height_reference"]["passes_floor"] is None

@@ -10,6 +10,7 @@ from uavturb.gap.decide import (
     bias_alike,
     collinearity,
     flight_facts,
+    floor_crossing,
     heading_span_deg,
     look_alikes,
     surface_reach,
@@ -23,7 +24,7 @@ from uavturb.physics.effects import EFFECTS, lag_rotor_speeds
 
 
 def _data(yaw: np.ndarray, *, d_down: float | np.ndarray = np.inf, imu: bool = True, push=(0.0, 0.0),
-          bias=(0.0, 0.0, 0.0), seed: int = 0, thrust_tilt=(0.0, 0.0)) -> GapData:
+          bias=(0.0, 0.0, 0.0), seed: int = 0, thrust_tilt=(0.0, 0.0), d_up: float | np.ndarray = np.inf) -> GapData:
     """Hover-like samples at 100 Hz with headings ``yaw`` [rad], small tilts, a steady world push
     [N], an accelerometer bias [m/s^2, body] and a thrust axis tilted by ``thrust_tilt`` [rad] towards
     the body's x and y axes in the measured force."""
@@ -41,7 +42,7 @@ def _data(yaw: np.ndarray, *, d_down: float | np.ndarray = np.inf, imu: bool = T
     y += rng.normal(0, 0.04, y.shape)
     d = np.broadcast_to(np.asarray(d_down, float), (K,)).copy()
     return GapData(np.zeros(K, int), t, np.zeros((K, 3)), y, R, w, rng.normal(0, 0.3, (K, 3)), d,
-                   np.full(K, np.inf), mass, 0.1, ["synthetic"], "imu" if imu else "mocap",
+                   np.broadcast_to(np.asarray(d_up, float), (K,)).copy(), mass, 0.1, ["synthetic"], "imu" if imu else "mocap",
                    imu=np.full(K, imu), fits_bias=imu)
 
 
@@ -97,6 +98,28 @@ def test_surface_effects_need_flights_within_reach():
     d[:500] = 0.3  # 5 s within reach
     assert surface_reach(_data(np.zeros(3000), d_down=d), "ground_effect").testable
     assert not surface_reach(_data(np.zeros(3000)), "ceiling_effect").testable
+
+
+def _through_the_floor(under_rows: int, depth: float, over_floor: bool = True) -> GapData:
+    """3000 rows 0.3 m over the floor (or under a ceiling alone), the last ``under_rows`` of them ``depth`` under it."""
+    d_down, d_up = np.full(3000, 0.3 if over_floor else np.inf), np.full(3000, np.inf if over_floor else 0.5)
+    d_down[3000 - under_rows:], d_up[3000 - under_rows:] = np.inf, depth
+    return _data(np.zeros(3000), d_down=d_down, d_up=d_up)
+
+
+def test_a_height_through_the_floor_tests_no_surface_effect():
+    broken = floor_crossing(_through_the_floor(200, 0.42))
+    assert broken.startswith("synthetic: in flight the rotor plane is up to 0.42 m under the surface above it (200 rows "
+                             "between 28.0 and 30.0 s)")
+    reach = surface_reach(_through_the_floor(200, 0.42), "ground_effect")
+    assert not reach.testable and reach.heights_broken == broken and "cannot be trusted" in reach.why()
+    assert "dist_bottom" in reach.to_separate()
+    assert surface_reach(_through_the_floor(0, 0.42), "ground_effect").testable  # the same flight, its height held
+    # a few bad rows of a position stream, or a centimetre under (a scan's noise), are no evidence
+    assert floor_crossing(_through_the_floor(4, 0.42)) is None
+    assert floor_crossing(_through_the_floor(200, 0.015)) is None
+    # under a ceiling scanned alone there is nothing below, at any time: nothing to cross
+    assert floor_crossing(_through_the_floor(0, 0.5, over_floor=False)) is None
 
 
 def test_physical_ranges_name_the_quantity_and_source():

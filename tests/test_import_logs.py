@@ -217,6 +217,21 @@ def test_csv_floor_and_rotor_plane(tmp_path, flight):
     assert len(flat_floor(np.array([[0.0, 0, 1], [1e5, 1e5, 1]]), 0.0)) <= 2_000_000 + 20_000  # a wide flight
 
 
+def test_a_floor_above_the_flight_is_said_in_the_summary(tmp_path, flight):
+    # a floor given 10 cm over the lowest position: a drifting height (a PX4 log's barometer) reads the same
+    m = write_csv_log(flight, tmp_path / "log.csv")
+    low = float(flight.ground_truth.p[:, 2].min())
+    _, summary = import_csv(tmp_path / "log.csv", write_map(m, tmp_path / "map.yaml"), tmp_path / "rec",
+                            vehicle=flight.vehicle, floor_z=low + 0.1)
+    note = [n for n in summary.notes if "under the floor" in n]
+    assert len(note) == 1 and note[0].startswith("the position goes up to 0.10 m under the floor (--floor-z")
+    assert "heights over the floor cannot be trusted" in summary.line()
+    # the floor where it is: nothing said
+    _, summary = import_csv(tmp_path / "log.csv", write_map(m, tmp_path / "map.yaml"), tmp_path / "rec2",
+                            vehicle=flight.vehicle, floor_z=low - 0.01)
+    assert not [n for n in summary.notes if "under the floor" in n]
+
+
 # --- ULog round trips ----------------------------------------------------------------------------------
 
 

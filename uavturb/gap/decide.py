@@ -70,6 +70,12 @@ PRACTICAL_SHARE = 0.002
 MIN_NEAR_S = 2.0
 #: deg of heading change under which a body-fixed and a world-fixed force look alike
 HEADING_SPAN_DEG = 30.0
+#: m, how far under a surface the rotor plane may seem to be in flight before the heights are distrusted (a
+#: scan's noise, a height reference off by a centimetre: ``sysid.flight_data.UNDER_SURFACE_M``, the same bound)
+UNDER_FLOOR_M = 0.02
+#: rows in flight the rotor plane must spend that far under a surface (one bad row of a position stream is no
+#: evidence of a drifting height)
+UNDER_FLOOR_ROWS = 5
 
 NOMINAL_GROUPS = {"thrust_coefficient": ("k_T",), "accelerometer_bias": ("b_x", "b_y", "b_z")}
 
@@ -109,9 +115,13 @@ class Reach:
     reach_m: float
     near_s: float
     closest_m: float
+    #: why no height over a surface can be trusted (:func:`floor_crossing`), or None
+    heights_broken: str | None = None
 
     def why(self) -> str:
         where = "below" if EFFECTS[self.name].surface == "d_down" else "above"
+        if self.heights_broken:
+            return "the heights over surfaces cannot be trusted: the vehicle passes under the floor (Height reference)"
         if not np.isfinite(self.closest_m):
             return f"the recordings have no surface {where} the vehicle (no point cloud, or nothing there)"
         return (f"the flights came no closer than {self.closest_m:.2f} m to the surface {where} and spent "
@@ -119,8 +129,44 @@ class Reach:
                 f"(at least {MIN_NEAR_S:.0f} s needed)")
 
     def to_separate(self) -> str:
+        if self.heights_broken:
+            return FIX_HEIGHTS
         where = "over the floor" if EFFECTS[self.name].surface == "d_down" else "under the ceiling"
         return f"hover {where} at several heights below {self.reach_m:.2f} m for a few seconds each"
+
+
+#: what makes the heights over surfaces trustworthy again (:func:`floor_crossing`)
+FIX_HEIGHTS = ("record a position whose height holds (motion capture; or, from a PX4 log, the height over the "
+               "ground of a range sensor, vehicle_local_position's dist_bottom), or give the floor's true height "
+               "(uavturb import --floor-z, the point cloud)")
+
+
+def floor_crossing(data: GapData) -> str | None:
+    """Why no height over a surface can be trusted on ``data``, or None.
+
+    In flight the rotor plane cannot be under the surface it flies over: where a recording has rows over a
+    surface (``d_down`` finite) and :data:`UNDER_FLOOR_ROWS` rows or more where nothing is below the rotor
+    plane and a surface is over :data:`UNDER_FLOOR_M` above it, the recording's height passes through its
+    floor: a position that drifts in height (a barometer, an estimator without motion capture: a PX4 log's
+    local position 0.42 m under its take-off floor at touch-down) or a wrong floor height. A recording never
+    over any surface (a scan of a ceiling alone) shows nothing here.
+    """
+    under = ~np.isfinite(data.d_down) & np.isfinite(data.d_up) & (data.d_up > UNDER_FLOOR_M)
+    found = []
+    for g in np.unique(data.group[under]):
+        mine = data.group == g
+        rows = under & mine
+        if rows.sum() < UNDER_FLOOR_ROWS or not np.any(np.isfinite(data.d_down[mine])):
+            continue
+        t = data.t[rows]
+        found.append(f"{data.names[g]}: in flight the rotor plane is up to {float(np.max(data.d_up[rows])):.2f} m "
+                     f"under the surface above it ({int(rows.sum())} rows between {t.min():.1f} and {t.max():.1f} s), "
+                     f"a surface it flies over at other times")
+    if not found:
+        return None
+    return ("; ".join(found) + ". The recorded height passes through the floor: the position drifts in height (a "
+            "barometer, an estimator without motion capture) or the floor's height is wrong, so no height over a "
+            "surface can be trusted and no surface effect is tested. To test them: " + FIX_HEIGHTS)
 
 
 def surface_reach(data: GapData, name: str) -> Reach:
@@ -135,7 +181,8 @@ def surface_reach(data: GapData, name: str) -> Reach:
     dt = float(np.median(np.diff(data.t))) if len(data) > 1 else 0.0
     near_s = float(near.sum()) * dt
     closest = float(np.min(d[np.isfinite(d)])) if np.any(np.isfinite(d)) else float("inf")
-    return Reach(name, near_s >= MIN_NEAR_S, reach, near_s, closest)
+    broken = floor_crossing(data)
+    return Reach(name, near_s >= MIN_NEAR_S and broken is None, reach, near_s, closest, broken)
 
 
 def effect_size(data: GapData, fit: ModelFit, effect: str) -> float:

@@ -13,6 +13,7 @@ from uavturb.gap.decide import (
     R2_AMBIGUOUS,
     airspeed_drag,
     ambiguity,
+    floor_crossing,
     bias_alike,
     flight_facts,
     surface_reach,
@@ -168,12 +169,13 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     segs, rs0, sigma = locate.segments(data, base.r0, update_step_s=step)
     drv = locate.drivers(data, rs0)
 
+    heights_broken = floor_crossing(data)  # a height through the floor: no surface effect, no curve
     candidates, not_testable, sim_fit_base = _testable_candidates(data, sim, measured_rotor_speeds(recordings))
     quantum = max((rotor_quantum(r.rotors.speeds) for r in recordings), default=0.0)
     floor = rounding_floor(data, base.nominal.coef["k_T"], quantum)
     progress("selecting effects")
     sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor,
-                 curve=nominal_curve_evidence(data, base.least_squares))
+                 curve=nominal_curve_evidence(data, base.least_squares, heights_broken is None))
     progress("deciding what the data support")
     sel, ambiguous, rejected = _decide(data, sel, candidates)
     final: ModelFit = sel.final
@@ -183,7 +185,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     _, draws = locate.window_rows(data, 0.5, step)
     beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / draws)))
     progress("the surface curve")
-    curve_report, curve, curve_fits = finder_surface_curve(data, final)
+    curve_report, curve, curve_fits = finder_surface_curve(data, final) if heights_broken is None else (None, None, {})
     progress("honest errors")
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
@@ -209,7 +211,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "height_uncertainty_m": height_uncertainty,
         "height_reference": height_reference(vehicle.rotor_plane_z, height_uncertainty, any(
             EFFECTS[n].surface for n in [e["name"] for e in named + rejected]
-            + [c for a in ambiguous for c in a["candidates"] if c in EFFECTS])),
+            + [c for a in ambiguous for c in a["candidates"] if c in EFFECTS])) | {"passes_floor": heights_broken},
         "sim_effect_params": {name: {"sim": p, "fitted": final.effect_params(name)[0] if name in final.effects
                                      else {}} for name, p in sim.items()},
         "nominal": _nominal(data, final, levels) | {"rotor_speed_offset": speed_map},
@@ -217,8 +219,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "ground_contact": contact_report,
         "surface_curve": curve_report,
         # why no curve was measured, where the flights had a floor below them (its notes: who was left out)
-        "surface_curve_missing": ("; ".join(curve.notes) or None) if curve_report is None and curve is not None
-        else None,
+        "surface_curve_missing": heights_broken or (("; ".join(curve.notes) or None) if curve_report is None
+                                                    and curve is not None else None),
         "streams": held,
         "rejected": rejected,
         "not_testable": not_testable,
@@ -357,9 +359,12 @@ def _simulator_baseline(data: GapData, sim: dict[str, dict[str, float]]) -> _Bas
                      baseline.predict(base_data) + offset)
 
 
-def nominal_curve_evidence(data: GapData, nominal: ModelFit) -> CurveEvidence:
+def nominal_curve_evidence(data: GapData, nominal: ModelFit, heights_hold: bool = True) -> CurveEvidence:
     """The measured surface curve under the nominal model (no effect named yet), as selection reads it:
-    its lift near the floor and each surface law's shape fit (:class:`~uavturb.gap.selection.CurveEvidence`)."""
+    its lift near the floor and each surface law's shape fit (:class:`~uavturb.gap.selection.CurveEvidence`);
+    none where the heights over surfaces do not hold (``heights_hold``: :func:`~uavturb.gap.decide.floor_crossing`)."""
+    if not heights_hold:
+        return CurveEvidence(0.0, {})
     _, curve, fits = finder_surface_curve(data, nominal, resample=False)  # the shape's chi^2 is all it reads
     return CurveEvidence(lift_z(curve, data.rotor_radius), {n: f.chi2 for n, f in fits.items()})
 

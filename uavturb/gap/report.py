@@ -324,8 +324,11 @@ def _undecided_lines(report: dict) -> list[str]:
             L.append(f"- `{r['name']}`: {r['why']}.")
     if report.get("not_testable"):
         L += ["", "## Not testable on these flights"]
+        reasons: dict[tuple[str, str], list[str]] = {}  # effects that share why and what would test them: one line
         for r in report["not_testable"]:
-            L.append(f"- `{r['name']}`: {r['why']}. To test it: {r['to_separate']}.")
+            reasons.setdefault((r["why"], r["to_separate"]), []).append(f"`{r['name']}`")
+        for (why, to_test), names in reasons.items():
+            L.append(f"- {', '.join(names)}: {why}. To test {'it' if len(names) == 1 else 'them'}: {to_test}.")
     nominal = report.get("nominal", {})
     if nominal.get("accel_bias_note"):
         L += ["", "Accelerometer bias: " + nominal["accel_bias_note"] + "."]

@@ -26,7 +26,7 @@ from uavturb.io.csv_table import Table, read_table
 from uavturb.io.differentiate import derivative
 from uavturb.io.log_frames import BODIES, RECORDING_WORLD, WORLDS, attitude_to_recording, body_vectors, \
     euler_to_quaternion, world_vectors
-from uavturb.io.log_import import ImportSummary, check_conventions, finish_import
+from uavturb.io.log_import import ImportSummary, check_conventions, finish_import, floor_note
 from uavturb.io.reader import checked_quaternions
 from uavturb.io.recording import Battery, GroundTruth, Imu, Recording, Rotors
 from uavturb.io.thrust_map import held_voltage, rpm_to_rad_s
@@ -225,10 +225,11 @@ def import_csv(log: str | Path, map_file: str | Path, out: str | Path, *, vehicl
                       rebuild=lambda c: _build(table, m, rows, v, c["world"], c["body"])[0],
                       rotor_column=lambda i: repr(m.rotors[order[i]]))
     rec = finish_import(rec, out, floor_z=floor_z, overwrite=overwrite)
-    return rec, _summary(rec, m, Path(out), left_out, notes)
+    return rec, _summary(rec, m, Path(out), left_out, notes, floor_z)
 
 
-def _summary(rec: Recording, m: CsvMap, out: Path, left_out: list[str], notes: list[str]) -> ImportSummary:
+def _summary(rec: Recording, m: CsvMap, out: Path, left_out: list[str], notes: list[str],
+             floor_z: float | None) -> ImportSummary:
     s = ImportSummary(out=out, left_out=left_out)
     s.streams["ground truth"] = f"{len(rec.ground_truth)} rows (world {RECORDING_WORLD[m.world]})"
     lacks = []
@@ -239,5 +240,5 @@ def _summary(rec: Recording, m: CsvMap, out: Path, left_out: list[str], notes: l
         else:
             lacks.append(name)
     s.streams["floor"] = "none" if rec.points is None else f"z = {rec.points[0, 2]:g} m"
-    s.lacks, s.notes = lacks, notes
+    s.lacks, s.notes = lacks, notes + [n for n in [floor_note(rec, floor_z)] if n]
     return s

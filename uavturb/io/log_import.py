@@ -34,6 +34,9 @@ FLOOR_MARGIN = 1.0
 #: at most this many floor points; a wider flight gets a coarser grid (its heights over the floor then
 #: need no 5 cm resolution: such flights are outdoors, far above it)
 FLOOR_MAX_POINTS = 2_000_000
+#: m, how far under the floor the body origin may seem to be (a position's noise, a floor height given to the
+#: centimetre) before the import says the height passes through the floor
+UNDER_FLOOR_M = 0.02
 
 
 def flat_floor(p: np.ndarray, floor_z: float) -> np.ndarray:
@@ -140,6 +143,23 @@ def _agreeing_conventions(conventions: dict[str, str], choices: dict[str, tuple[
             continue
         agree.append(combo)
     return agree
+
+
+def floor_note(rec: Recording, floor_z: float | None) -> str | None:
+    """What the summary says where the body origin goes under the floor at ``floor_z`` [m] (in W, z up): a
+    height that drifts (a barometer's, an estimator's without motion capture) or a floor set too high. The gap
+    finder then tests no surface effect on the recording (``uavturb.gap.decide.floor_crossing``)."""
+    if floor_z is None:
+        return None
+    gt = rec.ground_truth
+    depth = float(floor_z) - gt.p[:, 2]
+    under = depth > UNDER_FLOOR_M
+    if not under.any():
+        return None
+    t = (gt.t_ns[under] - gt.t_ns[0]) * 1e-9
+    return (f"the position goes up to {depth.max():.2f} m under the floor (--floor-z {float(floor_z):g}) in "
+            f"{int(under.sum())} rows between {t.min():.1f} and {t.max():.1f} s: its height drifts (a barometer, an "
+            f"estimator without motion capture) or the floor is lower; heights over the floor cannot be trusted")
 
 
 def finish_import(rec: Recording, out: str | Path, *, floor_z: float | None, overwrite: bool) -> Recording:

@@ -37,7 +37,7 @@ from pyulog import ULog
 from uavturb.errors import InputError
 from uavturb.io.log_frames import BODIES, RECORDING_WORLD, WORLDS, attitude_to_recording, body_vectors, \
     world_vectors
-from uavturb.io.log_import import ImportSummary, check_conventions, finish_import
+from uavturb.io.log_import import ImportSummary, check_conventions, finish_import, floor_note
 from uavturb.io.recording import Battery, GroundTruth, Imu, Recording, Rotors
 from uavturb.io.thrust_map import ThrustMap, held_voltage, rpm_to_rad_s
 from uavturb.io.vehicle_file import named_vehicle
@@ -254,11 +254,12 @@ def import_ulog(log_file: str | Path, out: str | Path, *, vehicle: str | Vehicle
                                                c["world"], c["body"]),
                       rotor_column=lambda i: f"esc/output {order[i]}")
     rec = finish_import(rec, out, floor_z=floor_z, overwrite=overwrite)
-    return rec, _summary(rec, log, Path(out))
+    return rec, _summary(rec, log, Path(out), floor_z)
 
 
-def _summary(rec: Recording, log: _Log, out: Path) -> ImportSummary:
+def _summary(rec: Recording, log: _Log, out: Path, floor_z: float | None) -> ImportSummary:
     s = ImportSummary(out=out, left_out=list(log.left_out), notes=list(log.notes))
+    s.notes += [n for n in [floor_note(rec, floor_z)] if n]
     s.streams["ground truth"] = f"{len(rec.ground_truth)} rows (world {RECORDING_WORLD['ned']})"
     s.streams["rotors"] = f"{len(rec.rotors)} rows ({rec.vehicle.rotor_speed_source}, from " \
                           f"{'esc_status' if rec.vehicle.rotor_speed_source == 'measured' else 'actuator_outputs'})"
