@@ -105,3 +105,19 @@ def test_the_surface_curve_says_where_heights_are_measured_from(tmp_path):
     report["surface_curve_missing"] = None
     write_markdown(tmp_path, report, [])
     assert "## Measured surface curve" not in (tmp_path / "report.md").read_text()
+
+
+def test_a_nominal_model_that_misses_by_much_of_the_weight_says_what_to_check(tmp_path):
+    report = {"recordings": ["a/px4"], "sim_effects": [], "protocol": "2-fold", "residual_source": "imu",
+              "baseline": {"heldout_rmse_N": 7.1, "rmse_N": 5.3}, "final": {"heldout_rmse_N": 7.1},
+              "noise": {"rms_N": 0.64}, "effects": [], "sim_effect_params": {},
+              "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 5.3, "drivers": []},
+              "facts": {"weight_N": 14.715}}
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert "(nominal model 5.3000 N on all data, 36 % of the weight;" in text
+    assert "**The nominal model misses by 36 % of the weight**" in text and "check vehicle.yaml" in text
+    report["baseline"]["rmse_N"] = 0.5  # 3.4 %: as real flights leave
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert "3.4 % of the weight" in text and "misses by" not in text

@@ -224,7 +224,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "streams": held,
         "rejected": rejected,
         "not_testable": not_testable,
-        "facts": {"heading_span_deg": facts.heading_span_deg, "speed_p90_m_s": facts.speed_p90,
+        "facts": {"weight_N": facts.mass * GRAVITY, "heading_span_deg": facts.heading_span_deg, "speed_p90_m_s": facts.speed_p90,
                   "d_down_min_m": facts.d_down_min, "d_up_min_m": facts.d_up_min, "has_imu": facts.has_imu,
                   "duration_s": facts.duration_s},
         "final": {"heldout_rmse_N": sel.final_heldout.rmse, "rmse_N": float(np.sqrt(np.mean(np.sum(rf**2, 1))))},
