@@ -8,6 +8,7 @@ the command line, by the kernel for the child process (its ``VmHWM``); limits ar
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import time
@@ -76,6 +77,7 @@ def test_an_alias_bomb_in_imu_sensor_yaml_is_refused(rec):
     ("a: &a [1, *a]\n", "holds an alias that refers to itself"),
     ("a: 1\n" + "#" * (2 * MB) + "\n", "YAML files are read up to 1048576 bytes"),
     ("a: [1, 2\n", r"not valid YAML \(ParserError\)"),
+    ("rate_hz: 2\x12\n", r"not valid YAML \(ReaderError: special characters are not allowed\)"),  # a control character
 ])
 def test_yaml_bounds(tmp_path, text, match):
     path = tmp_path / "vehicle.yaml"
@@ -105,6 +107,18 @@ def test_a_huge_number_in_vehicle_yaml_is_one_line(rec):
 
 
 # --- CSV -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("value", ["1e308", "1e12"])
+def test_a_rotor_speed_no_rotor_reaches_is_named(rec, value):
+    # squared, 1e308 overflowed and the gap finder's least squares stopped inside LAPACK
+    lines = (rec / ROTORS_CSV).read_text().splitlines()
+    cells = lines[101].split(",")
+    cells[2] = value
+    lines[101] = ",".join(cells)
+    (rec / ROTORS_CSV).write_text("\n".join(lines) + "\n")
+    _refused(read_recording, rec, match=rf"rotors0/data.csv: line 102: rotor speed {re.escape(f'{float(value):.4g}')} for rotor 1 is "
+                                        r".* rad/s with rotor_speed_scale [0-9.]+, over the 1e\+05 rad/s no rotor reaches \(1 value over it\)")
 
 
 def test_a_long_timestamp_field_is_refused_without_a_fixed_width_array(rec):
@@ -251,3 +265,13 @@ def test_a_stream_linked_out_of_the_recording_is_followed_only_when_asked(rec, t
     (rec / GROUNDTRUTH_CSV).unlink()
     (rec / GROUNDTRUTH_CSV).symlink_to(inside)
     assert len(read_recording(rec).ground_truth.t_ns) == 400
+
+
+def test_a_loop_of_links_or_a_link_to_nothing_is_named(rec, tmp_path):
+    loop = rec / GROUNDTRUTH_CSV
+    loop.unlink()
+    loop.symlink_to(loop)
+    _refused(read_recording, rec, match=r"data.csv: is a loop of links \(.*data.csv\)")
+    loop.unlink()
+    loop.symlink_to(tmp_path / "gone.csv")
+    _refused(read_recording, rec, match=r"data.csv: is a link to nothing \(.*gone.csv\)")

@@ -372,6 +372,18 @@ def test_bad_csv_files_name_the_line(tmp_path, capsys, csv_log):
     _import_fails(tmp_path, capsys, _csv_argv(tmp_path, m, vehicle), "more than 10000")
 
 
+def test_a_time_that_leaps_days_ahead_is_named(tmp_path, capsys, csv_log):
+    # a timestamp centuries off (int64's maximum in ns) put the velocity's local fits through 2 distinct times
+    m, vehicle = csv_log
+    lines = (tmp_path / "log.csv").read_text().splitlines()
+    first, rest = lines[-1].split(",", 1)
+    lines[-1] = f"{float(first) + 2 * 86_400:.6f},{rest}"  # two days after the row before, in seconds
+    (tmp_path / "log.csv").write_text("\n".join(lines) + "\n")
+    _import_fails(tmp_path, capsys, _csv_argv(tmp_path, m, vehicle),
+                  f"line {len(lines)}: the time leaps 1.73e+05 s past the row before")
+    assert not (tmp_path / "rec").exists()
+
+
 def test_bad_ulogs(tmp_path, capsys, flight):
     vehicle = tmp_path / "vehicle.yaml"
     vehicle.write_text(yaml.safe_dump(flight.vehicle.to_dict()))

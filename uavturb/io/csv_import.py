@@ -47,7 +47,11 @@ class _Rows:
     left_out: list[str] = field(default_factory=list)
 
 
-def _time_rows(table: Table, m: CsvMap) -> _Rows:
+#: ns, the longest step between two rows of one log taken as real (a logger paused for hours resumes in a new file)
+MAX_TIME_LEAP_NS = 86_400 * 10**9
+
+
+def _time_rows(table: Table, m: CsvMap, where: str | Path) -> _Rows:
     t = table.values["time.column"] * m.time_ns_per_unit
     finite = np.isfinite(t)
     idx = np.flatnonzero(finite)
@@ -55,6 +59,13 @@ def _time_rows(table: Table, m: CsvMap) -> _Rows:
         t_ns = table.integers["time.column"][idx] * int(m.time_ns_per_unit)
     else:
         t_ns = np.rint(t[idx]).astype(np.int64)
+    steps = np.diff(t_ns)
+    leap = np.flatnonzero(steps > MAX_TIME_LEAP_NS)
+    if len(leap):  # before anything is left out as going back: every row after a leap would be
+        k = int(leap[0]) + 1
+        raise InputError(where, f"line {int(table.lines[idx[k]])}: the time leaps {steps[k - 1] * 1e-9:.3g} s past the "
+                                f"row before (over a day between two rows of one log): a corrupt timestamp, or the "
+                                f"wrong time.unit")
     running = np.maximum.accumulate(t_ns) if len(t_ns) else t_ns
     increasing = np.concatenate([[True], t_ns[1:] > running[:-1]]) if len(t_ns) else np.zeros(0, bool)
     rows = _Rows(t_ns=t_ns[increasing], keep=idx[increasing])
@@ -218,7 +229,7 @@ def import_csv(log: str | Path, map_file: str | Path, out: str | Path, *, vehicl
     if rotor_plane_z is not None:
         v = v.with_params(rotor_plane_z=float(rotor_plane_z))
     table = read_table(log, m.columns(), delimiter=m.delimiter, header=m.header, exact=("time.column",))
-    rows = _time_rows(table, m)
+    rows = _time_rows(table, m, log)
     rec, left_out, notes = _build(table, m, rows, v, m.world, m.body)
     order = list(m.motor_order or range(len(m.rotors or ())))
     check_conventions(rec, {"world": m.world, "body": m.body}, {"world": WORLDS, "body": BODIES}, str(m.path),

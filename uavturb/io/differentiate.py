@@ -80,7 +80,10 @@ def _fits(t: np.ndarray, flat: np.ndarray, rows: np.ndarray, n: int, deriv: int)
     powers = np.stack([np.ones_like(u), u, u * u], axis=2)  # (R, n, 3)
     A = np.einsum("kni,knj->kij", powers, powers)  # (R, 3, 3)
     b = np.einsum("kni,knd->kid", powers, flat[idx])  # (R, 3, D)
-    coef = np.linalg.solve(A, b)  # (R, 3, D): x ~ c0 + c1 u + c2 u^2
+    try:
+        coef = np.linalg.solve(A, b)  # (R, 3, D): x ~ c0 + c1 u + c2 u^2
+    except np.linalg.LinAlgError:  # a window with under 3 distinct times (a timestamp centuries off): least norm
+        coef = np.linalg.pinv(A) @ b
     return coef[:, 0, :] if deriv == 0 else coef[:, 1, :] / scale
 
 

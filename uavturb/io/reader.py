@@ -6,6 +6,7 @@ shared with :mod:`uavturb.io.writer`.
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 from typing import Sequence
@@ -71,9 +72,16 @@ def checked_quaternions(path: str | Path, q: np.ndarray, lines: np.ndarray | Non
     return quat.make_continuous(q / norm[:, None])
 
 
+#: rad/s, the fastest rotor speed taken as real once scaled by ``rotor_speed_scale``: about 950,000 rpm, fifteen
+#: times the fastest small propellers (60,000 rpm, 6,300 rad/s); a raw 16-bit command (65,535) read as rad/s stays
+#: under it. Above it a value is a logging fault, and its square would overflow the least squares downstream.
+MAX_ROTOR_SPEED_RAD_S = 1e5
+
+
 def check_rotor_speeds(path: str | Path, speeds: np.ndarray, vehicle: Vehicle, lines: np.ndarray | None = None,
                        unit: str = "line") -> None:
-    """Rotor speeds ``(N, K)`` have one column per rotor of ``vehicle`` and none is negative."""
+    """Rotor speeds ``(N, K)`` (as written, before ``rotor_speed_scale``) have one column per rotor of ``vehicle``,
+    none is negative and none, scaled, is over :data:`MAX_ROTOR_SPEED_RAD_S`."""
     if speeds.shape[1] != vehicle.rotor_count:
         raise InputError(path, f"has {speeds.shape[1]} rotor speed columns but the vehicle "
                                f"'{vehicle.name}' has rotor_count {vehicle.rotor_count}")
@@ -82,6 +90,16 @@ def check_rotor_speeds(path: str | Path, speeds: np.ndarray, vehicle: Vehicle, l
         k, c = neg[0]
         at = lines[k] if lines is not None else k + 1
         raise InputError(path, f"{unit} {at}: negative rotor speed {speeds[k, c]} for rotor {c}")
+    with np.errstate(over="ignore"):  # 1e308 scaled is inf, and refused
+        scaled = speeds * float(vehicle.rotor_speed_scale)
+    fast = np.argwhere(scaled > MAX_ROTOR_SPEED_RAD_S)
+    if len(fast):
+        k, c = fast[0]
+        at = lines[k] if lines is not None else k + 1
+        raise InputError(path, f"{unit} {at}: rotor speed {speeds[k, c]:.4g} for rotor {c} is {scaled[k, c]:.3g} rad/s "
+                               f"with rotor_speed_scale {vehicle.rotor_speed_scale:g}, over the "
+                               f"{MAX_ROTOR_SPEED_RAD_S:.0e} rad/s no rotor reaches ({len(fast)} value"
+                               f"{'s' if len(fast) > 1 else ''} over it)")
 
 
 #: ns: a stream whose rows are closer than this (over 100 kHz) holds timestamps in other units than nanoseconds
@@ -161,8 +179,16 @@ def check_links(root: Path) -> None:
         return
     top = root.resolve()
     for entry in [root / VEHICLE_YAML, root / "mav0", *root.glob("mav0/*"), *root.glob("mav0/*/*")]:
-        if entry.is_symlink() and not entry.resolve().is_relative_to(top):
-            raise InputError(entry, f"is a link out of the recording folder (to {entry.resolve()}); it is not "
+        if not entry.is_symlink():
+            continue
+        try:
+            target = entry.resolve(strict=True)
+        except (RuntimeError, OSError) as e:  # a loop of links, or a link to nothing
+            why = "a loop of links" if isinstance(e, RuntimeError) or getattr(e, "errno", None) == errno.ELOOP \
+                else "a link to nothing"
+            raise InputError(entry, f"is {why} ({os.readlink(entry)})") from None
+        if not target.is_relative_to(top):
+            raise InputError(entry, f"is a link out of the recording folder (to {target}); it is not "
                                     f"followed unless you set {FOLLOW_LINKS_ENV}=1")
 
 

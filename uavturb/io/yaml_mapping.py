@@ -86,7 +86,10 @@ def safe_load_bounded(text: str, where: str | Path) -> Any:
     :class:`InputError` naming ``where`` in one line."""
     if len(text) > MAX_YAML_BYTES:
         raise InputError(where, f"is {len(text)} characters long; YAML files are read up to {MAX_YAML_BYTES} bytes")
-    loader = BoundedLoader(text)
+    try:  # the reader checks the characters as it is built: a control character fails here
+        loader = BoundedLoader(text)
+    except yaml.YAMLError as e:
+        raise InputError(where, f"not valid YAML ({type(e).__name__}: {getattr(e, 'reason', '') or 'unreadable'})") from None
     try:
         node = loader.get_single_node()
         if node is None:
