@@ -109,6 +109,17 @@ def test_a_huge_number_in_vehicle_yaml_is_one_line(rec):
 # --- CSV -----------------------------------------------------------------------------------
 
 
+def test_a_state_stepping_by_minutes_is_refused_at_once(rec):
+    # nanoseconds written from milliseconds: rows 5000 s apart (the position check's windows were once laid over
+    # the whole span, 40 million of them, and the command never ended)
+    lines = (rec / GROUNDTRUTH_CSV).read_text().splitlines()
+    t0 = int(lines[1].split(",")[0])
+    lines[1:] = [f"{t0 + k * 5_000 * 10**9},{line.split(',', 1)[1]}" for k, line in enumerate(lines[1:])]
+    (rec / GROUNDTRUTH_CSV).write_text("\n".join(lines) + "\n")
+    _refused(read_recording, rec, match=r"state_groundtruth_estimate0/data.csv: timestamps step by 5000 s \(0.0002 Hz\)",
+             seconds=5)
+
+
 @pytest.mark.parametrize("value", ["1e308", "1e12"])
 def test_a_rotor_speed_no_rotor_reaches_is_named(rec, value):
     # squared, 1e308 overflowed and the gap finder's least squares stopped inside LAPACK

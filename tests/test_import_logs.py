@@ -384,6 +384,17 @@ def test_a_time_that_leaps_days_ahead_is_named(tmp_path, capsys, csv_log):
     assert not (tmp_path / "rec").exists()
 
 
+def test_nanoseconds_read_as_milliseconds_are_named(tmp_path, capsys, csv_log):
+    # times past int64 nanoseconds once wrapped round silently into rows 5000 s apart
+    m, vehicle = csv_log
+    lines = (tmp_path / "log.csv").read_text().splitlines()
+    lines[1:] = [f"{1403636579758555392 + 5_000_000 * k},{line.split(',', 1)[1]}" for k, line in enumerate(lines[1:])]
+    (tmp_path / "log.csv").write_text("\n".join(lines) + "\n")
+    m["time"]["unit"] = "ms"
+    _import_fails(tmp_path, capsys, _csv_argv(tmp_path, m, vehicle),
+                  "line 2: time 1.40364e+18 read in the map's time.unit is past what nanoseconds can count")
+
+
 def test_bad_ulogs(tmp_path, capsys, flight):
     vehicle = tmp_path / "vehicle.yaml"
     vehicle.write_text(yaml.safe_dump(flight.vehicle.to_dict()))

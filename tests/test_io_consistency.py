@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from uavturb.io.consistency import in_flight
+from uavturb.io.consistency import POSITION_WINDOW_S, _window_edges, in_flight
 from uavturb.io.recording import Rotors
 from uavturb.numerics.stream_updates import hold_period_s
 
@@ -54,3 +54,12 @@ def test_a_held_stream_stops_flying_an_update_period_before_its_held_values_do(o
     assert not flying[t >= TOUCH_DOWN + 0.06].any() and not flying[t < TAKE_OFF].any()
     assert np.all(np.diff(np.flatnonzero(flying)) == 1)  # one interval, most of the flight
     assert flying.sum() * ROW_S > TOUCH_DOWN - TAKE_OFF - 1.0
+
+
+def test_position_windows_are_bounded_by_the_samples_not_the_span():
+    t = np.concatenate([np.arange(0.0, 10.0, 0.01), 1e7 + np.arange(0.0, 4.0, 0.01), 2e7 + np.arange(0.0, 1.0, 2.0)])
+    starts, ends = _window_edges(t, POSITION_WINDOW_S)
+    assert len(starts) <= len(t) // 10
+    assert np.all(ends - starts == pytest.approx(POSITION_WINDOW_S))
+    # no window spans a gap: each lies inside one stretch of the stream
+    assert np.all((ends <= 10.0) | ((starts >= 1e7) & (ends <= 1e7 + 4.0)))

@@ -55,6 +55,11 @@ def _time_rows(table: Table, m: CsvMap, where: str | Path) -> _Rows:
     t = table.values["time.column"] * m.time_ns_per_unit
     finite = np.isfinite(t)
     idx = np.flatnonzero(finite)
+    too_late = np.flatnonzero(np.abs(t[idx]) >= 2.0**63)  # past int64 nanoseconds (year 2262): a wrong time.unit
+    if len(too_late):
+        k = int(idx[too_late[0]])
+        raise InputError(where, f"line {int(table.lines[k])}: time {table.values['time.column'][k]:.6g} read in the map's "
+                                f"time.unit is past what nanoseconds can count (the year 2262): the wrong time.unit?")
     if "time.column" in table.integers:  # integer times (ns, µs) exactly, beyond float64's digits
         t_ns = table.integers["time.column"][idx] * int(m.time_ns_per_unit)
     else:

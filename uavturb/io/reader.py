@@ -117,6 +117,21 @@ def check_time_unit(path: str | Path, t_ns: np.ndarray) -> None:
                                "nanoseconds; these look like microseconds or milliseconds")
 
 
+#: ns, the longest median step of a ground-truth stream: under 1 Hz no acceleration can be read (recordings.md:
+#: 50 Hz and up), and nanosecond timestamps written from milliseconds (a factor 10^6) step by minutes or more
+MAX_STATE_STEP_NS = 10**9
+
+
+def check_state_rate(path: str | Path, t_ns: np.ndarray) -> None:
+    """A ground-truth stream's median step is at most :data:`MAX_STATE_STEP_NS`; refused in one line otherwise."""
+    if len(t_ns) < 10:
+        return
+    step = float(np.median(np.diff(t_ns)))
+    if step > MAX_STATE_STEP_NS:
+        raise InputError(path, f"timestamps step by {step * 1e-9:.4g} s ({1e9 / step:.2g} Hz): a flight's state runs at "
+                               "50 Hz and up (recordings.md); these are not nanoseconds, or not a flight's state")
+
+
 def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_rotors: bool = False,
                    require_imu: bool = False, load_points: bool = True, frame: str = "B") -> Recording:
     """Read a recording folder.
@@ -208,6 +223,7 @@ def _read_ground_truth(root: Path, notes: list[str]) -> GroundTruth:
     t_gt, x, lines = euroc_csv.read_csv(gt_file, euroc_csv.GROUNDTRUTH_COLUMNS, "ground truth", return_lines=True,
                                         repeated_times=notes)
     check_time_unit(gt_file, t_gt)
+    check_state_rate(gt_file, t_gt)
     return GroundTruth(t_ns=t_gt, p=x[:, 0:3], q=checked_quaternions(gt_file, x[:, 3:7], lines), v=x[:, 7:10],
                        b_w=x[:, 10:13], b_a=x[:, 13:16])
 
