@@ -87,13 +87,17 @@ ESC_REPORT = [("uint64_t", "timestamp"), ("uint32_t", "esc_errorcount"), ("int32
 
 def px4_topics(rec: Recording, *, motor_order: Sequence[int] | None = None, rotors: str = "esc",
                thrust_per_command: float | None = None, imu: str = "sensor_combined",
-               invalid_rows: Sequence[int] = ()) -> list[Topic]:
+               invalid_rows: Sequence[int] = (), height_drift_m: float = 0.0,
+               dist_bottom_invalid: Sequence[int] | None = None) -> list[Topic]:
     """The PX4 topics of a recording (in B): NED/FRD, µs, float32 as PX4 logs them.
 
     ``rotors``: ``esc`` (``esc_status`` rpm, log index ``motor_order[i]`` holds vehicle rotor ``i``) or
     ``outputs`` (``actuator_outputs`` = PWM in [1000, 2000], thrust = ``thrust_per_command * u`` [N] with
     ``u`` = (PWM - 1000) / 1000). ``imu``: ``sensor_combined`` or ``vehicle_imu`` (integrated over each
-    sample's interval); ``invalid_rows``: local-position rows flagged ``xy_valid = false``.
+    sample's interval); ``invalid_rows``: local-position rows flagged ``xy_valid = false``. ``height_drift_m``:
+    the local position's height sinks by this much over the log (a barometer's drift). ``dist_bottom_invalid``:
+    not None adds ``dist_bottom`` (the true height over a floor at z = 0) and ``dist_bottom_valid``, false on
+    those rows.
     """
     gt = rec.ground_truth
     n_rot = rec.vehicle.rotor_count
@@ -102,11 +106,14 @@ def px4_topics(rec: Recording, *, motor_order: Sequence[int] | None = None, roto
     v = world_vectors_from_recording(gt.v, "ned")
     q = attitude_from_recording(gt.q, "ned", "frd")
     t_gt = to_us(gt.t_ns)
+    below = gt.p[:, 2].copy()  # m over the floor at z = 0
+    p[:, 2] += height_drift_m * np.linspace(0.0, 1.0, len(p))  # NED: down grows, the height sinks
+    ranged = [] if dist_bottom_invalid is None else [("float", "dist_bottom"), ("bool", "dist_bottom_valid")]
     lp = Topic("vehicle_local_position", [("uint64_t", "timestamp"), ("float", "x"), ("float", "y"), ("float", "z"),
                                           ("float", "vx"), ("float", "vy"), ("float", "vz"), ("bool", "xy_valid"),
-                                          ("bool", "z_valid"), ("bool", "v_xy_valid"), ("bool", "v_z_valid")],
-               [(int(t), *map(float, p[k]), *map(float, v[k]), k not in invalid_rows, True, True, True)
-                for k, t in enumerate(t_gt)])
+                                          ("bool", "z_valid"), ("bool", "v_xy_valid"), ("bool", "v_z_valid"), *ranged],
+               [(int(t), *map(float, p[k]), *map(float, v[k]), k not in invalid_rows, True, True, True,
+                 *((float(below[k]), k not in dist_bottom_invalid) if ranged else ())) for k, t in enumerate(t_gt)])
     att = Topic("vehicle_attitude", [("uint64_t", "timestamp"), ("float[4]", "q")],
                 [(int(t), *map(float, q[k])) for k, t in enumerate(t_gt)])
     topics = [lp, att]

@@ -256,6 +256,27 @@ def test_ulog_round_trip_esc_rpm_motor_order_and_dropouts(tmp_path, flight):
     assert np.all(ok), (got["inertia"], ref["inertia"], ref["inertia_stderr"])
 
 
+def test_ulog_height_from_dist_bottom_where_the_local_height_drifts(tmp_path, capsys, flight):
+    # a barometer that sinks 0.5 m over the log: its local height goes under the floor; the range sensor's holds
+    write_px4_log(flight, tmp_path / "log.ulg", height_drift_m=0.5, dist_bottom_invalid=range(20))
+    drifting, summary = import_ulog(tmp_path / "log.ulg", tmp_path / "local", vehicle=flight.vehicle, floor_z=0.0)
+    assert "under the floor (--floor-z 0)" in summary.line()
+    ranged, summary = import_ulog(tmp_path / "log.ulg", tmp_path / "ranged", vehicle=flight.vehicle,
+                                  height="dist_bottom")
+    line = summary.line()
+    assert "height from dist_bottom" in line and "floor z = 0 m" in line and "under the floor" not in line
+    assert "20 vehicle_local_position rows without a valid dist_bottom" in line
+    np.testing.assert_allclose(ranged.ground_truth.p[:, 2], flight.ground_truth.p[20:, 2], atol=1e-6)  # float32
+    np.testing.assert_allclose(ranged.ground_truth.p[:, :2], drifting.ground_truth.p[20:, :2])
+    # a log without a range sensor says so
+    write_px4_log(flight, tmp_path / "plain.ulg")
+    argv = ["import", "ulog", str(tmp_path / "plain.ulg"), "--vehicle", str(tmp_path / "vehicle.yaml"), "--out",
+            str(tmp_path / "rec"), "--height", "dist_bottom"]
+    (tmp_path / "vehicle.yaml").write_text(yaml.safe_dump(flight.vehicle.to_dict()))
+    line = _import_fails(tmp_path, capsys, argv, "logs no dist_bottom in vehicle_local_position (no range sensor")
+    assert line.startswith("uavturb import ulog: error: --height: dist_bottom: ")
+
+
 def test_ulog_a_wrong_motor_order_is_caught_or_changes_the_rotors(tmp_path, flight):
     write_px4_log(flight, tmp_path / "log.ulg", motor_order=PERMUTED)
     import_ulog(tmp_path / "log.ulg", tmp_path / "rec", vehicle=flight.vehicle)  # identity order: rotors swapped

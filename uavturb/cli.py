@@ -139,6 +139,9 @@ def _add_import(sub: argparse._SubParsersAction) -> None:
                         "(commanded); auto: ESC rpm where the log has any")
     u.add_argument("--thrust-map", default=None, metavar="FILE.yaml",
                    help="thrust per rotor as a polynomial in the output and the battery voltage (README)")
+    u.add_argument("--height", default="local", choices=["local", "dist_bottom"],
+                   help="the height from the local position's z (default), or from dist_bottom, PX4's height over the "
+                        "ground from a range sensor (a barometer's height drifts; the floor then at z = 0)")
     c = isub.add_parser("csv", help="any logger's CSV file, described by a map (README: the map's keys)")
     c.add_argument("log", metavar="LOG.csv")
     c.add_argument("--map", required=True, metavar="MAP.yaml", help="which columns hold what, units and frames")
@@ -472,7 +475,7 @@ def _import_ulog(args: argparse.Namespace) -> int:
             raise InputError("--motor-order", f"expected indices separated by commas, got {args.motor_order!r}")
     _, summary = import_ulog(args.log, args.out, vehicle=args.vehicle, motor_order=order, rotors=args.rotors,
                              thrust_map=args.thrust_map, floor_z=args.floor_z, rotor_plane_z=args.rotor_plane_z,
-                             overwrite=args.overwrite)
+                             overwrite=args.overwrite, height=args.height)
     print(summary.line())
     return 0
 

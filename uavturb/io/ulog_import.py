@@ -48,6 +48,10 @@ from uavturb.physics.vehicle import Vehicle
 TOPICS = ("vehicle_local_position", "vehicle_attitude", "sensor_combined", "vehicle_imu", "esc_status",
           "actuator_outputs", "battery_status")
 ROTOR_SOURCES = ("auto", "esc", "outputs")
+#: where the recording's height comes from: the local position's ``z`` (PX4's estimator: motion capture, GNSS or
+#: a barometer, which drifts tens of centimetres), or ``dist_bottom``, the height over the ground that PX4 keeps
+#: from a range sensor (or its terrain estimate), with the floor at z = 0
+HEIGHT_SOURCES = ("local", "dist_bottom")
 
 
 @dataclass
@@ -101,7 +105,7 @@ def _load(path: Path) -> _Log:
     return log
 
 
-def _ground_truth(log: _Log, world: str, body: str) -> GroundTruth:
+def _ground_truth(log: _Log, world: str, body: str, height: str = "local") -> GroundTruth:
     for topic in ("vehicle_local_position", "vehicle_attitude"):
         if topic not in log.topics:
             raise InputError(log.path, f"no {topic} messages: the ground truth needs position and attitude")
@@ -112,6 +116,11 @@ def _ground_truth(log: _Log, world: str, body: str) -> GroundTruth:
     valid = np.all(np.isfinite(xyz), axis=1)
     if flags:
         valid &= np.all(log.get("vehicle_local_position", *flags) != 0, axis=1)
+    if height == "dist_bottom":
+        xyz[:, 2], ranged = _dist_bottom(log)
+        if (valid & ~ranged).sum():
+            log.left_out.append(f"{int((valid & ~ranged).sum())} vehicle_local_position rows without a valid dist_bottom")
+        valid &= ranged
     t_q = log.topics["vehicle_attitude"][0]
     q = log.get("vehicle_attitude", "q[0]", "q[1]", "q[2]", "q[3]")  # w, x, y, z, FRD to NED
     q_ok = np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0.5)
@@ -128,6 +137,20 @@ def _ground_truth(log: _Log, world: str, body: str) -> GroundTruth:
     zeros = np.zeros((len(t), 3))
     return GroundTruth(t_ns=t, p=world_vectors(xyz[valid, :3], world), q=attitude_to_recording(q_log, world, body),
                        v=world_vectors(xyz[valid, 3:], world), b_w=zeros, b_a=zeros.copy())  # m, m/s in W
+
+
+def _dist_bottom(log: _Log) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) m, ``vehicle_local_position``'s ``dist_bottom`` as a NED ``z`` over a floor at 0 (``-dist_bottom``), and
+    (N,) bool, the rows where it holds (finite, not negative, ``dist_bottom_valid`` where logged)."""
+    fields = log.topics["vehicle_local_position"][1]
+    if "dist_bottom" not in fields:
+        raise InputError("--height", f"dist_bottom: {log.path} logs no dist_bottom in vehicle_local_position (no range "
+                                     "sensor or terrain estimate)")
+    below = log.get("vehicle_local_position", "dist_bottom")[:, 0]
+    ok = np.isfinite(below) & (below >= 0.0)
+    if "dist_bottom_valid" in fields:
+        ok &= log.get("vehicle_local_position", "dist_bottom_valid")[:, 0] != 0
+    return -below, ok
 
 
 def _imu(log: _Log, body: str) -> Imu | None:
@@ -207,18 +230,19 @@ def _parse_motor_order(motor_order: Sequence[int] | None, n: int) -> list[int]:
 
 
 def _build(log: _Log, vehicle: Vehicle, order: list[int], source: str, thrust_map: ThrustMap | None,
-           world: str = "ned", body: str = "frd") -> Recording:
+           world: str = "ned", body: str = "frd", height: str = "local") -> Recording:
     battery = _battery(log)
     rotors, speed_source = _rotors(log, vehicle, order, source, thrust_map, battery)
     return Recording(vehicle=vehicle.with_params(rotor_speed_source=speed_source),
-                     ground_truth=_ground_truth(log, world, body), imu=_imu(log, body), rotors=rotors,
+                     ground_truth=_ground_truth(log, world, body, height), imu=_imu(log, body), rotors=rotors,
                      battery=battery, frame="B")
 
 
 def import_ulog(log_file: str | Path, out: str | Path, *, vehicle: str | Vehicle,
                 motor_order: Sequence[int] | None = None, rotors: str = "auto",
                 thrust_map: str | Path | ThrustMap | None = None, floor_z: float | None = None,
-                rotor_plane_z: float | None = None, overwrite: bool = False) -> tuple[Recording, ImportSummary]:
+                rotor_plane_z: float | None = None, overwrite: bool = False, height: str = "local"
+                ) -> tuple[Recording, ImportSummary]:
     """``uavturb import ulog LOG.ulg --vehicle VEHICLE --out REC``.
 
     Parameters
@@ -233,6 +257,8 @@ def import_ulog(log_file: str | Path, out: str | Path, *, vehicle: str | Vehicle
         usually on the ground: 0) written as ``pointcloud0``; ``None``: no point cloud
     rotor_plane_z : m, overrides the vehicle's ``rotor_plane_z``
     overwrite : replace an existing ``out`` (one uavturb wrote)
+    height : ``local`` (the local position's ``z``) or ``dist_bottom`` (the height over the ground PX4 keeps from a
+        range sensor; rows without it left out; the floor at z = 0 unless ``floor_z`` says otherwise)
 
     Returns
     -------
@@ -240,6 +266,10 @@ def import_ulog(log_file: str | Path, out: str | Path, *, vehicle: str | Vehicle
     """
     if rotors not in ROTOR_SOURCES:
         raise InputError("--rotors", f"unknown value {rotors!r} (known: {', '.join(ROTOR_SOURCES)})")
+    if height not in HEIGHT_SOURCES:
+        raise InputError("--height", f"unknown value {height!r} (known: {', '.join(HEIGHT_SOURCES)})")
+    if height == "dist_bottom" and floor_z is None:
+        floor_z = 0.0  # dist_bottom is the height over the floor
     v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     if rotor_plane_z is not None:
         v = v.with_params(rotor_plane_z=float(rotor_plane_z))
@@ -247,20 +277,30 @@ def import_ulog(log_file: str | Path, out: str | Path, *, vehicle: str | Vehicle
     if thrust_map is not None and not isinstance(thrust_map, ThrustMap):
         thrust_map = ThrustMap.from_dict(read_yaml_mapping(thrust_map), thrust_map, prefix="thrust map")
     log = _load(Path(log_file))
-    rec = _build(log, v, order, rotors, thrust_map)
-    check_conventions(rec, {"world": "ned", "body": "frd"}, {"world": WORLDS, "body": BODIES},
-                      f"{log.path}:vehicle_attitude",
-                      rebuild=lambda c: _build(replace(log, notes=[], left_out=[]), v, order, rotors, thrust_map,
-                                               c["world"], c["body"]),
-                      rotor_column=lambda i: f"esc/output {order[i]}")
+    rec = _build(log, v, order, rotors, thrust_map, height=height)
+    try:
+        check_conventions(rec, {"world": "ned", "body": "frd"}, {"world": WORLDS, "body": BODIES},
+                          f"{log.path}:vehicle_attitude",
+                          rebuild=lambda c: _build(replace(log, notes=[], left_out=[]), v, order, rotors, thrust_map,
+                                                   c["world"], c["body"], height),
+                          rotor_column=lambda i: f"esc/output {order[i]}")
+    except InputError as e:
+        if height != "dist_bottom":
+            raise
+        t = (rec.ground_truth.t_ns - rec.ground_truth.t_ns[0]) * 1e-9
+        raise InputError("--height", f"dist_bottom: only the rows where {log.path} holds a valid dist_bottom are kept "
+                                     f"({len(t)} rows; up to {rec.ground_truth.p[:, 2].max():.2f} m "
+                                     f"over the floor, longest gap {np.max(np.diff(t), initial=0.0):.1f} s), and on "
+                                     f"them the checks fail: {e.problem}") from None
     rec = finish_import(rec, out, floor_z=floor_z, overwrite=overwrite)
-    return rec, _summary(rec, log, Path(out), floor_z)
+    return rec, _summary(rec, log, Path(out), floor_z, height)
 
 
-def _summary(rec: Recording, log: _Log, out: Path, floor_z: float | None) -> ImportSummary:
+def _summary(rec: Recording, log: _Log, out: Path, floor_z: float | None, height: str = "local") -> ImportSummary:
     s = ImportSummary(out=out, left_out=list(log.left_out), notes=list(log.notes))
     s.notes += [n for n in [floor_note(rec, floor_z)] if n]
-    s.streams["ground truth"] = f"{len(rec.ground_truth)} rows (world {RECORDING_WORLD['ned']})"
+    s.streams["ground truth"] = f"{len(rec.ground_truth)} rows (world {RECORDING_WORLD['ned']}" + (
+        ", height from dist_bottom)" if height == "dist_bottom" else ")")
     s.streams["rotors"] = f"{len(rec.rotors)} rows ({rec.vehicle.rotor_speed_source}, from " \
                           f"{'esc_status' if rec.vehicle.rotor_speed_source == 'measured' else 'actuator_outputs'})"
     for name, stream in (("imu", rec.imu), ("battery", rec.battery)):
