@@ -311,3 +311,28 @@ def test_a_still_stretch_within_the_gears_reach_is_a_rest_whatever_the_lift():
     mask, _ = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down, calibrate=False,
                              hover_lift=_hover_lift_cheeseman_bennett())
     assert mask[low].all()
+
+
+def test_idling_rotors_rest_wherever_a_drifting_height_reads_them_but_a_motor_cut_in_the_air_does_not():
+    # a barometer that reads the first rest 0.4 m over the landing: the height criterion misses it, the idle rotors
+    # (0.1 of the weight, 3 s, still and level) tell it
+    phases = [("ground", 3.0, 0.1, 0.1), ("ground", 0.67, 0.6, 1.0), ("move", 2.0, 0.3), ("hover", 4.0),
+              ("move", 2.0, -0.3), ("ground", 0.5, 1.0, 0.6), ("ground", 2.0, 0.6, 0.6)]
+    t, z, v, tilt, thrust, contact, _ = flight(phases, seed=5)
+    z = z + np.interp(t, [0.0, 3.0, t[-1]], [0.4, 0.4, 0.0])  # the height sinks 0.4 m from the first rest on;
+    # the velocity (motion capture's, or an estimator's) does not drift. Idling rotor speeds jitter (a value that
+    # never changes reads as held, and is interpolated between its updates)
+    thrust = thrust * (1.0 + np.random.default_rng(7).normal(0.0, 0.002, len(t)))
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS)
+    assert found[0].t_start == 0.0 and found[0].t_end == pytest.approx(3.0 + 0.2, abs=0.3)
+    assert "the height drifts, but rotors idling under 30 % of the weight hold no still vehicle" in found[0].why
+    assert mask[(t < 3.0)].all() and not mask[(t > 5.0) & (t < 10.0)].any()
+    # commands cut 5 cm over the floor: still for 0.25 s while the rotors spin down, then the fall: no rest
+    cut = [("ground", 2.0, 0.6, 0.6), ("ground", 0.67, 0.6, 1.0), ("move", 1.5, 0.05), ("hover", 3.0),
+           ("ground", 0.25, 0.0, 0.0), ("move", 0.2, -0.05), ("ground", 2.0, 0.0, 0.0)]
+    t, z, v, tilt, thrust, contact, _ = flight(cut, seed=6)
+    thrust = thrust * (1.0 + np.random.default_rng(8).normal(0.0, 0.002, len(t)))
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS)
+    assert len(found) == 2 and found[1].t_start == pytest.approx(7.42, abs=0.1)  # the landing (0.2 s margin), as before
+    in_air = (t > 7.2) & (t < 7.35)  # the still 0.25 s at 5 cm after the cut, margins of the landing aside
+    assert not mask[in_air].any()

@@ -20,7 +20,11 @@ and those are the rows that tell the ground effect best. Rotors off or idling ho
 rest counts however short (on real Crazyflies a drop to the floor with the motors off, 0.15 s still,
 then a restart: while the rotors spun up the thrust read off commanded speeds led the real one by the
 motor lag, up to 15 % over the weight for 0.2 s with the vehicle still on the floor, which the margins
-cover). A vehicle that skids or bounces along the floor is not still: rows within
+cover). Still and level with the rotors idling for a second or more (:attr:`ContactLimits.idle_rest_s`), the
+vehicle rests at whatever height it reads: a barometer's height drifts (a real PX4 log read its first rest 0.45 m
+over the lowest height of the recording), and no aerodynamic lift holds a still vehicle on idling rotors; shorter
+such stretches away from the landed height are a motor cut in the air (the commands drop at once, the rotors spin
+down by their lag, and the fall starts after it). A vehicle that skids or bounces along the floor is not still: rows within
 :attr:`ContactLimits.skim_m` of the landed height where the thrust dips under the weight are left
 out too. Stillness is judged on the rows where
 the state updated (:func:`uavturb.numerics.stream_updates.update_mask`): held positions must not make a
@@ -89,6 +93,8 @@ class ContactLimits:
     skim_margin_s : s, added on each side of such rows
     gear_max_m : m, with ``d_down``: the highest a resting rotor plane sits over the surface (its
         landing gear); a recording whose lowest ``d_down`` is higher never landed
+    idle_rest_s : s, the shortest stretch, still and level with the rotors idling (``idle_ratio``), taken as a rest
+        at any height (where the height drifts); shorter ones away from the landed height are a motor cut in the air
     """
 
     height_tol_m: float = 0.015
@@ -104,6 +110,7 @@ class ContactLimits:
     skim_m: float = 0.005
     skim_margin_s: float = 0.1
     gear_max_m: float = 0.5
+    idle_rest_s: float = 1.0
 
 
 def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.ndarray, thrust: np.ndarray,
@@ -195,7 +202,7 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
     h0 = float(np.min(median_filter(rec.h[u], 5, mode="nearest"))) if landed is None else float(landed)
     if rotor_plane and landed is None and h0 > lim.gear_max_m:
         return out, []  # never within landing-gear height of a surface
-    rest_u, speed_u = _resting_updates(rec, u, h0, lim)
+    rest_u, speed_u, still_u = _resting_updates(rec, u, h0, lim)
     is_u = np.zeros(n, bool)
     is_u[u] = True
     last = np.maximum.accumulate(np.where(is_u, np.arange(n), -1))
@@ -207,6 +214,14 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
     # a state, not a stale value, and hold every row (interpolated, a restart would lift a rest off zero)
     fresh = update_mask(rec.thrust) | (rec.thrust <= 0)
     ratio = _window_median(rec.t, np.interp(rec.t, rec.t[fresh], rec.thrust[fresh]) * scale / weight, lim.window_s)
+    # still and level with the rotors idling or off for a while: something carries the vehicle at whatever height
+    # it reads (a barometer's height drifts: a real PX4 log read its rest 0.45 m over the lowest height of the
+    # recording). Shorter stretches are a motor cut in the air: commanded speeds drop at once, the rotors spin
+    # down by their lag and the fall starts after it (Crazyflies: 0.25 s still at 5 cm with the commands at 0)
+    idle = (last >= 0) & still_u[np.minimum(pos, len(u) - 1)] & (ratio < lim.idle_ratio) & ~resting
+    for a, b in _runs(idle):
+        idle[a:b] = rec.t[b - 1] - rec.t[a] >= lim.idle_rest_s
+    resting |= idle
     resting &= ratio < 1.0  # once the rotors carry the weight, it lifts off
     hover_at = np.zeros(n)  # the least share of the weight that could hold a hover, on rows where that decides
     if hover_lift is not None:
@@ -226,7 +241,8 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
         core = slice(a, b)
         decides = hover_at[core] > 0
         found.append(_why(rec, core, h0, landed is not None, rotor_plane, float(np.max(speed_u[pos[core]])),
-                          median, scale, lim, float(np.min(hover_at[core][decides])) if decides.any() else None))
+                          median, scale, lim, float(np.min(hover_at[core][decides])) if decides.any() else None,
+                          bool(np.all(idle[core]))))
     top = h0 + lim.skim_m if skim_top is None else skim_top
     skim = (last >= 0) & np.isfinite(rec.h) & (rec.h <= top) & ~out
     name = "rotor-plane height" if rotor_plane else "height"
@@ -248,18 +264,18 @@ def _joined_why(found: list[tuple[float, float, str]], t0: float, t1: float) -> 
     return "; ".join(dict.fromkeys(w for a, b, w in found if a >= t0 - 1e-9 and b <= t1 + 1e-9))
 
 
-def _resting_updates(rec: _Recording, u: np.ndarray, h0: float, lim: ContactLimits) -> tuple[np.ndarray, np.ndarray]:
-    """On the update rows ``u``: whether the vehicle rests (height, stillness, attitude), and the
-    speed [m/s] (median over ``window_s``)."""
+def _resting_updates(rec: _Recording, u: np.ndarray, h0: float, lim: ContactLimits
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """On the update rows ``u``: whether the vehicle rests (height, stillness, attitude), the speed [m/s]
+    (median over ``window_s``), and whether it is still and level at any height."""
     tu = rec.t[u]
     step = float(np.median(np.diff(tu))) if len(tu) > 1 else 1.0
     nw = max(3, int(round(lim.window_s / step)) | 1)
     speed = median_filter(np.linalg.norm(rec.v[u], axis=1), nw, mode="nearest")
     tilt = rec.tilt[u]
     swing = maximum_filter1d(tilt, nw, mode="nearest") - minimum_filter1d(tilt, nw, mode="nearest")
-    at_rest = ((np.abs(rec.h[u] - h0) <= lim.height_tol_m) & (speed < lim.still_mps) & (tilt < lim.level_deg)
-               & (swing < lim.steady_deg))
-    return at_rest, speed
+    still = (speed < lim.still_mps) & (tilt < lim.level_deg) & (swing < lim.steady_deg)
+    return still & (np.abs(rec.h[u] - h0) <= lim.height_tol_m), speed, still
 
 
 def _thrust_scale(rec: _Recording, h0: float, weight: float, lim: ContactLimits) -> float:
@@ -289,7 +305,8 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _why(rec: _Recording, core: slice, h0: float, given: bool, rotor_plane: bool, speed: float, ratio: float,
-         scale: float, lim: ContactLimits, hover_at: float | None = None) -> tuple[float, float, str]:
+         scale: float, lim: ContactLimits, hover_at: float | None = None, idle_only: bool = False
+         ) -> tuple[float, float, str]:
     """``(t_start, t_end, sentence)`` of one contact core (margins not included in the times); ``ratio``
     is the share of the weight the thrust carried there (median); ``hover_at`` the least share that could
     have held a hover on its rows beyond the gear's reach (None: none there)."""
@@ -301,6 +318,9 @@ def _why(rec: _Recording, core: slice, h0: float, given: bool, rotor_plane: bool
     hover = ("" if hover_at is None else
              f"; more than {100 * lim.skim_m:.1f} cm up it stayed under the {100 * hover_at:.0f} % that could hold a hover there "
              f"in the strongest ground effect allowed")
+    if idle_only:  # away from the landed height: the idling rotors alone tell it
+        ref = (f"{np.min(h) - h0:.2f} m over the lowest the recording reached: the height drifts, but rotors idling "
+               f"under {100 * lim.idle_ratio:.0f} % of the weight hold no still vehicle in the air")
     why = (f"on the landing gear: {name} {np.min(h):.3f}-{np.max(h):.3f} m ({ref}), speed under {speed:.2f} m/s, "
            f"level within {np.max(rec.tilt[core]):.0f} deg and thrust {100 * ratio:.0f} % of the weight"
            f"{scaled}{hover}: the floor carries the rest ({lim.margin_s:.1f} s margins either side)")
