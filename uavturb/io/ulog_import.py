@@ -8,6 +8,10 @@ Topics (PX4 uORB messages; timestamps in microseconds since boot):
   ground truth's.
 * ``vehicle_attitude``: ``q[4]`` (w, x, y, z), FRD body to NED; interpolated (slerp) onto the local
   position's times, inside its own time span.
+* With ``height="dist_bottom"``: ``vehicle_local_position``'s ``dist_bottom`` [m] (and ``dist_bottom_valid``),
+  PX4's height over the ground from a range sensor or its terrain estimate, replaces ``z`` as the height over a
+  floor at 0; rows without it are left out and counted. Without motion capture ``z`` is a barometer's, which
+  drifts tens of centimetres in a flight.
 * ``sensor_combined`` (``gyro_rad[3]`` [rad/s], ``accelerometer_m_s2[3]`` [m/s^2], FRD), else
   ``vehicle_imu`` (``delta_angle[3]`` / ``delta_angle_dt``, ``delta_velocity[3]`` / ``delta_velocity_dt``):
   ``imu0``.
