@@ -318,3 +318,47 @@ def test_rotor_quantum_and_rounding_floor_known_answers():
     data = SimpleNamespace(S=np.full(10, 6 * 536.0**2))
     assert rounding_floor(data, 8.54858e-6, 1.0) == pytest.approx((2 * 8.54858e-6) ** 2 * 6 * 536.0**2 / 12)
     assert rounding_floor(data, 8.54858e-6, 0.0) == 0.0
+
+
+def test_an_output_that_would_replace_or_enter_an_input_is_refused(tmp_path, capsys, good):
+    # `gap REC --out REC --overwrite` once replaced the recording it had just read with its report
+    rec = _copy(good, tmp_path)
+    before = sorted(p.relative_to(rec) for p in rec.rglob("*"))
+    for out, extra, match in [
+        (rec, [], f"{rec}: is an input of this command: --out would replace or change it"),
+        (tmp_path, [], f"{tmp_path}: holds an input of this command ({rec})"),
+        (rec / "report", [], f"lies inside an input of this command ({rec})"),
+        (tmp_path / "report", ["--apply", str(tmp_path / "report" / "physics.yaml")],
+         "physics.yaml: lies inside --out"),
+        (tmp_path / "report", ["--apply", str(rec / "vehicle.yaml")], "vehicle.yaml: lies inside an input of this command"),
+    ]:
+        code = main(["gap", str(rec), "--out", str(out), "--overwrite", "--sim-effects", "none", "--no-mlflow", *extra])
+        err = capsys.readouterr().err
+        assert code == 2 and len(err.strip().splitlines()) == 1 and match in err, err
+    assert sorted(p.relative_to(rec) for p in rec.rglob("*")) == before and not (tmp_path / "report").exists()
+    # residuals: a file inside the recording it reads
+    code = main(["residuals", str(rec), "--out", str(rec / "mav0" / "imu0" / "data.csv"), "--overwrite"])
+    assert code == 2 and "lies inside an input of this command" in capsys.readouterr().err
+    assert sorted(p.relative_to(rec) for p in rec.rglob("*")) == before
+
+
+def test_values_no_flight_holds_are_named_by_line_and_column(tmp_path, capsys, good):
+    rec = _copy(good, tmp_path)
+    state = rec / "mav0" / "state_groundtruth_estimate0" / "data.csv"
+    _rewrite_csv(state, lambda i, l: l if i != 100 else ",".join(c if j != 8 else "1e300" for j, c in enumerate(l.split(","))))
+    _gap_fails(tmp_path, capsys, [rec], match="data.csv: line 102, column 9: 1e+300 m/s, beyond the 1e+03 m/s of any "
+                                              "multirotor's flight (1 value over it)")
+    rec = _copy(good, tmp_path, "rec2")
+    points = read_ply(rec / "mav0" / "pointcloud0" / "data.ply")
+    points[0] = [3e38, 0.0, 0.0]
+    write_ply(rec / "mav0" / "pointcloud0" / "data.ply", points)
+    _gap_fails(tmp_path, capsys, [rec], match="PLY vertex 0 lies 3e+38 m from the origin")
+
+
+def test_a_vehicle_file_giving_a_key_twice_or_a_mass_no_multirotor_has_is_refused(tmp_path, capsys, good):
+    rec = _copy(good, tmp_path)
+    text = (rec / "vehicle.yaml").read_text()
+    (rec / "vehicle.yaml").write_text(text + "mass: 2.5\n")
+    _gap_fails(tmp_path, capsys, [rec], match="vehicle.yaml: refused: gives key 'mass' twice")
+    (rec / "vehicle.yaml").write_text(re.sub(r"(?m)^mass: .*$", "mass: 1.0e-09", text))
+    _gap_fails(tmp_path, capsys, [rec], match="key 'mass' is 1e-09 kg, under 0.001 kg")

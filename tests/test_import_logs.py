@@ -277,6 +277,48 @@ def test_ulog_height_from_dist_bottom_where_the_local_height_drifts(tmp_path, ca
     assert line.startswith("uavturb import ulog: error: --height: dist_bottom: ")
 
 
+def test_ulog_turning_rotors_the_vehicle_file_leaves_out_are_named(tmp_path, capsys, flight):
+    # a hexarotor's log read with a quadrotor's vehicle.yaml once dropped two rotors' thrust without a word
+    write_px4_log(flight, tmp_path / "log.ulg")  # the quadrotor's four ESCs
+    quad = flight.vehicle
+    tri = quad.with_params(rotor_angles_deg=quad.rotor_angles_deg[:3], rotor_directions=quad.rotor_directions[:3])
+    (tmp_path / "vehicle.yaml").write_text(yaml.safe_dump(tri.to_dict()))
+    argv = ["import", "ulog", str(tmp_path / "log.ulg"), "--vehicle", str(tmp_path / "vehicle.yaml"), "--out",
+            str(tmp_path / "rec")]
+    _import_fails(tmp_path, capsys, argv, "esc_status reports turning rotors on ESC 3, which the vehicle's 3 rotors "
+                                          "(ESC 0, 1, 2) leave out")
+
+
+@pytest.mark.parametrize("option, value, match", [
+    ("--rotor-plane-z", "inf", "--rotor-plane-z: must be a finite height within +-5 m, got inf"),
+    ("--rotor-plane-z", "50", "--rotor-plane-z: must be a finite height within +-5 m, got 50.0"),
+    ("--floor-z", "1e300", "--floor-z: must be a finite height within +-1000 m, got 1e+300"),
+])
+def test_import_heights_out_of_range_are_refused(tmp_path, capsys, flight, option, value, match):
+    write_px4_log(flight, tmp_path / "log.ulg")
+    (tmp_path / "vehicle.yaml").write_text(yaml.safe_dump(flight.vehicle.to_dict()))
+    argv = ["import", "ulog", str(tmp_path / "log.ulg"), "--vehicle", str(tmp_path / "vehicle.yaml"), "--out",
+            str(tmp_path / "rec"), f"{option}={value}"]
+    _import_fails(tmp_path, capsys, argv, match)
+
+
+def test_an_import_into_its_own_log_folder_is_refused(tmp_path, capsys, csv_log):
+    m, vehicle = csv_log
+    argv = _csv_argv(tmp_path, m, vehicle)
+    argv[argv.index("--out") + 1] = str(tmp_path)
+    code = main(argv)
+    assert code == 2 and "holds an input of this command" in capsys.readouterr().err
+    assert (tmp_path / "log.csv").exists()
+
+
+def test_a_column_that_is_no_rotor_speed_is_named_at_import(tmp_path, capsys, flight):
+    m = write_csv_log(flight, tmp_path / "log.csv", time_unit="ns")
+    vehicle = tmp_path / "vehicle.yaml"
+    vehicle.write_text(yaml.safe_dump(flight.vehicle.to_dict()))
+    m["rotors"]["columns"][1] = m["time"]["column"]  # the time column, in ns, read as a rotor's speed
+    _import_fails(tmp_path, capsys, _csv_argv(tmp_path, m, vehicle), f"rotor column {m['time']['column']!r} reads")
+
+
 def test_ulog_a_wrong_motor_order_is_caught_or_changes_the_rotors(tmp_path, flight):
     write_px4_log(flight, tmp_path / "log.ulg", motor_order=PERMUTED)
     import_ulog(tmp_path / "log.ulg", tmp_path / "rec", vehicle=flight.vehicle)  # identity order: rotors swapped

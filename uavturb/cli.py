@@ -434,9 +434,10 @@ def _last_guard(e: Exception) -> tuple[str, int]:
 
 def _identify(args: argparse.Namespace) -> int:
     from uavturb.commands.identify import format_identification, identify_recordings
+    from uavturb.io.strict_json import dumps_strict
 
     ident = identify_recordings(args.recordings, model=args.model, vehicle=args.vehicle)
-    print(json.dumps(ident.to_dict()) if args.json else format_identification(ident))
+    print(dumps_strict(ident.to_dict()) if args.json else format_identification(ident))
     return 0
 
 

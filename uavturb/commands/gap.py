@@ -15,7 +15,7 @@ from uavturb.gap.finder import STAGES, analyse, parse_sim_effects
 from uavturb.gap.report import plot_surface_curve, write_json, write_markdown, write_plots
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M
 from uavturb.io.physics_config import load_physics_config, write_physics_config
-from uavturb.io.publish import check_output_file, check_output_folder, publish_folder
+from uavturb.io.publish import check_apart, check_output_file, check_output_folder, publish_folder
 from uavturb.io.reader import load_recordings
 from uavturb.progress import Stages
 from uavturb.runs.store_process import StoreProcess
@@ -40,8 +40,13 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
         sim = {n: cfg.get(n, p) for n, p in sim.items()} if sim_effects is not None else cfg
     if not recordings:
         raise InputError("gap", "no recording given")
+    check_apart(out, recordings)
     check_output_folder(out, overwrite=overwrite)
     if apply is not None:
+        check_apart(apply, recordings, what="--apply")
+        if Path(apply).resolve().is_relative_to(out.resolve()):
+            raise InputError(apply, f"lies inside --out {out}, which is replaced as a whole by the report: write it "
+                                    "beside the report folder")
         check_output_file(apply, overwrite=overwrite)
     with Stages("uavturb gap", STAGES if log_mlflow else STAGES[:-1]) as stage:
         stage("reading the recordings")

@@ -11,7 +11,7 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.gap.preparation import contact_masks
-from uavturb.io.publish import check_output_file
+from uavturb.io.publish import check_apart, check_output_file
 from uavturb.io.reader import load_recordings
 from uavturb.io.recording import Recording
 from uavturb.physics.vehicle import Vehicle
@@ -109,6 +109,7 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
         raise InputError(out, "output must end in .csv or .parquet")
     if not out.parent.exists():
         raise InputError(out.parent, "output folder does not exist")
+    check_apart(out, [path])
     check_output_file(out, overwrite=overwrite)
     (rec,) = load_recordings([path], vehicle)
     _say_read_notes("residuals", [rec])

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +10,7 @@ from uavturb.gap.locate import AXES, features
 from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, gc_paused, scatter_rows
 from uavturb.gap.surface_curve import SurfaceCurve
 from uavturb.gap.surface_laws import LawFit
+from uavturb.io.strict_json import dumps_strict
 
 #: units of the candidate drivers of :func:`uavturb.gap.locate.features` (plot axes)
 FEATURE_UNITS = {"d_down": "m", "d_up": "m", "v_x": "m/s", "v_y": "m/s", "v_z": "m/s", "v_Bx": "m/s", "v_By": "m/s",
@@ -348,29 +348,7 @@ def _undecided_lines(report: dict) -> list[str]:
 
 def write_json(folder: Path, report: dict) -> None:
     """``report.json``: strict JSON (a NaN or infinite number is written as ``null``)."""
-    (folder / "report.json").write_text(json.dumps(_finite(report), indent=2, default=_jsonable, allow_nan=False))
-
-
-def _finite(o):
-    if isinstance(o, dict):
-        return {k: _finite(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_finite(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _finite(o.tolist())
-    if isinstance(o, (float, np.floating)):
-        return float(o) if np.isfinite(o) else None
-    if isinstance(o, np.integer):
-        return int(o)
-    return o
-
-
-def _jsonable(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o))
+    (folder / "report.json").write_text(dumps_strict(report, indent=2))
 
 
 @gc_paused

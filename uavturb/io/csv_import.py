@@ -26,7 +26,7 @@ from uavturb.io.csv_table import Table, read_table
 from uavturb.io.differentiate import derivative
 from uavturb.io.log_frames import BODIES, RECORDING_WORLD, WORLDS, attitude_to_recording, body_vectors, \
     euler_to_quaternion, world_vectors
-from uavturb.io.log_import import ImportSummary, check_conventions, finish_import, floor_note
+from uavturb.io.log_import import ImportSummary, check_conventions, check_import_options, finish_import, floor_note
 from uavturb.io.reader import checked_quaternions
 from uavturb.io.recording import Battery, GroundTruth, Imu, Recording, Rotors
 from uavturb.io.thrust_map import held_voltage, rpm_to_rad_s
@@ -229,6 +229,7 @@ def import_csv(log: str | Path, map_file: str | Path, out: str | Path, *, vehicl
     -------
     The recording (in B, ``path`` = ``out``) and the summary of the import.
     """
+    check_import_options(out, [log, map_file], floor_z=floor_z, rotor_plane_z=rotor_plane_z)
     m = load_csv_map(map_file)
     v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     if rotor_plane_z is not None:

@@ -24,8 +24,11 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io.consistency import check_rotor_columns, check_thrust_axis, check_vertical_response
+from uavturb.io.publish import check_apart
+from uavturb.io.reader import MAX_ROTOR_SPEED_RAD_S
 from uavturb.io.recording import Recording
 from uavturb.io.writer import write_recording
+from uavturb.physics.vehicle import MAX_SIZE_M
 
 #: m, spacing of the flat floor's points: under the 5 cm columns of the height index, so none is empty
 FLOOR_SPACING = 0.04
@@ -95,12 +98,17 @@ def check_conventions(rec: Recording, conventions: dict[str, str], choices: dict
     InputError
         ``<where>: body: frd looks wrong: ... (the data agree with body: flu)``.
     """
+    if rec.rotors is not None and len(rec.rotors.speeds) and np.nanmax(rec.rotors.speeds) > MAX_ROTOR_SPEED_RAD_S:
+        k, i = np.unravel_index(np.nanargmax(rec.rotors.speeds), rec.rotors.speeds.shape)
+        name = rotor_column(int(i)) if rotor_column is not None else f"of vehicle rotor {i}"
+        raise InputError(where, f"rotor column {name} reads {rec.rotors.speeds[k, i]:.3g} rad/s, over the "
+                                f"{MAX_ROTOR_SPEED_RAD_S:.0e} rad/s no rotor reaches: not a rotor speed, or the wrong unit")
     try:
         check_rotor_columns(rec)
     except InputError as e:
         found = re.match(r"column w_(\d+) (.*)", e.problem)
-        if rotor_column is None or found is None:
-            raise
+        if rotor_column is None or found is None:  # the rotor columns as a whole, named in the log
+            raise InputError(where, f"the rotor columns: {e.problem}") from None
         c = int(found.group(1))
         raise InputError(where, f"rotor column {rotor_column(c)} (vehicle rotor {c}) {found.group(2)}") from None
     try:
@@ -143,6 +151,20 @@ def _agreeing_conventions(conventions: dict[str, str], choices: dict[str, tuple[
             continue
         agree.append(combo)
     return agree
+
+
+#: m, the largest ``--floor-z`` taken as a height (a floor a kilometre up is a typing error)
+MAX_FLOOR_Z_M = 1e3
+
+
+def check_import_options(out: str | Path, inputs: list[str | Path], *, floor_z: float | None,
+                         rotor_plane_z: float | None) -> None:
+    """Before any work: ``out`` apart from the input files (:func:`uavturb.io.publish.check_apart`), and
+    ``--floor-z`` / ``--rotor-plane-z`` finite and in range (a ``rotor_plane_z`` as ``vehicle.yaml`` allows it)."""
+    check_apart(out, inputs)
+    for option, value, top in (("--floor-z", floor_z, MAX_FLOOR_Z_M), ("--rotor-plane-z", rotor_plane_z, MAX_SIZE_M)):
+        if value is not None and not (np.isfinite(value) and abs(value) <= top):
+            raise InputError(option, f"must be a finite height within +-{top:g} m, got {value!r}")
 
 
 def floor_note(rec: Recording, floor_z: float | None) -> str | None:

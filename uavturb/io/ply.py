@@ -200,6 +200,11 @@ def _read_ascii(path: Path, data: bytes, offset: int, elements: list[_Element], 
     return df[xyz].to_numpy(np.float64)
 
 
+#: m, the farthest a scene point may lie from the origin (a room, a hall, a field: well under it; a scan in
+#: micrometres, or 3e38, is not)
+MAX_COORDINATE_M = 1e6
+
+
 def read_ply(path: str | Path) -> np.ndarray:
     """Read the vertex positions of a PLY file.
 
@@ -231,6 +236,11 @@ def read_ply(path: str | Path) -> np.ndarray:
     if not np.isfinite(points).all():
         r = int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
         raise InputError(path, f"PLY vertex {r} has a non-finite coordinate")
+    far = np.abs(points) > MAX_COORDINATE_M
+    if far.any():
+        r = int(np.flatnonzero(far.any(axis=1))[0])
+        raise InputError(path, f"PLY vertex {r} lies {np.abs(points[r]).max():.3g} m from the origin, beyond the "
+                               f"{MAX_COORDINATE_M:.0e} m of any scene a multirotor flies in (the scan's units?)")
     return points
 
 

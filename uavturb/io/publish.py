@@ -38,7 +38,7 @@ import socket
 import tempfile
 import time
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Sequence
 
 from uavturb.errors import InputError
 
@@ -209,6 +209,29 @@ def check_output_folder(out: str | Path, *, overwrite: bool, hint: str = OVERWRI
     if out.is_dir() and not os.access(out, os.W_OK | os.X_OK):
         raise InputError(out, "is not writable")
     return out
+
+
+def check_apart(out: str | Path, inputs: Sequence[str | Path], *, what: str = "--out") -> None:
+    """Refuse an output that would replace or enter an input: ``out`` (a folder replaced as a whole, or a file)
+    may not be an input, hold one, or lie inside an input folder (``uavturb gap REC --out REC --overwrite`` once
+    replaced the recording it had just read with its report).
+
+    Raises
+    ------
+    InputError : ``<out>: is the input ...``, naming the input and ``what`` (the option that named ``out``)
+    """
+    target = Path(out).resolve()
+    for given in inputs:
+        source = Path(given).resolve()
+        if target == source:
+            why = "is an input of this command"
+        elif source.is_relative_to(target):
+            why = f"holds an input of this command ({given})"
+        elif source.is_dir() and target.is_relative_to(source):
+            why = f"lies inside an input of this command ({given})"
+        else:
+            continue
+        raise InputError(out, f"{why}: {what} would replace or change it; name a folder or file elsewhere")
 
 
 @contextlib.contextmanager

@@ -132,6 +132,26 @@ def check_state_rate(path: str | Path, t_ns: np.ndarray) -> None:
                                "50 Hz and up (recordings.md); these are not nanoseconds, or not a flight's state")
 
 
+#: the largest magnitude each stream's values may take, per column group (start, stop, limit, unit): a position
+#: 1000 km off the origin, a speed of Mach 3, an angular rate of 160 turns a second or an acceleration of 1000 g is a
+#: logging fault, not a multirotor's flight, and squared it would overflow downstream
+STATE_LIMITS = ((0, 3, 1e6, "m"), (7, 10, 1e3, "m/s"), (10, 13, 1e3, "rad/s"), (13, 16, 1e4, "m/s^2"))
+IMU_LIMITS = ((0, 3, 1e3, "rad/s"), (3, 6, 1e4, "m/s^2"))
+
+
+def check_magnitudes(path: str | Path, x: np.ndarray, lines: np.ndarray,
+                     limits: Sequence[tuple[int, int, float, str]]) -> None:
+    """Refuse, in one line naming the line and column (the timestamp is column 1), a value over its group's limit
+    (``limits``: columns ``start:stop`` of the values ``x``, the largest magnitude, its unit)."""
+    for start, stop, limit, unit in limits:
+        over = np.argwhere(np.abs(x[:, start:stop]) > limit)
+        if len(over):
+            k, c = over[0]
+            raise InputError(path, f"line {lines[k]}, column {start + c + 2}: {x[k, start + c]:.4g} {unit}, beyond "
+                                   f"the {limit:.0e} {unit} of any multirotor's flight ({len(over)} value{'s' if len(over) > 1 else ''} "
+                                   "over it)")
+
+
 def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_rotors: bool = False,
                    require_imu: bool = False, load_points: bool = True, frame: str = "B") -> Recording:
     """Read a recording folder.
@@ -224,6 +244,7 @@ def _read_ground_truth(root: Path, notes: list[str]) -> GroundTruth:
                                         repeated_times=notes)
     check_time_unit(gt_file, t_gt)
     check_state_rate(gt_file, t_gt)
+    check_magnitudes(gt_file, x, lines, STATE_LIMITS)
     return GroundTruth(t_ns=t_gt, p=x[:, 0:3], q=checked_quaternions(gt_file, x[:, 3:7], lines), v=x[:, 7:10],
                        b_w=x[:, 10:13], b_a=x[:, 13:16])
 
@@ -235,8 +256,9 @@ def _read_imu(root: Path, t_gt: np.ndarray, notes: list[str], *, required: bool)
         if required:
             raise InputError(imu_file, "file not found (IMU data are required)")
         return None
-    t, x = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU", repeated_times=notes)
+    t, x, lines = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU", return_lines=True, repeated_times=notes)
     check_time_unit(imu_file, t)
+    check_magnitudes(imu_file, x, lines, IMU_LIMITS)
     align.require_overlap(t_gt, t, imu_file)
     imu = Imu(t_ns=t, gyro=x[:, 0:3], acc=x[:, 3:6], T_BS=np.eye(4))
     if (root / IMU_YAML).is_file():

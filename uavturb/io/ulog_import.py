@@ -41,7 +41,7 @@ from pyulog import ULog
 from uavturb.errors import InputError
 from uavturb.io.log_frames import BODIES, RECORDING_WORLD, WORLDS, attitude_to_recording, body_vectors, \
     world_vectors
-from uavturb.io.log_import import ImportSummary, check_conventions, finish_import, floor_note
+from uavturb.io.log_import import ImportSummary, check_conventions, check_import_options, finish_import, floor_note
 from uavturb.io.recording import Battery, GroundTruth, Imu, Recording, Rotors
 from uavturb.io.thrust_map import ThrustMap, held_voltage, rpm_to_rad_s
 from uavturb.io.vehicle_file import named_vehicle
@@ -76,6 +76,10 @@ class _Log:
         return np.column_stack([np.asarray(data[n], dtype=np.float64) for n in names])
 
 
+#: µs, the first ULog time that nanoseconds (int64) cannot hold
+_MAX_TIME_US = (2**63 - 1) // 1000
+
+
 def _load(path: Path) -> _Log:
     """Read the topics of :data:`TOPICS` with pyulog; their times sorted, repeated times dropped."""
     if not path.is_file():
@@ -99,7 +103,10 @@ def _load(path: Path) -> _Log:
         t_us = np.asarray(d.data["timestamp"], dtype=np.int64)
         order = np.argsort(t_us, kind="stable")
         t_us = t_us[order]
-        keep = np.concatenate([[True], np.diff(t_us) > 0]) & (t_us > 0)
+        # a time past int64 nanoseconds (a flipped bit in a corrupt file) would wrap round once in ns: left out
+        keep = np.concatenate([[True], np.diff(t_us) > 0]) & (t_us > 0) & (t_us < _MAX_TIME_US)
+        if (t_us >= _MAX_TIME_US).any():
+            log.notes.append(f"{int((t_us >= _MAX_TIME_US).sum())} {topic} rows with a time past the year 2262 left out")
         log.topics[topic] = (t_us[keep] * 1000, {k: np.asarray(v)[order][keep] for k, v in d.data.items()})
     if ulog.dropouts:
         total = sum(int(x.duration) for x in ulog.dropouts)
@@ -201,6 +208,7 @@ def _rotors(log: _Log, vehicle: Vehicle, order: Sequence[int], source: str, thru
         t = log.topics["esc_status"][0]
         rpm = log.get("esc_status", *(f"esc[{i}].esc_rpm" for i in order))
         if source == "esc" or np.any(rpm != 0):
+            _check_no_other_rotor_turns(log, order)
             return Rotors(t_ns=t, speeds=rpm_to_rad_s(rpm)), "measured"
     if source == "esc":
         raise InputError(log.path, "no esc_status messages (rotor speeds measured by the ESCs)")
@@ -223,6 +231,21 @@ def _rotors(log: _Log, vehicle: Vehicle, order: Sequence[int], source: str, thru
     if negative:
         log.notes.append(f"{negative} rotor commands off or below the thrust map read as rotors at rest")
     return Rotors(t_ns=t, speeds=w), "commanded"
+
+
+def _check_no_other_rotor_turns(log: _Log, order: Sequence[int]) -> None:
+    """Refuse a log whose ESCs outside ``order`` report turning rotors: a hexarotor's log read with a quadrotor's
+    vehicle.yaml would leave two rotors' thrust out of every force."""
+    fields = log.topics["esc_status"][1]
+    others = [i for i in range(16) if i not in order and f"esc[{i}].esc_rpm" in fields]
+    if not others:
+        return
+    rpm = log.get("esc_status", *(f"esc[{i}].esc_rpm" for i in others))
+    turning = [i for i, col in zip(others, rpm.T) if np.any(np.abs(col) > 0)]
+    if turning:
+        raise InputError(log.path, f"esc_status reports turning rotors on ESC {', '.join(map(str, turning))}, which "
+                                   f"the vehicle's {len(order)} rotors (ESC {', '.join(map(str, order))}) leave out: "
+                                   "give the vehicle.yaml of this airframe, or --motor-order")
 
 
 def _parse_motor_order(motor_order: Sequence[int] | None, n: int) -> list[int]:
@@ -268,6 +291,7 @@ def import_ulog(log_file: str | Path, out: str | Path, *, vehicle: str | Vehicle
     -------
     The recording (in B, ``path`` = ``out``) and the summary of the import.
     """
+    check_import_options(out, [log_file], floor_z=floor_z, rotor_plane_z=rotor_plane_z)
     if rotors not in ROTOR_SOURCES:
         raise InputError("--rotors", f"unknown value {rotors!r} (known: {', '.join(ROTOR_SOURCES)})")
     if height not in HEIGHT_SOURCES:

@@ -48,6 +48,23 @@ class BoundedLoader(yaml.SafeLoader):
             self._depth -= 1
 
 
+def _unique_keys(loader: BoundedLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    """A mapping whose keys are unique: YAML says they must be, and PyYAML would keep the last of two silently
+    (``mass`` written twice: which one did the user mean?)."""
+    seen = set()
+    for key_node, _ in node.value:  # the keys written here; a merge (<<) may be overridden, as YAML allows
+        if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
+            continue
+        key = loader.construct_object(key_node)
+        if key in seen:
+            raise _Bounds(f"gives key {key!r} twice (line {key_node.start_mark.line + 1}); YAML keys must be unique")
+        seen.add(key)
+    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+
+BoundedLoader.add_constructor("tag:yaml.org,2002:map", lambda loader, node: _unique_keys(loader, node, deep=True))
+
+
 BoundedLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
     list("-+0123456789"))

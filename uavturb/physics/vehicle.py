@@ -264,6 +264,9 @@ class Vehicle:
             kwargs["T_BS"] = checked_transform(d["T_BS"], where)
         name = d.get("name") or Path(str(where)).parent.name or "vehicle"
         mass, arm, radius = number("mass"), number("arm_length"), number("rotor_radius")
+        if mass < MIN_MASS_KG:
+            raise InputError(where, f"key 'mass' is {mass:g} kg, under {MIN_MASS_KG:g} kg: no multirotor is that light "
+                                    "(vehicle.yaml is in kg)")
         for key, value, top, unit in (("mass", mass, MAX_MASS_KG, "kg"), ("arm_length", arm, MAX_SIZE_M, "m"),
                                       ("rotor_radius", radius, MAX_SIZE_M, "m"),
                                       ("rotor_plane_z", abs(kwargs.get("rotor_plane_z", 0.0)), MAX_SIZE_M, "m")):
@@ -284,6 +287,8 @@ class Vehicle:
 #: kg and m: no multirotor this project reads is heavier, or has arms, rotors or a rotor plane offset larger (a
 #: vehicle.yaml in grams or millimetres is)
 MAX_MASS_KG, MAX_SIZE_M = 1000.0, 5.0
+#: kg: the lightest multirotor read (the smallest nano quadrotors weigh about 10 g, a Crazyflie 27-32 g)
+MIN_MASS_KG = 1e-3
 
 
 def checked_transform(value: Any, where: str | Path, key: str = "T_BS") -> tuple[tuple[float, ...], ...]:

@@ -192,7 +192,10 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     dt = float(np.median(np.diff(t_rel))) if len(t_ns) > 1 else 0.0
     window = max(5, int(round(window_s / dt)) | 1) if dt > 0 else 5
     if len(t_ns) < window + 2:
-        raise InputError(str(where), f"only {len(t_ns)} samples where all streams overlap (need {window + 2})")
+        span = float(t_rel[-1]) if len(t_rel) else 0.0
+        raise InputError(str(where), f"only {len(t_ns)} samples ({span:.3g} s) where all streams overlap: too few for "
+                                     f"the {window_s:g} s windows of a derivative (at least {min(window, 5) + 2} "
+                                     "samples spanning one window)")
 
     p = align.interpolate(gt.t_ns, gt.p, t_ns)
     v = align.interpolate(gt.t_ns, gt.v, t_ns)
