@@ -302,6 +302,17 @@ def test_import_heights_out_of_range_are_refused(tmp_path, capsys, flight, optio
     _import_fails(tmp_path, capsys, argv, match)
 
 
+@pytest.mark.parametrize("value, match", [("-inf", "--floor-z: must be a finite height within +-1000 m, got -inf"),
+                                          ("-2e3", "--floor-z: must be a finite height within +-1000 m, got -2000.0")])
+def test_a_negative_value_in_exponent_form_reaches_its_option(tmp_path, capsys, flight, value, match):
+    # argparse had read "-inf" and "-2e3" as options: "expected one argument" and a usage block
+    write_px4_log(flight, tmp_path / "log.ulg")
+    (tmp_path / "vehicle.yaml").write_text(yaml.safe_dump(flight.vehicle.to_dict()))
+    argv = ["import", "ulog", str(tmp_path / "log.ulg"), "--vehicle", str(tmp_path / "vehicle.yaml"), "--out",
+            str(tmp_path / "rec"), "--floor-z", value]
+    _import_fails(tmp_path, capsys, argv, match)
+
+
 def test_an_import_into_its_own_log_folder_is_refused(tmp_path, capsys, csv_log):
     m, vehicle = csv_log
     argv = _csv_argv(tmp_path, m, vehicle)

@@ -373,11 +373,32 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _negative_values_attached(argv: list[str]) -> list[str]:
+    """``--floor-z -inf`` as ``--floor-z=-inf``: argparse reads a value that starts with ``-`` and is not a plain
+    decimal (``-inf``, ``-1e3``, ``-1,2``) as an option, and stops with "expected one argument"."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1].startswith("--") and "=" not in out[-1] and arg.startswith("-") and _is_numbers(arg):
+            out[-1] = f"{out[-1]}={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
+def _is_numbers(text: str) -> bool:
+    """Whether ``text`` is one number or numbers separated by commas (``-1e3``, ``-inf``, ``-1.5,2``)."""
+    try:
+        [float(x) for x in text.split(",")]
+    except ValueError:
+        return False
+    return True
+
+
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     os.environ.setdefault("MPLBACKEND", "Agg")
     parser = _parser()
-    args, extra = parser.parse_known_args(argv)
+    args, extra = parser.parse_known_args(_negative_values_attached(sys.argv[1:] if argv is None else list(argv)))
     if extra:  # key=value overrides given after options (train, sweep, generate sim|normals): argparse leaves them over
         if hasattr(args, "overrides") and all("=" in x and not x.startswith("-") for x in extra):
             args.overrides = [*args.overrides, *extra]
