@@ -4,6 +4,7 @@ the problem on stderr, a non-zero exit status, no traceback and no report folder
 
 import re
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,6 +13,9 @@ from uavturb import progress
 from uavturb.cli import main
 from uavturb.io.ply import read_ply, write_ply
 from uavturb.gap.finder import STAGES
+from uavturb.gap.preparation import stream_limits
+from uavturb.io.reader import read_recording
+from uavturb.io.recording import Battery
 from uavturb.sim.flights.simulate import generate_flight
 
 
@@ -362,3 +366,16 @@ def test_a_vehicle_file_giving_a_key_twice_or_a_mass_no_multirotor_has_is_refuse
     _gap_fails(tmp_path, capsys, [rec], match="vehicle.yaml: refused: gives key 'mass' twice")
     (rec / "vehicle.yaml").write_text(re.sub(r"(?m)^mass: .*$", "mass: 1.0e-09", text))
     _gap_fails(tmp_path, capsys, [rec], match="key 'mass' is 1e-09 kg, under 0.001 kg")
+
+
+def test_a_battery_stream_is_listed_but_sets_no_update_rate(good):
+    rec = read_recording(good)
+    plain = stream_limits(rec)
+    t = rec.ground_truth.t_ns[::20]
+    with_battery = stream_limits(replace(rec, battery=Battery(t_ns=t, voltage=np.linspace(16.4, 15.2, len(t)),
+                                                              current=np.full(len(t), 9.0))))
+    assert with_battery[0][:-1] == plain[0] and with_battery[1:] == plain[1:]  # the slowest rate: the same
+    assert with_battery[0][-1].endswith("not read by the analysis (battery_sag is a law in time)")
+    late = stream_limits(replace(rec, battery=Battery(t_ns=t + 10**12, voltage=np.full(len(t), 16.0),
+                                                      current=np.full(len(t), 9.0))))
+    assert "outside the ground truth in time" in late[0][-1]
