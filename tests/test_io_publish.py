@@ -10,6 +10,7 @@ import pytest
 from uavturb.errors import InputError
 from uavturb.io.publish import (
     MARKER,
+    check_apart,
     check_output_folder,
     clean_stale,
     publish_file,
@@ -212,3 +213,18 @@ def test_out_dot_in_an_empty_folder_is_refused_up_front(tmp_path, monkeypatch):
         with pytest.raises(InputError, match="is the working folder"):
             check_output_folder(out, overwrite=True)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_output_apart_from_the_inputs(tmp_path):
+    rec = tmp_path / "rec"
+    (rec / "mav0").mkdir(parents=True)
+    (rec / "vehicle.yaml").write_text("mass: 1\n")
+    check_apart(tmp_path / "report", [rec])  # beside it: fine
+    check_apart(tmp_path / "rec_report", [rec])  # a name that merely starts alike: fine
+    for out, match in [(rec, "is an input of this command"), (tmp_path, "holds an input of this command"),
+                       (rec / "report", "lies inside an input of this command"),
+                       (rec / "vehicle.yaml", "lies inside an input of this command")]:
+        with pytest.raises(InputError, match=match):
+            check_apart(out, [rec])
+    with pytest.raises(InputError, match="--apply would replace or change it"):
+        check_apart(rec / "vehicle.yaml", [rec / "vehicle.yaml"], what="--apply")

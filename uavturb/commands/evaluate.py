@@ -59,7 +59,7 @@ from uavturb.evaluation.bands import GE_FRACTION, band_metrics, plot_bands
 from uavturb.evaluation.law import EvaluationLaw, evaluation_law, evaluation_vehicle
 from uavturb.evaluation.metrics import flight_results
 from uavturb.evaluation.report import format_summary, format_table, safe_filename, summarise, write_evaluation
-from uavturb.io.publish import check_output_folder, publish_folder
+from uavturb.io.publish import check_apart, check_output_folder, publish_folder
 from uavturb.io.reader import load_recordings
 from uavturb.progress import progress_bar
 from uavturb.runs import store
@@ -206,6 +206,7 @@ def evaluate_runs(run_ids: Sequence[str], recordings: Sequence[str | Path], *, o
     if not 0 < ge_fraction < 1:
         raise InputError("--ge-fraction", f"must be in (0, 1), got {ge_fraction}")
     out = Path(out)
+    check_apart(out, recordings)
     check_output_folder(out, overwrite=overwrite)
     runs = [store.get_run(r) for r in run_ids]
     labels = [_label(r) for r in runs]
