@@ -121,7 +121,7 @@ class Reach:
     def why(self) -> str:
         where = "below" if EFFECTS[self.name].surface == "d_down" else "above"
         if self.heights_broken:
-            return "the heights over surfaces cannot be trusted: the vehicle passes under the floor (Height reference)"
+            return "the heights over surfaces cannot be trusted: the vehicle passes under the floor (where: surface_curve_missing, Measured surface curve)"
         if not np.isfinite(self.closest_m):
             return f"the recordings have no surface {where} the vehicle (no point cloud, or nothing there)"
         return (f"the flights came no closer than {self.closest_m:.2f} m to the surface {where} and spent "

@@ -186,9 +186,7 @@ def floor_note(rec: Recording, floor_z: float | None) -> str | None:
 
 def finish_import(rec: Recording, out: str | Path, *, floor_z: float | None, overwrite: bool) -> Recording:
     """Add the flat floor (when ``floor_z`` is given) and write ``rec`` atomically to ``out``."""
-    if floor_z is not None:
-        if not np.isfinite(floor_z):
-            raise InputError("--floor-z", f"must be a finite height [m], got {floor_z!r}")
+    if floor_z is not None:  # checked before any work (check_import_options)
         rec = replace(rec, points=flat_floor(rec.ground_truth.p, floor_z))
     write_recording(rec, out, overwrite=overwrite)
     return replace(rec, path=Path(out))
