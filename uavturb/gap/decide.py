@@ -43,6 +43,7 @@ from uavturb.gap.design import AMPLITUDE, GapData, bias_count, design, differenc
 from uavturb.gap.fit import ModelFit, _nl_values
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
+from uavturb.sysid.flight_data import UNDER_SURFACE_M, UNDER_SURFACE_ROWS
 from uavturb.sysid.least_squares import lstsq
 
 #: uncentred R^2 above which two sets of regressors are taken as indistinguishable (VIF > 100)
@@ -70,12 +71,6 @@ PRACTICAL_SHARE = 0.002
 MIN_NEAR_S = 2.0
 #: deg of heading change under which a body-fixed and a world-fixed force look alike
 HEADING_SPAN_DEG = 30.0
-#: m, how far under a surface the rotor plane may seem to be in flight before the heights are distrusted (a
-#: scan's noise, a height reference off by a centimetre: ``sysid.flight_data.UNDER_SURFACE_M``, the same bound)
-UNDER_FLOOR_M = 0.02
-#: rows in flight the rotor plane must spend that far under a surface (one bad row of a position stream is no
-#: evidence of a drifting height)
-UNDER_FLOOR_ROWS = 5
 
 NOMINAL_GROUPS = {"thrust_coefficient": ("k_T",), "accelerometer_bias": ("b_x", "b_y", "b_z")}
 
@@ -121,7 +116,8 @@ class Reach:
     def why(self) -> str:
         where = "below" if EFFECTS[self.name].surface == "d_down" else "above"
         if self.heights_broken:
-            return "the heights over surfaces cannot be trusted: the vehicle passes under the floor (where: surface_curve_missing, Measured surface curve)"
+            return ("the heights over surfaces cannot be trusted: the vehicle passes under the floor (where: "
+                    "surface_curve_missing, Measured surface curve)")
         if not np.isfinite(self.closest_m):
             return f"the recordings have no surface {where} the vehicle (no point cloud, or nothing there)"
         return (f"the flights came no closer than {self.closest_m:.2f} m to the surface {where} and spent "
@@ -145,18 +141,19 @@ def floor_crossing(data: GapData) -> str | None:
     """Why no height over a surface can be trusted on ``data``, or None.
 
     In flight the rotor plane cannot be under the surface it flies over: where a recording has rows over a
-    surface (``d_down`` finite) and :data:`UNDER_FLOOR_ROWS` rows or more where nothing is below the rotor
-    plane and a surface is over :data:`UNDER_FLOOR_M` above it, the recording's height passes through its
+    surface (``d_down`` finite) and ``UNDER_SURFACE_ROWS`` rows or more where nothing is below the rotor
+    plane and a surface is over ``UNDER_SURFACE_M`` above it (the bounds :mod:`uavturb.sysid.flight_data` puts
+    on a ``rotor_plane_z`` that dips into the floor: a scan's noise, one bad row), the recording's height passes through its
     floor: a position that drifts in height (a barometer, an estimator without motion capture: a PX4 log's
     local position 0.42 m under its take-off floor at touch-down) or a wrong floor height. A recording never
     over any surface (a scan of a ceiling alone) shows nothing here.
     """
-    under = ~np.isfinite(data.d_down) & np.isfinite(data.d_up) & (data.d_up > UNDER_FLOOR_M)
+    under = ~np.isfinite(data.d_down) & np.isfinite(data.d_up) & (data.d_up > UNDER_SURFACE_M)
     found = []
     for g in np.unique(data.group[under]):
         mine = data.group == g
         rows = under & mine
-        if rows.sum() < UNDER_FLOOR_ROWS or not np.any(np.isfinite(data.d_down[mine])):
+        if rows.sum() < UNDER_SURFACE_ROWS or not np.any(np.isfinite(data.d_down[mine])):
             continue
         t = data.t[rows]
         found.append(f"{data.names[g]}: in flight the rotor plane is up to {float(np.max(data.d_up[rows])):.2f} m "
