@@ -289,6 +289,43 @@ def test_ulog_turning_rotors_the_vehicle_file_leaves_out_are_named(tmp_path, cap
                                           "(ESC 0, 1, 2) leave out")
 
 
+def _outputs_log(tmp_path, flight, extra: dict[int, np.ndarray] | None = None) -> Path:
+    """``flight`` as a ULog with ``actuator_outputs`` (0.4 N at full output), its channels ``extra`` replaced
+    (index -> (N,) PWM), and the thrust map ``tm.yaml`` beside it."""
+    c = 0.4
+    topics = px4_topics(flight, rotors="outputs", thrust_per_command=c)
+    out = next(t for t in topics if t.name == "actuator_outputs")
+    for i, col in (extra or {}).items():
+        out.rows[:] = [(*r[:2 + i], float(col[k]), *r[3 + i:]) for k, r in enumerate(out.rows)]
+    write_ulog(tmp_path / "log.ulg", topics, nested={"esc_report": ESC_REPORT})
+    (tmp_path / "tm.yaml").write_text(yaml.safe_dump({"command_range": [1000, 2000], "terms": [[1, 0, c]]}))
+    return tmp_path / "log.ulg"
+
+
+def test_ulog_outputs_that_drive_rotors_the_vehicle_file_leaves_out_are_named(tmp_path, capsys, flight):
+    # the same as above for a vehicle without ESC telemetry: its fourth output drives a rotor
+    log = _outputs_log(tmp_path, flight)
+    quad = flight.vehicle
+    tri = quad.with_params(rotor_angles_deg=quad.rotor_angles_deg[:3], rotor_directions=quad.rotor_directions[:3])
+    (tmp_path / "vehicle.yaml").write_text(yaml.safe_dump(tri.to_dict()))
+    argv = ["import", "ulog", str(log), "--vehicle", str(tmp_path / "vehicle.yaml"), "--out", str(tmp_path / "rec"),
+            "--thrust-map", str(tmp_path / "tm.yaml")]
+    _import_fails(tmp_path, capsys, argv, "actuator_outputs channel 3 follows the rotors' outputs at their level, "
+                                          "outside the vehicle's 3 rotors (outputs 0, 1, 2)")
+    assert not (tmp_path / "rec").exists()
+
+
+def test_ulog_servo_and_unused_outputs_are_not_rotors(tmp_path, flight):
+    # a gimbal servo sweeping about mid-travel and a channel held at the disarmed value are not rotors; the
+    # rotors' own speeds come back as with no other channel
+    n = len(flight.rotors)
+    sweep = 1500.0 + 300.0 * np.sin(np.linspace(0.0, 9.0 * np.pi, n))
+    log = _outputs_log(tmp_path, flight, {4: sweep, 5: np.full(n, 1500.0), 6: np.full(n, np.nan)})
+    import_ulog(log, tmp_path / "rec", vehicle=flight.vehicle, thrust_map=tmp_path / "tm.yaml")
+    np.testing.assert_allclose(read_recording(tmp_path / "rec").rotors.speeds, flight.rotors.speeds, rtol=1e-4,
+                               atol=0.05)
+
+
 @pytest.mark.parametrize("option, value, match", [
     ("--rotor-plane-z", "inf", "--rotor-plane-z: must be a finite height within +-5 m, got inf"),
     ("--rotor-plane-z", "50", "--rotor-plane-z: must be a finite height within +-5 m, got 50.0"),

@@ -221,6 +221,7 @@ def _rotors(log: _Log, vehicle: Vehicle, order: Sequence[int], source: str, thru
         raise InputError("vehicle.yaml", "thrust_coefficient: required to turn actuator_outputs into rotor speeds")
     t = log.topics["actuator_outputs"][0]
     u = log.get("actuator_outputs", *(f"output[{i}]" for i in order))
+    _check_no_other_output_drives_a_rotor(log, order, u)
     volt = None
     if thrust_map.needs_voltage:
         if battery is None:
@@ -246,6 +247,55 @@ def _check_no_other_rotor_turns(log: _Log, order: Sequence[int]) -> None:
         raise InputError(log.path, f"esc_status reports turning rotors on ESC {', '.join(map(str, turning))}, which "
                                    f"the vehicle's {len(order)} rotors (ESC {', '.join(map(str, order))}) leave out: "
                                    "give the vehicle.yaml of this airframe, or --motor-order")
+
+
+#: an ``actuator_outputs`` channel outside the vehicle's rotors drives a rotor too where, in the rows the rotors
+#: are well above their lowest output, it follows the rotors' mean (correlation) and sits at their level (its
+#: median distance from their mean, as a share of the span of that mean): a servo holds still or moves on its own
+OUTPUT_ROTOR_CORRELATION = 0.8
+OUTPUT_ROTOR_LEVEL = 0.5
+#: share of the span of the rotors' mean output over its lowest value that counts a row as the rotors driven
+OUTPUT_ACTIVE_SHARE = 0.2
+
+
+def _check_no_other_output_drives_a_rotor(log: _Log, order: Sequence[int], u: np.ndarray) -> None:
+    """Refuse a log whose ``actuator_outputs`` channels outside ``order`` drive rotors as the vehicle's do.
+
+    A hexarotor's log read with a quadrotor's ``vehicle.yaml`` would leave two rotors' thrust out of every
+    force. Unused channels hold a fixed value (PX4's disarmed or failsafe output, or NaN) and servo channels
+    (a gimbal, a payload) move on their own; a channel that follows the rotors' mean output at their level
+    while they are driven (:data:`OUTPUT_ROTOR_CORRELATION`, :data:`OUTPUT_ROTOR_LEVEL`) is a rotor.
+
+    Parameters
+    ----------
+    u : (N, R) the outputs of the vehicle's rotors, in ``order``
+    """
+    fields = log.topics["actuator_outputs"][1]
+    others = [i for i in range(16) if i not in order and f"output[{i}]" in fields]
+    mean = np.mean(u, axis=1)
+    ok = np.isfinite(mean)
+    if not others or ok.sum() < 10:
+        return
+    lo, hi = np.min(mean[ok]), np.max(mean[ok])
+    active = ok & (mean > lo + OUTPUT_ACTIVE_SHARE * (hi - lo))
+    if active.sum() < 10 or hi <= lo:
+        return
+    driven = []
+    for i in others:
+        col = log.get("actuator_outputs", f"output[{i}]")[:, 0]
+        rows = active & np.isfinite(col)
+        if rows.sum() < 10 or np.std(col[rows]) == 0.0 or np.std(mean[rows]) == 0.0:
+            continue
+        corr = float(np.corrcoef(col[rows], mean[rows])[0, 1])
+        level = float(np.median(np.abs(col[rows] - mean[rows]))) / (hi - lo)
+        if corr > OUTPUT_ROTOR_CORRELATION and level < OUTPUT_ROTOR_LEVEL:
+            driven.append(i)
+    if driven:
+        raise InputError(log.path, f"actuator_outputs channel{'s' if len(driven) > 1 else ''} "
+                                   f"{', '.join(map(str, driven))} follow{'' if len(driven) > 1 else 's'} the rotors' "
+                                   f"outputs at their level, outside the vehicle's {len(order)} rotors (outputs "
+                                   f"{', '.join(map(str, order))}): give the vehicle.yaml of this airframe, or "
+                                   "--motor-order")
 
 
 def _parse_motor_order(motor_order: Sequence[int] | None, n: int) -> list[int]:
