@@ -13,6 +13,7 @@ from uavturb.gap.decide import (
     floor_crossing,
     heading_span_deg,
     look_alikes,
+    residual_thrust_tilt,
     surface_reach,
     thrust_tilt_alike,
 )
@@ -227,6 +228,57 @@ def test_a_tilted_thrust_axis_is_not_named_wind_even_where_the_heading_turned():
     assert amb["r2"] < 0.99 and amb["push_beyond_tilt_z"] < 4.0 and amb["push_beyond_tilt_N"] < 0.01
     assert np.hypot(*amb["params_if_named"].values()) == pytest.approx(0.28, abs=0.02)
     assert "the tilt explains it" in amb["why"] and "heading changed by 90 deg" in amb["why"]
+
+
+def _two_recordings(tilts_deg, yaw) -> GapData:
+    """Two recordings of :func:`_data` (headings ``yaw``), the thrust axis of each tilted by its ``(deg, azimuth
+    deg)``."""
+    parts = [_data(yaw, imu=False, seed=i, thrust_tilt=(np.radians(a) * np.cos(np.radians(b)),
+                                                     np.radians(a) * np.sin(np.radians(b))))
+             for i, (a, b) in enumerate(tilts_deg)]
+    a, b = parts
+    cat = {k: np.concatenate([getattr(a, k), getattr(b, k)])
+           for k in ("t", "p", "y", "R", "rotor_speeds", "v", "d_down", "d_up", "imu")}
+    return GapData(np.repeat([0, 1], len(a)), cat["t"], cat["p"], cat["y"], cat["R"], cat["rotor_speeds"], cat["v"],
+                   cat["d_down"], cat["d_up"], a.mass, a.rotor_radius, ["one", "two"], "mocap", imu=cat["imu"],
+                   fits_bias=False)
+
+
+def test_a_thrust_axis_tilt_left_in_the_residual_is_measured_per_recording():
+    """Sessions whose markers were re-placed: 1.2 deg towards body +x on one, 0.8 deg towards +90 deg on the other,
+    headings turning through 180 deg, nothing named. Each tilt comes back within 0.05 deg and 3 deg of azimuth;
+    with the tilts taken out nothing horizontal is left."""
+    data = _two_recordings([(1.2, 0.0), (0.8, 90.0)], np.linspace(0, np.pi, 3000))
+    fit = fit_model(data, set())
+    found = residual_thrust_tilt(data, fit, fit.residual(data), flight_facts(data, fit.coef["k_T"]))
+    assert found is not None
+    entry, force = found
+    (one, two) = entry["per_recording"]
+    assert one["tilt_deg"] == pytest.approx(1.2, abs=0.05) and abs(one["azimuth_deg"]) < 3.0
+    assert two["tilt_deg"] == pytest.approx(0.8, abs=0.05) and two["azimuth_deg"] == pytest.approx(90.0, abs=3.0)
+    assert 0 < one["stderr_deg"] < 0.05 and one["z"] > 4.0
+    assert entry["explains_share"] > 0.9 and "turns with the body" in entry["why"]
+    left = fit.residual(data)[:, :2] - force[:, :2]
+    assert np.sqrt(np.mean(left**2)) == pytest.approx(0.04, rel=0.1)  # the noise
+
+
+def test_no_tilt_a_tiny_one_or_a_named_push_report_none():
+    yaw = np.linspace(0, np.pi, 3000)
+    for tilts in ([(0.0, 0.0), (0.0, 0.0)], [(0.15, 0.0), (0.1, 45.0)]):  # under TILT_REPORT_MIN_DEG
+        data = _two_recordings(tilts, yaw)
+        fit = fit_model(data, set())
+        assert residual_thrust_tilt(data, fit, fit.residual(data), flight_facts(data, fit.coef["k_T"])) is None
+    data = _two_recordings([(1.2, 0.0), (1.2, 0.0)], yaw)
+    fit = fit_model(data, {"wind"})  # a push named or ambiguous: thrust_tilt_alike weighs it
+    assert residual_thrust_tilt(data, fit, fit.residual(data), flight_facts(data, fit.coef["k_T"])) is None
+
+
+def test_a_tilt_at_one_heading_says_a_steady_push_looks_alike():
+    data = _two_recordings([(1.0, 0.0), (1.0, 0.0)], np.full(3000, 0.3))
+    fit = fit_model(data, set())
+    entry, _ = residual_thrust_tilt(data, fit, fit.residual(data), flight_facts(data, fit.coef["k_T"]))
+    assert entry["per_recording"][0]["tilt_deg"] == pytest.approx(1.0, abs=0.05)
+    assert "heading changed by 0 deg only" in entry["why"] and "steady push" in entry["why"]
 
 
 def test_wind_over_turning_headings_stands_apart_from_a_tilt():

@@ -30,6 +30,25 @@ def test_report_lists_segments_largest_first_and_params_readably(tmp_path):
     assert "simulator mu = 2, fitted mu = 1.871" in text and "{" not in text
 
 
+def test_a_thrust_axis_tilt_prints_per_recording_and_the_drivers_say_they_are_what_it_leaves(tmp_path):
+    tilt = {"per_recording": [{"recording": "a/mq_11", "tilt_deg": 1.2012, "stderr_deg": 0.0089, "azimuth_deg": -0.2,
+                               "z": 130.0},
+                              {"recording": "a/mq_12", "tilt_deg": 0.81, "stderr_deg": 0.012, "azimuth_deg": 89.6,
+                               "z": 70.0}],
+            "explains_share": 0.93, "rms_beyond_tilt_N": 0.012, "heading_span_deg": 180.0, "why": "it turns"}
+    report = {"recordings": ["a/mq_11", "a/mq_12"], "sim_effects": [], "protocol": "leave-one-recording-out",
+              "residual_source": "ground_truth", "baseline": {"heldout_rmse_N": 0.49, "rmse_N": 0.49},
+              "final": {"heldout_rmse_N": 0.29}, "noise": {"rms_N": 0.13}, "effects": [], "sim_effect_params": {},
+              "mismatch": {"segments": [], "drivers": []},
+              "unexplained": {"rms_N": 0.21, "drivers": [{"feature": "v_z", "score": 0.08}], "thrust_axis_tilt": tilt}}
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert "drivers of what the thrust-axis tilt below leaves: v_z 0.08" in text
+    assert ("Thrust-axis tilt: mq_11 1.20 ± 0.0089 deg towards 0 deg (from body +x to +y); mq_12 0.81 ± 0.012 deg "
+            "towards 90 deg (from body +x to +y). It explains 93 % of the horizontal residual (RMS beyond noise left: "
+            "0.0120 N): it turns.") in text
+
+
 def test_late_streams_say_what_is_left_uncertain_of_their_delay(tmp_path):
     delays = [{"recording": "a/px4-0", "describe": "rotors0 (measured rotor speeds) late by 61 ± 4 ms",
                "applied": True, "uncertain_s": [-0.004, 0.004]},

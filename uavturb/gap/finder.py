@@ -16,6 +16,7 @@ from uavturb.gap.decide import (
     bias_alike,
     flight_facts,
     floor_crossing,
+    residual_thrust_tilt,
     surface_reach,
     thrust_tilt_alike,
     too_small,
@@ -184,6 +185,16 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     _, rsf, _ = locate.segments(data, rf, update_step_s=step)
     _, draws = locate.window_rows(data, 0.5, step)
     beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / draws)))
+    unexplained = {"rms_N": beyond, "drivers": locate.drivers(data, rsf)}
+    tilt = None if any("thrust_axis_tilt" in a["candidates"] for a in ambiguous) else (
+        residual_thrust_tilt(data, final, rf, facts))
+    if tilt is not None:  # what is left beyond the tilt drives the drivers (a tilt had read as d_up on x)
+        entry, force = tilt
+        for e in entry["per_recording"]:
+            e["recording"] = paths[e["recording"]]
+        _, rst, _ = locate.segments(data, rf - force, update_step_s=step)
+        entry["rms_beyond_tilt_N"] = float(np.sqrt(max(0.0, np.mean(np.sum(rst**2, axis=1)) - np.sum(sigma**2) / draws)))
+        unexplained |= {"drivers": locate.drivers(data, rst), "thrust_axis_tilt": entry}
     progress("the surface curve")
     curve_report, curve, curve_fits = finder_surface_curve(data, final) if heights_broken is None else (None, None, {})
     progress("honest errors")
@@ -229,7 +240,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                   "d_down_min_m": facts.d_down_min, "d_up_min_m": facts.d_up_min, "has_imu": facts.has_imu,
                   "duration_s": facts.duration_s},
         "final": {"heldout_rmse_N": sel.final_heldout.rmse, "rmse_N": float(np.sqrt(np.mean(np.sum(rf**2, 1))))},
-        "unexplained": {"rms_N": beyond, "drivers": locate.drivers(data, rsf)},
+        "unexplained": unexplained,
         "open_loop": {"horizon_s": 0.5, "before_m": _open_loop(data, base.force),
                       "after_m": _open_loop(data, final.predict(data))},
         "candidates_tried": sel.tried,

@@ -229,8 +229,16 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
              (", ".join(f"{d['feature']} {d['score']:.2f} ({d['axis']})" for d in drv) or "none"))
     L.append("")
     u = report["unexplained"]
-    L.append(f"## Unexplained\nRMS beyond noise after the named effects: {u['rms_N']:.4f} N; drivers: " +
+    tilt = u.get("thrust_axis_tilt")
+    L.append(f"## Unexplained\nRMS beyond noise after the named effects: {u['rms_N']:.4f} N; drivers"
+             f"{' of what the thrust-axis tilt below leaves' if tilt else ''}: " +
              (", ".join(f"{d['feature']} {d['score']:.2f}" for d in u["drivers"]) or "none"))
+    if tilt:
+        each = "; ".join(f"{Path(e['recording']).name} {e['tilt_deg']:.2f} ± {e['stderr_deg']:.2g} deg towards "
+                         f"{round(e['azimuth_deg']) + 0} deg (from body +x to +y)" for e in tilt["per_recording"])
+        L.append("")
+        L.append(f"Thrust-axis tilt: {each}. It explains {100 * tilt['explains_share']:.0f} % of the horizontal "
+                 f"residual (RMS beyond noise left: {tilt['rms_beyond_tilt_N']:.4f} N): {tilt['why']}.")
     if "open_loop" in report:
         ol = report["open_loop"]
         L.append("")
