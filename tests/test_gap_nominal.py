@@ -18,6 +18,7 @@ from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, timing_i
 from uavturb.gap.surface_laws import finder_surface_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
+    command_sampling_term,
     error_budget,
     honest_stderr,
     thrust_map_term,
@@ -356,3 +357,12 @@ def test_a_law_whose_shape_misses_the_curve_still_carries_the_curve_term():
     assert out["stderr"]["mu"] == pytest.approx(1.0) and out["error_budget"]["mu"]["limited_by"] == "surface_curve"
     none = SimpleNamespace(law_fits=False, value=float("nan"), param="mu")
     assert _cross_checked(copy.deepcopy(effects), {"ground_effect": none})[0] == effects[0]
+
+
+def test_command_sampling_term_is_a_quarter_of_the_slowest_hold_period():
+    assert command_sampling_term([0.01, 0.0125])["tau"] == pytest.approx(0.003125)
+    assert command_sampling_term([1 / 3])["tau"] == pytest.approx(1 / 12)  # ESC telemetry at 3 Hz: no lag to pin
+    assert np.isnan(command_sampling_term([])["tau"]) and np.isnan(command_sampling_term([0.0, np.nan])["tau"])
+    budget = {"tau": {"sample": 1e-4, "stderr": 1e-4, "limited_by": "sample"}}
+    out = with_systematic(budget, "command_sampling", command_sampling_term([0.01]))
+    assert out["tau"]["stderr"] == pytest.approx(0.0025) and out["tau"]["limited_by"] == "command_sampling"

@@ -32,6 +32,7 @@ from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     HONEST_Z,
+    command_sampling_term,
     error_budget,
     honest_stderr,
     presence_z,
@@ -41,6 +42,7 @@ from uavturb.gap.uncertainty import (
     with_curve_check,
     with_systematic,
 )
+from uavturb.numerics.stream_updates import hold_period_s
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
     DEFAULT_EFFECTS,
@@ -200,6 +202,9 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("honest errors")
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
+    named = [e | _with_term(e, "command_sampling", command_sampling_term(
+        [hold_period_s(r.rotors.t_ns, r.rotors.speeds) for r in recordings])) if e["name"] == "motor_lag" else e
+             for e in named]
     named, speed_map = _thrust_map_checked(named, data, final, not measured_rotor_speeds(recordings), rf)
     named, curve_report = law_named_from_curve(named, curve_report, curve, curve_fits, data, facts,
                                                height_uncertainty)
@@ -294,6 +299,13 @@ def _timing_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: 
                                             timing_term(low, high, tuple(e["params"])))
         e["stderr"] = honest_stderr(e["error_budget"])
     return effects
+
+
+def _with_term(effect: dict[str, Any], term: str, values: dict[str, float]) -> dict[str, Any]:
+    """``error_budget`` and ``stderr`` of a named ``effect`` entry with a systematic ``term``
+    (:func:`uavturb.gap.uncertainty.with_systematic`)."""
+    budget = with_systematic(effect["error_budget"], term, values)
+    return {"error_budget": budget, "stderr": honest_stderr(budget)}
 
 
 def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: ModelFit, commanded: bool,
