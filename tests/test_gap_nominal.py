@@ -305,27 +305,28 @@ def test_the_pooled_thrust_coefficient_error_covers_the_recordings_spread():
 
 
 def test_a_disagreeing_surface_curve_widens_the_stated_error():
-    """The finder's mu 3.6 +- 0.5 where the measured curve gives 1.6 (a biased fit): the stated error becomes
-    half their difference; an agreeing curve leaves it as it was."""
+    """The finder's mu 3.6 +- 0.64 where the measured curve gives 1.6 (a biased fit): half their difference is
+    added in quadrature to the stated error; an agreeing curve's small term leaves the sample term limiting."""
     budget = {"mu": {"sample": 0.49, "height_reference": 0.41, "between_recordings": 0.33, "stderr": 0.64,
                      "limited_by": "sample", "fits": 2}}
     wide = with_curve_check(budget, {"mu": 3.6}, "mu", 1.6)["mu"]
-    assert wide["surface_curve"] == pytest.approx(1.0) and wide["stderr"] == pytest.approx(1.0)
+    assert wide["surface_curve"] == pytest.approx(1.0) and wide["stderr"] == pytest.approx(np.hypot(0.64, 1.0))
     assert wide["limited_by"] == "surface_curve" and budget["mu"]["stderr"] == 0.64  # the input is left alone
     close = with_curve_check(budget, {"mu": 3.6}, "mu", 3.4)["mu"]
-    assert close["surface_curve"] == pytest.approx(0.1) and close["stderr"] == 0.64 and close["limited_by"] == "sample"
+    assert close["surface_curve"] == pytest.approx(0.1) and close["stderr"] == pytest.approx(np.hypot(0.64, 0.1))
+    assert close["limited_by"] == "sample"
 
 
 def test_rotor_timing_term_is_half_the_change_across_the_timing_interval():
-    """mu 1.8 and 2.2 at the two ends of the rotor stream's timing interval: the term is 0.2 and, above the
-    other terms, sets the stated error; a fit that failed at either end leaves the term unknown (nan), never
+    """mu 1.8 and 2.2 at the two ends of the rotor stream's timing interval: the term is 0.2, added in
+    quadrature to the stated 0.11, and limits it; a fit that failed at either end leaves the term unknown (nan), never
     a confident zero, and the stated error as it was."""
     budget = {"mu": {"sample": 0.05, "height_reference": 0.1, "between_recordings": 0.08, "stderr": 0.11,
                      "limited_by": "height_reference", "fits": 2}}
     term = timing_term({"mu": 1.8}, {"mu": 2.2}, ("mu",))
     assert term == {"mu": pytest.approx(0.2)}
     out = with_systematic(budget, "rotor_timing", term)["mu"]
-    assert out["stderr"] == pytest.approx(0.2) and out["limited_by"] == "rotor_timing"
+    assert out["stderr"] == pytest.approx(np.hypot(0.11, 0.2)) and out["limited_by"] == "rotor_timing"
     unknown = with_systematic(budget, "rotor_timing", timing_term(None, {"mu": 2.2}, ("mu",)))["mu"]
     assert np.isnan(unknown["rotor_timing"]) and unknown["stderr"] == 0.11
 
@@ -348,13 +349,14 @@ def test_timing_interval_covers_what_is_left_uncertain_of_a_delay(found, interva
 def test_a_law_whose_shape_misses_the_curve_still_carries_the_curve_term():
     """The named law's value (mu 5.0, fitted on every row) against the same law fitted to a measured curve
     whose shape it does not fit (mu 7.0, chi^2/dof 10): the two weigh the heights differently, and the stated
-    error covers half their difference; a law without a finite curve value is left as it was."""
+    error carries half their difference in quadrature; a law without a finite curve value is left as it was."""
     budget = {"mu": {"sample": 0.3, "height_reference": 0.5, "stderr": 0.58, "limited_by": "sample", "fits": 1}}
     effects = [{"name": "ground_effect", "params": {"mu": 5.0}, "stderr": {"mu": 0.58}, "error_budget": budget}]
     misfit = SimpleNamespace(law_fits=False, value=7.0, param="mu")
     out = _cross_checked(copy.deepcopy(effects), {"ground_effect": misfit})[0]
     assert out["error_budget"]["mu"]["surface_curve"] == pytest.approx(1.0)
-    assert out["stderr"]["mu"] == pytest.approx(1.0) and out["error_budget"]["mu"]["limited_by"] == "surface_curve"
+    assert out["stderr"]["mu"] == pytest.approx(np.hypot(0.58, 1.0))
+    assert out["error_budget"]["mu"]["limited_by"] == "surface_curve"
     none = SimpleNamespace(law_fits=False, value=float("nan"), param="mu")
     assert _cross_checked(copy.deepcopy(effects), {"ground_effect": none})[0] == effects[0]
 
@@ -365,4 +367,4 @@ def test_command_sampling_term_is_a_quarter_of_the_slowest_hold_period():
     assert np.isnan(command_sampling_term([])["tau"]) and np.isnan(command_sampling_term([0.0, np.nan])["tau"])
     budget = {"tau": {"sample": 1e-4, "stderr": 1e-4, "limited_by": "sample"}}
     out = with_systematic(budget, "command_sampling", command_sampling_term([0.01]))
-    assert out["tau"]["stderr"] == pytest.approx(0.0025) and out["tau"]["limited_by"] == "command_sampling"
+    assert out["tau"]["stderr"] == pytest.approx(np.hypot(1e-4, 0.0025)) and out["tau"]["limited_by"] == "command_sampling"
