@@ -130,7 +130,8 @@ def px4_topics(rec: Recording, *, motor_order: Sequence[int] | None = None, roto
         g, a = body_vectors(rec.imu.gyro, "frd"), body_vectors(rec.imu.acc, "frd")  # FLU -> FRD: the same map
         topics.append(Topic("sensor_combined", [("uint64_t", "timestamp"), ("float[3]", "gyro_rad"),
                                                 ("float[3]", "accelerometer_m_s2")],
-                            [(int(t), *map(float, g[k]), *map(float, a[k])) for k, t in enumerate(to_us(rec.imu.t_ns))]))
+                            [(int(t), *map(float, g[k]), *map(float, a[k]))
+                             for k, t in enumerate(to_us(rec.imu.t_ns))]))
     slots = np.zeros((len(rec.rotors), 8))
     for i, j in enumerate(order):
         slots[:, j] = rec.rotors.speeds[:, i]

@@ -24,7 +24,8 @@ def test_bench_gap_measures_the_analysis_and_its_own_memory(tmp_path, capsys):
     assert 12_000 * 7 * 8 / 2**20 < fig["read + analyse: peak above that [MB]"] < 1024
     assert 100 < fig["resident after imports [MB]"] <= fig["interpreter and imports, peak [MB]"]
     assert fig["peak memory [MB]"] == max(fig["interpreter and imports, peak [MB]"],
-                                          fig["resident after imports [MB]"] + fig["read + analyse: peak above that [MB]"])
+                                          fig["resident after imports [MB]"]
+                                          + fig["read + analyse: peak above that [MB]"])
     assert fig["per flight-hour at 200 Hz: peak memory [MB]"] >= fig["resident after imports [MB]"]
     # the per-hour line passes through both measurements: never below the whole run's figure
     assert fig["per flight-hour at 200 Hz: seconds"] >= fig["read [s]"] + fig["analyse [s]"]

@@ -32,7 +32,8 @@ def test_the_parser_and_help_load_no_numerical_stack():
 
 
 def test_the_gap_command_loads_neither_scipy_signal_nor_stats():
-    loaded = modules_after("import uavturb.commands.gap, uavturb.gap.report\nfrom uavturb.cli import _parser; _parser()")
+    loaded = modules_after("import uavturb.commands.gap, uavturb.gap.report\n"
+                           "from uavturb.cli import _parser; _parser()")
     assert "scipy" in loaded and "scipy.signal" not in loaded and "scipy.stats" not in loaded
 
 

@@ -50,6 +50,7 @@ def test_every_value_of_the_defaults_and_shipped_configs_is_allowed():
 
 
 def test_lightning_choices_match_lightning():
-    assert set(PRECISIONS) == set(typing.get_args(_PRECISION_INPUT_STR)) | set(typing.get_args(_PRECISION_INPUT_STR_ALIAS))
+    assert set(PRECISIONS) == (set(typing.get_args(_PRECISION_INPUT_STR))
+                               | set(typing.get_args(_PRECISION_INPUT_STR_ALIAS)))
     assert set(ACCELERATORS) == set(AcceleratorRegistry.available_accelerators()) | {"auto", "gpu"}
     assert set(STRATEGIES) == set(StrategyRegistry.available_strategies()) | {"auto"}

@@ -97,8 +97,8 @@ def test_bad_battery_file_names_the_file(tmp_path, body, message):
 
 
 def _hover_flight(vehicle, z, tmp_path, name):
-    rec, truth = simulate_flight(vehicle, hover((0.0, 0.0, z), duration=3.0), effects=parse_effects("ground_effect:mu=2"),
-                                 seed=0)
+    rec, truth = simulate_flight(vehicle, hover((0.0, 0.0, z), duration=3.0),
+                                 effects=parse_effects("ground_effect:mu=2"), seed=0)
     write_recording(rec, tmp_path / name)
     return rec, truth
 

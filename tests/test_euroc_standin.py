@@ -284,7 +284,8 @@ def test_existing_presets_keep_their_config_hashes():
         e = get_preset(name, camera="euroc_cam0")
         assert e.to_dict()["camera"] == "euroc_cam0" and shards.config_hash(dataset_config(e, 0, "mpc")) != mpc
         assert shards.config_hash(pairs_config(e, 0)) != pairs
-    with pytest.raises(InputError, match="preset tiny: camera: 'cam9' is not allowed; allowed: one of forward, euroc_cam0"):
+    with pytest.raises(InputError,
+                       match="preset tiny: camera: 'cam9' is not allowed; allowed: one of forward, euroc_cam0"):
         get_preset("tiny", camera="cam9")
 
 

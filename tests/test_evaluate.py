@@ -67,8 +67,8 @@ def test_table2_on_flights_where_the_law_is_exact(setup):
     assert rows["Total"]["n_ge"] == rows["hex_0"]["n_ge"] + rows["hex_1"]["n_ge"]
 
     files = sorted(p.name for p in out.iterdir())
-    assert files == [".uavturb-output.json", "evaluation.json", "fa_hex_0.png", "fa_hex_1.png", "series_hex_0.csv", "series_hex_1.csv",
-                     "table.csv", "table.md"]
+    assert files == [".uavturb-output.json", "evaluation.json", "fa_hex_0.png", "fa_hex_1.png", "series_hex_0.csv",
+                     "series_hex_1.csv", "table.csv", "table.md"]
     table = list(csv.DictReader(open(out / "table.csv")))
     assert [r["flight"] for r in table] == ["hex_0", "hex_1", "Total"]
     assert float(table[2]["rmse_fa"]) == pytest.approx(rows["Total"]["rmse_fa"])

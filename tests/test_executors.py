@@ -160,7 +160,8 @@ def test_a_run_that_fails_once_is_retried_and_finishes(ray_local, tmp_path, expe
         if r["row"].startswith("depth/"):
             assert Path(r["checkpoint"]).read_text().endswith(depth.data.tags["checkpoint"])
     assert mlflow.MlflowClient(tracking_uri()).get_run(res["parent_run_id"]).info.status == "FINISHED"
-    assert [r["metrics"]["test/rmse_d"] for r in res["runs"]] == pytest.approx([0.1 * (k + 1) for k in range(len(ROWS))])
+    assert ([r["metrics"]["test/rmse_d"] for r in res["runs"]]
+            == pytest.approx([0.1 * (k + 1) for k in range(len(ROWS))]))
 
 
 @pytest.mark.parametrize("executor", ["sequential", "ray"])
@@ -176,8 +177,8 @@ def test_a_run_that_always_fails_ends_failed_and_a_rerun_trains_only_it(ray_loca
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert "Traceback" not in "\n".join(err)
-    assert err[-1].startswith(f"uavturb sweep: error: 2 of {2 + len(ROWS)} runs failed after 3 attempt(s), 2 skipped (their "
-                              "pre-training failed): pretrain normals seed 0, none/GRU seed 0; first error: "
+    assert err[-1].startswith(f"uavturb sweep: error: 2 of {2 + len(ROWS)} runs failed after 3 attempt(s), 2 skipped "
+                              "(their pre-training failed): pretrain normals seed 0, none/GRU seed 0; first error: "
                               "RuntimeError: injected failure of pretrain normals seed 0, attempt 3"), err[-1]
     client = mlflow.MlflowClient(tracking_uri())
     exp = client.get_experiment_by_name(experiment)

@@ -176,7 +176,8 @@ def test_a_height_that_passes_through_the_floor_tests_no_surface_effect(tmp_path
     report = run(tmp_path, [rec], sim_effects="none")
     assert not [e for e in report["effects"] if e["name"].startswith("ground_effect")]
     untestable = {e["name"]: e for e in report["not_testable"]}
-    assert {"ground_effect", "ground_effect_multirotor", "ground_effect_exponential", "ceiling_effect"} <= set(untestable)
+    assert ({"ground_effect", "ground_effect_multirotor", "ground_effect_exponential", "ceiling_effect"}
+            <= set(untestable))
     assert "cannot be trusted" in untestable["ground_effect"]["why"]
     assert report["surface_curve"] is None
     broken = report["height_reference"]["passes_floor"]

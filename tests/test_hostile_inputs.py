@@ -116,8 +116,8 @@ def test_a_state_stepping_by_minutes_is_refused_at_once(rec):
     t0 = int(lines[1].split(",")[0])
     lines[1:] = [f"{t0 + k * 5_000 * 10**9},{line.split(',', 1)[1]}" for k, line in enumerate(lines[1:])]
     (rec / GROUNDTRUTH_CSV).write_text("\n".join(lines) + "\n")
-    _refused(read_recording, rec, match=r"state_groundtruth_estimate0/data.csv: timestamps step by 5000 s \(0.0002 Hz\)",
-             seconds=5)
+    _refused(read_recording, rec, match=r"state_groundtruth_estimate0/data.csv: timestamps step by 5000 s "
+                                        r"\(0.0002 Hz\)", seconds=5)
 
 
 @pytest.mark.parametrize("value", ["1e308", "1e12"])
@@ -128,8 +128,10 @@ def test_a_rotor_speed_no_rotor_reaches_is_named(rec, value):
     cells[2] = value
     lines[101] = ",".join(cells)
     (rec / ROTORS_CSV).write_text("\n".join(lines) + "\n")
-    _refused(read_recording, rec, match=rf"rotors0/data.csv: line 102: rotor speed {re.escape(f'{float(value):.4g}')} for rotor 1 is "
-                                        r".* rad/s with rotor_speed_scale [0-9.]+, over the 1e\+05 rad/s no rotor reaches \(1 value over it\)")
+    _refused(read_recording, rec,
+             match=rf"rotors0/data.csv: line 102: rotor speed {re.escape(f'{float(value):.4g}')} for rotor 1 is "
+                   r".* rad/s with rotor_speed_scale [0-9.]+, over the 1e\+05 rad/s no rotor reaches "
+                   r"\(1 value over it\)")
 
 
 def test_a_long_timestamp_field_is_refused_without_a_fixed_width_array(rec):
@@ -246,7 +248,8 @@ def test_cli_yaml_bomb_and_ply_hang_and_random_bag(rec, tmp_path):
 def test_the_last_guard_turns_any_failure_into_one_line(monkeypatch, capsys):
     from uavturb import cli
 
-    for error, code, text in [(MemoryError(), 2, "out of memory"), (RecursionError(), 2, "an input is nested too deeply"),
+    for error, code, text in [(MemoryError(), 2, "out of memory"),
+                              (RecursionError(), 2, "an input is nested too deeply"),
                               (OSError(28, "No space left on device", "/data/x.csv"), 2,
                                "/data/x.csv: no space left on the device"),
                               (KeyError("boom"), 1, "internal error (KeyError: 'boom') at test_hostile_inputs.py")]:

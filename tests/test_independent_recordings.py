@@ -112,7 +112,8 @@ CORRUPTIONS = {
     "vehicle.yaml missing a key": ("vehicle.yaml",
                                    lambda p: p.write_text(VEHICLE_YAML.replace("rotor_radius: 0.1\n", ""))),
     "vehicle.yaml in millimetres": ("vehicle.yaml",
-                                    lambda p: p.write_text(VEHICLE_YAML.replace("arm_length: 0.215", "arm_length: 215"))),
+                                    lambda p: p.write_text(VEHICLE_YAML.replace(
+                                        "arm_length: 0.215", "arm_length: 215"))),
     "vehicle.yaml list of the wrong length": ("vehicle.yaml",
                                               lambda p: p.write_text(VEHICLE_YAML.replace(
                                                   "[1, -1, 1, -1, 1, -1]", "[1, -1, 1, -1]"))),

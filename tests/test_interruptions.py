@@ -153,7 +153,8 @@ def test_sigint_on_a_sweep_exits_130_in_one_line_parent_and_child_killed(tmp_pat
            "--seeds", "1", "--mlflow-experiment", "sw", *overrides]
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=_env(uri), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
-    _wait_for(lambda: (tmp_path / "runs" / "checkpoints").is_dir() and any((tmp_path / "runs" / "checkpoints").iterdir()),
+    _wait_for(lambda: ((tmp_path / "runs" / "checkpoints").is_dir()
+                       and any((tmp_path / "runs" / "checkpoints").iterdir())),
               proc, what="a child training")
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
@@ -190,7 +191,8 @@ def test_sigkill_leaves_a_run_the_next_store_command_marks_failed(tmp_path, monk
     assert client.get_run(run_id).info.status == "RUNNING"
 
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
-    assert main(["compare", "--mlflow-experiment", "k"]) == 2  # any command that opens the store; this one finds no table
+    # any command that opens the store; this one finds no table
+    assert main(["compare", "--mlflow-experiment", "k"]) == 2
     run = client.get_run(run_id)
     assert run.info.status == "FAILED"
     assert run.data.tags["stale"].startswith(f"process {proc.pid} on ")

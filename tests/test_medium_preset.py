@@ -1,4 +1,5 @@
-"""The ``medium`` simulator preset and the ablation sweep's ``medium`` profile load, validate and agree (no training)."""
+"""The ``medium`` simulator preset and the ablation sweep's ``medium`` profile load, validate and agree
+(no training)."""
 
 from __future__ import annotations
 

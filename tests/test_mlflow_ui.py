@@ -1,5 +1,5 @@
-"""MLflow's UI on a sweep's store, in headless Chromium: Table 1's view lists the rows (the six of the paper and ours) with
-readable RMSE(d) and RMSE(f_a). Loopback only: the server listens on 127.0.0.1 on a free port."""
+"""MLflow's UI on a sweep's store, in headless Chromium: Table 1's view lists the rows (the six of the paper and ours)
+with readable RMSE(d) and RMSE(f_a). Loopback only: the server listens on 127.0.0.1 on a free port."""
 
 from __future__ import annotations
 

@@ -122,4 +122,5 @@ def test_high_passed_keeps_what_changes_faster_than_its_window():
     assert np.allclose(high_passed(t, 0.5 * t, 2.0)[inner], 0.0, atol=3e-3)  # one row more on a side: half a step
     swing = np.sin(2 * np.pi * 2.0 * t)
     out = high_passed(t, np.column_stack([swing + 5.0, 2 * swing]), 2.0)
-    assert np.allclose(out[inner, 0], swing[inner], atol=0.01) and np.allclose(out[inner, 1], 2 * swing[inner], atol=0.02)
+    assert (np.allclose(out[inner, 0], swing[inner], atol=0.01)
+            and np.allclose(out[inner, 1], 2 * swing[inner], atol=0.02))

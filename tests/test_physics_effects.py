@@ -77,7 +77,8 @@ def test_motor_lag_step_response_is_first_order():
     t = np.arange(0, 0.5, 0.001)
     w = np.where(t >= 0.1, 600.0, 500.0)[:, None] * np.ones((1, 6))
     out = lag_rotor_speeds(t, w, 0.025)
-    i0 = int(np.argmax(t >= 0.1))  # the command steps at sample i0, held until i0 + 1: w(t_i0 + k dt) = 600 - 100 exp(-k dt / tau)
+    # the command steps at sample i0, held until i0 + 1: w(t_i0 + k dt) = 600 - 100 exp(-k dt / tau)
+    i0 = int(np.argmax(t >= 0.1))
     assert out[i0, 0] == 500.0
     assert out[i0 + 25, 0] == pytest.approx(500 + 100 * (1 - np.exp(-1)), rel=1e-9)
     # non-uniform time steps follow the same law

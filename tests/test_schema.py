@@ -106,7 +106,8 @@ def test_read_value_keeps_an_integer_for_a_float_field():
     (lambda: Conditions(rate_hz=0.0), "--rate-hz", "0.0",
      "a number > 0 and <= 200 Hz (the simulator records at 200 Hz)"),
     (lambda: Conditions(mass_error=2.0), "--mass-error", "2.0", "a number > -0.5 and < 0.5"),
-    (lambda: Conditions(sensor_frame="eurco"), "--sensor-frame", "'eurco'", "one of body, euroc (did you mean 'euroc'?)"),
+    (lambda: Conditions(sensor_frame="eurco"), "--sensor-frame", "'eurco'",
+     "one of body, euroc (did you mean 'euroc'?)"),
     (lambda: Conditions(wind_speed=(1.0,)), "--wind-speed", "(1.0,)", "two finite numbers vx,vy [m/s]"),
     (lambda: Conditions(heading_deg=float("nan"), fixed_heading=True), "--heading-deg", "nan", "a finite angle [deg]"),
 ])
@@ -174,7 +175,8 @@ def test_relations_between_fields_stay_with_their_class():
 def test_conditions_from_options_reads_text_by_field_type():
     c = Conditions.from_options({"wind_speed": "1,-0.5", "rate_hz": 50.0, "no_imu": True, "sensor_frame": "euroc"})
     assert c == Conditions(wind_speed=(1.0, -0.5), rate_hz=50.0, no_imu=True, sensor_frame="euroc")
-    with pytest.raises(InputError, match="^--wind-speed: expected numbers separated by commas \\(or a YAML list\\), got '1,x'$"):
+    with pytest.raises(InputError,
+                       match="^--wind-speed: expected numbers separated by commas \\(or a YAML list\\), got '1,x'$"):
         Conditions.from_options({"wind_speed": "1,x"})
 
 

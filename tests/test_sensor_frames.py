@@ -98,7 +98,8 @@ def test_vehicle_T_BS_round_trips_exactly(tmp_path):
 @pytest.mark.parametrize("value, expected", [
     ([[1, 0, 0], [0, 1, 0], [0, 0, 1]], "key 'T_BS' must be 4 rows of 4 numbers"),
     ([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]], "key 'T_BS' must end with the row [0, 0, 0, 1]"),
-    ([[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "key 'T_BS': the upper-left 3x3 block is not a rotation"),
+    ([[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+     "key 'T_BS': the upper-left 3x3 block is not a rotation"),
     ([[-1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "not a rotation"),
     ([[1, 0, 0, "a"], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "key 'T_BS' holds a non-numeric"),
 ])

@@ -85,7 +85,8 @@ def test_sensor_frame_has_the_lever_arm_accelerations(flight, tmp_path):
     assert np.sqrt(np.mean((f_s[inner] - rec_s.imu.acc[inner]) ** 2)) < 0.02  # m/s^2
     # ... which a plain rotation of B's reading is not: the lever arm's terms are felt
     plain = truth.specific_force @ C.EUROC_T_BS[:3, :3]
-    assert np.sqrt(np.mean((f_s[inner] - plain[inner]) ** 2)) > 5 * np.sqrt(np.mean((f_s[inner] - rec_s.imu.acc[inner]) ** 2))
+    assert (np.sqrt(np.mean((f_s[inner] - plain[inner]) ** 2))
+            > 5 * np.sqrt(np.mean((f_s[inner] - rec_s.imu.acc[inner]) ** 2)))
     # readers that follow recordings.md put it back into B: B's positions and the thrust axis
     (rec_b,) = load_recordings([path])
     p_true = np.stack([np.interp(rec_b.seconds(rec_b.ground_truth.t_ns), truth.t, truth.x[:, i]) for i in range(3)], 1)

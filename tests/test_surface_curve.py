@@ -424,8 +424,8 @@ def test_exponential_curve_recovered_and_cheeseman_bennett_shape_rejected():
 
 
 def test_a_law_named_from_the_curve_replaces_one_whose_shape_misses_it():
-    """The finder's rule (``surface_laws.law_named_from_curve``): its Cheeseman-Bennett entry, found in time, is replaced
-    by the exponential law fitted to the curve where only the latter fits; its budget covers the recordings'
+    """The finder's rule (``surface_laws.law_named_from_curve``): its Cheeseman-Bennett entry, found in time, is
+    replaced by the exponential law fitted to the curve where only the latter fits; its budget covers the recordings'
     spread and the height reference; the time-domain law stays beside it. A curve Cheeseman-Bennett fits keeps it."""
     from types import SimpleNamespace
 

@@ -119,7 +119,8 @@ def test_sweep_runs_rows_times_seeds_reusing_pretraining(tmp_path, store, monkey
         d, fa = known_rmse(r.data.tags["ablation"], int(r.data.tags["seed"]))
         assert r.data.metrics["test/rmse_d"] == pytest.approx(d) and r.data.metrics["test/rmse_fa"] == pytest.approx(fa)
     parent = mlflow.MlflowClient(store[0]).get_run(res["parent_run_id"])
-    assert parent.info.status == "FINISHED" and parent.data.tags["preset"] == "quick"  # the profile, under its tag's old name
+    # the profile, under its tag's old name
+    assert parent.info.status == "FINISHED" and parent.data.tags["preset"] == "quick"
     artifacts = {a.path for a in mlflow.MlflowClient(store[0]).list_artifacts(parent.info.run_id)}
     assert {"table1.md", "table1.csv", "sweep.yaml"} <= artifacts
     # Table 1 is the parent's description; its means stay off the metrics (the run table compares children)

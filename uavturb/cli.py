@@ -310,7 +310,8 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--run", action="append", metavar="RUN_ID",
                    help="MLflow run of a height training (repeat for several: Table 2 over seeds)")
     s.add_argument("--sweep", metavar="PARENT_RUN_ID", help="every finished height run of this ablation sweep")
-    s.add_argument("--rows", help="with --sweep: only these rows, comma-separated (e.g. depth/finetune,normals/finetune)")
+    s.add_argument("--rows",
+                   help="with --sweep: only these rows, comma-separated (e.g. depth/finetune,normals/finetune)")
     s.add_argument("--out", default="evaluation", metavar="DIR", help="folder for table.md/csv and plots")
     s.add_argument("--vehicle", help=f"{VEHICLE_HELP} for folders without one (raw EuRoC)")
     s.add_argument("--frame-dt", type=float, default=None, help="frame period [s] without cam0 frames (0.05)")
@@ -339,7 +340,8 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
                        epilog="targets:\n" + "\n".join(f"  {k:<10}{v}" for k, v in TARGETS.items()))
     s.add_argument("what", choices=list(TARGETS), metavar="TARGET", help=" | ".join(TARGETS))
     gp = s.add_argument_group("TARGET gap")
-    gp.add_argument("recordings", nargs="*", metavar="REC", help="recordings to analyse (default: two generated flights)")
+    gp.add_argument("recordings", nargs="*", metavar="REC",
+                    help="recordings to analyse (default: two generated flights)")
     gp.add_argument("--minutes", type=float, help="length of each generated flight (default 5)")
     gp.add_argument("--measured-hour", action=argparse.BooleanOptionalAction, default=None,
                     help="also measure an hour whole: the recordings repeated to an hour of flight, one "

@@ -1,1 +1,2 @@
-"""Benchmarks behind ``uavturb bench``: each prints figures (speed and memory targets are measured here, never by timed tests)."""
+"""Benchmarks behind ``uavturb bench``: each prints figures (speed and memory targets are measured here, never by
+timed tests)."""

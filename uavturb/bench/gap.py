@@ -124,8 +124,10 @@ def bench_gap(recordings: Sequence[str] = (), minutes: float = 5.0, measured_hou
     }
     if hour is not None:
         figures.update({
-            "hour measured: recordings (repeats)": len(hour["names"]), "hour measured: flight time [s]": hour["flight_s"],
-            "hour measured: rows": hour["rows"], "hour measured: read + analyse [s]": hour["read_s"] + hour["analyse_s"],
+            "hour measured: recordings (repeats)": len(hour["names"]),
+            "hour measured: flight time [s]": hour["flight_s"],
+            "hour measured: rows": hour["rows"],
+            "hour measured: read + analyse [s]": hour["read_s"] + hour["analyse_s"],
             "hour measured: CPU seconds": hour["cpu_s"],
             "hour measured: peak memory [MB]": max(hour["import_peak_kib"], hour["peak_kib"]) / 1024.0})
     for k, v in figures.items():

@@ -25,7 +25,8 @@ TARGETS: dict[str, str] = {
     "generate": "simulator throughput on the quick preset: samples/s and the control/physics/render split",
     "train": "training windows/s of the height model and the input overhead of the shard DataLoader",
     "gpu": "both training stages on a CUDA device at 128 px, fp32 and bf16-mixed: windows/s, epoch times, GPU\n"
-           "            memory, DataLoader share, 500 pre-training epochs vs 2 CPU cores (--device cpu: small, on the CPU)",
+           "            memory, DataLoader share, 500 pre-training epochs vs 2 CPU cores "
+           "(--device cpu: small, on the CPU)",
     "infer": "exported streaming model on one CPU thread: per-frame latency (.pt2, ONNX) and batched throughput",
     "gap": "the gap finder's seconds and peak memory per hour of 200 Hz flight (RECORDINGS, or two generated flights)",
     "gap-proof": "the gap finder blind on concealed effects against PySINDy (writes gap_proof/)",
@@ -179,7 +180,8 @@ def bench(what: str) -> None:
 
 
 #: options of ``uavturb bench gpu`` (keyword arguments of :func:`uavturb.bench.gpu.bench_gpu`)
-BENCH_OPTIONS = ("recordings", "minutes", "measured_hour", "device", "size", "batch_size", "workers", "steps", "epochs", "precisions", "cpu_threads")
+BENCH_OPTIONS = ("recordings", "minutes", "measured_hour", "device", "size", "batch_size", "workers", "steps", "epochs",
+                 "precisions", "cpu_threads")
 
 
 def bench_target(what: str, options: dict | None = None) -> None:

@@ -126,7 +126,8 @@ def run(out: Path, seed: int = 0, workers: int = 2) -> dict:
     res = sweep(profile="quick", seeds=1, overrides=[*SWEEP_DATA, f"data.root={out / 'sim'}",
                                                      f"data.pairs_root={out / 'pairs'}",
                                                      f"trainer.default_root_dir={out / 'runs'}"])
-    table1 = compare(parent_run_id=res["parent_run_id"], experiment=res["experiment"], out=out / "table1", overwrite=True)
+    table1 = compare(parent_run_id=res["parent_run_id"], experiment=res["experiment"], out=out / "table1",
+                     overwrite=True)
     ours = next(r for r in res["runs"] if r["row"] == "normals/finetune")
     summary["table1"] = {"parent_run_id": res["parent_run_id"], "experiment": res["experiment"],
                          "rows": table1["rows"]}

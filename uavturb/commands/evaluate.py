@@ -71,7 +71,8 @@ def image_size_of(camera: CameraModel) -> int | list[int]:
     return camera.width if camera.width == camera.height else [camera.height, camera.width]
 
 
-def log_evaluation(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]], params: dict[str, Any]) -> str:
+def log_evaluation(run_id: str, folder: Path, results: list[tuple[str, dict[str, float]]],
+                   params: dict[str, Any]) -> str:
     """A child run of the training run: params, Table 2's Total as ``eval/<metric>``, the folder as artifacts.
 
     Per-flight figures stay in the artifacts (``evaluation/table.csv``): one metric column per

@@ -4,9 +4,9 @@ A scene is a closed room ``[-L, L]^2 x [0, ceiling]`` (floor, four walls, ceilin
 axis-aligned boxes standing on the floor (tables, crates): a single-room layout of the one scene
 model (:func:`random_box_room`, :func:`uavturb.scene.layouts.box_room`). Depth and normals are exact
 ray casts (:func:`cast_rays`: slab tests), so every pixel hits a surface; heights are exact (the
-box top or the floor under the body origin, :func:`uavturb.scene.queries.surface_below`), and the ground-effect force is the physics core's law
-``f_a = phi(d, k_T sum Omega^2, mu, r)`` (:func:`uavturb.physics.ground_effect.phi`) with the
-paper's simulated quadrotor (``k_T = 5.45e-6``, ``r = 0.01 m``) and ``mu = 2``.
+box top or the floor under the body origin, :func:`uavturb.scene.queries.surface_below`), and the ground-effect
+force is the physics core's law ``f_a = phi(d, k_T sum Omega^2, mu, r)`` (:func:`uavturb.physics.ground_effect.phi`)
+with the paper's simulated quadrotor (``k_T = 5.45e-6``, ``r = 0.01 m``) and ``mu = 2``.
 
 Frames and conventions are those of the simulator (:mod:`uavturb.sim.core.render`): world z up;
 the camera's optical frame has x right, y down, z forward; it looks along body +x, pitched

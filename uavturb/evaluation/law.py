@@ -46,7 +46,8 @@ def fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: b
     fit = identify_alpha_beta(first.fa[air], first.d[air], first.sum_omega2[air])
     h_ge = ground_effect_height(fit.beta, ge_fraction)
     if progress:
-        print(f"(alpha, beta) by BFGS on {first.name}: alpha = {fit.alpha:.4g} +- {fit.stderr_alpha:.2g} N m^2/(rad/s)^2, "
+        print(f"(alpha, beta) by BFGS on {first.name}: alpha = {fit.alpha:.4g} +- {fit.stderr_alpha:.2g} "
+              f"N m^2/(rad/s)^2, "
               f"beta = {fit.beta:.4g} +- {fit.stderr_beta:.2g} m^2 (fit RMSE {fit.rmse:.4f} N, {fit.n} frames); "
               f"ground-effect region d <= {h_ge:.3f} m "
               f"(law >= {100 * ge_fraction:g} % of thrust)", file=sys.stderr)
@@ -67,7 +68,8 @@ def law_consistency(fit: Any, k_T: float) -> str | None:
     if 1 / LAW_K_T_TOLERANCE <= ratio <= LAW_K_T_TOLERANCE:
         return None
     return (f"the fitted law implies k_T = alpha / beta = {fit.k_T():.3g} N/(rad/s)^2, {ratio:.2f} times the vehicle's "
-            f"{k_T:.3g}: alpha and beta are traded off (few heights, or the identified k_T absorbed the law's far tail); "
+            f"{k_T:.3g}: alpha and beta are traded off "
+            f"(few heights, or the identified k_T absorbed the law's far tail); "
             f"the law still scores RMSE(f_a,phi), but its beta (hence mu and the ground-effect region) is not reliable")
 
 

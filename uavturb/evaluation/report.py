@@ -146,13 +146,14 @@ def format_summary(rows: list[dict[str, Any]], info: dict[str, Any]) -> str:
     """``summary.md``: Table 2 per row over seeds, then the height bands per row."""
     lines = [f"Table 2 over seeds on {', '.join(info['flights'])} ({info['n_ge']} ground-effect frames: airborne, "
              f"d <= {info['h_ge']:.3f} m, law >= {100 * info['ge_fraction']:g} % of thrust); (alpha, beta) identified "
-             f"on {info['identified_on']} (beta = {info['beta']:.3g} ± {info['beta_stderr']:.2g} m^2, noise only); mean ± std over "
-             f"seeds. The paper, on EuRoC: RMSE(f_a) 0.4082 N, "
+             f"on {info['identified_on']} (beta = {info['beta']:.3g} ± {info['beta_stderr']:.2g} m^2, noise only); "
+             f"mean ± std over seeds. The paper, on EuRoC: RMSE(f_a) 0.4082 N, "
              f"RMSE(f_a,phi) 0.2433 N, ratio {PAPER_RATIO:.2f}.", "",
              "| row | seeds | RMSE(f_a,phi) [N] | RMSE(f_a) [N] | ratio RMSE(f_a)/RMSE(f_a,phi) | worst seed's ratio "
              "| RMSE(d) [m] |", "|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        lines.append(f"| {r['row']} | {r['n']} | {r['rmse_fa_phi']:.4f} | {_pm(r['rmse_fa'], r['rmse_fa_std'], '.4f')} | "
+        lines.append(f"| {r['row']} | {r['n']} | {r['rmse_fa_phi']:.4f} | "
+                     f"{_pm(r['rmse_fa'], r['rmse_fa_std'], '.4f')} | "
                      f"{_pm(r['ratio'], r['ratio_std'], '.2f')} | {r['ratio_max']:.2f} | "
                      f"{_pm(r['rmse_d'], r['rmse_d_std'], '.4f')} |")
     lines += ["", "Where the error comes from (ground-effect frames by true height, mean over seeds):", "",
@@ -161,8 +162,8 @@ def format_summary(rows: list[dict[str, Any]], info: dict[str, Any]) -> str:
     for r in rows:
         for b in r["bands"]:
             lines.append(f"| {r['row']} | {b['band']} | {b['n']} | {b['rmse_fa_phi']:.4f} | "
-                         f"{_pm(b['rmse_fa'], b['rmse_fa_std'], '.4f')} | {_pm(b['bias_d'], b['bias_d_std'], '+.4f')} | "
-                         f"{100 * b['share_sq_fa']:.0f} % |")
+                         f"{_pm(b['rmse_fa'], b['rmse_fa_std'], '.4f')} | "
+                         f"{_pm(b['bias_d'], b['bias_d_std'], '+.4f')} | {100 * b['share_sq_fa']:.0f} % |")
     if info.get("law_check"):
         lines += ["", f"Warning: {info['law_check']}."]
     return "\n".join(lines) + "\n"

@@ -333,9 +333,9 @@ def check_imu(rec: Recording) -> None:
 
 #: s, offsets between a stream's clock and the ground truth's searched; by how much the best offset's correlation
 #: must beat the recording's own stamps' (and be at least twice it), and the least correlation it must reach, on
-#: signals high-passed (:func:`uavturb.numerics.filters.high_passed`). Measured at the true offset: an IMU against the motion capture
-#: 0.73-0.98, the rotors' thrust 0.56-0.86 (real Crazyflie and simulated flights); a spurious peak of a flight
-#: whose rotors barely vary reached 0.36
+#: signals high-passed (:func:`uavturb.numerics.filters.high_passed`). Measured at the true offset: an IMU against the
+#: motion capture 0.73-0.98, the rotors' thrust 0.56-0.86 (real Crazyflie and simulated flights); a spurious peak of a
+#: flight whose rotors barely vary reached 0.36
 CLOCK_SEARCH_S, CLOCK_GAIN = 0.6, 0.1
 #: s, offsets searched beyond ``CLOCK_SEARCH_S`` (a stream stamped on another clock by seconds: rotors 1 s late
 #: had left a 0.5 N residual and a report naming the right effect beside it), and the step of that coarse search

@@ -58,8 +58,9 @@ def _time_rows(table: Table, m: CsvMap, where: str | Path) -> _Rows:
     too_late = np.flatnonzero(np.abs(t[idx]) >= 2.0**63)  # past int64 nanoseconds (year 2262): a wrong time.unit
     if len(too_late):
         k = int(idx[too_late[0]])
-        raise InputError(where, f"line {int(table.lines[k])}: time {table.values['time.column'][k]:.6g} read in the map's "
-                                f"time.unit is past what nanoseconds can count (the year 2262): the wrong time.unit?")
+        raise InputError(where, f"line {int(table.lines[k])}: time {table.values['time.column'][k]:.6g} read in the "
+                                f"map's time.unit is past what nanoseconds can count (the year 2262): "
+                                f"the wrong time.unit?")
     if "time.column" in table.integers:  # integer times (ns, µs) exactly, beyond float64's digits
         t_ns = table.integers["time.column"][idx] * int(m.time_ns_per_unit)
     else:
@@ -205,8 +206,8 @@ def _build(table: Table, m: CsvMap, rows: _Rows, vehicle: Vehicle, world: str, b
     rotors = _rotors(table, m, rows, vehicle, battery, left_out, notes)
     if rotors is not None:
         vehicle = vehicle.with_params(rotor_speed_source=m.rotor_source)
-    rec = Recording(vehicle=vehicle, ground_truth=gt, imu=_imu(table, m, rows, gt, world, body, left_out), rotors=rotors,
-                    battery=battery, frame="B")
+    rec = Recording(vehicle=vehicle, ground_truth=gt, imu=_imu(table, m, rows, gt, world, body, left_out),
+                    rotors=rotors, battery=battery, frame="B")
     return rec, left_out, notes
 
 

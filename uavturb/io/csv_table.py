@@ -5,8 +5,8 @@ Self-contained and bounded, for files of unknown origin: lines are read one at a
 the map names are converted to numbers (other columns may hold anything, text included).
 
 * Header: ``auto`` (default) takes the first non-blank line as the column names when it is not all
-  numbers (``#`` lines of one field before it are comments); a leading ``#`` is dropped (``# time[ms],x[m]``, EuRoC's ``#timestamp [ns]``). ``true``
-  always, ``false`` never (columns are then named by their 0-based index only).
+  numbers (``#`` lines of one field before it are comments); a leading ``#`` is dropped (``# time[ms],x[m]``,
+  EuRoC's ``#timestamp [ns]``). ``true`` always, ``false`` never (columns are then named by their 0-based index only).
 * Lines starting with ``#`` after the header, and blank lines, are skipped.
 * A last line with fewer fields than the header (a logger stopped mid-write) is left out and
   counted; such a line anywhere else is an error naming it.

@@ -154,7 +154,8 @@ def _rows(first_line: int, block: bytes) -> _Block:
         if k < n and len(odd) == k and k <= 64 and all(_droppable(body[a:b]) for a, b in zip(rows.starts[:k],
                                                                                           rows.ends[:k])):
             return _Block.of(rows.lines[k:], body[rows.starts[k]:])
-    kept = [(i, s) for i, s in enumerate(body.split(b"\n"), first_line) if s.strip() and not s.lstrip().startswith(b"#")]
+    kept = [(i, s) for i, s in enumerate(body.split(b"\n"), first_line)
+            if s.strip() and not s.lstrip().startswith(b"#")]
     lines = np.fromiter((i for i, _ in kept), dtype=np.int64, count=len(kept))
     return _Block.of(lines, b"\n".join(s for _, s in kept))
 
@@ -172,14 +173,16 @@ def _check_columns(path: Path, rows: _Block, n_cols: int | None) -> int:
         raise InputError(path, f"line {rows.lines[0]}: {found} columns, more than {MAX_COLUMNS} (the limit of a row)")
     long = np.flatnonzero(rows.ends - rows.starts > MAX_LINE_BYTES)
     if len(long):
-        raise InputError(path, f"line {rows.lines[long[0]]} is longer than {MAX_LINE_BYTES} bytes (the limit of a line)")
+        raise InputError(path, f"line {rows.lines[long[0]]} is longer than {MAX_LINE_BYTES} bytes "
+                               f"(the limit of a line)")
     counts = np.diff(np.searchsorted(rows.commas, rows.ends), prepend=0) + 1
     expected = found if n_cols is None else n_cols
     bad = np.flatnonzero(counts != expected)
     if len(bad):
         k = bad[0]
         row = rows.body[rows.starts[k]:rows.ends[k]].rstrip()
-        why = " (the row ends with a comma: EuRoC rows do not)" if counts[k] == expected + 1 and row.endswith(b",") else ""
+        why = (" (the row ends with a comma: EuRoC rows do not)" if counts[k] == expected + 1 and row.endswith(b",")
+               else "")
         raise InputError(path, f"line {rows.lines[k]}: expected {expected} columns, found {counts[k]}{why}")
     return expected
 
@@ -212,7 +215,8 @@ def _diagnose(path: Path, lines: np.ndarray, body: bytes) -> NoReturn:
         try:
             row = raw.decode("utf-8")
         except UnicodeDecodeError as e:
-            raise InputError(path, f"line {line}: not text (byte 0x{raw[e.start]:02x} at column {e.start + 1})") from None
+            raise InputError(path, f"line {line}: not text "
+                                   f"(byte 0x{raw[e.start]:02x} at column {e.start + 1})") from None
         for col, field in enumerate(row.split(",")):
             field = field.strip()
             try:

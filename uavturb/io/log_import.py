@@ -102,7 +102,8 @@ def check_conventions(rec: Recording, conventions: dict[str, str], choices: dict
         k, i = np.unravel_index(np.nanargmax(rec.rotors.speeds), rec.rotors.speeds.shape)
         name = rotor_column(int(i)) if rotor_column is not None else f"of vehicle rotor {i}"
         raise InputError(where, f"rotor column {name} reads {rec.rotors.speeds[k, i]:.3g} rad/s, over the "
-                                f"{MAX_ROTOR_SPEED_RAD_S:.0e} rad/s no rotor reaches: not a rotor speed, or the wrong unit")
+                                f"{MAX_ROTOR_SPEED_RAD_S:.0e} rad/s no rotor reaches: not a rotor speed, "
+                                f"or the wrong unit")
     try:
         check_rotor_columns(rec)
     except InputError as e:

@@ -103,7 +103,8 @@ def _vertex_element(path: Path, elements: list[_Element]) -> tuple[int, list[int
     props = [p.name for p in vertex.properties]
     missing = [c for c in "xyz" if c not in props]
     if missing:
-        raise InputError(path, f"PLY vertex element has no {', '.join(missing)} propert{'y' if len(missing) == 1 else 'ies'}"
+        raise InputError(path, f"PLY vertex element has no {', '.join(missing)} "
+                               f"propert{'y' if len(missing) == 1 else 'ies'}"
                                f" (found: {', '.join(props) or 'none'})")
     return k, [props.index(c) for c in "xyz"]
 

@@ -128,7 +128,8 @@ def check_state_rate(path: str | Path, t_ns: np.ndarray) -> None:
         return
     step = float(np.median(np.diff(t_ns)))
     if step > MAX_STATE_STEP_NS:
-        raise InputError(path, f"timestamps step by {step * 1e-9:.4g} s ({1e9 / step:.2g} Hz): a flight's state runs at "
+        raise InputError(path, f"timestamps step by {step * 1e-9:.4g} s ({1e9 / step:.2g} Hz): "
+                               f"a flight's state runs at "
                                "50 Hz and up (recordings.md); these are not nanoseconds, or not a flight's state")
 
 
@@ -148,7 +149,8 @@ def check_magnitudes(path: str | Path, x: np.ndarray, lines: np.ndarray,
         if len(over):
             k, c = over[0]
             raise InputError(path, f"line {lines[k]}, column {start + c + 2}: {x[k, start + c]:.4g} {unit}, beyond "
-                                   f"the {limit:.0e} {unit} of any multirotor's flight ({len(over)} value{'s' if len(over) > 1 else ''} "
+                                   f"the {limit:.0e} {unit} of any multirotor's flight "
+                                   f"({len(over)} value{'s' if len(over) > 1 else ''} "
                                    "over it)")
 
 

@@ -75,7 +75,8 @@ def _array_field(store: Typestore, msgtype: str) -> str | None:
     """The motor-speed field of ``msgtype``: ``motor_speed`` if present, else the first numeric array."""
     fields = store.fielddefs[msgtype][1]
     numeric = [name for name, (kind, sub) in fields
-               if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE) and sub[0][0] == Nodetype.BASE and sub[0][1][0] in _NUMERIC]
+               if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE) and sub[0][0] == Nodetype.BASE
+               and sub[0][1][0] in _NUMERIC]
     if "motor_speed" in numeric:
         return "motor_speed"
     return numeric[0] if numeric else None

@@ -85,7 +85,8 @@ class ThrustMap:
         scale = d.get("voltage_scale", 1.0)
         if not _finite(scale) or scale <= 0:
             raise InputError(where, f"{prefix}.voltage_scale: expected a positive number, got {scale!r}"[:200])
-        return cls(terms=_terms(d.get("terms"), where, prefix), unit=unit, command_range=(float(lo_hi[0]), float(lo_hi[1])),
+        return cls(terms=_terms(d.get("terms"), where, prefix), unit=unit,
+                   command_range=(float(lo_hi[0]), float(lo_hi[1])),
                    voltage_scale=float(scale), newtons_per_unit=None if newtons is None else float(newtons))
 
     def thrust(self, command: np.ndarray, voltage: np.ndarray | None) -> np.ndarray:

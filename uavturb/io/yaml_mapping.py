@@ -106,7 +106,8 @@ def safe_load_bounded(text: str, where: str | Path) -> Any:
     try:  # the reader checks the characters as it is built: a control character fails here
         loader = BoundedLoader(text)
     except yaml.YAMLError as e:
-        raise InputError(where, f"not valid YAML ({type(e).__name__}: {getattr(e, 'reason', '') or 'unreadable'})") from None
+        raise InputError(where, f"not valid YAML "
+                                f"({type(e).__name__}: {getattr(e, 'reason', '') or 'unreadable'})") from None
     try:
         node = loader.get_single_node()
         if node is None:

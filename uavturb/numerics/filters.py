@@ -3,8 +3,9 @@
 Why not ``scipy.signal``: its ``__init__`` imports ``scipy.stats``, the window functions, the LTI
 systems and ``scipy.interpolate``: 1.2 s of the 2.4 s that ``import uavturb.commands.gap`` took
 (``python -X importtime``, the 2-core development machine, scipy 1.17; 1.55 s without it and
-``scipy.stats``), paid by every command that smooths a stream, ``uavturb gap`` first. uavturb uses three of its functions; they are written here
-with what the commands load anyway (numpy, ``scipy.ndimage.convolve1d``, ``scipy.linalg.lstsq``).
+``scipy.stats``), paid by every command that smooths a stream, ``uavturb gap`` first. uavturb uses three of its
+functions; they are written here with what the commands load anyway (numpy, ``scipy.ndimage.convolve1d``,
+``scipy.linalg.lstsq``).
 
 - :func:`savgol_coeffs` and :func:`savgol_filter` compute what ``scipy.signal``'s functions of the
   same names compute, the same way (least-squares coefficients, a convolution, a polynomial fitted to

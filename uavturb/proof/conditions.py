@@ -249,5 +249,6 @@ def conditions_table(rows: list[dict]) -> str:
             named += f"; ground contact {'found' if found else 'not found'} ({len(contact['reported'])} intervals)"
         amb = "; ".join(" vs ".join(a["candidates"]) for a in r["ambiguous"]) or "—"
         sindy = ", ".join(sorted(r["sindy_named"])) or "—"
-        lines.append(f"| {r['condition']} | {truth} | {named} | {amb} | {r['verdict']} | {sindy}: {r['sindy_verdict']} |")
+        lines.append(f"| {r['condition']} | {truth} | {named} | {amb} | {r['verdict']} | "
+                     f"{sindy}: {r['sindy_verdict']} |")
     return "\n".join(lines)

@@ -94,8 +94,9 @@ class ModelConfig:
     beta: float | None = allowed(None, ge=0)   # m^2; both None: the training data's law (its k_T, mu, r), else
     #                                            the paper's quadrotor (ALPHA_PAPER, BETA_PAPER)
     loss_frames: str = allowed("all", choices=("all", "last"))  # frames of a window the height loss uses
-    loss: str = allowed("height", choices=("height", "law_weighted"))  # systems.height.LOSSES: the paper's height MSE, or ours
-    #                                     weighted by the law's slope at the true height (systems/height.py)
+    loss: str = allowed("height", choices=("height", "law_weighted"))  # systems.height.LOSSES: the paper's height
+    #                                     MSE, or ours weighted by the law's slope at the true height
+    #                                     (systems/height.py)
     law_weight_ref: float = allowed(1.0, **_POSITIVE)        # N/m, g_ref of loss=law_weighted
 
 

@@ -25,8 +25,8 @@ in tags and params are relative to the working folder where they lie under it
 :data:`KEY_TAG`) is reused rather than duplicated (:func:`find_run`, :func:`log_run`).
 
 This module is the one place that calls MLflow (Lightning's ``MLFlowLogger`` logs training
-metrics into the run :func:`uavturb.runs.train.train` opens with :func:`start_run`): runs and their tags, the one lookup of a
-run's checkpoint (:func:`run_checkpoint`), searches that page (:func:`search_runs`), one
+metrics into the run :func:`uavturb.runs.train.train` opens with :func:`start_run`): runs and their tags, the one
+lookup of a run's checkpoint (:func:`run_checkpoint`), searches that page (:func:`search_runs`), one
 find-or-create helper (:func:`log_run`) every command uses, one way to close a run
 (:func:`close_run`, :func:`closing_run`), and one table of metric names and units
 (:data:`METRICS`). The file locks it takes live in a cache folder, never in the working

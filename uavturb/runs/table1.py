@@ -93,7 +93,8 @@ HEADER = ("Pre-training", "Model", "Seeds", "RMSE(d) [m]", "RMSE(f_a) [1e-4 N]",
 
 
 def _cells(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
-    fa = [{k: (None if r[k] is None else r[k] * store.FA_SCALE) for k in ("rmse_fa_mean", "rmse_fa_std", "paper_rmse_fa")}
+    fa = [{k: (None if r[k] is None else r[k] * store.FA_SCALE)
+           for k in ("rmse_fa_mean", "rmse_fa_std", "paper_rmse_fa")}
           for r in rows]
     d_places = decimals([r["rmse_d_mean"] for r in rows])
     fa_places = decimals([f["rmse_fa_mean"] for f in fa])
@@ -178,12 +179,13 @@ def compare(experiment: str | None = None, parent_run_id: str | None = None, out
     runs = [r for r in runs if "ablation" in r.data.tags]
     rows = table_rows(runs, list(sp.rows))
     if not rows:
-        raise InputError("--mlflow-experiment", f"no finished ablation run with {', '.join(store.TABLE1_METRICS)} in experiment "
-                         f"{experiment!r}" + (f", sweep {parent_run_id}" if parent_run_id else ""))
+        raise InputError("--mlflow-experiment", f"no finished ablation run with {', '.join(store.TABLE1_METRICS)} "
+                         f"in experiment {experiment!r}" + (f", sweep {parent_run_id}" if parent_run_id else ""))
     title = (f"Table 1: test scenes, mean ± std over seeds (experiment {experiment}"
              + (f", sweep {parent_run_id})" if parent_run_id else ")"))
     res: dict[str, Any] = {"rows": rows, "table": format_text(rows, title),
-                           "markdown_text": format_markdown(rows, title), "csv_text": format_csv(rows), "markdown": None, "csv": None,
+                           "markdown_text": format_markdown(rows, title), "csv_text": format_csv(rows),
+                           "markdown": None, "csv": None,
                            "parent_run_id": parent_run_id, "experiment": experiment}
     if out is not None:
         out = Path(out)

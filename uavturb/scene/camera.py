@@ -259,7 +259,8 @@ class CameraModel:
         """The camera as JSON-ready plain values (a model's hyperparameter ``camera``, its MLflow
         run's tag ``camera``); :func:`camera_from_record` reads it back."""
         return {"name": self.name, "width": int(self.width), "height": int(self.height),
-                "K": [[float(x) for x in row] for row in self.K], "T_BC": [[float(x) for x in row] for row in self.T_BC],
+                "K": [[float(x) for x in row] for row in self.K],
+                "T_BC": [[float(x) for x in row] for row in self.T_BC],
                 "frame_dt": None if self.frame_dt is None else float(self.frame_dt), "source": self.source}
 
 

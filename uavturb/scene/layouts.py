@@ -109,9 +109,9 @@ def box_room(size: tuple[float, float], ceiling: float, boxes: Sequence[Sequence
                  box_owner=np.r_[np.full(6, -1), np.arange(len(furniture))].astype(np.int64))
 
 
-def table_room(size: tuple[float, float] = (8.0, 6.0), ceiling: float = 2.6, table_center: tuple[float, float] = (1.8, 0.9),
-               table_size: tuple[float, float] = (1.2, 0.8), table_height: float = 0.75,
-               furniture: Sequence[FloorBox] = ()) -> Scene:
+def table_room(size: tuple[float, float] = (8.0, 6.0), ceiling: float = 2.6,
+               table_center: tuple[float, float] = (1.8, 0.9), table_size: tuple[float, float] = (1.2, 0.8),
+               table_height: float = 0.75, furniture: Sequence[FloorBox] = ()) -> Scene:
     """A room with one table (its first furniture, kind ``'table'``) and further ``furniture`` boxes
     (kind ``'box'``), each ``(x_min, x_max, y_min, y_max, height)`` [m].
 

@@ -270,7 +270,8 @@ def split_scenes(
     if any(int(s) != s or s < 0 for s in sizes):
         raise InputError("split_scenes", f"sizes must be non-negative integers, got {sizes}")
     if n_train + n_val + n_test != n_scenes:
-        raise InputError("split_scenes", f"n_train + n_val + n_test = {n_train + n_val + n_test} != n_scenes = {n_scenes}")
+        raise InputError("split_scenes",
+                         f"n_train + n_val + n_test = {n_train + n_val + n_test} != n_scenes = {n_scenes}")
     perm = np.random.default_rng(seed).permutation(n_scenes)
     return {
         "train": sorted(int(k) for k in perm[:n_train]),

@@ -258,7 +258,8 @@ class SceneRenderer:
             col = np.clip(base * shade[:, None], 0, 1)
             colours = np.repeat(np.c_[col, np.ones(len(col))], 3, axis=0).astype(np.float32)
             material = pyrender.MetallicRoughnessMaterial(baseColorFactor=[1.0, 1.0, 1.0, 1.0], doubleSided=False)
-            self._rgb_mesh = pyrender.Mesh([pyrender.Primitive(positions=tris, color_0=colours, material=material, mode=4)])
+            self._rgb_mesh = pyrender.Mesh([pyrender.Primitive(positions=tris, color_0=colours, material=material,
+                                                               mode=4)])
             self._rgb_mesh.is_visible = False
             self._scene.add(self._rgb_mesh)
         if K is None:

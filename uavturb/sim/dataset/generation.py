@@ -241,7 +241,8 @@ def _run_jobs(jobs: list, workers: int, out: str, chash: str, done: Callable[[di
 
 
 def _ray_work(job: tuple[Task, SimPreset, int, str, str], chash: str) -> dict[str, Any]:
-    """:func:`uavturb.sim.dataset.trajectory_arrays.work` as a Ray task (a worker process is reused: its renderers too)."""
+    """:func:`uavturb.sim.dataset.trajectory_arrays.work` as a Ray task (a worker process is reused: its renderers
+    too)."""
     init_worker(job[4], chash)
     return work(job)
 

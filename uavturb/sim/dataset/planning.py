@@ -7,9 +7,9 @@ crosses a wall, and follows straight lines between them with the yaw facing forw
 an MPC flies the drone along this reference and collisions are checked. This module
 does the same on a :class:`~uavturb.scene.indoor.Scene`:
 
-1. **Navigation map** (:class:`~uavturb.sim.dataset.navigation.NavGrid`, :func:`build_grid`): :meth:`Scene.free_space_grid` at a cruise
-   height ``z_c`` (drawn per trajectory) with a clearance margin and a height band, plus
-   the height of the surface below every cell (:func:`~uavturb.scene.queries.height_below`
+1. **Navigation map** (:class:`~uavturb.sim.dataset.navigation.NavGrid`, :func:`build_grid`):
+   :meth:`Scene.free_space_grid` at a cruise height ``z_c`` (drawn per trajectory) with a clearance margin and a
+   height band, plus the height of the surface below every cell (:func:`~uavturb.scene.queries.height_below`
    from ``z_c``). A cell is *flat* when that surface is level within ``flat_tol`` over a
    window of ``±flat_radius`` around it: the vehicle can then go straight down there to a
    floor cell (surface at floor level) or a *top* cell (furniture top, bed, sofa seat...).
@@ -20,8 +20,8 @@ does the same on a :class:`~uavturb.scene.indoor.Scene`:
    (8-connected Dijkstra on the free cells), then cut into an open path at the start.
 4. **Legs**: a straight line when its grid cells are free, else the A* grid path
    (:func:`~uavturb.sim.dataset.navigation.astar`, octile heuristic) simplified to its corner points
-   (line-of-sight string pulling, :func:`~uavturb.sim.dataset.navigation.simplify_path`). Straight segments at cruise height, stop and go
-   (each segment starts and ends at rest, :class:`~uavturb.sim.core.signals.Waypoints`),
+   (line-of-sight string pulling, :func:`~uavturb.sim.dataset.navigation.simplify_path`). Straight segments at
+   cruise height, stop and go (each segment starts and ends at rest, :class:`~uavturb.sim.core.signals.Waypoints`),
    the yaw turned in place at every corner to face the next segment.
 5. **Altitude profile** (where ground effect matters): take-off from rest on the floor,
    low hovers and landings at floor and top points (heights drawn log-uniformly in

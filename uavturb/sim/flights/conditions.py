@@ -406,8 +406,9 @@ def _frames(rec: Recording, truth: Any, cond: Conditions, doc: dict[str, Any], e
     T_BS = EUROC_T_BS if cond.sensor_frame == "euroc" else np.eye(4)
     if cond.sensor_frame == "euroc":
         rec = to_sensor_frame(rec, truth, T_BS)
-        doc["sensor_frame"] = {"name": "euroc", "T_BS": T_BS.tolist(), "lever_arm_m": float(np.linalg.norm(T_BS[:3, 3])),
-                               "x_S_from_up_deg": 20.0, "imu_at_hover_m_s2": (T_BS[:3, :3].T @ [0, 0, GRAVITY]).tolist()}
+        doc["sensor_frame"] = {"name": "euroc", "T_BS": T_BS.tolist(),
+                               "lever_arm_m": float(np.linalg.norm(T_BS[:3, 3])), "x_S_from_up_deg": 20.0,
+                               "imu_at_hover_m_s2": (T_BS[:3, :3].T @ [0, 0, GRAVITY]).tolist()}
     if cond.thrust_tilt_deg > 0:
         R_SB = tilt_rotation(cond.thrust_tilt_deg, cond.thrust_tilt_azimuth_deg)
         T_BS = np.eye(4)
@@ -522,11 +523,12 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
 
     Parameters
     ----------
-    vehicle : built-in vehicle (``hex``, ``quad``), ``vehicle.yaml`` path or Vehicle (the simulated, true vehicle; the shipped
-        ``firefly`` flies with RotorS's constants, :func:`uavturb.sim.flights.euroc_standin.flyable`)
+    vehicle : built-in vehicle (``hex``, ``quad``), ``vehicle.yaml`` path or Vehicle (the simulated, true vehicle; the
+        shipped ``firefly`` flies with RotorS's constants, :func:`uavturb.sim.flights.euroc_standin.flyable`)
     effects : ``"wind:f_x=0.5,rotor_drag"`` or the parsed dict (``effects.md``)
-    duration : s (with ground contact, longer where the plan's take-off and landing need it); kind : flight kind (:data:`uavturb.sim.flights.simulate.KINDS`; ``euroc_room`` adds EuRoC's
-        VI-sensor frame and cam0, :mod:`uavturb.sim.flights.euroc_standin`); seed : reference and noise
+    duration : s (with ground contact, longer where the plan's take-off and landing need it); kind : flight kind
+        (:data:`uavturb.sim.flights.simulate.KINDS`; ``euroc_room`` adds EuRoC's VI-sensor frame and cam0,
+        :mod:`uavturb.sim.flights.euroc_standin`); seed : reference and noise
     conditions : Conditions
     noise : SensorNoise (default realistic); ``accel_bias_walk`` sets its ``acc_random_walk``
     out : recording folder to write; overwrite : replace it
@@ -562,7 +564,8 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
     if stand_in:  # EuRoC's cam0, its T_BS relative to the recording's S
         out_c.recording = euroc_standin.with_cam0(out_c.recording)
         out_c.truth["stand_in"] = euroc_standin.truth_entry()
-    out_c.extras[TRUTH_FILE] = ("# what the simulator knows and the recording does not (uavturb.sim.flights.conditions)\n"
+    out_c.extras[TRUTH_FILE] = ("# what the simulator knows and the recording does not "
+                                "(uavturb.sim.flights.conditions)\n"
                                 + yaml.safe_dump(out_c.truth, sort_keys=False))
     if out is not None:
         write_recording(out_c.recording, out, overwrite=overwrite, extras=out_c.extras)

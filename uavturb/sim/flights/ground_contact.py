@@ -199,9 +199,10 @@ def with_ground_contact(rec: Recording, truth: Truth, seconds: float, *, vehicle
                                                f"{speed[1]:.2f} m/s at its end (give a longer --duration)")
     offset = float(truth.d_down[-1] - truth.d_down[0])
     if abs(offset) > MAX_LANDED_OFFSET:
-        raise InputError("--ground-contact-s", f"needs a flight that ends on its landing gear, at the rotor-plane height "
-                                               f"it started from ({truth.d_down[0]:.3f} m over the surface below); this "
-                                               f"one ends {100 * offset:+.1f} cm from it (give a longer --duration)")
+        raise InputError("--ground-contact-s", f"needs a flight that ends on its landing gear, at the rotor-plane "
+                                               f"height it started from ({truth.d_down[0]:.3f} m over the surface "
+                                               f"below); this one ends {100 * offset:+.1f} cm from it (give a longer "
+                                               f"--duration)")
     dt = float(truth.t[1] - truth.t[0])
     n = max(1, int(round(seconds / dt)))
     ramp = np.linspace(LIFT_FRACTION[0], LIFT_FRACTION[1], n)

@@ -198,8 +198,9 @@ def _table_point(rng: np.random.Generator, room: Scene, inset: float = 0.2) -> n
     return rng.uniform([x0 + inset, y0 + inset], [x1 - inset, y1 - inset])
 
 
-def _low_pass_maneuvers(router: TableRouter, rng: np.random.Generator, until: float, *, floor_heights: tuple[float, float],
-                        table_heights: tuple[float, float], pass_speed: float, hold: tuple[float, float]) -> None:
+def _low_pass_maneuvers(router: TableRouter, rng: np.random.Generator, until: float, *,
+                        floor_heights: tuple[float, float], table_heights: tuple[float, float], pass_speed: float,
+                        hold: tuple[float, float]) -> None:
     """Append random low hovers (floor, table top) and table-edge passes until ``until`` [s]."""
     plan, room = router.plan, router.room
     top = _table(room).surface
@@ -354,7 +355,8 @@ def mixed(duration: float = 60.0, seed: int = 0, *, room: Scene = TABLE_ROOM, re
     rng = np.random.default_rng([int(seed), 3])
     c = np.asarray(center, float)
     start = _floor_point(rng, room)
-    a = WaypointPlan(np.array([start[0], start[1], rest_height]), float(rng.uniform(-np.pi, np.pi)), yaw_acc=max_yaw_acc)
+    a = WaypointPlan(np.array([start[0], start[1], rest_height]), float(rng.uniform(-np.pi, np.pi)),
+                     yaw_acc=max_yaw_acc)
     _takeoff(a, rng, floor_heights)
     TableRouter(a, room).go(c)
     _heading_steps(a, rng, c, n=4 if duration >= 90 else 3)

@@ -144,7 +144,8 @@ def surface_index(points: np.ndarray | None = None, room: Scene = TABLE_ROOM, sp
 
 def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float | None = None,
                     effects: dict[str, dict[str, float]] | None = None, points: np.ndarray | None = None,
-                    surfaces: Any = None, room: Scene = TABLE_ROOM, physics_dt: float = 0.001, control_dt: float = 0.005,
+                    surfaces: Any = None, room: Scene = TABLE_ROOM, physics_dt: float = 0.001,
+                    control_dt: float = 0.005,
                     record_dt: float = 0.005, noise: SensorNoise = SensorNoise(), seed: int = 0,
                     gains: ControllerGains = ControllerGains(), feedforward: bool = False, settle: bool = True,
                     t0_ns: int = EUROC_T0_NS, wind: np.ndarray | None = None) -> tuple[Recording, Truth]:
