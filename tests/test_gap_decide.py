@@ -43,8 +43,8 @@ def _data(yaw: np.ndarray, *, d_down: float | np.ndarray = np.inf, imu: bool = T
     y += rng.normal(0, 0.04, y.shape)
     d = np.broadcast_to(np.asarray(d_down, float), (K,)).copy()
     return GapData(np.zeros(K, int), t, np.zeros((K, 3)), y, R, w, rng.normal(0, 0.3, (K, 3)), d,
-                   np.broadcast_to(np.asarray(d_up, float), (K,)).copy(), mass, 0.1, ["synthetic"], "imu" if imu else "mocap",
-                   imu=np.full(K, imu), fits_bias=imu)
+                   np.broadcast_to(np.asarray(d_up, float), (K,)).copy(), mass, 0.1, ["synthetic"],
+                   "imu" if imu else "mocap", imu=np.full(K, imu), fits_bias=imu)
 
 
 def test_collinearity_known_answers():
@@ -110,8 +110,8 @@ def _through_the_floor(under_rows: int, depth: float, over_floor: bool = True) -
 
 def test_a_height_through_the_floor_tests_no_surface_effect():
     broken = floor_crossing(_through_the_floor(200, 0.42))
-    assert broken.startswith("synthetic: in flight the rotor plane is up to 0.42 m under the surface above it (200 rows "
-                             "between 28.0 and 30.0 s)")
+    assert broken.startswith("synthetic: in flight the rotor plane is up to 0.42 m under the surface above it "
+                             "(200 rows between 28.0 and 30.0 s)")
     reach = surface_reach(_through_the_floor(200, 0.42), "ground_effect")
     assert not reach.testable and reach.heights_broken == broken and "cannot be trusted" in reach.why()
     assert "dist_bottom" in reach.to_separate()

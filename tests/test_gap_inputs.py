@@ -147,7 +147,8 @@ def _scaled_columns(columns, factor):
      "imu0/data.csv: the accelerometer reads 0.102 times the specific force the motion capture shows in flight, "
      "in the same directions: it must be in m/s^2 (not g)"),
     ("imu0", _scaled_columns({1, 2, 3}, 180 / np.pi),
-     "the rate the motion capture's attitude turns at (0.25 s means in flight, body frame): it must be in rad/s, not deg/s"),
+     "the rate the motion capture's attitude turns at (0.25 s means in flight, body frame): it must be in rad/s, "
+     "not deg/s"),
     ("state_groundtruth_estimate0",  # quaternions written x, y, z, w
      lambda i, l: ",".join(l.split(",")[:4] + l.split(",")[5:8] + [l.split(",")[4]] + l.split(",")[8:]),
      "quaternions must be w, x, y, z and rotate S into the world"),
@@ -175,7 +176,8 @@ def test_an_imu_on_another_clock_is_refused(tmp_path, capsys, good, seconds, sai
     5 s either way."""
     rec = _copy(good, tmp_path)
     _rewrite_csv(rec / "mav0" / "imu0" / "data.csv", _shifted_stamps(seconds))
-    line = _gap_fails(tmp_path, capsys, [rec], match="imu0/data.csv: its specific force matches the motion capture's best ")
+    line = _gap_fails(tmp_path, capsys, [rec], match="imu0/data.csv: its specific force matches the motion capture's "
+                                                     "best ")
     assert re.search(f"best {said} ", line) and line.endswith("it must be stamped on the ground truth's clock")
 
 
@@ -187,8 +189,8 @@ def test_rotor_speeds_on_another_clock_are_refused(tmp_path, capsys, good, secon
     1 s late had passed (the search stopped at 0.6 s): a 0.5 N residual beside a report naming the right wind."""
     rec = _copy(good, tmp_path)
     _rewrite_csv(rec / "mav0" / "rotors0" / "data.csv", _shifted_stamps(seconds))
-    line = _gap_fails(tmp_path, capsys, [rec], match="rotors0/data.csv: its vertical thrust matches the motion capture's "
-                                                      "best ")
+    line = _gap_fails(tmp_path, capsys, [rec], match="rotors0/data.csv: its vertical thrust matches the motion "
+                                                     "capture's best ")
     assert re.search(f"best {said} ", line), line
 
 
@@ -207,7 +209,8 @@ def test_a_landed_flight_with_its_cloud_passes(tmp_path, landed):
 
 @pytest.mark.parametrize("move, said", [
     (lambda p: p + [0.0, 0.0, 0.5] * (p[:, 2:3] < 0.05), "puts no surface under its rotor plane there"),
-    (lambda p: p - [0.0, 0.0, 0.5] * (p[:, 2:3] < 0.05), "m over the surface below it there (a landing gear is at most 0.5 m)"),
+    (lambda p: p - [0.0, 0.0, 0.5] * (p[:, 2:3] < 0.05),
+     "m over the surface below it there (a landing gear is at most 0.5 m)"),
     (lambda p: p * 1000.0, "puts no surface under its rotor plane there"),
 ])
 def test_a_point_cloud_whose_floor_is_not_under_the_landed_vehicle_is_refused(tmp_path, capsys, landed, move, said):
@@ -226,7 +229,8 @@ def test_one_recording_given_twice_is_refused(tmp_path, capsys, good):
     """The same folder twice (once through a link) would count as two agreeing sessions."""
     rec = _copy(good, tmp_path)
     (tmp_path / "again").symlink_to(rec)
-    _gap_fails(tmp_path, capsys, [rec, tmp_path / "again"], match=f"{tmp_path / 'again'}: is given twice (also as {rec})")
+    _gap_fails(tmp_path, capsys, [rec, tmp_path / "again"],
+               match=f"{tmp_path / 'again'}: is given twice (also as {rec})")
 
 
 def test_nan_in_imu(tmp_path, capsys, good):
@@ -334,7 +338,8 @@ def test_an_output_that_would_replace_or_enter_an_input_is_refused(tmp_path, cap
         (rec / "report", [], f"lies inside an input of this command ({rec})"),
         (tmp_path / "report", ["--apply", str(tmp_path / "report" / "physics.yaml")],
          "physics.yaml: lies inside --out"),
-        (tmp_path / "report", ["--apply", str(rec / "vehicle.yaml")], "vehicle.yaml: lies inside an input of this command"),
+        (tmp_path / "report", ["--apply", str(rec / "vehicle.yaml")],
+         "vehicle.yaml: lies inside an input of this command"),
     ]:
         code = main(["gap", str(rec), "--out", str(out), "--overwrite", "--sim-effects", "none", "--no-mlflow", *extra])
         err = capsys.readouterr().err
@@ -349,7 +354,8 @@ def test_an_output_that_would_replace_or_enter_an_input_is_refused(tmp_path, cap
 def test_values_no_flight_holds_are_named_by_line_and_column(tmp_path, capsys, good):
     rec = _copy(good, tmp_path)
     state = rec / "mav0" / "state_groundtruth_estimate0" / "data.csv"
-    _rewrite_csv(state, lambda i, l: l if i != 100 else ",".join(c if j != 8 else "1e300" for j, c in enumerate(l.split(","))))
+    _rewrite_csv(state,
+                 lambda i, l: l if i != 100 else ",".join(c if j != 8 else "1e300" for j, c in enumerate(l.split(","))))
     _gap_fails(tmp_path, capsys, [rec], match="data.csv: line 102, column 9: 1e+300 m/s, beyond the 1e+03 m/s of any "
                                               "multirotor's flight (1 value over it)")
     rec = _copy(good, tmp_path, "rec2")

@@ -162,7 +162,8 @@ def test_speed_offset_is_read_far_from_surfaces():
     # an offset must matter as well as stand out: 0.25 % of the hover speed at z 5.6 (an hour of the
     # simulator's own flights) does not count, 3 % at z 3 does, 3 % at z 1.5 does not
     assert not SpeedOffset(1.36, 0.24, 535.0, 60_000, 120, 0.9994).counts
-    assert SpeedOffset(16.0, 5.3, 535.0, 60_000, 120, 0.99).counts and not SpeedOffset(16.0, 10.7, 535.0, 1, 1, 1).counts
+    assert (SpeedOffset(16.0, 5.3, 535.0, 60_000, 120, 0.99).counts
+            and not SpeedOffset(16.0, 10.7, 535.0, 1, 1, 1).counts)
 
 
 def test_offset_cells_hold_one_recording_at_one_height():
@@ -216,7 +217,8 @@ def test_a_law_named_from_the_curve_carries_the_thrust_map_term_too():
     moved = data.with_speed_offset(found.delta)
     _, _, moved_fits = finder_surface_curve(moved, fit_model(moved, {"ground_effect"}), resample=False)
     assert moved_fits["ground_effect"].params["mu"] == pytest.approx(2.0, rel=0.05) and abs(mu - 2.0) > 0.2
-    assert out["error_budget"]["mu"]["thrust_map"] == pytest.approx(abs(moved_fits["ground_effect"].params["mu"] - mu) / 2)
+    assert (out["error_budget"]["mu"]["thrust_map"]
+            == pytest.approx(abs(moved_fits["ground_effect"].params["mu"] - mu) / 2))
     assert out["error_budget"]["mu"]["limited_by"] == "thrust_map" and abs(mu - 2.0) <= 2.1 * out["stderr"]["mu"]
     assert curve_named_thrust_map([copy.deepcopy(entry)], data, final, speed_map | {"counts": False}) == [entry]
 
@@ -367,4 +369,5 @@ def test_command_sampling_term_is_a_quarter_of_the_slowest_hold_period():
     assert np.isnan(command_sampling_term([])["tau"]) and np.isnan(command_sampling_term([0.0, np.nan])["tau"])
     budget = {"tau": {"sample": 1e-4, "stderr": 1e-4, "limited_by": "sample"}}
     out = with_systematic(budget, "command_sampling", command_sampling_term([0.01]))
-    assert out["tau"]["stderr"] == pytest.approx(np.hypot(1e-4, 0.0025)) and out["tau"]["limited_by"] == "command_sampling"
+    assert (out["tau"]["stderr"] == pytest.approx(np.hypot(1e-4, 0.0025))
+            and out["tau"]["limited_by"] == "command_sampling")

@@ -31,7 +31,8 @@ def _flights(root, name, conditions, seeds=(11, 12), duration=40.0):
 
 
 def test_contact_at_both_ends_is_left_out_and_the_ground_effect_named(tmp_path):
-    paths = _flights(tmp_path, "contact", Conditions(ground_contact_s=3.0), seeds=(1700, 1701), duration=60.0)  # the proof row's flights, which land at their end
+    # the proof row's flights, which land at their end
+    paths = _flights(tmp_path, "contact", Conditions(ground_contact_s=3.0), seeds=(1700, 1701), duration=60.0)
     report, _ = analyse(load_recordings(paths), {})
     named = {e["name"]: e for e in report["effects"]}
     assert list(named) == ["ground_effect"]
@@ -123,7 +124,8 @@ def test_an_exponential_ground_law_under_a_px4_logs_troubles(tmp_path):
     named = {e["name"]: e for e in report["effects"]}
     assert list(named) == ["ground_effect_exponential"]
     for key, value in truth["ground_effect_exponential"].items():
-        fitted, se = named["ground_effect_exponential"]["params"][key], named["ground_effect_exponential"]["stderr"][key]
+        fitted, se = (named["ground_effect_exponential"]["params"][key],
+                      named["ground_effect_exponential"]["stderr"][key])
         assert fitted == pytest.approx(value, rel=0.15) and abs(fitted - value) < 2 * se, (key, fitted, se)
     assert report["surface_curve"]["law_fits"] and len(report["ground_contact"]) >= 4
 

@@ -109,12 +109,14 @@ def test_the_surface_curve_says_where_heights_are_measured_from(tmp_path):
               "sim_effect_params": {}, "surface_curve": curve, "height_reference": height_reference(-0.025, 0.01, True)}
     write_markdown(tmp_path, report, [])
     text = (tmp_path / "report.md").read_text()
-    assert "by the rotor plane's height (rotor_plane_z: 2.5 cm below the body origin, +-1 cm in every stated error)" in text
+    assert ("by the rotor plane's height (rotor_plane_z: 2.5 cm below the body origin, "
+            "+-1 cm in every stated error)" in text)
     assert "Height reference" not in text
     report["height_reference"] = height_reference(0.0, 0.01, True)
     write_markdown(tmp_path, report, [])
     text = (tmp_path / "report.md").read_text()
-    assert "(rotor_plane_z: the body origin, +-1 cm" in text and "**Height reference**: vehicle.yaml's rotor_plane_z" in text
+    assert ("(rotor_plane_z: the body origin, +-1 cm" in text
+            and "**Height reference**: vehicle.yaml's rotor_plane_z" in text)
     # no curve: where the finder says why, the report does; where it says nothing, no section
     report.update(surface_curve=None, surface_curve_missing="recording f0 left out: it hovered above 1.270 m "
                                                             "(far from the surface) in only 3 samples (needs 30)")

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from flight_logs import ESC_REPORT, Topic, px4_topics, same_attitudes, write_csv_log, write_map, write_px4_log, write_ulog
+from flight_logs import (ESC_REPORT, Topic, px4_topics, same_attitudes, write_csv_log, write_map, write_px4_log,
+                         write_ulog)
 
 from uavturb.cli import main
 from uavturb.errors import InputError
@@ -36,7 +37,8 @@ def _from_boot(rec, t0_ns=10_000_000_000):
     gt = rec.ground_truth
     zeros = np.zeros_like(gt.p)
     return replace(rec, ground_truth=replace(gt, t_ns=gt.t_ns - shift, b_w=zeros, b_a=zeros.copy()),
-                   imu=replace(rec.imu, t_ns=rec.imu.t_ns - shift), rotors=replace(rec.rotors, t_ns=rec.rotors.t_ns - shift))
+                   imu=replace(rec.imu, t_ns=rec.imu.t_ns - shift),
+                   rotors=replace(rec.rotors, t_ns=rec.rotors.t_ns - shift))
 
 
 @pytest.fixture(scope="module")
@@ -252,7 +254,8 @@ def test_ulog_round_trip_esc_rpm_motor_order_and_dropouts(tmp_path, flight):
     assert got["thrust_coefficient"] == pytest.approx(ref["thrust_coefficient"], rel=1e-3)  # rpm in whole rpm
     assert got["n_samples"] == ref["n_samples"]
     # inertia from differences of rotor speeds: whole rpm and float32 attitudes move it within its error
-    ok = np.isnan(ref["inertia"]) | (np.abs(np.subtract(got["inertia"], ref["inertia"])) < np.array(ref["inertia_stderr"]))
+    ok = np.isnan(ref["inertia"]) | (np.abs(np.subtract(got["inertia"], ref["inertia"]))
+                                     < np.array(ref["inertia_stderr"]))
     assert np.all(ok), (got["inertia"], ref["inertia"], ref["inertia_stderr"])
 
 
@@ -547,7 +550,8 @@ NS_HEADER = ("# time[ms],x[m],y[m],z[m],vx[m/s],vy[m/s],vz[m/s],ax[m/s^2],ay[m/s
 
 
 def _pwm_for_thrust(f_g, vbat, C):
-    """The PWM (/ 65536) whose thrust [g] the map C00..C11 gives: the root of C20 p^2 + (C10 + C11 v) p + ... in [0, 1]."""
+    """The PWM (/ 65536) whose thrust [g] the map C00..C11 gives: the root of C20 p^2 + (C10 + C11 v) p + ...
+    in [0, 1]."""
     v = vbat / 4.2
     a, b, c = C[3], C[1] + C[4] * v, C[0] + C[2] * v - f_g
     return (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)

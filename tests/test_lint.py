@@ -1,5 +1,6 @@
 """Errors a merge or a rename leaves behind (ruff's pyflakes rules, pyproject.toml [tool.ruff]):
-undefined names, unused imports, redefinitions, syntax errors; shown to fail on one."""
+undefined names, unused imports, redefinitions, syntax errors; shown to fail on one. Lines over
+line-length (E501) fail too."""
 
 from __future__ import annotations
 

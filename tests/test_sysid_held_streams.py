@@ -122,7 +122,8 @@ def test_rotor_speeds_reported_one_esc_at_a_time_are_read_column_by_column():
     s = stream_updates("rotors0", stag.rotors.t_ns, stag.rotors.speeds)
     assert s.staggered and s.update_rate_hz == pytest.approx(200 / every, rel=0.02)
     assert s.any_column_rate_hz == pytest.approx(6 * 200 / every, rel=0.02)
-    assert s.describe().startswith(f"rotors0: {len(rec.rotors.t_ns)} rows at 200 Hz, each column updating on its own at 3.3 Hz, staggered")
+    assert s.describe().startswith(f"rotors0: {len(rec.rotors.t_ns)} rows at 200 Hz, each column updating on its own "
+                                   "at 3.3 Hz, staggered")
     _, rotors = held_updates(stag)
     assert len(rotors.t_ns) == pytest.approx(6 * len(rec.rotors.t_ns) / every, abs=7)
     S_true = np.interp(rotors.t_ns * 1e-9, truth.t + rec.t0_ns * 1e-9, np.sum(truth.rotor_speeds**2, axis=1))

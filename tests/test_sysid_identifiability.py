@@ -130,7 +130,8 @@ def test_physical_bounds():
     # no result either (it had been printed as one, +- 28 %)
     est, se = _est(theta_1=8.07e-7, J_x=0.215 * 8.56e-6 / 8.07e-7)
     st = idf.assess(est, se, EXCITED, {}, has_imu=True, **GEOMETRY)
-    assert st["theta_1"].reason == "physically impossible" and "J_x = l k_T / theta_1 at 2.28 kg m^2" in st["theta_1"].why
+    assert (st["theta_1"].reason == "physically impossible"
+            and "J_x = l k_T / theta_1 at 2.28 kg m^2" in st["theta_1"].why)
 
 
 def test_collinear_columns_are_ill_conditioned():

@@ -143,8 +143,8 @@ def floor_crossing(data: GapData) -> str | None:
     In flight the rotor plane cannot be under the surface it flies over: where a recording has rows over a
     surface (``d_down`` finite) and ``UNDER_SURFACE_ROWS`` rows or more where nothing is below the rotor
     plane and a surface is over ``UNDER_SURFACE_M`` above it (the bounds :mod:`uavturb.sysid.flight_data` puts
-    on a ``rotor_plane_z`` that dips into the floor: a scan's noise, one bad row), the recording's height passes through its
-    floor: a position that drifts in height (a barometer, an estimator without motion capture: a PX4 log's
+    on a ``rotor_plane_z`` that dips into the floor: a scan's noise, one bad row), the recording's height passes
+    through its floor: a position that drifts in height (a barometer, an estimator without motion capture: a PX4 log's
     local position 0.42 m under its take-off floor at touch-down) or a wrong floor height. A recording never
     over any surface (a scan of a ceiling alone) shows nothing here.
     """

@@ -3,11 +3,11 @@
 For each sample the measured total force on the vehicle in W is ``y = m R a_imu`` (IMU; the
 state file's biases removed) or ``y = m (v_dot + g e_z)`` (MoCap). The model is::
 
-    y = k_T S_eff (R e_z (1 - s t) + e_z (G(mu, d_down) + G(kappa, d_up)))     thrust, surface effects, battery
-        + m R b                                                             accelerometer bias left (body; IMU rows only)
-        - k_d Wsum R [v_B,x, v_B,y, 0]                                      rotor_drag
-        - c_d |v| v                                                         body_drag
-        + (f_x, f_y, 0)                                                     wind
+    y = k_T S_eff (R e_z (1 - s t) + e_z (G(mu, d_down) + G(kappa, d_up)))    thrust, surface effects, battery
+        + m R b                                                            accelerometer bias left (body; IMU rows only)
+        - k_d Wsum R [v_B,x, v_B,y, 0]                                     rotor_drag
+        - c_d |v| v                                                        body_drag
+        + (f_x, f_y, 0)                                                    wind
 
 with ``S_eff = sum(w_lag(tau)^2)`` (``motor_lag``; ``w_lag = w`` when absent) and
 ``G(c, d) = rho/(1-rho)``, ``rho = c (r/(4 d))^2`` (``effects.md``, clipped like the paper's
@@ -239,9 +239,9 @@ class GapData:
         else:
             members = mask[self.block_of]
             rows, block_of = self.rows[members], (np.cumsum(mask) - 1)[self.block_of[members]]
-        return GapData(self.group[mask], self.t[mask], self.p[mask], self.y[mask], self.R[mask], self.rotor_speeds[mask],
-                       self.v[mask], self.d_down[mask], self.d_up[mask], self.mass, self.rotor_radius,
-                       self.names, self.source,
+        return GapData(self.group[mask], self.t[mask], self.p[mask], self.y[mask], self.R[mask],
+                       self.rotor_speeds[mask], self.v[mask], self.d_down[mask], self.d_up[mask], self.mass,
+                       self.rotor_radius, self.names, self.source,
                        None if self.imu is None else self.imu[mask], self.fits_bias,
                        None if self.level is None else self.level[mask],
                        self if self.contiguous is None else self.contiguous, rows, block_of, self.anchored,

@@ -150,7 +150,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("aligning the streams")
     recordings, fds, held = prepared(recordings, paths)
     data, contact_report = _flight_rows(fds, vehicle, paths)
-    del fds  # emptied as the rows were built; what they keep lives on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
+    # emptied as the rows were built; what they keep lives on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
+    del fds
     if len(data) < MIN_ROWS and data.dense is not None:
         where = f"{recordings[0].path or recordings[0].name}/mav0/rotors0/data.csv"
         raise InputError(where, f"only {len(data)} rotor-speed updates in flight (the stream updates at "
@@ -195,7 +196,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         for e in entry["per_recording"]:
             e["recording"] = paths[e["recording"]]
         _, rst, _ = locate.segments(data, rf - force, update_step_s=step)
-        entry["rms_beyond_tilt_N"] = float(np.sqrt(max(0.0, np.mean(np.sum(rst**2, axis=1)) - np.sum(sigma**2) / draws)))
+        entry["rms_beyond_tilt_N"] = float(np.sqrt(max(0.0,
+                                                       np.mean(np.sum(rst**2, axis=1)) - np.sum(sigma**2) / draws)))
         unexplained |= {"drivers": locate.drivers(data, rst), "thrust_axis_tilt": entry}
     progress("the surface curve")
     curve_report, curve, curve_fits = finder_surface_curve(data, final) if heights_broken is None else (None, None, {})
@@ -266,9 +268,10 @@ def _flight_rows(fds: list, vehicle: Any, paths: Sequence[str]) -> tuple[GapData
             if most < 0.3 * vehicle.mass * GRAVITY:
                 raise InputError(f"{path}/mav0/rotors0/data.csv",
                                  f"its rotor speeds never carry more than {100 * most / (vehicle.mass * GRAVITY):.2g} "
-                                 f"% of the weight with vehicle.yaml's thrust_coefficient {vehicle.thrust_coefficient:.4g}"
-                                 " N/(rad/s)^2: a flight that never took off, speeds in other units than rad/s (Hz, "
-                                 "rpm: rotor_speed_scale converts) or a thrust coefficient off")
+                                 f"% of the weight with vehicle.yaml's thrust_coefficient "
+                                 f"{vehicle.thrust_coefficient:.4g} N/(rad/s)^2: a flight that never took off, speeds "
+                                 "in other units than rad/s (Hz, rpm: rotor_speed_scale converts) or a thrust "
+                                 "coefficient off")
     contact, contact_report = contact_masks(fds, vehicle, paths)
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient, release=True,
                     arm_length=vehicle.arm_length, exclude=contact)

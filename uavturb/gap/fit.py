@@ -63,7 +63,8 @@ class ModelFit:
         two errors combined as if independent)."""
         kT, kx = self.coef["k_T"], self.coef[coef]
         x = kx / kT
-        se = abs(x) * np.hypot(self.stderr.get(coef, np.nan) / max(abs(kx), 1e-300), self.stderr.get("k_T", np.nan) / kT)
+        se = abs(x) * np.hypot(self.stderr.get(coef, np.nan) / max(abs(kx), 1e-300),
+                               self.stderr.get("k_T", np.nan) / kT)
         return x, se
 
     def _nl(self) -> dict[str, float]:
@@ -205,7 +206,8 @@ class Profile:
         return D
 
     def _key(self, values: dict[str, float]) -> tuple:
-        return (lag_key(values["tau"]) if "motor_lag" in self.effects else 0.0,) + tuple(values[p] for p in self._surface)
+        return ((lag_key(values["tau"]) if "motor_lag" in self.effects else 0.0,)
+                + tuple(values[p] for p in self._surface))
 
     def _sums_at(self, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per piece: ``D^T D``, ``D^T F``, ``D^T y`` of the dependent columns ``D`` at ``values``."""
@@ -246,7 +248,8 @@ class Profile:
         values = _nl_values(nl)
         c, sse = self._solved(values, use)
         n = int(self.n.sum() if use is None else self.n[use].sum())
-        return ModelFit(frozenset(self.effects), dict(nl), dict(zip(self.dependent_names + self.fixed_names, map(float, c))),
+        return ModelFit(frozenset(self.effects), dict(nl),
+                        dict(zip(self.dependent_names + self.fixed_names, map(float, c))),
                         {}, float(np.sqrt(sse / max(n, 1))))
 
 

@@ -209,8 +209,8 @@ def _check_cloud_under_rests(path: str, t: np.ndarray, d_down: np.ndarray, rests
     if np.mean(finite) >= 0.5 and float(np.median(h[finite])) <= CONTACT_LIMITS.gear_max_m:
         return
     where = ("puts no surface under its rotor plane there" if np.mean(finite) < 0.5 else
-             f"puts its rotor plane {float(np.median(h[finite])):.2f} m over the surface below it there (a landing gear "
-             f"is at most {CONTACT_LIMITS.gear_max_m:g} m)")
+             f"puts its rotor plane {float(np.median(h[finite])):.2f} m over the surface below it there (a landing "
+             f"gear is at most {CONTACT_LIMITS.gear_max_m:g} m)")
     first = t[np.flatnonzero(rests)[0]]
     raise InputError(f"{path}/mav0/pointcloud0/data.ply",
                      f"the vehicle rests on its landing gear ({float(np.sum(dt[rests])):.1f} s from {first:.1f} s: the "

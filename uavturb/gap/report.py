@@ -173,10 +173,11 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
     weight = report.get("facts", {}).get("weight_N")
     share = f", {100 * b['rmse_N'] / weight:.2g} % of the weight" if weight else ""
     L.append(f"**Held-out residual RMSE: {b['heldout_rmse_N']:.4f} N → {f['heldout_rmse_N']:.4f} N** "
-             f"(nominal model {b['rmse_N']:.4f} N on all data{share}; sensor noise floor {report['noise']['rms_N']:.4f} N).")
+             f"(nominal model {b['rmse_N']:.4f} N on all data{share}; sensor noise floor "
+             f"{report['noise']['rms_N']:.4f} N).")
     if weight and b["rmse_N"] > NOMINAL_MISS_SHARE * weight:
-        L.append(f"\n**The nominal model misses by {100 * b['rmse_N'] / weight:.0f} % of the weight** (real flights leave a "
-                 f"few percent): before reading any effect, check vehicle.yaml (mass, rotor order and spins, "
+        L.append(f"\n**The nominal model misses by {100 * b['rmse_N'] / weight:.0f} % of the weight** (real flights "
+                 f"leave a few percent): before reading any effect, check vehicle.yaml (mass, rotor order and spins, "
                  f"rotor_speed_scale), the rotor stream's units and rate (What the streams hold) and the rests on the "
                  f"ground (the rows shown in Where the mismatch is).")
     L.append("")
@@ -258,13 +259,15 @@ def _surface_curve_lines(curve: dict | None, height: dict | None = None, missing
     plane = ""
     if height:
         z = height["rotor_plane_z_m"]
-        where = "the body origin" if z == 0.0 else f"{100 * abs(z):.1f} cm {'above' if z > 0 else 'below'} the body origin"
+        where = ("the body origin" if z == 0.0
+                 else f"{100 * abs(z):.1f} cm {'above' if z > 0 else 'below'} the body origin")
         plane = f" (rotor_plane_z: {where}, +-{100 * height['uncertainty_m']:.0f} cm in every stated error)"
     L = ["", "## Measured surface curve",
          f"Thrust per rotor speed squared over its value far from the floor (above {curve['far_m']:.2f} m), by the "
-         f"rotor plane's height{plane}; law: `{curve['law']}` ({format_params(curve['params'], curve['stderr'])} fitted to the "
-         f"curve, chi^2/dof = {curve['chi2_dof']:.2f}). {'The law fits the curve' if curve['law_fits'] else 'The law does not fit the curve'}: "
-         f"{curve['why']}", "", "| rotor-plane height [m] | samples | measured ratio | ± | law |", "|---|---|---|---|---|"]
+         f"rotor plane's height{plane}; law: `{curve['law']}` ({format_params(curve['params'], curve['stderr'])} "
+         f"fitted to the curve, chi^2/dof = {curve['chi2_dof']:.2f}). "
+         f"{'The law fits the curve' if curve['law_fits'] else 'The law does not fit the curve'}: {curve['why']}",
+         "", "| rotor-plane height [m] | samples | measured ratio | ± | law |", "|---|---|---|---|---|"]
     for b in curve["bins"]:
         L.append(f"| {b['d_m']:.3f} | {b['n']} | {b['ratio']:.4f} | {b['stderr']:.4f} | {b['law']:.4f} |")
     for alt in curve.get("alternatives", []):

@@ -43,9 +43,10 @@ of evidence:
   radii (``surface_curve.lift_z``): the joint chance of both by accident is far below ``z = 4`` alone.
 - **A better law must fit better.** An alternative law (``EffectSpec.alternative_to``) replaces the
   standard one only where it beats it on the held-out data beyond noise *and* its shape fits the
-  measured curve better beyond noise (``chi2`` lower by :data:`SHAPE_DELTA_CHI2`): on real Crazyflies the multirotor law's long tail beat
-  Cheeseman-Bennett on held-out forces by trading with the thrust coefficient while the measured curve,
-  normalised far from the floor, fell off faster than either law and closer to Cheeseman-Bennett.
+  measured curve better beyond noise (``chi2`` lower by :data:`SHAPE_DELTA_CHI2`): on real Crazyflies the
+  multirotor law's long tail beat Cheeseman-Bennett on held-out forces by trading with the thrust coefficient
+  while the measured curve, normalised far from the floor, fell off faster than either law and closer to
+  Cheeseman-Bennett.
 """
 
 from __future__ import annotations

@@ -194,7 +194,8 @@ def _weighted_fit(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, se: 
     else:
         costs = [np.sum(resid(np.array([*p, *tail])) ** 2) for p in grid]
         z0 = np.array([*grid[int(np.argmin(costs))], *tail])
-    box = ([b[0] for b in bounds] + ([0.5] if free_level else []), [b[1] for b in bounds] + ([1.5] if free_level else []))
+    box = ([b[0] for b in bounds] + ([0.5] if free_level else []),
+           [b[1] for b in bounds] + ([1.5] if free_level else []))
     z0 = np.clip(z0, np.array(box[0]) + 1e-9, np.array(box[1]) - 1e-9)
     sol = least_squares(resid, z0, bounds=box, x_scale="jac")
     return sol.x, resid(sol.x), sol.jac
@@ -437,9 +438,9 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
     is kept under ``time_domain``. Among several laws that fit, the lowest ``chi2/dof``; only laws inside their physical
     range, whose lift stands :data:`~uavturb.gap.uncertainty.HONEST_Z` statistical errors from zero (as every
     named effect's), and that describe every bin within :data:`~uavturb.gap.surface_laws.AGREEMENT` (2 % of
-    thrust) and closer than the finder's law at its value: a ``chi2/dof`` under 3 alone lets a law miss a bin with a large error
-    by 8 % (a simulated Cheeseman-Bennett flight whose lowest bin read 1.19 for the law's 1.10). Called by the finder
-    (:mod:`uavturb.gap.finder`) on its named effects' entries (``effects``) and its ``surface_curve``."""
+    thrust) and closer than the finder's law at its value: a ``chi2/dof`` under 3 alone lets a law miss a bin with a
+    large error by 8 % (a simulated Cheeseman-Bennett flight whose lowest bin read 1.19 for the law's 1.10). Called by
+    the finder (:mod:`uavturb.gap.finder`) on its named effects' entries (``effects``) and its ``surface_curve``."""
     if curve_report is None or curve is None:
         return effects, curve_report
     _, ratio, _ = curve.columns()
@@ -466,9 +467,9 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
         out.append({
             "name": fit.law, "params": dict(fit.params), "stderr": honest_stderr(budget),
             "explanation": (f"{explanation(fit.law, fit.params, facts)} The finder found the effect in time with "
-                            f"{e['name']}, whose held-out gain this entry reports; that law's shape misses the measured "
-                            f"surface curve (chi^2/dof {own.chi2_dof:.1f}) where this one fits it ({fit.chi2_dof:.1f}), "
-                            f"so these values are this law's fit to the curve."),
+                            f"{e['name']}, whose held-out gain this entry reports; that law's shape misses the "
+                            f"measured surface curve (chi^2/dof {own.chi2_dof:.1f}) where this one fits it "
+                            f"({fit.chi2_dof:.1f}), so these values are this law's fit to the curve."),
             "heldout_rmse_before_N": e["heldout_rmse_before_N"], "heldout_rmse_after_N": e["heldout_rmse_after_N"],
             "z_heldout": e.get("z_heldout"), "error_budget": budget, "named_from": "surface_curve",
             "time_domain": {k: e[k] for k in ("name", "params", "stderr", "error_budget") if k in e},

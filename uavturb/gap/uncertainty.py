@@ -231,8 +231,8 @@ def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None 
                     ) -> tuple[SpeedOffset | None, dict[str, dict[str, float]]]:
     """The **thrust map** term: the recorded speeds' offset (None where too few rows are at least
     :data:`~uavturb.gap.nominal.OFFSET_RADII` rotor radii over the floor) and, where it counts
-    (:attr:`~uavturb.gap.nominal.SpeedOffset.counts`), ``{effect: {param: half the change}}`` of every effect of ``final`` between its refit on ``data`` and on ``data`` with the speeds moved by it
-    (``{}`` otherwise).
+    (:attr:`~uavturb.gap.nominal.SpeedOffset.counts`), ``{effect: {param: half the change}}`` of every effect of
+    ``final`` between its refit on ``data`` and on ``data`` with the speeds moved by it (``{}`` otherwise).
 
     ``data``: the rows ``final`` was fitted on (the simulator's own effects among its effects). The thrust
     the rotors make is the measured force along the body z axis less every other force of ``final`` (the motor

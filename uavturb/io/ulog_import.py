@@ -106,7 +106,8 @@ def _load(path: Path) -> _Log:
         # a time past int64 nanoseconds (a flipped bit in a corrupt file) would wrap round once in ns: left out
         keep = np.concatenate([[True], np.diff(t_us) > 0]) & (t_us > 0) & (t_us < _MAX_TIME_US)
         if (t_us >= _MAX_TIME_US).any():
-            log.notes.append(f"{int((t_us >= _MAX_TIME_US).sum())} {topic} rows with a time past the year 2262 left out")
+            log.notes.append(f"{int((t_us >= _MAX_TIME_US).sum())} {topic} rows with a time past the year 2262 "
+                             "left out")
         log.topics[topic] = (t_us[keep] * 1000, {k: np.asarray(v)[order][keep] for k, v in d.data.items()})
     if ulog.dropouts:
         total = sum(int(x.duration) for x in ulog.dropouts)
@@ -130,7 +131,8 @@ def _ground_truth(log: _Log, world: str, body: str, height: str = "local") -> Gr
     if height == "dist_bottom":
         xyz[:, 2], ranged = _dist_bottom(log)
         if (valid & ~ranged).sum():
-            log.left_out.append(f"{int((valid & ~ranged).sum())} vehicle_local_position rows without a valid dist_bottom")
+            log.left_out.append(f"{int((valid & ~ranged).sum())} vehicle_local_position rows without a valid "
+                                "dist_bottom")
         valid &= ranged
     t_q = log.topics["vehicle_attitude"][0]
     q = log.get("vehicle_attitude", "q[0]", "q[1]", "q[2]", "q[3]")  # w, x, y, z, FRD to NED

@@ -173,8 +173,8 @@ def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float,
     The recurrence runs vectorised (:func:`uavturb.numerics.filters.first_order_lag`) on each
     stretch between dropouts (steps over :data:`LAG_GAP` times the median step; the lag restarts
     from the command after one, as it has long settled). On a stretch whose steps are jittered by
-    less than :data:`LAG_JITTER` of their mean the filter uses the mean step: the error is of the order of the jitter times the lag's own
-    small effect. Stretches jittered more run the exact loop over time.
+    less than :data:`LAG_JITTER` of their mean the filter uses the mean step: the error is of the order of the
+    jitter times the lag's own small effect. Stretches jittered more run the exact loop over time.
     """
     w_cmd = np.asarray(w_cmd, float)
     if tau <= 0 or len(w_cmd) < 2:
@@ -524,8 +524,8 @@ def _explain_motor_lag(p: dict, f: FlightFacts) -> str:
 _SURFACE_RANGE_SOURCE = ("Cheeseman & Bennett 1955 give mu = 1 for one rotor; 1-3 fits most small "
                          "multirotors (effects.md), up to ~6 with rotor interaction (Sanchez-Cuevas et al. 2017)")
 
-_EXPONENTIAL_RANGE_SOURCE = ("the Cheeseman-Bennett law at the top of its range (mu = 12) adds 23 % at two rotor radii; "
-                             "small multirotors show 4-11 % a rotor radius or two above the floor (effects.md)")
+_EXPONENTIAL_RANGE_SOURCE = ("the Cheeseman-Bennett law at the top of its range (mu = 12) adds 23 % at two rotor "
+                             "radii; small multirotors show 4-11 % a rotor radius or two above the floor (effects.md)")
 
 #: rotor radii, the exponential law's decay length ``lam`` searched, in time (``search``) and on the curve (``bounds``)
 _DECAY_RADII = (0.2, 10.0)
@@ -672,7 +672,8 @@ def check_params(name: str, params: dict[str, float]) -> None:
     spec = get_spec(name)
     unknown = sorted(set(params) - set(spec.params))
     if unknown:
-        raise InputError(f"effects.{name}", f"unknown parameter(s) {', '.join(unknown)} (allowed: {', '.join(spec.params)})")
+        raise InputError(f"effects.{name}",
+                         f"unknown parameter(s) {', '.join(unknown)} (allowed: {', '.join(spec.params)})")
     missing = [p for p in spec.params if p not in params]
     if missing:
         raise InputError(f"effects.{name}", f"missing parameter(s) {', '.join(missing)}")

@@ -24,8 +24,8 @@ cover). Still and level with the rotors idling for a second or more (:attr:`Cont
 vehicle rests at whatever height it reads: a barometer's height drifts (a real PX4 log read its first rest 0.45 m
 over the lowest height of the recording), and no aerodynamic lift holds a still vehicle on idling rotors; shorter
 such stretches away from the landed height are a motor cut in the air (the commands drop at once, the rotors spin
-down by their lag, and the fall starts after it). A vehicle that skids or bounces along the floor is not still: rows within
-:attr:`ContactLimits.skim_m` of the landed height where the thrust dips under the weight are left
+down by their lag, and the fall starts after it). A vehicle that skids or bounces along the floor is not still:
+rows within :attr:`ContactLimits.skim_m` of the landed height where the thrust dips under the weight are left
 out too. Stillness is judged on the rows where
 the state updated (:func:`uavturb.numerics.stream_updates.update_mask`): held positions must not make a
 flying vehicle look still. Each contact interval is widened by a margin on either side so that
@@ -252,9 +252,10 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
             continue  # the rotors carry the weight, or a lift-off or touch-down its rest's margins cover
         out |= (rec.t >= rec.t[a] - lim.skim_margin_s) & (rec.t <= rec.t[b - 1] + lim.skim_margin_s)
         found.append((float(rec.t[a]), float(rec.t[b - 1]),
-                      f"skimming the floor: {name} down to {np.min(rec.h[a:b]):.3f} m, within {100 * lim.skim_m:.1f} cm "
-                      f"of the landed height {top - lim.skim_m:.3f} m, thrust down to {100 * np.min(ratio[a:b]):.0f} % "
-                      f"of the weight: the landing gear may touch (a skid or a bounce)"))
+                      f"skimming the floor: {name} down to {np.min(rec.h[a:b]):.3f} m, within "
+                      f"{100 * lim.skim_m:.1f} cm of the landed height {top - lim.skim_m:.3f} m, thrust down to "
+                      f"{100 * np.min(ratio[a:b]):.0f} % of the weight: the landing gear may touch "
+                      f"(a skid or a bounce)"))
     return out, [(float(rec.t[a]), float(rec.t[b - 1]), _joined_why(found, rec.t[a], rec.t[b - 1]))
                  for a, b in _runs(out)]
 
@@ -314,10 +315,11 @@ def _why(rec: _Recording, core: slice, h0: float, given: bool, rotor_plane: bool
     name = "rotor-plane height" if rotor_plane else "height"
     ref = (f"the landed height given, {h0:.3f} m" if given
            else f"within {100 * lim.height_tol_m:.1f} cm of the lowest the recording reached, {h0:.3f} m")
-    scaled = f" (thrust scaled by {scale:.2f} so that it carries the weight in the air)" if abs(scale - 1) > 0.02 else ""
+    scaled = (f" (thrust scaled by {scale:.2f} so that it carries the weight in the air)" if abs(scale - 1) > 0.02
+              else "")
     hover = ("" if hover_at is None else
-             f"; more than {100 * lim.skim_m:.1f} cm up it stayed under the {100 * hover_at:.0f} % that could hold a hover there "
-             f"in the strongest ground effect allowed")
+             f"; more than {100 * lim.skim_m:.1f} cm up it stayed under the {100 * hover_at:.0f} % that could hold a "
+             f"hover there in the strongest ground effect allowed")
     if idle_only:  # away from the landed height: the idling rotors alone tell it
         ref = (f"{np.min(h) - h0:.2f} m over the lowest the recording reached: the height drifts, but rotors idling "
                f"under {100 * lim.idle_ratio:.0f} % of the weight hold no still vehicle in the air")

@@ -265,8 +265,8 @@ def _check_rotor_plane_above_surfaces(rec: Recording, index: SurfaceIndex, p: np
     if len(under) < UNDER_SURFACE_ROWS:
         return
     where = f"{rec.path}/vehicle.yaml" if rec.path is not None else f"{rec.name}: vehicle.yaml"
-    raise InputError(where, f"rotor_plane_z {z_r:.3g} m puts the rotor plane up to {float(depth.max()):.2f} m under the "
-                            f"floor (or the surface below the body origin) in {len(under)} rows ({t[under[0]]:.1f}-"
+    raise InputError(where, f"rotor_plane_z {z_r:.3g} m puts the rotor plane up to {float(depth.max()):.2f} m under "
+                            f"the floor (or the surface below the body origin) in {len(under)} rows ({t[under[0]]:.1f}-"
                             f"{t[under[-1]]:.1f} s): it is the height of the rotor discs above the body origin along "
                             "z_B, negative below it; its sign may be wrong, or the point cloud's floor too high")
 

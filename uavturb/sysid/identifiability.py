@@ -303,8 +303,8 @@ class _Assessment:
                 _conditioning(f, est[theta], se[theta], self.conds, fits)
                 self._positive(f, theta, theta)
                 if np.isfinite(est[name]) and est[name] > self.j_max:  # what it says of the vehicle is impossible
-                    f.add(IMPOSSIBLE, f"it puts {name} = l k_T / {theta} at {est[name]:.3g} kg m^2, above m (l + r)^2 = "
-                                      f"{self.j_max:.3g} kg m^2 (rotor columns in another order than vehicle.yaml's "
+                    f.add(IMPOSSIBLE, f"it puts {name} = l k_T / {theta} at {est[name]:.3g} kg m^2, above m (l + r)^2 "
+                                      f"= {self.j_max:.3g} kg m^2 (rotor columns in another order than vehicle.yaml's "
                                       "angles?)")
                 self._decide(theta, f)
             f = _Findings()
