@@ -13,7 +13,14 @@ from uavturb.gap.fit import fit_model
 from uavturb.gap.selection import LIFT_Z, SHAPE_DELTA_CHI2, Z_WITH_CURVE, CurveEvidence, HeldOut, improvement_z
 from uavturb.gap.report import plot_surface_curve, surface_figure
 from uavturb.gap.surface_curve import lift_z, measured_curve
-from uavturb.gap.surface_laws import LAW_FITS_CHI2_DOF, fit_law, law_named_from_curve, surface_curve_report
+from uavturb.gap.surface_laws import (
+    HOVER_THRUST_RATE,
+    LAW_FITS_CHI2_DOF,
+    fit_law,
+    law_named_from_curve,
+    steady_thrust,
+    surface_curve_report,
+)
 from uavturb.physics import ground_effect as ge
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, EffectInputs, EffectSpec, PhysicalRange, effect_force
@@ -489,3 +496,15 @@ def test_ground_laws_are_one_physics_whichever_two():
     assert all(_same_physics(a, b) for a in laws for b in laws)
     assert not any(_same_physics(a, b) for a in laws for b in ("ceiling_effect", "rotor_drag", "motor_lag"))
     assert _same_physics("wind", "wind") and not _same_physics("wind", "body_drag")
+
+
+def test_steady_thrust_leaves_out_fast_changes_each_recording_apart():
+    """0.3 N held, a flare ramping 0.3 -> 0.45 N in 0.3 s (1.7 /s of itself), then held again, at 100 Hz; a second
+    recording held at 0.6 N: only the ramp's samples are unsteady (the jump between recordings is none)."""
+    t = np.arange(200) * 0.01
+    thrust = np.interp(t, [0.0, 0.8, 1.1, 2.0], [0.3, 0.3, 0.45, 0.45])
+    steady = steady_thrust(np.r_[thrust, np.full(200, 0.6)], np.r_[t, t], np.repeat([0, 1], 200))
+    ramp = (t > 0.81) & (t < 1.09)
+    assert not steady[:200][ramp].any() and steady[:200][(t < 0.79) | (t > 1.11)].all() and steady[200:].all()
+    slow = np.interp(t, [0.0, 2.0], [0.3, 0.3 * (1 + 0.9 * HOVER_THRUST_RATE * 2.0)])  # just under the bound
+    assert steady_thrust(slow, t, np.zeros(200, int)).all()
