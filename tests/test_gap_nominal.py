@@ -4,17 +4,19 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from uavturb.cli import main
 from uavturb.gap.design import GapData, apply_thrust_levels
-from uavturb.gap.finder import _cross_checked, _nominal, curve_named_thrust_map
+from uavturb.gap.finder import _cross_checked, _nominal, analyse, curve_named_thrust_map, read_on_moved_speeds
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.gap.nominal import (ThrustLevels, anchored_bias, block_mean_and_se, matched_height_levels,
                                  SpeedOffset, offset_cells, speed_offset, thrust_levels)
-from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, timing_interval
+from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, rotor_speeds_moved, timing_interval
 from uavturb.gap.surface_laws import finder_surface_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
@@ -26,6 +28,8 @@ from uavturb.gap.uncertainty import (
     with_curve_check,
     with_systematic,
 )
+from uavturb.io.reader import read_recording
+from uavturb.io.recording import Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.ground_effect import force_ratio
@@ -371,3 +375,71 @@ def test_command_sampling_term_is_a_quarter_of_the_slowest_hold_period():
     out = with_systematic(budget, "command_sampling", command_sampling_term([0.01]))
     assert (out["tau"]["stderr"] == pytest.approx(np.hypot(1e-4, 0.0025))
             and out["tau"]["limited_by"] == "command_sampling")
+
+
+def test_an_offset_is_decisive_from_ten_errors():
+    # an idle speed in a command map read 44 errors from zero is; the Neural-Swarm walks' 3-7 errors are not
+    assert SpeedOffset(48.0, 1.1, 150.0, 5000, 5, 0.28).decisive
+    walks = SpeedOffset(30.0, 4.5, 600.0, 5000, 5, 0.8)
+    assert walks.counts and not walks.decisive
+    assert not SpeedOffset(1.36, 0.01, 535.0, 60_000, 120, 0.9994).decisive  # stands out, does not matter
+
+
+@dataclasses.dataclass
+class _RotorsOnly:
+    """A recording's rotor stream alone (what :func:`rotor_speeds_moved` reads)."""
+
+    rotors: Rotors
+
+
+def test_rotor_speeds_moved_keep_stopped_rotors_stopped():
+    speeds = np.array([[0.0, 100.0], [30.0, 0.0], [150.0, 160.0]])
+    rec = _RotorsOnly(Rotors(t_ns=np.arange(3), speeds=speeds.copy()))
+    # hover 150 rad/s kept: (w + 50) * 150 / 200; a negative offset: (w - 40) * 150 / 110, never under 0
+    np.testing.assert_allclose(rotor_speeds_moved(rec, 50.0, 150.0).rotors.speeds,
+                               [[0, 112.5], [60, 0], [150, 157.5]])
+    np.testing.assert_allclose(rotor_speeds_moved(rec, -40.0, 150.0).rotors.speeds,
+                               [[0, 60 * 150 / 110], [0, 0], [150, 120 * 150 / 110]])
+    np.testing.assert_array_equal(rec.rotors.speeds, speeds)  # the recording itself is left alone
+
+
+def test_a_report_read_on_moved_speeds_carries_the_recorded_reading():
+    budget = {"tau": {"sample": 0.001, "stderr": 0.001, "limited_by": "sample"}}
+    recorded = {"effects": [{"name": "motor_lag", "params": {"tau": 0.054}}],
+                "nominal": {"rotor_speed_offset": {"delta_rad_s": 48.0, "stderr_rad_s": 1.1,
+                                                   "share_of_hover_speed": 0.32, "decisive": True, "note": "x"}}}
+    moved = {"effects": [{"name": "motor_lag", "params": {"tau": 0.038}, "stderr": {"tau": 0.001},
+                          "error_budget": copy.deepcopy(budget)},
+                         {"name": "ground_effect", "params": {"mu": 2.6}, "stderr": {"mu": 0.3},
+                          "error_budget": {"mu": {"sample": 0.3, "stderr": 0.3, "limited_by": "sample"}}}],
+             "nominal": {"rotor_speed_offset": None}}
+    out = read_on_moved_speeds(recorded, moved)
+    lag, ground = out["effects"]
+    assert lag["error_budget"]["tau"]["speed_offset"] == pytest.approx(0.008)
+    assert lag["stderr"]["tau"] == pytest.approx(np.hypot(0.001, 0.008)) and lag["error_budget"]["tau"][
+        "limited_by"] == "speed_offset"
+    assert np.isnan(ground["error_budget"]["mu"]["speed_offset"]) and ground["stderr"]["mu"] == 0.3
+    offset = out["nominal"]["rotor_speed_offset"]
+    assert offset["applied"] and offset["after"] is None and offset["named_on_recorded_speeds"] == recorded["effects"]
+    assert "44 errors from zero" in offset["note"] and "it named motor_lag (tau = 0.054)" in offset["note"]
+
+
+@pytest.mark.slow
+def test_an_idle_speed_in_the_command_map_is_read_and_the_lag_found_again(tmp_path):
+    """Two simulated 50 g quadrotor flights whose recorded speeds are commands scaled at hover while the motors
+    idle at a quarter of the hover speed, with a 30 ms lag: the offset is decisive, the analysis runs on the
+    moved speeds, and the lag comes back within two stated errors (read on the records it had been 54 ms)."""
+    paths = []
+    for k, level in enumerate(("1.0", "0.97")):
+        path = tmp_path / f"f{k}"
+        assert main(["generate", "flight", "--vehicle", "quad", "--effects", "motor_lag:tau=0.03", "--duration", "60",
+                     "--kind", "low_passes", "--seed", str(61 + k), "--out", str(path), "--motor-commands",
+                     "--ground-contact-s", "2", "--rate-hz", "100", "--thrust-level", level]) == 0
+        paths.append(path)
+    report, _ = analyse([read_recording(p) for p in paths], {})
+    offset = report["nominal"]["rotor_speed_offset"]
+    assert offset["applied"] and offset["decisive"] and offset["delta_rad_s"] / offset["stderr_rad_s"] >= 10
+    named = {e["name"]: e for e in report["effects"]}
+    assert "ground_effect" not in named and "motor_lag" in named
+    tau, se = named["motor_lag"]["params"]["tau"], named["motor_lag"]["stderr"]["tau"]
+    assert abs(tau - 0.03) <= 2 * se and "speed_offset" in named["motor_lag"]["error_budget"]["tau"]

@@ -24,8 +24,8 @@ from uavturb.gap.decide import (
 from uavturb.gap.design import GapData, apply_thrust_levels, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
-from uavturb.gap.nominal import OFFSET_RADII, ThrustLevels
-from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted
+from uavturb.gap.nominal import OFFSET_DECISIVE_Z, OFFSET_RADII, ThrustLevels
+from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted, rotor_speeds_moved
 from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, select
 from uavturb.gap.surface_curve import lift_z
 from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve
@@ -136,7 +136,43 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):
-        return _analyse(recordings, sim, seed=seed, height_uncertainty=height_uncertainty, progress=progress)
+        report, extras = _analyse(recordings, sim, seed=seed, height_uncertainty=height_uncertainty,
+                                  progress=progress)
+        offset = report["nominal"].get("rotor_speed_offset")
+        if not offset or not offset["decisive"]:
+            return report, extras
+        del extras  # the second pass's rows replace the first's
+        moved = [rotor_speeds_moved(r, offset["delta_rad_s"], offset["hover_speed_rad_s"]) for r in recordings]
+        again, extras = _analyse(moved, sim, seed=seed, height_uncertainty=height_uncertainty)
+        return read_on_moved_speeds(report, again), extras
+
+
+def read_on_moved_speeds(recorded: dict, moved: dict) -> dict:
+    """The report ``moved`` of the analysis run again on rotor speeds moved by the decisive offset that the
+    analysis ``recorded`` of the recorded speeds read (:attr:`~uavturb.gap.nominal.SpeedOffset.decisive`: an idle
+    speed in the command map). Each named effect's error carries half its change from the recorded speeds'
+    reading (**speed offset**, nan where that reading did not name it), and ``nominal.rotor_speed_offset`` says
+    what was read, what was moved and what the recorded speeds named."""
+    offset = recorded["nominal"]["rotor_speed_offset"]
+    before = {e["name"]: e["params"] for e in recorded["effects"]}
+    for e in moved["effects"]:
+        term = {k: abs(float(v) - float(before[e["name"]][k])) / 2.0 if e["name"] in before else float("nan")
+                for k, v in e["params"].items()}
+        e.update(_with_term(e, "speed_offset", term))
+    named = "; ".join(f"{n} ({', '.join(f'{k} = {v:.3g}' for k, v in p.items())})" for n, p in before.items()) \
+        or "nothing"
+    after = moved["nominal"].get("rotor_speed_offset")
+    note = (f"the recorded (commanded) speeds read an offset of {offset['delta_rad_s']:.4g} ± "
+            f"{offset['stderr_rad_s']:.2g} rad/s ({100 * offset['share_of_hover_speed']:+.0f} % of the hover speed, "
+            f"{abs(offset['delta_rad_s']) / offset['stderr_rad_s']:.0f} errors from zero: an idle speed in the "
+            f"command map, {OFFSET_DECISIVE_Z:.0f} errors or more), so the analysis ran again on the speeds moved by "
+            f"it (scaled to keep the hover speed) and this report is that analysis; on the recorded speeds it named "
+            f"{named}, and each value's error carries half its change (speed offset)")
+    if after is not None:
+        note += f"; on the moved speeds {after['note']}"
+    moved["nominal"]["rotor_speed_offset"] = offset | {"applied": True, "after": after,
+                                                       "named_on_recorded_speeds": recorded["effects"], "note": note}
+    return moved
 
 
 def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0,
@@ -337,7 +373,7 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
     return effects, {"delta_rad_s": found.delta, "stderr_rad_s": found.stderr, "share_of_hover_speed": share,
                      "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells,
                      "sse_ratio": found.sse_ratio,
-                     "counts": found.counts, "note": note}
+                     "counts": found.counts, "decisive": found.decisive, "applied": False, "note": note}
 
 
 def curve_named_thrust_map(effects: list[dict[str, Any]], data: GapData, final: ModelFit,

@@ -330,6 +330,11 @@ OFFSET_RADII, OFFSET_CELL_RATIO = 6.0, 1.05
 #: the thrust of a rotor turning 10 % slower than at hover (near the floor) by under 0.5 %, whatever its z
 #: (the simulator's own flights, which have none, read 0.25 % of the hover speed at z 5.6 over an hour)
 OFFSET_Z, OFFSET_PRACTICAL = 2.0, 0.025
+#: |offset| / its jackknife error from which the recorded speeds are read moved by it (the finder runs again on
+#: them): an idle speed in the command map read 44 errors from zero (48 +- 1 rad/s, truth 50) and had left a 30 ms
+#: lag read as 54 ms; the Neural-Swarm walks' offsets (3-7 errors), which other physics that depends on the
+#: thrust level may lean towards as well, only widen the errors
+OFFSET_DECISIVE_Z = 10.0
 
 
 @dataclass(frozen=True)
@@ -362,6 +367,11 @@ class SpeedOffset:
         """The offset stands :data:`OFFSET_Z` errors from zero and is at least :data:`OFFSET_PRACTICAL` of the
         hover speed."""
         return self.z >= OFFSET_Z and abs(self.delta) >= OFFSET_PRACTICAL * self.w_hover
+
+    @property
+    def decisive(self) -> bool:
+        """It counts and stands :data:`OFFSET_DECISIVE_Z` errors from zero: the speeds are read moved by it."""
+        return self.counts and self.z >= OFFSET_DECISIVE_Z
 
 
 def offset_cells(group: np.ndarray, d_down: np.ndarray, d_up: np.ndarray, rotor_radius: float, reach: float

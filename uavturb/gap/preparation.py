@@ -105,6 +105,18 @@ def rotor_shifted(rec: Recording, delay_s: float) -> Recording:
     return dataclasses.replace(rec, rotors=Rotors(t_ns=rec.rotors.t_ns - shift, speeds=rec.rotors.speeds))
 
 
+def rotor_speeds_moved(rec: Recording, delta: float, w_hover: float) -> Recording:
+    """``rec`` with every turning rotor's recorded speed ``w`` read as the affine ``(w + delta) w_hover /
+    (w_hover + delta)`` [rad/s]: an idle speed in the command map (:mod:`uavturb.gap.nominal`, **Thrust map**)
+    whose scale is kept exact at the hover speed ``w_hover`` (what the records say there stays, so laws linear
+    in the speeds, such as rotor drag, keep their scale). Stopped rotors (0) stay stopped, and none is moved
+    below 0."""
+    w = rec.rotors.speeds
+    moved = (w + float(delta)) * (float(w_hover) / (float(w_hover) + float(delta)))
+    return dataclasses.replace(rec, rotors=Rotors(t_ns=rec.rotors.t_ns,
+                                                  speeds=np.where(w > 0, np.maximum(moved, 0.0), w)))
+
+
 def stream_limits(rec: Recording) -> tuple[list[str], list[str], float]:
     """(one line per stream: rows and updates; sentences where a stream updates too slowly for the
     ground effect or a motor lag; the slowest update rate [Hz] of the streams the residual force and

@@ -43,6 +43,10 @@ other and of the noise) added in quadrature:
   An idle speed in the motors' command map reads as a stronger ground effect (the rotors turn slower near
   the floor); the data cannot always tell it from other physics that depends on the thrust level, so the
   named values stay and the error covers the other reading.
+- **speed offset** (commanded rotor speeds whose offset is decisive,
+  :attr:`~uavturb.gap.nominal.SpeedOffset.decisive`): the finder runs again on the speeds moved by it
+  (:func:`uavturb.gap.finder.read_on_moved_speeds`), and each value's error carries half its change from the
+  recorded speeds' reading.
 
 The report keeps every term (``error_budget``) and names the one that limits the parameter.
 """
@@ -178,7 +182,7 @@ def honest_stderr(budget: dict[str, dict[str, float]]) -> dict[str, float]:
 
 #: the terms of a budget that are systematic (their sources independent of each other and of the sample
 #: noise): a stated error adds each in quadrature to what was stated before it
-SYSTEMATIC_TERMS = ("surface_curve", "rotor_timing", "thrust_map", "command_sampling")
+SYSTEMATIC_TERMS = ("surface_curve", "rotor_timing", "thrust_map", "command_sampling", "speed_offset")
 #: every term a budget may hold, in the order they are added
 BUDGET_TERMS = ("sample", "height_reference", "between_recordings", "between_blocks", *SYSTEMATIC_TERMS)
 
