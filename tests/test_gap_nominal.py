@@ -406,7 +406,7 @@ def test_rotor_speeds_moved_keep_stopped_rotors_stopped():
 def test_a_report_read_on_moved_speeds_carries_the_recorded_reading():
     budget = {"tau": {"sample": 0.001, "stderr": 0.001, "limited_by": "sample"}}
     recorded = {"effects": [{"name": "motor_lag", "params": {"tau": 0.054}}],
-                "nominal": {"rotor_speed_offset": {"delta_rad_s": 48.0, "stderr_rad_s": 1.1,
+                "nominal": {"rotor_speed_offset": {"delta_rad_s": 48.0, "stderr_rad_s": 1.1, "z": 48.0 / 1.1,
                                                    "share_of_hover_speed": 0.32, "decisive": True, "note": "x"}}}
     moved = {"effects": [{"name": "motor_lag", "params": {"tau": 0.038}, "stderr": {"tau": 0.001},
                           "error_budget": copy.deepcopy(budget)},

@@ -372,6 +372,8 @@ def thrust_tilt_alike(data: GapData, fit: ModelFit, facts: FlightFacts) -> dict 
 #: deg: the smallest tilt of the thrust axis left in the residual worth a line of the report (0.3 deg is a push of
 #: 0.5 % of the weight, about what the finder's practical size asks of a named effect)
 TILT_REPORT_MIN_DEG = 0.3
+#: contiguous blocks of a recording for the jackknife of its thrust-axis tilt
+TILT_BLOCKS = 5
 
 
 def residual_thrust_tilt(data: GapData, fit: ModelFit, residual: np.ndarray, facts: FlightFacts
@@ -435,10 +437,6 @@ def residual_thrust_tilt(data: GapData, fit: ModelFit, residual: np.ndarray, fac
                      "looks alike (effects.md, look-alikes), though none improved the held-out fit enough to be "
                      "named; indoors the tilt is the likelier reading")}
     return entry, force
-
-
-#: contiguous blocks of a recording for the jackknife of its thrust-axis tilt
-TILT_BLOCKS = 5
 
 
 def _tilt_fit(cols: np.ndarray, target: np.ndarray, t: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:

@@ -164,7 +164,7 @@ def read_on_moved_speeds(recorded: dict, moved: dict) -> dict:
     after = moved["nominal"].get("rotor_speed_offset")
     note = (f"the recorded (commanded) speeds read an offset of {offset['delta_rad_s']:.4g} ± "
             f"{offset['stderr_rad_s']:.2g} rad/s ({100 * offset['share_of_hover_speed']:+.0f} % of the hover speed, "
-            f"{abs(offset['delta_rad_s']) / offset['stderr_rad_s']:.0f} errors from zero: an idle speed in the "
+            f"{offset['z']:.0f} errors from zero: an idle speed in the "
             f"command map, {OFFSET_DECISIVE_Z:.0f} errors or more), so the analysis ran again on the speeds moved by "
             f"it (scaled to keep the hover speed) and this report is that analysis; on the recorded speeds it named "
             f"{named}, and each value's error carries half its change (speed offset)")
@@ -373,7 +373,7 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
     return effects, {"delta_rad_s": found.delta, "stderr_rad_s": found.stderr, "share_of_hover_speed": share,
                      "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells,
                      "sse_ratio": found.sse_ratio,
-                     "counts": found.counts, "decisive": found.decisive, "applied": False, "note": note}
+                     "z": found.z, "counts": found.counts, "decisive": found.decisive, "applied": False, "note": note}
 
 
 def curve_named_thrust_map(effects: list[dict[str, Any]], data: GapData, final: ModelFit,
