@@ -56,9 +56,11 @@ from uavturb.sysid.flight_data import flight_data
 SCHEMA = "uavturb.gap/1"
 #: the stages of ``uavturb gap``, for its progress bar (:class:`uavturb.progress.Stages`); :func:`analyse`
 #: announces those between the reading and the writing
+#: the stage of the second pass where the recorded speeds' offset is decisive (skipped otherwise)
+MOVED_SPEEDS_STAGE = "again on the speeds moved by their offset"
 STAGES = ["reading the recordings", "aligning the streams", "the nominal model", "locating the mismatch",
           "selecting effects", "deciding what the data support", "the surface curve", "honest errors",
-          "again on the speeds moved by their offset", "writing the report", "logging the run"]
+          MOVED_SPEEDS_STAGE, "writing the report", "logging the run"]
 #: rows in flight the analysis needs (a minute of 3 Hz rotor telemetry over two flights has ~150)
 MIN_ROWS = 100
 
@@ -142,7 +144,7 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
         if not offset or not offset["decisive"]:
             return report, extras
         del extras  # the second pass's rows replace the first's
-        progress("again on the speeds moved by their offset")  # a decisive offset: the whole analysis once more
+        progress(MOVED_SPEEDS_STAGE)  # a decisive offset: the whole analysis once more
         moved = [rotor_speeds_moved(r, offset["delta_rad_s"], offset["hover_speed_rad_s"]) for r in recordings]
         again, extras = _analyse(moved, sim, seed=seed, height_uncertainty=height_uncertainty)
         return read_on_moved_speeds(report, again), extras
