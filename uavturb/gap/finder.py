@@ -337,9 +337,7 @@ def _timing_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: 
             ends.append(None)
     for e in effects:
         low, high = (None if f is None else f.effect_params(e["name"])[0] for f in ends)
-        e["error_budget"] = with_systematic(e["error_budget"], "rotor_timing",
-                                            timing_term(low, high, tuple(e["params"])))
-        e["stderr"] = honest_stderr(e["error_budget"])
+        e.update(_with_term(e, "rotor_timing", timing_term(low, high, tuple(e["params"]))))
     return effects
 
 
@@ -371,8 +369,7 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
              "squares carry the thrust")
     for e in effects:
         if e["name"] in terms:
-            e["error_budget"] = with_systematic(e["error_budget"], "thrust_map", terms[e["name"]])
-            e["stderr"] = honest_stderr(e["error_budget"])
+            e.update(_with_term(e, "thrust_map", terms[e["name"]]))
     return effects, {"delta_rad_s": found.delta, "stderr_rad_s": found.stderr, "share_of_hover_speed": share,
                      "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells,
                      "sse_ratio": found.sse_ratio,
@@ -396,8 +393,7 @@ def curve_named_thrust_map(effects: list[dict[str, Any]], data: GapData, final: 
     for e in from_curve:
         f = fits.get(e["name"])
         term = {k: abs(float(f.params[k]) - float(v)) / 2.0 if f else float("nan") for k, v in e["params"].items()}
-        e["error_budget"] = with_systematic(e["error_budget"], "thrust_map", term)
-        e["stderr"] = honest_stderr(e["error_budget"])
+        e.update(_with_term(e, "thrust_map", term))
     return effects
 
 
