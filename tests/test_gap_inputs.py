@@ -383,7 +383,8 @@ def test_a_battery_stream_is_listed_but_sets_no_update_rate(good):
     with_battery = stream_limits(replace(rec, battery=Battery(t_ns=t, voltage=np.linspace(16.4, 15.2, len(t)),
                                                               current=np.full(len(t), 9.0))))
     assert with_battery[0][:-1] == plain[0] and with_battery[1:] == plain[1:]  # the slowest rate: the same
-    assert with_battery[0][-1].endswith("not read by the analysis (battery_sag is a law in time)")
+    assert with_battery[0][-1].endswith("read by battery_voltage where the rotor speeds are commanded and it covers "
+                                        "the flight")
     late = stream_limits(replace(rec, battery=Battery(t_ns=t + 10**12, voltage=np.full(len(t), 16.0),
                                                       current=np.full(len(t), 9.0))))
     assert "outside the ground truth in time" in late[0][-1]

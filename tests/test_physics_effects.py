@@ -27,7 +27,7 @@ def test_vocabulary_is_the_contract():
     assert {n: e.params for n, e in EFFECTS.items()} == {
         "ground_effect": ("mu",), "ceiling_effect": ("kappa",), "rotor_drag": ("k_d",), "body_drag": ("c_d",),
         "wind": ("f_x", "f_y"), "battery_sag": ("s",), "motor_lag": ("tau",), "ground_effect_multirotor": ("K_b",),
-        "ground_effect_exponential": ("A", "lam")}
+        "ground_effect_exponential": ("A", "lam"), "battery_voltage": ("k_V",)}
 
 
 def test_ground_effect_law_values():

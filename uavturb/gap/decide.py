@@ -39,7 +39,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavturb.gap.design import AMPLITUDE, GapData, bias_count, design, difference_points, stack_target, unstack
+from uavturb.gap.design import (
+    AMPLITUDE,
+    THRUST_FACTOR,
+    GapData,
+    bias_count,
+    design,
+    difference_points,
+    stack_target,
+    unstack,
+)
 from uavturb.gap.fit import ModelFit, _nl_values
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
@@ -98,7 +107,18 @@ def flight_facts(data: GapData, k_T: float) -> FlightFacts:
                        heading_span_deg=heading_span_deg(data), has_imu=data.has_imu,
                        bias_anchored=data.has_imu and not data.fits_bias, arm_length=data.arm_length,
                        d_down_min=float(d_down.min()) if len(d_down) else float("inf"),
-                       d_up_min=float(d_up.min()) if len(d_up) else float("inf"), duration_s=duration)
+                       d_up_min=float(d_up.min()) if len(d_up) else float("inf"), duration_s=duration,
+                       **_voltage_facts(data))
+
+
+def _voltage_facts(data: GapData) -> dict[str, float]:
+    """The battery's mean voltage in flight and the span of its middle 90 % of rows [V] (nan without one)."""
+    if data.voltage_dev is None or not data.voltage_means:
+        return {}
+    means = np.array([data.voltage_means.get(n, np.nan) for n in data.names])
+    volts = data.voltage_dev + means[data.group]
+    return {"voltage_mean": float(np.nanmean(means)),
+            "voltage_span": float(np.nanpercentile(volts, 95) - np.nanpercentile(volts, 5))}
 
 
 @dataclass
@@ -228,10 +248,10 @@ def _columns(data: GapData, fit: ModelFit) -> tuple[np.ndarray, list[str]]:
 
 
 def effect_columns(names: list[str], effect: str) -> list[int]:
-    """Indices of the coefficients that belong to ``effect`` (battery_sag's is ``k_T*s``, a surface law's
-    amplitude ``k_T*A``; none for a law searched in its one parameter)."""
-    if effect == "battery_sag":
-        keys: tuple[str, ...] = ("k_T*s",)
+    """Indices of the coefficients that belong to ``effect`` (a law scaling the thrust coefficient has ``k_T*s`` or
+    ``k_T*k_V``, a surface law's amplitude ``k_T*A``; none for a law searched in its one parameter)."""
+    if effect in THRUST_FACTOR:
+        keys: tuple[str, ...] = (THRUST_FACTOR[effect],)
     elif effect in AMPLITUDE:
         keys = (AMPLITUDE[effect],)
     else:
@@ -305,7 +325,7 @@ def ambiguity(data: GapData, fit: ModelFit, effect: str, facts: FlightFacts) -> 
 
 def bias_alike(data: GapData, effect: str) -> float:
     """R^2 of a linear effect's force on the accelerometer-bias columns (0 without an IMU)."""
-    if not data.fits_bias or EFFECTS[effect].search is not None or effect == "battery_sag":
+    if not data.fits_bias or EFFECTS[effect].search is not None or effect in THRUST_FACTOR:
         return 0.0
     fit = ModelFit(frozenset({effect}), {}, {}, {}, 0.0)
     A, names = _columns(data, fit)

@@ -40,6 +40,9 @@ from uavturb.sysid.flight_data import FlightData
 NONLINEAR = {n: (e.searched_param, *e.search) for n, e in EFFECTS.items() if e.search is not None}
 #: surface laws with a linear amplitude: their coefficient's name in :func:`design` (``k_T*A``)
 AMPLITUDE = {n: f"k_T*{e.amplitude}" for n, e in EFFECTS.items() if e.amplitude is not None}
+#: laws that scale the thrust coefficient (``EffectSpec.thrust_factor``): their coefficient's name in :func:`design`
+#: (``k_T*s``, ``k_T*k_V``)
+THRUST_FACTOR = {n: f"k_T*{e.params[0]}" for n, e in EFFECTS.items() if e.thrust_factor is not None}
 
 
 #: bytes of lagged rotor-speed sums kept per flight set (:meth:`GapData.S_lag`; 11 taus of a flight-hour at 200 Hz;
@@ -88,6 +91,9 @@ class GapData:
     block_of : (M,) int, the row each member sample belongs to (None: one sample a row)
     anchored : ``{recording name: AnchoredBias}``, accelerometer biases measured against motion capture
     arm_length : m, the vehicle's arm (sizes the airframe for physical ranges; nan: unknown)
+    voltage_dev : (K,) V, the battery's voltage minus its recording's mean in flight (``battery0``; None where a
+        recording has none: :func:`gap_data`), and
+    voltage_means : ``{recording name: V}``, those means
     dense : where a held rotor stream thinned the rows to its updates (:attr:`FlightData.rotor_fresh`), the
         rows in flight before that (sums over many rows, such as thrust levels, average the interpolation
         errors out and use them); None otherwise, and in subsets
@@ -114,6 +120,8 @@ class GapData:
     block_of: np.ndarray | None = None
     anchored: dict = field(default_factory=dict, repr=False)
     arm_length: float = float("nan")
+    voltage_dev: np.ndarray | None = None
+    voltage_means: dict = field(default_factory=dict, repr=False)
     _S: np.ndarray | None = field(default=None, repr=False)
     _lag_cache: dict = field(default_factory=dict, repr=False)
     _plan: list | None = field(default=None, repr=False)
@@ -245,7 +253,8 @@ class GapData:
                        None if self.imu is None else self.imu[mask], self.fits_bias,
                        None if self.level is None else self.level[mask],
                        self if self.contiguous is None else self.contiguous, rows, block_of, self.anchored,
-                       self.arm_length)
+                       self.arm_length, None if self.voltage_dev is None else self.voltage_dev[mask],
+                       self.voltage_means)
 
 
 def _smooth_height(t: np.ndarray, z: np.ndarray, window_s: float) -> np.ndarray:
@@ -299,7 +308,7 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     joined: building a flight-hour in twelve recordings peaked 92 MB lower (the whole analysis 48 MB). The caller's
     list is left holding None.
     """
-    parts, anchored, names = [], {}, [f.name for f in flights]
+    parts, anchored, names, voltage_means = [], {}, [f.name for f in flights], {}
     for g, fd in enumerate(flights):
         if release:
             flights[g] = None
@@ -328,8 +337,10 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
         d_up = np.where(np.isfinite(fd.d_up), fd.d_up - dz, np.inf) if fd.d_up is not None else inf
         parts.append(dict(group=np.full(len(fd), g), t=fd.t, p=fd.p, y=y, R=R, rotor_speeds=fd.rotor_speeds, v=fd.v,
                           d_down=d_down, d_up=d_up, keep=keep, fresh=fresh, imu=np.full(len(fd), use_imu),
-                          src="imu" if use_imu else "mocap"))
+                          src="imu" if use_imu else "mocap", volts=_voltage_deviation(fd, keep, voltage_means)))
     sources = "+".join(sorted({p.pop("src") for p in parts}))
+    volts = [p.pop("volts") for p in parts]
+    voltage_dev = None if any(v is None for v in volts) else np.concatenate(volts)
     # one column at a time, each flight's own arrays let go as they are joined (a single flight's are used as
     # they are): at 200 Hz the columns take ~230 bytes a row, and the flights' aligned streams are held besides
     cat = {k: parts[0].pop(k) if len(parts) == 1 else np.concatenate([p.pop(k) for p in parts])
@@ -337,7 +348,8 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     keep, fresh = cat.pop("keep"), cat.pop("fresh")
     full = GapData(**cat, mass=mass, rotor_radius=rotor_radius, names=names,
                    source=sources,
-                   fits_bias=bool(np.any(cat["imu"])) and not anchor_bias, arm_length=arm_length)
+                   fits_bias=bool(np.any(cat["imu"])) and not anchor_bias, arm_length=arm_length,
+                   voltage_dev=voltage_dev, voltage_means=voltage_means if voltage_dev is not None else {})
     full.anchored = anchored
     n = block_size(full, rate_hz)
     if not fresh.any():  # nothing in flight: the caller says so in one line
@@ -348,6 +360,23 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     data = full.subset(fresh) if n <= 1 else block_means(full, fresh, n)
     data.dense = dense
     return data
+
+
+#: share of a recording's rows in flight that its battery stream must cover for the voltage to be read
+VOLTAGE_COVER = 0.9
+
+
+def _voltage_deviation(fd: FlightData, keep: np.ndarray, means: dict) -> np.ndarray | None:
+    """(K,) V, the flight's battery voltage minus its mean over the rows in flight (``keep``), 0 where the stream
+    does not reach; its mean goes into ``means`` under the flight's name. None without a battery stream, or one that
+    covers under :data:`VOLTAGE_COVER` of the rows in flight (a law in the voltage cannot be fitted there)."""
+    if fd.voltage is None or not keep.any():
+        return None
+    known = np.isfinite(fd.voltage)
+    if known[keep].mean() < VOLTAGE_COVER:
+        return None
+    means[fd.name] = float(np.mean(fd.voltage[keep & known]))
+    return np.where(known, fd.voltage - means[fd.name], 0.0)
 
 
 def block_size(data: GapData, rate_hz: float | None) -> int:
@@ -387,7 +416,8 @@ def block_means(full: GapData, keep: np.ndarray, n: int) -> GapData:
                    np.sqrt(mean(full.rotor_speeds**2)), mean(full.v), np.where(np.isnan(d_down), np.inf, d_down),
                    np.where(np.isnan(d_up), np.inf, d_up), full.mass, full.rotor_radius, full.names, full.source,
                    None if full.imu is None else mean(full.imu) > 0.5, full.fits_bias, None, full, idx,
-                   block_of, full.anchored, full.arm_length)
+                   block_of, full.anchored, full.arm_length,
+                   None if full.voltage_dev is None else mean(full.voltage_dev), full.voltage_means)
     return data
 
 
@@ -484,7 +514,7 @@ def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tup
     """
     Ad, dnames = dependent_columns(data, effects, nonlinear)
     Af, fnames = fixed_columns(data, effects)
-    # order: k_T, biases, k_T*s and the amplitudes (k_T*A), then the linear effects
+    # order: k_T, biases, the thrust factors (k_T*s, k_T*k_V) and the amplitudes (k_T*A), then the linear effects
     nb = bias_count(data)
     return (np.hstack([Ad[:, :1], Af[:, :nb], Ad[:, 1:], Af[:, nb:]]),
             dnames[:1] + fnames[:nb] + dnames[1:] + fnames[nb:])
@@ -492,8 +522,8 @@ def design(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tup
 
 def dependent_columns(data: GapData, effects: set[str], nonlinear: dict[str, float]) -> tuple[np.ndarray, list[str]]:
     """The columns of :func:`design` that depend on ``mu``, ``kappa``, ``tau``, ``lam``: thrust with the
-    surface effects (``k_T``), with ``battery_sag`` its decay (``k_T*s``), and the shape of each surface law
-    with an amplitude (``k_T*A``). ``(3K, 1 + ...)``."""
+    surface effects (``k_T``), each law that scales the thrust coefficient (:data:`THRUST_FACTOR`: ``k_T*s``,
+    ``k_T*k_V``), and the shape of each surface law with an amplitude (``k_T*A``). ``(3K, 1 + ...)``."""
     return thrust_columns(data, effects, effective_S(data, effects, nonlinear), surface_extra(data, effects, nonlinear),
                           amplitude_shapes(data, effects, nonlinear))
 
@@ -527,30 +557,38 @@ def amplitude_names(effects: set[str] | frozenset[str]) -> list[str]:
     return [AMPLITUDE[name] for name in sorted(effects) if name in AMPLITUDE]
 
 
+def thrust_factor_names(effects: set[str] | frozenset[str]) -> list[str]:
+    """The coefficients of the laws in ``effects`` that scale the thrust coefficient (:data:`THRUST_FACTOR`), in
+    name order."""
+    return [THRUST_FACTOR[name] for name in sorted(effects) if name in THRUST_FACTOR]
+
+
 def thrust_columns(data: GapData, effects: set[str], S: np.ndarray, surf: np.ndarray,
                    shapes: list[np.ndarray] = ()) -> tuple[np.ndarray, list[str]]:
     """:func:`dependent_columns` from the effective ``S`` (K,), the surface laws' ``surf`` (K,) and the shapes
     of the laws with an amplitude (:func:`amplitude_shapes`).
 
-    The thrust column is ``S R e_z`` with ``S surf`` added along ``z`` of W (``k_T``), the battery's
-    ``-t S R e_z`` (``k_T*s``), each amplitude's ``S shape`` along ``z`` of W (``k_T*A``); written straight
-    into the ``(3K, P)`` array, each axis of W from the body z axis's contiguous row
+    The thrust column is ``S R e_z`` with ``S surf`` added along ``z`` of W (``k_T``); each law that scales the
+    thrust coefficient adds ``x S R e_z`` with its factor ``x`` (``EffectSpec.thrust_factor``: the battery's
+    ``-t``, ``k_T*s``; its voltage's ``V - V_mean``, ``k_T*k_V``); each amplitude's ``S shape`` along ``z`` of W
+    (``k_T*A``); written straight into the ``(3K, P)`` array, each axis of W from the body z axis's contiguous row
     (:attr:`GapData.z_body_rows`): the columns are the fits' innermost work."""
-    battery = "battery_sag" in effects
+    factors = [name for name in sorted(effects) if name in THRUST_FACTOR]
     amplitudes = amplitude_names(effects)
     if len(shapes) != len(amplitudes):
         raise ValueError(f"{len(shapes)} shapes given for the amplitudes {amplitudes}")
-    names = ["k_T"] + (["k_T*s"] if battery else []) + amplitudes
+    names = ["k_T"] + thrust_factor_names(effects) + amplitudes
     K, zb = len(S), data.z_body_rows
     D = np.empty((3 * K, len(names)))
     for j in range(3):
         np.multiply(S, zb[j], out=D[j * K:(j + 1) * K, 0])
     D[2 * K:, 0] += S * surf
-    if battery:
-        ts = -(data.t * S)
+    x = effect_inputs(data) if factors else None
+    for c, name in enumerate(factors, start=1):
+        xs = EFFECTS[name].thrust_factor(x) * S
         for j in range(3):
-            np.multiply(ts, zb[j], out=D[j * K:(j + 1) * K, 1])
-    for c, shape in enumerate(shapes, start=2 if battery else 1):
+            np.multiply(xs, zb[j], out=D[j * K:(j + 1) * K, c])
+    for c, shape in enumerate(shapes, start=1 + len(factors)):
         D[:2 * K, c] = 0.0
         np.multiply(S, shape, out=D[2 * K:, c])
     return D, names
@@ -587,7 +625,8 @@ def fixed_columns(data: GapData, effects: set[str]) -> tuple[np.ndarray, list[st
 def effect_inputs(data: GapData) -> EffectInputs:
     """What the registry's laws need, on the rows of ``data`` (``k_T`` = 1: thrust in units of ``k_T``)."""
     return EffectInputs(q=None, v=data.v, rotor_speeds=data.rotor_speeds, k_T=1.0, rotor_radius=data.rotor_radius,
-                        d_down=data.d_down, d_up=data.d_up, t=data.t, R=data.R, arm_length=data.arm_length)
+                        d_down=data.d_down, d_up=data.d_up, t=data.t, R=data.R, arm_length=data.arm_length,
+                        voltage_dev=data.voltage_dev)
 
 
 def bias_count(data: GapData) -> int:

@@ -460,18 +460,26 @@ def _testable_candidates(data: GapData, sim: dict[str, dict[str, float]], measur
     """(effects to try: not in the simulator and testable on these flights; the effects the flights
     cannot test, with why and what would; the simulator's testable effects, fitted from the start).
 
-    Surface effects need flights within their reach; ``battery_sag`` needs commanded rotor speeds
-    (``effects.md``: a measured rotor speed already shows the battery's sag)."""
+    Surface effects need flights within their reach; ``battery_sag`` and ``battery_voltage`` need commanded rotor
+    speeds (``effects.md``: a measured rotor speed already shows the battery's sag), ``battery_voltage`` also the
+    battery's voltage over every recording's flight."""
     reach = {e: surface_reach(data, e) for e, spec in EFFECTS.items() if spec.surface is not None}
     testable = {e for e in EFFECTS if e not in reach or reach[e].testable}
     not_testable = [{"name": e, "why": r.why(), "to_separate": r.to_separate()}
                     for e, r in reach.items() if not r.testable]
     if measured:
-        testable.discard("battery_sag")
-        not_testable.append({"name": "battery_sag",
-                             "why": "the rotor speeds are measured (rotor_speed_source: measured): a measured speed "
-                                    "already shows the battery's sag, so there is no sag left to find",
-                             "to_separate": "record the commanded rotor speeds instead"})
+        for name in ("battery_sag", "battery_voltage"):
+            testable.discard(name)
+            not_testable.append({"name": name,
+                                 "why": "the rotor speeds are measured (rotor_speed_source: measured): a measured "
+                                        "speed already shows the battery's sag, so there is no sag left to find",
+                                 "to_separate": "record the commanded rotor speeds instead"})
+    elif data.voltage_dev is None:
+        testable.discard("battery_voltage")
+        not_testable.append({"name": "battery_voltage",
+                             "why": "a recording has no battery voltage (mav0/battery0) over its flight, so thrust "
+                                    "cannot be followed with the voltage; battery_sag, a law in time, stands in",
+                             "to_separate": "log the battery voltage (mav0/battery0) through the whole flight"})
     candidates = [e for e in EFFECTS if e not in sim and e in testable]
     return candidates, not_testable, frozenset(e for e in sim if e in testable)
 

@@ -13,6 +13,7 @@ import numpy as np
 from uavturb.gap.design import (
     AMPLITUDE,
     NONLINEAR,
+    THRUST_FACTOR,
     GapData,
     amplitude_shapes,
     difference_points,
@@ -59,8 +60,8 @@ class ModelFit:
         return data.y - self.predict(data)
 
     def _over_k_T(self, coef: str) -> tuple[float, float]:
-        """A coefficient that carries ``k_T`` (``k_T*s``, ``k_T*A``) over ``k_T``, and its standard error (the
-        two errors combined as if independent)."""
+        """A coefficient that carries ``k_T`` (``k_T*s``, ``k_T*k_V``, ``k_T*A``) over ``k_T``, and its standard
+        error (the two errors combined as if independent)."""
         kT, kx = self.coef["k_T"], self.coef[coef]
         x = kx / kT
         se = abs(x) * np.hypot(self.stderr.get(coef, np.nan) / max(abs(kx), 1e-300),
@@ -81,9 +82,10 @@ class ModelFit:
         if name in NONLINEAR:
             p = NONLINEAR[name][0]
             return {p: self.nonlinear[name]}, {p: self.stderr.get(p, float("nan"))}
-        if name == "battery_sag":
-            s, se = self._over_k_T("k_T*s")
-            return {"s": s}, {"s": se}
+        if name in THRUST_FACTOR:  # a law scaling the thrust coefficient: k_T*p over k_T
+            (p,) = EFFECTS[name].params
+            x, se = self._over_k_T(THRUST_FACTOR[name])
+            return {p: x}, {p: se}
         keys = EFFECTS[name].params
         return {k: self.coef[k] for k in keys}, {k: self.stderr.get(k, float("nan")) for k in keys}
 

@@ -139,11 +139,13 @@ def stream_limits(rec: Recording) -> tuple[list[str], list[str], float]:
             why = None
         if why:
             limits.append(why)
-    if rec.battery is not None and len(rec.battery.t_ns):  # listed, not read: battery_sag is a law in time
+    if rec.battery is not None and len(rec.battery.t_ns):
         line = stream_updates(f"{rec.name}/battery0", rec.battery.t_ns, rec.battery.voltage[:, None]).describe()
         apart = (rec.battery.t_ns[-1] < rec.ground_truth.t_ns[0]) or (rec.battery.t_ns[0] > rec.ground_truth.t_ns[-1])
-        lines.append(f"{line}; {'outside the ground truth in time, ' if apart else ''}not read by the analysis "
-                     "(battery_sag is a law in time)")
+        use = ("read by battery_voltage where the rotor speeds are commanded and it covers the flight"
+               if rec.vehicle.rotor_speed_source != "measured" else
+               "not read (measured rotor speeds already show the voltage)")
+        lines.append(f"{line}; {'outside the ground truth in time, ' if apart else ''}{use}")
     return lines, limits, slowest
 
 

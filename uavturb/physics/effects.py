@@ -42,6 +42,7 @@ class EffectInputs:
     t : (K,) s since the recording's start
     R : (K, 3, 3) body-to-world rotations; computed from ``q`` when not given
     arm_length : m, centre to each rotor hub (laws that use the rotor spacing; None where unknown)
+    voltage_dev : (K,) V, the battery's voltage (``battery0``) minus its mean over the recording's flight
     """
 
     q: np.ndarray | None
@@ -54,6 +55,7 @@ class EffectInputs:
     t: np.ndarray | None = None
     R: np.ndarray | None = field(default=None, repr=False)
     arm_length: float | None = None
+    voltage_dev: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.R is None:
@@ -151,6 +153,15 @@ def battery_sag_force(x: EffectInputs, s: float) -> np.ndarray:
     """Thrust coefficient decaying as ``k_T (1 - s t)``: ``F = -s t T R e_z``."""
     t = x.need("battery_sag", "t")
     return -(s * t * x.thrust)[:, None] * x.z_body
+
+
+def battery_voltage_force(x: EffectInputs, k_V: float) -> np.ndarray:
+    """Thrust coefficient following the battery's voltage as ``k_T (1 + k_V (V - V_mean))``:
+    ``F = k_V (V - V_mean) T R e_z``, with ``V_mean`` the recording's mean voltage in flight (its level is the
+    recording's thrust level). A motor driven at a duty cycle turns at a speed proportional to duty times
+    voltage (DC motor, back-EMF), so thrust per commanded speed squared goes as ``V^2``: ``k_V V = 2``."""
+    dv = x.need("battery_voltage", "voltage_dev")
+    return (k_V * dv * x.thrust)[:, None] * x.z_body
 
 
 def lag_rotor_speeds(t: np.ndarray, w_cmd: np.ndarray, tau: float,
@@ -253,6 +264,8 @@ class FlightFacts:
     duration_s : s, flight time analysed
     bias_anchored : the accelerometer bias was measured against motion capture (not fitted)
     arm_length : m, centre to rotor hub (sizes the airframe for physical ranges)
+    voltage_mean, voltage_span : V, the battery's mean voltage in flight and the range its middle 90 % of rows
+        span (``battery0``; nan where a recording has none)
     """
 
     mass: float
@@ -268,6 +281,8 @@ class FlightFacts:
     duration_s: float
     bias_anchored: bool = False
     arm_length: float = float("nan")
+    voltage_mean: float = float("nan")
+    voltage_span: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -332,6 +347,9 @@ class EffectSpec:
         held-out data beyond noise
     absent_at_zero : parameters all zero mean no effect (False for the multirotor law, whose rotor images
         act at ``K_b = 0``): only then does a parameter within noise of zero say the effect is not there
+    thrust_factor : a law that scales the thrust coefficient as ``k_T (1 + p x)`` (battery sag, ``x = -t``; the
+        battery's voltage, ``x = V - V_mean``): ``(EffectInputs) -> x`` (K,); the finder fits ``k_T*p`` as a column
+        along the thrust (it follows the motor lag's speeds); None for every other law
     amplitude : a surface law with two parameters whose ``ratio - 1`` is proportional to one of them (the
         exponential law's ``A``): the finder fits that one by least squares, as a column along the thrust whose
         coefficient carries ``k_T`` (``k_T*A``, as battery sag's ``k_T*s``), and searches the other over
@@ -357,6 +375,7 @@ class EffectSpec:
     absent_at_zero: bool = True
     bounds: tuple[tuple[float, float], ...] = ()
     amplitude: str | None = None
+    thrust_factor: Callable[[EffectInputs], np.ndarray] | None = None
 
     @property
     def presence_params(self) -> tuple[str, ...]:
@@ -516,6 +535,13 @@ def _explain_battery(p: dict, f: FlightFacts) -> str:
             f"battery voltage sag. Model it, or feed the controller the voltage.")
 
 
+def _explain_battery_voltage(p: dict, f: FlightFacts) -> str:
+    return (f"Thrust per commanded rotor speed squared follows the battery's voltage: {100 * p['k_V']:.2g} % per volt "
+            f"(k_V V = {p['k_V'] * f.voltage_mean:.2g} at the mean {f.voltage_mean:.3g} V, where a motor driven "
+            f"at a duty cycle gives 2); the voltage spanned {f.voltage_span:.2g} V in flight. The commands are duty "
+            f"cycles, not speeds: model the voltage, or feed the controller the voltage.")
+
+
 def _explain_motor_lag(p: dict, f: FlightFacts) -> str:
     return (f"The rotors follow their recorded speeds with a first-order lag of {1000 * p['tau']:.0f} ms: the "
             f"recorded speeds are commands. Add a motor time constant to the simulator and controller.")
@@ -595,7 +621,19 @@ EFFECTS: dict[str, EffectSpec] = {
                                  "a LiPo pack sags by at most ~20 % of its voltage over a discharge; "
                                  "2e-3 1/s is 12 % of thrust per minute"),
                    _explain_battery, along_thrust=True,
-                   manoeuvre="fly longer, or repeat the flight with a fresh and a drained battery"),
+                   manoeuvre="fly longer, or repeat the flight with a fresh and a drained battery",
+                   thrust_factor=lambda x: -x.need("battery_sag", "t")),
+        EffectSpec("battery_voltage", ("k_V",), ("1/V",), (0.14,), battery_voltage_force, True,
+                   "thrust per commanded speed squared following the battery's voltage (battery0)",
+                   PhysicalRange("k_V times the mean voltage [-]", 0.0, 3.0,
+                                 lambda p, f: p["k_V"] * f.voltage_mean,
+                                 "a motor driven at a duty cycle turns at duty x voltage (DC motor back-EMF), so "
+                                 "thrust per command squared goes as V^2, k_V V = 2; ESCs that regulate speed "
+                                 "give less; 3 allows the voltage's sag at the motor beyond the pack's"),
+                   _explain_battery_voltage, along_thrust=True, alternative_to="battery_sag",
+                   manoeuvre="fly thrust steps of different sizes (the voltage sags under load) and long enough "
+                             "for the pack to drain",
+                   thrust_factor=lambda x: x.need("battery_voltage", "voltage_dev")),
         EffectSpec("motor_lag", ("tau",), ("s",), (0.02,), motor_lag_force, False,
                    "rotor speeds lagging their commands with a first-order time constant",
                    PhysicalRange("tau [s]", 0.003, 0.2, lambda p, f: p["tau"],

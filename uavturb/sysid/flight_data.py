@@ -61,6 +61,8 @@ class FlightData:
     covered : (K,) bool or None, rows where every stream the physics reads has samples around them (None:
         no stream has a dropout); see :func:`uavturb.sysid.streams.dropouts`
     gaps : the dropouts, ``(stream file, t_start, t_end)`` [s since the first ground-truth row]
+    voltage : (K,) V or None, the battery's voltage (``battery0``, interpolated between its updates; nan outside
+        its span); None where the recording has no battery stream
     """
 
     name: str
@@ -80,6 +82,7 @@ class FlightData:
     rotor_fresh: np.ndarray | None = None
     covered: np.ndarray | None = None
     gaps: list[tuple[str, float, float]] = field(default_factory=list)
+    voltage: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -100,7 +103,7 @@ class FlightData:
         return FlightData(self.name, self.t_ns[mask], self.t[mask], self.p[mask], self.q[mask], self.v[mask],
                           self.w[mask], pick(self.acc), self.rotor_speeds[mask], self.dv[mask], self.dw[mask],
                           pick(self.d_down), pick(self.d_up), self.window, pick(self.rotor_fresh),
-                          pick(self.covered), list(self.gaps))
+                          pick(self.covered), list(self.gaps), pick(self.voltage))
 
 
 #: share of repeated rows above which a stream may be held (read on its updates only: sample-and-hold loggers)
@@ -231,7 +234,26 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     rows = [("mav0/state_groundtruth_estimate0/data.csv", rec.ground_truth.t_ns), ("mav0/rotors0/data.csv",
                                                                                  rec.rotors.t_ns)]
     covered, gaps = _covered(t_ns, rec.t0_ns, window, rows + streams[2:])
-    return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh, covered, gaps)
+    return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh, covered, gaps,
+                      battery_voltage(rec, t_ns))
+
+
+def battery_voltage(rec: Recording, t_ns: np.ndarray) -> np.ndarray | None:
+    """(K,) V, the battery's voltage at ``t_ns`` [ns]: interpolated linearly between the stream's updates where a
+    logger repeats them (:func:`_updates`), between its rows otherwise; nan outside its span and where it holds
+    no finite voltage. None without a ``battery0`` stream of two rows or more."""
+    bat = rec.battery
+    if bat is None or len(bat.t_ns) < 2:
+        return None
+    volts = np.asarray(bat.voltage, float)
+    m = _updates(volts[:, None])
+    keep = np.isfinite(volts) if m is None else (m & np.isfinite(volts))
+    if keep.sum() < 2:
+        return None
+    tb, vb = bat.t_ns[keep], volts[keep]
+    out = np.interp(t_ns.astype(float), tb.astype(float), vb)
+    out[(t_ns < tb[0]) | (t_ns > tb[-1])] = np.nan
+    return out
 
 
 #: m, how far under the surface below the body origin the rotor plane may seem to dip (a scan's noise, a

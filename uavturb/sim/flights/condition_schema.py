@@ -72,6 +72,9 @@ class Conditions:
                                                 "rotor_speed_source: measured")
     battery_voltage: float | None = allowed(None, gt=0, lt=100, unit="V", metavar="V",
                                             help="write battery0: the voltage from V, sagging over the flight")
+    battery_load_sag: float = allowed(0.0, ge=0, lt=0.5, metavar="FRACTION",
+                                      help="with --battery-voltage: the share of V the voltage loses at hover under "
+                                           "load, growing as thrust^1.5 (0.05-0.1 on small packs)")
 
     def __post_init__(self) -> None:
         check_values(self, name=option_name)
@@ -95,6 +98,8 @@ class Conditions:
             raise InputError("--rotor-hold-staggered", "needs --rotor-hold-hz (the rate each rotor's speed updates at)")
         if self.thrust_tilt_deg > 0 and self.sensor_frame != "body":
             raise InputError("--thrust-tilt-deg", "cannot be combined with --sensor-frame euroc")
+        if self.battery_load_sag > 0 and self.battery_voltage is None:
+            raise InputError("--battery-load-sag", "needs --battery-voltage (the voltage it sags from)")
         if self.measured_rotors and self.motor_commands:
             raise InputError("--measured-rotors", "cannot be combined with --motor-commands (rotors0 holds one or "
                                                   "the other)")

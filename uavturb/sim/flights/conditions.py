@@ -116,6 +116,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from uavturb.errors import InputError
 from uavturb.io import align
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.io.vehicle_file import named_vehicle
@@ -133,12 +134,15 @@ from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import flight_room, make_reference, simulate_flight
 from uavturb.sim.flights.stream_troubles import (
     DRAIN_SAG,
+    battery_samples,
     battery_stream,
     delayed_rows,
     held_rows,
+    loaded_voltage,
     measured_speeds,
     tilt_push_at_hover,
     tilt_rotation,
+    voltage_commands,
 )
 
 #: EuRoC-like pose of the sensor frame S in B (``x_B = T_BS x_S``): columns of the rotation are S's
@@ -331,8 +335,20 @@ def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Veh
     if cond.ground_contact_s > 0:
         wind = None if cond.wind_speed is None else np.array([*cond.wind_speed, 0.0])
         rec, truth, doc["ground_contact"] = with_ground_contact(rec, truth, cond.ground_contact_s,
-                                                                vehicle=true_vehicle, effects=effects, noise=noise,
-                                                                seed=seed, wind=wind)
+                                                                vehicle=true_vehicle, effects=physics_effects(effects),
+                                                                noise=noise, seed=seed, wind=wind)
+    volts = _loaded_voltage(rec, truth, cond, effects, true_vehicle)
+    if volts is not None and "battery_voltage" in effects and not cond.measured_rotors:
+        k_V = float(effects["battery_voltage"]["k_V"])
+        # the law's reference: the mean voltage in flight (the finder's, to first order), so that k_V is the law's
+        # slope at the flight's own level: the level itself is the recording's thrust level
+        flying = np.sum(np.asarray(truth.rotor_speeds, float) ** 2, axis=1) * float(true_vehicle.thrust_coefficient) \
+            > 0.3 * true_vehicle.mass * GRAVITY
+        v_ref = float(np.mean(volts[flying])) if flying.any() else float(np.mean(volts))
+        rec = replace(rec, rotors=Rotors(rec.rotors.t_ns, voltage_commands(rec.rotors.speeds, volts, v_ref, k_V)))
+        doc["battery_voltage"] = {"law": "thrust per commanded speed squared k_T (1 + k_V (V - V_ref)): rotors0 "
+                                         "holds w / sqrt(1 + k_V (V - V_ref)) for the true speeds w",
+                                  "k_V": k_V, "V_ref": float(v_ref)}
     rec = _rotor_telemetry(rec, truth, cond, effects, noise, doc, extras)
     rec = _frames(rec, truth, cond, doc, extras)
     if cond.motor_commands:
@@ -359,7 +375,12 @@ def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Veh
                              "law": "F = -k_d Wsum R [v_a,B,x, v_a,B,y, 0] - c_d |v_a| v_a, v_a = v - v_wind",
                              "k_d": k_d, "c_d": c_d, "wsum_hover": hover_rotor_sum(true_vehicle),
                              "push_at_hover": {"f_x": float(push[0]), "f_y": float(push[1])}}
-    if cond.battery_voltage is not None:
+    if volts is not None:
+        rec = replace(rec, battery=battery_samples(rec.rotors.t_ns, volts, np.random.default_rng([int(seed), 13])))
+        doc["battery"] = {"stream": "battery0", "law": "V = V0 sqrt(1 - s t) - V0 load_sag (T / (m g))^1.5",
+                          "V0": cond.battery_voltage, "s": DRAIN_SAG, "load_sag": cond.battery_load_sag,
+                          "rate_hz": 10.0}
+    elif cond.battery_voltage is not None:
         sag = float(effects.get("battery_sag", {}).get("s", DRAIN_SAG))
         gt = rec.ground_truth
         rec = replace(rec, battery=battery_stream(int(gt.t_ns[0]), int(gt.t_ns[-1]), cond.battery_voltage, sag,
@@ -368,6 +389,24 @@ def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Veh
                           "s_from": "battery_sag" if "battery_sag" in effects else "drain (thrust unaffected)",
                           "rate_hz": 10.0}
     return Conditioned(rec, doc, extras)
+
+
+def physics_effects(effects: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
+    """The effects the simulator's physics applies: all but ``battery_voltage``, which is not a force but what the
+    logged commands mean (:func:`condition` writes it into ``rotors0``)."""
+    return {name: p for name, p in effects.items() if name != "battery_voltage"}
+
+
+def _loaded_voltage(rec: Recording, truth: Any, cond: Conditions, effects: dict[str, dict[str, float]],
+                    true_vehicle: Vehicle) -> np.ndarray | None:
+    """(K,) V on the rotor stream's rows, a battery sagging under load (:func:`~uavturb.sim.flights.stream_troubles.
+    loaded_voltage`), where ``--battery-load-sag`` or a ``battery_voltage`` in the effects asks for it; else None."""
+    if cond.battery_voltage is None or (cond.battery_load_sag <= 0 and "battery_voltage" not in effects):
+        return None
+    thrust = float(true_vehicle.thrust_coefficient) * np.sum(np.asarray(truth.rotor_speeds, float) ** 2, axis=1)
+    t = (rec.rotors.t_ns - rec.t0_ns) * 1e-9
+    return loaded_voltage(t, thrust, cond.battery_voltage, DRAIN_SAG, cond.battery_load_sag,
+                          true_vehicle.mass * GRAVITY)
 
 
 def _rotor_telemetry(rec: Recording, truth: Any, cond: Conditions, effects: dict[str, dict[str, float]],
@@ -379,7 +418,7 @@ def _rotor_telemetry(rec: Recording, truth: Any, cond: Conditions, effects: dict
         sag = float(effects.get("battery_sag", {}).get("s", 0.0))
         t = (rot.t_ns - rec.t0_ns) * 1e-9
         rot = Rotors(rot.t_ns, measured_speeds(truth.rotor_speeds, t, sag, noise.rotor_quantum))
-        invisible = sorted(set(effects) & {"battery_sag", "motor_lag"})
+        invisible = sorted(set(effects) & {"battery_sag", "battery_voltage", "motor_lag"})
         doc["measured_rotors"] = {"rotor_speed_source": "measured",
                                   "law": "w_meas = w_actual sqrt(1 - s t) (s: battery_sag, else 0), quantised",
                                   "quantum": noise.rotor_quantum, "invisible": invisible}
@@ -508,6 +547,17 @@ def truth_document(true_vehicle: Vehicle, effects: dict[str, dict[str, float]], 
     }
 
 
+def _check_voltage_law(effects: dict[str, dict[str, float]], conditions: Conditions) -> None:
+    """A ``battery_voltage`` needs a battery to follow and cannot sit beside ``battery_sag`` (both say what the
+    battery does to the thrust per command)."""
+    if "battery_voltage" not in effects:
+        return
+    if conditions.battery_voltage is None:
+        raise InputError("--effects", "battery_voltage needs --battery-voltage (the voltage the thrust follows)")
+    if "battery_sag" in effects:
+        raise InputError("--effects", "battery_voltage and battery_sag both set the thrust per command: give one")
+
+
 def read_truth(path: str | Path) -> dict[str, Any]:
     """``truth.yaml`` of a generated recording folder."""
     return read_yaml_mapping(Path(path) / TRUTH_FILE,
@@ -556,8 +606,9 @@ def generate_conditioned_flight(vehicle: str | Vehicle = "hex", effects: str | d
     if conditions.wind_speed is not None:
         eff = with_drag(eff)
         wind = np.array([conditions.wind_speed[0], conditions.wind_speed[1], 0.0])
-    rec, truth = simulate_flight(v, ref, duration=duration, effects=eff, noise=noise, seed=seed, wind=wind,
-                                 room=room)
+    _check_voltage_law(eff, conditions)
+    rec, truth = simulate_flight(v, ref, duration=duration, effects=physics_effects(eff), noise=noise, seed=seed,
+                                 wind=wind, room=room)
     w_max = v.max_rotor_speed or 2.5 * v.hover_speed()  # the controller's bound (sim.core.controller)
     out_c = condition(rec, truth, conditions, true_vehicle=v, effects=eff, seed=seed, w_max=w_max, noise=noise)
     out_c.truth = truth_document(v, eff, out_c.truth, seed=seed, kind=kind, duration=duration)

@@ -74,6 +74,36 @@ def measured_speeds(speeds: np.ndarray, t: np.ndarray, sag: float, quantum: floa
     return w if quantum <= 0 else np.round(w / quantum) * quantum
 
 
+def loaded_voltage(t: np.ndarray, thrust: np.ndarray, v0: float, sag: float, load_sag: float,
+                   hover_thrust: float) -> np.ndarray:
+    """(K,) V, a battery's voltage at ``t`` [s] under the rotors' true ``thrust`` [N] (K,): the open-circuit
+    voltage ``V0 sqrt(1 - s t)`` (:func:`battery_stream`) less the drop across its internal resistance,
+    ``V0 load_sag (T / T_hover)^1.5`` (the current goes as the rotors' power, which goes as thrust to the
+    power 1.5 by momentum theory): ``load_sag`` is the share of ``V0`` lost at hover (0.05-0.1 on small packs)."""
+    ocv = v0 * np.sqrt(np.clip(1.0 - sag * np.asarray(t, float), 0.0, None))
+    load = np.clip(np.asarray(thrust, float) / hover_thrust, 0.0, None) ** 1.5
+    return ocv - v0 * load_sag * load
+
+
+def voltage_commands(speeds: np.ndarray, voltage: np.ndarray, v_ref: float, k_V: float) -> np.ndarray:
+    """(K, N) rad/s, the commanded speeds a flight controller logs for rotors that turn at ``speeds`` (K, N) under
+    the battery's ``voltage`` (K,) [V], where the thrust per commanded speed squared goes as
+    ``1 + k_V (V - v_ref)`` (``battery_voltage`` of ``effects.md``'s registry; a duty-cycle command turns the
+    rotor faster on a fuller battery): ``w_cmd = w / sqrt(1 + k_V (V - v_ref))``."""
+    factor = np.clip(1.0 + k_V * (np.asarray(voltage, float) - v_ref), 1e-3, None)
+    return np.asarray(speeds, float) / np.sqrt(factor)[:, None]
+
+
+def battery_samples(t_ns: np.ndarray, voltage: np.ndarray, rng: np.random.Generator) -> Battery:
+    """``battery0`` sampled from a voltage [V] known on rows ``t_ns`` [ns]: every 1 / :data:`BATTERY_RATE_HZ` s,
+    noisy and quantised as :func:`battery_stream`'s."""
+    period = int(round(1e9 / BATTERY_RATE_HZ))
+    out_ns = np.arange(int(t_ns[0]), int(t_ns[-1]) + 1, period, dtype=np.int64)
+    v = np.interp(out_ns.astype(float), np.asarray(t_ns, float), voltage) + rng.normal(0.0, BATTERY_NOISE_V,
+                                                                                      len(out_ns))
+    return Battery(t_ns=out_ns, voltage=np.round(v / BATTERY_QUANTUM_V) * BATTERY_QUANTUM_V)
+
+
 def battery_stream(t0_ns: int, t1_ns: int, v0: float, sag: float, rng: np.random.Generator) -> Battery:
     """``battery0``: voltage ``V0 sqrt(1 - s t)`` [V] (thrust per speed squared goes as the voltage
     squared, so a ``battery_sag`` of ``s`` is this voltage), noisy, quantised, every
