@@ -12,7 +12,7 @@ from uavturb.gap.decide import surface_reach as decide_reach
 from uavturb.gap.fit import fit_model
 from uavturb.gap.selection import LIFT_Z, SHAPE_DELTA_CHI2, Z_WITH_CURVE, CurveEvidence, HeldOut, improvement_z
 from uavturb.gap.report import plot_surface_curve, surface_figure
-from uavturb.gap.surface_curve import lift_z, measured_curve
+from uavturb.gap.surface_curve import lift_z, measured_curve, resolution_error
 from uavturb.gap.surface_laws import (
     HOVER_THRUST_RATE,
     LAW_FITS_CHI2_DOF,
@@ -508,3 +508,22 @@ def test_steady_thrust_leaves_out_fast_changes_each_recording_apart():
     assert not steady[:200][ramp].any() and steady[:200][(t < 0.79) | (t > 1.11)].all() and steady[200:].all()
     slow = np.interp(t, [0.0, 2.0], [0.3, 0.3 * (1 + 0.9 * HOVER_THRUST_RATE * 2.0)])  # just under the bound
     assert steady_thrust(slow, t, np.zeros(200, int)).all()
+
+
+def test_a_coarse_rotor_speed_resolution_widens_each_bin():
+    """A steady hover's rounding does not average out over a bin: each bin's error gains the rounding's
+    ``quantum / (sqrt(3) w)`` of thrust (148 rad/s to 1 rad/s: 0.39 %) in quadrature; None where not quantised."""
+    assert resolution_error(0.0, np.full((3, 4), 148.0)) is None
+    res = resolution_error(1.0, np.full((3, 4), 148.0))
+    assert res == pytest.approx(np.full(3, 1.0 / (np.sqrt(3.0) * 148.0)))
+    rng = np.random.default_rng(0)
+    K = 4000
+    d = np.r_[rng.uniform(0.03, 0.1, K // 2), rng.uniform(0.5, 1.0, K // 2)]
+    need = 1.0 + 0.03 * (d < 0.1) + rng.normal(0, 0.002, K)
+    args = (d, need, np.ones(K), np.zeros(K, int))
+    kw = dict(hover=np.ones(K, bool), t=np.arange(K) * 0.01, r=0.05)
+    plain = measured_curve(*args, **kw)
+    wide = measured_curve(*args, **kw, resolution=np.full(K, 0.004))
+    for a, b in zip(plain.bins, wide.bins):
+        assert b.ratio == a.ratio and b.stderr_resolution == pytest.approx(0.004 * b.ratio)
+        assert b.stderr == pytest.approx(np.hypot(a.stderr, 0.004 * b.ratio))

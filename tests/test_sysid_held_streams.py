@@ -171,3 +171,22 @@ def test_gap_data_releasing_its_flights_builds_the_same_rows():
     for name in ("group", "t", "p", "y", "R", "rotor_speeds", "v", "d_down", "d_up"):
         np.testing.assert_array_equal(getattr(released, name), getattr(kept, name))
     np.testing.assert_array_equal(released.S_lag(0.03), kept.S_lag(0.03))
+
+
+def test_a_quantised_steady_hover_is_read_as_recorded_not_between_its_changes():
+    """Rotor speeds rounded to 1 rad/s: a 6 s hover at a true 147.7 rad/s reads 148 on every row, between changes
+    one step at a time before it and one to 149 after. Those repeats are the resolution's, so the flight's speeds
+    are the recorded 148 through the hover, not a line from 148 towards 149 (up to 1 rad/s, 1.4 % of thrust,
+    high)."""
+    rec, _ = _bobbing()
+    t = (rec.rotors.t_ns - rec.rotors.t_ns[0]) * 1e-9
+    climb = 146.6 + 0.3 * t + 0.8 * np.sin(2 * np.pi * t)  # a rotor's speed in manoeuvres: one step at a time
+    true = np.where(t < 3.0, climb, np.where(t < 9.0, 147.7, 147.7 + 0.5 * (t - 9.0)))
+    speeds = np.round(np.repeat(true[:, None], rec.rotors.speeds.shape[1], axis=1))
+    quantised = dataclasses.replace(rec, rotors=Rotors(rec.rotors.t_ns, speeds))
+    _, on_changes = held_updates(quantised)
+    assert len(on_changes.t_ns) < 20  # every change is one step: repeats of resolution, which held_updates sees
+    fd = flight_data(quantised, window_s=0.1)
+    hover = (fd.t > 3.5) & (fd.t < 8.5)
+    assert np.all(fd.rotor_speeds[hover] == 148.0)
+    assert fd.rotor_fresh is None  # and no row is thinned away

@@ -94,6 +94,8 @@ class GapData:
     voltage_dev : (K,) V, the battery's voltage minus its recording's mean in flight (``battery0``; None where a
         recording has none: :func:`gap_data`), and
     voltage_means : ``{recording name: V}``, those means
+    rotor_quantum : rad/s, the recorded rotor speeds' resolution (:func:`rotor_quantum`; 0: not quantised), set by
+        the finder on the rows it analyses (subsets and block means do not carry it)
     dense : where a held rotor stream thinned the rows to its updates (:attr:`FlightData.rotor_fresh`), the
         rows in flight before that (sums over many rows, such as thrust levels, average the interpolation
         errors out and use them); None otherwise, and in subsets
@@ -122,6 +124,7 @@ class GapData:
     arm_length: float = float("nan")
     voltage_dev: np.ndarray | None = None
     voltage_means: dict = field(default_factory=dict, repr=False)
+    rotor_quantum: float = 0.0
     _S: np.ndarray | None = field(default=None, repr=False)
     _lag_cache: dict = field(default_factory=dict, repr=False)
     _plan: list | None = field(default=None, repr=False)

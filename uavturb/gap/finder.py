@@ -215,6 +215,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     heights_broken = floor_crossing(data)  # a height through the floor: no surface effect, no curve
     candidates, not_testable, sim_fit_base = _testable_candidates(data, sim, measured_rotor_speeds(recordings))
     quantum = max((rotor_quantum(r.rotors.speeds) for r in recordings), default=0.0)
+    data.rotor_quantum = quantum  # the surface curve's bins carry what it leaves unresolved
     floor = rounding_floor(data, base.nominal.coef["k_T"], quantum)
     progress("selecting effects")
     sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor,

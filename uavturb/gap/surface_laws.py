@@ -29,7 +29,14 @@ from uavturb.errors import InputError
 from uavturb.gap.design import GapData, dependent_columns
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, _nl_values
-from uavturb.gap.surface_curve import SurfaceCurve, bin_of, bin_stats, measured_curve, shifted_curve
+from uavturb.gap.surface_curve import (
+    SurfaceCurve,
+    bin_of,
+    bin_stats,
+    measured_curve,
+    resolution_error,
+    shifted_curve,
+)
 from uavturb.gap.uncertainty import HONEST_Z, honest_stderr, presence_z
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
@@ -400,6 +407,7 @@ def surface_curve_report(curve: SurfaceCurve, fits: dict[str, LawFit], chosen: s
 
     bins = [{"d_m": b.d_m, "n": b.n, "ratio": b.ratio, "stderr": b.stderr, "law": float(v), "lo_m": b.lo,
              "hi_m": b.hi, "blocks": b.blocks, "recordings": list(b.recordings)}
+            | ({"stderr_resolution": b.stderr_resolution} if b.stderr_resolution > 0 else {})
             for b, v in zip(curve.bins, fit.values)]
     head = law_entry(fit)
     return {"surface": "ground", "bins": bins, "law_fits": fit.law_fits, "why": fit.why, "law": chosen,
@@ -520,7 +528,8 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
         & steady_thrust(modelled, data.t, data.group)
     try:
         curve = measured_curve(data.d_down, needed, modelled, data.group, hover=hover, t=data.t,
-                               r=data.rotor_radius, names=data.names)
+                               r=data.rotor_radius, names=data.names,
+                               resolution=resolution_error(data.rotor_quantum, data.rotor_speeds))
     except InputError:
         return None, None, {}
     if not curve.bins:

@@ -179,6 +179,12 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         raise InputError(f"{where}/mav0/rotors0/data.csv", "rotor speeds are needed but the recording has none")
     gt, rotors = held_updates(rec)
     rotors_held = len(rotors.t_ns) < len(rec.rotors.t_ns) and not _quantisation_steps(rotors.speeds)
+    if len(rotors.t_ns) < len(rec.rotors.t_ns) and not rotors_held:
+        # repeats of its resolution (a steady hover rounded to 1 rad/s) are values measured again, not a logger's
+        # copies: read as recorded. Interpolated between its changes instead, a 17 s hover at 148 rad/s between a
+        # change from 147 and one to 149 read up to 1 rad/s high, 1.4 % of thrust near the floor (a small
+        # quadrotor's simulated ground effect, mu = 2, read 1.5).
+        rotors = rec.rotors
     use_imu = rec.imu is not None and time_base in ("auto", "imu")
     if time_base == "imu" and rec.imu is None:
         raise InputError(f"{where}/mav0/imu0/data.csv", "file not found (time_base=imu)")
