@@ -175,9 +175,9 @@ def test_gap_data_releasing_its_flights_builds_the_same_rows():
 
 def test_a_quantised_steady_hover_is_read_as_recorded_not_between_its_changes():
     """Rotor speeds rounded to 1 rad/s: a 6 s hover at a true 147.7 rad/s reads 148 on every row, between changes
-    one step at a time before it and one to 149 after. Those repeats are the resolution's, so the flight's speeds
-    are the recorded 148 through the hover, not a line from 148 towards 149 (up to 1 rad/s, 1.4 % of thrust,
-    high)."""
+    one step at a time before it and one to 149 after. Across that gap, far longer than the stream's others, the
+    value held: the flight's speeds are the recorded 148 through the hover, not a line from 148 towards 149 (up to
+    1 rad/s, 1.4 % of thrust, high)."""
     rec, _ = _bobbing()
     t = (rec.rotors.t_ns - rec.rotors.t_ns[0]) * 1e-9
     climb = 146.6 + 0.3 * t + 0.8 * np.sin(2 * np.pi * t)  # a rotor's speed in manoeuvres: one step at a time
@@ -190,3 +190,18 @@ def test_a_quantised_steady_hover_is_read_as_recorded_not_between_its_changes():
     hover = (fd.t > 3.5) & (fd.t < 8.5)
     assert np.all(fd.rotor_speeds[hover] == 148.0)
     assert fd.rotor_fresh is None  # and no row is thinned away
+
+
+def test_a_value_held_across_a_long_gap_is_not_drawn_as_a_line():
+    """Changes every 0.3 s (ESC telemetry at ~3 Hz) are joined by lines; a change 5 s after the last one gets a point
+    one row before it carrying the old value, so the 5 s read the value that held."""
+    from uavturb.sysid.flight_data import held_across_long_gaps
+
+    rows = np.arange(0, 8_000_000_000, 20_000_000, dtype=np.int64)  # 50 Hz rows for 8 s
+    t = np.array([0, 300, 600, 900, 5900, 6200], np.int64) * 1_000_000
+    w = np.array([[500.0], [501.0], [502.0], [501.0], [503.0], [502.0]])
+    out = held_across_long_gaps(Rotors(t, w), rows)
+    assert list(out.t_ns) == [0, 300_000_000, 600_000_000, 900_000_000, 5_880_000_000, 5_900_000_000, 6_200_000_000]
+    assert list(out.speeds[:, 0]) == [500.0, 501.0, 502.0, 501.0, 501.0, 503.0, 502.0]
+    regular = Rotors(t[:4], w[:4])
+    assert held_across_long_gaps(regular, rows) is regular  # nothing long: the stream as it was

@@ -538,8 +538,8 @@ def _explain_battery(p: dict, f: FlightFacts) -> str:
 def _explain_battery_voltage(p: dict, f: FlightFacts) -> str:
     return (f"Thrust per commanded rotor speed squared follows the battery's voltage: {100 * p['k_V']:.2g} % per volt "
             f"(k_V V = {p['k_V'] * f.voltage_mean:.2g} at the mean {f.voltage_mean:.3g} V, where a motor driven "
-            f"at a duty cycle gives 2); the voltage spanned {f.voltage_span:.2g} V in flight. The commands are duty "
-            f"cycles, not speeds: model the voltage, or feed the controller the voltage.")
+            f"at a duty cycle gives 2); the voltage spanned {f.voltage_span:.2g} V in flight. The recorded commands "
+            f"act as duty cycles, not speeds: model the voltage, or feed the controller the voltage.")
 
 
 def _explain_motor_lag(p: dict, f: FlightFacts) -> str:

@@ -131,6 +131,33 @@ def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
     return gt, rotors
 
 
+#: a gap between a rotor stream's changes this many times its median gap is a value that held (a steady hover)
+HOLD_GAPS = 3.0
+
+
+def held_across_long_gaps(updates: Rotors, row_ns: np.ndarray) -> Rotors:
+    """A rotor stream read on its changes (``updates``), with each value held until just before the next change
+    where the two are more than :data:`HOLD_GAPS` times the median gap apart (a point one row period of the
+    recorded rows ``row_ns`` [ns] before the change, carrying the value): the value held there, update after update
+    (a steady hover whose speed rounds alike, or ESC telemetry repeating it), and a line drawn between the changes
+    would be off by up to a step. A 17 s hover at a true 147.7 rad/s rounded to 148, between a change from 147 and
+    one to 149, read up to 1 rad/s high drawn as a line: 1.4 % of thrust near the floor, a small quadrotor's
+    simulated ground effect (mu = 2) read 1.5."""
+    t = np.asarray(updates.t_ns, np.int64)
+    if len(t) < 3 or len(row_ns) < 2:
+        return updates
+    gaps = np.diff(t)
+    long = np.flatnonzero(gaps > HOLD_GAPS * np.median(gaps))
+    row = int(np.median(np.diff(np.asarray(row_ns, np.int64))))
+    long = long[gaps[long] > row]
+    if not len(long):
+        return updates
+    t_all = np.concatenate([t, t[long + 1] - row])
+    w_all = np.concatenate([updates.speeds, updates.speeds[long]])
+    order = np.argsort(t_all, kind="stable")
+    return Rotors(t_ns=t_all[order], speeds=w_all[order])
+
+
 def _columns_on_their_updates(rotors: Rotors, rows: np.ndarray) -> Rotors:
     """A staggered held stream (each rotor's speed updating on its own) on the rows ``rows`` where any
     column updated, each column interpolated between its own updates (and the stream's last row): a column
@@ -179,12 +206,8 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         raise InputError(f"{where}/mav0/rotors0/data.csv", "rotor speeds are needed but the recording has none")
     gt, rotors = held_updates(rec)
     rotors_held = len(rotors.t_ns) < len(rec.rotors.t_ns) and not _quantisation_steps(rotors.speeds)
-    if len(rotors.t_ns) < len(rec.rotors.t_ns) and not rotors_held:
-        # repeats of its resolution (a steady hover rounded to 1 rad/s) are values measured again, not a logger's
-        # copies: read as recorded. Interpolated between its changes instead, a 17 s hover at 148 rad/s between a
-        # change from 147 and one to 149 read up to 1 rad/s high, 1.4 % of thrust near the floor (a small
-        # quadrotor's simulated ground effect, mu = 2, read 1.5).
-        rotors = rec.rotors
+    if len(rotors.t_ns) < len(rec.rotors.t_ns) and not staggered(rec.rotors.speeds):
+        rotors = held_across_long_gaps(rotors, rec.rotors.t_ns)
     use_imu = rec.imu is not None and time_base in ("auto", "imu")
     if time_base == "imu" and rec.imu is None:
         raise InputError(f"{where}/mav0/imu0/data.csv", "file not found (time_base=imu)")
