@@ -157,3 +157,23 @@ def test_bad_battery_options_fail_in_one_line():
 
     with pytest.raises(InputError, match="not a force"):
         generate_flight(vehicle="quad", effects="battery_voltage:k_V=0.1", duration=5.0)
+
+
+def test_not_a_simulator_force():
+    """What logged commands mean is no force of a simulator: --sim-effects refuses it, --apply leaves it out."""
+    from uavturb.gap.finder import parse_sim_effects
+
+    assert not EFFECTS["battery_voltage"].simulated and all(e.simulated for n, e in EFFECTS.items()
+                                                            if n != "battery_voltage")
+    with pytest.raises(InputError, match="not a force"):
+        parse_sim_effects("ground_effect,battery_voltage")
+
+
+def test_apply_writes_the_simulators_forces_only(loaded_flights, tmp_path):
+    from uavturb.commands.gap import gap
+    from uavturb.io.physics_config import load_physics_config
+
+    conf = tmp_path / "applied.yaml"
+    report = gap(loaded_flights, tmp_path / "rep", sim_effects="none", apply=conf, log_mlflow=False)
+    assert "battery_voltage" in {e["name"] for e in report["effects"]}
+    assert "battery_voltage" not in load_physics_config(conf)["effects"]

@@ -17,6 +17,7 @@ from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M
 from uavturb.io.physics_config import load_physics_config, write_physics_config
 from uavturb.io.publish import check_apart, check_output_file, check_output_folder, publish_folder
 from uavturb.io.reader import load_recordings
+from uavturb.physics.effects import EFFECTS
 from uavturb.progress import Stages
 from uavturb.runs.store_process import StoreProcess
 
@@ -72,7 +73,8 @@ def _publish(out: Path, report: dict, ex: dict, *, apply: str | Path | None, ove
         if report["surface_curve"] is not None:
             plots.append(plot_surface_curve(tmp, ex["curve"], ex["curve_fits"]))
         if apply is not None:
-            fitted = {e["name"]: e["params"] for e in report["effects"]}
+            # the simulator's forces only: a law of what logged commands mean (battery_voltage) is not one
+            fitted = {e["name"]: e["params"] for e in report["effects"] if EFFECTS[e["name"]].simulated}
             for n, p in report["sim_effect_params"].items():
                 fitted[n] = p["fitted"] or p["sim"]
             write_physics_config(apply, fitted, {"thrust_coefficient": report["nominal"]["thrust_coefficient"]},

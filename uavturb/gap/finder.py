@@ -77,6 +77,9 @@ def parse_sim_effects(text: str | None) -> dict[str, dict[str, float]]:
     for n in names:
         if n not in EFFECTS:
             raise InputError("--sim-effects", f"unknown effect '{n}' (known: {', '.join(EFFECTS)}, or none)")
+        if not EFFECTS[n].simulated:
+            raise InputError("--sim-effects", f"'{n}' is not a force a simulator applies (it says what logged "
+                                              f"commands mean): the simulator cannot already model it")
         out[n] = dict(DEFAULT_EFFECTS.get(n, defaults(n)))
     return out
 

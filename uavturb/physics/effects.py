@@ -350,6 +350,9 @@ class EffectSpec:
     thrust_factor : a law that scales the thrust coefficient as ``k_T (1 + p x)`` (battery sag, ``x = -t``; the
         battery's voltage, ``x = V - V_mean``): ``(EffectInputs) -> x`` (K,); the finder fits ``k_T*p`` as a column
         along the thrust (it follows the motor lag's speeds); None for every other law
+    simulated : the simulator applies it as a force of its physics (``battery_voltage`` is what logged commands
+        mean on a sagging battery: ``generate flight`` writes it into the commands, and ``gap --apply`` leaves it
+        out of a physics config)
     amplitude : a surface law with two parameters whose ``ratio - 1`` is proportional to one of them (the
         exponential law's ``A``): the finder fits that one by least squares, as a column along the thrust whose
         coefficient carries ``k_T`` (``k_T*A``, as battery sag's ``k_T*s``), and searches the other over
@@ -376,6 +379,7 @@ class EffectSpec:
     bounds: tuple[tuple[float, float], ...] = ()
     amplitude: str | None = None
     thrust_factor: Callable[[EffectInputs], np.ndarray] | None = None
+    simulated: bool = True
 
     @property
     def presence_params(self) -> tuple[str, ...]:
@@ -633,7 +637,7 @@ EFFECTS: dict[str, EffectSpec] = {
                    _explain_battery_voltage, along_thrust=True, alternative_to="battery_sag",
                    manoeuvre="fly thrust steps of different sizes (the voltage sags under load) and long enough "
                              "for the pack to drain",
-                   thrust_factor=lambda x: x.need("battery_voltage", "voltage_dev")),
+                   thrust_factor=lambda x: x.need("battery_voltage", "voltage_dev"), simulated=False),
         EffectSpec("motor_lag", ("tau",), ("s",), (0.02,), motor_lag_force, False,
                    "rotor speeds lagging their commands with a first-order time constant",
                    PhysicalRange("tau [s]", 0.003, 0.2, lambda p, f: p["tau"],

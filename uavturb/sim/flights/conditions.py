@@ -392,9 +392,9 @@ def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Veh
 
 
 def physics_effects(effects: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
-    """The effects the simulator's physics applies: all but ``battery_voltage``, which is not a force but what the
-    logged commands mean (:func:`condition` writes it into ``rotors0``)."""
-    return {name: p for name, p in effects.items() if name != "battery_voltage"}
+    """The effects the simulator's physics applies: all but those that are not forces (``EffectSpec.simulated``:
+    ``battery_voltage``, what the logged commands mean, which :func:`condition` writes into ``rotors0``)."""
+    return {name: p for name, p in effects.items() if EFFECTS[name].simulated}
 
 
 def _loaded_voltage(rec: Recording, truth: Any, cond: Conditions, effects: dict[str, dict[str, float]],

@@ -182,10 +182,10 @@ def simulate_flight(vehicle: Vehicle, reference: Reference, *, duration: float |
     for name in effects:
         if name not in EFFECTS:
             raise InputError("effects", f"unknown effect '{name}'")
-    if "battery_voltage" in effects:  # what logged commands mean on a battery, not a force of the physics
-        raise InputError("effects", "battery_voltage is not a force the simulator applies but what logged commands "
-                                    "mean on a sagging battery: make it with 'uavturb generate flight --effects "
-                                    "battery_voltage:k_V=... --battery-voltage V'")
+    for name in (n for n in effects if not EFFECTS[n].simulated):  # what logged commands mean, not a force
+        raise InputError("effects", f"{name} is not a force the simulator applies but what logged commands mean on "
+                                    f"a sagging battery: make it with 'uavturb generate flight --effects "
+                                    f"{name}:k_V=... --battery-voltage V'")
     duration = float(reference.duration if duration is None else duration)
     if duration <= 0:
         raise InputError("simulate_flight", "duration must be positive")
