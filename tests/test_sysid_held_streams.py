@@ -205,3 +205,20 @@ def test_a_value_held_across_a_long_gap_is_not_drawn_as_a_line():
     assert list(out.speeds[:, 0]) == [500.0, 501.0, 502.0, 501.0, 501.0, 503.0, 502.0]
     regular = Rotors(t[:4], w[:4])
     assert held_across_long_gaps(regular, rows) is regular  # nothing long: the stream as it was
+
+
+def test_a_staggered_column_holds_its_value_across_a_long_gap():
+    """One ESC at a time at 3.3 Hz; rotor 0 reports 500 rad/s for 6 s (a steady hover), then 510: its column reads
+    500 until its change, not a 6 s line from 500 to 510."""
+    rec, _ = _bobbing()
+    every = 60
+    stag = _staggered(rec.rotors, every)
+    t = (stag.t_ns - stag.t_ns[0]) * 1e-9
+    speeds = stag.speeds.copy()
+    speeds[(t >= 3.0) & (t < 9.0), 0] = 500.0
+    speeds[t >= 9.0, 0] = 510.0 + np.floor((t[t >= 9.0] - 9.0) * 200 / every)  # changing again at each update
+    speeds[t < 3.0, 0] = 480.0 + np.floor(t[t < 3.0] * 200 / every)
+    _, rotors = held_updates(dataclasses.replace(rec, rotors=Rotors(stag.t_ns, speeds)))
+    tr = (rotors.t_ns - stag.t_ns[0]) * 1e-9
+    hover = (tr > 3.5) & (tr < 8.8)
+    assert hover.sum() > 50 and np.all(rotors.speeds[hover, 0] == 500.0)

@@ -161,12 +161,14 @@ def held_across_long_gaps(updates: Rotors, row_ns: np.ndarray) -> Rotors:
 def _columns_on_their_updates(rotors: Rotors, rows: np.ndarray) -> Rotors:
     """A staggered held stream (each rotor's speed updating on its own) on the rows ``rows`` where any
     column updated, each column interpolated between its own updates (and the stream's last row): a column
-    held since its last update is a third of a second stale at 3 Hz."""
+    held since its last update is a third of a second stale at 3 Hz. A column's value holds across a gap far longer
+    than its others (:func:`held_across_long_gaps`)."""
     own = column_update_masks(rotors.speeds)
     own[:, -1] = True
     t = rotors.t_ns[rows]
-    speeds = np.column_stack([align.interpolate(rotors.t_ns[m], rotors.speeds[m, c], t)
-                              for c, m in enumerate(own)])
+    columns = [held_across_long_gaps(Rotors(rotors.t_ns[m], rotors.speeds[m, c:c + 1]), rotors.t_ns)
+               for c, m in enumerate(own)]
+    speeds = np.column_stack([align.interpolate(col.t_ns, col.speeds[:, 0], t) for col in columns])
     return Rotors(t_ns=t, speeds=speeds)
 
 
