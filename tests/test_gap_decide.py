@@ -18,7 +18,7 @@ from uavturb.gap.decide import (
     thrust_tilt_alike,
 )
 from uavturb.gap.design import GapData, difference_points
-from uavturb.gap.fit import fit_model
+from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, lag_rotor_speeds
@@ -173,6 +173,11 @@ def test_drag_in_a_wind_reads_rotor_drag_body_drag_and_wind_speed_apart():
     assert reading["c_d"] == pytest.approx(0.05, rel=0.2)
     assert reading["wind_speed_m_s"] == pytest.approx(4.0, rel=0.1)
     assert "along the push" in entry["why"] and entry["params_if_named"]["k_d"] == fit.coef["k_d"]
+    # each value states its error (from the gains'), and the truth lies within three of them
+    for key, truth in (("k_d", 8.06e-5), ("c_d", 0.05), ("wind_speed_m_s", 4.0)):
+        se = reading["stderr"][key]
+        assert 0 < se < 0.5 * abs(reading[key]) and abs(reading[key] - truth) < 3 * se, key
+        assert f"± {se:.2g}" in entry["why"]
 
 
 def test_a_push_with_rotor_drag_alone_keeps_rotor_drag_named():
@@ -290,3 +295,21 @@ def test_wind_over_turning_headings_stands_apart_from_a_tilt():
     fit = fit_model(fixed, {"wind"})
     amb = thrust_tilt_alike(fixed, fit, flight_facts(fixed, fit.coef["k_T"]))
     assert amb is not None and amb["r2"] > 0.99 and amb["thrust_axis_tilt_deg"] == pytest.approx(1.24, abs=0.02)
+
+
+def test_drag_read_on_the_airspeed_with_body_drag_fitted_beside():
+    """Body drag fitted on the ground speed beside rotor drag takes part of the drag; every drag the fit holds goes
+    back into what the gains read, so the reading does not depend on how the fit split it (it had read half the
+    rotor drag and 1.4 times the wind on gap-proof's 4 m/s wind-tunnel row)."""
+    from uavturb.gap.decide import airspeed_drag
+
+    data = _windy(8.06e-5, 0.05)
+    alone = fit_model(data, {"wind", "rotor_drag"})
+    facts = flight_facts(data, alone.coef["k_T"])
+    a = airspeed_drag(data, alone, facts)["if_drag_on_airspeed"]
+    for c_d in (0.01, 0.04):  # the same fit with some of the drag moved into a body drag on the ground speed
+        split = ModelFit(alone.effects | {"body_drag"}, dict(alone.nonlinear), alone.coef | {"c_d": c_d},
+                         dict(alone.stderr), alone.rmse)
+        b = airspeed_drag(data, split, facts)["if_drag_on_airspeed"]
+        for key in ("k_d", "c_d", "wind_speed_m_s"):
+            assert b[key] == pytest.approx(a[key], rel=1e-9), (c_d, key)

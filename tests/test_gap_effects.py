@@ -253,4 +253,6 @@ def test_wind_tunnel_push_named_and_drag_read_on_the_airspeed(wind_tunnel, sim):
     assert reading["k_d"] == pytest.approx(8.06e-5, rel=0.15)
     assert reading["c_d"] == pytest.approx(0.05, rel=0.3)
     assert reading["wind_speed_m_s"] == pytest.approx(4.0, rel=0.1)
+    for key, truth in (("k_d", 8.06e-5), ("c_d", 0.05), ("wind_speed_m_s", 4.0)):  # within three stated errors
+        assert abs(reading[key] - truth) < 3 * reading["stderr"][key], key
     assert report["final"]["heldout_rmse_N"] < 0.2 * report["baseline"]["heldout_rmse_N"]
