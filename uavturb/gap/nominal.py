@@ -335,6 +335,11 @@ OFFSET_Z, OFFSET_PRACTICAL = 2.0, 0.025
 #: lag read as 54 ms; the Neural-Swarm walks' offsets (3-7 errors), which other physics that depends on the
 #: thrust level may lean towards as well, only widen the errors
 OFFSET_DECISIVE_Z = 10.0
+#: k_V times the mean voltage [-] at which :func:`speed_offset` reads the offset where the battery's voltage is
+#: known (``battery_voltage``'s physical range, 0-3, in steps of 0.1): a sag under load makes thrust per command
+#: squared fall as thrust rises, as an idle speed does, and read alone the offset took it (a 32 g vehicle's idle
+#: speed read three times the truth, 6 errors off)
+OFFSET_VOLTAGE_GRID = tuple(float(x) for x in np.linspace(0.0, 3.0, 31))
 
 
 @dataclass(frozen=True)
@@ -348,6 +353,7 @@ class SpeedOffset:
     w_hover : rad/s, the median mean rotor speed of those rows
     rows : how many rows; cells : in how many cells
     sse_ratio : residual sum of squares at ``delta`` over that at 0 (how much of the thrust's scatter it explains)
+    k_V : 1/V, the thrust per command squared's slope in the battery's voltage read with it (0: none known or read)
     """
 
     delta: float
@@ -356,6 +362,7 @@ class SpeedOffset:
     rows: int
     cells: int
     sse_ratio: float
+    k_V: float = 0.0
 
     @property
     def z(self) -> float:
@@ -444,7 +451,8 @@ def _best_offset(sums: dict[str, np.ndarray], n: int) -> float:
 
 
 def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarray, t: np.ndarray,
-                 S: np.ndarray | None = None) -> SpeedOffset | None:
+                 S: np.ndarray | None = None, voltage_dev: np.ndarray | None = None,
+                 voltage_mean: float = float("nan")) -> SpeedOffset | None:
     """The offset ``delta`` [rad/s] that makes thrust per ``sum((w + delta)^2)`` constant within each cell
     (module docstring, **Thrust map**); None with fewer than :data:`OFFSET_MIN_ROWS` rows in cells.
 
@@ -456,6 +464,10 @@ def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarra
     cell : (K,) int, :func:`offset_cells` (-1: not used); t : (K,) s
     S : (K,) (rad/s)^2, ``sum(w^2)`` where the thrust sees other sums than the records' (the motor lag's);
         the offset's cross term stays on the recorded speeds
+    voltage_dev : (K,) V, the battery's voltage less each recording's mean (``battery_voltage``), and
+    voltage_mean : V, its mean: the offset is read jointly with the voltage's slope ``k_V``, the thrust divided by
+        ``1 + k_V voltage_dev`` at each ``k_V V`` of :data:`OFFSET_VOLTAGE_GRID`, the least residual refined by a
+        parabola through its neighbours (in the jackknife too)
     """
     m = (np.asarray(cell) >= 0) & np.isfinite(y_thrust)
     if m.sum() < OFFSET_MIN_ROWS:
@@ -469,9 +481,37 @@ def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarra
     chunk = np.empty(len(y), np.int64)
     for k, rows in enumerate(np.array_split(order, OFFSET_CHUNKS)):
         chunk[rows] = k
-    sums = _OffsetSums(y, S, W1 / w_hover, c, chunk, int(c.max()) + 1, OFFSET_CHUNKS)
-    delta = _best_offset(sums.without(None), n)
-    loo = np.array([_best_offset(sums.without(k), n) for k in range(OFFSET_CHUNKS)])
+    known = voltage_dev is not None and np.isfinite(voltage_mean) and voltage_mean > 0
+    slopes = [x / voltage_mean for x in OFFSET_VOLTAGE_GRID] if known else [0.0]
+    dv = np.zeros(len(y)) if voltage_dev is None else np.asarray(voltage_dev, float)[m]
+    cached: dict[float, _OffsetSums] = {}
+
+    def sums_at(k: float) -> _OffsetSums:  # the cells' sums with the thrust divided by the voltage's factor
+        if k not in cached:
+            cached[k] = _OffsetSums(y / np.clip(1.0 + k * dv, 0.1, None), S, W1 / w_hover, c, chunk, int(c.max()) + 1,
+                                    OFFSET_CHUNKS)
+        return cached[k]
+
+    def at(k: float, without: int | None) -> tuple[float, float]:  # the best offset at slope k, and its residual
+        sums = sums_at(k).without(without)
+        d = _best_offset(sums, n)
+        return d, _offset_sse(sums, n, d)
+
+    def best(without: int | None) -> tuple[float, float]:  # offset and slope of least residual: grid, then parabola
+        found = [at(k, without) for k in slopes]
+        i = int(np.argmin([f[1] for f in found]))
+        if 0 < i < len(slopes) - 1:
+            a, b, e = found[i - 1][1], found[i][1], found[i + 1][1]
+            curv = a - 2 * b + e
+            if curv > 0:
+                k = slopes[i] + 0.5 * (a - e) / curv * (slopes[1] - slopes[0])
+                return at(k, without)[0], k
+        return found[i][0], slopes[i]
+
+    delta, k_V = best(None)
+    loo = np.array([best(j)[0] for j in range(OFFSET_CHUNKS)])
     se = float(np.sqrt((len(loo) - 1) / len(loo) * np.sum((loo - loo.mean()) ** 2)))
-    ratio = _offset_sse(sums.total, n, delta) / _offset_sse(sums.total, n, 0.0)
-    return SpeedOffset(delta * w_hover, se * w_hover, w_hover, int(m.sum()), int(c.max()) + 1, float(ratio))
+    total = sums_at(k_V).total
+    ratio = _offset_sse(total, n, delta) / _offset_sse(total, n, 0.0)
+    return SpeedOffset(delta * w_hover, se * w_hover, w_hover, int(m.sum()), int(c.max()) + 1, float(ratio),
+                       float(k_V))

@@ -247,7 +247,9 @@ def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None 
     S_thrust = effective_S(data, set(final.effects), nl)  # lagged, times each row's level
     rest = final.residual(data) if residual is None else residual
     y_thrust = np.einsum("ki,ki->k", rest, data.R[:, :, 2]) + final.coef["k_T"] * S_thrust
-    found = speed_offset(y_thrust, data.rotor_speeds, cells, data.t, S=S_thrust / data.thrust_level)
+    volts = [v for v in data.voltage_means.values() if np.isfinite(v)]
+    found = speed_offset(y_thrust, data.rotor_speeds, cells, data.t, S=S_thrust / data.thrust_level,
+                         voltage_dev=data.voltage_dev, voltage_mean=float(np.mean(volts)) if volts else float("nan"))
     if found is None or not found.counts or not final.effects:
         return found, {}
     effects = frozenset(final.effects)

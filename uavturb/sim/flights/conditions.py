@@ -338,6 +338,7 @@ def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Veh
                                                                 vehicle=true_vehicle, effects=physics_effects(effects),
                                                                 noise=noise, seed=seed, wind=wind)
     volts = _loaded_voltage(rec, truth, cond, effects, true_vehicle)
+    volts_t_ns = rec.rotors.t_ns  # the simulator's rows (the streams may be resampled below)
     if volts is not None and "battery_voltage" in effects and not cond.measured_rotors:
         k_V = float(effects["battery_voltage"]["k_V"])
         # the law's reference: the mean voltage in flight (the finder's, to first order), so that k_V is the law's
@@ -376,7 +377,7 @@ def condition(rec: Recording, truth: Any, cond: Conditions, *, true_vehicle: Veh
                              "k_d": k_d, "c_d": c_d, "wsum_hover": hover_rotor_sum(true_vehicle),
                              "push_at_hover": {"f_x": float(push[0]), "f_y": float(push[1])}}
     if volts is not None:
-        rec = replace(rec, battery=battery_samples(rec.rotors.t_ns, volts, np.random.default_rng([int(seed), 13])))
+        rec = replace(rec, battery=battery_samples(volts_t_ns, volts, np.random.default_rng([int(seed), 13])))
         doc["battery"] = {"stream": "battery0", "law": "V = V0 sqrt(1 - s t) - V0 load_sag (T / (m g))^1.5",
                           "V0": cond.battery_voltage, "s": DRAIN_SAG, "load_sag": cond.battery_load_sag,
                           "rate_hz": 10.0}
