@@ -367,6 +367,9 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
             f"{OFFSET_RADII:.0f} rotor radii up) thrust per sum((w + delta)^2) is steadiest at delta = "
             f"{found.delta:.4g} ± {found.stderr:.2g} rad/s ({100 * share:+.0f} % of the hover speed, "
             f"{found.w_hover:.4g} rad/s; it leaves {100 * found.sse_ratio:.0f} % of the scatter at delta = 0)")
+    if data.voltage_dev is not None:
+        note += (f", read with the thrust following the battery's voltage at k_V = {found.k_V:.3g} /V (the slope of "
+                 f"least residual with it)")
     note += (": the recorded (commanded) speeds may be off by an offset, as commands with an idle speed are; the "
              "named effects' errors carry what that reading changes (thrust map)" if found.counts else
              ": no offset that matters (two errors from zero and 2.5 % of the hover speed), the recorded speeds' "
@@ -376,7 +379,7 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
             e.update(_with_term(e, "thrust_map", terms[e["name"]]))
     return effects, {"delta_rad_s": found.delta, "stderr_rad_s": found.stderr, "share_of_hover_speed": share,
                      "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells,
-                     "sse_ratio": found.sse_ratio,
+                     "sse_ratio": found.sse_ratio, "voltage_k_V": found.k_V if data.voltage_dev is not None else None,
                      "z": found.z, "counts": found.counts, "decisive": found.decisive, "applied": False, "note": note}
 
 
