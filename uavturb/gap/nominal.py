@@ -436,11 +436,22 @@ def _offset_sse(sums: dict[str, np.ndarray], n: int, delta: float) -> float:
     return float(np.sum(sums["yy"] - fit))
 
 
+def _offset_sse_grid(sums: dict[str, np.ndarray], n: int, deltas: np.ndarray) -> np.ndarray:
+    """(G,) :func:`_offset_sse` at each offset of ``deltas`` (G,), the cells and offsets in one array each."""
+    d = np.asarray(deltas, float)[None, :]
+    col = {k: v[:, None] for k, v in sums.items()}
+    sy = col["Sy"] + 2 * d * col["Wy"] + n * d**2 * col["y"]
+    ss = (col["SS"] + 4 * d**2 * col["WW"] + n**2 * d**4 * col["one"] + 4 * d * col["SW"]
+          + 2 * n * d**2 * col["S"] + 4 * n * d**3 * col["W"])
+    fit = np.divide(sy * sy, ss, out=np.zeros_like(sy), where=ss > 0)
+    return np.sum(col["yy"] - fit, axis=0)
+
+
 def _best_offset(sums: dict[str, np.ndarray], n: int) -> float:
     """The offset [hover speeds] of least residual over :data:`OFFSET_SPAN` (a grid of 61, then a parabola
     through the best point and its neighbours)."""
     grid = np.linspace(OFFSET_SPAN[0], OFFSET_SPAN[1], 61)
-    sse = np.array([_offset_sse(sums, n, d) for d in grid])
+    sse = _offset_sse_grid(sums, n, grid)
     i = int(np.argmin(sse))
     if 0 < i < len(grid) - 1:
         a, b, c = sse[i - 1], sse[i], sse[i + 1]
