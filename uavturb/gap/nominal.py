@@ -428,12 +428,7 @@ class _OffsetSums:
 def _offset_sse(sums: dict[str, np.ndarray], n: int, delta: float) -> float:
     """Residual sum of squares of ``y = k_c (S + 2 delta W1 + n delta^2)``, ``k_c`` fitted per cell (``delta``
     in units of the hover speed, as the sums' speeds)."""
-    d = float(delta)
-    sy = sums["Sy"] + 2 * d * sums["Wy"] + n * d**2 * sums["y"]
-    ss = (sums["SS"] + 4 * d**2 * sums["WW"] + n**2 * d**4 * sums["one"] + 4 * d * sums["SW"]
-          + 2 * n * d**2 * sums["S"] + 4 * n * d**3 * sums["W"])
-    fit = np.divide(sy * sy, ss, out=np.zeros_like(sy), where=ss > 0)
-    return float(np.sum(sums["yy"] - fit))
+    return float(_offset_sse_grid(sums, n, np.array([float(delta)]))[0])
 
 
 def _offset_sse_grid(sums: dict[str, np.ndarray], n: int, deltas: np.ndarray) -> np.ndarray:
