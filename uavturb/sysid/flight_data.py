@@ -118,7 +118,8 @@ def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
     stream's rows, the repeats are dropped, so that derivatives and interpolation work between real
     updates instead of on steps. Rotor speeds whose columns update on their own (:func:`uavturb.sysid.streams.
     staggered`: one ESC reported at a time) keep every row where some column updated, each column
-    interpolated between its own updates. Streams that update on every row are returned as they are."""
+    interpolated between its own updates. A value holds across a gap far longer than the stream's others
+    (:func:`held_across_long_gaps`). Streams that update on every row are returned as they are."""
     gt, rotors = rec.ground_truth, rec.rotors
     m = _updates(np.hstack([gt.p, gt.q, gt.v]))
     if m is not None:
@@ -127,7 +128,7 @@ def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
     if m is not None and staggered(rotors.speeds):
         rotors = _columns_on_their_updates(rotors, m)
     elif m is not None:
-        rotors = Rotors(t_ns=rotors.t_ns[m], speeds=rotors.speeds[m])
+        rotors = held_across_long_gaps(Rotors(t_ns=rotors.t_ns[m], speeds=rotors.speeds[m]), rotors.t_ns)
     return gt, rotors
 
 
@@ -208,8 +209,6 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         raise InputError(f"{where}/mav0/rotors0/data.csv", "rotor speeds are needed but the recording has none")
     gt, rotors = held_updates(rec)
     rotors_held = len(rotors.t_ns) < len(rec.rotors.t_ns) and not _quantisation_steps(rotors.speeds)
-    if len(rotors.t_ns) < len(rec.rotors.t_ns) and not staggered(rec.rotors.speeds):
-        rotors = held_across_long_gaps(rotors, rec.rotors.t_ns)
     use_imu = rec.imu is not None and time_base in ("auto", "imu")
     if time_base == "imu" and rec.imu is None:
         raise InputError(f"{where}/mav0/imu0/data.csv", "file not found (time_base=imu)")
