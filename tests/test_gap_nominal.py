@@ -12,7 +12,14 @@ import pytest
 
 from uavturb.cli import main
 from uavturb.gap.design import GapData, apply_thrust_levels
-from uavturb.gap.finder import _cross_checked, _nominal, analyse, curve_named_thrust_map, read_on_moved_speeds
+from uavturb.gap.finder import (
+    _cross_checked,
+    _nominal,
+    analyse,
+    composed_offset,
+    curve_named_thrust_map,
+    read_on_moved_speeds,
+)
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.gap.nominal import (ThrustLevels, anchored_bias, block_mean_and_se, matched_height_levels,
                                  SpeedOffset, offset_cells, speed_offset, thrust_levels)
@@ -407,7 +414,8 @@ def test_a_report_read_on_moved_speeds_carries_the_recorded_reading():
     budget = {"tau": {"sample": 0.001, "stderr": 0.001, "limited_by": "sample"}}
     recorded = {"effects": [{"name": "motor_lag", "params": {"tau": 0.054}}],
                 "nominal": {"rotor_speed_offset": {"delta_rad_s": 48.0, "stderr_rad_s": 1.1, "z": 48.0 / 1.1,
-                                                   "share_of_hover_speed": 0.32, "decisive": True, "note": "x"}}}
+                                                   "share_of_hover_speed": 0.32, "hover_speed_rad_s": 150.0,
+                                                   "decisive": True, "note": "x"}}}
     moved = {"effects": [{"name": "motor_lag", "params": {"tau": 0.038}, "stderr": {"tau": 0.001},
                           "error_budget": copy.deepcopy(budget)},
                          {"name": "ground_effect", "params": {"mu": 2.6}, "stderr": {"mu": 0.3},
@@ -422,6 +430,33 @@ def test_a_report_read_on_moved_speeds_carries_the_recorded_reading():
     offset = out["nominal"]["rotor_speed_offset"]
     assert offset["applied"] and offset["after"] is None and offset["named_on_recorded_speeds"] == recorded["effects"]
     assert "44 errors from zero" in offset["note"] and "it named motor_lag (tau = 0.054)" in offset["note"]
+    assert offset["delta_rad_s"] == 48.0 and offset["stderr_rad_s"] == 1.1 and offset["moves_rad_s"] == [48.0]
+
+
+def test_moves_of_the_speeds_compose_into_one_offset():
+    """Known answer: moving by 50 (hover 150 kept) and the moved speeds by -10 is one move by 50 - 10 * 200 / 150."""
+    w = np.array([[0.0, 60.0], [150.0, 170.0]])
+    rec = _RotorsOnly(Rotors(t_ns=np.arange(2), speeds=w.copy()))
+    total = composed_offset(50.0, 150.0, -10.0)
+    assert total == pytest.approx(50.0 - 10.0 * 200.0 / 150.0)
+    twice = rotor_speeds_moved(rotor_speeds_moved(rec, 50.0, 150.0), -10.0, 150.0).rotors.speeds
+    np.testing.assert_allclose(twice, rotor_speeds_moved(rec, total, 150.0).rotors.speeds)
+
+
+def test_an_offset_applied_twice_states_the_last_reading_and_what_it_still_reads():
+    """The report of the last of two moves states the last offset applied, with an error that carries what the
+    moved speeds still read (in the records' units), and the first reading apart."""
+    recorded = {"effects": [],
+                "nominal": {"rotor_speed_offset": {"delta_rad_s": 724.0, "stderr_rad_s": 38.0, "z": 19.0,
+                                                   "share_of_hover_speed": 0.44, "hover_speed_rad_s": 1650.0,
+                                                   "decisive": True, "note": "x"}}}
+    after = {"delta_rad_s": -28.0, "stderr_rad_s": 5.0, "counts": False, "note": "y"}
+    moved = {"effects": [], "nominal": {"rotor_speed_offset": after}}
+    offset = read_on_moved_speeds(recorded, moved, [724.0, 619.0])["nominal"]["rotor_speed_offset"]
+    assert offset["delta_rad_s"] == 619.0 and offset["moves_rad_s"] == [724.0, 619.0]
+    assert offset["stderr_rad_s"] == pytest.approx(np.hypot(28.0, 5.0) * (1650.0 + 619.0) / 1650.0)
+    assert offset["read_on_recorded_speeds"] == {"delta_rad_s": 724.0, "stderr_rad_s": 38.0, "z": 19.0}
+    assert "ran 2 times, on the speeds moved by 724, then 619 rad/s" in offset["note"]
 
 
 @pytest.mark.slow

@@ -40,6 +40,7 @@ from uavturb.gap.surface_curve import (
 from uavturb.gap.uncertainty import HONEST_Z, honest_stderr, presence_z
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
+from uavturb.physics.ground_effect import hover_induced_velocity
 
 #: chi^2/dof under which a law's shape fits the bins (module docstring)
 LAW_FITS_CHI2_DOF = 3.0
@@ -426,6 +427,12 @@ def law_in_bins(curve: SurfaceCurve, law: str, value, r: float, **geometry) -> n
 #: m/s^2 and deg: hover-like samples for the measured curve (the law is a steady-flow law)
 HOVER_ACCELERATION = 1.5
 HOVER_TILT_DEG = 15.0
+#: share of the rotors' hover induced velocity (:func:`~uavturb.physics.ground_effect.hover_induced_velocity`) over
+#: which a sample's axial speed (along z_B) makes it no hover: a climb through the rotors' own inflow lowers the thrust
+#: per rotor speed squared, a descent raises it (Neural-Swarm's random walks 15-40 cm up, where the floor adds little:
+#: -3.4 % per m/s on both Crazyflies, 0.15-0.21 per induced velocity), so 5 % keeps that under about 1 %; the 32 g
+#: take-off's climbs through 9-15 cm at 0.2-0.6 m/s read 2-4 % under its hovers and bent its curve under 1 there
+HOVER_INFLOW_SHARE = 0.05
 #: 1/s: the modelled thrust's rate of change, as a share of itself, over which a sample is no hover (a lag or a
 #: late stream of 50 ms the model lacks misreads its thrust by more than 2.5 %)
 HOVER_THRUST_RATE = 0.5
@@ -525,7 +532,7 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
     needed = modelled + np.einsum("ki,ki->k", data.y - rest.predict(data), zb)
     acc = data.y / data.mass - np.array([0.0, 0.0, GRAVITY])
     hover = (np.linalg.norm(acc, axis=1) < HOVER_ACCELERATION) & (zb[:, 2] > np.cos(np.radians(HOVER_TILT_DEG))) \
-        & steady_thrust(modelled, data.t, data.group)
+        & steady_thrust(modelled, data.t, data.group) & slow_axially(data)
     try:
         curve = measured_curve(data.d_down, needed, modelled, data.group, hover=hover, t=data.t,
                                r=data.rotor_radius, names=data.names,
@@ -562,6 +569,14 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
         report["why"] += (f" The named {named[0]} at the finder's {_values_text(params)} differs from the measured "
                           f"ratio by at most {100 * worst:.1f} % of thrust in a bin.")
     return report, curve, fits
+
+
+def slow_axially(data: GapData) -> np.ndarray:
+    """(K,) bool: samples whose speed along the body z axis is under :data:`HOVER_INFLOW_SHARE` of the rotors'
+    hover induced velocity (momentum theory on ``data``'s mass, rotor count and radius): a surface law is a hover
+    law, and axial flight changes the rotors' inflow, so their thrust per speed squared, as the floor does."""
+    v_h = hover_induced_velocity(float(data.mass), data.rotor_speeds.shape[1], float(data.rotor_radius))
+    return np.abs(np.einsum("ki,ki->k", data.v, data.R[:, :, 2])) < HOVER_INFLOW_SHARE * v_h
 
 
 def steady_thrust(thrust: np.ndarray, t: np.ndarray, group: np.ndarray) -> np.ndarray:

@@ -3,3 +3,4 @@
 from __future__ import annotations
 
 GRAVITY = 9.81  # m/s^2, |g|; gravity in W is (0, 0, -GRAVITY) (recordings.md)
+AIR_DENSITY = 1.225  # kg/m^3, ISA sea level

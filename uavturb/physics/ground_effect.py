@@ -34,7 +34,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from uavturb.errors import InputError
-from uavturb.physics.constants import GRAVITY
+from uavturb.physics.constants import AIR_DENSITY, GRAVITY
 
 CLIP_FORCE_N = 0.1e-6 * GRAVITY  # N: the paper's clip value, 0.1 mg, as a weight
 
@@ -89,6 +89,19 @@ def rotor_spacing(arm_length: float, rotor_count: int) -> tuple[float, float]:
         raise InputError("ground effect", f"arm_length must be > 0 m and rotor_count >= 2, got {arm_length} "
                                           f"and {rotor_count}")
     return 2.0 * arm_length * float(np.sin(np.pi / rotor_count)), 2.0 * arm_length
+
+
+def hover_induced_velocity(mass: float, rotor_count: int, rotor_radius: float, air_density: float = AIR_DENSITY
+                           ) -> float:
+    """The rotors' induced velocity in hover [m/s], momentum theory: ``sqrt(m g / (2 rho N pi r^2))`` for ``N``
+    rotors of radius ``r`` [m] carrying ``mass`` [kg] in air of density ``air_density`` (``rho``) [kg/m^3]
+    (Leishman, *Principles of Helicopter Aerodynamics*, 2nd ed., eq. 2.15). A Crazyflie's (32 g, r = 2.31 cm) is
+    4.4 m/s; a 1.5 kg quadrotor's with 5-inch-radius rotors 5.5 m/s. Axial flight at a fair share of it changes the
+    thrust per rotor speed squared (the rotor's inflow changes)."""
+    if mass <= 0 or rotor_count < 1 or rotor_radius <= 0 or air_density <= 0:
+        raise InputError("rotor inflow", f"mass, rotor_count, rotor_radius and air density must be > 0, got "
+                                         f"{mass}, {rotor_count}, {rotor_radius} and {air_density}")
+    return float(np.sqrt(mass * GRAVITY / (2.0 * air_density * rotor_count * np.pi * rotor_radius**2)))
 
 
 def _image_term(z: np.ndarray, r: float, s: float) -> np.ndarray:
