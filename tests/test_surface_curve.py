@@ -573,6 +573,7 @@ def test_climbs_through_the_rotors_inflow_are_no_hover(monkeypatch):
     _, curve, fits = surface_laws.finder_surface_curve(data, final, resample=False)
     assert fits["ground_effect"].params["mu"] == pytest.approx(2.0, rel=0.05) and fits["ground_effect"].law_fits
     assert curve.d.max() <= 1.0 and np.all(np.isin(np.round(curve.d, 3), [0.15, 0.22, 0.35]))
+    assert any("climbed or descended faster than 0.35 m/s" in n for n in curve.notes)
     monkeypatch.setattr(surface_laws, "HOVER_INFLOW_SHARE", np.inf)
     _, _, with_climbs = surface_laws.finder_surface_curve(data, final, resample=False)
     assert abs(with_climbs["ground_effect"].params["mu"] - 2.0) > 0.2 and not with_climbs["ground_effect"].law_fits

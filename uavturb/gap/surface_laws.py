@@ -532,13 +532,20 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
     needed = modelled + np.einsum("ki,ki->k", data.y - rest.predict(data), zb)
     acc = data.y / data.mass - np.array([0.0, 0.0, GRAVITY])
     hover = (np.linalg.norm(acc, axis=1) < HOVER_ACCELERATION) & (zb[:, 2] > np.cos(np.radians(HOVER_TILT_DEG))) \
-        & steady_thrust(modelled, data.t, data.group) & slow_axially(data)
+        & steady_thrust(modelled, data.t, data.group)
+    slow = slow_axially(data)
     try:
-        curve = measured_curve(data.d_down, needed, modelled, data.group, hover=hover, t=data.t,
+        curve = measured_curve(data.d_down, needed, modelled, data.group, hover=hover & slow, t=data.t,
                                r=data.rotor_radius, names=data.names,
                                resolution=resolution_error(data.rotor_quantum, data.rotor_speeds))
     except InputError:
         return None, None, {}
+    axial = int(np.sum(hover & ~slow & (data.d_down <= curve.far_m)))
+    if axial:
+        curve.notes.append(f"{axial} otherwise hover-like samples under {curve.far_m:.2f} m climbed or descended "
+                           f"faster than {HOVER_INFLOW_SHARE * _induced_velocity(data):.2g} m/s ("
+                           f"{100 * HOVER_INFLOW_SHARE:.0f} % of the rotors' hover induced velocity) and are left out: "
+                           f"axial flight changes the rotors' inflow, and so their thrust per speed squared")
     if not curve.bins:
         return None, curve, {}
     geometry = data.geometry
@@ -575,8 +582,12 @@ def slow_axially(data: GapData) -> np.ndarray:
     """(K,) bool: samples whose speed along the body z axis is under :data:`HOVER_INFLOW_SHARE` of the rotors'
     hover induced velocity (momentum theory on ``data``'s mass, rotor count and radius): a surface law is a hover
     law, and axial flight changes the rotors' inflow, so their thrust per speed squared, as the floor does."""
-    v_h = hover_induced_velocity(float(data.mass), data.rotor_speeds.shape[1], float(data.rotor_radius))
-    return np.abs(np.einsum("ki,ki->k", data.v, data.R[:, :, 2])) < HOVER_INFLOW_SHARE * v_h
+    return np.abs(np.einsum("ki,ki->k", data.v, data.R[:, :, 2])) < HOVER_INFLOW_SHARE * _induced_velocity(data)
+
+
+def _induced_velocity(data: GapData) -> float:
+    """m/s, the rotors' hover induced velocity of ``data``'s vehicle (momentum theory)."""
+    return hover_induced_velocity(float(data.mass), data.rotor_speeds.shape[1], float(data.rotor_radius))
 
 
 def steady_thrust(thrust: np.ndarray, t: np.ndarray, group: np.ndarray) -> np.ndarray:
