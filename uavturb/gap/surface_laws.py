@@ -37,7 +37,7 @@ from uavturb.gap.surface_curve import (
     resolution_error,
     shifted_curve,
 )
-from uavturb.gap.uncertainty import HONEST_Z, honest_stderr, presence_z
+from uavturb.gap.uncertainty import HONEST_Z, honest_stderr, presence_z, with_systematic
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
 from uavturb.physics.ground_effect import hover_induced_velocity
@@ -462,7 +462,8 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
     if curve_report is None or curve is None:
         return effects, curve_report
     _, ratio, _ = curve.columns()
-    named_miss = float((curve_report.get("named") or {}).get("largest_difference", np.inf))
+    named = curve_report.get("named")  # the finder's law at its values in time, against the curve
+    named_miss = float((named or {}).get("largest_difference", np.inf))
 
     def describes(f) -> bool:  # within AGREEMENT of every bin, and closer than the finder's own law
         miss = float(np.nanmax(np.abs(ratio - f.values)))
@@ -472,9 +473,15 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
     for e in effects:
         own = curve_fits.get(e["name"])
         spec = EFFECTS[e["name"]]
-        better = [f for n, f in curve_fits.items() if n != e["name"]
-                  and EFFECTS[n].surface == spec.surface and f.law_fits and f.in_range and describes(f)]
-        if spec.surface is None or own is None or own.law_fits or not better:
+        if spec.surface is None or own is None:
+            out.append(e)
+            continue
+        if own.law_fits:  # the shape fits: the curve's values where the finder's miss a bin and the curve's do not
+            better = [own] if named is not None and named_miss > AGREEMENT and own.in_range and describes(own) else []
+        else:
+            better = [f for n, f in curve_fits.items() if n != e["name"]
+                      and EFFECTS[n].surface == spec.surface and f.law_fits and f.in_range and describes(f)]
+        if not better:
             out.append(e)
             continue
         fit = min(better, key=lambda f: f.chi2_dof)
@@ -482,31 +489,48 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
         if not presence_z(budget, fit.params, EFFECTS[fit.law].presence_params) >= HONEST_Z:
             out.append(e)  # its lift not pinned (an 18 s take-off at 50 Hz: A = 1.33 +- 1.23): the finder's law stays
             continue
+        if fit is own:
+            budget = with_systematic(budget, "surface_curve", {k: abs(float(v) - float(e["params"][k])) / 2.0
+                                                             for k, v in fit.params.items()})
+            why = (f"The finder found the effect in time at {_values_text(e['params'])}, which misses the measured "
+                   f"surface curve by {100 * named_miss:.1f} % of thrust in a bin; the law's shape fits the curve "
+                   f"(chi^2/dof {fit.chi2_dof:.1f}) and its fit there describes every bin within "
+                   f"{100 * AGREEMENT:.0f} %, so these values are the curve's (the steady hovers the law describes; "
+                   f"the flights' climbs, descents and thrust steps lean on the values in time), and their error "
+                   f"carries half the difference.")
+        else:
+            why = (f"The finder found the effect in time with {e['name']}, whose held-out gain this entry reports; "
+                   f"that law's shape misses the measured surface curve (chi^2/dof {own.chi2_dof:.1f}) where this "
+                   f"one fits it ({fit.chi2_dof:.1f}), so these values are this law's fit to the curve.")
         out.append({
             "name": fit.law, "params": dict(fit.params), "stderr": honest_stderr(budget),
-            "explanation": (f"{explanation(fit.law, fit.params, facts)} The finder found the effect in time with "
-                            f"{e['name']}, whose held-out gain this entry reports; that law's shape misses the "
-                            f"measured surface curve (chi^2/dof {own.chi2_dof:.1f}) where this one fits it "
-                            f"({fit.chi2_dof:.1f}), so these values are this law's fit to the curve."),
+            "explanation": f"{explanation(fit.law, fit.params, facts)} {why}",
             "heldout_rmse_before_N": e["heldout_rmse_before_N"], "heldout_rmse_after_N": e["heldout_rmse_after_N"],
             "z_heldout": e.get("z_heldout"), "error_budget": budget, "named_from": "surface_curve",
             "time_domain": {k: e[k] for k in ("name", "params", "stderr", "error_budget") if k in e},
         })
-        curve_report = _curve_report_naming(curve, curve_fits, fit, own)
+        curve_report = _curve_report_naming(curve, curve_fits, fit, own, e["params"])
     return out, curve_report
 
 
-def _curve_report_naming(curve: SurfaceCurve, curve_fits: dict[str, LawFit], fit: LawFit, replaced: LawFit) -> dict:
-    """The report's ``surface_curve`` for the law ``fit`` named from the measured curve in place of ``replaced``."""
+def _curve_report_naming(curve: SurfaceCurve, curve_fits: dict[str, LawFit], fit: LawFit, replaced: LawFit,
+                         replaced_params: dict[str, float]) -> dict:
+    """The report's ``surface_curve`` for the law ``fit`` named from the measured curve in place of ``replaced``
+    (the same law where only its values, ``replaced_params``, missed the curve)."""
     report = surface_curve_report(curve, curve_fits, fit.law)  # its bins' law: this fit's values
     for b in report["bins"]:
         b["law_fitted_to_curve"] = b["law"]  # named from this fit: the same values
     worst = float(np.nanmax(np.abs([b["ratio"] - b["law"] for b in report["bins"]])))
     report["named"] = {"law": fit.law, "params": dict(fit.params), "largest_difference": worst,
                        "agrees": worst <= AGREEMENT}
-    report["why"] += (f" The finder's {replaced.law} does not fit this curve (chi^2/dof {replaced.chi2_dof:.2f}); "
-                      f"{fit.law} does and is named, differing from the measured ratio by at most {100 * worst:.1f} % "
-                      f"of thrust in a bin.")
+    if fit is replaced:
+        report["why"] += (f" The finder's {fit.law} at its values in time ({_values_text(replaced_params)}) missed "
+                          f"this curve by more than {100 * AGREEMENT:.0f} % of thrust in a bin; the law is named at "
+                          f"its fit to the curve, differing from the measured ratio by at most {100 * worst:.1f} %.")
+    else:
+        report["why"] += (f" The finder's {replaced.law} does not fit this curve (chi^2/dof {replaced.chi2_dof:.2f}); "
+                          f"{fit.law} does and is named, differing from the measured ratio by at most "
+                          f"{100 * worst:.1f} % of thrust in a bin.")
     return report
 
 
