@@ -19,6 +19,7 @@ from uavturb.gap.surface_laws import (
     fit_law,
     law_in_bins,
     law_named_from_curve,
+    law_on_curve,
     steady_thrust,
     surface_curve_report,
 )
@@ -238,6 +239,15 @@ def test_plot_written_with_units(tmp_path):
     ax = surface_figure(curve, fits).axes[0]
     assert "[m]" in ax.get_xlabel() and "[-]" in ax.get_ylabel()
     assert len(ax.get_lines()) >= 3  # both laws and the line at 1
+    # the law the report names, at its values, drawn beside the fits: normalised as the curve is (the law in
+    # each bin, law_in_bins, is its average over the bin's heights)
+    named = law_on_curve(curve, "ground_effect", 3.0, R, **GEOMETRY)
+    d, ratio, _ = curve.columns()
+    assert named(d) == pytest.approx(law_in_bins(curve, "ground_effect", 3.0, R, **GEOMETRY), abs=5e-3)
+    assert named(d) == pytest.approx(ratio, abs=0.01)
+    ax = surface_figure(curve, fits, ("named: ground_effect, mu = 3", named)).axes[0]
+    line = next(ln for ln in ax.get_lines() if ln.get_label() == "named: ground_effect, mu = 3")
+    assert np.allclose(line.get_ydata(), named(line.get_xdata()))
 
 
 def test_bad_inputs():

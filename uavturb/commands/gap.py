@@ -71,7 +71,7 @@ def _publish(out: Path, report: dict, ex: dict, *, apply: str | Path | None, ove
         plots = write_plots(tmp, ex["data"], ex["r0"], ex["rs0"], ex["rf"], ex["rsf"], ex["segs"], top,
                             ex["base_ho"], ex["final_ho"])
         if report["surface_curve"] is not None:
-            plots.append(plot_surface_curve(tmp, ex["curve"], ex["curve_fits"]))
+            plots.append(plot_surface_curve(tmp, ex["curve"], ex["curve_fits"], ex.get("curve_named")))
         if apply is not None:
             # the simulator's forces only: a law of what logged commands mean (battery_voltage) is not one
             fitted = {e["name"]: e["params"] for e in report["effects"] if EFFECTS[e["name"]].simulated}

@@ -28,7 +28,7 @@ from uavturb.gap.nominal import OFFSET_DECISIVE_Z, OFFSET_RADII, ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted, rotor_speeds_moved
 from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, select
 from uavturb.gap.surface_curve import lift_z
-from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve
+from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve, law_on_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     HONEST_Z,
@@ -172,6 +172,18 @@ def composed_offset(delta: float, w_hover: float, again: float) -> float:
     on them, the hover speed kept again) comes to: ``delta + again (w_hover + delta) / w_hover``. Exact: the two
     affine moves are one, ``(w + total) w_hover / (w_hover + total)``."""
     return float(delta + again * (w_hover + delta) / w_hover)
+
+
+def _named_on_curve(curve_report: dict | None, curve, data: GapData) -> tuple[str, Callable] | None:
+    """``(label, d [m] -> ratio)`` of the law the report names at its named values, normalised as the measured
+    curve is (for the curve's plot); None where the report names none."""
+    named = (curve_report or {}).get("named")
+    if curve is None or not named:
+        return None
+    spec = EFFECTS[named["law"]]
+    values = [named["params"][k] for k in spec.params]
+    label = f"named: {named['law']}, " + ", ".join(f"{k} = {v:.3g}" for k, v in named["params"].items())
+    return label, law_on_curve(curve, named["law"], values, data.rotor_radius, **data.geometry)
 
 
 def read_on_moved_speeds(recorded: dict, moved: dict, applied: Sequence[float] | None = None) -> dict:
@@ -338,7 +350,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "candidates_tried": sel.tried,
     }
     extras = dict(data=data, r0=base.r0, rs0=rs0, rf=rf, rsf=rsf, segs=segs, drivers=drv, base_ho=base_ho,
-                  final_ho=sel.final_heldout, final=final, curve=curve, curve_fits=curve_fits)
+                  final_ho=sel.final_heldout, final=final, curve=curve, curve_fits=curve_fits,
+                  curve_named=_named_on_curve(curve_report, curve, data))
     return report, extras
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -363,15 +364,18 @@ def write_json(folder: Path, report: dict) -> None:
 
 
 @gc_paused
-def plot_surface_curve(folder: Path, curve: SurfaceCurve, fits: dict[str, LawFit]) -> str:
+def plot_surface_curve(folder: Path, curve: SurfaceCurve, fits: dict[str, LawFit],
+                       named: tuple[str, Callable[[np.ndarray], np.ndarray]] | None = None) -> str:
     """``folder/surface_curve.png``: measured ratio against rotor-plane height with error bars and counts,
-    and each fitted law; returns the file name."""
+    each law fitted to it, and ``named`` (``(label, d [m] -> ratio)``: the law the report names, at its values)
+    drawn bold; returns the file name."""
     name = "surface_curve.png"
-    _save(surface_figure(curve, fits), Path(folder) / name)
+    _save(surface_figure(curve, fits, named), Path(folder) / name)
     return name
 
 
-def surface_figure(curve: SurfaceCurve, fits: dict[str, LawFit]):
+def surface_figure(curve: SurfaceCurve, fits: dict[str, LawFit],
+                   named: tuple[str, Callable[[np.ndarray], np.ndarray]] | None = None):
     """The matplotlib figure of :func:`plot_surface_curve` (Agg)."""
     d, y, se = curve.columns()
     fig = _figure((7, 4.5))
@@ -383,7 +387,10 @@ def surface_figure(curve: SurfaceCurve, fits: dict[str, LawFit]):
         grid = np.linspace(min(b.lo for b in curve.bins), max(b.hi for b in curve.bins), 300)
         for name, lf in fits.items():
             values = ", ".join(f"{k} = {v:.3g}" for k, v in lf.params.items())
-            ax.plot(grid, lf.evaluate(grid), lw=1.2, label=f"{name}: {values}, chi²/dof = {lf.chi2_dof:.2f}")
+            ax.plot(grid, lf.evaluate(grid), lw=1.2, label=f"{name} fitted to the curve: {values}, "
+                                                            f"chi²/dof = {lf.chi2_dof:.2f}")
+        if named is not None:
+            ax.plot(grid, named[1](grid), color="k", lw=2.2, ls="--", label=named[0])
     ax.axhline(1.0, color="0.6", lw=0.8, ls="--")
     ax.set_xlabel("rotor-plane height over the ground d [m]")
     ax.set_ylabel("thrust ratio T_IGE / T_OGE [-]")

@@ -424,6 +424,14 @@ def law_in_bins(curve: SurfaceCurve, law: str, value, r: float, **geometry) -> n
     return _BinnedLaw(curve, EFFECTS[law], r, geometry, False).bins(np.append(np.atleast_1d(value), 1.0).astype(float))
 
 
+def law_on_curve(curve: SurfaceCurve, law: str, value, r: float, **geometry) -> Callable[[np.ndarray], np.ndarray]:
+    """``d [m] -> ratio``: the surface law ``law`` at ``value`` (a sequence in its parameters' order for a law with
+    several) normalised as ``curve`` is (its far level divided out), for a plot beside the curve's bins."""
+    binned = _BinnedLaw(curve, EFFECTS[law], r, geometry, False)
+    z = np.append(np.atleast_1d(value), 1.0).astype(float)
+    return lambda d: binned.at(np.asarray(d, float), z)
+
+
 #: m/s^2 and deg: hover-like samples for the measured curve (the law is a steady-flow law)
 HOVER_ACCELERATION = 1.5
 HOVER_TILT_DEG = 15.0
