@@ -7,7 +7,7 @@ import pytest
 
 from uavturb.errors import InputError
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.sysid.contact import ContactLimits, ground_contact
+from uavturb.sysid.contact import ContactLimits, _joined_why, ground_contact
 from uavturb.numerics.stream_updates import update_mask
 
 MASS = 1.5  # kg
@@ -336,3 +336,16 @@ def test_idling_rotors_rest_wherever_a_drifting_height_reads_them_but_a_motor_cu
     assert len(found) == 2 and found[1].t_start == pytest.approx(7.42, abs=0.1)  # the landing (0.2 s margin), as before
     in_air = (t > 7.2) & (t < 7.35)  # the still 0.25 s at 5 cm after the cut, margins of the landing aside
     assert not mask[in_air].any()
+
+
+def test_skims_inside_one_interval_read_as_one_sentence():
+    """Two skims whose margins merge into one interval beside a rest: the rest's sentence once, and one skim
+    sentence with how many, the lowest height and the lowest thrust of them all; skims outside are not told."""
+    found = [(1.0, 1.5, "on the landing gear: x"), (1.2, 1.4, "on the landing gear: x")]
+    skims = [(2.0, 2.1, 0.025, 0.4), (2.3, 2.4, 0.024, 0.0), (9.0, 9.1, 0.02, 0.0)]
+    why = _joined_why(found, skims, 0.8, 2.6, "rotor-plane height", "the landed height 0.024 m", 0.005)
+    assert why == ("on the landing gear: x; skimming the floor 2 times: rotor-plane height down to 0.024 m, within "
+                   "0.5 cm of the landed height 0.024 m, thrust down to 0 % of the weight: the landing gear may "
+                   "touch (a skid or a bounce)")
+    one = _joined_why([], skims[:1], 1.9, 2.2, "height", "the landed height 0.024 m", 0.005)
+    assert one.startswith("skimming the floor: height down to 0.025 m") and "40 % of the weight" in one

@@ -245,24 +245,37 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
                           bool(np.all(idle[core]))))
     top = h0 + lim.skim_m if skim_top is None else skim_top
     skim = (last >= 0) & np.isfinite(rec.h) & (rec.h <= top) & ~out
-    name = "rotor-plane height" if rotor_plane else "height"
     rested = out.copy()
+    skims = []  # (t_start, t_end, lowest height [m], lowest thrust share) of each skim
     for a, b in _runs(skim):
         if np.min(ratio[a:b]) >= lim.thrust_ratio or (a > 0 and rested[a - 1]) or (b < n and rested[b]):
             continue  # the rotors carry the weight, or a lift-off or touch-down its rest's margins cover
         out |= (rec.t >= rec.t[a] - lim.skim_margin_s) & (rec.t <= rec.t[b - 1] + lim.skim_margin_s)
-        found.append((float(rec.t[a]), float(rec.t[b - 1]),
-                      f"skimming the floor: {name} down to {np.min(rec.h[a:b]):.3f} m, within "
-                      f"{100 * lim.skim_m:.1f} cm of the landed height {top - lim.skim_m:.3f} m, thrust down to "
-                      f"{100 * np.min(ratio[a:b]):.0f} % of the weight: the landing gear may touch "
-                      f"(a skid or a bounce)"))
-    return out, [(float(rec.t[a]), float(rec.t[b - 1]), _joined_why(found, rec.t[a], rec.t[b - 1]))
+        skims.append((float(rec.t[a]), float(rec.t[b - 1]), float(np.min(rec.h[a:b])), float(np.min(ratio[a:b]))))
+    landed_text = (f"the landed height {top - lim.skim_m:.3f} m" if skim_top is None else
+                   f"the vehicle's landed height over its recordings, {top - lim.skim_m:.3f} m")
+    return out, [(float(rec.t[a]), float(rec.t[b - 1]),
+                  _joined_why(found, skims, rec.t[a], rec.t[b - 1], "rotor-plane height" if rotor_plane else "height",
+                              landed_text, lim.skim_m))
                  for a, b in _runs(out)]
 
 
-def _joined_why(found: list[tuple[float, float, str]], t0: float, t1: float) -> str:
-    """The sentences of the contact cores inside ``[t0, t1]``, joined (several merge where margins overlap)."""
-    return "; ".join(dict.fromkeys(w for a, b, w in found if a >= t0 - 1e-9 and b <= t1 + 1e-9))
+def _joined_why(found: list[tuple[float, float, str]], skims: list[tuple[float, float, float, float]], t0: float,
+                t1: float, name: str, landed_text: str, skim_m: float) -> str:
+    """The sentences of the contact cores inside ``[t0, t1]``, joined (several merge where margins overlap), and
+    one for the skims among them (``(t_start, t_end, lowest height [m], lowest thrust share)``), however many."""
+    def inside(a: float, b: float) -> bool:
+        return a >= t0 - 1e-9 and b <= t1 + 1e-9
+
+    sentences = list(dict.fromkeys(w for a, b, w in found if inside(a, b)))
+    mine = [k for k in skims if inside(k[0], k[1])]
+    if mine:
+        times = "" if len(mine) == 1 else f" {len(mine)} times"
+        sentences.append(f"skimming the floor{times}: {name} down to {min(k[2] for k in mine):.3f} m, within "
+                         f"{100 * skim_m:.1f} cm of {landed_text}, thrust down to "
+                         f"{100 * min(k[3] for k in mine):.0f} % of the weight: the landing gear may touch "
+                         f"(a skid or a bounce)")
+    return "; ".join(sentences)
 
 
 def _resting_updates(rec: _Recording, u: np.ndarray, h0: float, lim: ContactLimits
