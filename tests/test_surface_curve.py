@@ -12,7 +12,7 @@ from uavturb.gap.decide import surface_reach as decide_reach
 from uavturb.gap.fit import fit_model
 from uavturb.gap.selection import LIFT_Z, SHAPE_DELTA_CHI2, Z_WITH_CURVE, CurveEvidence, HeldOut, improvement_z
 from uavturb.gap.report import plot_surface_curve, surface_figure
-from uavturb.gap.surface_curve import lift_z, measured_curve, resolution_error
+from uavturb.gap.surface_curve import lift_z, measured_curve, resolution_error, voltage_drift
 from uavturb.gap.surface_laws import (
     HOVER_THRUST_RATE,
     LAW_FITS_CHI2_DOF,
@@ -602,3 +602,26 @@ def test_climbs_through_the_rotors_inflow_are_no_hover(monkeypatch):
     monkeypatch.setattr(surface_laws, "HOVER_INFLOW_SHARE", np.inf)
     _, _, with_climbs = surface_laws.finder_surface_curve(data, final, resample=False)
     assert abs(with_climbs["ground_effect"].params["mu"] - 2.0) > 0.2 and not with_climbs["ground_effect"].law_fits
+
+
+def test_a_thrust_level_following_the_voltage_is_read_on_the_far_samples_and_its_shift_of_each_bin_said():
+    """Known answer: hovers near the floor first, then far from it, while the pack drains 0.3 V; the thrust per
+    speed squared follows the voltage at 0.3 per volt, which nothing takes off: the far samples give the slope back,
+    and each bin's shift is the slope times its samples' mean voltage less the far samples' (the near bins were
+    flown at higher voltage and read high). Without the voltage in the thrust, or with no drain, nothing is said."""
+    d, need, model, g, t = hovers(cheeseman_bennett(2.0), levels=(1.0, 1.02), seed=21, noise=0.003)
+    dv = np.zeros(len(t))
+    for k in (0, 1):
+        m = g == k
+        dv[m] = -0.3 * (t[m] - t[m].min()) / np.ptp(t[m])
+        dv[m] -= dv[m].mean()
+    slope = 0.3
+    curve = curve_of((d, need * (1 + slope * dv), model, g, t))
+    use = np.ones(len(d), bool)
+    found = voltage_drift(curve, d, need * (1 + slope * dv) / model, dv, g, t, use)
+    assert found["slope_per_V"] == pytest.approx(slope, rel=0.05) and found["stderr_per_V"] < 0.05
+    far_v = np.mean(dv[d > curve.far_m])
+    expected = [slope * (np.mean(dv[(d >= b.lo) & (d <= b.hi) & (d <= curve.far_m)]) - far_v) for b in curve.bins]
+    assert found["shifts"] == pytest.approx(expected, rel=0.06) and found["largest"] > 0.02
+    assert voltage_drift(curve_of((d, need, model, g, t)), d, need / model, dv, g, t, use) is None
+    assert voltage_drift(curve, d, need / model, np.zeros(len(t)), g, t, use) is None

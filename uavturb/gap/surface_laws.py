@@ -36,6 +36,7 @@ from uavturb.gap.surface_curve import (
     measured_curve,
     resolution_error,
     shifted_curve,
+    voltage_drift,
 )
 from uavturb.gap.uncertainty import HONEST_Z, honest_stderr, presence_z, with_systematic
 from uavturb.physics.constants import GRAVITY
@@ -572,6 +573,16 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
                                resolution=resolution_error(data.rotor_quantum, data.rotor_speeds))
     except InputError:
         return None, None, {}
+    if data.voltage_dev is not None and "battery_voltage" not in final.effects and curve.bins:
+        drift = voltage_drift(curve, data.d_down, needed / modelled, data.voltage_dev, data.group, data.t,
+                              hover & slow)
+        if drift is not None:
+            curve.notes.append(
+                f"the far samples' thrust per rotor speed squared follows the battery's voltage within each recording "
+                f"({100 * drift['slope_per_V']:+.2g} ± {100 * drift['stderr_per_V']:.1g} % per volt, which no named "
+                f"effect takes off), and the bins were flown at other voltages than the far samples: that moves "
+                f"them by up to {100 * drift['largest']:+.1f} % of thrust (at {drift['at_m']:.3f} m), which the "
+                f"curve does not correct")
     axial = int(np.sum(hover & ~slow & (data.d_down <= curve.far_m)))
     if axial:
         curve.notes.append(f"{axial} otherwise hover-like samples under {curve.far_m:.2f} m climbed or descended "
