@@ -353,9 +353,10 @@ def voltage_drift(curve: SurfaceCurve, d: np.ndarray, raw: np.ndarray, voltage_d
     """How far the measured curve's bins may be moved by a thrust level that follows the battery's voltage within
     each recording, which no named effect takes off: the far samples' raw ratio is regressed on the voltage (each
     recording's own level and mean voltage removed, :data:`DRIFT_BLOCK_S` block means), and each bin's shift is
-    that slope times how far its samples' mean voltage lies from the far samples'. On Neural-Swarm's 32 g walks the
-    far samples read 0.28-0.40 of their thrust per volt more (the dataset's thrust map under-corrects the voltage)
-    and hovered early, at higher voltage, than the bins 10-20 cm up: those read ~0.4 % low, part of their dip under 1.
+    that slope times how far its samples' mean voltage lies from the far samples'. On Neural-Swarm's December 32 g
+    walks the far samples read 15 +- 5 % of their thrust per volt more (the dataset's thrust map under-corrects the
+    voltage) and hovered early, at higher voltage, than the bins 10-20 cm up: those read up to 0.4 % low, part of
+    their dip under 1.
 
     Parameters
     ----------

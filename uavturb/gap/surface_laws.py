@@ -573,22 +573,8 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
                                resolution=resolution_error(data.rotor_quantum, data.rotor_speeds))
     except InputError:
         return None, None, {}
-    if data.voltage_dev is not None and "battery_voltage" not in final.effects and curve.bins:
-        drift = voltage_drift(curve, data.d_down, needed / modelled, data.voltage_dev, data.group, data.t,
-                              hover & slow)
-        if drift is not None:
-            curve.notes.append(
-                f"the far samples' thrust per rotor speed squared follows the battery's voltage within each recording "
-                f"({100 * drift['slope_per_V']:+.2g} ± {100 * drift['stderr_per_V']:.1g} % per volt, which no named "
-                f"effect takes off), and the bins were flown at other voltages than the far samples: that moves "
-                f"them by up to {100 * drift['largest']:+.1f} % of thrust (at {drift['at_m']:.3f} m), which the "
-                f"curve does not correct")
-    axial = int(np.sum(hover & ~slow & (data.d_down <= curve.far_m)))
-    if axial:
-        curve.notes.append(f"{axial} otherwise hover-like samples under {curve.far_m:.2f} m climbed or descended "
-                           f"faster than {HOVER_INFLOW_SHARE * _induced_velocity(data):.2g} m/s ("
-                           f"{100 * HOVER_INFLOW_SHARE:.0f} % of the rotors' hover induced velocity) and are left out: "
-                           f"axial flight changes the rotors' inflow, and so their thrust per speed squared")
+    curve.notes.extend(_hover_notes(curve, data, needed / modelled, hover, slow,
+                                    "battery_voltage" in final.effects))
     if not curve.bins:
         return None, curve, {}
     geometry = data.geometry
@@ -619,6 +605,31 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
         report["why"] += (f" The named {named[0]} at the finder's {_values_text(params)} differs from the measured "
                           f"ratio by at most {100 * worst:.1f} % of thrust in a bin.")
     return report, curve, fits
+
+
+def _hover_notes(curve: SurfaceCurve, data: GapData, raw: np.ndarray, hover: np.ndarray, slow: np.ndarray,
+                 voltage_named: bool) -> list[str]:
+    """The measured curve's notes on its hover samples: how many climbed or descended too fast (``hover`` but not
+    ``slow``, :func:`slow_axially`), and where the far samples' thrust level follows the battery's voltage
+    (:func:`~uavturb.gap.surface_curve.voltage_drift`; not where ``battery_voltage`` is named, which takes it off).
+    ``raw`` (K,): thrust needed over modelled."""
+    notes = []
+    if data.voltage_dev is not None and not voltage_named and curve.bins:
+        drift = voltage_drift(curve, data.d_down, raw, data.voltage_dev, data.group, data.t, hover & slow)
+        if drift is not None:
+            notes.append(
+                f"the far samples' thrust per rotor speed squared follows the battery's voltage within each recording "
+                f"({100 * drift['slope_per_V']:+.2g} ± {100 * drift['stderr_per_V']:.1g} % per volt, which no named "
+                f"effect takes off), and the bins were flown at other voltages than the far samples: that moves "
+                f"them by up to {100 * drift['largest']:+.1f} % of thrust (at {drift['at_m']:.3f} m), which the "
+                f"curve does not correct")
+    axial = int(np.sum(hover & ~slow & (data.d_down <= curve.far_m)))
+    if axial:
+        notes.append(f"{axial} otherwise hover-like samples under {curve.far_m:.2f} m climbed or descended faster "
+                     f"than {HOVER_INFLOW_SHARE * _induced_velocity(data):.2g} m/s ({100 * HOVER_INFLOW_SHARE:.0f} % "
+                     f"of the rotors' hover induced velocity) and are left out: axial flight changes the rotors' "
+                     f"inflow, and so their thrust per speed squared")
+    return notes
 
 
 def slow_axially(data: GapData) -> np.ndarray:
