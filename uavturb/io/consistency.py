@@ -430,17 +430,28 @@ def _wide_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
 CLOCK_HIGH_PASS_S = 2.0
 
 
+def _off_clock(offset: tuple[float, float, float], smallest_s: float, least_correlation: float) -> bool:
+    """Whether a :func:`clock_offset` reads a stream on another clock: at least ``smallest_s`` [s] off and clearly
+    better than its own stamps (correlation at least ``least_correlation``, :data:`CLOCK_GAIN` more and twice as
+    much)."""
+    lag, best, at_zero = offset
+    return bool(np.isfinite(lag) and abs(lag) >= smallest_s and best >= least_correlation
+                and best - at_zero >= CLOCK_GAIN and best >= 2.0 * at_zero)
+
+
+def _clock_text(offset: tuple[float, float, float], what: str) -> str:
+    """``what`` matches the motion capture's best so far off (correlation ... against ... as stamped)."""
+    lag, best, at_zero = offset
+    return (f"{what} matches the motion capture's best {abs(lag):.2f} s {'late' if lag > 0 else 'early'} "
+            f"(correlation {best:.2f}, against {at_zero:.2f} as stamped)")
+
+
 def _refuse_clock(rec: Recording, stream: str, offset: tuple[float, float, float], smallest_s: float,
                   least_correlation: float, what: str) -> None:
-    """InputError naming ``stream`` where its :func:`clock_offset` is at least ``smallest_s`` [s] and clearly better
-    than its own stamps (correlation at least ``least_correlation``, :data:`CLOCK_GAIN` more and twice as much)."""
-    lag, best, at_zero = offset
-    if (np.isfinite(lag) and abs(lag) >= smallest_s and best >= least_correlation and best - at_zero >= CLOCK_GAIN
-            and best >= 2.0 * at_zero):
+    """InputError naming ``stream`` where its :func:`clock_offset` reads it on another clock (:func:`_off_clock`)."""
+    if _off_clock(offset, smallest_s, least_correlation):
         raise InputError(_where(rec, f"mav0/{stream}/data.csv"),
-                         f"{what} matches the motion capture's best {abs(lag):.2f} s {'late' if lag > 0 else 'early'} "
-                         f"(correlation {best:.2f}, against {at_zero:.2f} as stamped): it must be stamped on the "
-                         "ground truth's clock")
+                         f"{_clock_text(offset, what)}: it must be stamped on the ground truth's clock")
 
 
 def _check_imu_clock(rec: Recording, t: np.ndarray, f_mocap_z: np.ndarray, t_imu: np.ndarray, f_imu_z: np.ndarray,
@@ -453,14 +464,50 @@ def _check_imu_clock(rec: Recording, t: np.ndarray, f_mocap_z: np.ndarray, t_imu
                   "its specific force")
 
 
-def check_rotor_clock(rec: Recording) -> None:
+#: the least correlation at which the rotors' roll and pitch torques time their stream (against the body's angular
+#: acceleration; 0.36-0.66 on Neural-Swarm's Crazyflie flights, on their stamps and shifted alike), and s, how far
+#: the torques' timing may lie from the thrust's for the two to read one clock
+TORQUE_CLOCK_MIN_CORRELATION, TORQUE_CLOCK_AGREE_S = 0.3, 0.1
+
+
+def rotor_torque_offset(rec: Recording) -> tuple[float, float, float]:
+    """:func:`clock_offset` of the rotors' roll or pitch torque shape (``sum(sin a_i w_i^2)``, ``-sum(cos a_i
+    w_i^2)``, a rotor at angle ``a_i``) against the body's angular acceleration about that axis (the IMU's gyroscope
+    differentiated, else the motion capture's attitude), whichever axis correlates better at its best offset; nans
+    where neither can tell. A stream on another clock is off in its torques as in its thrust; a controller that
+    raises the thrust ahead of a disturbance it expects (Neural-Swarm's swaps, a learned downwash compensation: the
+    thrust led the force by 0.18-0.32 s) moves the thrust only."""
+    gt = rec.ground_truth
+    t = (gt.t_ns - gt.t_ns[0]) * 1e-9
+    fresh = update_mask(rec.rotors.speeds)
+    fresh[-1] = True
+    w2 = rec.rotors.speeds[fresh] ** 2
+    t_rot = (rec.rotors.t_ns[fresh] - gt.t_ns[0]) * 1e-9
+    angles = np.radians(np.asarray(rec.vehicle.rotor_angles_deg, float))
+    if rec.imu is not None and len(rec.imu) >= MIN_FLIGHT_ROWS and rec.frame == "B":
+        rate = np.stack([align.interpolate(rec.imu.t_ns, rec.imu.gyro[:, k], gt.t_ns) for k in range(2)], axis=1)
+    else:
+        rate = quat.angular_velocity_body(t, gt.q)[:, :2]
+    flying = in_flight(rec, gt.t_ns)
+    best = (float("nan"), float("nan"), float("nan"))
+    for k, shape in enumerate((w2 @ np.sin(angles), -(w2 @ np.cos(angles)))):
+        ref = np.where(flying, derivative(t, rate[:, k], MOCAP_DERIVATIVE_WINDOW_S), np.nan)
+        found = clock_offset(t, ref, t_rot, shape)
+        if np.isfinite(found[1]) and not found[1] <= best[1]:
+            best = found
+    return best
+
+
+def check_rotor_clock(rec: Recording) -> str | None:
     """The rotors' vertical thrust ``(R e_z)_z sum(w^2)`` follows the vertical force the vehicle shows (IMU, else
     motion capture) at the rotor stream's own timestamps, within a motor lag or a telemetry delay: refused in
     one line where an offset of :data:`ROTOR_CLOCK_MAX_S` or more matches clearly better (a stream on
-    another clock)."""
+    another clock), unless the rotors' torques (:func:`rotor_torque_offset`) clearly keep time on the stamps
+    (within :data:`ROTOR_CLOCK_MAX_S`) and apart from the thrust's offset: then the thrust's lead is the
+    vehicle's (a controller anticipating a disturbance), and a note says so (returned; None otherwise)."""
     gt = rec.ground_truth
     if rec.rotors is None or len(rec.rotors) < MIN_FLIGHT_ROWS or len(gt) < MIN_FLIGHT_ROWS:
-        return
+        return None
     t = (gt.t_ns - gt.t_ns[0]) * 1e-9
     up = quat.to_rotation_matrix(gt.q)[:, 2, 2]  # (R e_z)_z: the share of z_B that points up
     if rec.imu is not None and len(rec.imu) >= MIN_FLIGHT_ROWS and rec.frame == "B":
@@ -476,17 +523,29 @@ def check_rotor_clock(rec: Recording) -> None:
     t_rot = (rec.rotors.t_ns[fresh] - gt.t_ns[0]) * 1e-9
     R33 = np.interp(t_rot, t, up)
     ref = np.where(in_flight(rec, gt.t_ns), need, np.nan)
-    _refuse_clock(rec, "rotors0", clock_offset(t, ref, t_rot, R33 * S), ROTOR_CLOCK_MAX_S, ROTOR_CLOCK_MIN_CORRELATION,
-                  "its vertical thrust")
+    thrust = clock_offset(t, ref, t_rot, R33 * S)
+    if not _off_clock(thrust, ROTOR_CLOCK_MAX_S, ROTOR_CLOCK_MIN_CORRELATION):
+        return None
+    torque = rotor_torque_offset(rec)
+    if (np.isfinite(torque[0]) and torque[1] >= TORQUE_CLOCK_MIN_CORRELATION and abs(torque[0]) < ROTOR_CLOCK_MAX_S
+            and abs(torque[0] - thrust[0]) >= TORQUE_CLOCK_AGREE_S):
+        return (f"{_where(rec, 'mav0/rotors0/data.csv')}: {_clock_text(thrust, 'the vertical thrust')}, but the "
+                f"roll and pitch torques keep time "
+                f"on the stamps ({1e3 * torque[0]:+.0f} ms, correlation {torque[1]:.2f}): read as stamped; the "
+                f"thrust leads what the vehicle feels, as a controller that anticipates a disturbance makes it")
+    _refuse_clock(rec, "rotors0", thrust, ROTOR_CLOCK_MAX_S, ROTOR_CLOCK_MIN_CORRELATION, "its vertical thrust")
+    return None
 
 
-def check_recording(rec: Recording) -> None:
+def check_recording(rec: Recording) -> list[str]:
     """The checks physics commands run: :func:`check_rotor_columns`, :func:`check_thrust_axis`,
-    :func:`check_position_velocity`, :func:`check_imu` and :func:`check_rotor_clock`.
+    :func:`check_position_velocity`, :func:`check_imu` and :func:`check_rotor_clock`; returns the notes of checks
+    that passed with something to say (for the recording's ``read_notes``).
     (:func:`check_vertical_response` runs on imported logs only: flights that barely climb read correlations
     near zero either way, -0.22 on a test bag.)"""
     check_rotor_columns(rec)
     check_thrust_axis(rec)
     check_position_velocity(rec)
     check_imu(rec)
-    check_rotor_clock(rec)
+    note = check_rotor_clock(rec)
+    return [note] if note else []

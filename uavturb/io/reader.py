@@ -6,6 +6,7 @@ shared with :mod:`uavturb.io.writer`.
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import os
 from pathlib import Path
@@ -334,8 +335,7 @@ def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None =
             raise InputError(p, f"is given twice (also as {seen[key]}): each recording once")
         seen[key] = p
     recs = [read_recording(p, vehicle=v, require_rotors=True) for p in paths]
-    for r in recs:
-        check_recording(r)
+    recs = [dataclasses.replace(r, read_notes=r.read_notes + tuple(check_recording(r))) for r in recs]
     first = recs[0].vehicle
     for r in recs[1:]:
         if r.vehicle.rotor_count != first.rotor_count or r.vehicle.mass != first.mass:
