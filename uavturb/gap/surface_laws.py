@@ -422,15 +422,20 @@ def law_in_bins(curve: SurfaceCurve, law: str, value, r: float, **geometry) -> n
     """(B,) the surface law ``law`` at its parameter ``value`` (a sequence in its parameters' order for a law
     with several) in each bin of ``curve`` (averaged over the bin's samples and normalised as the curve is, as
     :func:`fit_law` compares it)."""
-    return _BinnedLaw(curve, EFFECTS[law], r, geometry, False).bins(np.append(np.atleast_1d(value), 1.0).astype(float))
+    return _BinnedLaw(curve, EFFECTS[law], r, geometry, False).bins(_fixed_level(value))
 
 
 def law_on_curve(curve: SurfaceCurve, law: str, value, r: float, **geometry) -> Callable[[np.ndarray], np.ndarray]:
     """``d [m] -> ratio``: the surface law ``law`` at ``value`` (a sequence in its parameters' order for a law with
     several) normalised as ``curve`` is (its far level divided out), for a plot beside the curve's bins."""
-    binned = _BinnedLaw(curve, EFFECTS[law], r, geometry, False)
-    z = np.append(np.atleast_1d(value), 1.0).astype(float)
+    binned, z = _BinnedLaw(curve, EFFECTS[law], r, geometry, False), _fixed_level(value)
     return lambda d: binned.at(np.asarray(d, float), z)
+
+
+def _fixed_level(value) -> np.ndarray:
+    """A law's parameters ``value`` (one number or a sequence) with the far level 1 after them, as
+    :class:`_BinnedLaw` reads them."""
+    return np.append(np.atleast_1d(value), 1.0).astype(float)
 
 
 #: m/s^2 and deg: hover-like samples for the measured curve (the law is a steady-flow law)

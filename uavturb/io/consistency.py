@@ -530,9 +530,9 @@ def check_rotor_clock(rec: Recording) -> str | None:
     if (np.isfinite(torque[0]) and torque[1] >= TORQUE_CLOCK_MIN_CORRELATION and abs(torque[0]) < ROTOR_CLOCK_MAX_S
             and abs(torque[0] - thrust[0]) >= TORQUE_CLOCK_AGREE_S):
         return (f"{_where(rec, 'mav0/rotors0/data.csv')}: {_clock_text(thrust, 'the vertical thrust')}, but the "
-                f"roll and pitch torques keep time "
-                f"on the stamps ({1e3 * torque[0]:+.0f} ms, correlation {torque[1]:.2f}): read as stamped; the "
-                f"thrust leads what the vehicle feels, as a controller that anticipates a disturbance makes it")
+                f"roll and pitch torques keep time on the stamps ({1e3 * torque[0]:+.0f} ms, correlation "
+                f"{torque[1]:.2f}): read as stamped; the thrust leads what the vehicle feels, as a controller that "
+                f"anticipates a disturbance makes it")
     _refuse_clock(rec, "rotors0", thrust, ROTOR_CLOCK_MAX_S, ROTOR_CLOCK_MIN_CORRELATION, "its vertical thrust")
     return None
 
