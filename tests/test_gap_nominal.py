@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from uavturb.cli import main
-from uavturb.gap.design import GapData, apply_thrust_levels
+from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels
 from uavturb.gap.finder import (
     _cross_checked,
     _nominal,
@@ -283,6 +283,20 @@ def test_honest_errors_cover_the_spread_between_recordings():
         assert alone == pytest.approx(truth, rel=0.05) and abs(alone - mu) < 2.0 * se
     assert budget["height_reference"] > 0  # a centimetre of height moves mu
     assert HEIGHT_REFERENCE_M == 0.01
+
+
+def test_a_recording_too_short_to_fit_alone_is_left_out_of_the_spread():
+    """Beside two sessions (mu 1.6 and 2.4), a third with 60 rows in flight (a take-off whose rotor speeds
+    update at 3 Hz) cannot be analysed alone: its own fit is noise, not a session's spread, and is left out."""
+    data = _ground_flights(mus=(1.6, 2.4, 6.0), levels=(1.0, 1.0, 1.0), tops=(1.4, 1.4, 1.4))
+    data = data.subset((data.group < 2) | (data.t < 0.6))
+    assert np.sum(data.group == 2) == 60 < MIN_ROWS
+    final = fit_model(data, {"ground_effect"})
+    budget = error_budget(data, final, "ground_effect")["mu"]
+    assert budget["fits"] == 2 and budget["recordings_too_short"] == 1
+    assert budget["between_recordings"] == pytest.approx(np.std([1.6, 2.4], ddof=1), rel=0.1)
+    whole = data.subset(data.group < 2)
+    assert "recordings_too_short" not in error_budget(whole, fit_model(whole, {"ground_effect"}), "ground_effect")["mu"]
 
 
 def test_one_recording_gets_a_block_jackknife():

@@ -79,7 +79,8 @@ def test_a_law_named_from_the_surface_curve_says_which_law_found_it(tmp_path):
            "explanation": "Extra lift ...", "heldout_rmse_before_N": 0.0323, "heldout_rmse_after_N": 0.0229,
            "z_heldout": 7.6, "named_from": "surface_curve",
            "error_budget": {"A": {"sample": 0.037, "height_reference": 0.108, "between_recordings": 0.087,
-                                  "stderr": 0.115, "limited_by": "height_reference"}},
+                                  "stderr": 0.115, "limited_by": "height_reference", "fits": 2,
+                                  "recordings_too_short": 1}},
            "time_domain": {"name": "ground_effect", "params": {"mu": 6.217}, "stderr": {"mu": 3.45}}}
     report = {"recordings": ["a/to67"], "sim_effects": [], "protocol": "leave-one-recording-out",
               "residual_source": "imu", "baseline": {"heldout_rmse_N": 0.0323, "rmse_N": 0.0323},
@@ -90,6 +91,9 @@ def test_a_law_named_from_the_surface_curve_says_which_law_found_it(tmp_path):
     text = (tmp_path / "report.md").read_text()
     assert "| `ground_effect_exponential` | A = 0.41 ± 0.11, lam = 1.66 ± 0.19 |" in text
     assert "  - named from the measured surface curve; found in time as `ground_effect` (mu = 6.2 ± 3.5)" in text
+    assert ("  - error of A: ± 0.115, limited by height reference (sample 0.037, height reference 0.108, between "
+            "recordings 0.087); 1 recording(s) with too few rows in flight to be fitted alone left out of the spread "
+            "between recordings") in text
 
 
 def test_the_surface_curve_says_where_heights_are_measured_from(tmp_path):

@@ -35,6 +35,10 @@ from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, EffectInputs, lag_rotor_speeds, lag_stretches
 from uavturb.sysid.flight_data import FlightData
 
+#: rows in flight an analysis needs (a minute of 3 Hz rotor telemetry over two flights has ~150): fewer, and
+#: ``uavturb gap`` refuses the recordings, and a recording with fewer is not fitted alone for the spread between
+#: recordings (:func:`uavturb.gap.uncertainty.error_budget`)
+MIN_ROWS = 100
 #: nonlinear parameter of each effect whose law is not linear in it, with its search bounds
 #: (from the registry; a law with an ``amplitude`` is searched over its other parameter)
 NONLINEAR = {n: (e.searched_param, *e.search) for n, e in EFFECTS.items() if e.search is not None}

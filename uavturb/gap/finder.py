@@ -21,7 +21,7 @@ from uavturb.gap.decide import (
     thrust_tilt_alike,
     too_small,
 )
-from uavturb.gap.design import GapData, apply_thrust_levels, gap_data, rotor_quantum, rounding_floor
+from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.nominal import OFFSET_DECISIVE_Z, OFFSET_RADII, ThrustLevels
@@ -66,8 +66,6 @@ STAGES = ["reading the recordings", "aligning the streams", "the nominal model",
 #: vehicle's idle speed of 550 rad/s read 724 +- 38 with a 30 ms lag read as 67 ms; on the moved speeds, whose lag
 #: read 21 ms, a further -73 rad/s counted)
 MAX_OFFSET_MOVES = 3
-#: rows in flight the analysis needs (a minute of 3 Hz rotor telemetry over two flights has ~150)
-MIN_ROWS = 100
 
 
 def parse_sim_effects(text: str | None) -> dict[str, dict[str, float]]:

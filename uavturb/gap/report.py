@@ -11,6 +11,7 @@ from uavturb.gap.locate import AXES, features
 from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, gc_paused, scatter_rows
 from uavturb.gap.surface_curve import SurfaceCurve
 from uavturb.gap.surface_laws import LawFit
+from uavturb.gap.uncertainty import BUDGET_TERMS
 from uavturb.io.strict_json import dumps_strict
 
 #: units of the candidate drivers of :func:`uavturb.gap.locate.features` (plot axes)
@@ -197,9 +198,12 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
             L.append(f"- **{e['name']}**: {e['explanation']}")
             for k, b in (e.get("error_budget") or {}).items():
                 terms = ", ".join(f"{t.replace('_', ' ')} {v:.3g}" for t, v in b.items()
-                                  if t not in ("stderr", "limited_by", "fits") and v is not None and np.isfinite(v))
+                                  if t in BUDGET_TERMS and v is not None and np.isfinite(v))
+                short = b.get("recordings_too_short", 0)
+                left = (f"; {short} recording(s) with too few rows in flight to be fitted alone left out of the "
+                        f"spread between recordings" if short else "")
                 L.append(f"  - error of {k}: ± {b['stderr']:.3g}, limited by {b['limited_by'].replace('_', ' ')} "
-                         f"({terms})")
+                         f"({terms}){left}")
             if e.get("time_domain"):
                 td = e["time_domain"]
                 L.append(f"  - named from the measured surface curve; found in time as `{td['name']}` "

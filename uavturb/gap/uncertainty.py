@@ -12,9 +12,14 @@ other and of the noise) added in quadrature:
 - **sample**: the least-squares error, widened by the height-reference term below;
 - **between recordings**: with two or more recordings that can each test the effect, the standard
   deviation of the parameter fitted on each recording alone (so a recording's own fit lands within
-  about two stated errors of the joint value, as the contract asks);
-- **between blocks**: with one recording, the jackknife over :data:`TIME_BLOCKS` contiguous blocks
-  of it (correlated errors within a block, independent between);
+  about two stated errors of the joint value, as the contract asks). A recording with fewer rows in
+  flight than an analysis needs (:data:`~uavturb.gap.design.MIN_ROWS`: ``uavturb gap`` refuses it alone)
+  has no fit of its own to land anywhere and is left out of the spread: a take-off whose rotor speeds
+  update at 3 Hz (47 updates in flight) fitted alone an exponential ground effect's A = 1.03 where the
+  two walks beside it gave 0.45 and 0.35, and its noise, counted as a spread between sessions, had
+  left the law within two errors of zero;
+- **between blocks**: with one recording (or one long enough to be fitted alone), the jackknife over
+  :data:`TIME_BLOCKS` contiguous blocks of it (correlated errors within a block, independent between);
 - **height reference** (surface effects): half the change of the parameter when every height is
   moved by ``+-`` :data:`HEIGHT_REFERENCE_M` (the rotor plane's height above the body origin and the
   floor's height are rarely known better than a centimetre), added in quadrature to the sample error;
@@ -57,7 +62,7 @@ from typing import Callable
 
 import numpy as np
 
-from uavturb.gap.design import GapData, effective_S, surface_reach_m
+from uavturb.gap.design import MIN_ROWS, GapData, effective_S, surface_reach_m
 from uavturb.gap.fit import ModelFit, _nl_values, fit_model
 from uavturb.gap.nominal import SpeedOffset, offset_cells, speed_offset
 from uavturb.physics.effects import EFFECTS
@@ -136,9 +141,10 @@ def error_budget(data: GapData, final: ModelFit, name: str,
             _refit(_shifted(data, -height_reference_m), effects, name)
         for k in keys:
             budget[k]["height_reference"] = abs(up[k] - down[k]) / 2 if up and down else float("nan")
-    groups = np.unique(data.group)
-    if len(groups) >= 2:
-        parts = [data.subset(data.group == g) for g in groups]
+    groups, rows = np.unique(data.group, return_counts=True)
+    short = int(np.sum(rows < MIN_ROWS)) if len(groups) >= 2 else 0
+    if len(groups) - short >= 2:
+        parts = [data.subset(data.group == g) for g in groups[rows >= MIN_ROWS]]
         label, jack = "between_recordings", False
     else:
         edges = np.quantile(data.t, np.linspace(0, 1, TIME_BLOCKS + 1))
@@ -151,6 +157,8 @@ def error_budget(data: GapData, final: ModelFit, name: str,
         b = budget[k]
         b[label] = spread[k]
         b["fits"] = len(values)
+        if short:
+            b["recordings_too_short"] = short
         sample = float(np.hypot(b["sample"], b.get("height_reference", 0.0) or 0.0))
         terms = {"sample": b["sample"], "height_reference": b.get("height_reference", 0.0), label: spread[k]}
         b["stderr"] = float(np.nanmax([sample, spread[k]])) if np.isfinite(sample) or np.isfinite(spread[k]) \
