@@ -15,9 +15,9 @@ from uavturb.cli import main
 from uavturb.io.consistency import check_rotor_clock
 from uavturb.io.ply import read_ply, write_ply
 from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES
-from uavturb.gap.preparation import stream_limits
+from uavturb.gap.preparation import state_thinned, stream_limits
 from uavturb.io.reader import read_recording
-from uavturb.io.recording import Battery
+from uavturb.io.recording import Battery, GroundTruth
 from uavturb.sim.flights.simulate import generate_flight
 
 
@@ -390,6 +390,24 @@ def test_a_battery_stream_is_listed_but_sets_no_update_rate(good):
     late = stream_limits(replace(rec, battery=Battery(t_ns=t + 10**12, voltage=np.full(len(t), 16.0),
                                                       current=np.full(len(t), 9.0))))
     assert "outside the ground truth in time" in late[0][-1]
+
+
+def test_a_ground_truth_thinned_to_half_its_update_rate(good):
+    """The stream rate term's input: a ground truth updating at 15 Hz comes back updating at 7.5 Hz, each kept
+    update's values held through the next one's rows; too slow for a surface effect now, it is keyed for it."""
+    rec = read_recording(good)
+    gt = rec.ground_truth
+    n = int(round(len(gt) / ((gt.t_ns[-1] - gt.t_ns[0]) * 1e-9) / 15.0))  # rows per update at 15 Hz
+    src = (np.arange(len(gt)) // n) * n
+    held = replace(rec, ground_truth=GroundTruth(t_ns=gt.t_ns, p=gt.p[src], q=gt.q[src], v=gt.v[src],
+                                                 b_w=gt.b_w[src], b_a=gt.b_a[src]))
+    thinned = state_thinned(held).ground_truth
+    want = (np.arange(len(gt)) // (2 * n)) * (2 * n)
+    assert np.array_equal(thinned.p, gt.p[want]) and np.array_equal(thinned.q, gt.q[want])
+    assert np.array_equal(thinned.v, gt.v[want]) and np.array_equal(thinned.t_ns, gt.t_ns)
+    assert "surface" not in stream_limits(held)[1]
+    limits = stream_limits(replace(held, ground_truth=thinned))[1]
+    assert "heights crossed in 0.2 s" in limits["surface"] and "motor_lag" not in limits
 
 
 def test_a_thrust_leading_the_force_while_the_torques_keep_time_is_read_as_stamped(tmp_path, capsys, good):

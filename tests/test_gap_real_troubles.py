@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from uavturb.errors import InputError
-from uavturb.gap.finder import _timing_checked, analyse
+from uavturb.gap.finder import _rate_checked, _timing_checked, analyse
+from uavturb.gap.preparation import state_thinned
 from uavturb.io.reader import load_recordings
 from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
@@ -63,6 +64,12 @@ def test_held_and_late_measured_rotors(tmp_path):
     for e in report["effects"]:  # every named parameter's error counts what is left uncertain of the timing
         for b in e["error_budget"].values():
             assert np.isfinite(b["rotor_timing"]) and b["stderr"] >= b["rotor_timing"]
+    # motion capture updating at 9 Hz, too slow for a surface effect: the law's error counts the stream's rate,
+    # and the truth lies within two stated errors
+    assert report["streams"]["state_too_slow"] == [str(p) for p in paths]
+    mu = named["ground_effect"]
+    assert 0.0 <= mu["error_budget"]["mu"]["stream_rate"] <= mu["stderr"]["mu"]
+    assert abs(mu["params"]["mu"] - 2.0) < 2 * mu["stderr"]["mu"]
     # the term is the named model refitted across the timing interval: none for no interval, more for more
     recordings = load_recordings(paths)
     finals = {}
@@ -72,6 +79,15 @@ def test_held_and_late_measured_rotors(tmp_path):
         _timing_checked(effects, extras["final"], recordings, [str(p) for p in paths], wide)
         finals[name] = effects[0]["error_budget"]["mu"]["rotor_timing"]
     assert finals["none"] == 0.0 and finals["wide"] > 0.01
+    # the stream rate term is the named model refitted on the ground truth at half its rate, where it is too slow
+    effects = [{k: v for k, v in e.items() if k != "error_budget"} | {"error_budget": {
+        p: {t: x for t, x in b.items() if t != "stream_rate"} for p, b in e["error_budget"].items()}}
+        for e in copy.deepcopy(report["effects"])]
+    assert _rate_checked(copy.deepcopy(effects), extras["final"], recordings, [str(p) for p in paths], []) == effects
+    halved = [state_thinned(r) for r in recordings]
+    slower = _rate_checked(copy.deepcopy(effects), extras["final"], halved, [str(p) for p in paths],
+                           [str(p) for p in paths])
+    assert slower[0]["error_budget"]["mu"]["stream_rate"] > 0.0  # 2.25 Hz against 4.5 Hz: mu moves
 
 
 @pytest.mark.slow

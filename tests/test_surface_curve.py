@@ -485,15 +485,20 @@ def test_a_law_named_from_the_curve_replaces_one_whose_shape_misses_it():
     # ... at its values in time (mu = 6.2) it misses that curve by over 2 % in a bin: the same law is named at its
     # fit to the curve (the steady hovers), its error carrying half the difference; close values in time stay
     mu_curve = fits["ground_effect"].params["mu"]
+    slow = {"mu": td["error_budget"]["mu"] | {"stream_rate": 0.9, "rotor_timing": 0.4}}  # a slow and a late stream
     for mu_time, replaced in ((6.2, True), (mu_curve * 1.02, False)):
         miss = float(np.max(np.abs(law_in_bins(curve, "ground_effect", mu_time, R, **GEOMETRY) - curve.columns()[1])))
-        timed = td | {"params": {"mu": mu_time}}
+        timed = td | {"params": {"mu": mu_time}, "error_budget": slow}
         named = report | {"named": {"law": "ground_effect", "params": {"mu": mu_time}, "largest_difference": miss}}
         (entry,), new = law_named_from_curve([timed], named, curve, fits, data, facts, 0.01)
         assert (miss > 0.02) == replaced and (entry is not timed) == replaced
         if replaced:
             assert entry["name"] == "ground_effect" and entry["params"]["mu"] == mu_curve == pytest.approx(3.0, rel=0.1)
             assert entry["error_budget"]["mu"]["surface_curve"] == pytest.approx(abs(6.2 - mu_curve) / 2)
+            # the streams' terms are kept: they move the steady hovers as well
+            kept = entry["error_budget"]["mu"]
+            assert kept["stream_rate"] == 0.9 and kept["rotor_timing"] == 0.4
+            assert entry["stderr"]["mu"] >= np.hypot(0.9, 0.4)
             assert entry["stderr"]["mu"] >= abs(6.2 - mu_curve) / 2 and entry["time_domain"]["params"] == {"mu": 6.2}
             assert new["named"]["agrees"] and "misses the measured surface curve by" in entry["explanation"]
 

@@ -25,7 +25,7 @@ from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels, gap_data,
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.nominal import OFFSET_DECISIVE_Z, OFFSET_RADII, ThrustLevels
-from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted, rotor_speeds_moved
+from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted, rotor_speeds_moved, state_thinned
 from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, select
 from uavturb.gap.surface_curve import lift_z
 from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve, law_on_curve
@@ -37,6 +37,7 @@ from uavturb.gap.uncertainty import (
     honest_stderr,
     presence_z,
     statistical_errors,
+    stream_rate_term,
     thrust_map_term,
     timing_term,
     with_curve_check,
@@ -299,6 +300,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("honest errors")
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
+    named = _rate_checked(named, final, recordings, paths, held["state_too_slow"])
     named = [e | _with_term(e, "command_sampling", command_sampling_term(
         [hold_period_s(r.rotors.t_ns, r.rotors.speeds) for r in recordings])) if e["name"] == "motor_lag" else e
              for e in named]
@@ -395,6 +397,28 @@ def _timing_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: 
     for e in effects:
         low, high = (None if f is None else f.effect_params(e["name"])[0] for f in ends)
         e.update(_with_term(e, "rotor_timing", timing_term(low, high, tuple(e["params"]))))
+    return effects
+
+
+def _rate_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: Sequence, paths: Sequence[str],
+                  state_too_slow: Sequence[str]) -> list[dict[str, Any]]:
+    """``effects`` with the **stream rate** term of :mod:`uavturb.gap.uncertainty` in each surface law's budget,
+    where some recording's ground truth updates too slowly for a surface effect (``state_too_slow``, its paths):
+    the named model refitted with those recordings' ground truth at half its update rate
+    (:func:`uavturb.gap.preparation.state_thinned`)."""
+    surface = [e for e in effects if EFFECTS[e["name"]].surface is not None]
+    if not surface or not state_too_slow:
+        return effects
+    recs = [state_thinned(r) if p in state_too_slow else r for r, p in zip(recordings, paths)]
+    try:
+        data, _ = _flight_rows([flight_data(r) for r in recs], recordings[0].vehicle, paths)
+        apply_thrust_levels(data)
+        thinned = fit_model(data, final.effects, with_stderr=False)
+    except (InputError, np.linalg.LinAlgError, ValueError):
+        thinned = None
+    for e in surface:
+        e.update(_with_term(e, "stream_rate", stream_rate_term(
+            e["params"], None if thinned is None else thinned.effect_params(e["name"])[0])))
     return effects
 
 

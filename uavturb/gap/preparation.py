@@ -26,7 +26,8 @@ from scipy.ndimage import median_filter
 from uavturb.errors import InputError
 from uavturb.gap.nominal import mocap_specific_force
 from uavturb.io.consistency import FLIGHT_SHARE
-from uavturb.io.recording import Recording, Rotors
+from uavturb.io.recording import GroundTruth, Recording, Rotors
+from uavturb.numerics.stream_updates import update_mask
 from uavturb.physics import quaternion as quat
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import strongest_surface_lift
@@ -117,28 +118,30 @@ def rotor_speeds_moved(rec: Recording, delta: float, w_hover: float) -> Recordin
                                                   speeds=np.where(w > 0, np.maximum(moved, 0.0), w)))
 
 
-def stream_limits(rec: Recording) -> tuple[list[str], list[str], float]:
-    """(one line per stream: rows and updates; sentences where a stream updates too slowly for the
-    ground effect or a motor lag; the slowest update rate [Hz] of the streams the residual force and
-    the model read)."""
+def stream_limits(rec: Recording) -> tuple[list[str], dict[str, str], float]:
+    """(one line per stream: rows and updates; a sentence where a stream updates too slowly for what it must
+    resolve, keyed ``"surface"`` (the ground truth, for a surface effect) or ``"motor_lag"`` (the rotor speeds);
+    the slowest update rate [Hz] of the streams the residual force and the model read)."""
     streams = {"state_groundtruth_estimate0": (rec.ground_truth.t_ns, rec.ground_truth.p)}
     if rec.rotors is not None:
         streams["rotors0"] = (rec.rotors.t_ns, rec.rotors.speeds)
     if rec.imu is not None:
         streams["imu0"] = (rec.imu.t_ns, rec.imu.acc)
-    lines, limits, slowest = [], [], np.inf
+    lines, limits, slowest = [], {}, np.inf
     for name, (t, x) in streams.items():
         u = stream_updates(f"{rec.name}/{name}", t, x)
         lines.append(u.describe())
         slowest = min(slowest, u.update_rate_hz)
         if name == "state_groundtruth_estimate0":
-            why = slow_for(u, needed_rate_hz(SURFACE_CROSSING_S), "a surface effect (heights crossed in 0.2 s)")
+            kind, why = "surface", slow_for(u, needed_rate_hz(SURFACE_CROSSING_S),
+                                            "a surface effect (heights crossed in 0.2 s)")
         elif name == "rotors0":
-            why = slow_for(u, needed_rate_hz(MOTOR_LAG_S), f"a motor lag of {1e3 * MOTOR_LAG_S:.0f} ms")
+            kind, why = "motor_lag", slow_for(u, needed_rate_hz(MOTOR_LAG_S),
+                                              f"a motor lag of {1e3 * MOTOR_LAG_S:.0f} ms")
         else:
-            why = None
+            kind, why = None, None
         if why:
-            limits.append(why)
+            limits[kind] = why
     if rec.battery is not None and len(rec.battery.t_ns):
         line = stream_updates(f"{rec.name}/battery0", rec.battery.t_ns, rec.battery.voltage[:, None]).describe()
         apart = (rec.battery.t_ns[-1] < rec.ground_truth.t_ns[0]) or (rec.battery.t_ns[0] > rec.ground_truth.t_ns[-1])
@@ -147,6 +150,18 @@ def stream_limits(rec: Recording) -> tuple[list[str], list[str], float]:
                "not read (measured rotor speeds already show the voltage)")
         lines.append(f"{line}; {'outside the ground truth in time, ' if apart else ''}{use}")
     return lines, limits, slowest
+
+
+def state_thinned(rec: Recording) -> Recording:
+    """``rec`` with its ground truth at half its update rate: every other update dropped and the one before it
+    held through its rows (the **stream rate** term of :mod:`uavturb.gap.uncertainty`)."""
+    gt = rec.ground_truth
+    changed = update_mask(np.hstack([gt.p, gt.q, gt.v]))
+    first = np.flatnonzero(changed)
+    k = np.cumsum(changed) - 1  # the update in force at each row
+    src = first[k - k % 2]
+    return dataclasses.replace(rec, ground_truth=GroundTruth(t_ns=gt.t_ns, p=gt.p[src], q=gt.q[src], v=gt.v[src],
+                                                             b_w=gt.b_w[src], b_a=gt.b_a[src]))
 
 
 def _vehicle_landed_height(fds: Sequence[FlightData]) -> float | None:
@@ -236,8 +251,9 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
              ) -> tuple[list[Recording], list[FlightData], dict[str, Any]]:
     """The recordings with late telemetry corrected, their flight data, and what was found
     (``streams``, ``stream_limits``, ``delays``, ``dropouts``: stretches where a stream has no sample, whose rows
-    every fit leaves out)."""
-    recs, fds, delays, lines, limits, gaps = [], [], [], [], [], []
+    every fit leaves out; ``state_too_slow``: the recordings whose ground truth updates too slowly for a surface
+    effect)."""
+    recs, fds, delays, lines, limits, gaps, slow_state = [], [], [], [], [], [], []
     slowest = np.inf
     for rec, path in zip(recordings, paths):
         fd = flight_data(rec)
@@ -251,7 +267,8 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
         fds.append(fd)
         ln, lim, rate = stream_limits(rec)
         lines += list(rec.read_notes) + ln
-        limits += lim
+        limits += list(lim.values())
+        slow_state += [path] if "surface" in lim else []
         slowest = min(slowest, rate)
     return recs, fds, {"streams": lines, "stream_limits": limits, "delays": delays, "dropouts": gaps,
-                       "slowest_update_hz": slowest}
+                       "slowest_update_hz": slowest, "state_too_slow": slow_state}

@@ -453,6 +453,9 @@ HOVER_THRUST_RATE = 0.5
 #: largest difference [share of thrust] between the named law and the measured ratio in a bin for the
 #: report to call them in agreement
 AGREEMENT = 0.02
+#: systematic terms of the values in time that a law named from the curve at its own values keeps: what a late or
+#: slow stream does to the law's values moves the steady hovers' thrust and heights as well
+CARRIED_TERMS = ("rotor_timing", "stream_rate")
 
 
 def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | None, curve: SurfaceCurve | None,
@@ -471,7 +474,9 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
     range, whose lift stands :data:`~uavturb.gap.uncertainty.HONEST_Z` statistical errors from zero (as every
     named effect's), and that describe every bin within :data:`~uavturb.gap.surface_laws.AGREEMENT` (2 % of
     thrust) and closer than the finder's law at its value: a ``chi2/dof`` under 3 alone lets a law miss a bin with a
-    large error by 8 % (a simulated Cheeseman-Bennett flight whose lowest bin read 1.19 for the law's 1.10). Called by
+    large error by 8 % (a simulated Cheeseman-Bennett flight whose lowest bin read 1.19 for the law's 1.10). The same
+    law at the curve's values keeps the values in time's :data:`CARRIED_TERMS` (rotor timing, stream rate) in its
+    error; another law's parameters are not the same numbers, and its error is the curve's. Called by
     the finder (:mod:`uavturb.gap.finder`) on its named effects' entries (``effects``) and its ``surface_curve``."""
     if curve_report is None or curve is None:
         return effects, curve_report
@@ -506,6 +511,9 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
         if fit is own:
             budget = with_systematic(budget, "surface_curve", {k: abs(float(v) - float(e["params"][k])) / 2.0
                                                              for k, v in fit.params.items()})
+            for term in CARRIED_TERMS:  # what the streams' timing and rate do to the law's values, in its units
+                found = {k: b[term] for k, b in e.get("error_budget", {}).items() if term in b}
+                budget = with_systematic(budget, term, found) if found else budget
             why = (f"The finder found the effect in time at {_values_text(e['params'])}, which misses the measured "
                    f"surface curve by {100 * named_miss:.1f} % of thrust in a bin; the law's shape fits the curve "
                    f"(chi^2/dof {fit.chi2_dof:.1f}) and its fit there describes every bin within "

@@ -36,6 +36,12 @@ other and of the noise) added in quadrature:
   (:func:`uavturb.gap.preparation.timing_interval`: one standard error either side of a delay taken out,
   up to 80 ms where none could be timed). A thrust that is read 60 ms late moves every law that reads
   the thrust.
+- **stream rate** (surface laws where the ground truth updates too slowly for a surface effect,
+  :func:`stream_rate_term`: PX4's estimate written at 50-90 Hz but updated at 9 Hz): the change of the parameter
+  when that stream's updates are thinned to every other one (:func:`uavturb.gap.preparation.state_thinned`). An
+  error that grows with the interval between updates (heights and accelerations read between them) is at the
+  recorded rate about as large as what doubling the interval adds to it, so the change is the term (not half of
+  it).
 - **command sampling** (``motor_lag``, :func:`command_sampling_term`): a quarter of the rotor stream's hold
   period (the interval between its updates). The lag is fitted with the commands held between rows (zero-order hold); a
   controller that changes them between rows (a ramp) leads the held values by up to half a step, which the
@@ -190,7 +196,7 @@ def honest_stderr(budget: dict[str, dict[str, float]]) -> dict[str, float]:
 
 #: the terms of a budget that are systematic (their sources independent of each other and of the sample
 #: noise): a stated error adds each in quadrature to what was stated before it
-SYSTEMATIC_TERMS = ("surface_curve", "rotor_timing", "thrust_map", "command_sampling", "speed_offset")
+SYSTEMATIC_TERMS = ("surface_curve", "rotor_timing", "stream_rate", "thrust_map", "command_sampling", "speed_offset")
 #: every term a budget may hold, in the order they are added
 BUDGET_TERMS = ("sample", "height_reference", "between_recordings", "between_blocks", *SYSTEMATIC_TERMS)
 
@@ -237,6 +243,14 @@ def timing_term(low: dict[str, float] | None, high: dict[str, float] | None, key
     if low is None or high is None:
         return {k: float("nan") for k in keys}
     return {k: abs(float(high[k]) - float(low[k])) / 2.0 for k in keys}
+
+
+def stream_rate_term(recorded: dict[str, float], thinned: dict[str, float] | None) -> dict[str, float]:
+    """The **stream rate** term: the change of each parameter when the slow stream runs at half its update rate
+    (``thinned``, None where that fit failed: nan)."""
+    if thinned is None:
+        return {k: float("nan") for k in recorded}
+    return {k: abs(float(thinned[k]) - float(v)) for k, v in recorded.items()}
 
 
 def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None = None
