@@ -27,6 +27,7 @@ from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, rotor_sp
 from uavturb.gap.surface_laws import finder_surface_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
+    Refits,
     command_sampling_term,
     error_budget,
     honest_stderr,
@@ -297,6 +298,20 @@ def test_a_recording_too_short_to_fit_alone_is_left_out_of_the_spread():
     assert budget["between_recordings"] == pytest.approx(np.std([1.6, 2.4], ddof=1), rel=0.1)
     whole = data.subset(data.group < 2)
     assert "recordings_too_short" not in error_budget(whole, fit_model(whole, {"ground_effect"}), "ground_effect")["mu"]
+
+
+def test_the_budgets_of_one_model_share_their_refits():
+    """Two budgets of one model (the decision whether the law is pinned, without the height reference, then the
+    named effect's) refit each recording and each height shift once, and state what unshared refits state."""
+    data = _ground_flights(mus=(1.6, 2.4))
+    final = fit_model(data, {"ground_effect"})
+    refits = Refits()
+    pinned = error_budget(data, final, "ground_effect", height_reference_m=0.0, refits=refits)["mu"]
+    assert len(refits) == 2  # each recording alone
+    named = error_budget(data, final, "ground_effect", refits=refits)["mu"]
+    assert len(refits) == 4  # and the heights moved up and down: the recordings' fits were reused
+    assert named == error_budget(data, final, "ground_effect")["mu"]
+    assert pinned["between_recordings"] == named["between_recordings"] > 0
 
 
 def test_one_recording_gets_a_block_jackknife():

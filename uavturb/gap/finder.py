@@ -32,6 +32,7 @@ from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve,
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     HONEST_Z,
+    Refits,
     command_sampling_term,
     error_budget,
     honest_stderr,
@@ -277,7 +278,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor,
                  curve=nominal_curve_evidence(data, base.least_squares, heights_broken is None))
     progress("deciding what the data support")
-    sel, ambiguous, rejected = _decide(data, sel, candidates)
+    refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
+    sel, ambiguous, rejected = _decide(data, sel, candidates, refits)
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
     rf = final.residual(data)
@@ -298,7 +300,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("the surface curve")
     curve_report, curve, curve_fits = finder_surface_curve(data, final) if heights_broken is None else (None, None, {})
     progress("honest errors")
-    named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty), curve_fits)
+    named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty, refits), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
     named = _rate_checked(named, final, recordings, paths, held["state_too_slow"])
     named = [e | _with_term(e, "command_sampling", command_sampling_term(
@@ -605,24 +607,24 @@ def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels) -> dict[str, 
     return out
 
 
-def _budget(data: GapData, final: ModelFit, name: str,
-            height_uncertainty: float = HEIGHT_REFERENCE_M) -> dict[str, dict[str, float]]:
+def _budget(data: GapData, final: ModelFit, name: str, height_uncertainty: float = HEIGHT_REFERENCE_M,
+            refits: Refits | None = None) -> dict[str, dict[str, float]]:
     """:func:`uavturb.gap.uncertainty.error_budget` of ``name`` in ``final`` (a surface law's recordings
     must each come within its reach to count)."""
     if EFFECTS[name].surface is None:
-        return error_budget(data, final, name)
+        return error_budget(data, final, name, refits=refits)
     return error_budget(data, final, name, can_test=lambda d: surface_reach(d, name).testable,
-                        height_reference_m=height_uncertainty)
+                        height_reference_m=height_uncertainty, refits=refits)
 
 
-def not_pinned(data: GapData, final: ModelFit, name: str) -> str | None:
+def not_pinned(data: GapData, final: ModelFit, name: str, refits: Refits | None = None) -> str | None:
     """Why ``name`` is no discovery when none of its parameters that say it is there
     (:attr:`~uavturb.physics.effects.EffectSpec.presence_params`) stands :data:`HONEST_Z` honest standard errors
     from zero (the spread between recordings or blocks counted), else None."""
     if not EFFECTS[name].absent_at_zero:
         return None
     params, _ = final.effect_params(name)
-    budget = _budget(data, final, name, height_uncertainty=0.0)
+    budget = _budget(data, final, name, height_uncertainty=0.0, refits=refits)
     z = presence_z(budget, params, EFFECTS[name].presence_params)
     if not np.isfinite(z) or z >= HONEST_Z:
         return None
@@ -632,14 +634,15 @@ def not_pinned(data: GapData, final: ModelFit, name: str) -> str | None:
 
 
 def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
-                   height_uncertainty: float = HEIGHT_REFERENCE_M) -> list[dict[str, Any]]:
+                   height_uncertainty: float = HEIGHT_REFERENCE_M, refits: Refits | None = None
+                   ) -> list[dict[str, Any]]:
     """The report's ``effects``: each chosen effect's fitted parameters with honest errors
     (:mod:`uavturb.gap.uncertainty`: sample, height reference, between recordings or blocks), the
     explanation and the held-out gain."""
     effects_out = []
     for s in sel.steps:
         params, _ = final.effect_params(s.name)
-        budget = _budget(data, final, s.name, height_uncertainty)
+        budget = _budget(data, final, s.name, height_uncertainty, refits)
         effects_out.append({
             "name": s.name, "params": params, "stderr": honest_stderr(budget),
             "explanation": explanation(s.name, params, facts),
@@ -663,7 +666,7 @@ def _cross_checked(effects: list[dict[str, Any]], curve_fits: dict) -> list[dict
     return effects
 
 
-def _decide(data: GapData, sel: Selection, candidates: list[str]
+def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits | None = None
             ) -> tuple[Selection, list[dict], list[dict]]:
     """Keep only what the data decide (:mod:`uavturb.gap.decide`): a chosen effect outside its
     physical range is rejected, one its data cannot tell from the other unknowns goes to
@@ -680,7 +683,7 @@ def _decide(data: GapData, sel: Selection, candidates: list[str]
         for s in steps:
             params, _ = final.effect_params(s.name)
             bad = (EFFECTS[s.name].physical_range.violation(params, facts) or too_small(data, final, s.name)
-                   or not_pinned(data, final, s.name))
+                   or not_pinned(data, final, s.name, refits))
             if bad is not None:
                 rejected.append({"name": s.name, "params": params, "why": bad})
                 drop = s
