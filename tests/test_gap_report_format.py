@@ -116,6 +116,12 @@ def test_the_surface_curve_says_where_heights_are_measured_from(tmp_path):
     assert ("by the rotor plane's height (rotor_plane_z: 2.5 cm below the body origin, "
             "+-1 cm in every stated error)" in text)
     assert "Height reference" not in text
+    assert "Measured between" not in text  # bins without their edges: no range to state
+    curve["bins"][0] |= {"lo_m": 0.048, "hi_m": 0.053}
+    write_markdown(tmp_path, report, [])
+    assert ("Measured between 0.048 and 0.053 m (the hover-like samples' rotor-plane heights): the law's values "
+            "nearer the floor or farther from it are its shape carried beyond these flights, not a measurement."
+            ) in (tmp_path / "report.md").read_text()
     report["height_reference"] = height_reference(0.0, 0.01, True)
     write_markdown(tmp_path, report, [])
     text = (tmp_path / "report.md").read_text()

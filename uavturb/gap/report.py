@@ -275,6 +275,11 @@ def _surface_curve_lines(curve: dict | None, height: dict | None = None, missing
          "", "| rotor-plane height [m] | samples | measured ratio | ± | law |", "|---|---|---|---|---|"]
     for b in curve["bins"]:
         L.append(f"| {b['d_m']:.3f} | {b['n']} | {b['ratio']:.4f} | {b['stderr']:.4f} | {b['law']:.4f} |")
+    lo, hi = curve["bins"][0].get("lo_m"), curve["bins"][-1].get("hi_m")
+    if lo is not None and hi is not None:
+        L.append(f"\nMeasured between {lo:.3f} and {hi:.3f} m (the hover-like samples' rotor-plane heights): the law's "
+                 "values nearer the floor or farther from it are its shape carried beyond these flights, not a "
+                 "measurement.")
     for alt in curve.get("alternatives", []):
         L.append(f"\nAlternative `{alt['law']}`: {format_params(alt['params'], alt['stderr'])}, chi^2/dof = "
                  f"{alt['chi2_dof']:.2f} ({'fits' if alt['law_fits'] else 'does not fit'}).")
