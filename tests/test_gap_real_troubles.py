@@ -38,6 +38,7 @@ def test_contact_at_both_ends_is_left_out_and_the_ground_effect_named(tmp_path):
     named = {e["name"]: e for e in report["effects"]}
     assert list(named) == ["ground_effect"]
     assert named["ground_effect"]["params"]["mu"] == pytest.approx(2.0, rel=0.1)
+    assert report["surface_curve"]["not_named"] is None  # the lift the curve shows is named
     for path in paths:
         truth = read_truth(path)["conditions"]["ground_contact"]["intervals_s"]
         found = [(c["t_start"], c["t_end"]) for c in report["ground_contact"] if c["recording"] == str(path)]

@@ -116,12 +116,15 @@ def test_the_surface_curve_says_where_heights_are_measured_from(tmp_path):
     assert ("by the rotor plane's height (rotor_plane_z: 2.5 cm below the body origin, "
             "+-1 cm in every stated error)" in text)
     assert "Height reference" not in text
-    assert "Measured between" not in text  # bins without their edges: no range to state
+    assert "Measured between" not in text and "Not named" not in text  # bins without their edges: no range
+    curve["not_named"] = "the curve stands 11 standard errors above 1 near the floor, a lift no law is named for"
     curve["bins"][0] |= {"lo_m": 0.048, "hi_m": 0.053}
     write_markdown(tmp_path, report, [])
     assert ("Measured between 0.048 and 0.053 m (the hover-like samples' rotor-plane heights): the law's values "
             "nearer the floor or farther from it are its shape carried beyond these flights, not a measurement."
             ) in (tmp_path / "report.md").read_text()
+    assert ("**Not named**: the curve stands 11 standard errors above 1 near the floor, a lift no law is named for."
+            in (tmp_path / "report.md").read_text())
     report["height_reference"] = height_reference(0.0, 0.01, True)
     write_markdown(tmp_path, report, [])
     text = (tmp_path / "report.md").read_text()

@@ -26,8 +26,8 @@ from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.nominal import OFFSET_DECISIVE_Z, OFFSET_RADII, ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted, rotor_speeds_moved, state_thinned
-from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, select
-from uavturb.gap.surface_curve import lift_z
+from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, lift_not_named, select
+from uavturb.gap.surface_curve import LIFT_RADII, lift_z
 from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve, law_on_curve
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
@@ -275,8 +275,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     data.rotor_quantum = quantum  # the surface curve's bins carry what it leaves unresolved
     floor = rounding_floor(data, base.nominal.coef["k_T"], quantum)
     progress("selecting effects")
-    sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor,
-                 curve=nominal_curve_evidence(data, base.least_squares, heights_broken is None))
+    evidence = nominal_curve_evidence(data, base.least_squares, heights_broken is None)
+    sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor, curve=evidence)
     progress("deciding what the data support")
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
     sel, ambiguous, rejected = _decide(data, sel, candidates, refits)
@@ -310,6 +310,11 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     named, curve_report = law_named_from_curve(named, curve_report, curve, curve_fits, data, facts,
                                                height_uncertainty)
     named = curve_named_thrust_map(named, data, final, speed_map)
+    if curve_report is not None:
+        decided = ({e["name"] for e in named + rejected + not_testable}
+                   | {c for a in ambiguous for c in a["candidates"]})
+        curve_report["not_named"] = lift_not_named(evidence, sel.tried, decided, *_held_out_near_s(data, fm),
+                                                   protocol)
     report = {
         "schema": SCHEMA,
         "recordings": paths,
@@ -505,6 +510,19 @@ def _simulator_baseline(data: GapData, sim: dict[str, dict[str, float]]) -> _Bas
     baseline_ls = fit_model(base_data, set(), with_stderr=False)
     return _Baseline(nominal, offset, baseline_ls, baseline.residual(base_data),
                      baseline.predict(base_data) + offset)
+
+
+def _held_out_near_s(data: GapData, fold_masks: list) -> tuple[float, float]:
+    """s, the held-out rows' time within :data:`~uavturb.gap.surface_curve.LIFT_RADII` rotor radii of the surface
+    below, and all of it (rows times each recording's median row period)."""
+    test = np.any([t for _, t in fold_masks], axis=0)
+    near = test & (data.d_down < LIFT_RADII * data.rotor_radius)
+    period = np.zeros(len(data))
+    for g in np.unique(data.group):
+        m = data.group == g
+        steps = np.diff(np.sort(data.t[m]))
+        period[m] = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
+    return float(period[near].sum()), float(period[test].sum())
 
 
 def nominal_curve_evidence(data: GapData, nominal: ModelFit, heights_hold: bool = True) -> CurveEvidence:

@@ -285,6 +285,8 @@ def _surface_curve_lines(curve: dict | None, height: dict | None = None, missing
                  f"{alt['chi2_dof']:.2f} ({'fits' if alt['law_fits'] else 'does not fit'}).")
     for note in curve.get("notes", []):
         L.append(f"\nNote: {note}")
+    if curve.get("not_named"):
+        L.append(f"\n**Not named**: {curve['not_named']}.")
     if height and height.get("note"):
         L.append(f"\n**Height reference**: {height['note']}")
     return L

@@ -187,6 +187,8 @@ def improvement_z(before: HeldOut, after: HeldOut, block_s: tuple[float, ...] = 
 #: blocks the spread of a held-out gain needs at least, and s, the shortest block it is estimated over (errors
 #: are correlated over tenths of seconds: shorter blocks would pass for independent what is not)
 MIN_BLOCKS, MIN_BLOCK_S = 8, 0.25
+#: held-out z an effect needs to be chosen (module docstring)
+Z_IMPROVE = 4.0
 #: held-out z a ground law needs where the measured surface curve shows the lift on its own (module docstring)
 Z_WITH_CURVE = 2.0
 #: standard errors above 1 the measured curve must show near the surface for that
@@ -220,6 +222,37 @@ class CurveEvidence:
         if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)):
             return True
         return a < b - SHAPE_DELTA_CHI2
+
+
+def lift_not_named(evidence: CurveEvidence, tried: dict[str, dict[str, float]], decided: set[str],
+                   near_s: float, test_s: float, protocol: str, z_improve: float = Z_IMPROVE) -> str | None:
+    """Why the lift the measured surface curve shows near the floor is named by no law, in one sentence: the best
+    ground law's held-out ``z`` against what it needed, and how long the held-out rows stay near the floor (a single
+    walk whose last 30 % strays up scores ``z`` 1.8 with a lift of 8 % at 11 standard errors). None where the curve
+    shows no lift (``evidence.lift_z`` under :data:`LIFT_Z`), no ground law was tried, or one is named, rejected or
+    undecided (``decided``: their names; the report says why where they are).
+
+    Parameters
+    ----------
+    evidence : the curve's evidence that selection read
+    tried : each candidate's held-out figures (:attr:`Selection.tried`: ``step<n>_z``)
+    decided : names of the effects named, rejected or left ambiguous
+    near_s, test_s : s, held-out time within :data:`~uavturb.gap.surface_curve.LIFT_RADII` rotor radii of the floor,
+        and all of it
+    protocol : the held-out protocol (:func:`folds`)
+    """
+    ground = [n for n, e in EFFECTS.items() if e.surface == "d_down" and n in tried]
+    if evidence.lift_z < LIFT_Z or not ground or decided & set(ground):
+        return None
+    z = {n: max((v for k, v in tried[n].items() if k.startswith("step") and k.endswith("_z") and k.count("_") == 1),
+                default=-np.inf) for n in ground}
+    best = max(z, key=z.get)
+    need = Z_WITH_CURVE if evidence.lift_z >= LIFT_Z else z_improve
+    return (f"the curve stands {evidence.lift_z:.0f} standard errors above 1 near the floor, a lift no law is named "
+            f"for: the best ground law, `{best}`, improved the held-out fit by z = {z[best]:.1f}, where "
+            f"{need:g} is needed beside the curve's evidence; the held-out rows ({protocol}) spend {near_s:.1f} s of "
+            f"{test_s:.0f} s near the floor. To name it: more recordings near the floor (each is then held out "
+            f"whole), or a longer flight whose last 30 % stays near it")
 
 
 @dataclass
@@ -288,7 +321,7 @@ def _standard_law(best: tuple, passed: dict[str, tuple], z_improve: float, tried
     return best if z >= z_improve and better_shape else passed[standard]
 
 
-def select(data: GapData, candidates: list[str], base: frozenset[str] = frozenset(), *, z_improve: float = 4.0,
+def select(data: GapData, candidates: list[str], base: frozenset[str] = frozenset(), *, z_improve: float = Z_IMPROVE,
            z_min: float = 4.0, lag: int = 50, max_effects: int = 4, offset: np.ndarray | None = None,
            thrust_floor: float = 0.0, curve: CurveEvidence | None = None) -> Selection:
     """Forward selection from ``base`` (the simulator's effects, refitted) over ``candidates``.
