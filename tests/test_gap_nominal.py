@@ -460,6 +460,24 @@ def test_a_report_read_on_moved_speeds_carries_the_recorded_reading():
     assert offset["applied"] and offset["after"] is None and offset["named_on_recorded_speeds"] == recorded["effects"]
     assert "44 errors from zero" in offset["note"] and "it named motor_lag (tau = 0.054)" in offset["note"]
     assert offset["delta_rad_s"] == 48.0 and offset["stderr_rad_s"] == 1.1 and offset["moves_rad_s"] == [48.0]
+    # a surface law the recorded speeds did not name (Cheeseman-Bennett there, the exponential law on the moved
+    # speeds): its reading on the recorded speeds is its fit to their measured curve
+    recorded["effects"] = [{"name": "ground_effect", "params": {"mu": 8.7}}]
+    recorded["surface_curve"] = {"law": "ground_effect", "params": {"mu": 8.2}, "alternatives": [
+        {"law": "ground_effect_exponential", "params": {"A": 0.49, "lam": 1.7}},
+        {"law": "ground_effect_multirotor", "params": {"K_b": 3.1}}]}
+    moved = {"effects": [{"name": "ground_effect_exponential", "params": {"A": 0.25, "lam": 2.4},
+                          "stderr": {"A": 0.05, "lam": 0.2}, "named_from": "surface_curve",
+                          "error_budget": {"A": {"sample": 0.05, "stderr": 0.05, "limited_by": "sample"},
+                                           "lam": {"sample": 0.2, "stderr": 0.2, "limited_by": "sample"}}},
+                         {"name": "ground_effect", "params": {"mu": 7.7}, "stderr": {"mu": 3.5},
+                          "error_budget": {"mu": {"sample": 3.5, "stderr": 3.5, "limited_by": "sample"}}}],
+             "nominal": {"rotor_speed_offset": None}}
+    exp, cb = read_on_moved_speeds(recorded, moved)["effects"]
+    assert exp["error_budget"]["A"]["speed_offset"] == pytest.approx(0.12)
+    assert exp["error_budget"]["lam"]["speed_offset"] == pytest.approx(0.35)
+    assert exp["stderr"]["A"] == pytest.approx(np.hypot(0.05, 0.12))
+    assert cb["error_budget"]["mu"]["speed_offset"] == pytest.approx(0.5)  # the named value before the curve's
 
 
 def test_moves_of_the_speeds_compose_into_one_offset():

@@ -190,8 +190,9 @@ def read_on_moved_speeds(recorded: dict, moved: dict, applied: Sequence[float] |
     """The report ``moved`` of the analysis run again on rotor speeds moved by the decisive offset that the
     analysis ``recorded`` of the recorded speeds read (:attr:`~uavturb.gap.nominal.SpeedOffset.decisive`: an idle
     speed in the command map). Each named effect's error carries half its change from the recorded speeds'
-    reading (**speed offset**, nan where that reading did not name it), and ``nominal.rotor_speed_offset`` says
-    what was read, what was moved and what the recorded speeds named.
+    reading (**speed offset**): the value the recorded speeds named, or for a surface law they did not name, its
+    fit to their measured curve (:func:`_curve_readings`; nan where neither is there), and
+    ``nominal.rotor_speed_offset`` says what was read, what was moved and what the recorded speeds named.
 
     ``applied``: the offsets [rad/s] the recorded speeds were moved by, one per analysis on moved speeds, the last
     ``moved``'s (:data:`MAX_OFFSET_MOVES`); the recorded speeds' reading alone where None. The offset reported is the
@@ -201,8 +202,10 @@ def read_on_moved_speeds(recorded: dict, moved: dict, applied: Sequence[float] |
     offset = recorded["nominal"]["rotor_speed_offset"]
     applied = [float(offset["delta_rad_s"])] if not applied else [float(a) for a in applied]
     before = {e["name"]: e["params"] for e in recorded["effects"]}
+    same_law = _curve_readings(recorded.get("surface_curve")) | before
     for e in moved["effects"]:
-        term = {k: abs(float(v) - float(before[e["name"]][k])) / 2.0 if e["name"] in before else float("nan")
+        was = same_law.get(e["name"])
+        term = {k: abs(float(v) - float(was[k])) / 2.0 if was and k in was else float("nan")
                 for k, v in e["params"].items()}
         e.update(_with_term(e, "speed_offset", term))
     named = "; ".join(f"{n} ({', '.join(f'{k} = {v:.3g}' for k, v in p.items())})" for n, p in before.items()) \
@@ -233,6 +236,19 @@ def read_on_moved_speeds(recorded: dict, moved: dict, applied: Sequence[float] |
         "moves_rad_s": applied, "applied": True, "after": after,
         "named_on_recorded_speeds": recorded["effects"], "note": note}
     return moved
+
+
+def _curve_readings(curve: dict | None) -> dict[str, dict[str, float]]:
+    """``{law: params}`` of each surface law fitted to a report's measured curve (its law and alternatives): where
+    the moved speeds name a surface law that the recorded speeds did not (a 67 g vehicle's walks: Cheeseman-
+    Bennett on the recorded speeds, the exponential law fitted to the curve on speeds moved by +46 % of the hover
+    speed, A = 0.25 where the recorded speeds' curve gives 0.5), the recorded speeds' reading of that law is its
+    fit to their curve."""
+    if not curve or not curve.get("params"):
+        return {}
+    fits = {curve["law"]: curve["params"]}
+    fits |= {a["law"]: a["params"] for a in curve.get("alternatives", []) if a.get("params")}
+    return fits
 
 
 def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0,
