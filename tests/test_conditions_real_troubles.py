@@ -14,6 +14,7 @@ import yaml
 from uavturb.cli import main
 from uavturb.errors import InputError
 from uavturb.io.reader import read_recording
+from uavturb.io.recording import Rotors
 from uavturb.io.vehicle_file import named_vehicle
 from uavturb.io.writer import write_recording
 from uavturb.physics import quaternion as quat
@@ -266,6 +267,12 @@ def test_a_rotor_plane_given_the_wrong_sign_is_refused_where_it_dips_under_the_f
     with pytest.raises(InputError, match=r"vehicle.yaml: rotor_plane_z -0.15 m puts the rotor plane up to 0.1\d m "
                                          r"under the floor .* its sign may be wrong"):
         flight_data(read_recording(out))
+    # the same rows with the rotors stopped say nothing of them (a landed vehicle's estimate may sink)
+    wrong = read_recording(out)
+    low = np.interp(wrong.rotors.t_ns, wrong.ground_truth.t_ns, wrong.ground_truth.p[:, 2]) < 0.2
+    stopped = dataclasses.replace(wrong, rotors=Rotors(wrong.rotors.t_ns, np.where(low[:, None], 0.0,
+                                                                                   wrong.rotors.speeds)))
+    assert low.any() and flight_data(stopped).d_down is not None
     below = tmp_path / "quad"
     assert main(["generate", "flight", "--vehicle", "quad", "--kind", "low_passes", "--duration", "10", "--seed", "3",
                  "--rotor-plane-z", "-0.025", "--out", str(below)]) == 0

@@ -18,6 +18,7 @@ from uavturb.errors import InputError
 from uavturb.io import align, euroc_csv, ply, sensor_yaml
 from uavturb.io.body_frame import to_body
 from uavturb.io.consistency import check_recording
+from uavturb.io.crash import without_lost_tail
 from uavturb.io.recording import Battery, Camera, GroundTruth, Imu, Poses, Recording, Rotors
 from uavturb.io.vehicle_file import load_vehicle, named_vehicle
 from uavturb.physics import quaternion as quat
@@ -334,7 +335,10 @@ def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None =
         if key in seen:
             raise InputError(p, f"is given twice (also as {seen[key]}): each recording once")
         seen[key] = p
-    recs = [read_recording(p, vehicle=v, require_rotors=True) for p in paths]
+    recs = []
+    for p in paths:  # a crash's or lost tracking's tail left out before the checks read the whole recording
+        rec, lost = without_lost_tail(read_recording(p, vehicle=v, require_rotors=True))
+        recs.append(dataclasses.replace(rec, read_notes=rec.read_notes + ((lost,) if lost else ())))
     recs = [dataclasses.replace(r, read_notes=r.read_notes + tuple(check_recording(r))) for r in recs]
     first = recs[0].vehicle
     for r in recs[1:]:

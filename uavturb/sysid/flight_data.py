@@ -257,7 +257,7 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
         # surface effects depend on the rotor plane's height, not the body origin's (recordings.md)
         rotor_plane = rec.vehicle.rotor_plane_positions(p, quat.to_rotation_matrix(q))
         d_down, d_up = index.d_down(rotor_plane), index.d_up(rotor_plane)
-        _check_rotor_plane_above_surfaces(rec, index, p, t, d_up)
+        _check_rotor_plane_above_surfaces(rec, index, p, t, d_up, np.any(rotor > 0.0, axis=1))
     fresh = _nearest_rows(t_ns, rotors.t_ns) if rotors_held else None
     # a dropout is a stretch with no row: a held stream's rows go on while its value holds, and a quantised
     # one's updates can be seconds apart in a steady hover
@@ -295,20 +295,24 @@ UNDER_SURFACE_ROWS = 5
 
 
 def _check_rotor_plane_above_surfaces(rec: Recording, index: SurfaceIndex, p: np.ndarray, t: np.ndarray,
-                                      d_up: np.ndarray) -> None:
+                                      d_up: np.ndarray, turning: np.ndarray) -> None:
     """Refuse a ``rotor_plane_z`` (``vehicle.yaml``) that puts the rotor plane under the surface the body origin
-    stands over: rotors cannot turn inside the floor, so its sign (or the point cloud's floor) is wrong.
+    stands over while the rotors turn: rotors cannot turn inside the floor, so its sign (or the point cloud's
+    floor) is wrong.
 
     A rotor plane below the body origin (``rotor_plane_z < 0``) that dips into the floor sees the floor *above*
     it (``d_up``, (K,) m, of the rotor plane) while the body origin ``p`` (K, 3) [m, W] sees it below: the
-    rows where the rotor plane's ``d_up`` is within ``|rotor_plane_z|`` are checked against the body origin's
-    own height. Refused where :data:`UNDER_SURFACE_ROWS` rows or more lie over :data:`UNDER_SURFACE_M` under it.
-    (A rotor plane above the body origin given the wrong sign stays above the floor: nothing shows it here.)
+    rows where the rotors turn (``turning``, (K,) bool) and the rotor plane's ``d_up`` is within
+    ``|rotor_plane_z|`` are checked against the body origin's own height. Refused where
+    :data:`UNDER_SURFACE_ROWS` rows or more lie over :data:`UNDER_SURFACE_M` under it. Rows with the rotors
+    stopped say nothing of them: a landed vehicle's state estimate may drift down through the floor (a 67 g
+    Crazyflie's, after its motors stopped, sank 0.4 m in 2 s and had been refused as a wrong sign). (A rotor plane
+    above the body origin given the wrong sign stays above the floor: nothing shows it here.)
     """
     z_r = float(rec.vehicle.rotor_plane_z)
     if z_r >= 0.0:
         return
-    rows = np.flatnonzero(np.isfinite(d_up) & (d_up <= -z_r))
+    rows = np.flatnonzero(np.isfinite(d_up) & (d_up <= -z_r) & turning)
     if not len(rows):
         return
     body = index.d_down(p[rows])  # the body origin's height over the surface below it
