@@ -307,6 +307,25 @@ def test_a_lift_the_curve_shows_but_no_law_names_is_explained():
     assert lift_not_named(strong, {"rotor_drag": {"step1_z": 5.2}}, set(), 1.0, 19.0, "p") is None  # none tried
 
 
+def test_the_held_out_time_near_the_floor_is_counted_in_seconds():
+    """Two recordings at 10 and 20 Hz, each held out whole: 3 s and 1 s of their rows within four rotor radii."""
+    from types import SimpleNamespace
+
+    from uavturb.gap.finder import _held_out_near_s
+
+    t = np.concatenate([np.arange(100) * 0.1, np.arange(200) * 0.05])  # 10 s each
+    group = np.repeat([0, 1], [100, 200])
+    d = np.full(300, 1.0)
+    d[:30] = 0.05  # 3 s of the first
+    d[100:120] = 0.05  # 1 s of the second
+    data = SimpleNamespace(t=t, group=group, d_down=d, rotor_radius=R)
+    folds = [(group != g, group == g) for g in (0, 1)]
+    near, total = _held_out_near_s(data, folds)
+    assert near == pytest.approx(4.0) and total == pytest.approx(20.0)
+    near, total = _held_out_near_s(data, [(t < 7.0, t >= 7.0)])  # the last 30 % of each: none near the floor
+    assert near == 0.0 and total == pytest.approx(0.1 * 30 + 0.05 * 60)
+
+
 def test_curve_evidence_supports_a_ground_law_and_ranks_shapes():
     """Selection's reading of the curve: a ground law passes on a weak held-out z only beside a strong lift;
     an alternative law's shape must beat the standard one's by SHAPE_DELTA_CHI2."""

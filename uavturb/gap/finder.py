@@ -533,7 +533,7 @@ def _held_out_near_s(data: GapData, fold_masks: list) -> tuple[float, float]:
     below, and all of it (rows times each recording's median row period)."""
     test = np.any([t for _, t in fold_masks], axis=0)
     near = test & (data.d_down < LIFT_RADII * data.rotor_radius)
-    period = np.zeros(len(data))
+    period = np.zeros(len(data.t))
     for g in np.unique(data.group):
         m = data.group == g
         steps = np.diff(np.sort(data.t[m]))
