@@ -232,15 +232,25 @@ def _fit(cfg: DictConfig, trainer: L.Trainer, module: Any, dm: Any, logger: Any,
             store.finish_system_metrics(monitor, logger.run_id)
 
 
+def _latest_checkpoint(folder: Path) -> ModelCheckpoint:
+    """The callback that writes ``last.ckpt`` (:data:`~uavturb.runs.resume.LAST_CHECKPOINT`) at every epoch's end,
+    whatever the monitored metric did. Lightning's ``save_last`` writes it only where the best checkpoint was saved
+    too: after an epoch that did not improve, a run stopped by a signal resumed from the last improvement, trained
+    the epochs after it again and logged their metrics a second time (validation loss 0.0342 at epoch 4, 0.0351 at
+    epoch 5, ``last.ckpt`` left at epoch 4)."""
+    return ModelCheckpoint(dirpath=folder, filename=Path(LAST_CHECKPOINT).stem, monitor=None, save_top_k=1,
+                           enable_version_counter=False)
+
+
 def _fit_and_test(cfg, module, dm, callbacks, monitor, run_id, last, ckpt_root, resume) -> dict[str, Any]:
     """Fit (from ``last`` when resuming), test the best checkpoint, log it; the run is closed FINISHED."""
     logger = _logger(cfg, run_id)
     # Under DDP only rank 0 has an MLflow run; ModelCheckpoint broadcasts rank 0's folder to the others.
     run_tag = run_id or resume or time.strftime("%Y%m%d-%H%M%S")
     checkpoint = ModelCheckpoint(dirpath=ckpt_root / run_tag, filename="best-{epoch}", monitor=monitor, mode="min",
-                                 save_top_k=1, save_last=True, auto_insert_metric_name=False)
+                                 save_top_k=1, auto_insert_metric_name=False)
     first = FirstEpoch()
-    trainer = _trainer(cfg, logger, callbacks, checkpoint, monitor, first)
+    trainer = _trainer(cfg, logger, [*callbacks, _latest_checkpoint(ckpt_root / run_tag)], checkpoint, monitor, first)
     if resume is not None and trainer.is_global_zero:
         print(f"resuming run {resume} " + (f"from {last}" if last else f"from the start (no {LAST_CHECKPOINT} yet)"),
               file=sys.stderr, flush=True)
