@@ -399,6 +399,17 @@ def _flight_rows(fds: list, vehicle: Any, paths: Sequence[str]) -> tuple[GapData
     return data, contact_report
 
 
+def _refit_on(recordings: Sequence, paths: Sequence[str], final: ModelFit) -> ModelFit | None:
+    """``final``'s effects fitted on the flights of ``recordings`` (streams changed for a systematic term: rotor
+    timing, stream rate), each recording's thrust level its own where levels differ; None where that fails."""
+    try:
+        data, _ = _flight_rows([flight_data(r) for r in recordings], recordings[0].vehicle, paths)
+        apply_thrust_levels(data)
+        return fit_model(data, final.effects, with_stderr=False)
+    except (InputError, np.linalg.LinAlgError, ValueError):
+        return None
+
+
 def _timing_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: Sequence, paths: Sequence[str],
                     delays: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """``effects`` with the **rotor timing** term of :mod:`uavturb.gap.uncertainty` in each budget: the named
@@ -411,12 +422,7 @@ def _timing_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: 
     ends = []
     for side in (0, 1):
         recs = [rotor_shifted(r, interval[p][side]) if p in interval else r for r, p in zip(recordings, paths)]
-        try:
-            data, _ = _flight_rows([flight_data(r) for r in recs], recordings[0].vehicle, paths)
-            apply_thrust_levels(data)
-            ends.append(fit_model(data, final.effects, with_stderr=False))
-        except (InputError, np.linalg.LinAlgError, ValueError):
-            ends.append(None)
+        ends.append(_refit_on(recs, paths, final))
     for e in effects:
         low, high = (None if f is None else f.effect_params(e["name"])[0] for f in ends)
         e.update(_with_term(e, "rotor_timing", timing_term(low, high, tuple(e["params"]))))
@@ -432,13 +438,8 @@ def _rate_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: Se
     surface = [e for e in effects if EFFECTS[e["name"]].surface is not None]
     if not surface or not state_too_slow:
         return effects
-    recs = [state_thinned(r) if p in state_too_slow else r for r, p in zip(recordings, paths)]
-    try:
-        data, _ = _flight_rows([flight_data(r) for r in recs], recordings[0].vehicle, paths)
-        apply_thrust_levels(data)
-        thinned = fit_model(data, final.effects, with_stderr=False)
-    except (InputError, np.linalg.LinAlgError, ValueError):
-        thinned = None
+    thinned = _refit_on([state_thinned(r) if p in state_too_slow else r for r, p in zip(recordings, paths)], paths,
+                        final)
     for e in surface:
         e.update(_with_term(e, "stream_rate", stream_rate_term(
             e["params"], None if thinned is None else thinned.effect_params(e["name"])[0])))
