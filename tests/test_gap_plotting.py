@@ -9,7 +9,15 @@ import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, gc_paused, scatter_rows, stride_sample
+from uavturb.gap.plotting import (
+    COLUMNS_PER_PIXEL,
+    column_envelope,
+    gc_paused,
+    hide_unused_cells,
+    recording_grid,
+    scatter_rows,
+    stride_sample,
+)
 
 
 def test_envelope_keeps_each_columns_extremes_and_the_ends_in_time_order():
@@ -145,3 +153,17 @@ def test_gc_paused_restores_the_collectors_state_also_on_errors():
         assert not gc.isenabled()  # paused by the caller: left paused
     finally:
         gc.enable()
+
+
+@pytest.mark.parametrize("n, grid", [(1, (1, 1)), (2, (2, 1)), (4, (4, 1)), (5, (4, 2)), (12, (4, 3))])
+def test_per_recording_figures_wrap_at_four_columns(n, grid):
+    # a dozen recordings side by side had made a residual figure 74 inches (7400 px) wide
+    assert recording_grid(n) == grid
+
+
+def test_cells_past_the_last_recording_are_switched_off():
+    fig = Figure(figsize=(8, 6), dpi=100)
+    axes = fig.subplots(3 * 2, 4, squeeze=False)  # five recordings, each three axes tall, four to a row
+    hide_unused_cells(axes, 5, 4, 3)
+    on = np.array([[ax.axison for ax in row] for row in axes])
+    assert on[:3].all() and on[3:, 0].all() and not on[3:, 1:].any()

@@ -5,7 +5,9 @@ for nothing: within a narrow column only the extremes are visible (the line cove
 its lowest to its highest value). :func:`column_envelope` keeps those. :func:`scatter_rows` bounds
 a scatter's points with a fixed stride (deterministic: the same report draws the same picture) and
 keeps the extremes, so the axis limits stay those of every row. :func:`gc_paused` spares matplotlib's
-many small objects Python's cyclic garbage collector while a figure is drawn.
+many small objects Python's cyclic garbage collector while a figure is drawn. A figure with a cell per
+recording wraps them at :data:`MAX_COLUMNS` to a row (:func:`recording_grid`), so a dozen recordings stay
+readable on a screen.
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ SCATTER_MAX_POINTS = 20_000
 #: reads darker than two strokes per pixel: at four per pixel the two pictures differ in under 2 % of
 #: the inked pixels (tests/test_gap_plotting.py)
 COLUMNS_PER_PIXEL = 4
+#: recordings side by side in a figure with a cell per recording; more wrap to the rows below
+MAX_COLUMNS = 4
 
 
 def column_envelope(x: np.ndarray, y: np.ndarray, columns: int) -> np.ndarray:
@@ -152,3 +156,17 @@ def gc_paused(func):
                 gc.enable()
 
     return wrapper
+
+
+def recording_grid(n: int) -> tuple[int, int]:
+    """``(columns, rows)`` of a figure with one cell per recording: at most :data:`MAX_COLUMNS` side by side,
+    the rest wrapped below (a dozen recordings in one row made a figure 74 inches wide)."""
+    cols = min(n, MAX_COLUMNS)
+    return cols, -(-n // cols)
+
+
+def hide_unused_cells(axes, n: int, cols: int, per_cell: int) -> None:
+    """Switch off the axes of the grid's cells past the ``n``-th (each cell ``per_cell`` axes tall)."""
+    for c in range(n, axes.shape[0] // per_cell * cols):
+        for ax in axes[per_cell * (c // cols):per_cell * (c // cols + 1), c % cols]:
+            ax.set_axis_off()

@@ -8,7 +8,14 @@ from typing import Callable
 import numpy as np
 
 from uavturb.gap.locate import AXES, features
-from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, gc_paused, scatter_rows
+from uavturb.gap.plotting import (
+    COLUMNS_PER_PIXEL,
+    column_envelope,
+    gc_paused,
+    hide_unused_cells,
+    recording_grid,
+    scatter_rows,
+)
 from uavturb.gap.surface_curve import SurfaceCurve
 from uavturb.gap.surface_laws import LawFit
 from uavturb.gap.uncertainty import BUDGET_TERMS
@@ -20,6 +27,8 @@ FEATURE_UNITS = {"d_down": "m", "d_up": "m", "v_x": "m/s", "v_y": "m/s", "v_z": 
                  "thrust_sum_omega2": "rad^2/s^2", "t": "s"}
 #: resolution of the report's PNG figures [dots per inch]
 PLOT_DPI = 100
+#: width [inch] of a recording's cell in a figure with a cell per recording (:func:`recording_grid`)
+PANEL_WIDTH_IN = 6.0
 #: share of the weight over which the nominal model's RMSE says something is wrong before any effect: real
 #: flights leave a few percent (Neural-Swarm's Crazyflies 3.5-5.6 %, simulated PX4 troubles 2-8 %); a PX4
 #: log whose ESC telemetry updates at 4 Hz through take-off, with a drifting height, left 36 %
@@ -77,6 +86,12 @@ def _save(fig, path: Path) -> None:
     fig.savefig(path, dpi=PLOT_DPI, pil_kwargs={"compress_level": 1})
 
 
+def _tight_under_title(fig) -> None:
+    """``tight_layout`` below the figure's title: half an inch kept for it (on a tall grid its default place
+    is among the top row's titles)."""
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.5 / fig.get_figheight()))
+
+
 def _plot_time(ax, t: np.ndarray, y: np.ndarray, pixels: int, **kw) -> None:
     """``ax.plot(t, y)`` through the rows a raster ``pixels`` wide shows (:func:`column_envelope`)."""
     keep = column_envelope(t, y, COLUMNS_PER_PIXEL * pixels)
@@ -89,14 +104,18 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
     """Three figures a person needs to believe the report; returns their file names."""
     names = []
     groups = np.unique(data.group)
-    # 1. residual over time with the located segments shaded
-    fig = _figure((6 * len(groups) + 2, 7))
-    axes = fig.subplots(3, len(groups), sharex="col", squeeze=False)
-    px = int(fig.get_figwidth() * PLOT_DPI / len(groups))  # pixel columns of a panel's cell, more than its axes'
+    # 1. residual over time with the located segments shaded: per recording, x, y and z stacked
+    cols, rows = recording_grid(len(groups))
+    fig = _figure((PANEL_WIDTH_IN * cols + 1, 7 * rows))
+    axes = fig.subplots(3 * rows, cols, squeeze=False)
+    px = int(fig.get_figwidth() * PLOT_DPI / cols)  # pixel columns of a panel's cell, more than its axes'
     for c, g in enumerate(groups):
         m = data.group == g
+        block = axes[3 * (c // cols):3 * (c // cols) + 3, c % cols]
         for j in range(3):
-            ax = axes[j, c]
+            ax = block[j]
+            if j:
+                ax.sharex(block[0])
             _plot_time(ax, data.t[m], baseline_r[m, j], px, lw=0.3, color="0.7", label="residual (nominal model)")
             _plot_time(ax, data.t[m], baseline_rs[m, j], px, lw=1.0, color="tab:blue", label="smoothed")
             _plot_time(ax, data.t[m], final_rs[m, j], px, lw=1.0, color="tab:green", label="after the named effects")
@@ -104,11 +123,12 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
                 if s.group == g and s.axis == AXES[j]:
                     ax.axvspan(s.t_start, s.t_end, color="tab:red", alpha=0.15, lw=0)
             ax.set_ylabel(f"F_{AXES[j]} [N]")
-        axes[0, c].set_title(data.names[g])
-        axes[-1, c].set_xlabel("t [s]")
+        block[0].set_title(data.names[g])
+        block[-1].set_xlabel("t [s]")
+    hide_unused_cells(axes, len(groups), cols, 3)
     axes[0, 0].legend(loc="upper right", fontsize=7)
     fig.suptitle("Residual force over time; located mismatch segments shaded")
-    fig.tight_layout()
+    _tight_under_title(fig)
     _save(fig, folder / "residual_time.png")
     names.append("residual_time.png")
 
@@ -138,13 +158,14 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
     hg = heldout_before.group if heldout_before.group is not None else np.zeros(len(heldout_before.err2), int)
     ht = heldout_before.t if heldout_before.t is not None else np.arange(len(hg), dtype=float)
     hgroups = np.unique(hg)
-    fig = _figure((6 * len(hgroups) + 2, 3.5))
-    axes = fig.subplots(1, len(hgroups), squeeze=False, sharey=True)
-    px = int(fig.get_figwidth() * PLOT_DPI / len(hgroups))
+    cols, rows = recording_grid(len(hgroups))
+    fig = _figure((PANEL_WIDTH_IN * cols + 1, 3.5 * rows))
+    axes = fig.subplots(rows, cols, squeeze=False, sharey=True)
+    px = int(fig.get_figwidth() * PLOT_DPI / cols)
     dt = float(np.median(np.diff(data.t)))
     n = max(1, int(round(0.25 / dt)))  # 0.25 s moving RMS
     for c, g in enumerate(hgroups):
-        ax = axes[0, c]
+        ax = axes[c // cols, c % cols]
         m = hg == g
         order = np.argsort(ht[m])
         for ho, label, color in ((heldout_before, BEFORE_HELDOUT, "tab:blue"), (heldout_after, "after", "tab:green")):
@@ -155,10 +176,12 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
         ax.set_title(f"held out: {data.names[int(g)]}")
         ax.set_xlabel("t [s]")
         ax.legend(fontsize=8)
-    axes[0, 0].set_ylabel("|residual|, 0.25 s RMS [N]")
+    hide_unused_cells(axes, len(hgroups), cols, 1)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("|residual|, 0.25 s RMS [N]")
     fig.suptitle(f"Held-out fit before and after the named effects (RMSE {heldout_before.rmse:.3f} N → "
                  f"{heldout_after.rmse:.3f} N)")
-    fig.tight_layout()
+    _tight_under_title(fig)
     _save(fig, folder / "heldout_fit.png")
     names.append("heldout_fit.png")
     return names
