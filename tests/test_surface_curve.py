@@ -13,7 +13,7 @@ from uavturb.gap.fit import fit_model
 from uavturb.gap.selection import (LIFT_Z, SHAPE_DELTA_CHI2, Z_WITH_CURVE, CurveEvidence, HeldOut, improvement_z,
                                    lift_not_named)
 from uavturb.gap.report import plot_surface_curve, surface_figure
-from uavturb.gap.surface_curve import lift_z, measured_curve, resolution_error, voltage_drift
+from uavturb.gap.surface_curve import level_height_term, lift_z, measured_curve, resolution_error, voltage_drift
 from uavturb.gap.surface_laws import (
     HOVER_THRUST_RATE,
     LAW_FITS_CHI2_DOF,
@@ -94,6 +94,36 @@ def test_flights_that_never_hover_ten_radii_up_are_normalised_lower_and_say_so()
     low = curve_of(hovers(cheeseman_bennett(3.0), heights=np.r_[np.linspace(0.03, 0.09, 7), 4.5 * R], seed=3))
     assert low.far_m == pytest.approx(10.0 * R) and not low.bins and not low.levels
     assert any(n.startswith("recording 0 left out: it hovered above 0.231 m") for n in low.notes)
+
+
+def test_a_far_level_that_drifts_with_height_is_in_every_bin_s_normalisation_error():
+    """Known answer: far samples spread evenly over 0.30-0.50 m whose thrust per speed squared grows by 2 % per
+    0.1 m have halves whose medians lie 0.1 m apart, 2 % apart, so the level is uncertain by half that, 1 %;
+    a flat far level, or one read at a single height, adds nothing."""
+    n = 4000
+    d = np.linspace(0.30, 0.50, n)
+    group, block = np.zeros(n, int), np.arange(n) // 200  # 20 time blocks
+    rng = np.random.default_rng(1)
+    drifting = (1 + 0.2 * (d - 0.40)) * (1 + rng.normal(0, 1e-4, n))
+    term, lo, hi = level_height_term(drifting, d, group, block)
+    assert term == pytest.approx(0.01, rel=0.02)
+    assert lo == pytest.approx(0.99, abs=1e-3) and hi == pytest.approx(1.01, abs=1e-3)
+    flat = 1 + rng.normal(0, 0.01, n)
+    assert level_height_term(flat, d, group, block)[0] < 0.001  # the halves' noise taken off: no drift read
+    assert level_height_term(drifting, np.full(n, 0.4), group, block)[0] == 0.0  # no spread in height
+    # in a measured curve: two recordings, the second's far level drifting by 2 % over its far heights
+    heights = np.r_[NEAR, np.linspace(12 * R, 20 * R, 9)]
+    samples = hovers(cheeseman_bennett(2.0), levels=(1.0, 1.0), heights=heights, seed=4, noise=0.002)
+    d_s, need, model, g, t = samples
+    far = (g == 1) & (d_s > 10 * R)
+    need = need.copy()
+    need[far] *= 1 + 0.25 * (d_s[far] - np.median(d_s[far]))
+    curve = measured_curve(d_s, need, model, g, hover=np.ones(len(d_s), bool), t=t, r=R)
+    # 0.25 per m over 0.28-0.46 m: halves a quarter of the span apart, about 1.2 % (nine discrete heights)
+    assert curve.level_error[1] == pytest.approx(0.25 * 8 * R / 4, rel=0.2) and curve.level_error[0] < 0.001
+    assert all(b.stderr_level > 0.002 and b.stderr >= b.stderr_level for b in curve.bins)
+    note = [x for x in curve.notes if x.startswith("the far samples' thrust per rotor speed squared still changes")]
+    assert len(note) == 1 and "recording 1 0.98" in note[0] and "recording 0" not in note[0]
 
 
 def test_multirotor_ratio_hand_computed():

@@ -31,7 +31,9 @@ Choices (each stated where it is made):
   recordings contribute, the standard error of the recordings' mean (sessions, batteries, height
   references differ); with the error a coarse rotor-speed resolution leaves (``resolution``) added in
   quadrature: in a steady hover every rotor's speed rounds alike for seconds, so the thrust's rounding does not
-  average out over a bin (a small quadrotor hovering at 148 rad/s recorded to 1 rad/s: 0.4 % of thrust).
+  average out over a bin (a small quadrotor hovering at 148 rad/s recorded to 1 rad/s: 0.4 % of thrust). Each
+  recording's normalisation error (its level's noise, and how much the level moves with the far heights it is
+  read over, :func:`level_height_term`) is shared by all its bins and added in quadrature too.
 """
 
 from __future__ import annotations
@@ -89,7 +91,7 @@ class SurfaceCurve:
         those mostly had no surface below)
     notes : sentences on what was left out and why
     level_error : {group: relative standard error of its level} (cluster-robust over time blocks, times
-        ``sqrt(pi/2)`` for a median)
+        ``sqrt(pi/2)`` for a median, and :func:`level_height_term` in quadrature)
     d, ratio, group, block : (M,) the near samples used (m, normalised ratio, recording, time block)
     edges : (B+1,) m, bin edges
     """
@@ -165,22 +167,68 @@ def _far_height(d: np.ndarray, ok: np.ndarray, group: np.ndarray, far_m: float |
                    f"extra thrust over that height's, and every law is compared normalised the same way")
 
 
+def _median_error(x: np.ndarray, group: np.ndarray, block: np.ndarray) -> float:
+    """Standard error of the median of ``x``: the cluster-robust error of its mean (:func:`bin_stats`) times
+    ``sqrt(pi/2)``; 0 where it cannot be formed."""
+    _, se, _, _ = bin_stats(x, group, block)
+    return float(np.nan_to_num(se) * np.sqrt(np.pi / 2))
+
+
+def level_height_term(raw: np.ndarray, d: np.ndarray, group: np.ndarray, block: np.ndarray
+                      ) -> tuple[float, float, float]:
+    """How much one recording's far level [-, relative] depends on the heights it is taken over, and the two
+    halves it is read from.
+
+    The far samples are split at their median height; the term is half the difference of the two halves'
+    median ratios, less (in quadrature) what their own errors make of such a difference, over the level: a far
+    range still inside the surface's reach, or a thrust per speed squared that drifts with height for any other
+    reason, leaves the normalisation uncertain by about that much, in every bin at once (Neural-Swarm's 67 g
+    walks: 0.995 of the level at 0.23-0.26 m, 1.005 at 0.33-0.38 m). 0 where the samples span no height
+    (every far sample at one height) or either half has fewer than ``MIN_FAR / 2`` samples.
+
+    Parameters
+    ----------
+    raw, d, group, block : (n,) the recording's far samples: raw ratio, rotor-plane height [m], recording and
+        time block (cluster) ids
+
+    Returns
+    -------
+    (term, lower, upper): the relative term and the halves' medians over the level (nan where not formed)
+    """
+    lower = d <= np.median(d)
+    if min(lower.sum(), (~lower).sum()) < MIN_FAR // 2:
+        return 0.0, float("nan"), float("nan")
+    level = float(np.median(raw))
+    lo, hi = (float(np.median(raw[m])) for m in (lower, ~lower))
+    noise = [_median_error(raw[m], group[m], block[m]) for m in (lower, ~lower)]
+    term2 = (0.5 * (hi - lo)) ** 2 - 0.25 * (noise[0] ** 2 + noise[1] ** 2)
+    return float(np.sqrt(max(term2, 0.0)) / level), lo / level, hi / level
+
+
 def _normalise(raw, d, ok, group, block, far_m, names
                ) -> tuple[dict[int, float], dict[int, float], dict[int, float], list[str]]:
-    """Median raw ratio above ``far_m`` per recording, its relative standard error, the median height of
-    those samples [m], and notes for recordings that never went far."""
-    levels, errors, heights, notes = {}, {}, {}, []
+    """Median raw ratio above ``far_m`` per recording, its relative standard error (sample noise and
+    :func:`level_height_term` in quadrature), the median height of those samples [m], and notes for recordings
+    that never went far or whose level depends on the height it is read at."""
+    levels, errors, heights, notes, drifting = {}, {}, {}, [], []
     for g in np.unique(group[ok]):
         far = ok & (group == g) & (d > far_m)
+        name = names[g] if names is not None else f"recording {g}"
         if far.sum() < MIN_FAR:
-            name = names[g] if names is not None else f"recording {g}"
             notes.append(f"{name} left out: it hovered above {far_m:.3f} m (far from the surface) in only "
                          f"{int(far.sum())} samples (needs {MIN_FAR}), so its thrust level cannot be normalised")
             continue
         levels[int(g)] = float(np.median(raw[far]))
         heights[int(g)] = float(np.median(d[far]))
-        _, se, _, _ = bin_stats(raw[far], group[far], block[far])
-        errors[int(g)] = float(np.nan_to_num(se) * np.sqrt(np.pi / 2) / levels[int(g)])
+        noise = _median_error(raw[far], group[far], block[far]) / levels[int(g)]
+        term, lo, hi = level_height_term(raw[far], d[far], group[far], block[far])
+        errors[int(g)] = float(np.hypot(noise, term))
+        if term > noise:
+            drifting.append(f"{name} {lo:.4f} below {np.median(d[far]):.2f} m and {hi:.4f} above, ± {100 * term:.2g} %")
+    if drifting:
+        notes.append("the far samples' thrust per rotor speed squared still changes with height (over the level, by "
+                     "halves of their heights: " + "; ".join(drifting) + "): half the difference, beyond the halves' "
+                     "noise, is in each recording's normalisation error, which every bin of it shares")
     return levels, errors, heights, notes
 
 
