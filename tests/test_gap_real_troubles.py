@@ -172,3 +172,25 @@ def test_rotor_telemetry_one_esc_at_a_time(tmp_path):
     assert list(named) == ["ground_effect"]
     mu, se = named["ground_effect"]["params"]["mu"], named["ground_effect"]["stderr"]["mu"]
     assert mu == pytest.approx(2.0, rel=0.15) and abs(mu - 2.0) < 2 * se
+
+
+def test_a_push_left_undecided_against_a_tilt_gives_each_recording_s_tilt_with_its_error(tmp_path):
+    """The conditions row "thrust axis tilted 1.5 deg, one fixed heading, MoCap only" (shortened, no ground effect):
+    the push is left ambiguous between wind and a tilt, and the entry says what each recording alone reads as a tilt,
+    with an error: about 1.5 deg towards 30 deg, the truth within a few of its errors."""
+    cond = Conditions(thrust_tilt_deg=1.5, thrust_tilt_azimuth_deg=30.0, fixed_heading=True, heading_deg=60.0,
+                      no_imu=True)
+    paths = []
+    for seed in (21, 22):
+        path = tmp_path / f"tilt-{seed}"
+        generate_conditioned_flight("hex", {}, duration=40.0, kind="mixed", seed=seed, conditions=cond, out=path)
+        paths.append(path)
+    report, _ = analyse(load_recordings(paths), {})
+    assert report["effects"] == []
+    (entry,) = [a for a in report["ambiguous"] if "thrust_axis_tilt" in a["candidates"]]
+    per = entry["per_recording"]
+    assert [e["recording"] for e in per] == [str(p) for p in paths]
+    for e in per:
+        assert 0 < e["stderr_deg"] < 0.3 and abs(e["tilt_deg"] - 1.5) < max(4 * e["stderr_deg"], 0.15)
+        assert abs(e["azimuth_deg"] - 30.0) < 10.0
+    assert "unexplained" in report and "thrust_axis_tilt" not in report["unexplained"]

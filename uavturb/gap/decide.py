@@ -421,9 +421,34 @@ def residual_thrust_tilt(data: GapData, fit: ModelFit, residual: np.ndarray, fac
     """
     if "wind" in fit.effects or len(data) < 10:
         return None
+    per, force = tilt_per_recording(data, fit, residual)
+    strongest = max((e["tilt_deg"] for e in per if e["z"] >= TILT_SEPARATION_Z
+                     and TILT_REPORT_MIN_DEG <= e["tilt_deg"] <= TILT_MAX_DEG), default=0.0)
+    if strongest == 0.0:
+        return None
+    before = float(np.sum(residual[:, :2] ** 2))
+    after = float(np.sum((residual[:, :2] - force[:, :2]) ** 2))
+    turned = facts.heading_span_deg >= HEADING_SPAN_DEG
+    entry = {"per_recording": per, "explains_share": 1.0 - after / before if before > 0 else 0.0,
+             "heading_span_deg": facts.heading_span_deg,
+             "why": ("a push along the body's x/y axes that turns with the body and scales with the thrust: the "
+                     "thrust axis leans from the recorded attitude (motion-capture markers or the IMU mounted off "
+                     "the rotors' axis); not an effect of effects.md, a calibration: correct the attitude, or "
+                     "tilt the thrust axis in the simulator" if turned else
+                     f"the heading changed by {facts.heading_span_deg:.0f} deg only, so a steady push at this heading "
+                     "looks alike (effects.md, look-alikes), though none improved the held-out fit enough to be "
+                     "named; indoors the tilt is the likelier reading")}
+    return entry, force
+
+
+def tilt_per_recording(data: GapData, fit: ModelFit, residual: np.ndarray) -> tuple[list[dict], np.ndarray]:
+    """Each recording's thrust-axis tilt in ``residual`` (K, 3) [N, world frame] with its error
+    (:func:`residual_thrust_tilt`; the thrust from ``fit``'s ``k_T``): ``([{recording (data.group index),
+    tilt_deg, stderr_deg, azimuth_deg (from body +x to +y), z}], force (K, 3) [N] the tilts give)``. A recording
+    with fewer than ``5 TILT_BLOCKS`` rows, or whose fit fails, is left out."""
     T = fit.coef["k_T"] * data.S * data.thrust_level  # (K,) N
     force = np.zeros_like(residual)
-    per, strongest = [], 0.0
+    per = []
     for g in np.unique(data.group):
         rows = np.flatnonzero(data.group == g)
         if len(rows) < 5 * TILT_BLOCKS:
@@ -440,23 +465,7 @@ def residual_thrust_tilt(data: GapData, fit: ModelFit, residual: np.ndarray, fac
         deg = float(np.degrees(size))  # rad, small angles: the thrust axis leans by d along body x, y
         per.append({"recording": int(g), "tilt_deg": deg, "stderr_deg": float(np.degrees(np.sqrt(max(
             along @ C @ along, 0.0)))), "azimuth_deg": float(np.degrees(np.arctan2(d[1], d[0]))), "z": round(z, 2)})
-        if z >= TILT_SEPARATION_Z and TILT_REPORT_MIN_DEG <= deg <= TILT_MAX_DEG:
-            strongest = max(strongest, deg)
-    if strongest == 0.0:
-        return None
-    before = float(np.sum(residual[:, :2] ** 2))
-    after = float(np.sum((residual[:, :2] - force[:, :2]) ** 2))
-    turned = facts.heading_span_deg >= HEADING_SPAN_DEG
-    entry = {"per_recording": per, "explains_share": 1.0 - after / before if before > 0 else 0.0,
-             "heading_span_deg": facts.heading_span_deg,
-             "why": ("a push along the body's x/y axes that turns with the body and scales with the thrust: the "
-                     "thrust axis leans from the recorded attitude (motion-capture markers or the IMU mounted off "
-                     "the rotors' axis); not an effect of effects.md, a calibration: correct the attitude, or "
-                     "tilt the thrust axis in the simulator" if turned else
-                     f"the heading changed by {facts.heading_span_deg:.0f} deg only, so a steady push at this heading "
-                     "looks alike (effects.md, look-alikes), though none improved the held-out fit enough to be "
-                     "named; indoors the tilt is the likelier reading")}
-    return entry, force
+    return per, force
 
 
 def _tilt_fit(cols: np.ndarray, target: np.ndarray, t: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:

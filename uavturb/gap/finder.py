@@ -19,6 +19,7 @@ from uavturb.gap.decide import (
     residual_thrust_tilt,
     surface_reach,
     thrust_tilt_alike,
+    tilt_per_recording,
     too_small,
 )
 from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels, gap_data, rotor_quantum, rounding_floor
@@ -303,8 +304,11 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     _, draws = locate.window_rows(data, 0.5, step)
     beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / draws)))
     unexplained = {"rms_N": beyond, "drivers": locate.drivers(data, rsf)}
-    tilt = None if any("thrust_axis_tilt" in a["candidates"] for a in ambiguous) else (
-        residual_thrust_tilt(data, final, rf, facts))
+    look_alike = next((a for a in ambiguous if "thrust_axis_tilt" in a["candidates"]), None)
+    if look_alike is not None:  # the push left undecided: each recording's tilt, with its error, for the reader
+        per, _ = tilt_per_recording(data, final, rf)
+        look_alike["per_recording"] = [e | {"recording": paths[e["recording"]]} for e in per]
+    tilt = None if look_alike is not None else residual_thrust_tilt(data, final, rf, facts)
     if tilt is not None:  # what is left beyond the tilt drives the drivers (a tilt had read as d_up on x)
         entry, force = tilt
         for e in entry["per_recording"]:

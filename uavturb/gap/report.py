@@ -263,10 +263,9 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
              f"{' of what the thrust-axis tilt below leaves' if tilt else ''}: " +
              (", ".join(f"{d['feature']} {d['score']:.2f}" for d in u["drivers"]) or "none"))
     if tilt:
-        each = "; ".join(f"{Path(e['recording']).name} {e['tilt_deg']:.2f} ± {e['stderr_deg']:.2g} deg towards "
-                         f"{round(e['azimuth_deg']) + 0} deg (from body +x to +y)" for e in tilt["per_recording"])
         L.append("")
-        L.append(f"Thrust-axis tilt: {each}. It explains {100 * tilt['explains_share']:.0f} % of the horizontal "
+        L.append(f"Thrust-axis tilt: {_tilts_text(tilt['per_recording'])}. It explains "
+                 f"{100 * tilt['explains_share']:.0f} % of the horizontal "
                  f"residual (RMS beyond noise left: {tilt['rms_beyond_tilt_N']:.4f} N): {tilt['why']}.")
     if "open_loop" in report:
         ol = report["open_loop"]
@@ -277,6 +276,12 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
     for p in plots:
         L.append(f"![{p}]({p})")
     (folder / "report.md").write_text("\n".join(L) + "\n")
+
+
+def _tilts_text(per_recording: list[dict]) -> str:
+    """``mq_11 1.20 ± 0.0089 deg towards 0 deg (from body +x to +y); ...``: each recording's thrust-axis tilt."""
+    return "; ".join(f"{Path(e['recording']).name} {e['tilt_deg']:.2f} ± {e['stderr_deg']:.2g} deg towards "
+                     f"{round(e['azimuth_deg']) + 0} deg (from body +x to +y)" for e in per_recording)
 
 
 def _surface_curve_lines(curve: dict | None, height: dict | None = None, missing: str | None = None) -> list[str]:
@@ -375,6 +380,8 @@ def _undecided_lines(report: dict) -> list[str]:
               "These recordings cannot tell the following apart; nothing here is a discovery."]
         for a in report["ambiguous"]:
             L.append(f"- **{' vs '.join(a['candidates'])}**: {a['why']}. To separate them: {a['to_separate']}.")
+            if a.get("per_recording"):
+                L.append(f"  - read as a tilt, each recording alone: {_tilts_text(a['per_recording'])}")
     if report.get("rejected"):
         L += ["", "## Fits outside their physical range (not discoveries)"]
         for r in report["rejected"]:
