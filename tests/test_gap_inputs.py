@@ -16,7 +16,7 @@ from uavturb.io.consistency import check_rotor_clock
 from uavturb.io.ply import read_ply, write_ply
 from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES
 from uavturb.gap.preparation import state_thinned, stream_limits
-from uavturb.io.reader import read_recording
+from uavturb.io.reader import load_recordings, read_recording, recording_labels
 from uavturb.io.recording import Battery, GroundTruth
 from uavturb.sim.flights.simulate import generate_flight
 
@@ -235,6 +235,28 @@ def test_one_recording_given_twice_is_refused(tmp_path, capsys, good):
     (tmp_path / "again").symlink_to(rec)
     _gap_fails(tmp_path, capsys, [rec, tmp_path / "again"],
                match=f"{tmp_path / 'again'}: is given twice (also as {rec})")
+
+
+def test_recordings_named_alike_are_told_apart_by_their_parent_folders(tmp_path):
+    assert recording_labels(["x/day1/flight", "x/day2/flight", "y/other"]) == ["day1/flight", "day2/flight", "other"]
+    assert recording_labels(["a/s/f", "b/s/f"]) == ["a/s/f", "b/s/f"]  # as many parents as it takes
+    assert recording_labels(["m/a", "m/b"]) == ["a", "b"]
+    assert recording_labels([tmp_path / "d1" / "log", "d2/log"])[0] == "d1/log"  # absolute or relative alike
+
+
+def test_sessions_whose_folders_share_a_name_keep_their_own_entries(tmp_path, good):
+    """Two days' logs both called ``flight``: per-recording results keyed by the folder's name alone merged into
+    one entry (a thrust coefficient and an accelerometer bias lost, report.md's lines alike)."""
+    one, two = _copy(good, tmp_path / "day1", "flight"), _copy(good, tmp_path / "day2", "flight")
+    recs = load_recordings([one, two])
+    assert [r.name for r in recs] == ["day1/flight", "day2/flight"]
+    assert load_recordings([one])[0].name == "flight" and load_recordings([one])[0].label is None
+    out = tmp_path / "report"
+    assert main(["gap", str(one), str(two), "--out", str(out), "--sim-effects", "none", "--no-mlflow"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert set(report["nominal"]["thrust_coefficient_per_recording"]) == {"day1/flight", "day2/flight"}
+    md = (out / "report.md").read_text()
+    assert "- day1/flight/rotors0: " in md and "- day2/flight/rotors0: " in md
 
 
 def test_nan_in_imu(tmp_path, capsys, good):

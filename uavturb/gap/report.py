@@ -19,6 +19,7 @@ from uavturb.gap.plotting import (
 from uavturb.gap.surface_curve import SurfaceCurve
 from uavturb.gap.surface_laws import LawFit
 from uavturb.gap.uncertainty import BUDGET_TERMS
+from uavturb.io.reader import recording_labels
 from uavturb.io.strict_json import dumps_strict
 
 #: units of the candidate drivers of :func:`uavturb.gap.locate.features` (plot axes)
@@ -189,6 +190,7 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
 
 def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
     """``report.md``: the findings in words, tables and the plots."""
+    names = _RecordingNames(report["recordings"])
     L = ["# Sim-to-real gap report", ""]
     L.append(f"Recordings: {', '.join('`' + r + '`' for r in report['recordings'])}  ")
     L.append(f"Simulator effects: {', '.join(report['sim_effects']) or 'none'}  ")
@@ -231,10 +233,10 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                 td = e["time_domain"]
                 L.append(f"  - named from the measured surface curve; found in time as `{td['name']}` "
                          f"({format_params(td['params'], td.get('stderr'))})")
-    L += _undecided_lines(report)
+    L += _undecided_lines(report, names)
     L += _surface_curve_lines(report.get("surface_curve"), report.get("height_reference"),
                               report.get("surface_curve_missing"))
-    L += _recording_lines(report)
+    L += _recording_lines(report, names)
     if report["sim_effect_params"]:
         L.append("")
         L.append("## The simulator's own effects, refitted")
@@ -250,7 +252,7 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
         L.append("| recording | t start [s] | t end [s] | axis | RMS [N] |")
         L.append("|---|---|---|---|---|")
         for s in sorted(segs, key=lambda s: -s["rms_N"])[:15]:
-            L.append(f"| {Path(s['recording']).name} | {s['t_start']:.2f} | {s['t_end']:.2f} | {s['axis']} | "
+            L.append(f"| {names[s['recording']]} | {s['t_start']:.2f} | {s['t_end']:.2f} | {s['axis']} | "
                      f"{s['rms_N']:.3f} |")
     L.append("")
     drv = report["mismatch"]["drivers"]
@@ -264,7 +266,7 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
              (", ".join(f"{d['feature']} {d['score']:.2f}" for d in u["drivers"]) or "none"))
     if tilt:
         L.append("")
-        L.append(f"Thrust-axis tilt: {_tilts_text(tilt['per_recording'])}. It explains "
+        L.append(f"Thrust-axis tilt: {_tilts_text(tilt['per_recording'], names)}. It explains "
                  f"{100 * tilt['explains_share']:.0f} % of the horizontal "
                  f"residual (RMS beyond noise left: {tilt['rms_beyond_tilt_N']:.4f} N): {tilt['why']}.")
     if "open_loop" in report:
@@ -278,9 +280,20 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
     (folder / "report.md").write_text("\n".join(L) + "\n")
 
 
-def _tilts_text(per_recording: list[dict]) -> str:
+class _RecordingNames(dict):
+    """``{recording path: short name}`` for report.md (:func:`~uavturb.io.reader.recording_labels`: the folder's
+    name, with parents where folders share one); a path not among the report's recordings by its folder's name."""
+
+    def __init__(self, paths: list[str]):
+        super().__init__(zip(paths, recording_labels(paths)))
+
+    def __missing__(self, path: str) -> str:
+        return Path(path).name
+
+
+def _tilts_text(per_recording: list[dict], names: dict[str, str]) -> str:
     """``mq_11 1.20 ± 0.0089 deg towards 0 deg (from body +x to +y); ...``: each recording's thrust-axis tilt."""
-    return "; ".join(f"{Path(e['recording']).name} {e['tilt_deg']:.2f} ± {e['stderr_deg']:.2g} deg towards "
+    return "; ".join(f"{names[e['recording']]} {e['tilt_deg']:.2f} ± {e['stderr_deg']:.2g} deg towards "
                      f"{round(e['azimuth_deg']) + 0} deg (from body +x to +y)" for e in per_recording)
 
 
@@ -320,11 +333,11 @@ def _surface_curve_lines(curve: dict | None, height: dict | None = None, missing
     return L
 
 
-def _dropout_lines(gaps: list[dict]) -> list[str]:
+def _dropout_lines(gaps: list[dict], names: dict[str, str]) -> list[str]:
     """One line per recording and stream with dropouts: how many, the longest, and the time they take."""
     by: dict[tuple[str, str], list[dict]] = {}
     for g in gaps:
-        by.setdefault((Path(g["recording"]).name, Path(g["stream"]).parent.name), []).append(g)
+        by.setdefault((names[g["recording"]], Path(g["stream"]).parent.name), []).append(g)
     lines = []
     for (rec, stream), gs in by.items():
         long = max(gs, key=lambda g: g["t_end"] - g["t_start"])
@@ -336,9 +349,9 @@ def _dropout_lines(gaps: list[dict]) -> list[str]:
     return lines
 
 
-def _delay_line(d: dict) -> str:
+def _delay_line(d: dict, names: dict[str, str]) -> str:
     """One late stream: its delay, whether it was taken out, and what is still uncertain of it."""
-    line = f"- {Path(d.get('recording', '')).name}: {d['describe']}"
+    line = f"- {names[d.get('recording', '')]}: {d['describe']}"
     line += " (taken out of the timestamps" if d.get("applied") else " (not taken out"
     lo, hi = d.get("uncertain_s") or (0.0, 0.0)
     where = (f"the delay taken out may be off by {1e3 * lo:+.0f} to {1e3 * hi:+.0f} ms" if d.get("applied") else
@@ -346,19 +359,19 @@ def _delay_line(d: dict) -> str:
     return line + f"; {where}, and every named effect was refitted over that range: the rotor timing term of its error)"
 
 
-def _recording_lines(report: dict) -> list[str]:
+def _recording_lines(report: dict, names: dict[str, str]) -> list[str]:
     """Ground contact left out, what each stream holds, late streams, thrust levels."""
     L: list[str] = []
     if report.get("ground_contact"):
         L += ["", "## Left out: ground contact"]
-        L += [f"- {Path(c['recording']).name} {c['t_start']:.2f}-{c['t_end']:.2f} s: {c['why']}"
+        L += [f"- {names[c['recording']]} {c['t_start']:.2f}-{c['t_end']:.2f} s: {c['why']}"
               for c in report["ground_contact"]]
     streams = report.get("streams") or {}
     if streams:
         L += ["", "## What the streams hold"] + [f"- {line}" for line in streams.get("streams", [])]
         L += [f"- **Too slow**: {why}" for why in streams.get("stream_limits", [])]
-        L += [_delay_line(d) for d in streams.get("delays", [])]
-        L += _dropout_lines(streams.get("dropouts", []))
+        L += [_delay_line(d, names) for d in streams.get("delays", [])]
+        L += _dropout_lines(streams.get("dropouts", []), names)
     nominal = report.get("nominal", {})
     if nominal.get("thrust_level_note"):
         L += ["", f"Thrust levels: {nominal['thrust_level_note']}."]
@@ -372,7 +385,7 @@ def _recording_lines(report: dict) -> list[str]:
     return L
 
 
-def _undecided_lines(report: dict) -> list[str]:
+def _undecided_lines(report: dict, names: dict[str, str]) -> list[str]:
     """What these recordings cannot decide, fits outside physical ranges, untestable effects."""
     L: list[str] = []
     if report.get("ambiguous"):
@@ -381,7 +394,7 @@ def _undecided_lines(report: dict) -> list[str]:
         for a in report["ambiguous"]:
             L.append(f"- **{' vs '.join(a['candidates'])}**: {a['why']}. To separate them: {a['to_separate']}.")
             if a.get("per_recording"):
-                L.append(f"  - read as a tilt, each recording alone: {_tilts_text(a['per_recording'])}")
+                L.append(f"  - read as a tilt, each recording alone: {_tilts_text(a['per_recording'], names)}")
     if report.get("rejected"):
         L += ["", "## Fits outside their physical range (not discoveries)"]
         for r in report["rejected"]:

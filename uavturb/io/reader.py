@@ -323,6 +323,20 @@ def _read_battery(root: Path, notes: list[str]) -> Battery | None:
     return Battery(t_ns=t, voltage=x[:, 0], current=x[:, 1] if x.shape[1] == 2 else None)
 
 
+def recording_labels(paths: Sequence[str | Path]) -> list[str]:
+    """Short names for recording folders that tell them apart: each folder's name, with as many of its parent
+    folders before it as it takes (``day1/flight``, ``day2/flight``; a flight engineer's sessions often name their
+    logs alike, and per-recording results keyed by the folder's name alone would merge)."""
+    parts = [Path(p).resolve().parts for p in paths]
+    labels = []
+    for i, mine in enumerate(parts):
+        k = 1
+        while k < len(mine) and any(other[-k:] == mine[-k:] for j, other in enumerate(parts) if j != i):
+            k += 1
+        labels.append("/".join(mine[-k:]))
+    return labels
+
+
 def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None = None) -> list[Recording]:
     """Read recording folders for physics (``identify``, ``residuals``, ``gap``, ``evaluate``): in
     the rotor frame B, rotor speeds required, and checked (:func:`uavturb.io.consistency.check_recording`:
@@ -340,6 +354,8 @@ def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None =
         rec, lost = without_lost_tail(read_recording(p, vehicle=v, require_rotors=True))
         recs.append(dataclasses.replace(rec, read_notes=rec.read_notes + ((lost,) if lost else ())))
     recs = [dataclasses.replace(r, read_notes=r.read_notes + tuple(check_recording(r))) for r in recs]
+    recs = [r if label == Path(p).name else dataclasses.replace(r, label=label)
+            for r, p, label in zip(recs, paths, recording_labels(paths))]
     first = recs[0].vehicle
     for r in recs[1:]:
         if r.vehicle.rotor_count != first.rotor_count or r.vehicle.mass != first.mass:

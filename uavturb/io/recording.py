@@ -119,6 +119,7 @@ class Recording:
     path: Path | None = None
     frame: str = "B"
     read_notes: tuple[str, ...] = ()  # what the reader changed in the files' rows (merged repeated timestamps)
+    label: str | None = None  # the name reports give it where its folder's name is not enough (reader.recording_labels)
 
     @property
     def t0_ns(self) -> int:
@@ -131,4 +132,7 @@ class Recording:
 
     @property
     def name(self) -> str:
+        """The folder's name, or the :attr:`label` given it among recordings whose folders share a name."""
+        if self.label is not None:
+            return self.label
         return self.path.name if self.path is not None else self.vehicle.name
