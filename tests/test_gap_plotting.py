@@ -9,15 +9,8 @@ import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from uavturb.gap.plotting import (
-    COLUMNS_PER_PIXEL,
-    column_envelope,
-    gc_paused,
-    hide_unused_cells,
-    recording_grid,
-    scatter_rows,
-    stride_sample,
-)
+from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, gc_paused, scatter_rows, stride_sample
+from uavturb.gap.plotting import hide_unused_cells, recording_grid  # the per-recording figures' layout
 
 
 def test_envelope_keeps_each_columns_extremes_and_the_ends_in_time_order():
