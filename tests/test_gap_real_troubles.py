@@ -194,3 +194,23 @@ def test_a_push_left_undecided_against_a_tilt_gives_each_recording_s_tilt_with_i
         assert 0 < e["stderr_deg"] < 0.3 and abs(e["tilt_deg"] - 1.5) < max(4 * e["stderr_deg"], 0.15)
         assert abs(e["azimuth_deg"] - 30.0) < 10.0
     assert "unexplained" in report and "thrust_axis_tilt" not in report["unexplained"]
+
+
+def test_every_named_effect_counts_the_ground_truth_s_rate_where_it_updates_too_slowly(tmp_path):
+    """Rotor drag (k_d = 8.06e-5) on two flights whose motion capture updates at 9 Hz in rows at 50 Hz: its error
+    carries the stream-rate term as a surface law's does (the residual force is the ground truth's derivative),
+    and the truth lies within two stated errors."""
+    drag = {"rotor_drag": {"k_d": 8.06e-5}}
+    paths = []
+    for seed in (31, 32):
+        path = tmp_path / f"drag-{seed}"
+        generate_conditioned_flight("hex", drag, duration=40.0, kind="mixed", seed=seed,
+                                    conditions=Conditions(rate_hz=50, position_hold_hz=9), out=path)
+        paths.append(path)
+    report, _ = analyse(load_recordings(paths), {})
+    assert report["streams"]["state_too_slow"] == [str(p) for p in paths]
+    named = {e["name"]: e for e in report["effects"]}
+    k_d = named["rotor_drag"]
+    term = k_d["error_budget"]["k_d"]["stream_rate"]
+    assert np.isfinite(term) and 0.0 < term <= k_d["stderr"]["k_d"]
+    assert abs(k_d["params"]["k_d"] - 8.06e-5) < 2 * k_d["stderr"]["k_d"]

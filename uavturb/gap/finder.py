@@ -435,16 +435,17 @@ def _timing_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: 
 
 def _rate_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: Sequence, paths: Sequence[str],
                   state_too_slow: Sequence[str]) -> list[dict[str, Any]]:
-    """``effects`` with the **stream rate** term of :mod:`uavturb.gap.uncertainty` in each surface law's budget,
+    """``effects`` with the **stream rate** term of :mod:`uavturb.gap.uncertainty` in each named effect's budget,
     where some recording's ground truth updates too slowly for a surface effect (``state_too_slow``, its paths):
     the named model refitted with those recordings' ground truth at half its update rate
-    (:func:`uavturb.gap.preparation.state_thinned`)."""
-    surface = [e for e in effects if EFFECTS[e["name"]].surface is not None]
-    if not surface or not state_too_slow:
+    (:func:`uavturb.gap.preparation.state_thinned`). Every effect of the model gets it, not only the surface laws
+    for which "too slow" is judged: the residual force is the ground truth's derivative, and a drag or a lag read on
+    it moves with its rate as well (by as much as the refit shows; nothing where it does not move)."""
+    if not effects or not state_too_slow:
         return effects
     thinned = _refit_on([state_thinned(r) if p in state_too_slow else r for r, p in zip(recordings, paths)], paths,
                         final)
-    for e in surface:
+    for e in effects:
         e.update(_with_term(e, "stream_rate", stream_rate_term(
             e["params"], None if thinned is None else thinned.effect_params(e["name"])[0])))
     return effects
