@@ -17,8 +17,10 @@ from uavturb.gap.decide import (
     surface_reach,
     thrust_tilt_alike,
 )
+from uavturb.gap import selection
 from uavturb.gap.design import GapData, difference_points
 from uavturb.gap.fit import ModelFit, fit_model
+from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, lag_rotor_speeds
@@ -313,3 +315,31 @@ def test_drag_read_on_the_airspeed_with_body_drag_fitted_beside():
         b = airspeed_drag(data, split, facts)["if_drag_on_airspeed"]
         for key in ("k_d", "c_d", "wind_speed_m_s"):
             assert b[key] == pytest.approx(a[key], rel=1e-9), (c_d, key)
+
+
+def test_a_candidate_outside_its_range_when_chosen_gives_the_step_to_the_next():
+    """Selection rule 4: two laws of one physics compete for the same lift (choosing one takes the other out). Where
+    the winner's fit is unphysical, the step is taken again without it and the other law is chosen, instead of
+    the winner being rejected after the selection with nothing in its place; the rejected fit is listed."""
+    K = 6000
+    d = 0.12 + 0.5 * (1 + np.sin(np.linspace(0, 12 * np.pi, K))) / 2  # m, rotor plane 0.12-0.37 m over the floor
+    data = _data(np.linspace(0, np.pi, K), d_down=d, seed=4)
+    thrust = 8.5e-6 * np.sum(data.rotor_speeds**2, axis=1)
+    data.y[:, 2] += thrust * (ge.thrust_ratio(d, 2.0, 0.1) - 1.0)  # Cheeseman-Bennett, mu = 2
+    laws = ["ground_effect", "ground_effect_exponential"]
+    free = selection.select(data, laws)
+    assert len(free.chosen) == 1 and not free.rejected
+    winner = free.chosen[0]
+    (other,) = [n for n in laws if n != winner]
+    seen = []
+
+    def unphysical(fit, name):
+        seen.append((name, set(fit.effects)))
+        return "outside the test's range" if name == winner else None
+
+    sel = selection.select(data, laws, unphysical=unphysical)
+    assert sel.chosen == [other]
+    assert [r["name"] for r in sel.rejected] == [winner] and sel.rejected[0]["why"] == "outside the test's range"
+    assert set(sel.rejected[0]["params"]) == set(EFFECTS[winner].params)
+    assert sel.tried[winner]["outside_physical_range"] == 1.0
+    assert seen[0] == (winner, {winner}) and (other, {other}) in seen

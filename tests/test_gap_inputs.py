@@ -3,8 +3,11 @@ the problem on stderr, a non-zero exit status, no traceback and no report folder
 (gap-report.md, recordings.md)."""
 
 import json
+import os
 import re
 import shutil
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -454,3 +457,17 @@ def test_a_thrust_leading_the_force_while_the_torques_keep_time_is_read_as_stamp
     assert main(["gap", str(rec), "--out", str(out), "--sim-effects", "none", "--no-mlflow"]) == 0
     assert note in (out / "report.md").read_text()
     assert note in json.loads((out / "report.json").read_text())["streams"]["streams"]
+
+
+def test_a_reader_that_stops_reading_ends_the_command_quietly(tmp_path, good):
+    """``uavturb gap ... | head -0``: stdout's reader is gone before the summary is printed. The report is written,
+    and the command stops as one killed by SIGPIPE would (141), with nothing on stderr (it had said "error: a file:
+    Broken pipe")."""
+    read, write = os.pipe()
+    os.close(read)
+    out = tmp_path / "report"
+    done = subprocess.run([sys.executable, "-m", "uavturb.cli", "gap", str(good), "--out", str(out), "--sim-effects",
+                           "none", "--no-mlflow"], stdout=write, stderr=subprocess.PIPE, text=True, timeout=300)
+    os.close(write)
+    assert done.returncode == 141 and done.stderr == ""
+    assert (out / "report.json").exists() and (out / "report.md").exists()

@@ -419,12 +419,33 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"uavturb {name}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError as e:
+        if not _reader_gone(sys.stdout):  # another pipe (a child process's): the last guard's line
+            line, code = _last_guard(e)
+            print(f"uavturb {args.command}: error: {line}", file=sys.stderr)
+            return code
+        # whoever read stdout stopped (``uavturb gap ... | head -1``): what was to be written is written; stop
+        # quietly, as a command killed by SIGPIPE does, and keep the interpreter's exit from flushing into the pipe
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + 13
     except Exception as e:  # noqa: BLE001 - the last guard: one line, never a traceback
         if os.environ.get("UAVTURB_TRACEBACK"):
             raise
         line, code = _last_guard(e)
         print(f"uavturb {args.command}: error: {line}", file=sys.stderr)
         return code
+
+
+def _reader_gone(stream) -> bool:
+    """Whether ``stream`` is a pipe whose reading end has been closed (poll reports an error on it)."""
+    import select
+
+    try:
+        poll = select.poll()
+        poll.register(stream.fileno(), select.POLLOUT)
+        return any(event & (select.POLLERR | select.POLLHUP) for _, event in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # no fileno (a test's capture), or no poll on this system
+        return False
 
 
 def _last_guard(e: Exception) -> tuple[str, int]:

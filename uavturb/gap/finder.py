@@ -293,7 +293,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     floor = rounding_floor(data, base.nominal.coef["k_T"], quantum)
     progress("selecting effects")
     evidence = nominal_curve_evidence(data, base.least_squares, heights_broken is None)
-    sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor, curve=evidence)
+    sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor, curve=evidence,
+                 unphysical=lambda fit, name: outside_range(data, fit, name))
     progress("deciding what the data support")
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
     sel, ambiguous, rejected = _decide(data, sel, candidates, refits)
@@ -706,6 +707,14 @@ def _cross_checked(effects: list[dict[str, Any]], curve_fits: dict) -> list[dict
     return effects
 
 
+def outside_range(data: GapData, fit: ModelFit, name: str) -> str | None:
+    """Why the effect ``name`` as ``fit`` has it lies outside its physical range on ``data``'s vehicle and flights
+    (``EffectSpec.physical_range``, read on :func:`~uavturb.gap.decide.flight_facts` with ``fit``'s thrust
+    coefficient), None where it lies inside."""
+    params, _ = fit.effect_params(name)
+    return EFFECTS[name].physical_range.violation(params, flight_facts(data, fit.coef["k_T"]))
+
+
 def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits | None = None
             ) -> tuple[Selection, list[dict], list[dict]]:
     """Keep only what the data decide (:mod:`uavturb.gap.decide`): a chosen effect outside its
@@ -714,7 +723,7 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
     is an accelerometer bias on these flights, while the fitted bias is significant, is reported
     as ambiguous too (a steady push may hide in the bias)."""
     ambiguous: list[dict] = []
-    rejected: list[dict] = []
+    rejected: list[dict] = list(sel.rejected)  # outside their range when the selection would have taken them
     steps = list(sel.steps)
     while True:
         final = sel.final
@@ -722,7 +731,7 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
         drop = None
         for s in steps:
             params, _ = final.effect_params(s.name)
-            bad = (EFFECTS[s.name].physical_range.violation(params, facts) or too_small(data, final, s.name)
+            bad = (outside_range(data, final, s.name) or too_small(data, final, s.name)
                    or not_pinned(data, final, s.name, refits))
             if bad is not None:
                 rejected.append({"name": s.name, "params": params, "why": bad})

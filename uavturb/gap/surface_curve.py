@@ -375,15 +375,17 @@ def lift_z(curve: SurfaceCurve | None, r: float) -> float:
     """How many standard errors the measured curve's bins within :data:`LIFT_RADII` ``r`` of the surface
     stand above 1: the model-free evidence of a surface lift, independent of any law.
 
-    The weighted mean of ``ratio - 1`` over those bins (weights ``1/stderr^2``) over its standard
-    error, widened by the largest normalisation error (a recording's level moves all its bins
-    together). 0 without such bins."""
+    The weighted mean of ``ratio - 1`` over those bins (weights ``1/own^2``, ``own`` a bin's error less its
+    normalisation part, which the bins share) over its standard error, widened once by the largest
+    normalisation error (a recording's level moves all its bins together: counted in each bin's weight as well,
+    it had been counted twice). 0 without such bins."""
     if curve is None or not curve.bins:
         return 0.0
     near = [b for b in curve.bins if b.d_m <= LIFT_RADII * r and np.isfinite(b.stderr) and b.stderr > 0]
     if not near:
         return 0.0
-    w = np.array([1.0 / b.stderr**2 for b in near])
+    own = np.array([np.sqrt(max(b.stderr**2 - b.stderr_level**2, 1e-6 * b.stderr**2)) for b in near])
+    w = 1.0 / own**2
     excess = float(np.sum(w * np.array([b.ratio - 1.0 for b in near])) / np.sum(w))
     level = max((b.stderr_level for b in near), default=0.0)
     return excess / float(np.sqrt(1.0 / np.sum(w) + level**2))

@@ -36,7 +36,7 @@ other and of the noise) added in quadrature:
   (:func:`uavturb.gap.preparation.timing_interval`: one standard error either side of a delay taken out,
   up to 80 ms where none could be timed). A thrust that is read 60 ms late moves every law that reads
   the thrust.
-- **stream rate** (surface laws where the ground truth updates too slowly for a surface effect,
+- **stream rate** (every named effect where the ground truth updates too slowly for a surface effect,
   :func:`stream_rate_term`: PX4's estimate written at 50-90 Hz but updated at 9 Hz): the change of the parameter
   when that stream's updates are thinned to every other one (:func:`uavturb.gap.preparation.state_thinned`). An
   error that grows with the interval between updates (heights and accelerations read between them) is at the
