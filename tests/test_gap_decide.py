@@ -341,5 +341,22 @@ def test_a_candidate_outside_its_range_when_chosen_gives_the_step_to_the_next():
     assert sel.chosen == [other]
     assert [r["name"] for r in sel.rejected] == [winner] and sel.rejected[0]["why"] == "outside the test's range"
     assert set(sel.rejected[0]["params"]) == set(EFFECTS[winner].params)
-    assert sel.tried[winner]["outside_physical_range"] == 1.0
+    assert sel.tried[winner]["step1_outside_physical_range"] == 1.0
     assert seen[0] == (winner, {winner}) and (other, {other}) in seen
+
+
+def test_a_candidate_held_back_at_one_step_comes_back_at_a_later_one():
+    """A push that is unphysical alone (the test says so while no ground law stands beside it) is held back at the
+    first step, where the ground law is chosen instead, and chosen at the second; it is then not listed as
+    rejected."""
+    K = 6000
+    d = 0.12 + 0.5 * (1 + np.sin(np.linspace(0, 12 * np.pi, K))) / 2  # m
+    data = _data(np.linspace(0, 2 * np.pi, K), d_down=d, push=(1.5, -0.5), seed=5)
+    thrust = 8.5e-6 * np.sum(data.rotor_speeds**2, axis=1)
+    data.y[:, 2] += thrust * (ge.thrust_ratio(d, 2.0, 0.1) - 1.0)
+    free = selection.select(data, ["wind", "ground_effect"])
+    assert free.chosen == ["wind", "ground_effect"]  # the push first, on its own
+    sel = selection.select(data, ["wind", "ground_effect"], unphysical=lambda fit, name: (
+        "alone, outside the test's range" if name == "wind" and "ground_effect" not in fit.effects else None))
+    assert sel.chosen == ["ground_effect", "wind"] and sel.rejected == []
+    assert sel.tried["wind"]["step1_outside_physical_range"] == 1.0

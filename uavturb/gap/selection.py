@@ -31,9 +31,10 @@ Guard against false discoveries. An effect is added only when all hold:
 4. its fit on all data lies inside its physical range (``unphysical``, the caller's check of
    ``EffectSpec.physical_range`` on the flights' facts): a fit outside it is no discovery, and
    the step is taken again without it, so that a candidate it had beaten gets its turn (on two
-   Neural-Swarm walks a body drag 20 times the vehicle's frontal area was chosen over a rotor
-   drag at z = 10, rejected afterwards, and the rotor drag never named). Each such fit is listed
-   in :attr:`Selection.rejected`.
+   Neural-Swarm walks a body drag 3-6 times the airframe's largest plausible one was chosen over
+   a rotor drag at z = 10, rejected afterwards, and the rotor drag never named). It may come back
+   at a later step, with other effects beside it. A fit left outside its range, never chosen, is
+   listed in :attr:`Selection.rejected`.
 
 A backward pass then drops any chosen effect whose removal does not hurt the held-out fit
 significantly (look-alikes picked early lose to the right one picked later).
@@ -360,12 +361,15 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
     cur_ho = base_ho
     steps: list[Step] = []
     tried: dict[str, dict[str, float]] = {}
-    rejected: list[dict] = []
+    rejected: dict[str, dict] = {}  # outside their range when last they would have been chosen
+    held_back: set[str] = set()  # outside their range at this step (with other effects beside, they may not be)
     remaining = [c for c in candidates if c not in current]
     while remaining and len(steps) < max_effects:
         best = None  # the best held-out fit among the candidates that pass the guards
         passed: dict[str, tuple] = {}
         for c in remaining:
+            if c in held_back:
+                continue
             ho = known.heldout(current | {c})
             t = improvement_z(cur_ho, ho)
             tried.setdefault(c, {})[f"step{len(steps) + 1}_z"] = t
@@ -386,9 +390,9 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         fit = known.fit(current | {c})
         why = unphysical(fit, c) if unphysical is not None else None
         if why is not None:  # no discovery: the step again without it
-            tried[c]["outside_physical_range"] = 1.0
-            rejected.append({"name": c, "params": fit.effect_params(c)[0], "why": why})
-            remaining.remove(c)
+            tried[c][f"step{len(steps) + 1}_outside_physical_range"] = 1.0
+            rejected[c] = {"name": c, "params": fit.effect_params(c)[0], "why": why}
+            held_back.add(c)
             continue
         # with the curve's evidence beside it, a parameter needs the same two standard errors as its held-out gain
         if not _signed_ok(fit, c, Z_WITH_CURVE if t < z_improve else z_min):
@@ -399,6 +403,8 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         current = current | {c}
         cur_ho = ho
         remaining = [r for r in remaining if r != c and not _same_physics(r, c)]
+        rejected.pop(c, None)
+        held_back.clear()
 
     # backward check: drop an effect whose removal does not hurt significantly
     changed = True
@@ -413,7 +419,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
                 current, cur_ho, changed = without, ho, True
                 break
     sel = finish(data, frozenset(base), steps, offset=offset, lag=lag, tried=tried, known=known)
-    sel.rejected = rejected
+    sel.rejected = list(rejected.values())
     return sel
 
 
