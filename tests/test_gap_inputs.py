@@ -262,6 +262,21 @@ def test_sessions_whose_folders_share_a_name_keep_their_own_entries(tmp_path, go
     assert "- day1/flight/rotors0: " in md and "- day2/flight/rotors0: " in md
 
 
+def test_an_optional_stream_with_no_rows_is_read_as_absent_and_said(tmp_path, good):
+    """A logger that opened ``imu0`` and ``battery0`` and never wrote a row: the recording is analysed without them
+    (both optional, ``recordings.md``), and the read notes say so; it had been refused whole."""
+    rec = _copy(good, tmp_path)
+    imu = rec / "mav0" / "imu0" / "data.csv"
+    imu.write_text(imu.read_text().splitlines()[0] + "\n")
+    (rec / "mav0" / "battery0").mkdir(exist_ok=True)
+    (rec / "mav0" / "battery0" / "data.csv").write_text("#timestamp [ns],voltage [V]\n\n")
+    loaded = read_recording(rec)
+    assert loaded.imu is None and loaded.battery is None
+    assert f"{rec.name}/imu0/data.csv holds no data rows: read as absent (the stream is optional)" in loaded.read_notes
+    assert any(n.startswith(f"{rec.name}/battery0/data.csv holds no data rows") for n in loaded.read_notes)
+    assert read_recording(good).imu is not None  # a stream with rows is read as before
+
+
 def test_nan_in_imu(tmp_path, capsys, good):
     rec = _copy(good, tmp_path)
     _rewrite_csv(rec / "mav0" / "imu0" / "data.csv",

@@ -260,6 +260,8 @@ def _read_imu(root: Path, t_gt: np.ndarray, notes: list[str], *, required: bool)
         if required:
             raise InputError(imu_file, "file not found (IMU data are required)")
         return None
+    if not required and _absent_if_empty(imu_file, notes):
+        return None
     t, x, lines = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU", return_lines=True, repeated_times=notes)
     check_time_unit(imu_file, t)
     check_magnitudes(imu_file, x, lines, IMU_LIMITS)
@@ -308,10 +310,24 @@ def _read_vicon(root: Path, notes: list[str]) -> Poses | None:
     return Poses(t_ns=t, p=x[:, 0:3], q=checked_quaternions(vicon_file, x[:, 3:7], lines))
 
 
+def _absent_if_empty(path: Path, notes: list[str]) -> bool:
+    """Whether the optional stream ``path`` holds no data row (its header alone, or nothing: a logger that opened
+    the file and never wrote to it), saying so in ``notes``; such a stream is read as absent (``recordings.md``:
+    streams that may be missing), where it had refused the whole recording."""
+    with open(path, "rb") as f:
+        for line in f:
+            text = line.strip().lstrip(b"\xef\xbb\xbf")
+            if text and not text.startswith(b"#"):
+                return False
+    notes.append(f"{path.parents[2].name}/{path.parent.name}/{path.name} holds no data rows: read as absent (the "
+                 "stream is optional)")
+    return True
+
+
 def _read_battery(root: Path, notes: list[str]) -> Battery | None:
     """``battery0`` when present: voltage [V] and, in a third column, current [A]."""
     battery_file = root / BATTERY_CSV
-    if not battery_file.is_file():
+    if not battery_file.is_file() or _absent_if_empty(battery_file, notes):
         return None
     t, x = euroc_csv.read_csv(battery_file, None, "battery", repeated_times=notes)
     if x.shape[1] > 2:
