@@ -421,6 +421,20 @@ def test_an_offset_is_decisive_from_ten_errors():
     assert not SpeedOffset(1.36, 0.01, 535.0, 60_000, 120, 0.9994).decisive  # stands out, does not matter
 
 
+def test_an_offset_at_an_end_of_the_range_searched_is_no_reading():
+    """Thrust per recorded speed squared that an offset of twice the hover speed would steady, beyond the range
+    searched (-50 to +100 %): the least residual lies at its end, with no spread over the jackknife; that is no
+    reading (it had been taken as infinitely many errors from zero, and applied), and neither is an error of 0."""
+    w_h = np.sqrt(MASS * GRAVITY / (6 * K_T))
+    data = _floor_flights(2.0 * w_h, mu=0.0, seed=7)
+    y_thrust = np.einsum("ki,ki->k", data.y, data.R[:, :, 2])
+    cells = offset_cells(data.group, data.d_down, data.d_up, R_ROTOR, reach=1.0)
+    found = speed_offset(y_thrust, data.rotor_speeds, cells, data.t)
+    assert found.at_bound and found.delta == pytest.approx(found.w_hover)  # +100 % of the hover speed
+    assert np.isnan(found.z) and not found.counts and not found.decisive
+    assert not SpeedOffset(48.0, 0.0, 150.0, 5000, 5, 0.28).counts  # no spread: no z
+
+
 @dataclasses.dataclass
 class _RotorsOnly:
     """A recording's rotor stream alone (what :func:`rotor_speeds_moved` reads)."""

@@ -25,7 +25,7 @@ from uavturb.gap.decide import (
 from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels, gap_data, rotor_quantum, rounding_floor
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
-from uavturb.gap.nominal import OFFSET_DECISIVE_Z, OFFSET_RADII, ThrustLevels
+from uavturb.gap.nominal import OFFSET_DECISIVE_Z, OFFSET_RADII, OFFSET_SPAN, ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted, rotor_speeds_moved, state_thinned
 from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, lift_not_named, select
 from uavturb.gap.surface_curve import LIFT_RADII, lift_z
@@ -477,10 +477,18 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
     if data.voltage_dev is not None:
         note += (f", read with the thrust following the battery's voltage at k_V = {found.k_V:.3g} /V (the slope of "
                  f"least residual with it)")
-    note += (": the recorded (commanded) speeds may be off by an offset, as commands with an idle speed are; the "
-             "named effects' errors carry what that reading changes (thrust map)" if found.counts else
-             ": no offset that matters (two errors from zero and 2.5 % of the hover speed), the recorded speeds' "
-             "squares carry the thrust")
+    if found.at_bound:
+        low, high = (100 * x for x in OFFSET_SPAN)
+        note += (f": that is an end of the range searched ({low:+.0f} to {high:+.0f} % of the hover speed), so no "
+                 "offset within it steadies the thrust: no reading, and the recorded speeds' squares are taken as "
+                 "they are (something else moves the thrust per speed squared: another vehicle's downwash, a thrust "
+                 "that does not follow the speed squared)")
+    elif found.counts:
+        note += (": the recorded (commanded) speeds may be off by an offset, as commands with an idle speed are; the "
+                 "named effects' errors carry what that reading changes (thrust map)")
+    else:
+        note += (": no offset that matters (two errors from zero and 2.5 % of the hover speed), the recorded speeds' "
+                 "squares carry the thrust")
     for e in effects:
         if e["name"] in terms:
             e.update(_with_term(e, "thrust_map", terms[e["name"]]))
