@@ -155,3 +155,22 @@ def test_a_nominal_model_that_misses_by_much_of_the_weight_says_what_to_check(tm
     write_markdown(tmp_path, report, [])
     text = (tmp_path / "report.md").read_text()
     assert "3.4 % of the weight" in text and "misses by" not in text
+
+
+def test_with_battery_sag_named_k_T_is_said_to_be_the_start_of_the_flight_s(tmp_path):
+    sag = {"name": "battery_sag", "params": {"s": 0.0012}, "stderr": {"s": 0.0002}, "explanation": "sags",
+           "heldout_rmse_before_N": 0.03, "heldout_rmse_after_N": 0.02, "z_heldout": 6.0}
+    report = {"recordings": ["a/cf102_00"], "sim_effects": [], "protocol": "last-30%-of-each-recording",
+              "residual_source": "imu", "baseline": {"heldout_rmse_N": 0.03, "rmse_N": 0.03},
+              "final": {"heldout_rmse_N": 0.02}, "noise": {"rms_N": 0.01}, "effects": [sag], "sim_effect_params": {},
+              "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 0.01, "drivers": []},
+              "nominal": {"thrust_coefficient": 2.9e-8, "thrust_coefficient_stderr": 1e-10,
+                          "thrust_coefficient_stderr_terms": {"sample": 1e-10, "between_recordings": 0.0}}}
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert ("Thrust coefficient k_T = 2.9e-08 ± 1e-10 N/(rad/s)^2 (0.34 %, limited by sample noise). It is the value "
+            "at each recording's start: with `battery_sag` named (s = 0.0012 /s) the thrust per rotor speed squared "
+            "is k_T (1 - s t)") in text
+    report["effects"] = []
+    write_markdown(tmp_path, report, [])
+    assert "each recording's start" not in (tmp_path / "report.md").read_text()

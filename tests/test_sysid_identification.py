@@ -4,7 +4,10 @@ import numpy as np
 import pytest
 from synthetic import inverse_dynamics_flight
 
+from uavturb.io.reader import load_recordings
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
+from uavturb.sim.flights.condition_schema import Conditions
+from uavturb.sim.flights.conditions import generate_conditioned_flight
 from uavturb.sysid.identification import identify
 from uavturb.sysid.residuals import residual_forces
 
@@ -48,3 +51,24 @@ def test_residual_recovers_a_known_force_from_imu_and_mocap():
     assert np.abs(np.mean(err_imu, axis=0)).max() < 0.01
     steady = (fd.t > 2) & (fd.t < 28) | (fd.t > 32) & (fd.t < 58)
     assert np.abs(moc.force[steady] - truth["F_ext"][steady]).max() < 0.02
+
+
+def test_sessions_that_differ_in_thrust_level_widen_k_T_s_error_to_their_spread(tmp_path):
+    """Two flights of one vehicle, the second's thrust per rotor speed squared 4 % higher (another battery, other
+    propellers): each recording's own k_T is given, 4 % apart, and the pooled k_T's stated error covers their
+    spread (each lands within two errors of it), where its sample error alone was a small fraction of a percent."""
+    paths = []
+    for seed, level in ((41, 1.0), (42, 1.04)):
+        path = tmp_path / f"level-{level}"
+        generate_conditioned_flight("hex", {}, duration=20.0, kind="mixed", seed=seed,
+                                    conditions=Conditions(thrust_level=level), out=path)
+        paths.append(path)
+    ident = identify(load_recordings(paths))
+    (k1, se1), (k2, se2) = ident.thrust_coefficient_per_recording.values()
+    assert k2 / k1 == pytest.approx(1.04, abs=0.01) and max(se1, se2) < 0.005 * k1
+    k, se = ident.thrust_coefficient, ident.thrust_coefficient_se
+    assert se == pytest.approx(np.std([k1, k2], ddof=1), rel=1e-6)
+    assert all(abs(x - k) < 2 * se for x in (k1, k2))
+    assert set(ident.to_dict()["thrust_coefficient_per_recording"]) == {str(p) for p in paths}
+    alone = identify(load_recordings(paths[:1]))
+    assert alone.thrust_coefficient_per_recording == {} and alone.thrust_coefficient_se < 0.005 * k1

@@ -12,7 +12,7 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.gap.preparation import contact_masks
 from uavturb.io.publish import check_apart, check_output_file
-from uavturb.io.reader import load_recordings
+from uavturb.io.reader import load_recordings, recording_labels
 from uavturb.io.recording import Recording
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.identification import Identification, identify
@@ -74,6 +74,11 @@ def format_identification(ident: Identification) -> str:
             lines.append(f"{label:<22}{np.array2string(np.asarray(s.value), precision=4):>28}  m/s^2 (body)")
         else:
             lines.append(f"{label:<22}{s.value:>14.6g}{s.stderr:>14.3g}  {s.unit}")
+    if ident.thrust_coefficient_per_recording:
+        per = ident.thrust_coefficient_per_recording
+        each = "; ".join(f"{label} {k:.4g} ± {se:.2g}" for label, (k, se) in zip(recording_labels(list(per)),
+                                                                                   per.values()))
+        lines.append(f"k_T of each recording alone: {each} (k_T's error is at least their spread)")
     if undetermined:
         lines.append("not determined by these flights (estimates in brackets are not results):")
         for label, s in undetermined:

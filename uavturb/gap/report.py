@@ -379,7 +379,12 @@ def _recording_lines(report: dict, names: dict[str, str]) -> list[str]:
     if terms and nominal.get("thrust_coefficient"):
         k, se = nominal["thrust_coefficient"], nominal["thrust_coefficient_stderr"]
         limit = "the spread between recordings" if terms["between_recordings"] > terms["sample"] else "sample noise"
-        L += [f"Thrust coefficient k_T = {k:.4g} ± {se:.2g} N/(rad/s)^2 ({100 * se / k:.2g} %, limited by {limit})."]
+        sag = next((e for e in report.get("effects", []) if e["name"] == "battery_sag"), None)
+        when = (f" It is the value at each recording's start: with `battery_sag` named (s = {sag['params']['s']:.3g} "
+                "/s) the thrust per rotor speed squared is k_T (1 - s t), lower later in the flight, as `identify`, "
+                "which fits one constant, reads it" if sag else "")
+        L += [f"Thrust coefficient k_T = {k:.4g} ± {se:.2g} N/(rad/s)^2 ({100 * se / k:.2g} %, limited by "
+              f"{limit}).{when}"]
     if nominal.get("rotor_speed_offset"):
         L += ["", f"Thrust map: {nominal['rotor_speed_offset']['note']}."]
     return L
