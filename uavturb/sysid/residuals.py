@@ -117,7 +117,8 @@ def noise_floor(t: np.ndarray, r: np.ndarray, window_s: float = NOISE_WINDOW_S) 
 
 
 def residual_forces(rec: Recording | FlightData, vehicle: Vehicle, *, source: str = "auto",
-                    derivative: str = "savgol", window_s: float = 0.05) -> Residuals:
+                    derivative: str = "savgol", window_s: float = 0.05,
+                    accel_bias: np.ndarray | None = None) -> Residuals:
     """Residual force and torque of ``vehicle``'s model on a flight.
 
     Parameters
@@ -128,6 +129,9 @@ def residual_forces(rec: Recording | FlightData, vehicle: Vehicle, *, source: st
     source : ``auto`` (IMU where present), ``imu`` or ``mocap``
     derivative : ``savgol`` or ``forward`` (the paper's one-step arg-min), for MoCap
     window_s : derivative filter window [s]
+    accel_bias : (3,) m/s^2 in B, the accelerometer's bias, taken off its specific force (``source`` imu); a
+        sensor's error, not a force: left in, a 67 g vehicle's bias of 0.2-0.4 m/s^2 reads as a steady push of
+        0.014-0.027 N along body x
     """
     fd = rec if isinstance(rec, FlightData) else flight_data(rec, window_s=window_s)
     if source == "auto":
@@ -149,7 +153,8 @@ def residual_forces(rec: Recording | FlightData, vehicle: Vehicle, *, source: st
     R = quat.to_rotation_matrix(fd.q)
     thrust_world = T[:, None] * R[:, :, 2]
     if source == "imu":
-        f_body = m * fd.acc - T[:, None] * E_Z
+        acc = fd.acc if accel_bias is None else fd.acc - np.asarray(accel_bias, float)
+        f_body = m * acc - T[:, None] * E_Z
         force = np.einsum("kij,kj->ki", R, f_body)
     else:
         if derivative == "forward":
