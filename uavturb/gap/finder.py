@@ -715,12 +715,12 @@ def _cross_checked(effects: list[dict[str, Any]], curve_fits: dict) -> list[dict
     return effects
 
 
-def outside_range(data: GapData, fit: ModelFit, name: str) -> str | None:
+def outside_range(data: GapData, fit: ModelFit, name: str, facts: Any = None) -> str | None:
     """Why the effect ``name`` as ``fit`` has it lies outside its physical range on ``data``'s vehicle and flights
-    (``EffectSpec.physical_range``, read on :func:`~uavturb.gap.decide.flight_facts` with ``fit``'s thrust
-    coefficient), None where it lies inside."""
+    (``EffectSpec.physical_range``, read on ``facts``: :func:`~uavturb.gap.decide.flight_facts` with ``fit``'s thrust
+    coefficient where None), None where it lies inside."""
     params, _ = fit.effect_params(name)
-    return EFFECTS[name].physical_range.violation(params, flight_facts(data, fit.coef["k_T"]))
+    return EFFECTS[name].physical_range.violation(params, facts or flight_facts(data, fit.coef["k_T"]))
 
 
 def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits | None = None
@@ -739,7 +739,7 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
         drop = None
         for s in steps:
             params, _ = final.effect_params(s.name)
-            bad = (outside_range(data, final, s.name) or too_small(data, final, s.name)
+            bad = (outside_range(data, final, s.name, facts) or too_small(data, final, s.name)
                    or not_pinned(data, final, s.name, refits))
             if bad is not None:
                 rejected.append({"name": s.name, "params": params, "why": bad})
