@@ -17,6 +17,7 @@ from uavturb.io.reader import load_recordings, recording_labels
 from uavturb.io.recording import Recording
 from uavturb.physics import quaternion as quat
 from uavturb.physics.vehicle import Vehicle
+from uavturb.sysid.flight_data import flight_data
 from uavturb.sysid.identification import Identification, identify
 from uavturb.sysid.residuals import Residuals, residual_forces, write_residuals
 
@@ -129,14 +130,15 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
                              "--params nominal needs thrust_coefficient, moment_coefficient and inertia")
     else:
         raise InputError("--params", f"unknown value '{params}' (allowed: identified, nominal)")
-    res = residual_forces(rec, v, source=source, derivative=derivative)
-    if res.source == "imu":  # the accelerometer's bias, measured against the motion capture, is no force
-        fd = res.data
-        bias = anchored_bias(fd.t, quat.to_rotation_matrix(fd.q), fd.acc, fd.dv, np.all(np.isfinite(fd.dv), axis=1))
+    fd = flight_data(rec)
+    bias = None
+    if fd.acc is not None and source in ("auto", "imu"):  # the accelerometer's bias, measured against the motion
+        bias = anchored_bias(fd.t, quat.to_rotation_matrix(fd.q), fd.acc, fd.dv,  # capture, is no force
+                             np.all(np.isfinite(fd.dv), axis=1))
         print(f"uavturb residuals: accelerometer bias ({', '.join(f'{b:.3g}' for b in bias.b)}) ± "
               f"({', '.join(f'{e:.2g}' for e in bias.stderr)}) m/s^2 (body x, y, z), measured against the motion "
               "capture, taken off the IMU's specific force", file=sys.stderr)
-        res = residual_forces(fd, v, source="imu", derivative=derivative, accel_bias=bias.b)
+    res = residual_forces(fd, v, source=source, derivative=derivative, accel_bias=None if bias is None else bias.b)
     (contact,), _ = contact_masks([res.data], v, [str(path)])  # the rows the gap finder leaves out
     res = dataclasses.replace(res, ground_contact=contact)
     return res, write_residuals(res, out, overwrite=overwrite)
