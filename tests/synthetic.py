@@ -17,8 +17,12 @@ from uavturb.sysid.flight_data import FlightData
 
 
 def inverse_dynamics_flight(vehicle: Vehicle, *, duration=60.0, rate=200.0, seed=0, rate_amp=(1.6, 1.6, 0.8),
-                            gyro_noise=2.4e-3, acc_noise=2.8e-2, rotor_quantum=1.0, f_ext=None, acc_bias=(0, 0, 0)):
-    """Return ``(FlightData, truth dict)`` for ``vehicle`` (its constants are the truth)."""
+                            gyro_noise=2.4e-3, acc_noise=2.8e-2, rotor_quantum=1.0, f_ext=None, acc_bias=(0, 0, 0),
+                            rotor_noise=0.0):
+    """Return ``(FlightData, truth dict)`` for ``vehicle`` (its constants are the truth).
+
+    ``rotor_noise``: relative white noise on each recorded rotor speed (commands that are not what the rotors do).
+    """
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration, 1.0 / rate)
     w = np.zeros((len(t), 3))
@@ -55,7 +59,8 @@ def inverse_dynamics_flight(vehicle: Vehicle, *, duration=60.0, rate=200.0, seed
     spec = np.einsum("kji,kj->ki", R, T[:, None] * R[:, :, 2] + F_ext) / vehicle.mass
     gyro = w + rng.normal(0, gyro_noise, w.shape)
     acc = spec + np.asarray(acc_bias) + rng.normal(0, acc_noise, spec.shape)
-    omega_meas = np.round(omega / rotor_quantum) * rotor_quantum if rotor_quantum else omega
+    omega_meas = omega * (1.0 + rotor_noise * rng.standard_normal(omega.shape)) if rotor_noise else omega
+    omega_meas = np.round(omega_meas / rotor_quantum) * rotor_quantum if rotor_quantum else omega_meas
     window = 11
     dv = savgol_filter(v, window, 2, deriv=1, delta=dt, axis=0, mode="interp")
     dwm = savgol_filter(gyro, window, 2, deriv=1, delta=dt, axis=0, mode="interp")

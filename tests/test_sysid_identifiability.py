@@ -66,6 +66,34 @@ def test_a_fixed_heading_flight_does_not_excite_yaw(fixed_heading):
     assert "accelerometer bias" in undetermined and "absent" in undetermined
 
 
+def test_a_held_heading_with_a_noisy_gyro_does_not_give_theta_2():
+    """Differentiated gyro noise alone lifts the yaw acceleration over ACC_MIN (as on real Crazyflies): the yaw torque
+    then only answers noise, and theta_2 = k_M/J_z is not a result."""
+    fd, _ = inverse_dynamics_flight(HEXAROTOR, duration=40.0, seed=4, rate_amp=(0.3, 0.3, 0.0), gyro_noise=0.03)
+    ident = identify([fd], HEXAROTOR)
+    assert ident.excitation["yaw"].acc_std > idf.ACC_MIN  # the acceleration test alone would pass
+    assert ident.status["theta_2"].reason == "not excited"
+    assert "yaw rate std" in ident.status["theta_2"].why
+
+
+def test_noisy_rotor_commands_shrink_the_torque_slope_and_say_so():
+    """Rotor speeds recorded with 20 % noise: least squares shrinks theta_2 to the column's share of the variance;
+    the share is read, and theta_2 is not given as a result."""
+    fd, _ = inverse_dynamics_flight(HEXAROTOR, duration=40.0, seed=4, rate_amp=(1.6, 1.6, 0.3), rotor_noise=0.2)
+    ident = identify([fd], HEXAROTOR)
+    truth = HEXAROTOR.moment_coefficient / HEXAROTOR.inertia[2]
+    share = ident.excitation["yaw"].share
+    assert share < idf.SHARE_MIN and ident.theta[2] < 0.75 * truth  # shrunk, as the share says
+    assert ident.theta[2] / share == pytest.approx(truth, rel=0.05)  # the reverse regression's bound holds the truth
+    st = ident.status["theta_2"]
+    assert st.reason == "ill-conditioned" and "rotor-torque column carries 66 %" in st.why
+    assert "up to 1.5 times the estimate" in st.why
+    assert not ident.status["k_M"].identifiable
+    clean = identify([inverse_dynamics_flight(HEXAROTOR, duration=40.0, seed=4, rate_amp=(1.6, 1.6, 0.3))[0]],
+                     HEXAROTOR)
+    assert clean.status["theta_2"].identifiable and clean.excitation["yaw"].share > 0.95
+
+
 def test_apply_falls_back_to_nominal_values_or_stops(fixed_heading):
     ident = identify([fixed_heading], HEXAROTOR)
     nominal = HEXAROTOR.with_params(inertia=(0.01, 0.02, 0.123), moment_coefficient=2e-7)

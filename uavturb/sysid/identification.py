@@ -48,6 +48,7 @@ from uavturb.sysid.identifiability import (
     LOWPASS_S,
     RATE_MIN,
     REL_SE_MAX,
+    SHARE_MIN,
     TRIANGLE_SLACK,
     AxisExcitation,
     ParameterStatus,
@@ -175,7 +176,7 @@ class Identification:
             "condition_numbers": self.conditions,
             "thresholds": {"rate_min_rad_s": RATE_MIN, "acc_min_rad_s2": ACC_MIN, "rel_se_max": REL_SE_MAX,
                            "cond_max": COND_MAX, "bias_se_max_m_s2": BIAS_SE_MAX, "lowpass_s": LOWPASS_S,
-                           "triangle_slack": TRIANGLE_SLACK},
+                           "triangle_slack": TRIANGLE_SLACK, "share_min": SHARE_MIN},
         }
 
 
