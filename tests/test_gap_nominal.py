@@ -21,8 +21,8 @@ from uavturb.gap.finder import (
     read_on_moved_speeds,
 )
 from uavturb.gap.fit import ModelFit, fit_model
-from uavturb.gap.nominal import (ThrustLevels, anchored_bias, block_mean_and_se, matched_height_levels,
-                                 SpeedOffset, offset_cells, speed_offset, thrust_levels)
+from uavturb.gap.nominal import (ThrustLevels, matched_height_levels, SpeedOffset, offset_cells, speed_offset,
+                                 thrust_levels)
 from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, rotor_speeds_moved, timing_interval
 from uavturb.gap.surface_laws import finder_surface_curve
 from uavturb.gap.uncertainty import (
@@ -41,6 +41,7 @@ from uavturb.io.recording import Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.ground_effect import force_ratio
+from uavturb.sysid.accelerometer import anchored_bias, block_mean_and_se
 
 MASS, K_T, R_ROTOR = 1.5, 8.5e-6, 0.1
 

@@ -10,13 +10,12 @@ from typing import Sequence
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.gap.nominal import anchored_bias
 from uavturb.gap.preparation import contact_masks
 from uavturb.io.publish import check_apart, check_output_file
 from uavturb.io.reader import load_recordings, recording_labels
 from uavturb.io.recording import Recording
-from uavturb.physics import quaternion as quat
 from uavturb.physics.vehicle import Vehicle
+from uavturb.sysid.accelerometer import flight_accel_bias
 from uavturb.sysid.flight_data import flight_data
 from uavturb.sysid.identification import Identification, identify
 from uavturb.sysid.residuals import Residuals, residual_forces, write_residuals
@@ -74,7 +73,8 @@ def format_identification(ident: Identification) -> str:
         if not s.identifiable:
             undetermined.append((label, s))
         elif key == "accel_bias":
-            lines.append(f"{label:<22}{np.array2string(np.asarray(s.value), precision=4):>28}  m/s^2 (body)")
+            lines.append(f"{label:<22}{_vector(s.value):>28} ± {_vector(s.stderr)}  m/s^2 (body, measured against "
+                         "the motion capture)")
         else:
             lines.append(f"{label:<22}{s.value:>14.6g}{s.stderr:>14.3g}  {s.unit}")
     if ident.thrust_coefficient_per_recording:
@@ -82,6 +82,12 @@ def format_identification(ident: Identification) -> str:
         each = "; ".join(f"{label} {k:.4g} ± {se:.2g}" for label, (k, se) in zip(recording_labels(list(per)),
                                                                                    per.values()))
         lines.append(f"k_T of each recording alone: {each} (k_T's error is at least their spread)")
+    if ident.accel_bias_per_recording and ident.identified("accel_bias"):
+        per_b = ident.accel_bias_per_recording
+        each = "; ".join(f"{label} {_vector(b)}" for label, (b, _) in zip(recording_labels(list(per_b)),
+                                                                         per_b.values()))
+        lines.append(f"accelerometer bias of each recording: {each} m/s^2 (the bias's error is at least their "
+                     "spread)")
     if undetermined:
         lines.append("not determined by these flights (estimates in brackets are not results):")
         for label, s in undetermined:
@@ -91,6 +97,11 @@ def format_identification(ident: Identification) -> str:
                 shown = f"[{s.value:.3g} +- {s.stderr:.2g}]"
             lines.append(f"  {label:<20}{shown:>24}  {s.reason}: {s.why}")
     return "\n".join(lines)
+
+
+def _vector(x) -> str:
+    """A (3,) vector in four decimals."""
+    return np.array2string(np.asarray(x, float), precision=4, suppress_small=True)
 
 
 def _identified_for_forces(ident: Identification, vehicle: Vehicle) -> Vehicle:
@@ -131,10 +142,8 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     else:
         raise InputError("--params", f"unknown value '{params}' (allowed: identified, nominal)")
     fd = flight_data(rec)
-    bias = None
-    if fd.acc is not None and source in ("auto", "imu"):  # the accelerometer's bias, measured against the motion
-        bias = anchored_bias(fd.t, quat.to_rotation_matrix(fd.q), fd.acc, fd.dv,  # capture, is no force
-                             np.all(np.isfinite(fd.dv), axis=1))
+    bias = flight_accel_bias(fd) if source in ("auto", "imu") else None  # a sensor's error, no force
+    if bias is not None:
         print(f"uavturb residuals: accelerometer bias ({', '.join(f'{b:.3g}' for b in bias.b)}) ± "
               f"({', '.join(f'{e:.2g}' for e in bias.stderr)}) m/s^2 (body x, y, z), measured against the motion "
               "capture, taken off the IMU's specific force", file=sys.stderr)

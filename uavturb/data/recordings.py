@@ -8,7 +8,8 @@ the rotor frame B, so the camera's pose in W is ``T_WB T_BS(vehicle.yaml) T_SC(c
 (body origin over the surface below, m) is measured on the same cloud
 (:class:`uavturb.scene.heights.SurfaceIndex`); the ground-truth turbulence ``f_a`` is the
 world-z component of the residual force of the identified model
-(:func:`uavturb.sysid.residuals.residual_forces`, N).
+(:func:`uavturb.sysid.residuals.residual_forces`, N), with the accelerometer's bias, measured against the
+motion capture (:func:`uavturb.sysid.accelerometer.flight_accel_bias`), taken off its specific force.
 
 Choices (ours):
 
@@ -49,6 +50,7 @@ from uavturb.progress import progress_bar
 from uavturb.scene.camera import CameraModel, scaled_intrinsics
 from uavturb.scene.heights import SurfaceIndex
 from uavturb.scene.projection import camera_pose_world, depth_from_points, prepare_cloud
+from uavturb.sysid.accelerometer import flight_accel_bias
 from uavturb.sysid.flight_data import flight_data
 from uavturb.sysid.residuals import residual_forces
 
@@ -153,7 +155,8 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, camera: CameraModel, *,
     if rec.points is None:
         raise InputError(f"{where}/{POINTS_PLY}", "point cloud needed (depth images and heights come from it)")
     fd = flight_data(rec, heights=False)
-    res = residual_forces(fd, vehicle)
+    bias = flight_accel_bias(fd)  # an accelerometer's bias, measured against the motion capture, is no turbulence
+    res = residual_forces(fd, vehicle, accel_bias=None if bias is None else bias.b)
     t0, t1 = int(fd.t_ns[0]), int(fd.t_ns[-1])
     if rec.cam0 is not None and len(rec.cam0.t_ns):
         t_ns = np.asarray(rec.cam0.t_ns, np.int64)

@@ -28,11 +28,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from uavturb.gap.nominal import ThrustLevels, anchored_bias, thrust_levels
+from uavturb.gap.nominal import ThrustLevels, thrust_levels
 from uavturb.numerics.filters import savgol_filter
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, EffectInputs, lag_rotor_speeds, lag_stretches
+from uavturb.sysid.accelerometer import anchored_bias
 from uavturb.sysid.flight_data import FlightData
 
 #: rows in flight an analysis needs (a minute of 3 Hz rotor telemetry over two flights has ~150): fewer, and
@@ -306,7 +307,7 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     to the rows. ``None`` keeps every sample.
 
     With ``anchor_bias`` (default), the accelerometer bias of a flight with an IMU is measured
-    against its motion capture (:func:`uavturb.gap.nominal.anchored_bias`) and taken off the
+    against its motion capture (:func:`uavturb.sysid.accelerometer.anchored_bias`) and taken off the
     accelerometer, so the model fits no bias that could trade with the thrust coefficient; the
     biases are in :attr:`GapData.anchored`.
 

@@ -8,9 +8,9 @@ a joint fit lets ``b_z`` take part of the thrust and of every law along it (the 
 real flights that joint fit put ``k_T`` 8-57 % below what ``uavturb identify`` finds, with ``b_z``
 of 0.65-5.8 m/s^2. Where a recording has an IMU *and* motion capture, the bias is not a fit
 parameter at all: it is what the accelerometer reads beyond the specific force the motion capture
-shows, ``b = mean(a_imu - R^T (v_dot + g e_z))`` in B (:func:`anchored_bias`), measured without any
-model of the thrust, so it cannot trade with one. ``identify`` anchors ``k_T`` the same way (its
-motion-capture rows carry no bias), so the two agree.
+shows, ``b = mean(a_imu - R^T (v_dot + g e_z))`` in B
+(:func:`uavturb.sysid.accelerometer.anchored_bias`), measured without any model of the thrust, so it
+cannot trade with one. ``identify`` takes the same bias off its IMU rows, so the two agree.
 
 **Thrust level.** Recordings of one vehicle made on different days, batteries or propellers differ
 in thrust per rotor speed squared by a few percent (``recordings.md``). Pooled under one ``k_T``,
@@ -47,10 +47,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavturb.physics.constants import GRAVITY
+from uavturb.sysid.accelerometer import block_labels
 
-#: s, blocks whose means are taken as independent (errors of the bias and the thrust levels)
-BLOCK_S = 1.0
 #: relative difference of thrust levels under which recordings share one thrust coefficient
 LEVEL_PRACTICAL = 0.005
 #: chi^2 per degree of freedom of the levels' differences above which they differ (with honest errors)
@@ -63,70 +61,6 @@ MATCHED_BINS = 8
 MATCHED_ROWS_PER_BIN = 40
 #: rows a recording needs in a height bin to measure its level there
 MATCHED_MIN_ROWS = 20
-
-
-def block_labels(t: np.ndarray, block_s: float = BLOCK_S) -> np.ndarray:
-    """(K,) int, consecutive ``block_s`` [s] blocks of times ``t`` [s]."""
-    return np.floor((np.asarray(t, float) - float(np.min(t))) / block_s).astype(np.int64)
-
-
-def block_mean_and_se(x: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean of ``x`` (K,) or (K, p) and its standard error from the spread of block means (blocks
-    with samples weighted by their counts), so correlated samples do not count as independent."""
-    x = np.asarray(x, float).reshape(len(labels), -1)
-    _, inv = np.unique(labels, return_inverse=True)
-    n = np.bincount(inv).astype(float)
-    means = np.stack([np.bincount(inv, weights=x[:, j]) / n for j in range(x.shape[1])], axis=1)
-    mean = np.average(means, axis=0, weights=n)
-    B = len(n)
-    if B < 2:
-        return mean, np.full(x.shape[1], np.inf)
-    var = np.average((means - mean) ** 2, axis=0, weights=n) * B / (B - 1)
-    return mean, np.sqrt(var / B)
-
-
-@dataclass(frozen=True)
-class AnchoredBias:
-    """Accelerometer bias of one recording, measured against motion capture.
-
-    Attributes
-    ----------
-    b : (3,) m/s^2 in B, what the accelerometer reads beyond the motion capture's specific force
-    stderr : (3,) m/s^2, from the spread of 1 s block means
-    n : rows used
-    """
-
-    b: np.ndarray
-    stderr: np.ndarray
-    n: int
-
-
-def mocap_specific_force(R: np.ndarray, dv: np.ndarray) -> np.ndarray:
-    """(K, 3) m/s^2 in B, the specific force motion capture shows: ``R^T (v_dot + g e_z)``.
-
-    Parameters
-    ----------
-    R : (K, 3, 3) body to world; dv : (K, 3) m/s^2, derivative of the world velocity
-    """
-    return np.einsum("kji,kj->ki", R, dv + np.array([0.0, 0.0, GRAVITY]))
-
-
-def anchored_bias(t: np.ndarray, R: np.ndarray, acc: np.ndarray, dv: np.ndarray, use: np.ndarray) -> AnchoredBias:
-    """The accelerometer bias as the mean of ``acc - R^T (dv + g e_z)`` over the rows ``use``.
-
-    Parameters
-    ----------
-    t : (K,) s
-    R : (K, 3, 3) body to world
-    acc : (K, 3) m/s^2, specific force in B (state file's biases already removed)
-    dv : (K, 3) m/s^2, smoothed derivative of the motion-capture velocity in W
-    use : (K,) bool, rows in flight (no ground contact; the filter's edges out)
-    """
-    diff = (acc - mocap_specific_force(R, dv))[use]
-    if len(diff) == 0:
-        return AnchoredBias(np.zeros(3), np.full(3, np.inf), 0)
-    mean, se = block_mean_and_se(diff, block_labels(t[use]))
-    return AnchoredBias(mean, se, int(use.sum()))
 
 
 @dataclass(frozen=True)

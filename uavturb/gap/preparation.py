@@ -24,7 +24,6 @@ import numpy as np
 from scipy.ndimage import median_filter
 
 from uavturb.errors import InputError
-from uavturb.gap.nominal import mocap_specific_force
 from uavturb.io.consistency import FLIGHT_SHARE
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.numerics.stream_updates import update_mask
@@ -32,6 +31,7 @@ from uavturb.physics import quaternion as quat
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import strongest_surface_lift
 from uavturb.physics.vehicle import Vehicle
+from uavturb.sysid.accelerometer import mocap_specific_force
 from uavturb.sysid.contact import ContactLimits, ground_contact
 from uavturb.sysid.flight_data import FlightData, flight_data, held_updates
 from uavturb.sysid.streams import estimate_lag, needed_rate_hz, slow_for, stream_updates

@@ -1,0 +1,95 @@
+"""The accelerometer's bias, measured against motion capture (no model of the thrust in it).
+
+Along the thrust axis a constant bias ``b_z`` is nearly the same regressor as the thrust coefficient at
+hover: a fit that leaves both free lets them trade (``k_T`` 8-57 % low, ``b_z`` 0.65-5.8 m/s^2 on real
+flights). Where a recording has an IMU *and* motion capture, the bias is instead what the accelerometer
+reads beyond the specific force the motion capture shows, ``b = mean(a_imu - R^T (v_dot + g e_z))`` in B,
+with its standard error from the spread of :data:`BLOCK_S` block means. ``identify``, ``gap`` and
+``residuals`` all take it from here, so they agree.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavturb.physics import quaternion as quat
+from uavturb.physics.constants import GRAVITY
+from uavturb.sysid.flight_data import FlightData
+
+#: s, blocks whose means are taken as independent (errors of the bias and the thrust levels)
+BLOCK_S = 1.0
+
+
+def block_labels(t: np.ndarray, block_s: float = BLOCK_S) -> np.ndarray:
+    """(K,) int, consecutive ``block_s`` [s] blocks of times ``t`` [s]."""
+    return np.floor((np.asarray(t, float) - float(np.min(t))) / block_s).astype(np.int64)
+
+
+def block_mean_and_se(x: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of ``x`` (K,) or (K, p) and its standard error from the spread of block means (blocks
+    with samples weighted by their counts), so correlated samples do not count as independent."""
+    x = np.asarray(x, float).reshape(len(labels), -1)
+    _, inv = np.unique(labels, return_inverse=True)
+    n = np.bincount(inv).astype(float)
+    means = np.stack([np.bincount(inv, weights=x[:, j]) / n for j in range(x.shape[1])], axis=1)
+    mean = np.average(means, axis=0, weights=n)
+    B = len(n)
+    if B < 2:
+        return mean, np.full(x.shape[1], np.inf)
+    var = np.average((means - mean) ** 2, axis=0, weights=n) * B / (B - 1)
+    return mean, np.sqrt(var / B)
+
+
+@dataclass(frozen=True)
+class AnchoredBias:
+    """Accelerometer bias of one recording, measured against motion capture.
+
+    Attributes
+    ----------
+    b : (3,) m/s^2 in B, what the accelerometer reads beyond the motion capture's specific force
+    stderr : (3,) m/s^2, from the spread of 1 s block means
+    n : rows used
+    """
+
+    b: np.ndarray
+    stderr: np.ndarray
+    n: int
+
+
+def mocap_specific_force(R: np.ndarray, dv: np.ndarray) -> np.ndarray:
+    """(K, 3) m/s^2 in B, the specific force motion capture shows: ``R^T (v_dot + g e_z)``.
+
+    Parameters
+    ----------
+    R : (K, 3, 3) body to world; dv : (K, 3) m/s^2, derivative of the world velocity
+    """
+    return np.einsum("kji,kj->ki", R, dv + np.array([0.0, 0.0, GRAVITY]))
+
+
+def anchored_bias(t: np.ndarray, R: np.ndarray, acc: np.ndarray, dv: np.ndarray, use: np.ndarray) -> AnchoredBias:
+    """The accelerometer bias as the mean of ``acc - R^T (dv + g e_z)`` over the rows ``use``.
+
+    Parameters
+    ----------
+    t : (K,) s
+    R : (K, 3, 3) body to world
+    acc : (K, 3) m/s^2, specific force in B (state file's biases already removed)
+    dv : (K, 3) m/s^2, smoothed derivative of the motion-capture velocity in W
+    use : (K,) bool, rows in flight (no ground contact; the filter's edges out)
+    """
+    diff = (acc - mocap_specific_force(R, dv))[use]
+    if len(diff) == 0:
+        return AnchoredBias(np.zeros(3), np.full(3, np.inf), 0)
+    mean, se = block_mean_and_se(diff, block_labels(t[use]))
+    return AnchoredBias(mean, se, int(use.sum()))
+
+
+def flight_accel_bias(fd: FlightData) -> AnchoredBias | None:
+    """The accelerometer bias of one aligned flight, over every row whose motion-capture derivative is defined
+    (``None`` without an IMU). On the ground the accelerometer and the motion capture both feel the floor, so
+    those rows measure the bias too."""
+    if fd.acc is None:
+        return None
+    return anchored_bias(fd.t, quat.to_rotation_matrix(fd.q), fd.acc, fd.dv, np.all(np.isfinite(fd.dv), axis=1))
