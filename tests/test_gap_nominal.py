@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from uavturb.cli import main
+from uavturb.gap.decide import can_test_alone
 from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels
 from uavturb.gap.finder import (
     _cross_checked,
@@ -299,6 +300,53 @@ def test_a_recording_too_short_to_fit_alone_is_left_out_of_the_spread():
     assert budget["between_recordings"] == pytest.approx(np.std([1.6, 2.4], ddof=1), rel=0.1)
     whole = data.subset(data.group < 2)
     assert "recordings_too_short" not in error_budget(whole, fit_model(whole, {"ground_effect"}), "ground_effect")["mu"]
+
+
+def _drag_flights(sideways=(True, True, False), k_d=(8.0e-5, 9.0e-5, 8.5e-5), seconds=30.0, seed=7,
+                  noise=0.03) -> GapData:
+    """Recordings of a hexarotor with rotor drag ``k_d``: those ``sideways`` fly back and forth at up to 2 m/s, the
+    others climb and sink in place (a take-off: 2 mm/s sideways); motion capture only."""
+    rng = np.random.default_rng(seed)
+    cols = {k: [] for k in ("group", "t", "y", "R", "w", "v")}
+    for g, (side, kd) in enumerate(zip(sideways, k_d)):
+        K = int(seconds * 100)
+        t = np.arange(K) * 0.01
+        speed = 2.0 if side else 0.002
+        v = np.stack([speed * np.sin(2 * np.pi * t / 6.0), 0.5 * speed * np.cos(2 * np.pi * t / 4.0),
+                      0.3 * np.sin(2 * np.pi * t / 5.0)], 1)
+        R = quat.to_rotation_matrix(quat.from_euler(0.02 * np.sin(t), 0.02 * np.cos(t), np.zeros(K)))
+        w = np.full((K, 6), np.sqrt(MASS * GRAVITY / (6 * K_T))) * (1 + 0.03 * np.sin(1.7 * t))[:, None]
+        thrust = K_T * np.sum(w**2, 1)
+        vB = np.einsum("kji,kj->ki", R, v)
+        drag = -kd * np.sum(w, 1)[:, None] * np.einsum("kij,kj->ki", R, vB * np.array([1.0, 1.0, 0.0]))
+        y = thrust[:, None] * R[:, :, 2] + drag + rng.normal(0, noise, (K, 3))
+        for k, x in zip(cols, (np.full(K, g), t, y, R, w, v)):
+            cols[k].append(x)
+    c = {k: np.concatenate(x) for k, x in cols.items()}
+    K = len(c["t"])
+    return GapData(c["group"], c["t"], np.zeros((K, 3)), c["y"], c["R"], c["w"], c["v"], np.full(K, np.inf),
+                   np.full(K, np.inf), MASS, R_ROTOR, ["a", "b", "c"][:len(sideways)], "mocap",
+                   imu=np.zeros(K, bool), fits_bias=False)
+
+
+def test_a_recording_that_cannot_test_a_drag_is_left_out_of_the_spread():
+    """Two sessions flying sideways (k_d 8 and 9 x 1e-5) and a take-off that barely moves sideways: the take-off's
+    own drag fit is noise, not a session's spread; the error covers the two sessions, and with one left the spread
+    between blocks stands in."""
+    data = _drag_flights()
+    final = fit_model(data, {"rotor_drag"})
+    testable = lambda d: can_test_alone(d, final, "rotor_drag")  # noqa: E731
+    assert [testable(data.subset(data.group == g)) for g in range(3)] == [True, True, False]
+    budget = error_budget(data, final, "rotor_drag", can_test=testable)["k_d"]
+    assert budget["fits"] == 2
+    assert budget["between_recordings"] == pytest.approx(np.std([8.0e-5, 9.0e-5], ddof=1), rel=0.15)
+    _, own_se = fit_model(data.subset(data.group == 2), {"rotor_drag"}).effect_params("rotor_drag")
+    assert own_se["k_d"] > 5 * budget["between_recordings"]  # the take-off alone cannot tell the sessions apart
+    assert error_budget(data, final, "rotor_drag")["k_d"]["fits"] == 3  # without the test it counted as one
+    one = data.subset(data.group != 1)
+    alone = error_budget(one, fit_model(one, {"rotor_drag"}), "rotor_drag",
+                         can_test=lambda d: can_test_alone(d, final, "rotor_drag"))["k_d"]
+    assert "between_recordings" not in alone and np.isfinite(alone["between_blocks"])
 
 
 def test_the_budgets_of_one_model_share_their_refits():

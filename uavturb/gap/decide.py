@@ -212,6 +212,16 @@ def effect_size(data: GapData, fit: ModelFit, effect: str) -> float:
     return float(np.percentile(np.linalg.norm(force, axis=1), 99))
 
 
+def can_test_alone(data: GapData, fit: ModelFit, effect: str) -> bool:
+    """Whether the rows ``data`` (one recording's) can test ``effect`` on their own: a surface law needs flights
+    within its reach (:func:`surface_reach`); any other effect must reach :data:`PRACTICAL_SHARE` of the weight
+    there at the value ``fit`` (all recordings together) gives it. A take-off that barely moves sideways gives a
+    rotor drag no force to be read from, and its own fit of it is noise, not a session's spread."""
+    if EFFECTS[effect].surface is not None:
+        return surface_reach(data, effect).testable
+    return effect_size(data, fit, effect) >= PRACTICAL_SHARE * data.mass * GRAVITY
+
+
 def too_small(data: GapData, fit: ModelFit, effect: str) -> str | None:
     """None when the effect's force reaches :data:`PRACTICAL_SHARE` of the weight where it acts, else
     why it is no discovery (a push a thousandth of the weight is none, however significant)."""

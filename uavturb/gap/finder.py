@@ -14,6 +14,7 @@ from uavturb.gap.decide import (
     airspeed_drag,
     ambiguity,
     bias_alike,
+    can_test_alone,
     flight_facts,
     floor_crossing,
     residual_thrust_tilt,
@@ -658,11 +659,9 @@ def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels) -> dict[str, 
 
 def _budget(data: GapData, final: ModelFit, name: str, height_uncertainty: float = HEIGHT_REFERENCE_M,
             refits: Refits | None = None) -> dict[str, dict[str, float]]:
-    """:func:`uavturb.gap.uncertainty.error_budget` of ``name`` in ``final`` (a surface law's recordings
-    must each come within its reach to count)."""
-    if EFFECTS[name].surface is None:
-        return error_budget(data, final, name, refits=refits)
-    return error_budget(data, final, name, can_test=lambda d: surface_reach(d, name).testable,
+    """:func:`uavturb.gap.uncertainty.error_budget` of ``name`` in ``final``: the recordings that count are those
+    that can test it alone (:func:`uavturb.gap.decide.can_test_alone`)."""
+    return error_budget(data, final, name, can_test=lambda d: can_test_alone(d, final, name),
                         height_reference_m=height_uncertainty, refits=refits)
 
 

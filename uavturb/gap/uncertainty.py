@@ -17,8 +17,15 @@ other and of the noise) added in quadrature:
   has no fit of its own to land anywhere and is left out of the spread: a take-off whose rotor speeds
   update at 3 Hz (47 updates in flight) fitted alone an exponential ground effect's A = 1.03 where the
   two walks beside it gave 0.45 and 0.35, and its noise, counted as a spread between sessions, had
-  left the law within two errors of zero;
-- **between blocks**: with one recording (or one long enough to be fitted alone), the jackknife over
+  left the law within two errors of zero. Likewise a recording that cannot test the effect: one that never comes
+  within a surface law's reach, or one where the effect, at the value all recordings give it, never reaches
+  :data:`~uavturb.gap.decide.PRACTICAL_SHARE` of the weight (:func:`~uavturb.gap.decide.can_test_alone`: a
+  take-off that barely moves sideways has no rotor drag of its own to fit: counted as a session's spread, its fit
+  had widened the error of the drag of a take-off and two walks to 1.2e-5, where the walks give
+  (1.82 +- 0.23) x 1e-6, and the drag was no discovery); with fewer than two recordings that can, the spread
+  between blocks stands in;
+- **between blocks**: with one recording (or one long enough to be fitted alone, or one that can test the
+  effect), the jackknife over
   :data:`TIME_BLOCKS` contiguous blocks of it (correlated errors within a block, independent between);
 - **height reference** (surface effects): half the change of the parameter when every height is
   moved by ``+-`` :data:`HEIGHT_REFERENCE_M` (the rotor plane's height above the body origin and the
@@ -114,10 +121,10 @@ class Refits:
         test the effect."""
         built = None
         if can_test is not None:
-            if (key, name) not in self._testable:
+            if (key, name, effects) not in self._testable:
                 built = part()
-                self._testable[key, name] = bool(can_test(built))
-            if not self._testable[key, name]:
+                self._testable[key, name, effects] = bool(can_test(built))
+            if not self._testable[key, name, effects]:
                 return None
         if (effects, key) not in self._fits:
             self._fits[effects, key] = _fit_or_none(built if built is not None else part(), effects)
@@ -185,15 +192,19 @@ def error_budget(data: GapData, final: ModelFit, name: str,
             budget[k]["height_reference"] = abs(up[k] - down[k]) / 2 if up and down else float("nan")
     groups, rows = np.unique(data.group, return_counts=True)
     short = int(np.sum(rows < MIN_ROWS)) if len(groups) >= 2 else 0
+    values: list[dict[str, float]] = []
     if len(groups) - short >= 2:
         parts = [(("recording", int(g)), lambda g=g: data.subset(data.group == g)) for g in groups[rows >= MIN_ROWS]]
         label, jack = "between_recordings", False
-    else:
+        values = [v for v in (refits.params(key, part, effects, name, can_test) for key, part in parts)
+                  if v is not None]
+    if len(values) < 2:  # one recording, or one that can test the effect: the spread between its blocks
         edges = np.quantile(data.t, np.linspace(0, 1, TIME_BLOCKS + 1))
         block = np.clip(np.searchsorted(edges, data.t, side="right") - 1, 0, TIME_BLOCKS - 1)
         parts = [(("block", b), lambda b=b: data.subset(block != b)) for b in range(TIME_BLOCKS)]
         label, jack = "between_blocks", True
-    values = [v for v in (refits.params(key, part, effects, name, can_test) for key, part in parts) if v is not None]
+        values = [v for v in (refits.params(key, part, effects, name, can_test) for key, part in parts)
+                  if v is not None]
     spread = _spread(values, keys, jack)
     for k in keys:
         b = budget[k]
