@@ -194,15 +194,13 @@ class GapData:
             if self._groups is None:
                 self._groups = frozenset(np.unique(self.group).tolist())
             # a search returns to values it tried: the block means are kept too
-            self._keep_lagged(key, self.gather(self.contiguous._lagged_sums(key, self._groups)))
-        return self._lag_cache[key]
+            return self._keep_lagged(key, self.gather(self.contiguous._lagged_sums(key, self._groups)))
+        return self._recently_used(key)
 
     def _lagged_sums(self, key: float, groups: frozenset | None) -> np.ndarray:
         """(K,) the lagged sums at the cached ``tau`` ``key``, filled on the rows of the recordings ``groups``
         at least (None: all); each recording's lag is filtered once per ``key``."""
-        out = self._lag_cache.get(key)
-        if out is None:
-            out = self._keep_lagged(key, np.empty(len(self)))
+        out = self._recently_used(key) if key in self._lag_cache else self._keep_lagged(key, np.empty(len(self)))
         done = self._lag_done.setdefault(key, set())
         for g, rows, stretches in self._lag_plan():
             if g not in done and (groups is None or g in groups):
@@ -210,10 +208,18 @@ class GapData:
                 done.add(g)
         return out
 
+    def _recently_used(self, key: float) -> np.ndarray:
+        """The kept lagged sums at ``key``, moved to the end of the cache's order: the cache drops the value of tau
+        used least recently (:meth:`_keep_lagged`), not the oldest kept. Every search visits the coarse grid's values
+        of tau again and again between its finer ones; dropped first, they were filtered anew up to eight times
+        (twelve recordings: 6933 filters of 2546 distinct ones, a tenth of the analysis)."""
+        self._lag_cache[key] = self._lag_cache.pop(key)
+        return self._lag_cache[key]
+
     def _keep_lagged(self, key: float, out: np.ndarray) -> np.ndarray:
-        """Keep ``out`` as the lagged sums at ``key``, the oldest dropped beyond :data:`LAG_CACHE_BYTES` or
-        :data:`LAG_CACHE_TAUS` values (:data:`ROWS_LAG_CACHE_BYTES`, :data:`ROWS_LAG_CACHE_TAUS` for rows of contiguous
-        flights)."""
+        """Keep ``out`` as the lagged sums at ``key``, the least recently used (:meth:`_recently_used`) dropped
+        beyond :data:`LAG_CACHE_BYTES` or :data:`LAG_CACHE_TAUS` values (:data:`ROWS_LAG_CACHE_BYTES`,
+        :data:`ROWS_LAG_CACHE_TAUS` for rows of contiguous flights)."""
         limit = LAG_CACHE_BYTES if self.contiguous is None else ROWS_LAG_CACHE_BYTES
         taus = LAG_CACHE_TAUS if self.contiguous is None else ROWS_LAG_CACHE_TAUS
         while (len(self._lag_cache) * out.nbytes > limit or len(self._lag_cache) >= taus) and self._lag_cache:

@@ -15,6 +15,7 @@ from uavturb.gap.design import (
     NONLINEAR,
     THRUST_FACTOR,
     GapData,
+    amplitude_names,
     amplitude_shapes,
     difference_points,
     design,
@@ -24,6 +25,7 @@ from uavturb.gap.design import (
     stack_target,
     surface_extra,
     thrust_columns,
+    thrust_factor_names,
     unstack,
 )
 from uavturb.physics.effects import EFFECTS
@@ -168,10 +170,15 @@ class Profile:
     ``pieces`` (row indices of the samples) split the rows: the sums are kept per piece, and the error is that
     of the fit on any union of pieces (``use``, one flag a piece). The folds of a held-out test are such unions
     (each recording a piece, or the first 70 % and last 30 % of one): they share every evaluation, each a
-    pass over the rows, instead of repeating it on their own rows."""
+    pass over the rows, instead of repeating it on their own rows.
+
+    ``shared`` (a dict, kept by the caller): where profiles of other effect sets on the same ``data``, ``y`` and
+    ``pieces`` pass the same dict, the sums of the dependent columns with themselves and with ``y`` are kept there
+    for them all: effect sets that differ in linear effects only (the candidates of one selection step) have the
+    same dependent columns, and recompute only their products with the fixed columns (none without any)."""
 
     def __init__(self, data: GapData, effects: frozenset[str], y: np.ndarray,
-                 pieces: list[np.ndarray] | None = None):
+                 pieces: list[np.ndarray] | None = None, shared: dict | None = None):
         self.data, self.effects, self.y = data, set(effects), y
         K = len(data)
         pieces = [np.arange(K)] if pieces is None else pieces
@@ -194,7 +201,11 @@ class Profile:
         # columns), and the dependent columns' names
         self._sums: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._sse: dict[tuple, float] = {}
-        self.dependent_names: list[str] = []
+        # the dependent columns' names (:func:`~uavturb.gap.design.thrust_columns`), and the effects those columns
+        # depend on: the nonlinear ones and the laws scaling the thrust coefficient (the others are fixed columns)
+        self.dependent_names = ["k_T"] + thrust_factor_names(self.effects) + amplitude_names(self.effects)
+        self._dependent = frozenset(e for e in self.effects if e in NONLINEAR or e in THRUST_FACTOR)
+        self._shared = {} if shared is None else shared
 
     def _columns(self, values: dict[str, float]) -> np.ndarray:
         tau = round(values["tau"], 12) if "motor_lag" in self.effects else 0.0
@@ -204,39 +215,43 @@ class Profile:
         if key not in self._surf:
             self._surf = {key: (surface_extra(self.data, self.effects, values),
                                 amplitude_shapes(self.data, self.effects, values))}
-        D, self.dependent_names = thrust_columns(self.data, self.effects, self._S[tau], *self._surf[key])
-        return D
+        return thrust_columns(self.data, self.effects, self._S[tau], *self._surf[key])[0]
 
     def _key(self, values: dict[str, float]) -> tuple:
         return ((lag_key(values["tau"]) if "motor_lag" in self.effects else 0.0,)
                 + tuple(values[p] for p in self._surface))
 
     def _sums_at(self, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per piece: ``D^T D``, ``D^T F``, ``D^T y`` of the dependent columns ``D`` at ``values``."""
+        """Per piece: ``D^T D``, ``D^T F``, ``D^T y`` of the dependent columns ``D`` at ``values`` (the first and
+        the last from ``shared`` where a profile with the same dependent columns computed them)."""
         key = self._key(values)
         if key not in self._sums:
-            D = self._columns(values)
-            self._sums[key] = self._piece_sums(D)
+            D = None
+            own = self._shared.get((self._dependent, key))
+            if own is None:
+                D = self._columns(values)
+                own = self._shared[(self._dependent, key)] = (self._piece_sums(D, D), self._piece_sums(D, self.y))
+            if self.F.shape[1] == 0:
+                DF = np.zeros((len(self._rows), len(self.dependent_names), 0))
+            else:
+                DF = self._piece_sums(self._columns(values) if D is None else D, self.F)
+            self._sums[key] = own[0], DF, own[1]
         return self._sums[key]
 
-    def _piece_sums(self, D: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per piece: ``D^T D``, ``D^T F``, ``D^T y``. A piece of consecutive samples is three slices of the
-        stacked (x, y, z) rows, taken together as one batch of three products (a third of the calls: with a
-        dozen recordings the calls, not the arithmetic, had taken most of the time)."""
+    def _piece_sums(self, D: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """Per piece: ``D^T X`` (``X``: the columns ``D`` itself, the fixed columns ``F``, or the target ``y``,
+        whose products are a vector a piece). A piece of consecutive samples is three slices of the stacked (x, y,
+        z) rows, taken together as one batch of three products (a third of the calls: with a dozen recordings the
+        calls, not the arithmetic, had taken most of the time)."""
         K = len(self.data)
         if not all(isinstance(r[0], slice) for r in self._rows):
-            return (np.stack([sum(D[r].T @ D[r] for r in rows) for rows in self._rows]),
-                    np.stack([sum(D[r].T @ self.F[r] for r in rows) for rows in self._rows]),
-                    np.stack([sum(D[r].T @ self.y[r] for r in rows) for rows in self._rows]))
-        D3, F3, y3 = D.reshape(3, K, -1), self.F.reshape(3, K, -1), self.y.reshape(3, K, 1)
-        DD, DF, Dy = [], [], []
+            return np.stack([sum(D[r].T @ X[r] for r in rows) for rows in self._rows])
+        D3, X3 = D.reshape(3, K, -1), X.reshape(3, K, -1)
+        out = []
         for rows in self._rows:
             a, b = rows[0].start, rows[0].stop
-            Dt = D3[:, a:b].transpose(0, 2, 1)
-            DD.append((Dt @ D3[:, a:b]).sum(axis=0))
-            DF.append((Dt @ F3[:, a:b]).sum(axis=0))
-            Dy.append((Dt @ y3[:, a:b]).sum(axis=0)[:, 0])
-        return np.stack(DD), np.stack(DF), np.stack(Dy)
+            out.append((D3[:, a:b].transpose(0, 2, 1) @ X3[:, a:b]).sum(axis=0))
+        return np.stack(out)[..., 0] if X.ndim == 1 else np.stack(out)
 
     def _solved(self, values: dict[str, float], use: np.ndarray | None) -> tuple[np.ndarray, float]:
         """Coefficients (dependent columns, then fixed) and the error of the fit on the pieces ``use``."""

@@ -131,10 +131,12 @@ class FoldFits:
         self.pieces = [np.flatnonzero(label == p) for p in range(len(patterns))]
         self.uses = [np.ascontiguousarray(patterns[:, f]) for f in range(train.shape[1])]
         self.tests = [data.subset(te) for _, te in fold_masks]
+        # the dependent columns' sums that the effect sets' profiles share (:class:`~uavturb.gap.fit.Profile`)
+        self._shared: dict = {}
 
     def heldout(self, effects: frozenset[str], fixed: dict[str, float] | None = None) -> HeldOut:
         """Held-out residuals of the model with ``effects`` (nonlinear parameters in ``fixed`` held)."""
-        prof = Profile(self.data, frozenset(effects), stack_target(self.data.y), self.pieces)
+        prof = Profile(self.data, frozenset(effects), stack_target(self.data.y), self.pieces, self._shared)
         errs, blocks, ts, gs = [], [], [], []
         for use, te in zip(self.uses, self.tests):
             fit = prof.fit(search_nonlinear(prof, frozenset(effects), fixed, use), use)

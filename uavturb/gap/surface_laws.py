@@ -130,6 +130,7 @@ class _BinnedLaw:
             with np.errstate(invalid="ignore", divide="ignore"):
                 self.sub_d = np.where(n > 0, sums / np.maximum(n, 1), np.nan)
             self.sub_bin = np.arange(nb * _SUB_BINS) // _SUB_BINS
+        self._all: Callable[[np.ndarray], np.ndarray] | None = None
 
     def at(self, d: np.ndarray, z: np.ndarray) -> np.ndarray:
         """The law at heights ``d`` [m] with ``z`` (its parameters, then the far level where it is free), as
@@ -142,8 +143,11 @@ class _BinnedLaw:
         return self.spec.ratio_at(d, z[:self.len_params], self.r, **self.geometry)
 
     def bins(self, z: np.ndarray) -> np.ndarray:
-        """(B,) the law in each bin, over all its samples."""
-        return self.over(None)(z)
+        """(B,) the law in each bin, over all its samples (:meth:`over` every sample, set up once: a fit calls this
+        a hundred times, and the setup's counts over the samples had cost more than the law)."""
+        if self._all is None:
+            self._all = self.over(None)
+        return self._all(z)
 
     def over(self, use: np.ndarray | None) -> Callable[[np.ndarray], np.ndarray]:
         """``z -> (B,)`` the law in each bin over the samples where ``use`` (all where None)."""
