@@ -338,7 +338,7 @@ def test_a_recording_that_cannot_test_a_drag_is_left_out_of_the_spread():
     testable = lambda d: can_test_alone(d, final, "rotor_drag")  # noqa: E731
     assert [testable(data.subset(data.group == g)) for g in range(3)] == [True, True, False]
     budget = error_budget(data, final, "rotor_drag", can_test=testable)["k_d"]
-    assert budget["fits"] == 2
+    assert budget["fits"] == 2 and budget["recordings_cannot_test"] == ["c"]
     assert budget["between_recordings"] == pytest.approx(np.std([8.0e-5, 9.0e-5], ddof=1), rel=0.15)
     _, own_se = fit_model(data.subset(data.group == 2), {"rotor_drag"}).effect_params("rotor_drag")
     assert own_se["k_d"] > 5 * budget["between_recordings"]  # the take-off alone cannot tell the sessions apart

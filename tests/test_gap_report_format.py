@@ -96,6 +96,23 @@ def test_a_law_named_from_the_surface_curve_says_which_law_found_it(tmp_path):
             "between recordings") in text
 
 
+def test_a_recording_that_cannot_test_an_effect_is_named_in_its_error_line(tmp_path):
+    drag = {"name": "rotor_drag", "params": {"k_d": 1.85e-6}, "stderr": {"k_d": 2.2e-7}, "explanation": "Drag ...",
+            "heldout_rmse_before_N": 0.0077, "heldout_rmse_after_N": 0.0075, "z_heldout": 9.5,
+            "error_budget": {"k_d": {"sample": 7.8e-8, "between_recordings": 2.06e-7, "stderr": 2.2e-7,
+                                     "limited_by": "between_recordings", "fits": 2,
+                                     "recordings_cannot_test": ["cf50_00"]}}}
+    report = {"recordings": ["a/cf50_00", "a/cf50_01", "a/cf50_02"], "sim_effects": [],
+              "protocol": "leave-one-recording-out", "residual_source": "imu",
+              "baseline": {"heldout_rmse_N": 0.0117, "rmse_N": 0.0117}, "final": {"heldout_rmse_N": 0.0075},
+              "noise": {"rms_N": 0.006}, "effects": [drag], "mismatch": {"segments": [], "drivers": []},
+              "unexplained": {"rms_N": 0.01, "drivers": []}, "sim_effect_params": {}}
+    write_markdown(tmp_path, report, [])
+    assert ("  - error of k_d: ± 2.2e-07, limited by between recordings (sample 7.8e-08, between recordings 2.06e-07); "
+            "cf50_00 cannot test it on its own rows (the effect there under 0.2 % of the weight): left out of the "
+            "spread between recordings") in (tmp_path / "report.md").read_text()
+
+
 def test_the_surface_curve_says_where_heights_are_measured_from(tmp_path):
     """The report states the rotor plane's offset behind every height, and where a surface law is named on the
     body origin's heights (rotor_plane_z 0 or absent), says to check it: mu moves 2-3x with it on real vehicles."""

@@ -7,6 +7,7 @@ from typing import Callable
 
 import numpy as np
 
+from uavturb.gap.decide import PRACTICAL_SHARE
 from uavturb.gap.locate import AXES, features
 from uavturb.gap.plotting import (
     COLUMNS_PER_PIXEL,
@@ -20,6 +21,7 @@ from uavturb.gap.surface_curve import SurfaceCurve
 from uavturb.gap.surface_laws import LawFit
 from uavturb.gap.uncertainty import BUDGET_TERMS
 from uavturb.io.reader import recording_labels
+from uavturb.physics.effects import EFFECTS
 from uavturb.io.strict_json import dumps_strict
 
 #: units of the candidate drivers of :func:`uavturb.gap.locate.features` (plot axes)
@@ -227,6 +229,12 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                 short = b.get("recordings_too_short", 0)
                 left = (f"; {short} recording(s) with too few rows in flight to be fitted alone left out of the "
                         f"spread between recordings" if short else "")
+                untested = b.get("recordings_cannot_test", [])
+                if untested:
+                    why = ("out of the law's reach" if EFFECTS[e["name"]].surface else
+                           f"the effect there under {100 * PRACTICAL_SHARE:.1g} % of the weight")
+                    left += (f"; {', '.join(untested)} cannot test it on {'its' if len(untested) == 1 else 'their'} "
+                             f"own rows ({why}): left out of the spread between recordings")
                 L.append(f"  - error of {k}: ± {b['stderr']:.3g}, limited by {b['limited_by'].replace('_', ' ')} "
                          f"({terms}){left}")
             if e.get("time_domain"):

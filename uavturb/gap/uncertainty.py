@@ -114,6 +114,10 @@ class Refits:
         """The refits computed (each part and set of effects once)."""
         return len(self._fits)
 
+    def cannot_test(self, key: tuple, effects: frozenset[str], name: str) -> bool:
+        """Whether the part ``key`` was found unable to test ``name`` (with ``effects``) by a :meth:`params` call."""
+        return self._testable.get((key, name, effects)) is False
+
     def params(self, key: tuple, part: Callable[[], GapData], effects: frozenset[str], name: str,
                can_test: Callable[[GapData], bool] | None = None) -> dict[str, float] | None:
         """``name``'s parameters in the model with ``effects`` fitted on the part ``key`` (built by ``part``
@@ -193,11 +197,13 @@ def error_budget(data: GapData, final: ModelFit, name: str,
     groups, rows = np.unique(data.group, return_counts=True)
     short = int(np.sum(rows < MIN_ROWS)) if len(groups) >= 2 else 0
     values: list[dict[str, float]] = []
+    untested: list[str] = []  # recordings that cannot test the effect on their own rows
     if len(groups) - short >= 2:
         parts = [(("recording", int(g)), lambda g=g: data.subset(data.group == g)) for g in groups[rows >= MIN_ROWS]]
         label, jack = "between_recordings", False
         values = [v for v in (refits.params(key, part, effects, name, can_test) for key, part in parts)
                   if v is not None]
+        untested = [data.names[key[1]] for key, _ in parts if refits.cannot_test(key, effects, name)]
     if len(values) < 2:  # one recording, or one that can test the effect: the spread between its blocks
         edges = np.quantile(data.t, np.linspace(0, 1, TIME_BLOCKS + 1))
         block = np.clip(np.searchsorted(edges, data.t, side="right") - 1, 0, TIME_BLOCKS - 1)
@@ -212,6 +218,8 @@ def error_budget(data: GapData, final: ModelFit, name: str,
         b["fits"] = len(values)
         if short:
             b["recordings_too_short"] = short
+        if untested:
+            b["recordings_cannot_test"] = untested
         sample = float(np.hypot(b["sample"], b.get("height_reference", 0.0) or 0.0))
         terms = {"sample": b["sample"], "height_reference": b.get("height_reference", 0.0), label: spread[k]}
         b["stderr"] = float(np.nanmax([sample, spread[k]])) if np.isfinite(sample) or np.isfinite(spread[k]) \
