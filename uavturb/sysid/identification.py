@@ -250,16 +250,14 @@ def _anchored_biases(rows: dict[str, np.ndarray]) -> tuple[AnchoredBias, dict[in
     the motion capture shows, so that it cannot trade with the thrust coefficient."""
     diff = rows["acc"] - rows["spec_mocap"]
     groups = rows["group"]
+    labels = np.empty(len(groups), np.int64)  # blocks of one recording each: its own block numbers, its group's
     per = {}
     for g in np.unique(groups):
         mine = groups == g
-        b, se = block_mean_and_se(diff[mine], block_labels(rows["t"][mine]))
+        labels[mine] = block_labels(rows["t"][mine]) + (int(g) << 32)
+        b, se = block_mean_and_se(diff[mine], labels[mine])
         per[int(g)] = AnchoredBias(b, se, int(mine.sum()))
-    # blocks never span two recordings: each recording's block numbers are moved past the last one's
-    labels = np.concatenate([block_labels(rows["t"][groups == g]) + 1_000_000 * i
-                             for i, g in enumerate(np.unique(groups))])
-    order = np.concatenate([np.flatnonzero(groups == g) for g in np.unique(groups)])
-    b, se = block_mean_and_se(diff[order], labels)
+    b, se = block_mean_and_se(diff, labels)
     return AnchoredBias(b, se, len(diff)), per
 
 
