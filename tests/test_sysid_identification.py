@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 from synthetic import inverse_dynamics_flight
 
+from uavturb.commands.identify import format_identification
 from uavturb.io.reader import load_recordings
 from uavturb.physics.vehicle import HEXAROTOR, QUADROTOR
 from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.conditions import generate_conditioned_flight
+from uavturb.sysid.accelerometer import flight_accel_bias
 from uavturb.sysid.identification import identify
 from uavturb.sysid.residuals import residual_forces
 
@@ -99,3 +101,49 @@ def test_imus_of_two_sessions_keep_their_own_bias_and_the_pooled_error_covers_th
     assert all(abs(b[0] - ident.accel_bias[0]) < 2 * ident.accel_bias_se[0] for b in (b1, b2))
     assert ident.accel_bias_se[0] == pytest.approx(np.std([b1[0], b2[0]], ddof=1), rel=1e-6)
     assert set(ident.to_dict()["accel_bias_per_recording"]) == {"session4", "session7"}
+
+
+def test_a_recording_without_an_imu_beside_one_with_it():
+    """One flight with an IMU reading 0.2 m/s^2 too much along z, one with motion capture only: the bias is the IMU's,
+    given for that recording, and both recordings' motion capture count for k_T."""
+    with_imu = dataclasses.replace(inverse_dynamics_flight(HEXAROTOR, duration=20.0, seed=4,
+                                                           acc_bias=(0.0, 0.0, 0.2))[0], name="with")
+    mocap_only = dataclasses.replace(inverse_dynamics_flight(HEXAROTOR, duration=20.0, seed=7)[0], name="without",
+                                     acc=None)
+    ident = identify([with_imu, mocap_only], HEXAROTOR)
+    assert ident.identified("accel_bias") and ident.accel_bias[2] == pytest.approx(0.2, abs=0.005)
+    assert set(ident.accel_bias_per_recording) == {"with"}
+    assert set(ident.thrust_coefficient_per_recording) == {"with", "without"}
+    assert ident.thrust_coefficient == pytest.approx(HEXAROTOR.thrust_coefficient, rel=0.01)
+    line = next(x for x in format_identification(ident).splitlines() if x.startswith("accelerometer bias of each"))
+    assert line.endswith("m/s^2; no IMU: without") and line.startswith("accelerometer bias of each recording: with [")
+
+
+def test_the_flight_bias_leaves_the_ground_out():
+    """A touch-down's impact is in the accelerometer and smoothed out of the motion capture's derivative: over the rows
+    in flight the bias is the accelerometer's own (0.1 m/s^2 along z); with the impact's rows counted it is not."""
+    fd, _ = inverse_dynamics_flight(HEXAROTOR, duration=20.0, seed=4, acc_bias=(0.0, 0.0, 0.1))
+    acc = fd.acc.copy()
+    acc[1000:1040, 2] += 30.0  # 0.2 s of impact
+    fd = dataclasses.replace(fd, acc=acc)
+    in_flight = np.ones(len(fd.t), bool)
+    in_flight[990:1050] = False
+    assert flight_accel_bias(fd, in_flight).b[2] == pytest.approx(0.1, abs=0.005)
+    assert flight_accel_bias(fd, np.ones(len(fd.t), bool)).b[2] > 0.3
+    assert flight_accel_bias(dataclasses.replace(fd, acc=None), in_flight) is None
+
+
+def test_one_recording_whose_thrust_level_steps_states_an_error_that_covers_its_halves():
+    """One 40 s flight whose thrust per rotor speed squared steps up 2 % half-way (a battery swapped, a propeller
+    changed): the stated error of k_T, the jackknife over time blocks, covers each half's own k_T within about two
+    errors, where the sample error alone was a hundredth of that."""
+    fd, _ = inverse_dynamics_flight(HEXAROTOR, duration=40.0, seed=4)
+    late = fd.t > 20.0
+    speeds = fd.rotor_speeds.copy()
+    speeds[late] /= np.sqrt(1.02)
+    fd = dataclasses.replace(fd, rotor_speeds=speeds)
+    ident = identify([fd], HEXAROTOR)
+    k, se = ident.thrust_coefficient, ident.thrust_coefficient_se
+    halves = [identify([fd.subset(m)], HEXAROTOR).thrust_coefficient for m in (~late, late)]
+    assert halves[1] / halves[0] == pytest.approx(1.02, abs=0.002)
+    assert all(abs(h - k) < 2.5 * se for h in halves) and se > 0.003 * k

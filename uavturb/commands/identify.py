@@ -84,10 +84,12 @@ def format_identification(ident: Identification) -> str:
         lines.append(f"k_T of each recording alone: {each} (k_T's error is at least their spread)")
     if ident.accel_bias_per_recording and ident.identified("accel_bias"):
         per_b = ident.accel_bias_per_recording
-        each = "; ".join(f"{label} {_vector(b)}" for label, (b, _) in zip(recording_labels(list(per_b)),
-                                                                         per_b.values()))
-        lines.append(f"accelerometer bias of each recording: {each} m/s^2 (the bias's error is at least their "
-                     "spread)")
+        label = dict(zip(ident.recordings, recording_labels(ident.recordings)))
+        each = "; ".join(f"{label.get(n, n)} {_vector(b)}" for n, (b, _) in per_b.items())
+        spread = " (the bias's error is at least their spread)" if len(per_b) > 1 else ""
+        without = [label.get(n, n) for n in ident.recordings if n not in per_b]
+        lines.append(f"accelerometer bias of each recording: {each} m/s^2{spread}"
+                     + (f"; no IMU: {', '.join(without)}" if without else ""))
     if undetermined:
         lines.append("not determined by these flights (estimates in brackets are not results):")
         for label, s in undetermined:
@@ -142,13 +144,13 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     else:
         raise InputError("--params", f"unknown value '{params}' (allowed: identified, nominal)")
     fd = flight_data(rec)
-    bias = flight_accel_bias(fd) if source in ("auto", "imu") else None  # a sensor's error, no force
+    (contact,), _ = contact_masks([fd], v, [str(path)])  # the rows the gap finder leaves out
+    bias = flight_accel_bias(fd, ~contact) if source in ("auto", "imu") else None  # a sensor's error, no force
     if bias is not None:
         print(f"uavturb residuals: accelerometer bias ({', '.join(f'{b:.3g}' for b in bias.b)}) ± "
               f"({', '.join(f'{e:.2g}' for e in bias.stderr)}) m/s^2 (body x, y, z), measured against the motion "
               "capture, taken off the IMU's specific force", file=sys.stderr)
     res = residual_forces(fd, v, source=source, derivative=derivative, accel_bias=None if bias is None else bias.b)
-    (contact,), _ = contact_masks([res.data], v, [str(path)])  # the rows the gap finder leaves out
     res = dataclasses.replace(res, ground_contact=contact)
     return res, write_residuals(res, out, overwrite=overwrite)
 

@@ -39,6 +39,7 @@ import numpy as np
 import torch
 
 from uavturb.errors import InputError
+from uavturb.gap.preparation import contact_masks
 from uavturb.io import align
 from uavturb.io.body_frame import to_body
 from uavturb.io.reader import POINTS_PLY
@@ -155,7 +156,8 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, camera: CameraModel, *,
     if rec.points is None:
         raise InputError(f"{where}/{POINTS_PLY}", "point cloud needed (depth images and heights come from it)")
     fd = flight_data(rec, heights=False)
-    bias = flight_accel_bias(fd)  # an accelerometer's bias, measured against the motion capture, is no turbulence
+    (contact,), _ = contact_masks([fd], vehicle, [str(where)])  # the bias is measured in flight
+    bias = flight_accel_bias(fd, ~contact)  # an accelerometer's bias, measured against the motion capture
     res = residual_forces(fd, vehicle, accel_bias=None if bias is None else bias.b)
     t0, t1 = int(fd.t_ns[0]), int(fd.t_ns[-1])
     if rec.cam0 is not None and len(rec.cam0.t_ns):
