@@ -101,6 +101,9 @@ def test_imus_of_two_sessions_keep_their_own_bias_and_the_pooled_error_covers_th
     assert all(abs(b[0] - ident.accel_bias[0]) < 2 * ident.accel_bias_se[0] for b in (b1, b2))
     assert ident.accel_bias_se[0] == pytest.approx(np.std([b1[0], b2[0]], ddof=1), rel=1e-6)
     assert set(ident.to_dict()["accel_bias_per_recording"]) == {"session4", "session7"}
+    # their spread (0.14 m/s^2) is no bias to correct with: not a result, and each recording's own is printed
+    assert not ident.identified("accel_bias") and "listed apart" in ident.status["accel_bias"].why
+    assert "accelerometer bias of each recording: session4 [ 0.1" in format_identification(ident)
 
 
 def test_a_recording_without_an_imu_beside_one_with_it():

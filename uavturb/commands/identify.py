@@ -82,7 +82,7 @@ def format_identification(ident: Identification) -> str:
         each = "; ".join(f"{label} {k:.4g} ± {se:.2g}" for label, (k, se) in zip(recording_labels(list(per)),
                                                                                    per.values()))
         lines.append(f"k_T of each recording alone: {each} (k_T's error is at least their spread)")
-    if ident.accel_bias_per_recording and ident.identified("accel_bias"):
+    if ident.accel_bias_per_recording:  # each recording's own, whether or not the pooled one is a result
         per_b = ident.accel_bias_per_recording
         label = dict(zip(ident.recordings, recording_labels(ident.recordings)))
         each = "; ".join(f"{label.get(n, n)} {_vector(b)}" for n, (b, _) in per_b.items())

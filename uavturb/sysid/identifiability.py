@@ -378,7 +378,8 @@ class _Assessment:
         if not has_imu:
             f.add(ABSENT, "the recording has no IMU (imu0), so no accelerometer and no bias to estimate")
         elif np.any(~np.isfinite(se["accel_bias"])) or np.max(se["accel_bias"]) > BIAS_SE_MAX:
-            f.add(ILL_CONDITIONED, f"standard error {np.max(se['accel_bias']):.2g} m/s^2 (above {BIAS_SE_MAX:g})")
+            f.add(ILL_CONDITIONED, f"standard error {np.max(se['accel_bias']):.2g} m/s^2 (above {BIAS_SE_MAX:g}; with "
+                                   "several recordings it covers the spread of their own biases, listed apart)")
         self.out["accel_bias"] = (f.status("accel_bias", self.est["accel_bias"], se["accel_bias"]) if has_imu
                                   else f.status("accel_bias", None, None))
 
