@@ -153,6 +153,9 @@ def _scaled_columns(columns, factor):
     ("imu0", _scaled_columns({4, 5, 6}, 1 / 9.81),
      "imu0/data.csv: the accelerometer reads 0.102 times the specific force the motion capture shows in flight, "
      "in the same directions: it must be in m/s^2 (not g)"),
+    ("imu0", lambda i, l: ",".join(v if k != 6 else f"{float(v) - 9.81:.9g}" for k, v in enumerate(l.split(","))),
+     "m/s^2 (the specific force that holds the vehicle up): gravity was taken out (a linear acceleration); imu0 must "
+     "hold what an accelerometer reads, gravity included"),
     ("imu0", _scaled_columns({1, 2, 3}, 180 / np.pi),
      "the rate the motion capture's attitude turns at (0.25 s means in flight, body frame): it must be in rad/s, "
      "not deg/s"),

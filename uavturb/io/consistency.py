@@ -326,6 +326,12 @@ def check_imu(rec: Recording) -> None:
     scaled_miss = float(np.sqrt(np.mean(np.sum((m_imu - ratio * m_mocap) ** 2, axis=1)))) / GRAVITY
     where = _where(rec, "mav0/imu0/data.csv")
     in_range = ACCEL_SCALE_RANGE[0] <= ratio <= ACCEL_SCALE_RANGE[1]
+    up_mocap, up_imu = float(np.mean(m_mocap[:, 2])), float(np.mean(m_imu[:, 2]))
+    if up_mocap > 0.5 * GRAVITY and abs(up_imu) < GRAVITY_REMOVED_SHARE * up_mocap:
+        raise InputError(where, f"the accelerometer reads {up_imu:.2g} m/s^2 along the thrust axis on average in "
+                                f"flight, where the motion capture shows {up_mocap:.3g} m/s^2 (the specific force "
+                                "that holds the vehicle up): gravity was taken out (a linear acceleration); imu0 must "
+                                "hold what an accelerometer reads, gravity included")
     if not in_range and ratio > 0 and scaled_miss * ratio <= MAX_FORCE_DISAGREEMENT_G * min(ratio, 1.0):
         raise InputError(where, f"the accelerometer reads {ratio:.3g} times the specific force the motion capture "
                                 "shows in flight, in the same directions: it must be in m/s^2 (not g)")
@@ -337,6 +343,9 @@ def check_imu(rec: Recording) -> None:
                                 "on the ground truth's clock")
 
 
+#: an accelerometer whose mean along the thrust axis in flight is under this share of the motion capture's (about g)
+#: has had gravity taken out: in g it reads 1/9.81 = 0.10 of it, as a linear acceleration about 0
+GRAVITY_REMOVED_SHARE = 0.05
 #: s, offsets between a stream's clock and the ground truth's searched; by how much the best offset's correlation
 #: must beat the recording's own stamps' (and be at least twice it), and the least correlation it must reach, on
 #: signals high-passed (:func:`uavturb.numerics.filters.high_passed`). Measured at the true offset: an IMU against the
