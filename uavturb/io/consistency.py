@@ -186,6 +186,9 @@ VELOCITY_SCALE_RANGE = (0.8, 1.25)
 #: allowed ratio of the accelerometer to the motion capture's specific force (g for m/s^2 gives 0.1), and
 #: the largest rms disagreement [share of g] of their block means (an attitude turned wrong gives ~1 g)
 ACCEL_SCALE_RANGE, MAX_FORCE_DISAGREEMENT_G = (0.8, 1.25), 0.35
+#: an accelerometer whose mean along the thrust axis in flight is under this share of the motion capture's (about g)
+#: has had gravity taken out: in g it reads 1/9.81 = 0.10 of it, as a linear acceleration about 0
+GRAVITY_REMOVED_SHARE = 0.05
 
 
 def _window_edges(t: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -343,9 +346,6 @@ def check_imu(rec: Recording) -> None:
                                 "on the ground truth's clock")
 
 
-#: an accelerometer whose mean along the thrust axis in flight is under this share of the motion capture's (about g)
-#: has had gravity taken out: in g it reads 1/9.81 = 0.10 of it, as a linear acceleration about 0
-GRAVITY_REMOVED_SHARE = 0.05
 #: s, offsets between a stream's clock and the ground truth's searched; by how much the best offset's correlation
 #: must beat the recording's own stamps' (and be at least twice it), and the least correlation it must reach, on
 #: signals high-passed (:func:`uavturb.numerics.filters.high_passed`). Measured at the true offset: an IMU against the
