@@ -15,7 +15,8 @@ import pytest
 
 from uavturb import progress
 from uavturb.cli import main
-from uavturb.io.consistency import check_rotor_clock
+from uavturb.commands.identify import residuals_to_file
+from uavturb.io.consistency import check_rotor_clock, stream_span_notes
 from uavturb.io.ply import read_ply, write_ply
 from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES
 from uavturb.gap.preparation import state_thinned, stream_limits
@@ -28,6 +29,14 @@ from uavturb.sim.flights.simulate import generate_flight
 def good(tmp_path_factory):
     path = tmp_path_factory.mktemp("gapin") / "good"
     generate_flight(vehicle="hex", effects="none", duration=12.0, kind="mixed", seed=3, out=path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def another(tmp_path_factory):
+    """Another flight of ``good``'s vehicle."""
+    path = tmp_path_factory.mktemp("gapin") / "another"
+    generate_flight(vehicle="hex", effects="none", duration=12.0, kind="mixed", seed=4, out=path)
     return path
 
 
@@ -156,6 +165,9 @@ def _scaled_columns(columns, factor):
     ("imu0", lambda i, l: ",".join(v if k != 6 else f"{float(v) - 9.81:.9g}" for k, v in enumerate(l.split(","))),
      "m/s^2 (the specific force that holds the vehicle up): gravity was taken out (a linear acceleration); imu0 must "
      "hold what an accelerometer reads, gravity included"),
+    ("imu0", lambda i, l: ",".join(v if k != 6 else "9.81" for k, v in enumerate(l.split(","))),  # hid the effects
+     "imu0/data.csv: the accelerometer's z axis barely moves, 0.000 m/s^2 rms (0.25 s means in flight, body frame), "
+     "where the motion capture's specific force along it moves by"),
     ("imu0", _scaled_columns({1, 2, 3}, 180 / np.pi),
      "the rate the motion capture's attitude turns at (0.25 s means in flight, body frame): it must be in rad/s, "
      "not deg/s"),
@@ -243,6 +255,19 @@ def test_one_recording_given_twice_is_refused(tmp_path, capsys, good):
                match=f"{tmp_path / 'again'}: is given twice (also as {rec})")
 
 
+def test_one_flight_under_two_folders_is_refused_even_restamped(tmp_path, capsys, good, another):
+    """A copy of a flight (here also stamped an hour later) counted as a second session that agrees: every stated
+    error shrank by about sqrt(2) and the spread between recordings read zero for it."""
+    rec, copy = _copy(good, tmp_path), _copy(good, tmp_path, "copy")
+    for csv in (copy / "mav0").glob("*/data.csv"):
+        _rewrite_csv(csv, lambda i, l: ",".join([str(int(l.split(",")[0]) + 3_600_000_000_000), *l.split(",")[1:]]))
+    _gap_fails(tmp_path, capsys, [rec, copy], match=f"{copy}: holds the same flight as {rec} (the same ground-truth "
+                                                    "positions and attitudes, row for row)")
+    assert not (tmp_path / "report").exists()
+    other = _copy(another, tmp_path, "other")  # another flight of the same vehicle is welcome
+    assert [r.name for r in load_recordings([rec, other])] == ["rec", "other"]
+
+
 def test_recordings_named_alike_are_told_apart_by_their_parent_folders(tmp_path):
     assert recording_labels(["x/day1/flight", "x/day2/flight", "y/other"]) == ["day1/flight", "day2/flight", "other"]
     assert recording_labels(["a/s/f", "b/s/f"]) == ["a/s/f", "b/s/f"]  # as many parents as it takes
@@ -250,10 +275,10 @@ def test_recordings_named_alike_are_told_apart_by_their_parent_folders(tmp_path)
     assert recording_labels([tmp_path / "d1" / "log", "d2/log"])[0] == "d1/log"  # absolute or relative alike
 
 
-def test_sessions_whose_folders_share_a_name_keep_their_own_entries(tmp_path, good):
+def test_sessions_whose_folders_share_a_name_keep_their_own_entries(tmp_path, good, another):
     """Two days' logs both called ``flight``: per-recording results keyed by the folder's name alone merged into
     one entry (a thrust coefficient and an accelerometer bias lost, report.md's lines alike)."""
-    one, two = _copy(good, tmp_path / "day1", "flight"), _copy(good, tmp_path / "day2", "flight")
+    one, two = _copy(good, tmp_path / "day1", "flight"), _copy(another, tmp_path / "day2", "flight")
     recs = load_recordings([one, two])
     assert [r.name for r in recs] == ["day1/flight", "day2/flight"]
     assert load_recordings([one])[0].name == "flight" and load_recordings([one])[0].label is None
@@ -489,3 +514,22 @@ def test_a_reader_that_stops_reading_ends_the_command_quietly(tmp_path, good):
     os.close(write)
     assert done.returncode == 141 and done.stderr == ""
     assert (out / "report.json").exists() and (out / "report.md").exists()
+
+
+def test_an_imu_logged_over_part_of_the_flight_is_said_and_cuts_only_what_reads_it(tmp_path, capsys, good):
+    """imu0 over the middle half of the flight had cut ``identify``'s and ``residuals``' rows by half without a word,
+    ``residuals --source mocap`` included, which does not read the IMU."""
+    rec = _copy(good, tmp_path)
+    imu = rec / "mav0" / "imu0" / "data.csv"
+    lines = imu.read_text().splitlines()
+    n = len(lines) - 1
+    imu.write_text("\n".join([lines[0]] + lines[1 + n // 4: 1 + 3 * n // 4]) + "\n")
+    mocap, _ = residuals_to_file(rec, tmp_path / "mocap.csv", source="mocap")
+    said = capsys.readouterr().err
+    assert "imu0 covers only t = 3.0-9.0 s of the ground truth's 0-12.0 s: an analysis that reads it covers that " \
+           "span alone (50 % of the recording)" in said
+    from_imu, _ = residuals_to_file(rec, tmp_path / "imu.csv", source="imu")
+    n_gt = len((rec / "mav0" / "state_groundtruth_estimate0" / "data.csv").read_text().splitlines()) - 1
+    assert len(mocap.t) >= 0.98 * n_gt  # the whole flight: the IMU is not read
+    assert len(from_imu.t) == pytest.approx(n / 2, rel=0.02)
+    assert not stream_span_notes(load_recordings([good])[0])  # a whole IMU says nothing

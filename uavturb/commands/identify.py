@@ -143,7 +143,7 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
                              "--params nominal needs thrust_coefficient, moment_coefficient and inertia")
     else:
         raise InputError("--params", f"unknown value '{params}' (allowed: identified, nominal)")
-    fd = flight_data(rec)
+    fd = flight_data(rec, time_base="groundtruth" if source == "mocap" else "auto")  # an IMU unread cuts no rows
     (contact,), _ = contact_masks([fd], v, [str(path)])  # the rows the gap finder leaves out
     bias = flight_accel_bias(fd, ~contact) if source in ("auto", "imu") else None  # a sensor's error, no force
     if bias is not None:

@@ -189,6 +189,13 @@ ACCEL_SCALE_RANGE, MAX_FORCE_DISAGREEMENT_G = (0.8, 1.25), 0.35
 #: an accelerometer whose mean along the thrust axis in flight is under this share of the motion capture's (about g)
 #: has had gravity taken out: in g it reads 1/9.81 = 0.10 of it, as a linear acceleration about 0
 GRAVITY_REMOVED_SHARE = 0.05
+#: m/s^2, how much the motion capture's specific force along an axis must move (rms of its block means in flight
+#: about their mean) for that accelerometer axis to be checked alone; below :data:`DEAD_AXIS_SHARE` of it the axis is
+#: dead or stuck. Real
+#: Crazyflie walks, take-offs and swarm flights (81 recordings with an IMU): z moves by 0.23-1.4 m/s^2 and the
+#: accelerometer by 0.76-1.1 times that (correlations 0.49-1.0); x and y, where they move that much (one vehicle's
+#: swarm flights), by 1.9-5.6 times it (vibration), correlations -0.14 to 0.19
+MIN_AXIS_FORCE, DEAD_AXIS_SHARE = 0.1, 0.25
 
 
 def _window_edges(t: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -344,6 +351,31 @@ def check_imu(rec: Recording) -> None:
                                 f"(least-squares ratio {ratio:.2g}): quaternions must be w, x, y, z and rotate S "
                                 "into the world (q_RS), the world's z must point up, and the IMU must be stamped "
                                 "on the ground truth's clock")
+    _check_accelerometer_axes(where, m_mocap, m_imu)
+
+
+def _check_accelerometer_axes(where: str, m_mocap: np.ndarray, m_imu: np.ndarray) -> None:
+    """Each accelerometer axis moves as the motion capture's specific force along it does (block means in flight,
+    (W, 3) m/s^2 each, body frame): a dead or stuck axis (it reads a constant) passes the checks on all three
+    together, and spoils every force along it (a z axis stuck at 9.81 m/s^2 hid a 32 g vehicle's ground effect).
+    Only axes the motion capture sees move by :data:`MIN_AXIS_FORCE` or more are checked (on a multirotor, z: the
+    body's x and y feel drag alone, a few hundredths of g).
+
+    Raises
+    ------
+    InputError
+        ``<rec>/mav0/imu0/data.csv: the accelerometer's z axis barely moves ...``
+    """
+    dm, di = m_mocap - m_mocap.mean(axis=0), m_imu - m_imu.mean(axis=0)
+    for k, axis in enumerate("xyz"):
+        moves, reads = float(np.std(dm[:, k])), float(np.std(di[:, k]))
+        if moves < MIN_AXIS_FORCE:
+            continue
+        if reads < DEAD_AXIS_SHARE * moves:
+            raise InputError(where, f"the accelerometer's {axis} axis barely moves, {reads:.3f} m/s^2 rms "
+                                    f"({FORCE_WINDOW_S:g} s means in flight, body frame), where the motion capture's "
+                                    f"specific force along it moves by {moves:.3f} m/s^2: a dead or stuck axis; leave "
+                                    "mav0/imu0 out to analyse the motion capture alone")
 
 
 #: s, offsets between a stream's clock and the ground truth's searched; by how much the best offset's correlation
@@ -552,10 +584,34 @@ def check_rotor_clock(rec: Recording) -> str | None:
     return None
 
 
+#: s and share of the ground truth's span: a stream that leaves more of it uncovered (at either end together) is said
+STREAM_SPAN_SLACK_S, STREAM_SPAN_SLACK_SHARE = 1.0, 0.05
+
+
+def stream_span_notes(rec: Recording) -> list[str]:
+    """Notes for ``imu0`` and ``rotors0`` where they cover less of the ground truth's time span than it holds (by
+    over :data:`STREAM_SPAN_SLACK_S` and :data:`STREAM_SPAN_SLACK_SHARE` of it): the analyses read only where every
+    stream they use has rows, and an IMU logged over half the flight had cut ``identify``'s and ``residuals``' rows
+    by half without a word."""
+    gt = rec.ground_truth.t_ns
+    span = (gt[-1] - gt[0]) * 1e-9
+    notes = []
+    for name, stream in (("imu0", rec.imu), ("rotors0", rec.rotors)):
+        if stream is None or len(stream.t_ns) == 0 or span <= 0:
+            continue
+        a, b = (max(stream.t_ns[0], gt[0]) - gt[0]) * 1e-9, (min(stream.t_ns[-1], gt[-1]) - gt[0]) * 1e-9
+        covered = max(b - a, 0.0)
+        if span - covered > max(STREAM_SPAN_SLACK_S, STREAM_SPAN_SLACK_SHARE * span):
+            notes.append(f"{name} covers only t = {a:.1f}-{b:.1f} s of the ground truth's 0-{span:.1f} s: an "
+                         f"analysis that reads it covers that span alone ({100 * covered / span:.0f} % of the "
+                         "recording)")
+    return notes
+
+
 def check_recording(rec: Recording) -> list[str]:
     """The checks physics commands run: :func:`check_rotor_columns`, :func:`check_thrust_axis`,
     :func:`check_position_velocity`, :func:`check_imu` and :func:`check_rotor_clock`; returns the notes of checks
-    that passed with something to say (for the recording's ``read_notes``).
+    that passed with something to say (and :func:`stream_span_notes`) (for the recording's ``read_notes``).
     (:func:`check_vertical_response` runs on imported logs only: flights that barely climb read correlations
     near zero either way, -0.22 on a test bag.)"""
     check_rotor_columns(rec)
@@ -563,4 +619,4 @@ def check_recording(rec: Recording) -> list[str]:
     check_position_velocity(rec)
     check_imu(rec)
     note = check_rotor_clock(rec)
-    return [note] if note else []
+    return stream_span_notes(rec) + ([note] if note else [])

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import hashlib
 import os
 from pathlib import Path
 from typing import Sequence
@@ -353,11 +354,48 @@ def recording_labels(paths: Sequence[str | Path]) -> list[str]:
     return labels
 
 
-def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None = None) -> list[Recording]:
+#: m and -, the resolution at which two recordings' ground-truth positions and quaternions must agree to hold the
+#: same flight (a copy written again by another tool keeps them to a micrometre; two flights never do)
+SAME_FLIGHT_RESOLUTION = 1e-6
+
+
+def _flight_fingerprint(rec: Recording) -> str:
+    """A digest of the flight a recording holds: its ground-truth positions [m] and attitudes, rounded to
+    :data:`SAME_FLIGHT_RESOLUTION`, without the timestamps (a copy stamped on another clock is the same flight)."""
+    gt = rec.ground_truth
+    digest = hashlib.sha256()
+    for part in (gt.p, gt.q):
+        digest.update(np.ascontiguousarray(np.round(part / SAME_FLIGHT_RESOLUTION)).astype(np.int64).tobytes())
+    return digest.hexdigest()
+
+
+def _refuse_one_flight_twice(recs: Sequence[Recording], paths: Sequence[str | Path]) -> None:
+    """One flight under two folders would count as two sessions that agree: the spread between recordings, which
+    every stated error covers, would read zero for it and each error shrink by about sqrt(2).
+
+    Raises
+    ------
+    InputError
+        ``<path>: holds the same flight as <other> ...``
+    """
+    seen: dict[str, str | Path] = {}
+    for rec, p in zip(recs, paths):
+        key = _flight_fingerprint(rec)
+        if key in seen:
+            raise InputError(p, f"holds the same flight as {seen[key]} (the same ground-truth positions and "
+                                "attitudes, row for row): each flight once, or a copy would count as a second "
+                                "session that agrees and shrink every stated error")
+        seen[key] = p
+
+
+def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None = None, *,
+                    repeats_allowed: bool = False) -> list[Recording]:
     """Read recording folders for physics (``identify``, ``residuals``, ``gap``, ``evaluate``): in
     the rotor frame B, rotor speeds required, and checked (:func:`uavturb.io.consistency.check_recording`:
     thrust axis against the data, no dead or frozen rotor column). ``vehicle`` (built-in vehicle name,
-    yaml path or Vehicle) serves folders without a ``vehicle.yaml``."""
+    yaml path or Vehicle) serves folders without a ``vehicle.yaml``. One flight in two folders is refused
+    (:func:`_refuse_one_flight_twice`) unless ``repeats_allowed`` (``uavturb bench gap`` repeats flights on
+    purpose: it measures time and memory, not results)."""
     v = named_vehicle(vehicle) if isinstance(vehicle, str) else vehicle
     seen: dict[Path, str | Path] = {}
     for p in paths:  # one flight twice would count as two recordings that agree (errors too small by sqrt(2))
@@ -369,12 +407,14 @@ def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None =
     for p in paths:  # a crash's or lost tracking's tail left out before the checks read the whole recording
         rec, lost = without_lost_tail(read_recording(p, vehicle=v, require_rotors=True))
         recs.append(dataclasses.replace(rec, read_notes=rec.read_notes + ((lost,) if lost else ())))
-    recs = [dataclasses.replace(r, read_notes=r.read_notes + tuple(check_recording(r))) for r in recs]
-    recs = [r if label == Path(p).name else dataclasses.replace(r, label=label)
-            for r, p, label in zip(recs, paths, recording_labels(paths))]
     first = recs[0].vehicle
     for r in recs[1:]:
         if r.vehicle.rotor_count != first.rotor_count or r.vehicle.mass != first.mass:
             raise InputError(r.path / "vehicle.yaml", f"describes another vehicle than {recs[0].path}/vehicle.yaml")
+    if not repeats_allowed:
+        _refuse_one_flight_twice(recs, paths)
+    recs = [dataclasses.replace(r, read_notes=r.read_notes + tuple(check_recording(r))) for r in recs]
+    recs = [r if label == Path(p).name else dataclasses.replace(r, label=label)
+            for r, p, label in zip(recs, paths, recording_labels(paths))]
     return recs
 
