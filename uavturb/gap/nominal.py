@@ -47,7 +47,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavturb.sysid.accelerometer import block_labels
+from uavturb.numerics.blocks import block_labels, jackknife_se
+from uavturb.sysid.accelerometer import BLOCK_S
 
 #: relative difference of thrust levels under which recordings share one thrust coefficient
 LEVEL_PRACTICAL = 0.005
@@ -104,7 +105,7 @@ class ThrustLevels:
 
 def _level_of(y_thrust: np.ndarray, S: np.ndarray, t: np.ndarray) -> tuple[float, float]:
     """(k [N/(rad/s)^2], stderr): ratio estimator ``sum(y) / sum(S)`` and its error from block sums."""
-    labels = block_labels(t)
+    labels = block_labels(t, BLOCK_S)
     _, inv = np.unique(labels, return_inverse=True)
     ys, ss = np.bincount(inv, weights=y_thrust), np.bincount(inv, weights=S)
     k = float(ys.sum() / ss.sum())
@@ -456,7 +457,7 @@ def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarra
 
     delta, k_V = best(None)
     loo = np.array([best(j)[0] for j in range(OFFSET_CHUNKS)])
-    se = float(np.sqrt((len(loo) - 1) / len(loo) * np.sum((loo - loo.mean()) ** 2)))
+    se = float(jackknife_se(loo))
     total = sums_at(k_V).total
     ratio = _offset_sse(total, n, delta) / _offset_sse(total, n, 0.0)
     at_bound = bool(np.isclose(delta, OFFSET_SPAN[0]) or np.isclose(delta, OFFSET_SPAN[1]))

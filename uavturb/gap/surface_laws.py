@@ -39,6 +39,7 @@ from uavturb.gap.surface_curve import (
     voltage_drift,
 )
 from uavturb.gap.uncertainty import HONEST_Z, honest_stderr, presence_z, with_systematic
+from uavturb.numerics.blocks import jackknife_se
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
 from uavturb.physics.ground_effect import hover_induced_velocity
@@ -269,8 +270,7 @@ def _resampled(curve: SurfaceCurve, law: _BinnedLaw, keep_bins: np.ndarray, se: 
     labels, units = _units(curve)
     loo = np.array([_refit(curve, law, keep_bins, se, free_level, labels != u, start) for u in units])
     loo = loo[np.all(np.isfinite(loo), axis=1)]
-    se_jack = np.sqrt((len(loo) - 1) / len(loo) * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)) if len(loo) >= 2 \
-        else nan
+    se_jack = jackknife_se(loo) if len(loo) >= 2 else nan
     if len(np.unique(curve.group)) < 2:
         return se_jack, nan
     alone = np.array([_refit(curve, law, keep_bins, None, free_level, curve.group == g, start) for g in units])

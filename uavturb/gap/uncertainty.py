@@ -78,6 +78,7 @@ import numpy as np
 from uavturb.gap.design import MIN_ROWS, GapData, effective_S, surface_reach_m
 from uavturb.gap.fit import ModelFit, _nl_values, fit_model
 from uavturb.gap.nominal import SpeedOffset, offset_cells, speed_offset
+from uavturb.numerics.blocks import contiguous_blocks, jackknife_se
 from uavturb.physics.effects import EFFECTS
 
 #: m, uncertainty of the height reference (rotor plane over the floor) assumed for surface effects
@@ -147,7 +148,7 @@ def _spread(values: list[dict[str, float]], keys: tuple[str, ...], jackknife: bo
         if len(x) < 2:
             out[k] = float("nan")
         elif jackknife:
-            out[k] = float(np.sqrt((len(x) - 1) / len(x) * np.sum((x - x.mean()) ** 2)))
+            out[k] = float(jackknife_se(x))
         else:
             out[k] = float(np.std(x, ddof=1))
     return out
@@ -205,8 +206,7 @@ def error_budget(data: GapData, final: ModelFit, name: str,
                   if v is not None]
         untested = [data.names[key[1]] for key, _ in parts if refits.cannot_test(key, effects, name)]
     if len(values) < 2:  # one recording, or one that can test the effect: the spread between its blocks
-        edges = np.quantile(data.t, np.linspace(0, 1, TIME_BLOCKS + 1))
-        block = np.clip(np.searchsorted(edges, data.t, side="right") - 1, 0, TIME_BLOCKS - 1)
+        block = contiguous_blocks(data.t, TIME_BLOCKS)
         parts = [(("block", b), lambda b=b: data.subset(block != b)) for b in range(TIME_BLOCKS)]
         label, jack = "between_blocks", True
         values = [v for v in (refits.params(key, part, effects, name, can_test) for key, part in parts)

@@ -14,32 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uavturb.numerics.blocks import block_labels, block_mean_and_se
 from uavturb.physics import quaternion as quat
 from uavturb.physics.constants import GRAVITY
 from uavturb.sysid.flight_data import FlightData
 
 #: s, blocks whose means are taken as independent (errors of the bias and the thrust levels)
 BLOCK_S = 1.0
-
-
-def block_labels(t: np.ndarray, block_s: float = BLOCK_S) -> np.ndarray:
-    """(K,) int, consecutive ``block_s`` [s] blocks of times ``t`` [s]."""
-    return np.floor((np.asarray(t, float) - float(np.min(t))) / block_s).astype(np.int64)
-
-
-def block_mean_and_se(x: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean of ``x`` (K,) or (K, p) and its standard error from the spread of block means (blocks
-    with samples weighted by their counts), so correlated samples do not count as independent."""
-    x = np.asarray(x, float).reshape(len(labels), -1)
-    _, inv = np.unique(labels, return_inverse=True)
-    n = np.bincount(inv).astype(float)
-    means = np.stack([np.bincount(inv, weights=x[:, j]) / n for j in range(x.shape[1])], axis=1)
-    mean = np.average(means, axis=0, weights=n)
-    B = len(n)
-    if B < 2:
-        return mean, np.full(x.shape[1], np.inf)
-    var = np.average((means - mean) ** 2, axis=0, weights=n) * B / (B - 1)
-    return mean, np.sqrt(var / B)
 
 
 @dataclass(frozen=True)
@@ -82,7 +63,7 @@ def anchored_bias(t: np.ndarray, R: np.ndarray, acc: np.ndarray, dv: np.ndarray,
     diff = (acc - mocap_specific_force(R, dv))[use]
     if len(diff) == 0:
         return AnchoredBias(np.zeros(3), np.full(3, np.inf), 0)
-    mean, se = block_mean_and_se(diff, block_labels(t[use]))
+    mean, se = block_mean_and_se(diff, block_labels(t[use], BLOCK_S))
     return AnchoredBias(mean, se, int(use.sum()))
 
 

@@ -37,10 +37,11 @@ import numpy as np
 
 from uavturb.errors import InputError
 from uavturb.io.recording import Recording
+from uavturb.numerics.blocks import block_labels, block_mean_and_se, contiguous_blocks, jackknife_se
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.vehicle import Vehicle
-from uavturb.sysid.accelerometer import AnchoredBias, block_labels, block_mean_and_se
+from uavturb.sysid.accelerometer import BLOCK_S, AnchoredBias
 from uavturb.sysid.flight_data import FlightData, flight_data
 from uavturb.sysid.identifiability import (
     ACC_MIN,
@@ -254,7 +255,7 @@ def _anchored_biases(rows: dict[str, np.ndarray]) -> tuple[AnchoredBias, dict[in
     per = {}
     for g in np.unique(groups):
         mine = groups == g
-        labels[mine] = block_labels(rows["t"][mine]) + (int(g) << 32)
+        labels[mine] = block_labels(rows["t"][mine], BLOCK_S) + (int(g) << 32)
         b, se = block_mean_and_se(diff[mine], labels[mine])
         per[int(g)] = AnchoredBias(b, se, int(mine.sum()))
     b, se = block_mean_and_se(diff, labels)
@@ -507,12 +508,10 @@ def _theta0_between_blocks(rows: dict[str, np.ndarray], lag: int) -> float:
     block = np.empty(len(rows["t"]), int)
     for g in np.unique(rows["group"]):
         mine = rows["group"] == g
-        t = rows["t"][mine]
-        edges = np.quantile(t, np.linspace(0, 1, TIME_BLOCKS + 1))
-        block[mine] = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, TIME_BLOCKS - 1)
+        block[mine] = contiguous_blocks(rows["t"][mine], TIME_BLOCKS)
     values = np.array([_fit_translation({k: v[block != b] for k, v in rows.items()}, lag)["theta0"]
                        for b in range(TIME_BLOCKS)])
-    return float(np.sqrt((TIME_BLOCKS - 1) / TIME_BLOCKS * np.sum((values - values.mean()) ** 2)))
+    return float(jackknife_se(values))
 
 
 def _spread_between(per_recording: dict[str, tuple[float, float]]) -> float:
