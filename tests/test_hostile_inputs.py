@@ -252,6 +252,15 @@ def test_the_last_guard_turns_any_failure_into_one_line(monkeypatch, capsys):
                               (RecursionError(), 2, "an input is nested too deeply"),
                               (OSError(28, "No space left on device", "/data/x.csv"), 2,
                                "/data/x.csv: no space left on the device"),
+                              (FileNotFoundError(2, "No such file or directory", "/data/y.ckpt"), 2,
+                               "/data/y.ckpt: No such file or directory"),
+                              (FileNotFoundError(2, "No such file or directory", "/a.tmp", None, "/b.ckpt"), 2,
+                               "/a.tmp -> /b.ckpt: No such file or directory"),
+                              # Lightning's, its message only (it had been "a file: FileNotFoundError")
+                              (FileNotFoundError("Checkpoint file not found: /runs/best-0.ckpt"), 2,
+                               "Checkpoint file not found: /runs/best-0.ckpt (FileNotFoundError at "
+                               "test_hostile_inputs.py:"),
+                              (FileNotFoundError(), 2, "a file opened at test_hostile_inputs.py:"),
                               (KeyError("boom"), 1, "internal error (KeyError: 'boom') at test_hostile_inputs.py")]:
         def fail(args, error=error):
             raise error

@@ -448,6 +448,14 @@ def _reader_gone(stream) -> bool:
         return False
 
 
+def _os_error_file(e: OSError, at: str) -> str:
+    """The file an OSError is about: its name (``SRC -> DST`` for a rename or copy) where Python knows it, otherwise
+    where it was opened (``at``: `` at FILE:LINE``, the innermost frame)."""
+    if e.filename is None:
+        return f"a file opened{at}" if at else "a file"
+    return f"{e.filename} -> {e.filename2}" if e.filename2 is not None else str(e.filename)
+
+
 def _last_guard(e: Exception) -> tuple[str, int]:
     """The one line (and exit status) of an error no library function turned into an InputError:
     2 for what the machine or the input ran into, 1 for a defect of uavturb (with where it happened)."""
@@ -462,13 +470,15 @@ def _last_guard(e: Exception) -> tuple[str, int]:
         return "an input is nested too deeply to be read", 2
     if isinstance(e, UnicodeDecodeError):
         return shorten(f"an input is not UTF-8 text ({e.reason} at byte {e.start})", 300), 2
-    if isinstance(e, OSError):
-        where = e.filename or "a file"
-        if e.errno == errno.ENOSPC:
-            return shorten(f"{where}: no space left on the device; free some space and run the command again", 400), 2
-        return shorten(f"{where}: {e.strerror or type(e).__name__}", 400), 2
     frame = traceback.extract_tb(e.__traceback__)[-1] if e.__traceback__ else None
     at = f" at {Path(frame.filename).name}:{frame.lineno}" if frame else ""
+    if isinstance(e, OSError):
+        where = _os_error_file(e, at)
+        if e.errno == errno.ENOSPC:
+            return shorten(f"{where}: no space left on the device; free some space and run the command again", 400), 2
+        if e.filename is None and e.strerror is None and str(e):  # raised with a message only, which may name it
+            return shorten(f"{e} ({type(e).__name__}{at})", 400), 2  # Lightning: "Checkpoint file not found: PATH"
+        return shorten(f"{where}: {e.strerror or type(e).__name__}", 400), 2
     return shorten(f"internal error ({type(e).__name__}: {e}){at}; set UAVTURB_TRACEBACK=1 to see the traceback "
                    "and please report it", 600), 1
 

@@ -28,7 +28,8 @@ run id; a time stamp when tracking is off), logged to the run as the artifact
 working folder where it lies under it) is the run's tag ``checkpoint``. Height runs also log
 the figure ``plots/test_heights.png`` (predicted vs true height over test trajectories,
 :mod:`uavturb.evaluation.test_heights`). ``last.ckpt`` beside it holds the latest epoch (tag
-``checkpoint_dir``: the folder).
+``checkpoint_dir``: the folder); both callbacks, and why ``last.ckpt`` is saved after the best checkpoint:
+:mod:`uavturb.runs.checkpoints`.
 
 Interruptions and resuming: the run is FINISHED when training and testing complete, KILLED when
 a signal stops it (:class:`uavturb.errors.Interrupted`), FAILED on an error; its tags ``host``,
@@ -66,6 +67,7 @@ from uavturb.evaluation.test_heights import figure_test_heights
 from uavturb.io.shards import dataset_hash
 from uavturb.runs import store
 from uavturb.runs.accelerators import check_trainer_device
+from uavturb.runs.checkpoints import epoch_checkpoints
 from uavturb.runs.config import TrainConfig, to_flat_dict, validate
 from uavturb.runs.resume import LAST_CHECKPOINT, check_resume, config_changes, last_checkpoint, resumable_run
 from uavturb.runs.trainer import (
@@ -208,11 +210,12 @@ def _logger(cfg: DictConfig, run_id: str | None) -> StageMetricsLogger | None:
                               tracking_uri=store.tracking_uri(), run_id=run_id, log_model=False)
 
 
-def _trainer(cfg: DictConfig, logger: Any, callbacks: list, checkpoint: ModelCheckpoint, monitor: str,
+def _trainer(cfg: DictConfig, logger: Any, callbacks: list, checkpoints: tuple[ModelCheckpoint, ...], monitor: str,
              first: FirstEpoch) -> L.Trainer:
-    """Lightning's Trainer of the config with the checkpoint, early stopping and progress callbacks."""
+    """Lightning's Trainer of the config with the checkpoint (in the order given: the best, then ``last.ckpt``),
+    early stopping and progress callbacks."""
     t = cfg.trainer
-    callbacks = [*callbacks, checkpoint, first]
+    callbacks = [*callbacks, *checkpoints, first]
     if t.early_stopping_patience > 0:
         callbacks.append(EarlyStopping(monitor=monitor, mode="min", patience=t.early_stopping_patience))
     progress_bar, progress_lines = progress_callbacks(t)
@@ -232,25 +235,14 @@ def _fit(cfg: DictConfig, trainer: L.Trainer, module: Any, dm: Any, logger: Any,
             store.finish_system_metrics(monitor, logger.run_id)
 
 
-def _latest_checkpoint(folder: Path) -> ModelCheckpoint:
-    """The callback that writes ``last.ckpt`` (:data:`~uavturb.runs.resume.LAST_CHECKPOINT`) at every epoch's end,
-    whatever the monitored metric did. Lightning's ``save_last`` writes it only where the best checkpoint was saved
-    too: after an epoch that did not improve, a run stopped by a signal resumed from the last improvement, trained
-    the epochs after it again and logged their metrics a second time (validation loss 0.0342 at epoch 4, 0.0351 at
-    epoch 5, ``last.ckpt`` left at epoch 4)."""
-    return ModelCheckpoint(dirpath=folder, filename=Path(LAST_CHECKPOINT).stem, monitor=None, save_top_k=1,
-                           enable_version_counter=False)
-
-
 def _fit_and_test(cfg, module, dm, callbacks, monitor, run_id, last, ckpt_root, resume) -> dict[str, Any]:
     """Fit (from ``last`` when resuming), test the best checkpoint, log it; the run is closed FINISHED."""
     logger = _logger(cfg, run_id)
     # Under DDP only rank 0 has an MLflow run; ModelCheckpoint broadcasts rank 0's folder to the others.
     run_tag = run_id or resume or time.strftime("%Y%m%d-%H%M%S")
-    checkpoint = ModelCheckpoint(dirpath=ckpt_root / run_tag, filename="best-{epoch}", monitor=monitor, mode="min",
-                                 save_top_k=1, auto_insert_metric_name=False)
+    checkpoint, latest = epoch_checkpoints(ckpt_root / run_tag, monitor)
     first = FirstEpoch()
-    trainer = _trainer(cfg, logger, [*callbacks, _latest_checkpoint(ckpt_root / run_tag)], checkpoint, monitor, first)
+    trainer = _trainer(cfg, logger, callbacks, (checkpoint, latest), monitor, first)
     if resume is not None and trainer.is_global_zero:
         print(f"resuming run {resume} " + (f"from {last}" if last else f"from the start (no {LAST_CHECKPOINT} yet)"),
               file=sys.stderr, flush=True)
