@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import re
 
 import numpy as np
 
@@ -145,6 +146,20 @@ def test_an_exponential_ground_law_under_a_px4_logs_troubles(tmp_path):
                       named["ground_effect_exponential"]["stderr"][key])
         assert fitted == pytest.approx(value, rel=0.15) and abs(fitted - value) < 2 * se, (key, fitted, se)
     assert report["surface_curve"]["law_fits"] and len(report["ground_contact"]) >= 4
+
+
+def test_a_minute_of_three_hertz_rotor_telemetry_is_analysed_alone(tmp_path):
+    """A PX4 log of a minute whose ESCs report at 3 Hz holds under 100 rotor updates in flight: it had been refused
+    alone, so that no recording of such a set could be checked against the joint value."""
+    (path,) = _flights(tmp_path, "esc3", Conditions(rotor_hold_hz=3.0, measured_rotors=True), seeds=(14,),
+                       duration=30.0)
+    report, _ = analyse(load_recordings([path]), {})
+    (line,) = [s for s in report["streams"]["streams"] if "/rotors0:" in s]
+    assert int(re.search(r"hold (\d+) updates", line).group(1)) < 100  # flight and rests together
+    named = {e["name"]: e for e in report["effects"]}
+    assert list(named) == ["ground_effect"]
+    mu, se = named["ground_effect"]["params"]["mu"], named["ground_effect"]["stderr"]["mu"]
+    assert abs(mu - 2.0) < 2 * se and se < 0.5
 
 
 def test_rotor_telemetry_too_slow_to_analyse_says_so(tmp_path):

@@ -23,7 +23,14 @@ from uavturb.gap.decide import (
     tilt_per_recording,
     too_small,
 )
-from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels, gap_data, rotor_quantum, rounding_floor
+from uavturb.gap.design import (
+    MIN_ANALYSIS_ROWS,
+    GapData,
+    apply_thrust_levels,
+    gap_data,
+    rotor_quantum,
+    rounding_floor,
+)
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.nominal import OFFSET_DECISIVE_Z, OFFSET_RADII, OFFSET_SPAN, ThrustLevels
@@ -266,12 +273,12 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     data, contact_report = _flight_rows(fds, vehicle, paths)
     # emptied as the rows were built; what they keep lives on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
     del fds
-    if len(data) < MIN_ROWS and data.dense is not None:
+    if len(data) < MIN_ANALYSIS_ROWS and data.dense is not None:
         where = f"{recordings[0].path or recordings[0].name}/mav0/rotors0/data.csv"
         raise InputError(where, f"only {len(data)} rotor-speed updates in flight (the stream updates at "
                                 f"{held['slowest_update_hz']:.2g} Hz or slower, and the thrust is known only at its "
                                 f"updates); too few to analyse: longer or more flights, or faster rotor telemetry")
-    if len(data) < MIN_ROWS:
+    if len(data) < MIN_ANALYSIS_ROWS:
         where = paths[0] if len(paths) == 1 else ", ".join(paths)
         raise InputError(where, f"only {len(data)} samples in flight (rotors carrying over 30 % of the weight, "
                                 f"off the ground, away from stream dropouts) in {len(paths)} recording(s); too "

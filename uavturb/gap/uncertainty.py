@@ -13,8 +13,8 @@ other and of the noise) added in quadrature:
 - **between recordings**: with two or more recordings that can each test the effect, the standard
   deviation of the parameter fitted on each recording alone (so a recording's own fit lands within
   about two stated errors of the joint value, as the contract asks). A recording with fewer rows in
-  flight than an analysis needs (:data:`~uavturb.gap.design.MIN_ROWS`: ``uavturb gap`` refuses it alone)
-  has no fit of its own to land anywhere and is left out of the spread: a take-off whose rotor speeds
+  flight than :data:`~uavturb.gap.design.MIN_ROWS` has no fit of its own worth the name and is left out of
+  the spread: a take-off whose rotor speeds
   update at 3 Hz (47 updates in flight) fitted alone an exponential ground effect's A = 1.03 where the
   two walks beside it gave 0.45 and 0.35, and its noise, counted as a spread between sessions, had
   left the law within two errors of zero. Likewise a recording that cannot test the effect: one that never comes
