@@ -35,7 +35,18 @@ from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
 from uavturb.gap.nominal import OFFSET_DECISIVE_Z, OFFSET_RADII, OFFSET_SPAN, ThrustLevels
 from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted, rotor_speeds_moved, state_thinned
-from uavturb.gap.selection import CurveEvidence, Selection, finish, folds, heldout, lift_not_named, select
+from uavturb.gap.selection import (
+    Z_DISTINCT,
+    CurveEvidence,
+    Selection,
+    finish,
+    folds,
+    heldout,
+    improvement_z,
+    lift_not_named,
+    look_alike_entry,
+    select,
+)
 from uavturb.gap.surface_curve import LIFT_RADII, lift_z
 from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve, law_on_curve
 from uavturb.gap.uncertainty import (
@@ -306,6 +317,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("deciding what the data support")
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
     sel, ambiguous, rejected = _decide(data, sel, candidates, refits)
+    sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim)
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
     rf = final.residual(data)
@@ -410,6 +422,56 @@ def _flight_rows(fds: list, vehicle: Any, paths: Sequence[str]) -> tuple[GapData
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient, release=True,
                     arm_length=vehicle.arm_length, exclude=contact)
     return data, contact_report
+
+
+def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordings: Sequence, paths: Sequence[str],
+                   delays: list[dict[str, Any]], sim: dict[str, dict[str, float]]) -> Selection:
+    """``sel`` without the chosen effects whose choice over their rival (:attr:`Selection.rivals`: a law of other
+    physics that explained the same residual, beaten beyond noise on the held-out data) does not hold over what is
+    uncertain of the measured rotor streams' delays: at either end of that interval
+    (:func:`uavturb.gap.preparation.timing_interval`) the chosen law must still beat the rival by
+    :data:`~uavturb.gap.selection.Z_DISTINCT` standard errors. Where it does not, both go to ``ambiguous``
+    (appended) and neither is named. Two flights of a 2.5 kg hexarotor whose ESCs reported at 3 Hz, 60-80 ms
+    late (read as not resolvable, 0-0.08 s), named a body drag over their true rotor drag by z = 3.7 on the
+    recorded timing; read 0.08 s later, the rotor drag won by 4.0."""
+    interval = {d["recording"]: d["uncertain_s"] for d in delays if d.get("uncertain_s")}
+    rivals = {c: r for c, r in sel.rivals.items() if c in sel.chosen}
+    if not rivals or not any(hi > lo for lo, hi in interval.values()):
+        return sel
+    ends = []
+    for side in (0, 1):
+        recs = [rotor_shifted(r, interval[p][side]) if p in interval else r for r, p in zip(recordings, paths)]
+        try:
+            shifted, _ = _flight_rows([flight_data(r) for r in recs], recs[0].vehicle, paths)
+        except InputError:
+            continue
+        apply_thrust_levels(shifted)
+        ends.append((side, shifted, _simulator_baseline(shifted, sim).offset if sim else None))
+    current = frozenset(sel.final.effects)
+    steps = list(sel.steps)
+    for chosen, rival in rivals.items():
+        for side, shifted, offset in ends:
+            _, fm = folds(shifted)
+            ho = heldout(shifted, current, fm, offset=offset)
+            rival_ho = heldout(shifted, (current - {chosen}) | {rival}, fm, offset=offset)
+            z_pair = improvement_z(rival_ho, ho)
+            if z_pair >= Z_DISTINCT:
+                continue
+            late = ", ".join(sorted({f"{interval[p][side]:+.3g} s" for p in paths if p in interval}))
+            ambiguous.append(look_alike_entry(chosen, rival, (
+                f"{chosen} and {rival} explain the same residual, and which fits better turns on the rotor speeds' "
+                f"timing: on it as recorded {chosen} won, but with the rotor speeds read {late} later (within what "
+                f"their delay may still be) the held-out error is {ho.rmse:.4g} N with {chosen} and "
+                f"{rival_ho.rmse:.4g} N with {rival} ({chosen} ahead by {z_pair:.1f} standard errors, under "
+                f"{Z_DISTINCT:g})"), first="rotor speeds logged faster, or their delay known"))
+            steps = [s for s in steps if s.name != chosen]
+            break
+    if len(steps) == len(sel.steps):
+        return sel
+    out = finish(data, sel.base, steps, tried=sel.tried)
+    out.rejected, out.look_alikes = sel.rejected, sel.look_alikes
+    out.rivals = {c: r for c, r in rivals.items() if c in out.chosen}
+    return out
 
 
 def _refit_on(recordings: Sequence, paths: Sequence[str], final: ModelFit) -> ModelFit | None:
@@ -733,12 +795,13 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
             ) -> tuple[Selection, list[dict], list[dict]]:
     """Keep only what the data decide (:mod:`uavturb.gap.decide`): a chosen effect outside its
     physical range is rejected, one its data cannot tell from the other unknowns goes to
-    ``ambiguous``; the selection is then refitted without them. A candidate not chosen whose force
+    ``ambiguous``; the selection is then refitted without them (as are the look-alikes the selection found,
+    :attr:`~uavturb.gap.selection.Selection.look_alikes`). A candidate not chosen whose force
     is an accelerometer bias on these flights, while the fitted bias is significant, is reported
     as ambiguous too (a steady push may hide in the bias)."""
-    ambiguous: list[dict] = []
+    ambiguous: list[dict] = list(sel.look_alikes)  # pairs the held-out data could not tell apart
     rejected: list[dict] = list(sel.rejected)  # outside their range when the selection would have taken them
-    steps = list(sel.steps)
+    steps, rivals = list(sel.steps), sel.rivals
     while True:
         final = sel.final
         facts = flight_facts(data, final.coef["k_T"])
@@ -772,6 +835,7 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
         # as select() fitted it (sim effects in the base), reusing its fits of the same effect sets
         sel = finish(data, sel.base, steps, tried=sel.tried, known=sel.known)
     sel.known = None  # its folds' rows and fits are not needed past the decisions (memory)
+    sel.rivals = {c: r for c, r in rivals.items() if c in sel.chosen}
     final = sel.final
     facts = flight_facts(data, final.coef["k_T"])
     named = {a for entry in ambiguous for a in entry["candidates"]}
