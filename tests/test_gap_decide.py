@@ -360,3 +360,25 @@ def test_a_candidate_held_back_at_one_step_comes_back_at_a_later_one():
         "alone, outside the test's range" if name == "wind" and "ground_effect" not in fit.effects else None))
     assert sel.chosen == ["ground_effect", "wind"] and sel.rejected == []
     assert sel.tried["wind"]["step1_outside_physical_range"] == 1.0
+
+
+def test_a_large_held_out_gain_below_the_z_it_needs_is_undecided_not_unsaid():
+    """A thrust-scaling law that removes most of the held-out error without the z to be named (a short held-out
+    part, or hovers at one height whose thrust levels differ) is reported undecided with the thrust coefficient:
+    the report had said no effect improves the fit beyond noise. One entry per physics (its best law); small
+    gains, laws of a physics named or decided otherwise, and effects other than surface laws say nothing."""
+    tried = {
+        "ground_effect": {"step1_z": 0.0, "step1_heldout_rmse_N": 0.047, "step1_heldout_rmse_before_N": 1.94},
+        "ground_effect_exponential": {"step1_z": 0.0, "step1_heldout_rmse_N": 0.106,
+                                      "step1_heldout_rmse_before_N": 1.94},
+        "battery_sag": {"step1_z": 3.0, "step1_heldout_rmse_N": 1.80, "step1_heldout_rmse_before_N": 1.94},
+        "body_drag": {"step1_z": 1.0, "step1_heldout_rmse_N": 0.5, "step1_heldout_rmse_before_N": 1.94},
+        "motor_lag": {"step1_z": 3.9, "step1_heldout_rmse_N": 1.0, "step1_heldout_rmse_before_N": 1.94,
+                      "step2_z": 5.0, "step2_heldout_rmse_N": 0.5, "step2_heldout_rmse_before_N": 1.0},
+    }
+    (entry,) = selection.near_misses(tried, decided=set())
+    assert entry["candidates"] == ["ground_effect", "thrust_coefficient"]
+    assert "from 1.94 to 0.047 N (98 % less), but that gain stands only z = 0.0" in entry["why"]
+    assert "too few independent blocks" in entry["why"]
+    assert entry["to_separate"].startswith(EFFECTS["ground_effect"].manoeuvre)
+    assert selection.near_misses(tried, decided={"ground_effect_exponential"}) == []  # one of its physics named

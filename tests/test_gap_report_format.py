@@ -191,3 +191,23 @@ def test_with_battery_sag_named_k_T_is_said_to_be_the_start_of_the_flight_s(tmp_
     report["effects"] = []
     write_markdown(tmp_path, report, [])
     assert "each recording's start" not in (tmp_path / "report.md").read_text()
+
+
+def test_nothing_named_with_something_undecided_does_not_say_nothing_improves_the_fit(tmp_path):
+    """An 8 s flight whose ground effect removed 98 % of the held-out error at z = 0 (too few blocks) had read
+    "no effect of the vocabulary improves the held-out fit beyond what noise explains"."""
+    undecided = {"candidates": ["ground_effect", "thrust_coefficient"], "why": "ground_effect would take the "
+                 "held-out error from 1.938 to 0.04682 N (98 % less), but ...", "to_separate": "longer flights"}
+    report = {"recordings": ["a/short"], "sim_effects": [], "protocol": "last-30%-of-each-recording",
+              "residual_source": "imu", "baseline": {"heldout_rmse_N": 1.94, "rmse_N": 1.92},
+              "final": {"heldout_rmse_N": 1.94}, "noise": {"rms_N": 0.06}, "effects": [], "sim_effect_params": {},
+              "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 1.9, "drivers": []},
+              "ambiguous": [undecided]}
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert "None: what these flights cannot decide is listed under Undecided." in text
+    assert "beyond what noise explains" not in text and "98 % less" in text
+    report["ambiguous"] = []
+    write_markdown(tmp_path, report, [])
+    assert "None: no effect of the vocabulary improves the held-out fit beyond what noise explains." in (
+        tmp_path / "report.md").read_text()

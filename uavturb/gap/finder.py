@@ -45,6 +45,7 @@ from uavturb.gap.selection import (
     improvement_z,
     lift_not_named,
     look_alike_entry,
+    near_misses,
     select,
 )
 from uavturb.gap.surface_curve import LIFT_RADII, lift_z
@@ -318,6 +319,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
     sel, ambiguous, rejected = _decide(data, sel, candidates, refits)
     sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim)
+    ambiguous += near_misses(sel.tried, set(sel.chosen) | {r["name"] for r in rejected}
+                             | {c for a in ambiguous for c in a["candidates"]})
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
     rf = final.residual(data)

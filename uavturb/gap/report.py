@@ -212,7 +212,8 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
     L.append("")
     L.append("## Named effects")
     if not report["effects"]:
-        L.append("None: no effect of the vocabulary improves the held-out fit beyond what noise explains.")
+        L.append("None: what these flights cannot decide is listed under Undecided." if report.get("ambiguous") else
+                 "None: no effect of the vocabulary improves the held-out fit beyond what noise explains.")
     else:
         L.append("| effect | parameters (± std. error) | held-out RMSE before → after [N] | z |")
         L.append("|---|---|---|---|")
