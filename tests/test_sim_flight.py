@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from uavturb.errors import InputError
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import dynamics_for, physical_params
 from uavturb.physics.effects import lag_rotor_speeds, parse_effects
@@ -231,3 +232,22 @@ def test_a_vehicle_resting_in_ground_effect_starts_without_sinking():
                                noise=SensorNoise.none())
     z = truth.x[:, 2]
     assert z[truth.t < 1.5].min() > z[0] - 0.006  # m: the take-off's first dip, as without any effect
+
+
+def test_a_flight_the_controller_loses_is_refused_not_written(tmp_path):
+    """A ground effect of mu = 4 on a 2.5 kg hexarotor's 0.127 m rotors throws the vehicle off its reference at
+    take-off: the flight had been written regardless, its height running from -5.6 to 30.7 m, and the gap finder
+    then analysed it as a real one."""
+    vehicle = tmp_path / "hex25.yaml"
+    vehicle.write_text("name: heavy-hex\nmass: 2.5\nrotor_count: 6\narm_length: 0.30\n"
+                       "rotor_angles_deg: [30, 90, 150, -150, -90, -30]\nrotor_directions: [1, -1, 1, -1, 1, -1]\n"
+                       "rotor_radius: 0.127\nthrust_coefficient: 1.2e-05\nmoment_coefficient: 1.92e-07\n"
+                       "inertia: [0.065, 0.07, 0.12]\nmax_rotor_speed: 1000.0\n")
+    out = tmp_path / "lost"
+    with pytest.raises(InputError, match=r"generate flight: the simulated vehicle lost its reference at t = \d"):
+        generate_flight(vehicle=str(vehicle), effects="ground_effect:mu=4", duration=5.0, kind="low_passes", seed=5,
+                        out=out)
+    assert not out.exists()
+    generate_flight(vehicle=str(vehicle), effects="ground_effect:mu=2", duration=5.0, kind="low_passes", seed=5,
+                    out=out)  # a ground effect it holds
+    assert (out / "vehicle.yaml").exists()
