@@ -51,6 +51,13 @@ MIN_DELAY_S = 0.01
 #: s, the longest delay of rotor telemetry ``recordings.md`` names ("40-80 ms late"): where a stream's
 #: delay cannot be timed, its true delay is taken to lie anywhere between 0 and this
 TELEMETRY_DELAY_MAX_S = 0.08
+#: the strongest surface lift (registry, top of range) under which rows time the rotor telemetry, and the rows
+#: needed there (fewer: every row in the air). Near a surface the thrust per rotor speed squared moves with
+#: height, and the thrust the flight needs no longer follows the rotors' own: two PX4-like hexarotor flights
+#: whose ESCs reported at 3 Hz, 60 and 80 ms late, flown low over the floor, explained 3-6 % of the needed
+#: thrust at any delay ("not resolvable"); above 4 rotor radii (strongest lift 5 %), 90-97 %, read 53 +- 18 and
+#: 75 +- 9 ms
+LAG_FAR_LIFT, LAG_MIN_FAR_ROWS = 1.05, 200
 
 
 def needed_thrust(fd: FlightData, mass: float) -> np.ndarray:
@@ -73,6 +80,9 @@ def delay_corrected(rec: Recording, fd: FlightData) -> tuple[Recording, dict[str
     ok = S >= FLIGHT_SHARE * np.percentile(S, 95)  # in the air: on the gear the floor takes what the rotors do not
     if fd.covered is not None:
         ok &= fd.covered  # not across a stream's dropout
+    far = ok & _beyond_surfaces(fd, rec.vehicle)
+    if far.sum() >= LAG_MIN_FAR_ROWS:
+        ok = far
     lag = estimate_lag(fd.t[ok], needed_thrust(fd, rec.vehicle.mass)[ok], t_sig, signal)
     found = {"stream": "rotors0", "lag_s": lag.lag_s, "stderr_s": lag.stderr_s, "r2": lag.r2,
              "resolvable": lag.resolvable, "describe": lag.describe("rotors0 (measured rotor speeds)")}
@@ -81,6 +91,19 @@ def delay_corrected(rec: Recording, fd: FlightData) -> tuple[Recording, dict[str
     if not found["applied"]:
         return rec, found
     return rotor_shifted(rec, lag.lag_s), found
+
+
+def _beyond_surfaces(fd: FlightData, vehicle: Vehicle) -> np.ndarray:
+    """(K,) bool, rows where no surface law of the registry at the top of its range could lift the thrust by more
+    than :data:`LAG_FAR_LIFT` (every row where no heights are known)."""
+    geometry = {"arm_length": vehicle.arm_length, "rotor_count": vehicle.rotor_count}
+    out = np.ones(len(fd.t), bool)
+    for surface, d in (("d_down", fd.d_down), ("d_up", fd.d_up)):
+        if d is not None:
+            h = np.where(np.isfinite(d), d, np.inf)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                out &= strongest_surface_lift(h, surface, vehicle.rotor_radius, **geometry) <= LAG_FAR_LIFT
+    return out
 
 
 def timing_interval(found: dict[str, Any]) -> tuple[float, float]:
