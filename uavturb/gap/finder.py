@@ -318,7 +318,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("deciding what the data support")
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
     sel, ambiguous, rejected = _decide(data, sel, candidates, refits)
-    sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim)
+    sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim, base.offset)
     ambiguous += near_misses(sel.tried, set(sel.chosen) | {r["name"] for r in rejected}
                              | {c for a in ambiguous for c in a["candidates"]})
     final: ModelFit = sel.final
@@ -428,7 +428,8 @@ def _flight_rows(fds: list, vehicle: Any, paths: Sequence[str]) -> tuple[GapData
 
 
 def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordings: Sequence, paths: Sequence[str],
-                   delays: list[dict[str, Any]], sim: dict[str, dict[str, float]]) -> Selection:
+                   delays: list[dict[str, Any]], sim: dict[str, dict[str, float]], offset: np.ndarray | None
+                   ) -> Selection:
     """``sel`` without the chosen effects whose choice over their rival (:attr:`Selection.rivals`: a law of other
     physics that explained the same residual, beaten beyond noise on the held-out data) does not hold over what is
     uncertain of the measured rotor streams' delays: at either end of that interval
@@ -436,7 +437,8 @@ def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordi
     :data:`~uavturb.gap.selection.Z_DISTINCT` standard errors. Where it does not, both go to ``ambiguous``
     (appended) and neither is named. Two flights of a 2.5 kg hexarotor whose ESCs reported at 3 Hz, 60-80 ms
     late (read as not resolvable, 0-0.08 s), named a body drag over their true rotor drag by z = 3.7 on the
-    recorded timing; read 0.08 s later, the rotor drag won by 4.0."""
+    recorded timing; with 0.08 s of delay taken out, the rotor drag won by 4.0. ``offset``: the simulator's own
+    effects' force on ``data``'s rows (taken off as the selection did)."""
     interval = {d["recording"]: d["uncertain_s"] for d in delays if d.get("uncertain_s")}
     rivals = {c: r for c, r in sel.rivals.items() if c in sel.chosen}
     if not rivals or not any(hi > lo for lo, hi in interval.values()):
@@ -463,15 +465,15 @@ def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordi
             late = ", ".join(sorted({f"{interval[p][side]:+.3g} s" for p in paths if p in interval}))
             ambiguous.append(look_alike_entry(chosen, rival, (
                 f"{chosen} and {rival} explain the same residual, and which fits better turns on the rotor speeds' "
-                f"timing: on it as recorded {chosen} won, but with the rotor speeds read {late} later (within what "
-                f"their delay may still be) the held-out error is {ho.rmse:.4g} N with {chosen} and "
-                f"{rival_ho.rmse:.4g} N with {rival} ({chosen} ahead by {z_pair:.1f} standard errors, under "
-                f"{Z_DISTINCT:g})"), first="rotor speeds logged faster, or their delay known"))
+                f"timing: on it as recorded {chosen} won, but with {late} of delay taken out of the rotor speeds' "
+                f"timestamps (within what their delay may still be) the held-out error is {ho.rmse:.4g} N with "
+                f"{chosen} and {rival_ho.rmse:.4g} N with {rival} ({chosen} ahead by {z_pair:.1f} standard errors, "
+                f"under {Z_DISTINCT:g})"), first="rotor speeds logged faster, or their delay known"))
             steps = [s for s in steps if s.name != chosen]
             break
     if len(steps) == len(sel.steps):
         return sel
-    out = finish(data, sel.base, steps, tried=sel.tried)
+    out = finish(data, sel.base, steps, offset=offset, tried=sel.tried)
     out.rejected, out.look_alikes = sel.rejected, sel.look_alikes
     out.rivals = {c: r for c, r in rivals.items() if c in out.chosen}
     return out
