@@ -97,8 +97,8 @@ def test_ground_effect_named_with_two_recordings_and_applied(tmp_path, flights):
     assert mu == pytest.approx(2.0, rel=0.15)
     assert report["mismatch"]["drivers"][0]["feature"] == "d_down"
     # the largest located segment is the take-off over the floor, on z; the simulator's vehicle waits still
-    # at its lowest height with the thrust under the weight before it: ground contact for the finder
-    # (nothing tells it from resting on the landing gear), left out and listed
+    # at its lowest height with the thrust under the weight before it (the ground effect itself): nothing shows
+    # the floor carrying it (no idling rotors, no thrust moving while it stays still), so it hovers there
     top = report["mismatch"]["segments"][0]
     contact = [c for c in report["ground_contact"] if c["t_start"] < 1.0]
     assert top["axis"] == "z" and top["t_start"] < (contact[0]["t_end"] + 1.0 if contact else 1.0)

@@ -7,7 +7,8 @@ import pytest
 
 from uavturb.errors import InputError
 from uavturb.physics.dynamics import GRAVITY
-from uavturb.sysid.contact import ContactLimits, _joined_why, ground_contact
+from uavturb.gap.preparation import _vehicle_landed_height
+from uavturb.sysid.contact import ContactLimits, _joined_why, ground_contact, landed_height
 from uavturb.numerics.stream_updates import update_mask
 
 MASS = 1.5  # kg
@@ -349,3 +350,131 @@ def test_skims_inside_one_interval_read_as_one_sentence():
                    "touch (a skid or a bounce)")
     one = _joined_why([], skims[:1], 1.9, 2.2, "height", "the landed height 0.024 m", 0.005)
     assert one.startswith("skimming the floor: height down to 0.025 m") and "40 % of the weight" in one
+
+
+# --- a landed height needs the floor seen carrying the vehicle ------------------------------------------------------
+
+#: m, rotor plane over the body origin in the tests below: resting at Z_LAND the rotor plane is 0.12 m up, d/R 1.2
+#: for a 0.1 m rotor (a hexarotor's hover there needs 91 % of the weight in a Cheeseman-Bennett ground effect at mu 2)
+PLANE_UP = 0.107
+#: share of the weight a still hover needs at the lowest height of the tests below (the ground effect itself)
+HOVER_IN_GROUND_EFFECT = 0.91
+
+
+def _low_hover(phases, seed, low_ratio=HOVER_IN_GROUND_EFFECT, still_below=0.015):
+    """A flight from ``phases`` with its rotor-plane heights; still rows within ``still_below`` m of its lowest
+    height off the ground read ``low_ratio`` of the weight, every thrust with 0.2 % jitter (not a held stream)."""
+    t, z, v, tilt, thrust, contact, _ = flight(phases, seed=seed, z_noise=0.0005)
+    d_down = z + PLANE_UP
+    low = (d_down < np.min(d_down[~contact]) + still_below) & ~contact
+    thrust = np.where(low & (np.abs(v[:, 2]) < 0.02), low_ratio * MASS * GRAVITY, thrust)
+    thrust = thrust * (1.0 + np.random.default_rng(seed).normal(0.0, 0.002, len(t)))
+    return t, z, v, tilt, thrust, contact, d_down
+
+
+NEVER_LANDS = [("hover", 4.0), ("move", 2.0, 0.3), ("hover", 2.0), ("move", 2.0, -0.3), ("hover", 6.0)]
+
+
+def test_a_hover_that_never_lands_is_not_on_the_ground_at_its_lowest_height():
+    """A still, level hover at d/R 1.2 reading 91 % of the weight (the ground effect itself) at the lowest height the
+    recording reaches, which never lands: the floor is never seen to carry it (the strongest lift allowed there
+    could hold a hover at 48 %, so only idling rotors, a thrust under 48 % or one moving while the vehicle does not
+    would show it). Its 10 s at the lowest height had been found "on the landing gear": the rows where the ground
+    effect is strongest, lost."""
+    t, z, v, tilt, thrust, _, d_down = _low_hover(NEVER_LANDS, seed=21)
+    lift = _hover_lift_cheeseman_bennett()
+    assert 1.0 / lift(0.12) == pytest.approx(0.48, abs=0.01)
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down, hover_lift=lift)
+    assert found == [] and not mask.any()
+    assert landed_height(t, z, v, tilt, thrust, MASS, d_down=d_down, hover_lift=lift) is None
+    old, _ = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down)  # no lift known: the lowest is a landing
+    assert old[(t > 1.0) & (t < 3.5)].all()
+    # the rests a point cloud must agree with, found from the body's height with the lift read off the cloud: none;
+    # with no surface under the vehicle (lift 1) the same rows would rest (a cloud whose floor is off)
+    by_z, _ = ground_contact(t, z, v, tilt, thrust, MASS, lift=lift(d_down))
+    assert not by_z.any()
+    by_z, _ = ground_contact(t, z, v, tilt, thrust, MASS, lift=np.ones(len(t)))
+    assert by_z[(t > 1.0) & (t < 3.5)].all()
+
+
+def test_the_same_hover_over_a_real_rest_lower_down_rests_only_there():
+    """Rotors idling (10 % of the weight) for 3 s at d/R 1.2, then the still hover at 91 % 4 cm higher: the rest is
+    left out, the hover kept."""
+    phases = [("ground", 3.0, 0.1, 0.1), ("ground", 0.67, 0.1, 1.0), ("move", 1.0, 0.04), ("hover", 4.0)]
+    phases += NEVER_LANDS[1:]
+    t, z, v, tilt, thrust, contact, d_down = _low_hover(phases, seed=22)
+    lift = _hover_lift_cheeseman_bennett()
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down, hover_lift=lift)
+    assert_matches(found, t, contact)
+    assert mask[contact].all() and not mask[t > 5.0].any()
+    assert landed_height(t, z, v, tilt, thrust, MASS, d_down=d_down, hover_lift=lift) == pytest.approx(0.12, abs=0.003)
+
+
+def test_the_vehicles_landed_height_comes_from_the_recordings_that_land():
+    """One recording rests (idling) at 0.12 m and hovers 4 cm higher, another only hovers at its lowest, 0.14 m:
+    the vehicle's landed height is the first's, seen; with the hover alone, its lowest height, not seen, where
+    only a dip moving throughout skims."""
+    rest = [("ground", 3.0, 0.1, 0.1), ("ground", 0.67, 0.1, 1.0), ("move", 1.0, 0.04), ("hover", 4.0)]
+    lift = _hover_lift_cheeseman_bennett()
+    t, z, v, tilt, thrust, _, d_down = _low_hover(rest + NEVER_LANDS[1:], seed=23)
+    t2, z2, v2, tilt2, thrust2, _, d_down2 = _low_hover(NEVER_LANDS, seed=24)
+    z2, d_down2 = z2 + 0.02, d_down2 + 0.02
+    landed = landed_height(t, z, v, tilt, thrust, MASS, d_down=d_down, hover_lift=lift)
+    hover = landed_height(t2, z2, v2, tilt2, thrust2, MASS, d_down=d_down2, hover_lift=lift)
+    assert hover is None
+    assert _vehicle_landed_height([landed, hover], [d_down, d_down2]) == (landed, True)
+    low, seen = _vehicle_landed_height([hover], [d_down2])
+    assert low == pytest.approx(0.14, abs=0.003) and not seen
+    assert _vehicle_landed_height([landed, hover], [d_down, None]) == (None, False)
+    mask, _ = ground_contact(t2, z2, v2, tilt2, thrust2, MASS, d_down=d_down2, hover_lift=lift,
+                             skim_top=landed + ContactLimits().skim_m)
+    assert not mask.any()
+    mask, _ = ground_contact(t2, z2, v2, tilt2, thrust2, MASS, d_down=d_down2, hover_lift=lift,
+                             skim_top=low + ContactLimits().skim_m, skim_landed=False)
+    assert not mask.any()  # its lowest rows are a still hover
+
+
+def test_a_dip_moving_throughout_skims_where_no_rest_was_seen_but_a_still_hover_there_does_not():
+    """A walk that never lands dips 0.3 m to its lowest height and back while moving sideways at 0.2 m/s, the thrust
+    down to 88 % of the weight at the bottom: it may touch the floor (real walks' dips to their lowest set point:
+    never still, the largest residuals), so it is left out; a still hover at that height is not."""
+    phases = [("hover", 3.0), ("move", 1.2, -0.3), ("move", 1.2, 0.3), ("hover", 3.0)]
+    t, z, v, tilt, thrust, _, _ = flight(phases, seed=25, z_noise=0.0005, floor=0.3)
+    d_down = z - 0.3 + PLANE_UP
+    v[(t > 3.0) & (t < 5.4), 0] = 0.2
+    bottom = d_down < np.min(d_down) + 0.005
+    thrust = np.where(bottom, 0.88 * MASS * GRAVITY, thrust)
+    thrust = thrust * (1.0 + np.random.default_rng(25).normal(0.0, 0.002, len(t)))
+    lift = _hover_lift_cheeseman_bennett()
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down, hover_lift=lift)
+    assert mask[bottom].all() and not mask[(t < 3.5) | (t > 5.0)].any()
+    assert len(found) == 1 and "(no rest seen there; the vehicle moving)" in found[0].why
+    v[(t > 3.0) & (t < 5.4), 0] = 0.0  # the same dip straight down and up: still as it turns, a hover's bottom
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down, hover_lift=lift)
+    assert found == [] and not mask.any()
+
+
+def test_rotors_spinning_on_the_gear_deep_in_ground_effect_rest_where_their_thrust_moves_and_the_vehicle_does_not():
+    """The simulator's landings: the rotor plane rests at 0.6 rotor radius, where the strongest law allowed has
+    its pole (no thrust is too low for a hover there), the rotors at 35-55 % of the weight, never idling. Their
+    thrust ramping through 20 % of the weight in a second while the vehicle stays still at one height is what tells
+    the floor: a hover's thrust follows its height. Without that reading both ends were missed (a flight of the
+    suite's tests, 4-9 N of floor reaction fitted as aerodynamics)."""
+    phases = [("ground", 2.0, 0.35, 0.55), ("ground", 0.67, 0.55, 1.0), ("move", 2.0, 0.3), ("hover", 4.0),
+              ("move", 2.0, -0.3), ("ground", 0.5, 1.0, 0.55), ("ground", 2.0, 0.55, 0.35)]
+    t, z, v, tilt, thrust, contact, _ = flight(phases, seed=26, z_noise=0.0005)
+    thrust = thrust * (1.0 + np.random.default_rng(26).normal(0.0, 0.002, len(t)))
+    d_down = z + 0.047  # resting at 0.06 m, 0.6 rotor radius
+    strongest = _hover_lift_cheeseman_bennett()
+
+    def lift(h):
+        x = strongest(h)
+        return np.where(x > 0, x, np.inf)  # inside the pole: no bound
+
+    assert np.isinf(lift(0.06))
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down, hover_lift=lift)
+    assert_matches(found, t, contact)
+    assert mask[contact].all()
+    no_ramp = ContactLimits(ramp_ratio=np.inf)
+    _, missed = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down, hover_lift=lift, limits=no_ramp)
+    assert missed == []

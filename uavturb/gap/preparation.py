@@ -32,7 +32,7 @@ from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import strongest_surface_lift
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.accelerometer import mocap_specific_force
-from uavturb.sysid.contact import ContactLimits, ground_contact
+from uavturb.sysid.contact import ContactLimits, ground_contact, landed_height
 from uavturb.sysid.flight_data import FlightData, flight_data, held_updates
 from uavturb.sysid.streams import estimate_lag, needed_rate_hz, slow_for, stream_updates
 
@@ -41,10 +41,12 @@ MOTOR_LAG_S = 0.02
 #: s, time to cross the height range where a ground effect changes (0.1 m at 0.5 m/s)
 SURFACE_CROSSING_S = 0.2
 #: contact thresholds (:class:`~uavturb.sysid.contact.ContactLimits`'s defaults). A hover close to the
-#: floor also reads a thrust 5-25 % under the weight (the ground effect itself): a still vehicle within
-#: ``skim_m`` of the lowest height a recording reaches is left out even then (losing a second of the lowest
-#: hover costs less than counting the floor's reaction as aerodynamics); above that, only where its thrust
-#: could not hold a hover under the registry's strongest surface lift (:func:`contact_masks`)
+#: floor also reads a thrust 5-25 % under the weight (the ground effect itself): the lowest height a recording
+#: reaches is its landed height only where the floor is seen carrying the vehicle there (idling rotors, a thrust
+#: no hover could need, or one that moves while the vehicle does not); there a still vehicle within ``skim_m`` of
+#: it is left out even then (losing a second of the lowest hover costs less than counting the floor's reaction as
+#: aerodynamics); above that, only where its thrust could not hold a hover under the registry's strongest surface
+#: lift (:func:`contact_masks`)
 CONTACT_LIMITS = ContactLimits()
 #: s, smallest delay of the rotor telemetry worth taking out
 MIN_DELAY_S = 0.01
@@ -187,50 +189,68 @@ def state_thinned(rec: Recording) -> Recording:
                                                              b_w=gt.b_w[src], b_a=gt.b_a[src]))
 
 
-def _vehicle_landed_height(fds: Sequence[FlightData]) -> float | None:
-    """m, the lowest rotor-plane height over all flights (5-row median, as ``ground_contact`` reads it), or
-    None where a flight has no ``d_down``."""
-    lows = []
-    for fd in fds:
-        d = fd.d_down
-        if d is None or not np.any(np.isfinite(d)):
-            return None
-        lows.append(float(np.min(median_filter(d[np.isfinite(d)], 5, mode="nearest"))))
-    return min(lows) if lows else None
+def _vehicle_landed_height(lows: Sequence[float | None], d_downs: Sequence[np.ndarray | None]
+                           ) -> tuple[float | None, bool]:
+    """m, the vehicle's landed rotor-plane height, and whether the floor was seen to carry it there.
+
+    It is the lowest of its recordings' own (``lows``: each recording's :func:`~uavturb.sysid.contact.landed_height`
+    of ``d_down``, None where it never lands); where none lands, the lowest rotor-plane height over all flights
+    (5-row median, as ``ground_contact`` reads it) and False. None where a flight has no ``d_down`` (``d_downs``).
+    """
+    if not d_downs or any(d is None for d in d_downs):
+        return None, False
+    seen = [low for low in lows if low is not None]
+    if seen:
+        return min(seen), True
+    return min(float(np.min(median_filter(d[np.isfinite(d)], 5, mode="nearest"))) for d in d_downs), False
 
 
 def contact_masks(fds: Sequence[FlightData], vehicle: Vehicle, paths: Sequence[str]
                   ) -> tuple[list[np.ndarray], list[dict[str, Any]]]:
     """Per flight, the rows where the floor carries the vehicle, and the report's ``ground_contact``.
 
-    The recordings are of one vehicle and ``d_down`` is measured to the surface below, so the vehicle's
-    landed rotor-plane height is the lowest over all of them: a recording that never came down within
-    ``skim_m`` of it skims nothing (its lowest hover is a hover). A still stretch that stays higher than
-    ``skim_m`` over its recording's landed height is a rest only where its thrust could not hold a hover
-    there under the strongest ground-effect law of the registry at the top of its range, for this
-    vehicle's rotors (:func:`uavturb.physics.effects.strongest_surface_lift`)."""
+    A recording's landed height is the lowest it reaches only where the floor is seen to carry the vehicle there
+    (:func:`uavturb.sysid.contact.landed_height`: still and level with a thrust no hover could need, idling,
+    under the least share that could hold a hover in the strongest ground-effect law of the registry at the top
+    of its range for this vehicle's rotors (:func:`uavturb.physics.effects.strongest_surface_lift`), or moving
+    while the vehicle does not); a hover that never lands keeps its lowest rows. The recordings are of one vehicle
+    and ``d_down`` is measured to the surface below, so the vehicle's landed rotor-plane height is the lowest over
+    the recordings that land: a recording that never came down within ``skim_m`` of it skims nothing (its lowest
+    hover is a hover). Where none lands, the lowest rotor-plane height over all of them serves for skims alone,
+    and only for dips moving throughout (real walks' dips to their lowest set point; a still vehicle there
+    hovers). A still stretch that stays higher than ``skim_m`` over its recording's landed height is a rest only
+    where its thrust could not hold a hover there under that law."""
     mass, k_T = vehicle.mass, vehicle.thrust_coefficient
     geometry = {"arm_length": vehicle.arm_length, "rotor_count": vehicle.rotor_count}
 
     def hover_lift(h: np.ndarray) -> np.ndarray:
         return strongest_surface_lift(h, "d_down", vehicle.rotor_radius, **geometry)
 
-    masks, report = [], []
-    skim_top = _vehicle_landed_height(fds)
-    if skim_top is not None:
-        skim_top += CONTACT_LIMITS.skim_m
-    for fd, path in zip(fds, paths):
+    rows = []  # per flight: tilt [deg], thrust [N], d_down [m] (None: no surface under any row), lift [-]
+    for fd in fds:
         R = quat.to_rotation_matrix(fd.q)
         tilt = np.degrees(np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0)))
         S = np.sum(fd.rotor_speeds**2, axis=1)
         thrust = k_T * S if k_T else S / np.median(S) * mass * GRAVITY
         d_down = fd.d_down if fd.d_down is not None and np.any(np.isfinite(fd.d_down)) else None
+        lift = None if fd.d_down is None else np.where(np.isfinite(fd.d_down), hover_lift(fd.d_down), 1.0)
+        rows.append((tilt, thrust, d_down, lift))
+    lows = [None if d_down is None else
+            landed_height(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass, d_down=d_down, limits=CONTACT_LIMITS, lift=lift)
+            for fd, (tilt, thrust, d_down, lift) in zip(fds, rows)]
+    skim_top, skim_landed = _vehicle_landed_height(lows, [r[2] for r in rows])
+    if skim_top is not None:
+        skim_top += CONTACT_LIMITS.skim_m
+    masks, report = [], []
+    for fd, path, (tilt, thrust, d_down, lift) in zip(fds, paths, rows):
         mask, intervals = ground_contact(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass, d_down=d_down,
                                          limits=CONTACT_LIMITS, skim_top=skim_top if d_down is not None else None,
-                                         hover_lift=hover_lift)
+                                         skim_landed=skim_landed, lift=lift if d_down is not None else None)
         if fd.d_down is not None:  # a point cloud: it must be under the vehicle where it rests
+            # rests found from the body's height, the floor seen to carry the vehicle by the same rule (the lift
+            # read off the cloud's heights: 1 where it puts no surface below)
             by_height = mask if d_down is None else ground_contact(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass,
-                                                                   limits=CONTACT_LIMITS)[0]
+                                                                   limits=CONTACT_LIMITS, lift=lift)[0]
             _check_cloud_under_rests(path, fd.t, fd.d_down, by_height, mask if d_down is not None else
                                      np.zeros_like(mask))
         masks.append(mask)
@@ -248,7 +268,9 @@ def _check_cloud_under_rests(path: str, t: np.ndarray, d_down: np.ndarray, rests
                              ) -> None:
     """Refuse a point cloud that is not under the vehicle where it rests: ``rests`` (K,) bool, the rows where
     the body's own height finds it on its landing gear (the lowest it came, still, level, the rotors under the
-    weight); ``contact`` (K,) bool, those the cloud's rotor-plane heights ``d_down`` (K,) [m] find. Where
+    weight, the floor seen to carry it there by the rule :func:`contact_masks` applies to the cloud's heights: a
+    hover that never lands rests nowhere); ``contact`` (K,) bool, those the cloud's rotor-plane heights ``d_down``
+    (K,) [m] find. Where
     :data:`CLOUD_REST_S` or more of rests are mostly (:data:`CLOUD_REST_MISSED`) missed because the cloud puts
     no surface under the rotor plane, or one more than a landing gear's height (``ContactLimits.gear_max_m``)
     below it, the cloud's floor is not where the vehicle lands: the floor carrying the vehicle would be read

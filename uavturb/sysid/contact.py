@@ -6,17 +6,40 @@ do not carry, a force no aerodynamic law explains, so those rows must be left ou
 fit (``recordings.md``, "Streams that may be missing"; ``gap-report.md``, ``ground_contact``).
 
 Height, stillness, attitude and thrust tell it together. The vehicle rests at its landed
-height (the lowest height the recording reaches, or one given), within a small tolerance;
-it is still and level and its attitude steady; and its rotors carry less than its weight
-(once they carry more, it lifts off). Thrust guesses from rotor speeds can be 10-20 % off
-(unknown ``k_T``), so the thrust is first scaled so that it carries the weight in the air,
+height, within a small tolerance; it is still and level and its attitude steady; and its rotors carry
+less than its weight (once they carry more, it lifts off). Thrust guesses from rotor speeds can be
+10-20 % off (unknown ``k_T``), so the thrust is first scaled so that it carries the weight in the air,
 and height and stillness decide first: a hover a few centimetres above the landed height is
-in the air however low its thrust reads (ground effect). Closer than that, a still stretch is a
-rest where its heights come within :attr:`ContactLimits.skim_m` of the landed height (the gear may
-touch there); a still stretch that stays above that is a rest only where its thrust could not hold a
-hover there even under the strongest surface lift the effects registry allows (``hover_lift``, row by row):
-a hover a centimetre over the landed height in a strong ground effect reads 75-95 % of the weight,
-and those are the rows that tell the ground effect best. Rotors off or idling hold no hover, so such a
+in the air however low its thrust reads (ground effect).
+
+**The landed height needs the floor seen carrying the vehicle** (:func:`landed_height`). It is the lowest
+height the recording reaches (or one given), but where a bound on the surface lift is known (``hover_lift``,
+``lift``: the strongest law of the effects registry at the top of its range) only where, somewhere within
+:attr:`ContactLimits.height_tol_m` of it, the vehicle is still and level with a thrust no hover could need:
+
+- under :attr:`ContactLimits.idle_ratio` of the weight (rotors idling or off: however short);
+- under the least share that could hold a hover there in the strongest surface lift, for
+  :attr:`ContactLimits.min_s`;
+- or moving through :attr:`ContactLimits.ramp_ratio` of the weight within :attr:`ContactLimits.ramp_s` while
+  the height stays within :attr:`ContactLimits.ramp_m` (rotors spooling up or down on the gear: a hover's thrust
+  follows its height, and a lift-off leaves).
+
+The lowest height alone is no landing: a recording that never lands (a hover cut out of a longer log, a flight
+that stays low) hovers there, and its thrust reads under the weight *because of the ground effect itself* (a
+hexarotor at d/R 1.2 with Cheeseman-Bennett mu = 2 needs 91 % of it). Taken as a landing, 31.5 s and 18 s of such
+hover were left out of two probe flights (the rows where the ground effect is strongest) and pure hovers at 0.15
+and 0.25 m were refused whole ("0 samples in flight"). The three readings are what tells the floor on the flights
+that do land: real Crazyflies switch their motors off on the floor (0 % of the weight), the simulator's landings
+ramp their rotors from 30 to 53 % of the weight in a second at 0.6 rotor radius, where the strongest law has its
+pole and no thrust is too low for a hover (without the ramp both ends of such a flight were missed: 4-9 N of floor
+reaction fitted as aerodynamics). A still vehicle at a constant thrust there, never idling, is a hover as far as
+anything recorded can tell. Where no bound is known (no ``d_down``), the lowest height is taken as it is.
+
+A recording without such a landed height has no rests at its lowest height; its idle rests count (below). Closer
+than :attr:`ContactLimits.skim_m` to the landed height a still stretch is a rest (the gear may touch there);
+one that stays above that is a rest only where its thrust could not hold a hover there even under the strongest
+surface lift (row by row): a hover a centimetre over the landed height in a strong ground effect reads 75-95 % of
+the weight, and those are the rows that tell the ground effect best. Rotors off or idling hold no hover, so such a
 rest counts however short (on real Crazyflies a drop to the floor with the motors off, 0.15 s still,
 then a restart: while the rotors spun up the thrust read off commanded speeds led the real one by the
 motor lag, up to 15 % over the weight for 0.2 s with the vehicle still on the floor, which the margins
@@ -24,9 +47,15 @@ cover). Still and level with the rotors idling for a second or more (:attr:`Cont
 vehicle rests at whatever height it reads: a barometer's height drifts (a real PX4 log read its first rest 0.45 m
 over the lowest height of the recording), and no aerodynamic lift holds a still vehicle on idling rotors; shorter
 such stretches away from the landed height are a motor cut in the air (the commands drop at once, the rotors spin
-down by their lag, and the fall starts after it). A vehicle that skids or bounces along the floor is not still:
-rows within :attr:`ContactLimits.skim_m` of the landed height where the thrust dips under the weight are left
-out too. Stillness is judged on the rows where
+down by their lag, and the fall starts after it).
+
+A vehicle that skids or bounces along the floor is not still: rows within :attr:`ContactLimits.skim_m` of the
+landed height (``skim_top``: the vehicle's over its recordings) where the thrust dips under
+:attr:`ContactLimits.thrust_ratio` of the weight are left out too. Where no landing was seen, the lowest height
+serves for these alone, and only for a dip moving throughout: a still vehicle there hovers, and so does one
+leaving or settling into such a hover. Real random walks never land, but their dips to their lowest set point
+(never still, 0.2-0.5 s) held the largest residuals: taken as flight, the held-out error of one June walk rose from
+6.5 to 18.7 mN. Stillness is judged on the rows where
 the state updated (:func:`uavturb.numerics.stream_updates.update_mask`): held positions must not make a
 flying vehicle look still. Each contact interval is widened by a margin on either side so that
 the transients of lift-off and touch-down are left out too.
@@ -95,6 +124,10 @@ class ContactLimits:
         landing gear); a recording whose lowest ``d_down`` is higher never landed
     idle_rest_s : s, the shortest stretch, still and level with the rotors idling (``idle_ratio``), taken as a rest
         at any height (where the height drifts); shorter ones away from the landed height are a motor cut in the air
+    ramp_ratio : share of the weight the thrust moves through within ``ramp_s`` while a still, level vehicle stays
+        within ``ramp_m`` of one height: the floor carries it (a hover's thrust moves with its height only)
+    ramp_s : s, the time over which such a thrust change is read
+    ramp_m : m, the most the height (median over ``window_s``) may move meanwhile
     """
 
     height_tol_m: float = 0.015
@@ -111,13 +144,16 @@ class ContactLimits:
     skim_margin_s: float = 0.1
     gear_max_m: float = 0.5
     idle_rest_s: float = 1.0
+    ramp_ratio: float = 0.1
+    ramp_s: float = 1.0
+    ramp_m: float = 0.003
 
 
 def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.ndarray, thrust: np.ndarray,
                    mass: float, *, d_down: np.ndarray | None = None, group: np.ndarray | None = None,
                    update: np.ndarray | None = None, landed_height: float | None = None, calibrate: bool = True,
-                   limits: ContactLimits | None = None, skim_top: float | None = None,
-                   hover_lift: Callable[[np.ndarray], np.ndarray] | None = None
+                   limits: ContactLimits | None = None, skim_top: float | None = None, skim_landed: bool = True,
+                   hover_lift: Callable[[np.ndarray], np.ndarray] | None = None, lift: np.ndarray | None = None
                    ) -> tuple[np.ndarray, list[ContactInterval]]:
     """Rows where the floor carries the vehicle, and the contact intervals with why.
 
@@ -134,19 +170,28 @@ def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.nda
     group : (K,) int, recording index (each recording has its own landed height)
     update : (K,) bool, rows where the state updated; default where ``z`` or ``v`` changed
     landed_height : m, the resting height (of ``d_down`` where given, else of ``z``); default
-        the lowest the recording reaches
+        the lowest the recording reaches, where the floor is seen to carry the vehicle there
+        (:func:`landed_height`)
     calibrate : scale the thrust so that its vertical part carries the weight in the air
         (median over rows ``air_m`` above the landed height); else use it as given
     limits : ContactLimits, thresholds
     skim_top : m, height (of ``d_down`` where given, else of ``z``) under which rows may skim the floor;
         default ``skim_m`` over the landed height. Give the vehicle's landed height over all its
         recordings plus ``skim_m`` so that a recording that never came down there skims nothing
+    skim_landed : whether the floor was seen to carry the vehicle at the height ``skim_top`` is ``skim_m`` over
+        (a landed height, :func:`landed_height`); False: it is only the lowest the vehicle came, and only dips
+        moving throughout (no still row in them or beside them: a skid or a bounce) skim there, a still vehicle
+        being a hover (a rest needs the floor seen). With ``skim_top`` None the recording's own lowest height
+        serves, seen or not alike
     hover_lift : with ``d_down``: ``(h) -> lift``, the most a surface could raise the thrust at rotor-plane
         heights ``h`` [m] (e.g. :func:`uavturb.physics.effects.strongest_surface_lift`). A still row more than
         ``skim_m`` above the landed height is then resting only where its thrust times that lift stays under
         the weight, or its rotors idle (else it may be a hover in ground effect); where the lift is infinite
         (inside a law's pole, no bound), and with None, any still row within ``height_tol_m`` with the thrust
-        under the weight may rest
+        under the weight may rest. With a lift known, the lowest height is a landed height only where the floor
+        is seen to carry the vehicle there (:func:`landed_height`)
+    lift : (K,) -, the same bound row by row, instead of ``hover_lift`` of ``d_down`` (e.g. read off a point
+        cloud's heights while ``z`` finds the rests; 1 where no surface is below)
 
     Returns
     -------
@@ -157,29 +202,75 @@ def ground_contact(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.nda
     t, z, v = np.asarray(t, float), np.asarray(z, float), np.asarray(v, float)
     k = len(t)
     h = np.asarray(z if d_down is None else d_down, float)
-    arrays = dict(z=z, tilt_deg=tilt_deg, thrust=thrust, d_down=d_down, group=group, update=update)
+    arrays = dict(z=z, tilt_deg=tilt_deg, thrust=thrust, d_down=d_down, group=group, update=update, lift=lift)
     bad = [n for n, a in arrays.items() if a is not None and len(a) != k] + (["v"] if np.shape(v) != (k, 3) else [])
     if bad:
         raise InputError("ground_contact", f"{', '.join(bad)} must have one row per time ({k} rows)")
+    lift = _row_lift(h, d_down, hover_lift, lift)
     group = np.zeros(k, int) if group is None else np.asarray(group)
     mask = np.zeros(k, bool)
     intervals: list[ContactInterval] = []
     for g in np.unique(group):
         rows = np.flatnonzero(group == g)
-        upd = (update_mask(np.column_stack([z[rows], v[rows]])) if update is None
-               else np.asarray(update, bool)[rows].copy())
-        rec = _Recording(t[rows], h[rows], v[rows], np.asarray(tilt_deg, float)[rows],
-                         np.asarray(thrust, float)[rows], upd)
-        m, found = _contact_in(rec, mass, landed_height, calibrate, lim, d_down is not None, skim_top,
-                               hover_lift if d_down is not None else None)
+        rec = _recording(t, z, h, v, tilt_deg, thrust, update, lift, rows)
+        m, found = _contact_in(rec, mass, landed_height, calibrate, lim, d_down is not None, skim_top, skim_landed)
         mask[rows] = m
         intervals += [ContactInterval(a, b, why, int(g)) for a, b, why in found]
     return mask, intervals
 
 
+def landed_height(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.ndarray, thrust: np.ndarray,
+                  mass: float, *, d_down: np.ndarray | None = None, update: np.ndarray | None = None,
+                  calibrate: bool = True, limits: ContactLimits | None = None,
+                  hover_lift: Callable[[np.ndarray], np.ndarray] | None = None, lift: np.ndarray | None = None
+                  ) -> float | None:
+    """m, the height (of ``d_down`` where given, else of ``z``) at which the floor carries the vehicle in one
+    recording, as :func:`ground_contact` reads it, or None where it never lands.
+
+    It is the lowest height the recording reaches (5-row median), where somewhere within
+    :attr:`ContactLimits.height_tol_m` of it the vehicle is still and level with a thrust no hover could need:
+    under :attr:`ContactLimits.idle_ratio` of the weight, or under the least share that could hold a hover there
+    under the strongest surface lift (``hover_lift`` or ``lift``), for :attr:`ContactLimits.min_s` or more
+    (rotors idling: however short); or a thrust moving through :attr:`ContactLimits.ramp_ratio` of the weight
+    within :attr:`ContactLimits.ramp_s` while the height stays within :attr:`ContactLimits.ramp_m` (the module's
+    docstring tells why). Without a lift known, the lowest height is taken as it is. None also where
+    ``d_down``'s lowest is more than :attr:`ContactLimits.gear_max_m`, or fewer than 5 rows update.
+
+    Parameters
+    ----------
+    t, z, v, tilt_deg, thrust, mass, d_down, update, calibrate, limits, hover_lift, lift
+        as :func:`ground_contact`'s, for one recording
+
+    Returns
+    -------
+    float or None, m
+    """
+    lim = limits or ContactLimits()
+    t, z, v = np.asarray(t, float), np.asarray(z, float), np.asarray(v, float)
+    h = np.asarray(z if d_down is None else d_down, float)
+    rec = _recording(t, z, h, v, tilt_deg, thrust, update, _row_lift(h, d_down, hover_lift, lift),
+                     np.arange(len(t)))
+    reading = _read(rec, mass, None, calibrate, lim, d_down is not None)
+    return None if reading is None or not reading.landed else reading.h0
+
+
+def _row_lift(h: np.ndarray, d_down: np.ndarray | None, hover_lift: Callable[[np.ndarray], np.ndarray] | None,
+              lift: np.ndarray | None) -> np.ndarray | None:
+    """(K,) -, the strongest surface lift on each row (``lift``, else ``hover_lift`` of ``d_down``), or None."""
+    if lift is not None:
+        return np.asarray(lift, float)
+    if hover_lift is None or d_down is None:
+        return None
+    out = np.ones(len(h))
+    finite = np.isfinite(h)
+    out[finite] = np.asarray(hover_lift(h[finite]), float)
+    return out
+
+
 @dataclass
 class _Recording:
-    """One recording's rows: t [s], h [m], v [m/s] (n, 3), tilt [deg], thrust [N], update (bool)."""
+    """One recording's rows: t [s], h [m], v [m/s] (n, 3), tilt [deg], thrust [N], update (bool), lift (the
+    strongest surface lift, or None)."""
 
     t: np.ndarray
     h: np.ndarray
@@ -187,48 +278,133 @@ class _Recording:
     tilt: np.ndarray
     thrust: np.ndarray
     update: np.ndarray
+    lift: np.ndarray | None = None
 
 
-def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: bool, lim: ContactLimits,
-                rotor_plane: bool, skim_top: float | None, hover_lift: Callable[[np.ndarray], np.ndarray] | None
-                ) -> tuple[np.ndarray, list[tuple[float, float, str]]]:
-    """Contact rows (margins included) and ``(t_start, t_end, why)`` of one recording."""
+def _recording(t: np.ndarray, z: np.ndarray, h: np.ndarray, v: np.ndarray, tilt_deg: np.ndarray,
+               thrust: np.ndarray, update: np.ndarray | None, lift: np.ndarray | None, rows: np.ndarray
+               ) -> _Recording:
+    """The rows ``rows`` of one recording (updates where ``z`` or ``v`` changed unless ``update`` is given)."""
+    upd = (update_mask(np.column_stack([z[rows], v[rows]])) if update is None
+           else np.asarray(update, bool)[rows].copy())
+    return _Recording(t[rows], h[rows], v[rows], np.asarray(tilt_deg, float)[rows], np.asarray(thrust, float)[rows],
+                      upd, None if lift is None else lift[rows])
+
+
+@dataclass
+class _Reading:
+    """What one recording says before its rests are cut into intervals.
+
+    Attributes
+    ----------
+    h0 : m, the lowest height the recording reaches (or the one given)
+    landed : whether the floor carries the vehicle at ``h0`` (given, seen, or no lift known to tell)
+    resting : (n,) bool, rows still and level at ``h0`` (none where not ``landed``)
+    known : (n,) bool, rows that hold an update with a finite height (or follow one)
+    still : (n,) bool, rows still and level at any height
+    speed : (len(u),) m/s, speed on the updates (median over ``window_s``)
+    pos : (n,) int, the update each row holds
+    ratio : (n,) -, share of the weight the thrust carries (scaled, median over ``window_s``)
+    scale : -, the factor the thrust was scaled by
+    hover_at : (n,) -, the least share of the weight that could hold a hover on each row (0: no bound)
+    """
+
+    h0: float
+    landed: bool
+    resting: np.ndarray
+    known: np.ndarray
+    still: np.ndarray
+    speed: np.ndarray
+    pos: np.ndarray
+    ratio: np.ndarray
+    scale: float
+    hover_at: np.ndarray
+
+
+def _read(rec: _Recording, mass: float, landed: float | None, calibrate: bool, lim: ContactLimits,
+          rotor_plane: bool) -> _Reading | None:
+    """One recording's landed height, rests at it, stillness and thrust share (None: too few updates, or a
+    rotor plane that never came within landing-gear height of a surface)."""
     n = len(rec.t)
-    out = np.zeros(n, bool)
     rec.update[0] = True
     u = np.flatnonzero(rec.update & np.isfinite(rec.h))
     if len(u) < 5:
-        return out, []
+        return None
     h0 = float(np.min(median_filter(rec.h[u], 5, mode="nearest"))) if landed is None else float(landed)
     if rotor_plane and landed is None and h0 > lim.gear_max_m:
-        return out, []  # never within landing-gear height of a surface
+        return None  # never within landing-gear height of a surface
     rest_u, speed_u, still_u = _resting_updates(rec, u, h0, lim)
     is_u = np.zeros(n, bool)
     is_u[u] = True
     last = np.maximum.accumulate(np.where(is_u, np.arange(n), -1))
     pos = np.searchsorted(u, last)  # the update each row holds (rows before the first finite one: none)
-    resting = (last >= 0) & np.isfinite(rec.h) & rest_u[np.minimum(pos, len(u) - 1)]
+    held = np.minimum(pos, len(u) - 1)
+    resting = (last >= 0) & np.isfinite(rec.h) & rest_u[held]
+    still = (last >= 0) & still_u[held]
     weight = mass * GRAVITY
     scale = _thrust_scale(rec, h0, weight, lim) if calibrate else 1.0
     # a held thrust is late by half its update step: read it on its updates; rotors off (zero thrust) are
     # a state, not a stale value, and hold every row (interpolated, a restart would lift a rest off zero)
     fresh = update_mask(rec.thrust) | (rec.thrust <= 0)
     ratio = _window_median(rec.t, np.interp(rec.t, rec.t[fresh], rec.thrust[fresh]) * scale / weight, lim.window_s)
+    hover_at = np.zeros(n)  # the least share of the weight that could hold a hover (0 inside a law's pole)
+    if rec.lift is not None:
+        bounded = np.isfinite(rec.lift) & (rec.lift > 0)
+        hover_at[bounded] = 1.0 / rec.lift[bounded]
+    seen = landed is not None or rec.lift is None or _floor_carries(rec.t, rec.h, resting, ratio, hover_at, lim)
+    return _Reading(h0, seen, resting if seen else np.zeros(n, bool), last >= 0, still, speed_u, pos, ratio, scale,
+                    hover_at)
+
+
+def _floor_carries(t: np.ndarray, h: np.ndarray, resting: np.ndarray, ratio: np.ndarray, hover_at: np.ndarray,
+                   lim: ContactLimits) -> bool:
+    """Whether the floor is seen to carry the vehicle on the rows ``resting`` (still and level at the lowest
+    height ``h`` [m]): a thrust no hover could need there, under ``idle_ratio`` of the weight (however short) or
+    under ``hover_at`` (the least share that could hold a hover in the strongest surface lift) for ``min_s``; or a
+    thrust that moves through ``ramp_ratio`` of the weight within ``ramp_s`` while the height stays within
+    ``ramp_m``, the vehicle still ``window_s`` before and after (rotors spooling up or down on the gear: a hover's
+    thrust follows its height whatever the law, and a lift-off leaves)."""
+    for a, b in _runs(resting & ((ratio < lim.idle_ratio) | (ratio < hover_at))):
+        if t[b - 1] - t[a] >= lim.min_s or np.min(ratio[a:b]) < lim.idle_ratio:
+            return True
+    for a, b in _runs(resting):
+        if t[b - 1] - t[a] < lim.ramp_s + 2 * lim.window_s:
+            continue
+        tt, hh = t[a:b], _window_median(t[a:b], h[a:b], lim.window_s)
+        later = np.searchsorted(tt, tt + lim.ramp_s)
+        i = np.flatnonzero((tt >= tt[0] + lim.window_s) & (later < b - a))
+        j = later[i]
+        i, j = i[tt[j] <= tt[-1] - lim.window_s], j[tt[j] <= tt[-1] - lim.window_s]
+        if np.any((np.abs(ratio[a:b][j] - ratio[a:b][i]) >= lim.ramp_ratio) & (np.abs(hh[j] - hh[i]) <= lim.ramp_m)):
+            return True
+    return False
+
+
+def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: bool, lim: ContactLimits,
+                rotor_plane: bool, skim_top: float | None, skim_landed: bool = True
+                ) -> tuple[np.ndarray, list[tuple[float, float, str]]]:
+    """Contact rows (margins included) and ``(t_start, t_end, why)`` of one recording."""
+    n = len(rec.t)
+    out = np.zeros(n, bool)
+    reading = _read(rec, mass, landed, calibrate, lim, rotor_plane)
+    if reading is None:
+        return out, []
+    h0, ratio, pos, scale = reading.h0, reading.ratio, reading.pos, reading.scale
+    resting = reading.resting.copy()
     # still and level with the rotors idling or off for a while: something carries the vehicle at whatever height
     # it reads (a barometer's height drifts: a real PX4 log read its rest 0.45 m over the lowest height of the
     # recording). Shorter stretches are a motor cut in the air: commanded speeds drop at once, the rotors spin
     # down by their lag and the fall starts after it (Crazyflies: 0.25 s still at 5 cm with the commands at 0)
-    idle = (last >= 0) & still_u[np.minimum(pos, len(u) - 1)] & (ratio < lim.idle_ratio) & ~resting
+    idle = reading.still & (ratio < lim.idle_ratio) & ~resting
     for a, b in _runs(idle):
         idle[a:b] = rec.t[b - 1] - rec.t[a] >= lim.idle_rest_s
     resting |= idle
     resting &= ratio < 1.0  # once the rotors carry the weight, it lifts off
     hover_at = np.zeros(n)  # the least share of the weight that could hold a hover, on rows where that decides
-    if hover_lift is not None:
+    if rec.lift is not None:
         above = resting & (rec.h > h0 + lim.skim_m)  # beyond the gear's reach: a still hover in ground effect?
-        lift = np.asarray(hover_lift(rec.h[above]), float)
-        above[above] = np.isfinite(lift)  # where no law bounds the lift (inside its pole), height alone decides
-        hover_at[above] = 1.0 / lift[np.isfinite(lift)]
+        above &= reading.hover_at > 0  # where no law bounds the lift (inside its pole), height alone decides
+        hover_at[above] = reading.hover_at[above]
         resting &= ~above | (ratio < hover_at) | (ratio < lim.idle_ratio)  # idling rotors hold no hover
     found = []
     for a, b in _runs(resting):
@@ -240,20 +416,31 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
         out |= (rec.t >= rec.t[a] - lim.margin_s) & (rec.t <= rec.t[b - 1] + lim.margin_s)
         core = slice(a, b)
         decides = hover_at[core] > 0
-        found.append(_why(rec, core, h0, landed is not None, rotor_plane, float(np.max(speed_u[pos[core]])),
+        found.append(_why(rec, core, h0, landed is not None, rotor_plane, float(np.max(reading.speed[pos[core]])),
                           median, scale, lim, float(np.min(hover_at[core][decides])) if decides.any() else None,
                           bool(np.all(idle[core]))))
     top = h0 + lim.skim_m if skim_top is None else skim_top
-    skim = (last >= 0) & np.isfinite(rec.h) & (rec.h <= top) & ~out
+    seen = reading.landed if skim_top is None else skim_landed
+    skim = reading.known & np.isfinite(rec.h) & (rec.h <= top) & ~out
     rested = out.copy()
     skims = []  # (t_start, t_end, lowest height [m], lowest thrust share) of each skim
     for a, b in _runs(skim):
         if np.min(ratio[a:b]) >= lim.thrust_ratio or (a > 0 and rested[a - 1]) or (b < n and rested[b]):
             continue  # the rotors carry the weight, or a lift-off or touch-down its rest's margins cover
+        if not seen and reading.still[max(a - 1, 0):b + 1].any():
+            # no rest seen at the lowest height: a still vehicle there hovers (a recording that never lands, its
+            # thrust under the weight by the ground effect itself), and so does one that leaves or settles into
+            # such a hover; only a dip moving throughout may be the gear touching (real walks' dips to their
+            # lowest set point: never still)
+            continue
         out |= (rec.t >= rec.t[a] - lim.skim_margin_s) & (rec.t <= rec.t[b - 1] + lim.skim_margin_s)
         skims.append((float(rec.t[a]), float(rec.t[b - 1]), float(np.min(rec.h[a:b])), float(np.min(ratio[a:b]))))
-    landed_text = (f"the landed height {top - lim.skim_m:.3f} m" if skim_top is None else
-                   f"the vehicle's landed height over its recordings, {top - lim.skim_m:.3f} m")
+    low = top - lim.skim_m
+    landed_text = ((f"the landed height {low:.3f} m" if seen else
+                    f"the lowest the recording reached, {low:.3f} m (no rest seen there; the vehicle moving)")
+                   if skim_top is None else
+                   f"the vehicle's landed height over its recordings, {low:.3f} m" if seen else
+                   f"the lowest the vehicle came over its recordings, {low:.3f} m (no rest seen; the vehicle moving)")
     return out, [(float(rec.t[a]), float(rec.t[b - 1]),
                   _joined_why(found, skims, rec.t[a], rec.t[b - 1], "rotor-plane height" if rotor_plane else "height",
                               landed_text, lim.skim_m))
