@@ -19,6 +19,8 @@ from uavturb.io.reader import load_recordings
 from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
 
+from other_vehicles import HEAVY_HEX
+
 GROUND = {"ground_effect": {"mu": 2.0}}
 
 
@@ -160,20 +162,6 @@ def test_a_minute_of_three_hertz_rotor_telemetry_is_analysed_alone(tmp_path):
     assert list(named) == ["ground_effect"]
     mu, se = named["ground_effect"]["params"]["mu"], named["ground_effect"]["stderr"]["mu"]
     assert abs(mu - 2.0) < 2 * se and se < 0.75  # 30 s of flight: mu = 2.01 +- 0.60
-
-
-HEAVY_HEX = """name: heavy-hex-2.5kg
-mass: 2.5
-rotor_count: 6
-arm_length: 0.30
-rotor_angles_deg: [30, 90, 150, -150, -90, -30]
-rotor_directions: [1, -1, 1, -1, 1, -1]
-rotor_radius: 0.127
-thrust_coefficient: 1.2e-05
-moment_coefficient: 1.92e-07
-inertia: [0.065, 0.07, 0.12]
-max_rotor_speed: 1000.0
-"""
 
 
 def _heavy_hex_px4(tmp_path, flights, **common):

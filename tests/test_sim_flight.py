@@ -18,6 +18,8 @@ from uavturb.sim.flights.plans import excitation, low_passes, mixed, over_table,
 from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import EUROC_T0_NS, generate_flight, make_reference, simulate_flight
 
+from other_vehicles import HEAVY_HEX
+
 E_Z = np.array([0.0, 0.0, 1.0])
 
 
@@ -239,10 +241,7 @@ def test_a_flight_the_controller_loses_is_refused_not_written(tmp_path):
     take-off: the flight had been written regardless, its height running from -5.6 to 30.7 m, and the gap finder
     then analysed it as a real one."""
     vehicle = tmp_path / "hex25.yaml"
-    vehicle.write_text("name: heavy-hex\nmass: 2.5\nrotor_count: 6\narm_length: 0.30\n"
-                       "rotor_angles_deg: [30, 90, 150, -150, -90, -30]\nrotor_directions: [1, -1, 1, -1, 1, -1]\n"
-                       "rotor_radius: 0.127\nthrust_coefficient: 1.2e-05\nmoment_coefficient: 1.92e-07\n"
-                       "inertia: [0.065, 0.07, 0.12]\nmax_rotor_speed: 1000.0\n")
+    vehicle.write_text(HEAVY_HEX)
     out = tmp_path / "lost"
     with pytest.raises(InputError, match=r"generate flight: the simulated vehicle lost its reference at t = \d"):
         generate_flight(vehicle=str(vehicle), effects="ground_effect:mu=4", duration=5.0, kind="low_passes", seed=5,

@@ -1,0 +1,15 @@
+"""Test helpers: ``vehicle.yaml`` files of vehicles the built-in ones are not, for blind trials."""
+
+#: a 2.5 kg hexarotor with 10-inch propellers (0.127 m rotors), as this round's blind probe of ``uavturb gap`` flew
+HEAVY_HEX = """name: heavy-hex-2.5kg
+mass: 2.5
+rotor_count: 6
+arm_length: 0.30
+rotor_angles_deg: [30, 90, 150, -150, -90, -30]
+rotor_directions: [1, -1, 1, -1, 1, -1]
+rotor_radius: 0.127
+thrust_coefficient: 1.2e-05
+moment_coefficient: 1.92e-07
+inertia: [0.065, 0.07, 0.12]
+max_rotor_speed: 1000.0
+"""
