@@ -211,3 +211,23 @@ def test_nothing_named_with_something_undecided_does_not_say_nothing_improves_th
     write_markdown(tmp_path, report, [])
     assert "None: no effect of the vocabulary improves the held-out fit beyond what noise explains." in (
         tmp_path / "report.md").read_text()
+
+
+def test_a_thrust_coefficient_left_undecided_beside_a_surface_law_says_what_limits_it(tmp_path):
+    """Two hovers at 0.15 m whose thrust levels differ by 4 % cannot tell a ground effect from the thrust level:
+    the law is undecided, and k_T's error covers how far it moves with the law fitted (7.5 %, where the sample
+    noise alone gave 0.7 %)."""
+    report = {"recordings": ["a/h1", "a/h2"], "sim_effects": [], "protocol": "leave-one-recording-out",
+              "residual_source": "imu", "baseline": {"heldout_rmse_N": 1.05, "rmse_N": 1.05},
+              "final": {"heldout_rmse_N": 1.05}, "noise": {"rms_N": 0.06}, "effects": [], "sim_effect_params": {},
+              "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 1.0, "drivers": []},
+              "nominal": {"thrust_coefficient": 1.637e-05, "thrust_coefficient_stderr": 1.2e-06,
+                          "thrust_coefficient_stderr_terms": {"sample": 1.1e-07, "between_recordings": 4.6e-07,
+                                                              "undecided_surface_law": 1.2e-06}}}
+    write_markdown(tmp_path, report, [])
+    assert ("Thrust coefficient k_T = 1.637e-05 ± 1.2e-06 N/(rad/s)^2 (7.3 %, limited by the surface law left "
+            "undecided beside it") in (tmp_path / "report.md").read_text()
+    report["nominal"]["thrust_coefficient_stderr_terms"] = {"sample": 1.1e-07, "between_recordings": 4.6e-07}
+    report["nominal"]["thrust_coefficient_stderr"] = 4.6e-07
+    write_markdown(tmp_path, report, [])
+    assert "limited by the spread between recordings" in (tmp_path / "report.md").read_text()
