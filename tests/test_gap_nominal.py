@@ -42,7 +42,8 @@ from uavturb.io.recording import Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.ground_effect import force_ratio
-from uavturb.sysid.accelerometer import anchored_bias, block_mean_and_se
+from uavturb.numerics.blocks import block_mean_and_se
+from uavturb.sysid.accelerometer import anchored_bias
 
 MASS, K_T, R_ROTOR = 1.5, 8.5e-6, 0.1
 

@@ -442,7 +442,7 @@ def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordi
     recorded timing; with 0.08 s of delay taken out, the rotor drag won by 4.0. ``offset``: the simulator's own
     effects' force on ``data``'s rows (taken off as the selection did)."""
     interval = {d["recording"]: d["uncertain_s"] for d in delays if d.get("uncertain_s")}
-    rivals = {c: r for c, r in sel.rivals.items() if c in sel.chosen}
+    rivals = sel.chosen_rivals
     if not rivals or not any(hi > lo for lo, hi in interval.values()):
         return sel
     ends = []
@@ -477,7 +477,7 @@ def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordi
         return sel
     out = finish(data, sel.base, steps, offset=offset, tried=sel.tried)
     out.rejected, out.look_alikes = sel.rejected, sel.look_alikes
-    out.rivals = {c: r for c, r in rivals.items() if c in out.chosen}
+    out.rivals = sel.rivals
     return out
 
 
@@ -851,7 +851,7 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
         # as select() fitted it (sim effects in the base), reusing its fits of the same effect sets
         sel = finish(data, sel.base, steps, tried=sel.tried, known=sel.known)
     sel.known = None  # its folds' rows and fits are not needed past the decisions (memory)
-    sel.rivals = {c: r for c, r in rivals.items() if c in sel.chosen}
+    sel.rivals = rivals  # finish() starts a Selection afresh
     final = sel.final
     facts = flight_facts(data, final.coef["k_T"])
     named = {a for entry in ambiguous for a in entry["candidates"]}

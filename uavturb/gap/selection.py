@@ -328,6 +328,13 @@ class Selection:
     def chosen(self) -> list[str]:
         return [s.name for s in self.steps]
 
+    @property
+    def chosen_rivals(self) -> dict[str, str]:
+        """:attr:`rivals` of the effects still chosen, whose rival is not chosen too (a later step or a decision
+        may have dropped either)."""
+        chosen = set(self.chosen)
+        return {c: r for c, r in self.rivals.items() if c in chosen and r not in chosen}
+
 
 def _signed_ok(fit: ModelFit, name: str, z_min: float) -> bool:
     params, se = fit.effect_params(name)
@@ -462,7 +469,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
     sel = finish(data, frozenset(base), steps, offset=offset, lag=lag, tried=tried, known=known)
     sel.rejected = list(rejected.values())
     sel.look_alikes = look_alikes
-    sel.rivals = {c: r for c, r in rivals.items() if c in sel.chosen and r not in sel.chosen}
+    sel.rivals = rivals
     return sel
 
 
