@@ -13,3 +13,17 @@ moment_coefficient: 1.92e-07
 inertia: [0.065, 0.07, 0.12]
 max_rotor_speed: 1000.0
 """
+
+#: a 2 kg quadrotor with 0.1 m rotors, as the same probe flew
+HEAVY_QUAD = """name: heavy-quad-2kg
+mass: 2.0
+rotor_count: 4
+arm_length: 0.25
+rotor_angles_deg: [45, 135, -135, -45]
+rotor_directions: [1, -1, 1, -1]
+rotor_radius: 0.10
+thrust_coefficient: 1.5e-05
+moment_coefficient: 2.4e-07
+inertia: [0.03, 0.03, 0.055]
+max_rotor_speed: 1000.0
+"""

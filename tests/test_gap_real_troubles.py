@@ -16,10 +16,13 @@ from uavturb.errors import InputError
 from uavturb.gap.finder import _rate_checked, _timing_checked, analyse
 from uavturb.gap.preparation import state_thinned
 from uavturb.io.reader import load_recordings
+from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
+from uavturb.physics.dynamics import GRAVITY
+from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
 
-from other_vehicles import HEAVY_HEX
+from other_vehicles import HEAVY_HEX, HEAVY_QUAD
 
 GROUND = {"ground_effect": {"mu": 2.0}}
 
@@ -281,3 +284,43 @@ def test_every_named_effect_counts_the_ground_truth_s_rate_where_it_updates_too_
     term = k_d["error_budget"]["k_d"]["stream_rate"]
     assert np.isfinite(term) and 0.0 < term <= k_d["stderr"]["k_d"]
     assert abs(k_d["params"]["k_d"] - 8.06e-5) < 2 * k_d["stderr"]["k_d"]
+
+
+def test_rotor_speeds_that_never_change_are_named_as_the_reason_nothing_is_left(tmp_path):
+    """A still hover whose rotors0 holds the same speeds in every row (a simulator's constant command, or telemetry
+    that froze) is read as one update held by its logger: nothing in flight is left to analyse, and the one line
+    names the rotor file and says why, not a generic '0 samples in flight'."""
+    rng = np.random.default_rng(3)
+    t_ns = 1_000_000_000 + np.arange(4000) * 5_000_000  # 20 s at 200 Hz
+    n, veh = len(t_ns), HEXAROTOR
+    gt = GroundTruth(t_ns=t_ns, p=np.array([0.0, 0.0, 0.6]) + rng.normal(0, 5e-4, (n, 3)),
+                     q=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), v=rng.normal(0, 5e-3, (n, 3)),
+                     b_w=np.zeros((n, 3)), b_a=np.zeros((n, 3)))
+    imu = Imu(t_ns=t_ns, gyro=rng.normal(0, 2e-3, (n, 3)), acc=[0, 0, GRAVITY] + rng.normal(0, 3e-2, (n, 3)),
+              T_BS=np.eye(4), rate_hz=200.0)
+    hover = np.sqrt(veh.mass * GRAVITY / (veh.rotor_count * veh.thrust_coefficient))
+    rotors = Rotors(t_ns=t_ns, speeds=np.full((n, veh.rotor_count), np.round(hover)))
+    floor = np.column_stack([rng.uniform(-3, 3, (2000, 2)), np.zeros(2000)])
+    rec = Recording(vehicle=veh, ground_truth=gt, imu=imu, rotors=rotors, points=floor, path=tmp_path / "hover")
+    with pytest.raises(InputError, match=r"hover/mav0/rotors0/data\.csv: holds the same rotor speeds in every row"):
+        analyse([rec], {})
+
+
+def test_a_drag_the_held_out_part_cannot_show_is_said_untested(tmp_path):
+    """One low-pass flight of a 2 kg quadrotor under a rotor drag (k_d = 8.06e-5) and a ground effect, whose last
+    30 % is a still low hover: the held-out rows hold no horizontal speed, so no held-out test could show the drag.
+    The ground effect is named; the rotor drag is not (it was not tested), and ``not_testable`` says so with the
+    whole flight's fit, within two of its errors of the truth, not silence."""
+    vehicle = tmp_path / "quad20.yaml"
+    vehicle.write_text(HEAVY_QUAD)
+    generate_conditioned_flight(str(vehicle), "ground_effect:mu=2,rotor_drag", duration=60, kind="low_passes",
+                                seed=42, conditions=Conditions(rotor_plane_z=-0.025), out=tmp_path / "f")
+    report, _ = analyse(load_recordings([tmp_path / "f"]), {})
+    assert [e["name"] for e in report["effects"]] == ["ground_effect"]
+    untested = {n["name"]: n for n in report["not_testable"]}
+    entry = untested["rotor_drag"]
+    k_d, se = (float(x) for x in re.search(r"k_d = (\S+) ± (\S+);", entry["why"]).groups())
+    assert abs(k_d - 8.06e-5) < 2 * se and se < 0.1 * k_d
+    assert "held-out rows (last-30%-of-each-recording) barely exercise it" in entry["why"]
+    assert entry["to_separate"].startswith("fly at several horizontal speeds")
+    assert "wind" not in untested and "battery_sag" not in untested  # their corrections reach the held-out rows

@@ -47,6 +47,7 @@ from uavturb.gap.selection import (
     look_alike_entry,
     near_misses,
     select,
+    untested_on_heldout,
 )
 from uavturb.gap.surface_curve import LIFT_RADII, lift_z
 from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve, law_on_curve
@@ -290,6 +291,14 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         raise InputError(where, f"only {len(data)} rotor-speed updates in flight (the stream updates at "
                                 f"{held['slowest_update_hz']:.2g} Hz or slower, and the thrust is known only at its "
                                 f"updates); too few to analyse: longer or more flights, or faster rotor telemetry")
+    frozen = [p for r, p in zip(recordings, paths)
+              if r.rotors is not None and not np.ptp(r.rotors.speeds, axis=0).any()]
+    if len(data) < MIN_ANALYSIS_ROWS and frozen:
+        raise InputError(f"{frozen[0]}/mav0/rotors0/data.csv",
+                         "holds the same rotor speeds in every row: a stream that never changes is read as one "
+                         "update its logger held (recordings.md: what a stream holds is its updates), which tells "
+                         "the thrust at no time in flight; rotor speeds as they vary (commands or telemetry) are "
+                         "needed")
     if len(data) < MIN_ANALYSIS_ROWS:
         where = paths[0] if len(paths) == 1 else ", ".join(paths)
         raise InputError(where, f"only {len(data)} samples in flight (rotors carrying over 30 % of the weight, "
@@ -322,6 +331,10 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     ambiguous += near_misses(sel.tried, set(sel.chosen) | {r["name"] for r in rejected}
                              | {c for a in ambiguous for c in a["candidates"]})
     final: ModelFit = sel.final
+    not_testable += untested_on_heldout(data, final, fm, candidates,
+                                        set(sel.chosen) | {r["name"] for r in rejected}
+                                        | {c for a in ambiguous for c in a["candidates"]},
+                                        lambda fit, name: outside_range(data, fit, name), protocol)
     facts = flight_facts(data, final.coef["k_T"])
     rf = final.residual(data)
     _, rsf, _ = locate.segments(data, rf, update_step_s=step)

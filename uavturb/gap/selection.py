@@ -168,15 +168,17 @@ class FoldFits:
 BLOCKS_S = (1.0, 3.0)
 
 
-def improvement_z(before: HeldOut, after: HeldOut, block_s: tuple[float, ...] = BLOCKS_S) -> float:
+def improvement_z(before: HeldOut, after: HeldOut, block_s: tuple[float, ...] = BLOCKS_S, *,
+                  if_right: bool = False) -> float:
     """Significance of the held-out squared-error reduction from ``before`` to ``after``
     (same test rows): ``z = sum(|e_b|^2 - |e_a|^2) / (2 sqrt(sum_blocks (sum e_a . delta)^2))``,
     ``delta = e_b - e_a`` (module docstring); the smallest ``z`` over the block lengths
     ``block_s`` [s] (at least :data:`MIN_BLOCKS` blocks each; shorter blocks where the held-out part is
-    too short for any of them)."""
+    too short for any of them). ``if_right``: the ``z`` the correction would reach were it the truth (the gain
+    ``sum |delta|^2`` over the same spread): what the rows can show of it at best."""
     eb, ea = before.resid, after.resid
     delta = eb - ea
-    gain = float(np.sum(eb**2) - np.sum(ea**2))
+    gain = float(np.sum(delta**2) if if_right else np.sum(eb**2) - np.sum(ea**2))
     u_k = np.sum(ea * delta, axis=1)
     t = before.t if before.t is not None else np.zeros(len(eb))
     g = before.group if before.group is not None else np.zeros(len(eb), int)
@@ -471,6 +473,60 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
     sel.look_alikes = look_alikes
     sel.rivals = rivals
     return sel
+
+
+def untested_on_heldout(data: GapData, final: ModelFit, fold_masks, candidates: list[str], decided: set[str],
+                        unphysical: Callable[[ModelFit, str], str | None], protocol: str,
+                        z_improve: float = Z_IMPROVE, z_min: float = 4.0) -> list[dict]:
+    """Candidates the held-out rows cannot test, as ``not_testable`` entries: not chosen nor decided otherwise
+    (``decided``), not surface laws (:func:`near_misses` and the surface curve speak for those), whose fit beside
+    the chosen effects on all rows (``final``'s) is significant, physically signed and within range, and improves
+    the fit of all rows by ``z_improve`` or more (in sample), while its correction on the held-out rows is so small
+    that even were it the truth it would improve them by less than ``z_improve`` over noise
+    (:func:`improvement_z` with ``if_right``). The held-out test then has no power, and "no effect" would be a
+    guess: a single low-pass flight of a 2 kg quadrotor whose last 30 % is a still hover named no rotor drag while
+    the rest flew at 1-2 m/s under one (k_d = 8e-5), and said nothing of it.
+
+    Parameters
+    ----------
+    data : the rows; final : the selection's final fit (its effects are the chosen ones)
+    fold_masks : the held-out protocol's (train, test) masks (:func:`folds`); protocol : its name
+    candidates : the effects tried; unphysical : ``(fit, name) -> why`` or None (``EffectSpec.physical_range``)
+    """
+    test = np.zeros(len(data), bool)
+    for _, te in fold_masks:
+        test |= te
+    if test.all() or not test.any():  # every row held out once: the held-out test sees all the data shows
+        return []
+    r_b = final.residual(data)
+    out = []
+    for c in candidates:
+        if c in decided or c in final.effects or EFFECTS[c].surface is not None:
+            continue
+        fit = fit_model(data, final.effects | {c})
+        if not _signed_ok(fit, c, z_min) or unphysical(fit, c):
+            continue
+        r_a = fit.residual(data)
+        rows = HeldOut(r_b, np.zeros(len(data), int), data.t, data.group)
+        z_all = improvement_z(rows, HeldOut(r_a, rows.blocks, data.t, data.group))
+        if z_all < z_improve:
+            continue
+        held = HeldOut(r_b[test], rows.blocks[test], data.t[test], data.group[test])
+        power = improvement_z(held, HeldOut(r_a[test], held.blocks, held.t, held.group), if_right=True)
+        if power >= z_improve:
+            continue
+        params, se = fit.effect_params(c)
+        value = ", ".join(f"{k} = {params[k]:.3g} ± {se[k]:.2g}" for k in params)
+        rms = [float(np.sqrt(np.mean(np.sum((r_b[m] - r_a[m]) ** 2, axis=1)))) for m in (~test, test)]
+        out.append({"name": c,
+                    "why": (f"all the rows show it ({value}; it improves their fit by z = {z_all:.1f} in sample), "
+                            f"but the held-out rows ({protocol}) barely exercise it: its correction there is "
+                            f"{rms[1]:.3g} N rms (against {rms[0]:.3g} N on the rest), a gain that would stand at "
+                            f"most z = {max(power, 0.0):.1f} over noise even were it right ({z_improve:g} needed), so "
+                            "these flights cannot test it"),
+                    "to_separate": "; ".join(w for w in (EFFECTS[c].manoeuvre, "in the part of the flight held out "
+                                                         "(its last 30 %), or in a second recording") if w)})
+    return out
 
 
 #: share of the held-out error an effect not chosen must remove, below the z it needs, to be reported undecided
