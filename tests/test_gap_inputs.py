@@ -147,6 +147,85 @@ def test_rotor_speeds_that_never_lift_the_vehicle_are_refused(tmp_path, capsys, 
     assert "speeds in other units than rad/s" in line
 
 
+def test_rotor_speeds_in_rpm_are_refused_by_their_tip_speed(tmp_path, capsys, good):
+    """Rotor speeds in rpm read as rad/s (9.55 times too fast): the blade tips would pass the speed of sound. Refused
+    in one line naming rotors0 and the scale that converts, where the analysis had named a rotor drag 9.4 times too
+    small with a 1 % error (a law per rad/s; the thrust coefficient had absorbed the square)."""
+    rec = _copy(good, tmp_path)
+    _rewrite_csv(rec / "mav0" / "rotors0" / "data.csv",
+                 lambda i, l: ",".join([l.split(",")[0]] + [f"{float(x) * 60 / (2 * np.pi):.6g}"
+                                                            for x in l.split(",")[1:]]))
+    line = _gap_fails(tmp_path, capsys, [rec], match="rotors0/data.csv: its rotor speeds put the blade tips at")
+    assert "beyond the speed of sound (343 m/s)" in line and "rotor_speed_scale: 0.10472" in line
+
+
+def test_a_thrust_coefficient_that_would_lift_many_times_the_weight_is_refused(tmp_path, capsys, good):
+    """vehicle.yaml's thrust coefficient ten times the vehicle's: the recorded speeds would lift about ten times the
+    weight through the flight. One line naming rotors0 and the ratio (the fit had gone on with its own k_T, saying
+    nothing of the disagreement)."""
+    rec = _copy(good, tmp_path)
+    yaml_path = rec / "vehicle.yaml"
+    text = yaml_path.read_text()
+    written = re.search(r"thrust_coefficient: (\S+)", text).group(1)
+    yaml_path.write_text(text.replace(f"thrust_coefficient: {written}",
+                                      f"thrust_coefficient: {10 * float(written):.6g}"))
+    line = _gap_fails(tmp_path, capsys, [rec], match="rotors0/data.csv: its rotor speeds would lift")
+    lift = float(re.search(r"would lift (\S+) times the weight", line).group(1))
+    assert 8.0 < lift < 12.0 and "thrust coefficient or mass off" in line
+
+
+def test_a_thrust_coefficient_off_by_half_is_said_beside_the_flights_own(tmp_path, capsys, good):
+    """vehicle.yaml's thrust coefficient 1.5 times the vehicle's: within what a flight could need, so the analysis
+    runs on the flights' own k_T; report.json keeps the yaml's value and report.md says how far the two differ."""
+    rec = _copy(good, tmp_path)
+    yaml_path = rec / "vehicle.yaml"
+    text = yaml_path.read_text()
+    written = re.search(r"thrust_coefficient: (\S+)", text).group(1)
+    yaml_path.write_text(text.replace(f"thrust_coefficient: {written}",
+                                      f"thrust_coefficient: {1.5 * float(written):.6g}"))
+    out = tmp_path / "report"
+    assert main(["gap", str(rec), "--out", str(out), "--sim-effects", "none", "--no-mlflow"]) == 0
+    nominal = json.loads((out / "report.json").read_text())["nominal"]
+    assert nominal["thrust_coefficient_vehicle_yaml"] == pytest.approx(1.5 * float(written), rel=1e-5)
+    assert nominal["thrust_coefficient"] == pytest.approx(float(written), rel=0.02)
+    assert re.search(r"vehicle.yaml states \S+ \(-3[34]\.\d %; the flights' own value is used",
+                     (out / "report.md").read_text())
+
+
+@pytest.mark.parametrize("key, value, match", [
+    ("rotor_radius", 0.2, r"rotor_radius 0.2 here, [0-9.]+ in .*good/vehicle.yaml: recordings analysed together"),
+    ("mass", None, r"mass [0-9.]+ kg here, [0-9.]+ kg in .*good/vehicle.yaml \(\+10.0 %, over the 5 % batteries"),
+])
+def test_recordings_of_vehicles_described_apart_are_refused_naming_the_key(tmp_path, capsys, good, another, key,
+                                                                            value, match):
+    """A second recording whose vehicle.yaml gives another rotor radius had been read with the first's (the ground
+    effect's mu 0.89 or 2.00 by the folders' order); a mass 10 % off is another load. One line names the key and
+    both values."""
+    rec = _copy(another, tmp_path)
+    yaml_path = rec / "vehicle.yaml"
+    text = yaml_path.read_text()
+    written = re.search(rf"^{key}: (\S+)$", text, re.M).group(1)
+    new = value if value is not None else 1.1 * float(written)
+    yaml_path.write_text(text.replace(f"{key}: {written}", f"{key}: {new:.6g}"))
+    line = _gap_fails(tmp_path, capsys, [good, rec], match=f"{rec}/vehicle.yaml: {key}")
+    assert re.search(match, line), line
+
+
+def test_a_battery_that_weighs_a_little_more_is_the_same_vehicle(tmp_path, capsys, good, another):
+    """Two recordings of one vehicle whose vehicle.yaml masses differ by 2 % (a heavier battery): analysed together
+    (it had been refused for any difference), each with its own mass, the thrust level per recording as before."""
+    rec = _copy(another, tmp_path)
+    yaml_path = rec / "vehicle.yaml"
+    text = yaml_path.read_text()
+    written = re.search(r"^mass: (\S+)$", text, re.M).group(1)
+    yaml_path.write_text(text.replace(f"mass: {written}", f"mass: {1.02 * float(written):.6g}"))
+    out = tmp_path / "report"
+    assert main(["gap", str(good), str(rec), "--out", str(out), "--sim-effects", "none", "--no-mlflow"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    per = list(report["nominal"]["thrust_coefficient_per_recording"].values())
+    assert report["effects"] == [] and len(per) == 2
+
+
 def _scaled_columns(columns, factor):
     def rewrite(i, line):
         x = line.split(",")

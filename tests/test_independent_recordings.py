@@ -149,22 +149,29 @@ CORRUPTIONS = {
 
 
 def test_identify_says_when_k_T_disagrees_with_vehicle_yaml(recording, tmp_path, capsys):
-    """Rotor speeds written in rpm where rad/s belong: the identified k_T is right for the numbers as given
-    ((2 pi / 60)^2 = 0.011 of the true one) and printed, with one line on stderr saying it is 0.011 times
-    vehicle.yaml's and what to check; agreeing values say nothing."""
+    """vehicle.yaml's thrust coefficient a third of the vehicle's (a mass or coefficient copied wrong): the
+    identified k_T is the flights' own and printed, with one line on stderr saying it is 3 times vehicle.yaml's and
+    what to check; agreeing values say nothing. Rotor speeds in rpm where rad/s belong are refused by their tip
+    speed before any fit (``io.reader.check_tip_speed``)."""
+    off = tmp_path / "off"
+    shutil.copytree(recording, off)
+    (off / "vehicle.yaml").write_text(VEHICLE_YAML + f"thrust_coefficient: {HEXAROTOR.thrust_coefficient / 3}\n")
+    agree = tmp_path / "agree"
+    shutil.copytree(recording, agree)
+    (agree / "vehicle.yaml").write_text(VEHICLE_YAML + f"thrust_coefficient: {HEXAROTOR.thrust_coefficient}\n")
+    assert main(["identify", str(off), "--json"]) == 0
+    k = json.loads(capsys.readouterr().out)["thrust_coefficient"]
+    assert k == pytest.approx(HEXAROTOR.thrust_coefficient, rel=0.02)
+    assert main(["identify", str(off)]) == 0
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("uavturb identify: the identified k_T") and "is 3 times vehicle.yaml's" in err
+    assert main(["identify", str(agree)]) == 0 and capsys.readouterr().err == ""
     rpm = tmp_path / "rpm"
-    shutil.copytree(recording, rpm)
-    (rpm / "vehicle.yaml").write_text(VEHICLE_YAML + f"thrust_coefficient: {HEXAROTOR.thrust_coefficient}\n")
-    shutil.copytree(rpm, tmp_path / "agree")
+    shutil.copytree(agree, rpm)
     _corrupt_lines(rpm / "mav0/rotors0/data.csv", lambda l: [l[0]] + [
         ",".join([x.split(",")[0]] + [f"{float(w) * 60 / (2 * np.pi):.9g}" for w in x.split(",")[1:]]) for x in l[1:]])
-    assert main(["identify", str(rpm), "--json"]) == 0
-    k = json.loads(capsys.readouterr().out)["thrust_coefficient"]
-    assert k == pytest.approx(HEXAROTOR.thrust_coefficient * (2 * np.pi / 60) ** 2, rel=0.02)
-    assert main(["identify", str(rpm)]) == 0
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("uavturb identify: the identified k_T") and "is 0.011 times vehicle.yaml's" in err
-    assert main(["identify", str(tmp_path / "agree")]) == 0 and capsys.readouterr().err == ""
+    assert main(["identify", str(rpm)]) == 2
+    assert "rotors0/data.csv: its rotor speeds put the blade tips at" in capsys.readouterr().err
 
 
 def test_repeated_timestamps_are_merged_and_said(recording, tmp_path, capsys):

@@ -39,8 +39,9 @@ KT_DISAGREEMENT = 1.5
 
 def thrust_coefficient_disagreement(ident: Identification, vehicle: Vehicle) -> str | None:
     """A sentence where the identified thrust coefficient and ``vehicle.yaml``'s differ by more than a factor
-    :data:`KT_DISAGREEMENT` (rotor speeds in rpm read as rad/s give 91 times less, a mass off by two twice
-    as much), else None. The identified value is right for the numbers as given; the units may not be."""
+    :data:`KT_DISAGREEMENT` (a mass off by two gives twice as much; rotor speeds in rpm read as rad/s, 91 times
+    less, are refused by their blade tips' speed as they are read), else None. The identified value is right for the
+    numbers as given; the units may not be."""
     k_nominal, k = vehicle.thrust_coefficient, float(ident.thrust_coefficient)
     if not k_nominal or not np.isfinite(k) or k <= 0:
         return None

@@ -25,6 +25,7 @@ registry (:data:`uavturb.physics.effects.EFFECTS`), never listed here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Sequence
 
 import numpy as np
 
@@ -303,8 +304,11 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
              min_thrust_ratio: float = 0.3, k_T_guess: float | None = None,
              height_window_s: float = 0.3, exclude: list[np.ndarray] | None = None,
              anchor_bias: bool = True, arm_length: float = float("nan"), rate_hz: float | None = RATE_HZ,
-             release: bool = False) -> GapData:
+             release: bool = False, masses: Sequence[float] | None = None) -> GapData:
     """Stack flights into :class:`GapData`, keeping samples in flight (not resting on a surface).
+
+    ``mass`` [kg] is the vehicle's (ranges, the accelerometer bias's columns); ``masses`` [kg], one per flight where
+    their vehicle.yaml files differ by a battery's few percent, weigh each flight's own forces.
 
     Rows at the derivative filter's edges, rows whose rotors carry less than
     ``min_thrust_ratio`` of the weight and the rows of ``exclude`` (one ``(K,)`` mask per flight:
@@ -333,7 +337,8 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
             flights[g] = None
         use_imu = fd.acc is not None and source in ("auto", "imu")
         R = quat.to_rotation_matrix(fd.q)
-        keep = _in_flight(fd, mass, k_T_guess, min_thrust_ratio, None if exclude is None else exclude[g])
+        m = mass if masses is None else float(masses[g])
+        keep = _in_flight(fd, m, k_T_guess, min_thrust_ratio, None if exclude is None else exclude[g])
         # a held rotor stream (ESC telemetry at 3 Hz): between its updates the speeds are interpolated,
         # off by the thrust changes of a third of a second; only the rows of its updates are measured
         slow = fd.rotor_fresh is not None and fd.rotor_fresh.sum() < THIN_BELOW_HZ * np.ptp(fd.t)
@@ -343,9 +348,9 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
             if anchor_bias:
                 anchored[fd.name] = anchored_bias(fd.t, R, fd.acc, fd.dv, keep)
                 acc = fd.acc - anchored[fd.name].b
-            y = mass * np.einsum("kij,kj->ki", R, acc)
+            y = m * np.einsum("kij,kj->ki", R, acc)
         else:
-            y = mass * (fd.dv + np.array([0.0, 0.0, GRAVITY]))
+            y = m * (fd.dv + np.array([0.0, 0.0, GRAVITY]))
         inf = np.full(len(fd), np.inf)
         # heights with the position noise taken out: MoCap noise is white, the body's height
         # changes slowly, and the surface laws are steep near a surface (1 mm at 6 cm over the

@@ -283,7 +283,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     paths = [str(r.path) if r.path else r.name for r in recordings]
     progress("aligning the streams")
     recordings, fds, held = prepared(recordings, paths)
-    data, contact_report = _flight_rows(fds, vehicle, paths)
+    data, contact_report = _flight_rows(fds, [r.vehicle for r in recordings], paths)
     # emptied as the rows were built; what they keep lives on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
     del fds
     if len(data) < MIN_ANALYSIS_ROWS and data.dense is not None:
@@ -395,6 +395,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                                      else {}} for name, p in sim.items()},
         "nominal": _nominal(data, final, levels, [a["candidates"][0] for a in ambiguous
                                                   if a["candidates"][1:] == ["thrust_coefficient"]])
+        | {"thrust_coefficient_vehicle_yaml": vehicle.thrust_coefficient}
         | {"rotor_speed_offset": speed_map},
         "ambiguous": ambiguous,
         "ground_contact": contact_report,
@@ -421,24 +422,48 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     return report, extras
 
 
-def _flight_rows(fds: list, vehicle: Any, paths: Sequence[str]) -> tuple[GapData, list[dict[str, Any]]]:
-    """The flights' rows in the air (ground contact found and left out) and the report's ``ground_contact``.
-    Rotor speeds that never carry 30 % of the weight with ``vehicle.yaml``'s thrust coefficient are refused
-    in one line (rotors0 in other units than rad/s, or a thrust coefficient off). ``fds`` is emptied as the
-    rows are built (its places set to None: :func:`~uavturb.gap.design.gap_data`'s ``release``)."""
-    if vehicle.thrust_coefficient:
-        for fd, path in zip(fds, paths):
-            most = float(np.max(vehicle.thrust_coefficient * np.sum(fd.rotor_speeds**2, axis=1)))
-            if most < 0.3 * vehicle.mass * GRAVITY:
-                raise InputError(f"{path}/mav0/rotors0/data.csv",
-                                 f"its rotor speeds never carry more than {100 * most / (vehicle.mass * GRAVITY):.2g} "
-                                 f"% of the weight with vehicle.yaml's thrust_coefficient "
-                                 f"{vehicle.thrust_coefficient:.4g} N/(rad/s)^2: a flight that never took off, speeds "
-                                 "in other units than rad/s (Hz, rpm: rotor_speed_scale converts) or a thrust "
-                                 "coefficient off")
+#: thrust over weight, the median while all rotors spin, above which vehicle.yaml's thrust coefficient cannot be that
+#: of the recorded speeds (flights hover at about one; racing quadrotors peak at 5-10, not for most of a flight)
+MAX_THRUST_TO_WEIGHT = 3.0
+
+
+def _check_thrust_scale(fd: Any, vehicle: Any, path: str) -> None:
+    """With vehicle.yaml's thrust coefficient, the recorded rotor speeds (``fd``'s) carry more than 30 % of the weight
+    at some time and under :data:`MAX_THRUST_TO_WEIGHT` times it most of the time; otherwise refused in one line
+    (rotors0 in other units than rad/s, or a thrust coefficient or mass off)."""
+    weight = vehicle.mass * GRAVITY
+    thrust = vehicle.thrust_coefficient * np.sum(fd.rotor_speeds**2, axis=1)
+    where = f"{path}/mav0/rotors0/data.csv"
+    most = float(np.max(thrust))
+    if most < 0.3 * weight:
+        raise InputError(where, f"its rotor speeds never carry more than {100 * most / weight:.2g} % of the weight "
+                                f"with vehicle.yaml's thrust_coefficient {vehicle.thrust_coefficient:.4g} "
+                                "N/(rad/s)^2: a flight that never took off, speeds in other units than rad/s (Hz, rpm: "
+                                "rotor_speed_scale converts) or a thrust coefficient off")
+    spinning = np.all(fd.rotor_speeds > 0, axis=1)
+    typical = float(np.median(thrust[spinning])) if spinning.any() else 0.0
+    if typical > MAX_THRUST_TO_WEIGHT * weight:
+        raise InputError(where, f"its rotor speeds would lift {typical / weight:.3g} times the weight (the median "
+                                f"while all rotors spin) with vehicle.yaml's thrust_coefficient "
+                                f"{vehicle.thrust_coefficient:.4g} N/(rad/s)^2, where a flight needs about one: speeds "
+                                "in other units than rad/s (rpm: rotor_speed_scale 0.10472 converts), or a thrust "
+                                "coefficient or mass off")
+
+
+def _flight_rows(fds: list, vehicles: Sequence[Any], paths: Sequence[str]) -> tuple[GapData, list[dict[str, Any]]]:
+    """The flights' rows in the air (ground contact found and left out) and the report's ``ground_contact``, each
+    flight's forces with its own vehicle.yaml's mass (``vehicles``, one per flight: one vehicle, io.reader checks, whose
+    batteries may weigh differently). Rotor speeds at odds with vehicle.yaml's thrust coefficient are refused
+    (:func:`_check_thrust_scale`). ``fds`` is emptied as the rows are built (its places set to None:
+    :func:`~uavturb.gap.design.gap_data`'s ``release``)."""
+    for fd, vehicle_of, path in zip(fds, vehicles, paths):
+        if vehicle_of.thrust_coefficient:
+            _check_thrust_scale(fd, vehicle_of, path)
+    vehicle = vehicles[0]
     contact, contact_report = contact_masks(fds, vehicle, paths)
+    masses = [v.mass for v in vehicles]
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient, release=True,
-                    arm_length=vehicle.arm_length, exclude=contact)
+                    arm_length=vehicle.arm_length, exclude=contact, masses=None if len(set(masses)) == 1 else masses)
     return data, contact_report
 
 
@@ -462,7 +487,7 @@ def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordi
     for side in (0, 1):
         recs = [rotor_shifted(r, interval[p][side]) if p in interval else r for r, p in zip(recordings, paths)]
         try:
-            shifted, _ = _flight_rows([flight_data(r) for r in recs], recs[0].vehicle, paths)
+            shifted, _ = _flight_rows([flight_data(r) for r in recs], [r.vehicle for r in recs], paths)
         except InputError:
             continue
         apply_thrust_levels(shifted)
@@ -498,7 +523,7 @@ def _refit_on(recordings: Sequence, paths: Sequence[str], final: ModelFit) -> Mo
     """``final``'s effects fitted on the flights of ``recordings`` (streams changed for a systematic term: rotor
     timing, stream rate), each recording's thrust level its own where levels differ; None where that fails."""
     try:
-        data, _ = _flight_rows([flight_data(r) for r in recordings], recordings[0].vehicle, paths)
+        data, _ = _flight_rows([flight_data(r) for r in recordings], [r.vehicle for r in recordings], paths)
         apply_thrust_levels(data)
         return fit_model(data, final.effects, with_stderr=False)
     except (InputError, np.linalg.LinAlgError, ValueError):

@@ -39,6 +39,8 @@ NOMINAL_MISS_SHARE = 0.15
 #: what "before" means in each plot: the two use different fits of the nominal model
 BEFORE_ALL = "before (nominal model, robust fit on all data)"
 BEFORE_HELDOUT = "before (nominal model fitted on the other folds)"
+#: %, difference between the flights' thrust coefficient and vehicle.yaml's from which report.md remarks on it
+YAML_THRUST_DIFFERS_PERCENT = 15.0
 
 
 def format_params(params: dict | None, stderr: dict | None = None) -> str:
@@ -396,6 +398,12 @@ def _recording_lines(report: dict, names: dict[str, str]) -> list[str]:
                 "which fits one constant, reads it" if sag else "")
         L += [f"Thrust coefficient k_T = {k:.4g} ± {se:.2g} N/(rad/s)^2 ({100 * se / k:.2g} %, limited by "
               f"{limit}).{when}"]
+        yaml_k = nominal.get("thrust_coefficient_vehicle_yaml")
+        if yaml_k:
+            off = 100 * (k / yaml_k - 1)
+            L[-1] += (f" vehicle.yaml states {yaml_k:.4g} ({off:+.1f} %" + (
+                "; the flights' own value is used: a thrust coefficient that far off, or rotor speeds in other "
+                "units, changes every law in rotor speed)." if abs(off) > YAML_THRUST_DIFFERS_PERCENT else ")."))
     if nominal.get("rotor_speed_offset"):
         L += ["", f"Thrust map: {nominal['rotor_speed_offset']['note']}."]
     return L

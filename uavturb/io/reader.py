@@ -11,7 +11,7 @@ import errno
 import hashlib
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -103,6 +103,36 @@ def check_rotor_speeds(path: str | Path, speeds: np.ndarray, vehicle: Vehicle, l
                                f"with rotor_speed_scale {vehicle.rotor_speed_scale:g}, over the "
                                f"{MAX_ROTOR_SPEED_RAD_S:.0e} rad/s no rotor reaches ({len(fast)} value"
                                f"{'s' if len(fast) > 1 else ''} over it)")
+    check_tip_speed(path, scaled, vehicle)
+
+
+#: m/s, the speed of sound in air at 20 C: no propeller's blade tips reach it (small multirotors hover with tips at
+#: 40-150 m/s; a Crazyflie's 0.0231 m rotors at 2300 rad/s, 53 m/s)
+SPEED_OF_SOUND_M_S = 343.0
+
+
+def check_tip_speed(path: str | Path, speeds: np.ndarray, vehicle: Vehicle) -> None:
+    """Rotor speeds ``(N, K)`` [rad/s] (scaled) whose blade tips, at ``vehicle.rotor_radius``, stay under the speed
+    of sound while all rotors spin (the median row): speeds written in rpm and read as rad/s put a Crazyflie's tips at
+    550 m/s and a 2.5 kg hexarotor's at 700, and every law in rotor speed (a rotor drag per rad/s) came out 9.5
+    times off with a 1 % error bar.
+
+    Raises
+    ------
+    InputError
+        ``<rotors0>: its rotor speeds put the blade tips at 707 m/s ...``
+    """
+    spinning = speeds[np.all(speeds > 0, axis=1)]
+    if not len(spinning) or not vehicle.rotor_radius:
+        return
+    typical = float(np.median(spinning.mean(axis=1)))
+    tip = typical * float(vehicle.rotor_radius)
+    if tip > SPEED_OF_SOUND_M_S:
+        raise InputError(path, f"its rotor speeds put the blade tips at {tip:.0f} m/s ({typical:.4g} rad/s, the median "
+                               f"while all rotors spin, times rotor_radius {vehicle.rotor_radius:g} m), beyond the "
+                               f"speed of sound ({SPEED_OF_SOUND_M_S:g} m/s), which no propeller reaches: speeds in "
+                               f"rpm (rotor_speed_scale: 0.10472 turns rpm into rad/s) or other units than rad/s "
+                               f"(rotor_speed_scale {vehicle.rotor_speed_scale:g} now)")
 
 
 #: ns: a stream whose rows are closer than this (over 100 kHz) holds timestamps in other units than nanoseconds
@@ -388,6 +418,47 @@ def _refuse_one_flight_twice(recs: Sequence[Recording], paths: Sequence[str | Pa
         seen[key] = p
 
 
+#: what one analysis of several recordings needs alike in their vehicle.yaml: the geometry the laws read, and how the
+#: rotor speeds were recorded
+SAME_VEHICLE_KEYS = ("rotor_angles_deg", "rotor_directions", "arm_length", "rotor_radius", "rotor_plane_z",
+                     "rotor_speed_source")
+#: relative difference of mass between recordings of one vehicle taken as the same vehicle (batteries differ by a
+#: few percent; each recording's forces use its own mass)
+SAME_MASS_SHARE = 0.05
+
+
+def _check_same_vehicle(first: Recording, other: Recording) -> None:
+    """``other``'s vehicle.yaml describes ``first``'s vehicle: the keys of :data:`SAME_VEHICLE_KEYS` alike (to 1e-6),
+    the masses within :data:`SAME_MASS_SHARE`. A rotor radius or arm length differing in one file had been read from
+    the first recording for all, the fit depending on the order of the folders (ground effect mu 0.89 or 2.00).
+
+    Raises
+    ------
+    InputError
+        ``<other>/vehicle.yaml: rotor_radius 0.19 here, 0.127 in <first>/vehicle.yaml: ...``
+    """
+    a, b = first.vehicle, other.vehicle
+    where = f"{other.path}/vehicle.yaml" if other.path else "vehicle.yaml"
+    for key in SAME_VEHICLE_KEYS:
+        x, y = getattr(a, key), getattr(b, key)
+        same = x == y if isinstance(x, str) else (np.shape(x) == np.shape(y)
+                                                  and np.allclose(x, y, rtol=1e-6, atol=1e-9))
+        if not same:
+            raise InputError(where, f"{key} {_yaml_value(y)} here, {_yaml_value(x)} in {first.path}/vehicle.yaml: "
+                                    "recordings analysed together must be of one vehicle, described alike")
+    if abs(b.mass - a.mass) > SAME_MASS_SHARE * a.mass:
+        raise InputError(where, f"mass {b.mass:g} kg here, {a.mass:g} kg in {first.path}/vehicle.yaml "
+                                f"({100 * (b.mass / a.mass - 1):+.1f} %, over the {100 * SAME_MASS_SHARE:g} % "
+                                "batteries make): recordings analysed together must be of one vehicle")
+
+
+def _yaml_value(x: Any) -> str:
+    """A vehicle.yaml value as written: a word, a number, or a list of numbers."""
+    if isinstance(x, str):
+        return x
+    return f"{x:g}" if np.ndim(x) == 0 else "[" + ", ".join(f"{v:g}" for v in x) + "]"
+
+
 def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None = None, *,
                     repeats_allowed: bool = False) -> list[Recording]:
     """Read recording folders for physics (``identify``, ``residuals``, ``gap``, ``evaluate``): in
@@ -407,10 +478,8 @@ def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None =
     for p in paths:  # a crash's or lost tracking's tail left out before the checks read the whole recording
         rec, lost = without_lost_tail(read_recording(p, vehicle=v, require_rotors=True))
         recs.append(dataclasses.replace(rec, read_notes=rec.read_notes + ((lost,) if lost else ())))
-    first = recs[0].vehicle
     for r in recs[1:]:
-        if r.vehicle.rotor_count != first.rotor_count or r.vehicle.mass != first.mass:
-            raise InputError(r.path / "vehicle.yaml", f"describes another vehicle than {recs[0].path}/vehicle.yaml")
+        _check_same_vehicle(recs[0], r)
     if not repeats_allowed:
         _refuse_one_flight_twice(recs, paths)
     recs = [dataclasses.replace(r, read_notes=r.read_notes + tuple(check_recording(r))) for r in recs]
