@@ -391,11 +391,20 @@ def test_nan_in_imu(tmp_path, capsys, good):
     _gap_fails(tmp_path, capsys, [rec], match="imu0")
 
 
-def test_nan_in_groundtruth(tmp_path, capsys, good):
+def test_nan_in_groundtruth_is_a_missing_row_and_inf_is_refused(tmp_path, capsys, good):
+    """A NaN in the ground truth is a motion capture that lost the vehicle for a row: left out and said, the
+    analysis runs; an infinite value is no measurement and is refused naming the line."""
     rec = _copy(good, tmp_path)
     _rewrite_csv(rec / "mav0" / "state_groundtruth_estimate0" / "data.csv",
                  lambda i, l: ",".join(l.split(",")[:2] + ["NaN"] + l.split(",")[3:]) if i == 50 else l)
-    _gap_fails(tmp_path, capsys, [rec], match="state_groundtruth_estimate0")
+    (loaded,) = load_recordings([rec])
+    assert any("1 row with a value missing (empty or NaN: tracking lost) left out, in 1 stretch from line 52" in n
+               for n in loaded.read_notes)
+    _rewrite_csv(rec / "mav0" / "state_groundtruth_estimate0" / "data.csv",
+                 lambda i, l: ",".join(l.split(",")[:2] + ["inf"] + l.split(",")[3:]) if i == 60 else l)
+    line = _gap_fails(tmp_path, capsys, [rec], match="state_groundtruth_estimate0/data.csv: line 62, column 3: value "
+                                                     "inf is not finite")
+    assert "Traceback" not in line
 
 
 def test_two_recordings_of_different_vehicles(tmp_path, capsys, good):
@@ -612,3 +621,32 @@ def test_an_imu_logged_over_part_of_the_flight_is_said_and_cuts_only_what_reads_
     assert len(mocap.t) >= 0.98 * n_gt  # the whole flight: the IMU is not read
     assert len(from_imu.t) == pytest.approx(n / 2, rel=0.02)
     assert not stream_span_notes(load_recordings([good])[0])  # a whole IMU says nothing
+
+
+def test_measured_rotor_glitches_are_left_out_and_said(tmp_path, good):
+    """ESC telemetry reading 0 or twice a rotor's speed for one row (a rotor cannot jump by a quarter and back in
+    10 ms): with rotor_speed_source measured, those rows are left out and said; commanded speeds may jump (the
+    rotors follow through their lag) and are read as written."""
+    rng = np.random.default_rng(1)
+    for source in ("measured", "commanded"):
+        rec = _copy(good, tmp_path, source)
+        yaml_path = rec / "vehicle.yaml"
+        yaml_path.write_text(yaml_path.read_text() + f"rotor_speed_source: {source}\n")
+        csv = rec / "mav0" / "rotors0" / "data.csv"
+        lines = csv.read_text().splitlines()
+        rows = np.sort(rng.choice(np.arange(200, len(lines) - 200), 12, replace=False))
+        for k, row in enumerate(rows):
+            cells = lines[row].split(",")
+            c = 1 + k % (len(cells) - 1)
+            cells[c] = "0" if k % 2 else f"{2 * float(cells[c]):.6g}"
+            lines[row] = ",".join(cells)
+        csv.write_text("\n".join(lines) + "\n")
+        (loaded,) = load_recordings([rec])
+        said = [n for n in loaded.read_notes if "telemetry glitches" in n]
+        if source == "measured":
+            assert len(loaded.rotors.t_ns) == len(lines) - 1 - 12
+            assert said == [f"{source}/rotors0: 12 rows where one rotor's speed jumps by over 25 % for one update "
+                            f"and back (first at line {rows[0] + 1}; no rotor turns that fast) left out: telemetry "
+                            "glitches"]
+        else:
+            assert len(loaded.rotors.t_ns) == len(lines) - 1 and said == []

@@ -294,3 +294,26 @@ def test_yaml_mapping_reads_a_mapping_and_fails_in_one_line(tmp_path):
         read_yaml_mapping(write(tmp_path, "a: [1, 2\n", "bad.yaml"))
     with pytest.raises(InputError, match=r"list.yaml: expected a mapping of vehicle keys$"):
         read_yaml_mapping(write(tmp_path, "- 1\n- 2\n", "list.yaml"), expected="a mapping of vehicle keys")
+
+
+def test_read_csv_leaves_rows_with_missing_values_out_where_asked(tmp_path):
+    """A motion capture that lost the vehicle writes empty or NaN fields: refused by default (one line naming the
+    field), left out with one sentence where the caller reads them as dropouts; a file with no complete row is
+    refused."""
+    path = tmp_path / "data.csv"
+    rows = ["#timestamp,a,b"] + [f"{k * 10},{k}.5,{2 * k}" for k in range(10)]
+    rows[3], rows[4], rows[8] = "20,,4", "30,NaN,6", "70,7.5,nan"
+    path.write_text("\n".join(rows) + "\n")
+    with pytest.raises(InputError, match=r"line 4, column 2: expected a number, found an empty field"):
+        euroc_csv.read_csv(path, 3)
+    notes: list[str] = []
+    t, x = euroc_csv.read_csv(path, 3, missing_rows=notes)
+    assert t.tolist() == [0, 10, 40, 50, 60, 80, 90] and np.isfinite(x).all()
+    assert notes == [f"{tmp_path.name}: 3 rows with a value missing (empty or NaN: tracking lost) left out, in 2 "
+                     "stretches from line 4: read as dropouts"]
+    path.write_text("#t,a\n0,nan\n10,\n")
+    with pytest.raises(InputError, match=r"no row holds every value \(2 rows, each with a field empty or NaN\)"):
+        euroc_csv.read_csv(path, 2, missing_rows=[])
+    path.write_text("#t,a\n0,1.0\n10,inf\n")  # an infinite value is no missing one
+    with pytest.raises(InputError, match=r"line 3, column 2: value inf is not finite"):
+        euroc_csv.read_csv(path, 2, missing_rows=[])

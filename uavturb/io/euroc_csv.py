@@ -209,8 +209,9 @@ def _check_times(path: Path, lines: np.ndarray, t_ns: np.ndarray, allow_repeats:
         raise InputError(path, f"line {lines[k]}: timestamp {t_ns[k]} is {kind} (previous row has {t_ns[k - 1]})")
 
 
-def _diagnose(path: Path, lines: np.ndarray, body: bytes) -> NoReturn:
-    """Slow pass run only when the fast parse of a block failed: raise an InputError naming the bad field."""
+def _diagnose(path: Path, lines: np.ndarray, body: bytes, missing_ok: bool = False) -> NoReturn:
+    """Slow pass run only when the fast parse of a block failed: raise an InputError naming the bad field
+    (``missing_ok``: empty and not-a-number fields are not the fault)."""
     for line, raw in zip(lines, body.split(b"\n")):
         try:
             row = raw.decode("utf-8")
@@ -219,6 +220,8 @@ def _diagnose(path: Path, lines: np.ndarray, body: bytes) -> NoReturn:
                                    f"(byte 0x{raw[e.start]:02x} at column {e.start + 1})") from None
         for col, field in enumerate(row.split(",")):
             field = field.strip()
+            if missing_ok and col > 0 and field.lower() in MISSING_FIELDS:
+                continue
             try:
                 if "_" in field:
                     raise ValueError(field)
@@ -233,21 +236,30 @@ def _diagnose(path: Path, lines: np.ndarray, body: bytes) -> NoReturn:
     raise InputError(path, "could not be parsed as numbers")
 
 
-def _parse_block(path: Path, rows: _Block, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(timestamps (N,) int64, values (N, n - 1) float64, all finite) of one block's rows."""
+#: fields that mean "no value" where a stream may miss rows (motion capture that lost the vehicle writes them)
+MISSING_FIELDS = ("", "nan", "-nan", "na", "n/a", "null")
+_MISSING_SPELLINGS = sorted({f(x) for x in MISSING_FIELDS for f in (str.lower, str.upper, str.capitalize)}
+                            | {"NaN", "-NaN"})
+
+
+def _parse_block(path: Path, rows: _Block, n: int, missing_ok: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(timestamps (N,) int64, values (N, n - 1) float64, all finite) of one block's rows; with ``missing_ok``,
+    values may be NaN where a field is empty or not a number (:data:`MISSING_FIELDS`)."""
     try:
         lines, body = rows.lines, rows.body
         if not _timestamps_are_integers(rows):
             raise ValueError("timestamp")
-        df = pd.read_csv(io.BytesIO(body), header=None, skipinitialspace=True, na_filter=False,
+        missing = {"na_filter": True, "keep_default_na": False, "na_values": _MISSING_SPELLINGS} if missing_ok \
+            else {"na_filter": False}
+        df = pd.read_csv(io.BytesIO(body), header=None, skipinitialspace=True, **missing,
                          dtype={0: np.int64, **{k: np.float64 for k in range(1, n)}}, engine="c")
         if df.shape != (len(lines), n):  # rows merged or split (quotes etc.)
             raise ValueError("shape")
     except (ValueError, OverflowError, UnicodeDecodeError, pd.errors.ParserError):
-        _diagnose(path, lines, body)
+        _diagnose(path, lines, body, missing_ok)
     t_ns = df[0].to_numpy(np.int64)
     values = df.iloc[:, 1:].to_numpy(np.float64)
-    finite = np.isfinite(values)
+    finite = np.isfinite(values) | (np.isnan(values) if missing_ok else False)
     if not finite.all():
         k, c = np.argwhere(~finite)[0]
         raise InputError(path, f"line {lines[k]}, column {c + 2}: value {values[k, c]} is not finite")
@@ -281,7 +293,8 @@ def _last_of_each_time(path: Path, lines: np.ndarray, t_ns: np.ndarray, values: 
 
 
 def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
-             return_lines: bool = False, repeated_times: list[str] | None = None) -> tuple[np.ndarray, ...]:
+             return_lines: bool = False, repeated_times: list[str] | None = None,
+             missing_rows: list[str] | None = None) -> tuple[np.ndarray, ...]:
     """Read an EuRoC-style numeric CSV file, in blocks, within this module's bounds.
 
     Parameters
@@ -301,6 +314,9 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
         alike) are not refused: the last row of each timestamp is kept and one sentence saying how many
         rows went, and whether they were exact copies, is appended to this list. Timestamps going back
         are refused all the same.
+    missing_rows : where given, rows with a value missing (an empty field, NaN: motion capture that lost the
+        vehicle) are left out, and one sentence saying how many, in how many stretches, is appended to this list
+        (the stream then has a dropout there); a file with no complete row is refused.
 
     Raises
     ------
@@ -312,12 +328,14 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
     path = Path(path)
     parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for rows, n in _row_blocks(path, n_cols):
-        t_ns, values = _parse_block(path, rows, n)
+        t_ns, values = _parse_block(path, rows, n, missing_rows is not None)
         parts.append((rows.lines, values, t_ns))
     if not parts:
         raise InputError(path, f"no data rows (empty {what} file)")
     lines, values, t_ns = (np.concatenate(p) if len(parts) > 1 else p[0] for p in zip(*parts))
     del parts
+    if missing_rows is not None:
+        lines, values, t_ns = _complete_rows(path, lines, values, t_ns, missing_rows)
     _check_times(path, lines, t_ns, allow_repeats=repeated_times is not None)
     if repeated_times is not None:
         keep, note = _last_of_each_time(path, lines, t_ns, values)
@@ -325,6 +343,23 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
             lines, values, t_ns = lines[keep], values[keep], t_ns[keep]
             repeated_times.append(note)
     return (t_ns, values, lines) if return_lines else (t_ns, values)
+
+
+def _complete_rows(path: Path, lines: np.ndarray, values: np.ndarray, t_ns: np.ndarray, notes: list[str]
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows with every value present; a sentence on those left out appended to ``notes``."""
+    complete = ~np.isnan(values).any(axis=1)
+    if complete.all():
+        return lines, values, t_ns
+    if not complete.any():
+        raise InputError(path, f"no row holds every value ({len(lines)} rows, each with a field empty or NaN)")
+    gone = ~complete
+    starts = np.flatnonzero(gone & ~np.r_[False, gone[:-1]])
+    n = int(gone.sum())
+    notes.append(f"{path.parent.name}: {n} row{'s' if n > 1 else ''} with a value missing (empty or NaN: tracking "
+                 f"lost) left out, in {len(starts)} stretch{'es' if len(starts) > 1 else ''} from line "
+                 f"{lines[starts[0]]}: read as dropouts")
+    return lines[complete], values[complete], t_ns[complete]
 
 
 def _row_blocks(path: Path, n_cols: int | None):

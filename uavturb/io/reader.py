@@ -276,12 +276,61 @@ def _read_ground_truth(root: Path, notes: list[str]) -> GroundTruth:
     """``state_groundtruth_estimate0`` (required), its quaternions checked."""
     gt_file = root / GROUNDTRUTH_CSV
     t_gt, x, lines = euroc_csv.read_csv(gt_file, euroc_csv.GROUNDTRUTH_COLUMNS, "ground truth", return_lines=True,
-                                        repeated_times=notes)
+                                        repeated_times=notes, missing_rows=notes)
     check_time_unit(gt_file, t_gt)
     check_state_rate(gt_file, t_gt)
     check_magnitudes(gt_file, x, lines, STATE_LIMITS)
+    frozen = frozen_rows(t_gt, x[:, 0:3], x[:, 3:7], x[:, 7:10])
+    if frozen.any():
+        starts = np.flatnonzero(frozen & ~np.r_[False, frozen[:-1]])
+        notes.append(f"{root.name}/state_groundtruth_estimate0: {int(frozen.sum())} rows repeat a position frozen "
+                     f"for longer than the stream's changes allow, in {len(starts)} stretch"
+                     f"{'es' if len(starts) > 1 else ''} from line {lines[starts[0]]} (the motion capture lost the "
+                     "vehicle and wrote its last pose on): left out, read as dropouts")
+        t_gt, x, lines = t_gt[~frozen], x[~frozen], lines[~frozen]
     return GroundTruth(t_ns=t_gt, p=x[:, 0:3], q=checked_quaternions(gt_file, x[:, 3:7], lines), v=x[:, 7:10],
                        b_w=x[:, 10:13], b_a=x[:, 13:16])
+
+
+#: m, how far the ground truth's own velocities must carry the vehicle through a run of one repeated position for
+#: the run to be motion capture that lost it (positions rounded to 1 mm repeat in a still hover while the velocities
+#: integrate to a few millimetres; a Crazyflie's state estimate on its gear, its velocity drifting at 6 cm/s, to
+#: 1.4 cm over 0.22 s of one position)
+FROZEN_MOVE_M = 0.05
+
+
+#: a run of repeated positions longer than this many of the stream's median steps between changes (and
+#: :data:`FROZEN_MIN_S`) may be frozen: a held stream (9 Hz in rows at 50 Hz) repeats each update for a step
+FROZEN_STEPS, FROZEN_MIN_S = 5, 0.05
+
+
+def frozen_rows(t_ns: np.ndarray, p: np.ndarray, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(N,) bool, the ground-truth rows (``t_ns`` [ns], positions, quaternions, velocities, (N, 3/4/3)) that
+    repeat a frozen value: after a row, the rows that repeat its position for longer than :data:`FROZEN_STEPS` of
+    the stream's median steps between changes (and :data:`FROZEN_MIN_S`) where every value repeats too, or where
+    the velocities say the vehicle moved :data:`FROZEN_MOVE_M` meanwhile. A motion capture that loses the vehicle
+    writes its last pose on (4.6 s of it in a minute had been refused as a gyroscope at odds with the attitude, or,
+    positions alone frozen, read as a vehicle standing still in the air, the held-out error eleven times larger);
+    left out, the stretch is a dropout like missing rows."""
+    t = np.asarray(t_ns, np.int64)
+    out = np.zeros(len(t), bool)
+    if len(t) < 3:
+        return out
+    repeats = np.all(p[1:] == p[:-1], axis=1)  # row k + 1 repeats row k's position
+    changes = t[np.r_[True, np.any(np.hstack([p, q, v])[1:] != np.hstack([p, q, v])[:-1], axis=1)]]
+    if not repeats.any() or len(changes) < 3:
+        return out
+    limit = max(FROZEN_STEPS * float(np.median(np.diff(changes))), FROZEN_MIN_S * 1e9)
+    edges = np.diff(np.r_[0, repeats.astype(np.int8), 0])
+    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):  # rows a + 1 .. b repeat row a
+        if t[b] - t[a] <= limit:
+            continue
+        rows = slice(a, b + 1)
+        still = np.all(q[rows] == q[a]) and np.all(v[rows] == v[a])
+        moved = float(np.sum(np.linalg.norm(v[a:b], axis=1) * np.diff(t[rows]) * 1e-9))
+        if still or moved > FROZEN_MOVE_M:
+            out[a + 1:b + 1] = True
+    return out
 
 
 def _read_imu(root: Path, t_gt: np.ndarray, notes: list[str], *, required: bool) -> Imu | None:
@@ -317,7 +366,51 @@ def _read_rotors(root: Path, t_gt: np.ndarray, vehicle: Vehicle, notes: list[str
     check_time_unit(rotors_file, t)
     check_rotor_speeds(rotors_file, x, vehicle, lines)
     align.require_overlap(t_gt, t, rotors_file)
+    glitch = rotor_glitches(t, x) if vehicle.rotor_speed_source == "measured" else np.zeros(len(t), bool)
+    if glitch.any():
+        notes.append(f"{root.name}/rotors0: {int(glitch.sum())} row{'s' if glitch.sum() > 1 else ''} where one rotor's "
+                     f"speed jumps by over {100 * GLITCH_SHARE:g} % for one update and back (first at line "
+                     f"{lines[np.flatnonzero(glitch)[0]]}; no rotor turns that fast) left out: telemetry glitches")
+        t, x = t[~glitch], x[~glitch]
     return Rotors(t_ns=t, speeds=x * vehicle.rotor_speed_scale)
+
+
+#: share of a rotor's speed by which one update departs from both its neighbours, in one direction, while they agree
+#: within :data:`GLITCH_NEIGHBOURS`, for the update to be a glitch; and s, the longest time from the last row before
+#: it to the next change for that to be read (a rotor's speed settles over 20-60 ms: it cannot jump by a quarter and
+#: back within 50 ms)
+GLITCH_SHARE, GLITCH_NEIGHBOURS, GLITCH_WITHIN_S = 0.25, 0.05, 0.05
+
+
+def rotor_glitches(t_ns: np.ndarray, speeds: np.ndarray) -> np.ndarray:
+    """(N,) bool, the rows of a measured rotor stream (``t_ns`` (N,) [ns], ``speeds`` (N, K) as written) where one
+    rotor's speed is a glitch: read on the stream's updates, it departs from the updates before and after by more
+    than :data:`GLITCH_SHARE` of their speed, both the same way, while those two agree within
+    :data:`GLITCH_NEIGHBOURS`, and the value holds for under :data:`GLITCH_WITHIN_S` with the row before it (ESC
+    telemetry that read 0 or twice the speed for one row had made the held-out error seven times larger, the thrust
+    coefficient 8 stated errors off). Every row holding a glitch's value (a held stream repeats it) is marked.
+    Commands may jump and back (the Crazyflies' commanded speeds do on 1-8 % of their rows, and the rotors follow
+    them through their lag): they are not read for glitches."""
+    out = np.zeros(len(t_ns), bool)
+    if len(t_ns) < 3:
+        return out
+    change = np.r_[True, np.any(speeds[1:] != speeds[:-1], axis=1)]
+    u = np.flatnonzero(change)
+    if len(u) < 3:
+        return out
+    t = np.asarray(t_ns, np.int64) * 1e-9
+    x = speeds[u]
+    before, here, after = x[:-2], x[1:-1], x[2:]
+    level = np.maximum(np.abs(before), np.abs(after))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        up, down = here - before, here - after
+        jump = (np.sign(up) == np.sign(down)) & (np.minimum(np.abs(up), np.abs(down)) > GLITCH_SHARE * level)
+        agree = np.abs(after - before) <= GLITCH_NEIGHBOURS * level
+    close = t[u[2:]] - t[u[1:-1] - 1] <= GLITCH_WITHIN_S  # from the last row before the value to the next change
+    bad = np.flatnonzero(np.any(jump & agree & (level > 0), axis=1) & close) + 1  # indices into u
+    rows = np.searchsorted(u, np.arange(len(t_ns)), side="right") - 1  # the update each row holds
+    out[np.isin(rows, bad)] = True
+    return out
 
 
 def _read_camera(root: Path) -> Camera | None:
