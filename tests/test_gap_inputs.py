@@ -295,6 +295,21 @@ def test_rotor_speeds_on_another_clock_are_refused(tmp_path, capsys, good, secon
     assert re.search(f"best {said} ", line), line
 
 
+@pytest.mark.parametrize("stream, seconds, match", [
+    ("imu0", 0.1, r"imu0/data.csv: its specific force matches the motion capture's best 0\.(09|10|11) s late"),
+    ("rotors0", 0.15, r"rotors0/data.csv: its vertical thrust matches the motion capture's best 0\.1\d s late .* "
+                      r"\(commanded speeds lead the force they make by a motor lag; they cannot trail it\)"),
+])
+def test_a_stream_a_tenth_of_a_second_off_the_clock_is_refused(tmp_path, capsys, good, stream, seconds, match):
+    """An IMU 0.1 s late (its correlation with the motion capture 0.95 against 0.87 as stamped: not the clear gain
+    asked of far offsets) and commanded rotor speeds 0.15 s late (commands lead the force; they had passed, the
+    held-out error up to nine times larger and a false ground contact) are refused in one line."""
+    rec = _copy(good, tmp_path)
+    _rewrite_csv(rec / "mav0" / stream / "data.csv", _shifted_stamps(seconds))
+    line = _gap_fails(tmp_path, capsys, [rec], match=f"{stream}/data.csv: its ")
+    assert re.search(match, line), line
+
+
 @pytest.fixture(scope="module")
 def landed(tmp_path_factory):
     """A flight that rests 3 s on its landing gear at both ends (the contact its cloud must agree with)."""

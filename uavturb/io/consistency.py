@@ -401,6 +401,18 @@ CLOCK_ROWS, CLOCK_STEPS_S = 10_000, (0.02, 0.005)
 #: motor lag (60-90 ms on the Crazyflie logs), ESC telemetry trails it by 40-80 ms (``recordings.md``) and, read
 #: one ESC at a time at 3 Hz, by half a column's period more (0.18 s in all measured), all of which gap models
 IMU_CLOCK_MAX_S, ROTOR_CLOCK_MAX_S = 0.05, 0.25
+#: how much better than as stamped an IMU's offset must correlate (real Crazyflies' IMUs: best within 5 ms of their
+#: stamps, 0.90-0.99; one vehicle's 15-30 ms, 0.71-0.81 against 0.49-0.61, under IMU_CLOCK_MAX_S)
+IMU_CLOCK_GAIN = 0.02
+#: s, how late commanded rotor speeds may match the force they make (commands lead it by a motor lag: 15-135 ms
+#: early on 80 real Crazyflie flights, never over 10 ms late), and s, the latest match read so (beyond it the search
+#: for another clock decides, ``ROTOR_CLOCK_MAX_S``)
+COMMAND_LATE_S, COMMAND_LATE_MAX_S = 0.08, 0.3
+#: the least correlation of a late match, the least as stamped (a stream late by tenths of a second still resembles
+#: the force: 0.31-0.53 on the probe's, against a spurious 0.35 at 0.46 s on a valid 30 s flight with -0.03 as
+#: stamped), and the gain over the stamps (0.25 s late had passed at 0.45 against 0.31, under the 0.5 asked of any
+#: other offset)
+COMMAND_LATE_CORRELATION, COMMAND_LATE_STAMPED, COMMAND_LATE_GAIN = 0.4, 0.2, 0.03
 
 
 def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal: np.ndarray
@@ -477,13 +489,13 @@ def _wide_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
 CLOCK_HIGH_PASS_S = 2.0
 
 
-def _off_clock(offset: tuple[float, float, float], smallest_s: float, least_correlation: float) -> bool:
+def _off_clock(offset: tuple[float, float, float], smallest_s: float, least_correlation: float,
+               gain: float = CLOCK_GAIN, times: float = 2.0) -> bool:
     """Whether a :func:`clock_offset` reads a stream on another clock: at least ``smallest_s`` [s] off and clearly
-    better than its own stamps (correlation at least ``least_correlation``, :data:`CLOCK_GAIN` more and twice as
-    much)."""
+    better than its own stamps (correlation at least ``least_correlation``, ``gain`` more and ``times`` as much)."""
     lag, best, at_zero = offset
     return bool(np.isfinite(lag) and abs(lag) >= smallest_s and best >= least_correlation
-                and best - at_zero >= CLOCK_GAIN and best >= 2.0 * at_zero)
+                and best - at_zero >= gain and best >= times * at_zero)
 
 
 def _clock_text(offset: tuple[float, float, float], what: str) -> str:
@@ -494,21 +506,28 @@ def _clock_text(offset: tuple[float, float, float], what: str) -> str:
 
 
 def _refuse_clock(rec: Recording, stream: str, offset: tuple[float, float, float], smallest_s: float,
-                  least_correlation: float, what: str) -> None:
+                  least_correlation: float, what: str, gain: float = CLOCK_GAIN, times: float = 2.0,
+                  why: str = "") -> None:
     """InputError naming ``stream`` where its :func:`clock_offset` reads it on another clock (:func:`_off_clock`)."""
-    if _off_clock(offset, smallest_s, least_correlation):
+    if _off_clock(offset, smallest_s, least_correlation, gain, times):
         raise InputError(_where(rec, f"mav0/{stream}/data.csv"),
-                         f"{_clock_text(offset, what)}: it must be stamped on the ground truth's clock")
+                         f"{_clock_text(offset, what)}{why}: it must be stamped on the ground truth's clock")
 
 
 def _check_imu_clock(rec: Recording, t: np.ndarray, f_mocap_z: np.ndarray, t_imu: np.ndarray, f_imu_z: np.ndarray,
                      flying: np.ndarray) -> None:
     """The IMU's vertical specific force matches the motion capture's best at its own timestamps: an IMU
     stamped on another clock (0.3 s late) leaves a residual of half the weight's swings that no effect
-    explains. Refused where an offset of :data:`IMU_CLOCK_MAX_S` or more matches clearly better."""
+    explains. Refused where an offset of :data:`IMU_CLOCK_MAX_S` or more (and half the ground truth's hold period)
+    matches better by
+    :data:`IMU_CLOCK_GAIN` (the two read one force: their correlation is high, and an offset shows however small;
+    0.1 s late had passed at 0.95 against 0.87 as stamped, the held-out error five times larger)."""
     ref = np.where(flying, f_mocap_z, np.nan)
-    _refuse_clock(rec, "imu0", clock_offset(t, ref, t_imu, f_imu_z), IMU_CLOCK_MAX_S, IMU_CLOCK_MIN_CORRELATION,
-                  "its specific force")
+    gt = rec.ground_truth
+    # a held ground truth (9 Hz in rows at 50 Hz) trails what it measures by half its hold: the IMU reads early by it
+    held = 0.5 * hold_period_s(gt.t_ns, gt.p)
+    _refuse_clock(rec, "imu0", clock_offset(t, ref, t_imu, f_imu_z), IMU_CLOCK_MAX_S + held,
+                  IMU_CLOCK_MIN_CORRELATION, "its specific force", gain=IMU_CLOCK_GAIN, times=1.0)
 
 
 #: the least correlation at which the rotors' roll and pitch torques time their stream (against the body's angular
@@ -545,11 +564,20 @@ def rotor_torque_offset(rec: Recording) -> tuple[float, float, float]:
     return best
 
 
+def _commands_late(offset: tuple[float, float, float]) -> bool:
+    """Whether a :func:`clock_offset` of commanded speeds' thrust reads them late, as commands cannot be: between
+    :data:`COMMAND_LATE_S` and :data:`COMMAND_LATE_MAX_S`, with the correlations of ``COMMAND_LATE_*``."""
+    lag, best, at_zero = offset
+    return bool(np.isfinite(lag) and COMMAND_LATE_S <= lag <= COMMAND_LATE_MAX_S and best >= COMMAND_LATE_CORRELATION
+                and at_zero >= COMMAND_LATE_STAMPED and best - at_zero >= COMMAND_LATE_GAIN)
+
+
 def check_rotor_clock(rec: Recording) -> str | None:
     """The rotors' vertical thrust ``(R e_z)_z sum(w^2)`` follows the vertical force the vehicle shows (IMU, else
     motion capture) at the rotor stream's own timestamps, within a motor lag or a telemetry delay: refused in
     one line where an offset of :data:`ROTOR_CLOCK_MAX_S` or more matches clearly better (a stream on
-    another clock), unless the rotors' torques (:func:`rotor_torque_offset`) clearly keep time on the stamps
+    another clock), or where commanded speeds match it over :data:`COMMAND_LATE_S` late, unless the rotors' torques
+    (:func:`rotor_torque_offset`) clearly keep time on the stamps
     (within :data:`ROTOR_CLOCK_MAX_S`) and apart from the thrust's offset: then the thrust's lead is the
     vehicle's (a controller anticipating a disturbance), and a note says so (returned; None otherwise)."""
     gt = rec.ground_truth
@@ -571,6 +599,10 @@ def check_rotor_clock(rec: Recording) -> str | None:
     R33 = np.interp(t_rot, t, up)
     ref = np.where(in_flight(rec, gt.t_ns), need, np.nan)
     thrust = clock_offset(t, ref, t_rot, R33 * S)
+    if rec.vehicle.rotor_speed_source != "measured" and _commands_late(thrust):
+        raise InputError(_where(rec, "mav0/rotors0/data.csv"),
+                         f"{_clock_text(thrust, 'its vertical thrust')} (commanded speeds lead the force they make by "
+                         "a motor lag; they cannot trail it): it must be stamped on the ground truth's clock")
     if not _off_clock(thrust, ROTOR_CLOCK_MAX_S, ROTOR_CLOCK_MIN_CORRELATION):
         return None
     torque = rotor_torque_offset(rec)
