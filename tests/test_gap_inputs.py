@@ -20,7 +20,7 @@ from uavturb.io.consistency import check_rotor_clock, stream_span_notes
 from uavturb.io.ply import read_ply, write_ply
 from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES
 from uavturb.gap.preparation import state_thinned, stream_limits
-from uavturb.io.reader import load_recordings, read_recording, recording_labels
+from uavturb.io.reader import clipped_axes, load_recordings, read_recording, recording_labels
 from uavturb.io.recording import Battery, GroundTruth
 from uavturb.sim.flights.simulate import generate_flight
 
@@ -236,8 +236,8 @@ def _scaled_columns(columns, factor):
 @pytest.mark.parametrize("stream, rewrite, match", [
     ("state_groundtruth_estimate0", _scaled_columns({1, 2, 3}, 1000.0),
      "state_groundtruth_estimate0/data.csv: on axis x the positions move 1e+03 times as far as the velocities say"),
-    ("state_groundtruth_estimate0", _scaled_columns({8, 9, 10}, 0.0),
-     "positions move infinitely many times as far as the velocities say"),
+    ("state_groundtruth_estimate0", _scaled_columns({8, 9, 10}, 0.1),
+     "state_groundtruth_estimate0/data.csv: on axis x the positions move 10 times as far as the velocities say"),
     ("imu0", _scaled_columns({4, 5, 6}, 1 / 9.81),
      "imu0/data.csv: the accelerometer reads 0.102 times the specific force the motion capture shows in flight, "
      "in the same directions: it must be in m/s^2 (not g)"),
@@ -257,12 +257,31 @@ def _scaled_columns(columns, factor):
      "rotors0/data.csv: every rotor column holds one value throughout while the vehicle moves up and down"),
 ])
 def test_units_and_frames_that_pass_the_format_are_refused(tmp_path, capsys, good, stream, rewrite, match):
-    """Positions in millimetres, velocities left at zero, an accelerometer in g, quaternions in x, y, z, w order:
+    """Positions in millimetres, velocities a tenth of what they are, an accelerometer in g, quaternions in x, y, z,
+    w order:
     each reads as a valid file and had given a report naming nothing over a residual the size of the weight (a
     gyroscope in deg/s, an inertia 57 times off from identify)."""
     rec = _copy(good, tmp_path)
     _rewrite_csv(rec / "mav0" / stream / "data.csv", rewrite)
     _gap_fails(tmp_path, capsys, [rec], match=match)
+
+
+def test_velocities_left_at_zero_are_taken_from_the_positions(tmp_path, capsys, good):
+    """An exporter that left every velocity at 0 (the positions move): the velocities are the positions'
+    derivative, said in one note, and the report is the complete file's (it had been refused: "the positions move
+    infinitely many times as far as the velocities say")."""
+    rec = _copy(good, tmp_path)
+    _rewrite_csv(rec / "mav0" / "state_groundtruth_estimate0" / "data.csv", _scaled_columns({8, 9, 10}, 0.0))
+    (loaded,) = load_recordings([rec])
+    assert any(n.startswith("rec/state_groundtruth_estimate0: every velocity is 0 while the positions move over")
+               for n in loaded.read_notes)
+    (full,) = load_recordings([good])
+    inside = slice(20, -20)  # the derivative's edges aside
+    miss = np.abs(loaded.ground_truth.v[inside] - full.ground_truth.v[inside])
+    assert np.sqrt(np.mean(miss**2)) < 0.05 and np.abs(full.ground_truth.v).max() > 0.5  # noise over 50 ms
+    out = tmp_path / "report"
+    assert main(["gap", str(rec), "--out", str(out), "--sim-effects", "none", "--no-mlflow"]) == 0
+    assert json.loads((out / "report.json").read_text())["effects"] == []
 
 
 def _shifted_stamps(seconds):
@@ -665,3 +684,15 @@ def test_measured_rotor_glitches_are_left_out_and_said(tmp_path, good):
                             "glitches"]
         else:
             assert len(loaded.rotors.t_ns) == len(lines) - 1 and said == []
+
+
+def test_a_clipped_accelerometer_axis_is_said_and_a_noisy_one_is_not():
+    """Vibration of 4 m/s^2 rms on z (mean 9.81) clipped at +-16 m/s^2: the axis sits at 16 on about 6 % of its
+    rows, said in one sentence; the same noise unclipped, and the x and y axes, say nothing."""
+    rng = np.random.default_rng(2)
+    acc = np.column_stack([rng.normal(0, 0.5, 20000), rng.normal(0, 0.5, 20000), rng.normal(9.81, 4.0, 20000)])
+    assert clipped_axes(acc, "accelerometer", "m/s^2") == []
+    (line,) = clipped_axes(np.clip(acc, -16.0, 16.0), "accelerometer", "m/s^2")
+    share = float(np.mean(acc[:, 2] >= 16.0))
+    assert 0.05 < share < 0.08
+    assert line.startswith(f"the accelerometer's z axis reads its extreme 16 m/s^2 on {int(round(share * 20000))} rows")

@@ -220,8 +220,9 @@ def check_position_velocity(rec: Recording) -> None:
 
     Over windows of :data:`POSITION_WINDOW_S` in flight (:func:`in_flight`), the displacement is compared with
     the integral of the velocity; the least-squares ratio of each axis that moves (:data:`MIN_AXIS_MOTION_M`) must
-    lie in :data:`VELOCITY_SCALE_RANGE`. Positions in millimetres, velocities in the body frame or left at zero,
-    one axis flipped in one and not the other: each passes every format check and spoils the physics. Windows
+    lie in :data:`VELOCITY_SCALE_RANGE`. Positions in millimetres, velocities in the body frame or in other units,
+    one axis flipped in one and not the other: each passes every format check and spoils the physics (velocities
+    all left at zero never reach here: the reader takes them from the positions). Windows
     with the rotors stopped are left out: an onboard estimate may drift away once the motors stop (67 g
     Crazyflies of a swarm, their motors cut at the end, read 0.15 and -0.93 there, in flight 1.0).
 

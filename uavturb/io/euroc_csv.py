@@ -312,8 +312,9 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
         for callers whose own checks name a line
     repeated_times : where given, rows sharing a timestamp (loggers write them: two messages stamped
         alike) are not refused: the last row of each timestamp is kept and one sentence saying how many
-        rows went, and whether they were exact copies, is appended to this list. Timestamps going back
-        are refused all the same.
+        rows went, and whether they were exact copies, is appended to this list. Rows whose timestamps go back
+        are sorted into place where they are few (:data:`OUT_OF_ORDER_SHARE`, said in this list too), refused
+        otherwise.
     missing_rows : where given, rows with a value missing (an empty field, NaN: motion capture that lost the
         vehicle) are left out, and one sentence saying how many, in how many stretches, is appended to this list
         (the stream then has a dropout there); a file with no complete row is refused.
@@ -336,6 +337,8 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
     del parts
     if missing_rows is not None:
         lines, values, t_ns = _complete_rows(path, lines, values, t_ns, missing_rows)
+    if repeated_times is not None:
+        lines, values, t_ns = _in_time_order(path, lines, values, t_ns, repeated_times)
     _check_times(path, lines, t_ns, allow_repeats=repeated_times is not None)
     if repeated_times is not None:
         keep, note = _last_of_each_time(path, lines, t_ns, values)
@@ -343,6 +346,25 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
             lines, values, t_ns = lines[keep], values[keep], t_ns[keep]
             repeated_times.append(note)
     return (t_ns, values, lines) if return_lines else (t_ns, values)
+
+
+#: share of a stream's rows whose timestamp goes back that are sorted into place (a logger writing from two threads
+#: swaps a few neighbours); more is a file whose times mean something else, refused
+OUT_OF_ORDER_SHARE = 0.01
+
+
+def _in_time_order(path: Path, lines: np.ndarray, values: np.ndarray, t_ns: np.ndarray, notes: list[str]
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows sorted by time where under :data:`OUT_OF_ORDER_SHARE` of them go back (a sentence appended to
+    ``notes``); as they are otherwise (:func:`_check_times` then names the first that goes back)."""
+    back = int(np.sum(np.diff(t_ns) < 0))
+    if not back or back > OUT_OF_ORDER_SHARE * len(t_ns):
+        return lines, values, t_ns
+    first = int(lines[np.flatnonzero(np.diff(t_ns) < 0)[0] + 1])
+    order = np.argsort(t_ns, kind="stable")
+    notes.append(f"{path}: {back} row{'s' if back > 1 else ''} stamped earlier than the row before "
+                 f"(first at line {first}; a logger writing from two threads) put in time order")
+    return lines[order], values[order], t_ns[order]
 
 
 def _complete_rows(path: Path, lines: np.ndarray, values: np.ndarray, t_ns: np.ndarray, notes: list[str]
@@ -356,7 +378,7 @@ def _complete_rows(path: Path, lines: np.ndarray, values: np.ndarray, t_ns: np.n
     gone = ~complete
     starts = np.flatnonzero(gone & ~np.r_[False, gone[:-1]])
     n = int(gone.sum())
-    notes.append(f"{path.parent.name}: {n} row{'s' if n > 1 else ''} with a value missing (empty or NaN: tracking "
+    notes.append(f"{path}: {n} row{'s' if n > 1 else ''} with a value missing (empty or NaN: tracking "
                  f"lost) left out, in {len(starts)} stretch{'es' if len(starts) > 1 else ''} from line "
                  f"{lines[starts[0]]}: read as dropouts")
     return lines[complete], values[complete], t_ns[complete]

@@ -20,8 +20,10 @@ from uavturb.io import align, euroc_csv, ply, sensor_yaml
 from uavturb.io.body_frame import to_body
 from uavturb.io.consistency import check_recording
 from uavturb.io.crash import without_lost_tail
+from uavturb.io.differentiate import derivative
 from uavturb.io.recording import Battery, Camera, GroundTruth, Imu, Poses, Recording, Rotors
 from uavturb.io.vehicle_file import load_vehicle, named_vehicle
+from uavturb.numerics.stream_updates import update_mask
 from uavturb.physics import quaternion as quat
 from uavturb.physics.vehicle import Vehicle
 
@@ -288,8 +290,31 @@ def _read_ground_truth(root: Path, notes: list[str]) -> GroundTruth:
                      f"{'es' if len(starts) > 1 else ''} from line {lines[starts[0]]} (the motion capture lost the "
                      "vehicle and wrote its last pose on): left out, read as dropouts")
         t_gt, x, lines = t_gt[~frozen], x[~frozen], lines[~frozen]
-    return GroundTruth(t_ns=t_gt, p=x[:, 0:3], q=checked_quaternions(gt_file, x[:, 3:7], lines), v=x[:, 7:10],
+    v = x[:, 7:10]
+    moved = float(np.max(np.ptp(x[:, 0:3], axis=0)))
+    if not np.any(v) and moved > UNFILLED_VELOCITY_MOTION_M:
+        v = velocity_from_positions(t_gt, x[:, 0:3])
+        notes.append(f"{root.name}/state_groundtruth_estimate0: every velocity is 0 while the positions move over "
+                     f"{moved:.2g} m (an exporter that left the columns unfilled): velocities taken from the "
+                     f"positions' derivative ({VELOCITY_FROM_POSITIONS_S:g} s windows over their updates)")
+    return GroundTruth(t_ns=t_gt, p=x[:, 0:3], q=checked_quaternions(gt_file, x[:, 3:7], lines), v=v,
                        b_w=x[:, 10:13], b_a=x[:, 13:16])
+
+
+#: m, how far the positions must move for velocity columns all at 0 to be unfilled ones (a vehicle at rest has them
+#: at 0 by right), and s, the windows of the derivative that fills them
+UNFILLED_VELOCITY_MOTION_M, VELOCITY_FROM_POSITIONS_S = 0.05, 0.05
+
+
+def velocity_from_positions(t_ns: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(N, 3) m/s, the derivative of positions ``p`` (N, 3) [m] at ``t_ns`` (N,) [ns], taken over
+    :data:`VELOCITY_FROM_POSITIONS_S` windows of their updates (a held stream's repeats are no samples) and
+    interpolated to every row."""
+    t = (np.asarray(t_ns, np.int64) - int(t_ns[0])) * 1e-9
+    m = update_mask(p)
+    m[0] = m[-1] = True
+    dp = derivative(t[m], p[m], VELOCITY_FROM_POSITIONS_S)
+    return np.column_stack([np.interp(t, t[m], dp[:, k]) for k in range(3)])
 
 
 #: m, how far the ground truth's own velocities must carry the vehicle through a run of one repeated position for
@@ -347,10 +372,34 @@ def _read_imu(root: Path, t_gt: np.ndarray, notes: list[str], *, required: bool)
     check_magnitudes(imu_file, x, lines, IMU_LIMITS)
     align.require_overlap(t_gt, t, imu_file)
     imu = Imu(t_ns=t, gyro=x[:, 0:3], acc=x[:, 3:6], T_BS=np.eye(4))
+    notes += [f"{root.name}/imu0: {line}" for line in clipped_axes(x[:, 0:3], "gyroscope", "rad/s")
+              + clipped_axes(x[:, 3:6], "accelerometer", "m/s^2")]
     if (root / IMU_YAML).is_file():
         sensor = sensor_yaml.read_imu_yaml(root / IMU_YAML)
         imu.T_BS, imu.rate_hz = sensor.T_BS, sensor.rate_hz
     return imu
+
+
+#: share of a sensor's rows (and least count) at exactly its largest or smallest value on an axis for the axis to
+#: read as clipped at its range: a noisy axis reaches its extreme once; one driven past its range (a vibrating
+#: accelerometer at +-16 m/s^2) sits there
+CLIPPED_SHARE, CLIPPED_ROWS = 0.005, 10
+
+
+def clipped_axes(values: np.ndarray, sensor: str, unit: str) -> list[str]:
+    """Sentences for the axes of ``values`` (N, 3) that sit at their extreme on :data:`CLIPPED_SHARE` of the rows or
+    more: a clipped sensor. Clipped vibration shifts the mean (the probe's accelerometer clipped at 16 m/s^2 on 6.4 %
+    of its z rows read as a -0.13 m/s^2 bias): said, for the bias measured against the motion capture holds it."""
+    out = []
+    for k, axis in enumerate("xyz"):
+        column = values[:, k]
+        for extreme in (float(np.max(column)), float(np.min(column))):
+            n = int(np.sum(column == extreme))
+            if extreme != 0.0 and n >= max(CLIPPED_ROWS, CLIPPED_SHARE * len(column)):
+                out.append(f"the {sensor}'s {axis} axis reads its extreme {extreme:.4g} {unit} on {n} rows "
+                           f"({100 * n / len(column):.2g} %): clipped at its range; what it measured beyond is lost, "
+                           "and a bias measured against the motion capture holds the clipping's shift of the mean")
+    return out
 
 
 def _read_rotors(root: Path, t_gt: np.ndarray, vehicle: Vehicle, notes: list[str], *, required: bool
