@@ -15,9 +15,11 @@ import pytest
 from uavturb.errors import InputError
 from uavturb.gap.finder import _rate_checked, _timing_checked, analyse
 from uavturb.gap.preparation import state_thinned
+from uavturb.io.ply import read_ply, write_ply
 from uavturb.io.reader import load_recordings
 from uavturb.io.recording import GroundTruth, Imu, Recording, Rotors
 from uavturb.physics.dynamics import GRAVITY
+from uavturb.physics.effects import EFFECTS
 from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
@@ -342,3 +344,31 @@ def test_without_a_point_cloud_a_low_hover_is_not_read_as_a_rest(tmp_path):
     assert any(line.startswith("nocloud/pointcloud0: none (no mav0/pointcloud0/data.ply)")
                for line in report["streams"]["streams"])
     assert {"ground_effect", "ceiling_effect"} <= {n["name"] for n in report["not_testable"]}
+
+
+def test_a_floor_scanned_off_the_motion_capture_is_read_from_the_curve_and_covered(tmp_path):
+    """Two flights under a ground effect (mu = 2) whose point cloud's floor lies 5 cm under where the motion capture
+    puts it (every height reads 5 cm high): Cheeseman-Bennett's shape fits the measured curve only with the heights
+    moved back, and the report says by how much and what mu is there; every stated error covers heights off by
+    that much, so no named number is a confident wrong one (mu had been 5.4 +- 1.3 on one flight; here the
+    exponential law, fitted at the recorded heights, is named with A = 12 +- 26)."""
+    paths = _flights(tmp_path, "floor", Conditions(), seeds=(11, 12), duration=60.0)
+    for path in paths:
+        cloud = path / "mav0" / "pointcloud0" / "data.ply"
+        points = read_ply(cloud)
+        points[:, 2] -= 0.05
+        write_ply(cloud, points)
+    report, _ = analyse(load_recordings(paths), {})
+    offset = report["height_reference"]["offset_read_from_curve"]
+    assert offset["law"] == "ground_effect" and offset["dz_m"] == pytest.approx(-0.05, abs=0.0076)
+    assert offset["params"]["mu"] == pytest.approx(2.0, rel=0.15) and offset["chi2_dof_as_measured"] > 3.0
+    assert report["height_reference"]["uncertainty_m"] == pytest.approx(abs(offset["dz_m"]))
+    (ground,) = [e for e in report["effects"] if e["name"].startswith("ground_effect")]
+    if ground["name"] == "ground_effect":
+        assert abs(ground["params"]["mu"] - 2.0) < 2 * ground["stderr"]["mu"]
+    else:  # another law fitted at the recorded heights: no confident number (the exponential's A = 12 +- 26)
+        first = EFFECTS[ground["name"]].params[0]
+        assert ground["params"][first] < 2 * ground["stderr"][first]
+    clean = analyse(load_recordings(_flights(tmp_path / "clean", "floor", Conditions(), seeds=(11,), duration=60.0)),
+                    {})[0]
+    assert clean["height_reference"]["offset_read_from_curve"] is None

@@ -591,6 +591,9 @@ def _gap(args: argparse.Namespace) -> int:
     print(f"effects named: {', '.join(format_effect(e) for e in report['effects']) or 'none'}")
     print(f"held-out residual RMSE {report['baseline']['heldout_rmse_N']:.4f} N -> "
           f"{report['final']['heldout_rmse_N']:.4f} N ({report['protocol']}); report in {args.out}")
+    offset = (report.get("height_reference") or {}).get("offset_read_from_curve")
+    if offset:
+        print(f"heights off? {offset['why']}")
     return 0
 
 

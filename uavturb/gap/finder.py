@@ -50,7 +50,13 @@ from uavturb.gap.selection import (
     untested_on_heldout,
 )
 from uavturb.gap.surface_curve import LIFT_RADII, lift_z
-from uavturb.gap.surface_laws import finder_surface_curve, law_named_from_curve, law_on_curve
+from uavturb.gap.surface_laws import (
+    HeightOffset,
+    finder_surface_curve,
+    height_offset,
+    law_named_from_curve,
+    law_on_curve,
+)
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     HONEST_Z,
@@ -357,6 +363,9 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("the surface curve")
     curve_report, curve, curve_fits = finder_surface_curve(data, final) if heights_broken is None else (None, None, {})
     progress("honest errors")
+    offset = _height_offset(curve, curve_fits, sel.chosen, data)
+    if offset is not None:  # every stated error covers heights off by as much as the curve's shape reads
+        height_uncertainty = max(height_uncertainty, abs(offset.dz_m))
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty, refits), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
     named = _rate_checked(named, final, recordings, paths, held["state_too_slow"])
@@ -390,7 +399,10 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "height_uncertainty_m": height_uncertainty,
         "height_reference": height_reference(vehicle.rotor_plane_z, height_uncertainty, any(
             EFFECTS[n].surface for n in [e["name"] for e in named + rejected]
-            + [c for a in ambiguous for c in a["candidates"] if c in EFFECTS])) | {"passes_floor": heights_broken},
+            + [c for a in ambiguous for c in a["candidates"] if c in EFFECTS])) | {"passes_floor": heights_broken}
+        | {"offset_read_from_curve": None if offset is None else {
+            "law": offset.law, "dz_m": offset.dz_m, "chi2_dof": offset.chi2_dof,
+            "chi2_dof_as_measured": offset.chi2_dof_as_measured, "params": offset.params, "why": offset.sentence()}},
         "sim_effect_params": {name: {"sim": p, "fitted": final.effect_params(name)[0] if name in final.effects
                                      else {}} for name, p in sim.items()},
         "nominal": _nominal(data, final, levels, [a["candidates"][0] for a in ambiguous
@@ -679,6 +691,23 @@ def nominal_curve_evidence(data: GapData, nominal: ModelFit, heights_hold: bool 
         return CurveEvidence(0.0, {})
     _, curve, fits = finder_surface_curve(data, nominal, resample=False)  # the shape's chi^2 is all it reads
     return CurveEvidence(lift_z(curve, data.rotor_radius), {n: f.chi2 for n, f in fits.items()})
+
+
+def _height_offset(curve: Any, curve_fits: dict, chosen: Sequence[str], data: GapData) -> HeightOffset | None:
+    """The height offset the measured curve's shape reads (:func:`~uavturb.gap.surface_laws.height_offset`) for the
+    chosen ground law, else for another law fitted to the curve (flights 5 cm low under a Cheeseman-Bennett lift had
+    the exponential law named, its shape blind to a shift, where Cheeseman-Bennett fit with the heights 5 cm
+    higher), where the chosen law does not fit as measured either; None where no curve, no ground law chosen, the
+    chosen one fits, or none is read (on Neural-Swarm's 67 g walks, whose exponential law fits, the multirotor law
+    would have read 1.7 cm at chi^2/dof 2.1)."""
+    named = [n for n in chosen if EFFECTS[n].surface == "d_down" and n in curve_fits]
+    if curve is None or not named or curve_fits[named[0]].law_fits:
+        return None  # a chosen law that fits as measured reads no offset, whatever another law would
+    for law in named + [n for n in curve_fits if n not in named]:
+        found = height_offset(curve, curve_fits[law], data.rotor_radius, **data.geometry)
+        if found is not None:
+            return found
+    return None
 
 
 def height_reference(rotor_plane_z: float, uncertainty: float, surface_found: bool) -> dict[str, Any]:

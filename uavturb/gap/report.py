@@ -335,6 +335,9 @@ def _surface_curve_lines(curve: dict | None, height: dict | None = None, missing
     for alt in curve.get("alternatives", []):
         L.append(f"\nAlternative `{alt['law']}`: {format_params(alt['params'], alt['stderr'])}, chi^2/dof = "
                  f"{alt['chi2_dof']:.2f} ({'fits' if alt['law_fits'] else 'does not fit'}).")
+    offset = (height or {}).get("offset_read_from_curve")
+    if offset:
+        L.append(f"\n**Heights off?** {offset['why']}.")
     for note in curve.get("notes", []):
         L.append(f"\nNote: {note}")
     if curve.get("not_named"):
