@@ -51,6 +51,17 @@ def _rewrite_csv(path, fn):
     path.write_text("\n".join([lines[0]] + [fn(i, l) for i, l in enumerate(lines[1:])]) + "\n")
 
 
+def _scaled_yaml_value(rec, key, factor=None, value=None) -> float:
+    """Rewrite ``key`` of ``rec``'s vehicle.yaml to ``factor`` times its value (or to ``value``); returns the value
+    as it was written."""
+    yaml_path = rec / "vehicle.yaml"
+    text = yaml_path.read_text()
+    written = re.search(rf"^{key}: (\S+)$", text, re.M).group(1)
+    new = value if value is not None else factor * float(written)
+    yaml_path.write_text(text.replace(f"{key}: {written}", f"{key}: {new:.6g}"))
+    return float(written)
+
+
 def _gap_fails(tmp_path, capsys, recs, *extra, match: str):
     out = tmp_path / "report"
     code = main(["gap", *map(str, recs), "--out", str(out), "--sim-effects", "none", "--no-mlflow", *extra])
@@ -164,11 +175,7 @@ def test_a_thrust_coefficient_that_would_lift_many_times_the_weight_is_refused(t
     weight through the flight. One line naming rotors0 and the ratio (the fit had gone on with its own k_T, saying
     nothing of the disagreement)."""
     rec = _copy(good, tmp_path)
-    yaml_path = rec / "vehicle.yaml"
-    text = yaml_path.read_text()
-    written = re.search(r"thrust_coefficient: (\S+)", text).group(1)
-    yaml_path.write_text(text.replace(f"thrust_coefficient: {written}",
-                                      f"thrust_coefficient: {10 * float(written):.6g}"))
+    _scaled_yaml_value(rec, "thrust_coefficient", 10.0)
     line = _gap_fails(tmp_path, capsys, [rec], match="rotors0/data.csv: its rotor speeds would lift")
     lift = float(re.search(r"would lift (\S+) times the weight", line).group(1))
     assert 8.0 < lift < 12.0 and "thrust coefficient or mass off" in line
@@ -178,16 +185,12 @@ def test_a_thrust_coefficient_off_by_half_is_said_beside_the_flights_own(tmp_pat
     """vehicle.yaml's thrust coefficient 1.5 times the vehicle's: within what a flight could need, so the analysis
     runs on the flights' own k_T; report.json keeps the yaml's value and report.md says how far the two differ."""
     rec = _copy(good, tmp_path)
-    yaml_path = rec / "vehicle.yaml"
-    text = yaml_path.read_text()
-    written = re.search(r"thrust_coefficient: (\S+)", text).group(1)
-    yaml_path.write_text(text.replace(f"thrust_coefficient: {written}",
-                                      f"thrust_coefficient: {1.5 * float(written):.6g}"))
+    written = _scaled_yaml_value(rec, "thrust_coefficient", 1.5)
     out = tmp_path / "report"
     assert main(["gap", str(rec), "--out", str(out), "--sim-effects", "none", "--no-mlflow"]) == 0
     nominal = json.loads((out / "report.json").read_text())["nominal"]
-    assert nominal["thrust_coefficient_vehicle_yaml"] == pytest.approx(1.5 * float(written), rel=1e-5)
-    assert nominal["thrust_coefficient"] == pytest.approx(float(written), rel=0.02)
+    assert nominal["thrust_coefficient_vehicle_yaml"] == pytest.approx(1.5 * written, rel=1e-5)
+    assert nominal["thrust_coefficient"] == pytest.approx(written, rel=0.02)
     assert re.search(r"vehicle.yaml states \S+ \(-3[34]\.\d %; the flights' own value is used",
                      (out / "report.md").read_text())
 
@@ -202,11 +205,7 @@ def test_recordings_of_vehicles_described_apart_are_refused_naming_the_key(tmp_p
     effect's mu 0.89 or 2.00 by the folders' order); a mass 10 % off is another load. One line names the key and
     both values."""
     rec = _copy(another, tmp_path)
-    yaml_path = rec / "vehicle.yaml"
-    text = yaml_path.read_text()
-    written = re.search(rf"^{key}: (\S+)$", text, re.M).group(1)
-    new = value if value is not None else 1.1 * float(written)
-    yaml_path.write_text(text.replace(f"{key}: {written}", f"{key}: {new:.6g}"))
+    _scaled_yaml_value(rec, key, 1.1, value)
     line = _gap_fails(tmp_path, capsys, [good, rec], match=f"{rec}/vehicle.yaml: {key}")
     assert re.search(match, line), line
 
@@ -215,10 +214,7 @@ def test_a_battery_that_weighs_a_little_more_is_the_same_vehicle(tmp_path, capsy
     """Two recordings of one vehicle whose vehicle.yaml masses differ by 2 % (a heavier battery): analysed together
     (it had been refused for any difference), each with its own mass, the thrust level per recording as before."""
     rec = _copy(another, tmp_path)
-    yaml_path = rec / "vehicle.yaml"
-    text = yaml_path.read_text()
-    written = re.search(r"^mass: (\S+)$", text, re.M).group(1)
-    yaml_path.write_text(text.replace(f"mass: {written}", f"mass: {1.02 * float(written):.6g}"))
+    _scaled_yaml_value(rec, "mass", 1.02)
     out = tmp_path / "report"
     assert main(["gap", str(good), str(rec), "--out", str(out), "--sim-effects", "none", "--no-mlflow"]) == 0
     report = json.loads((out / "report.json").read_text())
