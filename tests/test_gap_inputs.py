@@ -20,7 +20,8 @@ from uavturb.io.consistency import check_rotor_clock, stream_span_notes
 from uavturb.io.ply import read_ply, write_ply
 from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES
 from uavturb.gap.preparation import state_thinned, stream_limits
-from uavturb.io.reader import clipped_axes, load_recordings, read_recording, recording_labels
+from uavturb.io.reader import load_recordings, read_recording, recording_labels
+from uavturb.io.stream_faults import clipped_axes
 from uavturb.io.recording import Battery, GroundTruth
 from uavturb.sim.flights.simulate import generate_flight
 

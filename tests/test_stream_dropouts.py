@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from uavturb.gap.finder import analyse
-from uavturb.io.reader import frozen_rows, load_recordings
+from uavturb.io.reader import load_recordings
+from uavturb.io.stream_faults import frozen_rows
 from uavturb.sim.flights.simulate import generate_flight
 from uavturb.sysid.flight_data import flight_data
 from uavturb.sysid.streams import MIN_DROPOUT_S, dropouts
