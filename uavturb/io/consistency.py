@@ -507,12 +507,11 @@ def _clock_text(offset: tuple[float, float, float], what: str) -> str:
 
 
 def _refuse_clock(rec: Recording, stream: str, offset: tuple[float, float, float], smallest_s: float,
-                  least_correlation: float, what: str, gain: float = CLOCK_GAIN, times: float = 2.0,
-                  why: str = "") -> None:
+                  least_correlation: float, what: str, gain: float = CLOCK_GAIN, times: float = 2.0) -> None:
     """InputError naming ``stream`` where its :func:`clock_offset` reads it on another clock (:func:`_off_clock`)."""
     if _off_clock(offset, smallest_s, least_correlation, gain, times):
         raise InputError(_where(rec, f"mav0/{stream}/data.csv"),
-                         f"{_clock_text(offset, what)}{why}: it must be stamped on the ground truth's clock")
+                         f"{_clock_text(offset, what)}: it must be stamped on the ground truth's clock")
 
 
 def _check_imu_clock(rec: Recording, t: np.ndarray, f_mocap_z: np.ndarray, t_imu: np.ndarray, f_imu_z: np.ndarray,
@@ -520,9 +519,9 @@ def _check_imu_clock(rec: Recording, t: np.ndarray, f_mocap_z: np.ndarray, t_imu
     """The IMU's vertical specific force matches the motion capture's best at its own timestamps: an IMU
     stamped on another clock (0.3 s late) leaves a residual of half the weight's swings that no effect
     explains. Refused where an offset of :data:`IMU_CLOCK_MAX_S` or more (and half the ground truth's hold period)
-    matches better by
-    :data:`IMU_CLOCK_GAIN` (the two read one force: their correlation is high, and an offset shows however small;
-    0.1 s late had passed at 0.95 against 0.87 as stamped, the held-out error five times larger)."""
+    matches better by :data:`IMU_CLOCK_GAIN` (the two read one force: their correlation is high, and an offset
+    shows however small; 0.1 s late had passed at 0.95 against 0.87 as stamped, the held-out error five times
+    larger)."""
     ref = np.where(flying, f_mocap_z, np.nan)
     gt = rec.ground_truth
     # a held ground truth (9 Hz in rows at 50 Hz) trails what it measures by half its hold: the IMU reads early by it
@@ -577,8 +576,8 @@ def check_rotor_clock(rec: Recording) -> str | None:
     """The rotors' vertical thrust ``(R e_z)_z sum(w^2)`` follows the vertical force the vehicle shows (IMU, else
     motion capture) at the rotor stream's own timestamps, within a motor lag or a telemetry delay: refused in
     one line where an offset of :data:`ROTOR_CLOCK_MAX_S` or more matches clearly better (a stream on
-    another clock), or where commanded speeds match it over :data:`COMMAND_LATE_S` late, unless the rotors' torques
-    (:func:`rotor_torque_offset`) clearly keep time on the stamps
+    another clock; commanded speeds matching it over :data:`COMMAND_LATE_S` late are refused too, as commands lead
+    the force), unless the rotors' torques (:func:`rotor_torque_offset`) clearly keep time on the stamps
     (within :data:`ROTOR_CLOCK_MAX_S`) and apart from the thrust's offset: then the thrust's lead is the
     vehicle's (a controller anticipating a disturbance), and a note says so (returned; None otherwise)."""
     gt = rec.ground_truth
