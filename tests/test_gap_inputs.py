@@ -22,6 +22,7 @@ from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES
 from uavturb.gap.preparation import state_thinned, stream_limits
 from uavturb.io.reader import load_recordings, read_recording, recording_labels
 from uavturb.io.stream_faults import clipped_axes
+from uavturb.physics import quaternion as quat
 from uavturb.io.recording import Battery, GroundTruth
 from uavturb.sim.flights.simulate import generate_flight
 
@@ -249,7 +250,8 @@ def _scaled_columns(columns, factor):
      "not deg/s"),
     ("state_groundtruth_estimate0",  # quaternions written x, y, z, w
      lambda i, l: ",".join(l.split(",")[:4] + l.split(",")[5:8] + [l.split(",")[4]] + l.split(",")[8:]),
-     "quaternions must be w, x, y, z and rotate S into the world"),
+     "state_groundtruth_estimate0/data.csv: the accelerometer and the motion capture's specific force differ by 2 g "
+     "rms, and by 0.0"),
     ("rotors0", lambda i, l: ",".join([l.split(",")[0]] + ["524"] * (len(l.split(",")) - 1)),
      "rotors0/data.csv: every rotor column holds one value throughout while the vehicle moves up and down"),
 ])
@@ -693,3 +695,22 @@ def test_a_clipped_accelerometer_axis_is_said_and_a_noisy_one_is_not():
     share = float(np.mean(acc[:, 2] >= 16.0))
     assert 0.05 < share < 0.08
     assert line.startswith(f"the accelerometer's z axis reads its extreme 16 m/s^2 on {int(round(share * 20000))} rows")
+
+
+def test_a_y_up_world_is_named_in_the_ground_truths_file(tmp_path, capsys, good):
+    """Motion capture exported y-up (OptiTrack's default): the accelerometer disagrees with the motion capture by
+    over a g, and would agree with the world's y up; the one line names the ground truth's file and that cause (it
+    had named imu0, whose readings are right)."""
+    rec = _copy(good, tmp_path)
+    c = np.sqrt(0.5)
+    to_y_up = np.array([c, -c, 0.0, 0.0])  # -90 deg about x: (x, y, z) -> (x, z, -y)
+
+    def y_up(i, line):
+        x = [float(v) for v in line.split(",")[1:]]
+        p, q, v = np.array(x[0:3]), np.array(x[3:7]), np.array(x[7:10])
+        q2 = quat.multiply(to_y_up, q)
+        moved = [p[0], p[2], -p[1], *q2, v[0], v[2], -v[1], *x[10:]]
+        return ",".join([line.split(",")[0]] + [f"{y:.9g}" for y in moved])
+    _rewrite_csv(rec / "mav0" / "state_groundtruth_estimate0" / "data.csv", y_up)
+    line = _gap_fails(tmp_path, capsys, [rec], match="state_groundtruth_estimate0/data.csv: the accelerometer and ")
+    assert "with a world whose y axis points up (OptiTrack's default): the world's z must point up" in line

@@ -279,21 +279,45 @@ MIN_TURN_RATE, GYRO_SCALE_RANGE = 0.01, (0.7, 1.4)  # rms 0.017 rad/s read 0.95 
 def _check_gyroscope(rec: Recording, a: np.ndarray, b: np.ndarray, t: np.ndarray, t_imu: np.ndarray,
                      inside: np.ndarray) -> None:
     """The gyroscope reads the rate the motion capture's attitude turns at, in B (windows ``[a, b)`` in flight):
-    a gyroscope in deg/s spoils the inertia ``identify`` gives."""
-    w_mocap = quat.angular_velocity_body(t, rec.ground_truth.q)
+    a gyroscope in deg/s spoils the inertia ``identify`` gives. Where it does not, and the quaternions read in
+    another order or direction would agree (:data:`QUATERNION_MISREADINGS`; only where S is B), the ground truth's
+    file is named with that cause (the IMU's had been, for quaternions stored x, y, z, w)."""
     gyro = rec.imu.gyro[inside] - align.interpolate(rec.ground_truth.t_ns, rec.ground_truth.b_w, rec.imu.t_ns[inside])
+    ratio = _gyro_ratio(a, b, t, rec.ground_truth.q, t_imu, gyro)
+    if ratio is None or GYRO_SCALE_RANGE[0] <= ratio <= GYRO_SCALE_RANGE[1]:
+        return
+    if rec.vehicle.T_BS is None:
+        for misread, how in QUATERNION_MISREADINGS:
+            again = _gyro_ratio(a, b, t, misread(rec.ground_truth.q), t_imu, gyro)
+            if again is not None and GYRO_SCALE_RANGE[0] <= again <= GYRO_SCALE_RANGE[1]:
+                raise InputError(_where(rec, "mav0/state_groundtruth_estimate0/data.csv"),
+                                 f"the gyroscope reads {ratio:.3g} times the rate these quaternions turn at, and "
+                                 f"{again:.3g} times it with the quaternions read as {how}: they must be w, x, y, z "
+                                 "and rotate S into the world (q_RS)")
+    degrees = 0.7 * np.degrees(1.0) <= ratio <= 1.4 * np.degrees(1.0)
+    cause = ("it must be in rad/s, not deg/s" if degrees else
+             "quaternions must be w, x, y, z and rotate S into the world (q_RS), and the gyroscope in rad/s in S")
+    raise InputError(_where(rec, "mav0/imu0/data.csv"),
+                     f"the gyroscope reads {ratio:.3g} times the rate the motion capture's attitude turns at "
+                     f"({FORCE_WINDOW_S:g} s means in flight, body frame): {cause}")
+
+
+#: ways a logger writes quaternions that the ground truth's layout does not mean, and how to read them back:
+#: x, y, z, w order (ROS, scipy), or the rotation from the world into S (q_SR, the conjugate)
+QUATERNION_MISREADINGS = ((lambda q: q[:, [3, 0, 1, 2]], "x, y, z, w (the last column the scalar)"),
+                          (lambda q: q * np.array([1.0, -1.0, -1.0, -1.0]), "rotating the world into S (q_SR)"))
+
+
+def _gyro_ratio(a: np.ndarray, b: np.ndarray, t: np.ndarray, q: np.ndarray, t_imu: np.ndarray, gyro: np.ndarray
+                ) -> float | None:
+    """Least-squares ratio of the gyroscope's window means to the rate the attitudes ``q`` turn at (body frame,
+    windows ``[a, b)``), or None where the attitude barely turns or too few windows hold both."""
+    w_mocap = quat.angular_velocity_body(t, quat.make_continuous(q))
     (m_mocap, m_gyro), ok = _paired_means(a, b, (t, w_mocap), (t_imu, gyro))
     m_mocap, m_gyro = m_mocap[ok], m_gyro[ok]
     if len(m_mocap) < 5 or np.sqrt(np.mean(np.sum(m_mocap**2, axis=1))) < MIN_TURN_RATE:
-        return
-    ratio = float(np.sum(m_gyro * m_mocap) / np.sum(m_mocap**2))
-    if not GYRO_SCALE_RANGE[0] <= ratio <= GYRO_SCALE_RANGE[1]:
-        degrees = 0.7 * np.degrees(1.0) <= ratio <= 1.4 * np.degrees(1.0)
-        cause = ("it must be in rad/s, not deg/s" if degrees else
-                 "quaternions must be w, x, y, z and rotate S into the world (q_RS), and the gyroscope in rad/s in S")
-        raise InputError(_where(rec, "mav0/imu0/data.csv"),
-                         f"the gyroscope reads {ratio:.3g} times the rate the motion capture's attitude turns at "
-                         f"({FORCE_WINDOW_S:g} s means in flight, body frame): {cause}")
+        return None
+    return float(np.sum(m_gyro * m_mocap) / np.sum(m_mocap**2))
 
 
 def check_imu(rec: Recording) -> None:
@@ -347,12 +371,49 @@ def check_imu(rec: Recording) -> None:
         raise InputError(where, f"the accelerometer reads {ratio:.3g} times the specific force the motion capture "
                                 "shows in flight, in the same directions: it must be in m/s^2 (not g)")
     if not in_range or miss > MAX_FORCE_DISAGREEMENT_G:
+        _name_misread_ground_truth(rec, a[ok], b[ok], t, t_imu, f_imu, miss)
         raise InputError(where, f"the accelerometer and the motion capture's specific force (R^T (dv/dt + g), "
                                 f"{FORCE_WINDOW_S:g} s means in flight, body frame) differ by {miss:.2g} g rms "
                                 f"(least-squares ratio {ratio:.2g}): quaternions must be w, x, y, z and rotate S "
                                 "into the world (q_RS), the world's z must point up, and the IMU must be stamped "
                                 "on the ground truth's clock")
     _check_accelerometer_axes(where, m_mocap, m_imu)
+
+
+#: m/s^2, gravity's direction in the world as loggers' other conventions have it: y up (OptiTrack's default), z down
+#: (NED), x up
+OTHER_UPS = (("its y axis points up (OptiTrack's default)", np.array([0.0, GRAVITY, 0.0])),
+             ("its z axis points down (NED)", np.array([0.0, 0.0, -GRAVITY])),
+             ("its x axis points up", np.array([GRAVITY, 0.0, 0.0])))
+
+
+def _name_misread_ground_truth(rec: Recording, a: np.ndarray, b: np.ndarray, t: np.ndarray, t_imu: np.ndarray,
+                               f_imu: np.ndarray, miss: float) -> None:
+    """Where the accelerometer disagrees with the motion capture (``miss`` [g] rms) but would agree with the ground
+    truth read another way (its quaternions in another order or direction, :data:`QUATERNION_MISREADINGS`; its world
+    with another axis up, :data:`OTHER_UPS`), refuse naming the ground truth's file and that cause (the IMU's had
+    been named). Only where S is B."""
+    if rec.vehicle.T_BS is not None:
+        return
+    gt = rec.ground_truth
+    dv = derivative(t, gt.v, MOCAP_DERIVATIVE_WINDOW_S)
+    up = np.array([0.0, 0.0, GRAVITY])
+    readings = [(misread(gt.q), up, f"quaternions read as {how}") for misread, how in QUATERNION_MISREADINGS]
+    readings += [(gt.q, g, f"a world whose {how[4:]}") for how, g in OTHER_UPS]
+    best: tuple[float, str] | None = None
+    for q, g, how in readings:
+        f_mocap = quat.rotate_inverse(quat.make_continuous(q), dv + g)
+        (m_mocap, m_imu), ok = _paired_means(a, b, (t, f_mocap), (t_imu, f_imu))
+        if ok.sum() < 5:
+            continue
+        again = float(np.sqrt(np.mean(np.sum((m_imu[ok] - m_mocap[ok]) ** 2, axis=1)))) / GRAVITY
+        if again <= MAX_FORCE_DISAGREEMENT_G and (best is None or again < best[0]):
+            best = (again, how)
+    if best is not None:  # the reading that agrees best (a level flight's y-up world and x, y, z, w order both may)
+        raise InputError(_where(rec, "mav0/state_groundtruth_estimate0/data.csv"),
+                         f"the accelerometer and the motion capture's specific force differ by {miss:.2g} g rms, "
+                         f"and by {best[0]:.2g} g with {best[1]}: the world's z must point up and the quaternions be "
+                         "w, x, y, z rotating S into the world (q_RS)")
 
 
 def _check_accelerometer_axes(where: str, m_mocap: np.ndarray, m_imu: np.ndarray) -> None:
