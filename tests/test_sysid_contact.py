@@ -263,6 +263,20 @@ def test_a_skid_along_the_floor_is_left_out_but_a_low_hover_of_another_recording
     assert not any(c.why.startswith("skimming the floor") for c in found2)
 
 
+def test_heights_under_the_vehicles_landed_height_are_no_skim():
+    """A recording whose heights run 5 cm under the landed height another recording gave the vehicle (its height
+    reference differs: a gear holds the rotor plane up at that height) skims nothing there, however its thrust dips:
+    a hover of the probe's at 0.059 m had been left out as "within 0.5 cm of" a landed height of 0.160 m."""
+    t, z, v, tilt, thrust, contact, _ = skid()
+    skim_top = float(np.min(z[contact])) + ContactLimits().skim_m
+    t2, z2, v2, tilt2, thrust2, _, sliding2 = skid(seed=11)
+    mask2, found2 = ground_contact(t2, z2 - 0.05, v2, tilt2, thrust2, MASS, calibrate=False, skim_top=skim_top)
+    assert sliding2.any() and not mask2[sliding2].any()
+    assert not any(c.why.startswith("skimming the floor") for c in found2)
+    mask3, _ = ground_contact(t2, z2 - 0.003, v2, tilt2, thrust2, MASS, calibrate=False, skim_top=skim_top)
+    assert mask3[sliding2].all()  # within the gear's give under it: still a skim
+
+
 def _hover_lift_cheeseman_bennett(mu=12.0, r=0.1):
     """The lift a Cheeseman-Bennett ground effect at ``mu`` gives at rotor-plane heights ``h`` [m]."""
     return lambda h: 1.0 / (1.0 - mu * (r / (4.0 * np.asarray(h))) ** 2)

@@ -421,7 +421,11 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
                           bool(np.all(idle[core]))))
     top = h0 + lim.skim_m if skim_top is None else skim_top
     seen = reading.landed if skim_top is None else skim_landed
-    skim = reading.known & np.isfinite(rec.h) & (rec.h <= top) & ~out
+    low = top - lim.skim_m
+    # a rotor plane further under the landed height than the gear's give is no skim: the gear holds it up there,
+    # so that recording's heights are measured otherwise (a second recording's motion capture 10 cm high had put
+    # the vehicle's landed height at 0.160 m and the first's hover at 0.059 m "within 0.5 cm of" it, on the floor)
+    skim = reading.known & np.isfinite(rec.h) & (rec.h <= top) & (rec.h >= low - lim.skim_m) & ~out
     rested = out.copy()
     skims = []  # (t_start, t_end, lowest height [m], lowest thrust share) of each skim
     for a, b in _runs(skim):
@@ -435,7 +439,6 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
             continue
         out |= (rec.t >= rec.t[a] - lim.skim_margin_s) & (rec.t <= rec.t[b - 1] + lim.skim_margin_s)
         skims.append((float(rec.t[a]), float(rec.t[b - 1]), float(np.min(rec.h[a:b])), float(np.min(ratio[a:b]))))
-    low = top - lim.skim_m
     landed_text = ((f"the landed height {low:.3f} m" if seen else
                     f"the lowest the recording reached, {low:.3f} m (no rest seen there; the vehicle moving)")
                    if skim_top is None else
