@@ -297,15 +297,15 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         raise InputError(where, f"only {len(data)} rotor-speed updates in flight (the stream updates at "
                                 f"{held['slowest_update_hz']:.2g} Hz or slower, and the thrust is known only at its "
                                 f"updates); too few to analyse: longer or more flights, or faster rotor telemetry")
-    frozen = [p for r, p in zip(recordings, paths)
-              if r.rotors is not None and not np.ptp(r.rotors.speeds, axis=0).any()]
-    if len(data) < MIN_ANALYSIS_ROWS and frozen:
-        raise InputError(f"{frozen[0]}/mav0/rotors0/data.csv",
-                         "holds the same rotor speeds in every row: a stream that never changes is read as one "
-                         "update its logger held (recordings.md: what a stream holds is its updates), which tells "
-                         "the thrust at no time in flight; rotor speeds as they vary (commands or telemetry) are "
-                         "needed")
     if len(data) < MIN_ANALYSIS_ROWS:
+        frozen = [p for r, p in zip(recordings, paths)
+                  if r.rotors is not None and not np.ptp(r.rotors.speeds, axis=0).any()]
+        if frozen:
+            raise InputError(f"{frozen[0]}/mav0/rotors0/data.csv",
+                             "holds the same rotor speeds in every row: a stream that never changes is read as one "
+                             "update its logger held (recordings.md: what a stream holds is its updates), which "
+                             "tells the thrust at no time in flight; rotor speeds as they vary (commands or "
+                             "telemetry) are needed")
         where = paths[0] if len(paths) == 1 else ", ".join(paths)
         raise InputError(where, f"only {len(data)} samples in flight (rotors carrying over 30 % of the weight, "
                                 f"off the ground, away from stream dropouts) in {len(paths)} recording(s); too "

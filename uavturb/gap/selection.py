@@ -499,17 +499,17 @@ def untested_on_heldout(data: GapData, final: ModelFit, fold_masks, candidates: 
     if test.all() or not test.any():  # every row held out once: the held-out test sees all the data shows
         return []
     r_b = final.residual(data)
+    rows = HeldOut(r_b, np.zeros(len(data), int), data.t, data.group)  # without the candidate: all rows, held out
+    held = HeldOut(r_b[test], rows.blocks[test], data.t[test], data.group[test])
     out = []
     for c in candidates:
         if c in decided or c in final.effects or EFFECTS[c].surface is not None:
             continue
         # the gains first, on a fit without errors (most candidates stop there: a flight-hour's errors cost a second)
         r_a = fit_model(data, final.effects | {c}, with_stderr=False).residual(data)
-        rows = HeldOut(r_b, np.zeros(len(data), int), data.t, data.group)
         z_all = improvement_z(rows, HeldOut(r_a, rows.blocks, data.t, data.group))
         if z_all < z_improve:
             continue
-        held = HeldOut(r_b[test], rows.blocks[test], data.t[test], data.group[test])
         power = improvement_z(held, HeldOut(r_a[test], held.blocks, held.t, held.group), if_right=True)
         if power >= z_improve:
             continue
