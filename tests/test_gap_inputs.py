@@ -18,7 +18,7 @@ from uavturb.cli import main
 from uavturb.commands.identify import residuals_to_file
 from uavturb.io.consistency import check_rotor_clock, stream_span_notes
 from uavturb.io.ply import read_ply, write_ply
-from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES
+from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES, analyse
 from uavturb.gap.preparation import state_thinned, stream_limits
 from uavturb.io.reader import load_recordings, read_recording, recording_labels
 from uavturb.io.stream_faults import clipped_axes
@@ -345,18 +345,30 @@ def test_a_landed_flight_with_its_cloud_passes(tmp_path, landed):
     (lambda p: p + [0.0, 0.0, 0.5] * (p[:, 2:3] < 0.05), "puts no surface under its rotor plane there"),
     (lambda p: p - [0.0, 0.0, 0.5] * (p[:, 2:3] < 0.05),
      "m over the surface below it there (a landing gear is at most 0.5 m)"),
-    (lambda p: p * 1000.0, "puts no surface under its rotor plane there"),
+    (lambda p: p * 1000.0 + [0.0, 0.0, 0.2], "puts no surface under its rotor plane there"),
 ])
 def test_a_point_cloud_whose_floor_is_not_under_the_landed_vehicle_is_refused(tmp_path, capsys, landed, move, said):
-    """The floor of the cloud 0.5 m up, 0.5 m down, or the cloud in millimetres: the contact found from the
-    cloud's heights missed the vehicle resting on its gear, whose floor reaction was analysed as flight (a 2.7 N
-    residual, nothing named, on the probe's flights; a cloud in millimetres gave no heights at all)."""
+    """The floor of the cloud 0.5 m up, 0.5 m down, or the cloud in millimetres (its floor 0.2 m up): the contact
+    found from the cloud's heights missed the vehicle resting on its gear, whose floor reaction was analysed as
+    flight (a 2.7 N residual, nothing named, on the probe's flights; a cloud in millimetres gave no heights)."""
     rec = _copy(landed, tmp_path)
     cloud = rec / "mav0" / "pointcloud0" / "data.ply"
     write_ply(cloud, move(read_ply(cloud)))
     line = _gap_fails(tmp_path, capsys, [rec], match="pointcloud0/data.ply: the vehicle rests on its landing gear (")
     assert said in line and line.endswith("the cloud's floor is not where the ground truth lands (its height, units or "
                                           "frame off)")
+
+
+def test_a_point_cloud_in_millimetres_with_its_floor_at_zero_is_read_and_said(tmp_path, landed):
+    """A scan written in millimetres whose floor lies at z = 0: the floor's heights are right in any unit (the
+    floor's plane answers where the footprint finds no point), and the report says the cloud's span."""
+    rec = _copy(landed, tmp_path)
+    cloud = rec / "mav0" / "pointcloud0" / "data.ply"
+    write_ply(cloud, read_ply(cloud) * 1000.0)
+    report, _ = analyse(load_recordings([rec]), {})
+    assert [e["name"] for e in report["effects"]] == ["ground_effect"]
+    assert any("the cloud spans 8e+03 m where the flight spans" in line and "millimetres" in line
+               for line in report["streams"]["streams"])
 
 
 def test_one_recording_given_twice_is_refused(tmp_path, capsys, good):

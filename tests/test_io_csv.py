@@ -223,6 +223,63 @@ def test_ply_million_points_round_trip(tmp_path):
     assert np.array_equal(ply.read_ply(path), pts)
 
 
+def _floor_mesh(path, fmt: str, quads: bool = False, extra: bytes = b""):
+    """A 4 x 3 m floor at z = 0.1 as a PLY mesh: 4 corners and two triangles (or one quad), plus ``extra`` vertices."""
+    corners = np.array([[0, 0, 0.1], [4, 0, 0.1], [4, 3, 0.1], [0, 3, 0.1]], float)
+    faces = [[0, 1, 2, 3]] if quads else [[0, 1, 2], [0, 2, 3]]
+    n_extra = len(extra.splitlines()) if fmt == "ascii" else len(extra) // 12
+    header = (f"ply\nformat {fmt} 1.0\nelement vertex {4 + n_extra}\nproperty float x\nproperty float y\n"
+              f"property float z\nelement face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n")
+    if fmt == "ascii":
+        body = "".join(f"{x} {y} {z}\n" for x, y, z in corners).encode() + extra
+        body += "".join(f"{len(f)} {' '.join(map(str, f))}\n" for f in faces).encode()
+    else:
+        body = corners.astype("<f4").tobytes() + extra
+        body += b"".join(np.array([len(f)], "u1").tobytes() + np.array(f, "<i4").tobytes() for f in faces)
+    path.write_bytes(header.encode() + body)
+    return path
+
+
+@pytest.mark.parametrize("fmt, quads", [("binary_little_endian", False), ("ascii", False), ("ascii", True),
+                                        ("binary_little_endian", True)])
+def test_a_mesh_ply_is_read_as_its_surfaces(tmp_path, fmt, quads):
+    path = _floor_mesh(tmp_path / "data.ply", fmt, quads)
+    assert len(ply.read_ply(path)) == 4  # the vertices alone, as the contract reads a PLY
+    np.testing.assert_array_equal(ply.read_ply_faces(path, 4), [[0, 1, 2], [0, 2, 3]])
+    notes: list[str] = []
+    pts = ply.scene_points(path, notes)
+    assert len(pts) == 4 + int(np.ceil(12.0 / ply.FACE_SPACING_M**2))  # 12 m^2 at one point per 4 cm^2
+    assert np.all(pts[:, 2] == pytest.approx(0.1)) and np.all((pts[:, 0] >= 0) & (pts[:, 0] <= 4))
+    counts, _, _ = np.histogram2d(pts[:, 0], pts[:, 1], bins=(8, 6), range=((0, 4), (0, 3)))
+    assert counts.min() > 0.8 * counts.mean()  # spread over the whole floor
+    assert notes and "a mesh of 2 triangles (12 m^2)" in notes[0]
+
+
+def test_non_finite_vertices_are_left_out_of_a_scene_and_said(tmp_path):
+    nan = np.array([[np.nan, np.nan, np.nan], [1.0, np.inf, 0.0]], "<f4").tobytes()
+    path = _floor_mesh(tmp_path / "data.ply", "binary_little_endian", extra=nan)
+    with pytest.raises(InputError, match="PLY vertex 4 has a non-finite coordinate"):
+        ply.read_ply(path)
+    notes: list[str] = []
+    pts = ply.scene_points(path, notes)
+    assert np.isfinite(pts).all() and len(pts) == 4 + int(np.ceil(12.0 / ply.FACE_SPACING_M**2))
+    assert "2 of 6 vertices have non-finite coordinates" in notes[0]
+    only_nan = tmp_path / "nan.ply"
+    only_nan.write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+        b"property float z\nend_header\n" + np.full(6, np.nan, "<f4").tobytes())
+    with pytest.raises(InputError, match="none of the PLY's 2 vertices has finite coordinates"):
+        ply.scene_points(only_nan, [])
+
+
+def test_a_face_outside_the_vertices_is_refused(tmp_path):
+    path = _floor_mesh(tmp_path / "data.ply", "ascii")
+    path.write_bytes(path.read_bytes().replace(b"3 0 2 3\n", b"3 0 2 9\n"))
+    with pytest.raises(InputError) as e:
+        ply.scene_points(path, [])
+    assert str(path) in str(e.value) and "PLY face 1 refers to vertex 9, and the file has 4 vertices" in str(e.value)
+
+
 # --- sensor.yaml ----------------------------------------------------------------------
 
 EUROC_CAM0 = """%YAML:1.0

@@ -366,6 +366,10 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     offset = _height_offset(curve, curve_fits, sel.chosen, data)
     if offset is not None:  # every stated error covers heights off by as much as the curve's shape reads
         height_uncertainty = max(height_uncertainty, abs(offset.dz_m))
+    # a lever arm read from the motion: the rotor plane is counted from the recorded origin or from the centre of
+    # mass (preparation._lever_line), which lie r_z apart
+    height_uncertainty = max([height_uncertainty] + [abs(lever["r_m"][2]) for lever in held["lever_arms"]]
+                             + held["levelled_m"])  # a tilted scan, levelled (preparation.prepared)
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty, refits), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
     named = _rate_checked(named, final, recordings, paths, held["state_too_slow"])

@@ -24,6 +24,7 @@ import numpy as np
 from scipy.ndimage import median_filter
 
 from uavturb.errors import InputError
+from uavturb.io.body_frame import moved_origin
 from uavturb.io.consistency import FLIGHT_SHARE
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.numerics.stream_updates import update_mask
@@ -34,6 +35,7 @@ from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.accelerometer import mocap_specific_force
 from uavturb.sysid.contact import ContactLimits, ground_contact, landed_height
 from uavturb.sysid.flight_data import FlightData, flight_data, held_updates
+from uavturb.sysid.lever_arm import LeverArm, lever_arm
 from uavturb.sysid.streams import estimate_lag, needed_rate_hz, slow_for, stream_updates
 
 #: s, motor time constant a motor_lag test must resolve (effects.md: 12.5-25 ms)
@@ -301,11 +303,18 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
     """The recordings with late telemetry corrected, their flight data, and what was found
     (``streams``, ``stream_limits``, ``delays``, ``dropouts``: stretches where a stream has no sample, whose rows
     every fit leaves out; ``state_too_slow``: the recordings whose ground truth updates too slowly for a surface
-    effect)."""
-    recs, fds, delays, lines, limits, gaps, slow_state = [], [], [], [], [], [], []
+    effect; ``lever_arms``: the recorded origins' heights read off the centre of mass and moved;
+    ``levelled_m``: the largest height levelled in each tilted scan)."""
+    recs, fds, delays, lines, limits, gaps, slow_state, levers = [], [], [], [], [], [], [], []
     slowest = np.inf
     for rec, path in zip(recordings, paths):
         fd = flight_data(rec)
+        lever = lever_arm(fd)
+        if lever is not None and lever.decisive:
+            levers.append({"recording": path, "applied": True} | lever.as_dict())
+            lines.append(_lever_line(rec, lever))
+            rec = moved_origin(rec, lever.move_m, keep_rotor_plane=rec.vehicle.rotor_plane_z != 0.0)
+            fd = flight_data(rec)
         gaps += [{"recording": path, "stream": stream, "t_start": a, "t_end": b} for stream, a, b in fd.gaps]
         rec2, found = delay_corrected(rec, fd)
         if found is not None:
@@ -320,8 +329,58 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
             lines.append(f"{rec.name}/pointcloud0: none (no mav0/pointcloud0/data.ply): heights over surfaces "
                          "unknown, so no surface effect can be tested, and ground contact is read from the rotors "
                          "alone (idling, or a thrust ramp on the spot)")
+        if fd.floor_filled:
+            lines.append(f"{rec.name}/pointcloud0: {100 * fd.floor_filled:.2g} % of the rows have no point of the "
+                         "cloud under their rotor plane within its footprint (a floor given as a sparse grid, or a "
+                         "scan's hole): their heights are over the plane through the cloud's floor")
+        if rec.points is not None:
+            lines += _cloud_scale_note(rec, fd)
+        if fd.floor_tilt is not None:
+            lines.append(f"{rec.name}/pointcloud0: the cloud's floor slopes by {fd.floor_tilt[0]:.2g} degrees, where "
+                         "a floor is level and the motion capture's z is gravity's: read as a scan tilted against "
+                         f"the world, its heights are levelled about the flight's centre (by up to "
+                         f"{100 * fd.floor_tilt[1]:.2g} cm), and every stated error covers heights that far off")
+        if fd.scan_noise_m:
+            lines.append(f"{rec.name}/pointcloud0: a scan with {1000 * fd.scan_noise_m:.1f} mm of noise (standard "
+                         "deviation of a flat surface's points): heights are read to each surface's median, not to "
+                         "its highest point, which lies about three standard deviations above it")
         limits += list(lim.values())
         slow_state += [path] if "surface" in lim else []
         slowest = min(slowest, rate)
     return recs, fds, {"streams": lines, "stream_limits": limits, "delays": delays, "dropouts": gaps,
-                       "slowest_update_hz": slowest, "state_too_slow": slow_state}
+                       "slowest_update_hz": slowest, "state_too_slow": slow_state, "lever_arms": levers,
+                       "levelled_m": [fd.floor_tilt[1] for fd in fds if fd.floor_tilt is not None]}
+
+
+#: a point cloud spanning more than this many times the flight's horizontal span, and over
+#: :data:`CLOUD_SPAN_FAR_M`, is said to be in other units than metres
+CLOUD_SPAN_RATIO = 100.0
+CLOUD_SPAN_FAR_M = 500.0
+
+
+def _cloud_scale_note(rec: Recording, fd: FlightData) -> list[str]:
+    """A line where the point cloud spans far more than a room around the flight (a scan in millimetres: its
+    floor at z = 0 still gives the right heights, and nothing else of it does)."""
+    cloud = float(np.max(np.ptp(rec.points[:, :2], axis=0)))
+    flight = max(float(np.max(np.ptp(fd.p[:, :2], axis=0))), 1.0)
+    if cloud <= max(CLOUD_SPAN_RATIO * flight, CLOUD_SPAN_FAR_M):
+        return []
+    return [f"{rec.name}/pointcloud0: the cloud spans {cloud:.3g} m where the flight spans {flight:.2g} m: it may be "
+            "in millimetres (recordings.md: metres); heights are read from it as given (a floor at z = 0 reads "
+            "right in any unit, walls, ceilings and furniture do not)"]
+
+
+def _lever_line(rec: Recording, lever: LeverArm) -> str:
+    """What a lever arm read from the motion does to the recording, in one sentence."""
+    t = rec.vehicle.T_BS_matrix[:3, 3]
+    given = "puts the ground truth and IMU at the centre of mass" if not np.any(t) else \
+        f"puts the ground truth at ({', '.join(f'{100 * x:.3g}' for x in t)}) cm from the centre of mass"
+    rpz, dz = rec.vehicle.rotor_plane_z, float(lever.r_m[2])
+    plane = (f"rotor_plane_z is read as counted from the recorded origin ({rpz:.3g} m above it: "
+             f"{rpz + dz:.3g} m above the centre of mass)") if rpz != 0.0 else \
+        "the rotor plane, which vehicle.yaml does not place, is taken at the centre of mass"
+    return (f"{rec.name}: vehicle.yaml's T_BS {given}, but the rotation's accelerations (roll and pitch "
+            f"accelerations, {lever.accel_rms:.2g} m/s^2 rms over {lever.rows} rows in flight) read them "
+            f"{lever.text()}: the streams were moved {100 * abs(dz):.2g} cm {'down' if dz > 0 else 'up'} to the "
+            f"centre of mass, {plane}, and every stated error covers heights {100 * abs(dz):.2g} cm apart; set "
+            "T_BS's translation (and rotor_plane_z from the centre of mass) to say where they are")

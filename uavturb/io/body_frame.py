@@ -118,3 +118,18 @@ def to_sensor(rec: Recording) -> Recording:
     imu = None if rec.imu is None else imu_to_sensor(rec.imu, imu_pose_in_body(rec))
     return replace(rec, ground_truth=groundtruth_to_sensor(rec.ground_truth, rec.vehicle.T_BS_matrix), imu=imu,
                    frame="S")
+
+
+def moved_origin(rec: Recording, r: np.ndarray, keep_rotor_plane: bool) -> Recording:
+    """``rec`` (frame B) with its origin moved to the point its streams were measured ``r`` [m] (3,) from (in B):
+    the ground truth and IMU moved there (the rotation's accelerations at ``r`` taken out) and the vehicle's
+    ``T_BS`` composed with the move (:mod:`uavturb.sysid.lever_arm`). ``keep_rotor_plane``: ``rotor_plane_z`` is
+    raised by ``r_z``, so that the rotor plane stays where it was; otherwise it stays the same number, now
+    counted from the new origin."""
+    T = np.eye(4)
+    T[:3, 3] = np.asarray(r, float)
+    rotor_plane_z = rec.vehicle.rotor_plane_z + (float(r[2]) if keep_rotor_plane else 0.0)
+    vehicle = replace(rec.vehicle, T_BS=tuple(tuple(float(x) for x in row) for row in T @ rec.vehicle.T_BS_matrix),
+                      rotor_plane_z=float(rotor_plane_z))
+    imu = None if rec.imu is None else imu_to_body(rec.imu, T)
+    return replace(rec, vehicle=vehicle, ground_truth=groundtruth_to_body(rec.ground_truth, T), imu=imu)

@@ -4,6 +4,13 @@
 returns the ``x y z`` vertex properties as an ``(N, 3)`` float64 array; other vertex
 properties (colours, normals, ...) and other elements (faces, ...) are skipped, whatever
 their order. :func:`write_ply` writes vertices only, atomically.
+
+A room is often exported as a *mesh*: a floor of two triangles has four vertices, at its corners,
+and read as points it holds no floor under the vehicle. :func:`read_ply_faces` reads a mesh's
+``face`` element (triangles, and polygons as fans of triangles) and :func:`surface_points`
+samples its surfaces as a scan would (:data:`FACE_SPACING_M` apart), which is how recordings
+read a mesh (:func:`scene_points`). Non-finite vertices (a scanner's no-return, written as NaN)
+are left out there, and said.
 """
 
 from __future__ import annotations
@@ -206,12 +213,14 @@ def _read_ascii(path: Path, data: bytes, offset: int, elements: list[_Element], 
 MAX_COORDINATE_M = 1e6
 
 
-def read_ply(path: str | Path) -> np.ndarray:
+def read_ply(path: str | Path, allow_non_finite: bool = False) -> np.ndarray:
     """Read the vertex positions of a PLY file.
 
     Parameters
     ----------
     path : ``.ply`` file (ascii, binary_little_endian or binary_big_endian)
+    allow_non_finite : non-finite coordinates are refused unless this is set (then they are returned as they are,
+        for the caller to leave out: :func:`scene_points`)
 
     Returns
     -------
@@ -234,15 +243,210 @@ def read_ply(path: str | Path) -> np.ndarray:
         points = _read_ascii(path, data, offset, elements, k, xyz)
     else:
         points = _read_binary(path, data, offset, elements, k, xyz, endian)
-    if not np.isfinite(points).all():
+    if not allow_non_finite and not np.isfinite(points).all():
         r = int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
         raise InputError(path, f"PLY vertex {r} has a non-finite coordinate")
-    far = np.abs(points) > MAX_COORDINATE_M
+    far = np.isfinite(points) & (np.abs(points) > MAX_COORDINATE_M)
     if far.any():
         r = int(np.flatnonzero(far.any(axis=1))[0])
         raise InputError(path, f"PLY vertex {r} lies {np.abs(points[r]).max():.3g} m from the origin, beyond the "
                                f"{MAX_COORDINATE_M:.0e} m of any scene a multirotor flies in (the scan's units?)")
     return points
+
+
+def _face_element(elements: list[_Element]) -> tuple[int, int] | None:
+    """Index of the ``face`` element and of its vertex-index list property (None: no such element)."""
+    for k, e in enumerate(elements):
+        if e.name != "face":
+            continue
+        for j, prop in enumerate(e.properties):
+            if prop.count_type is not None and prop.name in ("vertex_indices", "vertex_index"):
+                return k, j
+    return None
+
+
+def _fan(lists: list[np.ndarray]) -> np.ndarray:
+    """(F, 3) int64 triangles of polygons given as index lists (fans from each polygon's first vertex)."""
+    tri = [np.stack([poly[0].repeat(len(poly) - 2), poly[1:-1], poly[2:]], axis=1) for poly in lists if len(poly) >= 3]
+    return np.concatenate(tri).astype(np.int64) if tri else np.empty((0, 3), np.int64)
+
+
+def _binary_faces(path: Path, data: bytes, offset: int, elements: list[_Element], k: int, j: int,
+                  endian: str) -> np.ndarray:
+    for element in elements[:k]:
+        offset = _skip_binary(path, data, offset, element, endian)
+    face = elements[k]
+    prop = face.properties[j]
+    if len(face.properties) == 1:  # the common case, every face a triangle: one structured read
+        dtype = np.dtype([("n", endian + prop.count_type), ("i", endian + prop.type, 3)])
+        if offset + face.count * dtype.itemsize <= len(data):
+            arr = np.frombuffer(data, dtype, face.count, offset)
+            if np.all(arr["n"] == 3):
+                return arr["i"].astype(np.int64)
+    lists = []
+    for item in range(face.count):  # any polygons and properties: item by item, every step forward
+        for q in face.properties:
+            if q.count_type is None:
+                offset += np.dtype(q.type).itemsize
+                continue
+            ct, it = np.dtype(endian + q.count_type), np.dtype(endian + q.type)
+            if offset + ct.itemsize > len(data):
+                raise InputError(path, "PLY data is truncated (in element 'face')")
+            n = int(np.frombuffer(data, ct, 1, offset)[0])
+            if n < 0 or offset + ct.itemsize + n * it.itemsize > len(data):
+                raise InputError(path, f"PLY face {item}: list '{q.name}' has a bad length ({n})")
+            if q is prop:
+                lists.append(np.frombuffer(data, it, n, offset + ct.itemsize).astype(np.int64))
+            offset += ct.itemsize + n * it.itemsize
+    return _fan(lists)
+
+
+def _ascii_faces(path: Path, data: bytes, offset: int, elements: list[_Element], k: int, j: int) -> np.ndarray:
+    lines = [s for s in data[offset:].decode("ascii", errors="replace").splitlines() if s.strip()]
+    start = sum(e.count for e in elements[:k])
+    face = elements[k]
+    block = lines[start:start + face.count]
+    if len(block) < face.count:
+        raise InputError(path, f"PLY data is truncated: expected {face.count} face lines, found {len(block)}")
+    lists = []
+    for item, line in enumerate(block):
+        words, i = line.split(), 0
+        try:
+            for q in face.properties:
+                if q.count_type is None:
+                    i += 1
+                    continue
+                n = int(words[i])
+                if n < 0 or i + 1 + n > len(words):
+                    raise ValueError(n)
+                if q is face.properties[j]:
+                    lists.append(np.array([int(w) for w in words[i + 1:i + 1 + n]], np.int64))
+                i += 1 + n
+        except (ValueError, IndexError):
+            raise InputError(path, f"PLY face {item}: cannot parse '{line.strip()}'") from None
+    return _fan(lists)
+
+
+def read_ply_faces(path: str | Path, n_vertices: int) -> np.ndarray | None:
+    """The triangles of a PLY mesh's ``face`` element.
+
+    Parameters
+    ----------
+    path : ``.ply`` file, as :func:`read_ply` reads
+    n_vertices : the file's vertex count (every index must be under it)
+
+    Returns
+    -------
+    (F, 3) int64 array of vertex indices (polygons split into fans of triangles), or None where the file has
+    no ``face`` element with a ``vertex_indices`` list
+
+    Raises
+    ------
+    InputError
+        Naming ``path``: a face list truncated or unparsable, or an index outside the vertices.
+    """
+    path = Path(path)
+    data = path.read_bytes()
+    fmt, elements, offset = _parse_header(path, data)
+    found = _face_element(elements)
+    if found is None:
+        return None
+    k, j = found
+    endian = FORMATS[fmt]
+    faces = _ascii_faces(path, data, offset, elements, k, j) if endian is None \
+        else _binary_faces(path, data, offset, elements, k, j, endian)
+    bad = (faces < 0) | (faces >= n_vertices)
+    if bad.any():
+        f = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise InputError(path, f"PLY face {f} refers to vertex {int(faces[f][bad[f]][0])}, and the file has "
+                               f"{n_vertices} vertices")
+    return faces
+
+
+#: m, the spacing a mesh's surfaces are sampled at (a scan's: several points in every 5 cm column of
+#: :class:`uavturb.scene.heights.SurfaceIndex`)
+FACE_SPACING_M = 0.02
+#: the most points a mesh's surfaces are sampled into (160 MB); a larger area is sampled more coarsely, and said
+MAX_FACE_POINTS = 20_000_000
+
+
+def surface_points(triangles: np.ndarray, spacing: float, seed: int | None = 0) -> np.ndarray:
+    """Points uniformly distributed over triangles' area, as a scan would hold them.
+
+    Parameters
+    ----------
+    triangles : (F, 3, 3) float, the corners [m]
+    spacing : float, mean point spacing [m]: ``ceil(area / spacing**2)`` points are drawn
+    seed : int or None, the random generator's seed (deterministic for an int)
+
+    Returns
+    -------
+    (P, 3) float array [m]. Random (Poisson-like), so, like a real scan, the cloud has small gaps.
+
+    Raises
+    ------
+    InputError
+        ``"mesh"`` when it has no area; ``"spacing"`` when not positive.
+    """
+    if not (np.isfinite(spacing) and spacing > 0):
+        raise InputError("spacing", f"must be positive, got {spacing}")
+    tri = np.asarray(triangles, dtype=float)
+    if tri.ndim != 3 or len(tri) == 0:
+        raise InputError("mesh", "no triangles")
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    total = float(area.sum())
+    if not (np.isfinite(total) and total > 0):
+        raise InputError("mesh", "zero or undefined surface area")
+    n = int(np.ceil(total / spacing**2))
+    rng = np.random.default_rng(seed)
+    cum = np.cumsum(area)
+    face = np.minimum(np.searchsorted(cum, rng.random(n) * cum[-1], side="right"), len(tri) - 1)
+    r = rng.random((n, 2))
+    flip = r.sum(axis=1) > 1.0
+    r[flip] = 1.0 - r[flip]
+    return tri[face, 0] + r[:, :1] * e1[face] + r[:, 1:] * e2[face]
+
+
+def scene_points(path: str | Path, notes: list[str]) -> np.ndarray:
+    """A recording's scene points: the PLY's finite vertices and, for a mesh, its surfaces sampled.
+
+    Parameters
+    ----------
+    path : ``mav0/pointcloud0/data.ply``
+    notes : what was done to the file (non-finite vertices left out, a mesh's faces sampled) is appended here
+
+    Returns
+    -------
+    (P, 3) float64 array [m] in W
+
+    Raises
+    ------
+    InputError
+        As :func:`read_ply` and :func:`read_ply_faces`, and where no vertex is finite.
+    """
+    path = Path(path)
+    vertices = read_ply(path, allow_non_finite=True)
+    finite = np.isfinite(vertices).all(axis=1)
+    if not finite.any():
+        raise InputError(path, f"none of the PLY's {len(vertices)} vertices has finite coordinates")
+    where = f"{path.parent.parent.parent.name}/pointcloud0"
+    if not finite.all():
+        notes.append(f"{where}: {int((~finite).sum())} of {len(vertices)} vertices have non-finite coordinates (a "
+                     "scanner's no-returns) and are left out")
+    faces = read_ply_faces(path, len(vertices))
+    if faces is None or len(faces) == 0:
+        return vertices[finite]
+    faces = faces[finite[faces].all(axis=1)]
+    tri = vertices[faces]
+    area = float(0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum())
+    if not area > 0:
+        return vertices[finite]
+    spacing = max(FACE_SPACING_M, float(np.sqrt(area / MAX_FACE_POINTS)))
+    samples = surface_points(tri, spacing, seed=0)
+    notes.append(f"{where}: a mesh of {len(faces)} triangles ({area:.3g} m^2): its surfaces are sampled every "
+                 f"{100 * spacing:.2g} cm ({len(samples)} points) beside its {int(finite.sum())} vertices")
+    return np.concatenate([vertices[finite], samples])
 
 
 def write_ply(path: str | Path, points: np.ndarray, binary: bool = True) -> None:

@@ -239,7 +239,7 @@ def read_recording(path: str | Path, *, vehicle: Vehicle | None = None, require_
     gt = _read_ground_truth(root, notes)
     imu = _read_imu(root, gt.t_ns, notes, required=require_imu)
     rotors = _read_rotors(root, gt.t_ns, vehicle, notes, required=require_rotors)
-    points = ply.read_ply(root / POINTS_PLY) if load_points and (root / POINTS_PLY).is_file() else None
+    points = ply.scene_points(root / POINTS_PLY, notes) if load_points and (root / POINTS_PLY).is_file() else None
     rec = Recording(vehicle=vehicle, ground_truth=gt, imu=imu, rotors=rotors, points=points, cam0=_read_camera(root),
                     vicon=_read_vicon(root, notes), battery=_read_battery(root, notes), path=root, frame="S",
                     read_notes=tuple(notes))

@@ -63,6 +63,12 @@ class FlightData:
     gaps : the dropouts, ``(stream file, t_start, t_end)`` [s since the first ground-truth row]
     voltage : (K,) V or None, the battery's voltage (``battery0``, interpolated between its updates; nan outside
         its span); None where the recording has no battery stream
+    scan_noise_m : m or None, the point cloud's noise that the heights were read through
+        (:attr:`uavturb.scene.heights.SurfaceIndex.scan_noise_m`; 0: answered point by point); None without heights
+    floor_filled : share of the rows whose ``d_down`` is over the cloud's floor plane, no point of the cloud lying
+        under their rotor plane (:meth:`uavturb.scene.heights.SurfaceIndex.d_down_filled`); None without heights
+    floor_tilt : where the cloud's floor slopes (a scan tilted against the world), its slope [degrees] and the
+        largest height levelled [m] (:meth:`uavturb.scene.heights.SurfaceIndex.tilt`); None where it is level
     """
 
     name: str
@@ -83,6 +89,9 @@ class FlightData:
     covered: np.ndarray | None = None
     gaps: list[tuple[str, float, float]] = field(default_factory=list)
     voltage: np.ndarray | None = None
+    scan_noise_m: float | None = None
+    floor_filled: float | None = None
+    floor_tilt: tuple[float, float] | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -103,7 +112,8 @@ class FlightData:
         return FlightData(self.name, self.t_ns[mask], self.t[mask], self.p[mask], self.q[mask], self.v[mask],
                           self.w[mask], pick(self.acc), self.rotor_speeds[mask], self.dv[mask], self.dw[mask],
                           pick(self.d_down), pick(self.d_up), self.window, pick(self.rotor_fresh),
-                          pick(self.covered), list(self.gaps), pick(self.voltage))
+                          pick(self.covered), list(self.gaps), pick(self.voltage), self.scan_noise_m, self.floor_filled,
+                          self.floor_tilt)
 
 
 #: share of repeated rows above which a stream may be held (read on its updates only: sample-and-hold loggers)
@@ -251,13 +261,22 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     dv = local_quadratic(t_rel, v, window, deriv=1)  # m/s^2, at the samples' true times
     dw = local_quadratic(t_rel, w, window, deriv=1)  # rad/s^2
 
-    d_down = d_up = None
+    d_down = d_up = scan_noise = floor_filled = floor_tilt = None
     if heights and rec.points is not None:
         index = SurfaceIndex(rec.points)
+        scan_noise = index.scan_noise_m
         # surface effects depend on the rotor plane's height, not the body origin's (recordings.md)
         rotor_plane = rec.vehicle.rotor_plane_positions(p, quat.to_rotation_matrix(q))
-        d_down, d_up = index.d_down(rotor_plane), index.d_up(rotor_plane)
-        _check_rotor_plane_above_surfaces(rec, index, p, t, d_up, np.any(rotor > 0.0, axis=1))
+        tilt = index.tilt(rotor_plane)
+        body = p
+        if tilt is not None:  # a scan tilted against the world, levelled about the flight's centre: the levelled
+            # cloud's heights at a position are the tilted one's where its floor lies that much higher
+            up = np.c_[np.zeros((len(tilt[0]), 2)), tilt[0]]
+            rotor_plane, body = rotor_plane + up, p + up
+            floor_tilt = (tilt[1], float(np.max(np.abs(tilt[0]))))
+        (d_down, filled), d_up = index.d_down_filled(rotor_plane), index.d_up(rotor_plane)
+        floor_filled = float(np.mean(filled)) if len(filled) else 0.0
+        _check_rotor_plane_above_surfaces(rec, index, body, t, d_up, np.any(rotor > 0.0, axis=1))
     fresh = _nearest_rows(t_ns, rotors.t_ns) if rotors_held else None
     # a dropout is a stretch with no row: a held stream's rows go on while its value holds, and a quantised
     # one's updates can be seconds apart in a steady hover
@@ -265,7 +284,7 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
                                                                                  rec.rotors.t_ns)]
     covered, gaps = _covered(t_ns, rec.t0_ns, window, rows + streams[2:])
     return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh, covered, gaps,
-                      battery_voltage(rec, t_ns))
+                      battery_voltage(rec, t_ns), scan_noise, floor_filled, floor_tilt)
 
 
 def battery_voltage(rec: Recording, t_ns: np.ndarray) -> np.ndarray | None:
