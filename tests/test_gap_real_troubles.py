@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import re
+import shutil
 
 import numpy as np
 
@@ -27,6 +28,17 @@ from uavturb.sim.flights.conditions import generate_conditioned_flight, read_tru
 from other_vehicles import HEAVY_HEX, HEAVY_QUAD
 
 GROUND = {"ground_effect": {"mu": 2.0}}
+
+
+@pytest.fixture(scope="module")
+def hex_flight(tmp_path_factory):
+    """A minute of a 2.5 kg hexarotor's brisk flight under a ground effect (mu = 2) and rotor drag (copy it)."""
+    root = tmp_path_factory.mktemp("hex")
+    vehicle = root / "hex25.yaml"
+    vehicle.write_text(HEAVY_HEX)
+    generate_conditioned_flight(str(vehicle), "ground_effect:mu=2,rotor_drag", duration=60, kind="mixed", seed=201,
+                                out=root / "flight")
+    return root / "flight"
 
 
 def _flights(root, name, conditions, seeds=(11, 12), duration=40.0):
@@ -328,16 +340,12 @@ def test_a_drag_the_held_out_part_cannot_show_is_said_untested(tmp_path):
     assert "wind" not in untested and "battery_sag" not in untested  # their corrections reach the held-out rows
 
 
-def test_without_a_point_cloud_a_low_hover_is_not_read_as_a_rest(tmp_path):
+def test_without_a_point_cloud_a_low_hover_is_not_read_as_a_rest(tmp_path, hex_flight):
     """A 2.5 kg hexarotor's flight holding a still hover at 6.7 cm under a ground effect (mu = 2), on 58 % of its
     weight, with its point cloud left out: where the floor lies is unknown, so that hover is not taken for the
     vehicle on its gear (it had been, 1.4 s, "the floor carries the rest"), and the report says the cloud is
     missing and what that costs."""
-    vehicle = tmp_path / "hex25.yaml"
-    vehicle.write_text(HEAVY_HEX)
-    path = tmp_path / "nocloud"
-    generate_conditioned_flight(str(vehicle), "ground_effect:mu=2,rotor_drag", duration=60, kind="mixed", seed=201,
-                                out=path)
+    path = shutil.copytree(hex_flight, tmp_path / "nocloud")
     (path / "mav0" / "pointcloud0" / "data.ply").unlink()
     report, _ = analyse(load_recordings([path]), {})
     assert report["ground_contact"] == []
@@ -374,16 +382,12 @@ def test_a_floor_scanned_off_the_motion_capture_is_read_from_the_curve_and_cover
     assert clean["height_reference"]["offset_read_from_curve"] is None
 
 
-def test_a_noisy_floor_scan_is_read_to_its_surfaces_not_its_highest_points(tmp_path):
+def test_a_noisy_floor_scan_is_read_to_its_surfaces_not_its_highest_points(tmp_path, hex_flight):
     """A 2.5 kg hexarotor's flight under a ground effect (mu = 2) whose point cloud is a scanner's: ten readings of
     each point, heights off by 5 mm of noise (1.9 M points). Read point by point the floor sat about 1.5 cm high in
     every column: mu read 1.33 +- 0.65 (the curve read the heights 1.5 cm off); read to each surface's median it
     reads as the clean flight does, and the report says what the scan's noise is."""
-    vehicle = tmp_path / "hex25.yaml"
-    vehicle.write_text(HEAVY_HEX)
-    path = tmp_path / "scanned"
-    generate_conditioned_flight(str(vehicle), "ground_effect:mu=2,rotor_drag", duration=60, kind="mixed", seed=201,
-                                out=path)
+    path = shutil.copytree(hex_flight, tmp_path / "scanned")
     cloud = path / "mav0" / "pointcloud0" / "data.ply"
     points = np.repeat(read_ply(cloud), 10, axis=0)
     points[:, 2] += np.random.default_rng(3).normal(0.0, 0.005, len(points))
@@ -396,17 +400,13 @@ def test_a_noisy_floor_scan_is_read_to_its_surfaces_not_its_highest_points(tmp_p
     assert report["height_reference"]["offset_read_from_curve"] is None
 
 
-def test_a_floor_given_as_a_sparse_grid_gives_every_row_its_height(tmp_path):
+def test_a_floor_given_as_a_sparse_grid_gives_every_row_its_height(tmp_path, hex_flight):
     """The same flight with its point cloud written as a flight engineer writes a floor: a grid of points 30 cm
     apart at the floor's height, nothing else. Many rows' footprints (15 cm) hold no point; they had no height,
     and the flight was refused ("the cloud's floor is not where the ground truth lands": its rest found no floor;
     on real Crazyflie walks with a 20 cm grid, 48 % of the rows were read as far from every surface, the thrust
     coefficient moved 0.3 % and another law was named). Over the floor's plane they read as the full cloud does."""
-    vehicle = tmp_path / "hex25.yaml"
-    vehicle.write_text(HEAVY_HEX)
-    path = tmp_path / "grid"
-    generate_conditioned_flight(str(vehicle), "ground_effect:mu=2,rotor_drag", duration=60, kind="mixed", seed=201,
-                                out=path)
+    path = shutil.copytree(hex_flight, tmp_path / "grid")
     cloud = path / "mav0" / "pointcloud0" / "data.ply"
     points = read_ply(cloud)
     floor_z = np.median(points[np.abs(points[:, 2] - points[:, 2].min()) < 0.05, 2])
@@ -420,16 +420,12 @@ def test_a_floor_given_as_a_sparse_grid_gives_every_row_its_height(tmp_path):
     assert float(re.search(r": ([0-9.]+) % of the rows have no point", note).group(1)) > 30
 
 
-def test_a_scan_tilted_by_a_degree_is_levelled_and_its_heights_covered(tmp_path):
+def test_a_scan_tilted_by_a_degree_is_levelled_and_its_heights_covered(tmp_path, hex_flight):
     """The same flight with its point cloud tilted by 1 degree about the room's centre (a scan registered to the
     motion capture by hand): its floor lies up to 5 cm off where the vehicle flies, and the ground effect had been
     lost (held-out error 3.45 N as without any law). The scan is levelled about the flight's centre and said, the
     constant offset left is read from the curve, and every stated error covers the heights levelled."""
-    vehicle = tmp_path / "hex25.yaml"
-    vehicle.write_text(HEAVY_HEX)
-    path = tmp_path / "tilted"
-    generate_conditioned_flight(str(vehicle), "ground_effect:mu=2,rotor_drag", duration=60, kind="mixed", seed=201,
-                                out=path)
+    path = shutil.copytree(hex_flight, tmp_path / "tilted")
     cloud = path / "mav0" / "pointcloud0" / "data.ply"
     points = read_ply(cloud)
     centre = points.mean(axis=0)
