@@ -231,3 +231,31 @@ def test_a_thrust_coefficient_left_undecided_beside_a_surface_law_says_what_limi
     report["nominal"]["thrust_coefficient_stderr"] = 4.6e-07
     write_markdown(tmp_path, report, [])
     assert "limited by the spread between recordings" in (tmp_path / "report.md").read_text()
+
+
+def test_every_candidate_tried_and_not_named_is_said_with_its_gain(tmp_path):
+    """A candidate the data did not support is listed with its held-out gain at the last step it was tried at; one
+    chosen and dropped by the backward check says so (a 5 s and a 120 s recording had dropped a rotor drag chosen at
+    32 errors without a word), one the named effects' errors carry says so; surface laws beside a named one of their
+    surface are the measured curve's to compare, and what is named, undecided or untestable is said elsewhere."""
+    tried = {"ground_effect": {"step1_z": 300.0}, "ground_effect_exponential": {"step1_z": 8.0},
+             "rotor_drag": {"step1_z": 32.0, "dropped_z": 0.86, "step2_curve_lift_z": 5.0},
+             "body_drag": {"step1_z": 0.5, "step2_z": 1.9}, "wind": {"step1_z": -0.5}, "motor_lag": {"step1_z": 0.1}}
+    report = {"recordings": ["a/x"], "sim_effects": [], "protocol": "leave-one-recording-out",
+              "residual_source": "imu", "baseline": {"heldout_rmse_N": 0.27, "rmse_N": 0.26},
+              "final": {"heldout_rmse_N": 0.2}, "noise": {"rms_N": 0.075}, "mismatch": {"segments": [], "drivers": []},
+              "unexplained": {"rms_N": 0.01, "drivers": []}, "sim_effect_params": {},
+              "effects": [{"name": "ground_effect", "params": {"mu": 2.0}, "stderr": {"mu": 0.5},
+                           "heldout_rmse_before_N": 0.27, "heldout_rmse_after_N": 0.2, "z_heldout": 300.0,
+                           "explanation": "lift", "untaken_candidates": {"body_drag": 1.9}}],
+              "not_testable": [{"name": "motor_lag", "why": "no steps", "to_separate": "steps"}],
+              "candidates_tried": tried}
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    section = text.split("## Tried, not named")[1].split("\n## ")[0]
+    lines = [line for line in section.splitlines() if line.startswith("- ")]
+    assert [line.split("`")[1] for line in lines] == ["rotor_drag", "body_drag", "wind"]
+    assert ("held-out gain 32 errors at step 1 (4 needed); chosen, then dropped: without it the held-out fit was "
+            "worse by only 0.86 errors") in lines[0]
+    assert "held-out gain 1.9 errors at step 2" in lines[1] and "it is in their errors (untaken candidate)" in lines[1]
+    assert lines[2].endswith("To show it: fly the same pattern at two or more headings and speeds.")

@@ -44,6 +44,7 @@ from uavturb.gap.selection import (
     heldout,
     improvement_z,
     lift_not_named,
+    last_step,
     look_alike_entry,
     near_misses,
     select,
@@ -60,15 +61,18 @@ from uavturb.gap.surface_laws import (
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     HONEST_Z,
+    UNTAKEN_Z,
     Refits,
     command_sampling_term,
     error_budget,
     honest_stderr,
+    mass_term,
     presence_z,
     statistical_errors,
     stream_rate_term,
     thrust_map_term,
     timing_term,
+    untaken_term,
     with_curve_check,
     with_systematic,
 )
@@ -380,6 +384,9 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     named, curve_report = law_named_from_curve(named, curve_report, curve, curve_fits, data, facts,
                                                height_uncertainty)
     named = curve_named_thrust_map(named, data, final, speed_map)
+    named = [_mass_checked(e, final.coef["k_T"], vehicle.thrust_coefficient) for e in named]
+    named = _untaken_checked(named, data, final, sel.tried, {e["name"] for e in rejected + not_testable}
+                             | {c for a in ambiguous for c in a["candidates"]})
     if curve_report is not None:
         decided = ({e["name"] for e in named + rejected + not_testable}
                    | {c for a in ambiguous for c in a["candidates"]})
@@ -581,6 +588,37 @@ def _rate_checked(effects: list[dict[str, Any]], final: ModelFit, recordings: Se
         e.update(_with_term(e, "stream_rate", stream_rate_term(
             e["params"], None if thinned is None else thinned.effect_params(e["name"])[0])))
     return effects
+
+
+def _untaken_checked(named: list[dict[str, Any]], data: GapData, final: ModelFit, tried: dict[str, dict[str, float]],
+                     decided: set[str]) -> list[dict[str, Any]]:
+    """``named`` with the **untaken candidate** term of :mod:`uavturb.gap.uncertainty` in each budget: the
+    candidates not taken (nor ``decided`` otherwise) whose last held-out gain reached ``UNTAKEN_Z`` errors,
+    each fitted beside ``final``'s effects, within its physical range. A surface law where one of its surface
+    is named is an alternative to it, not a candidate beside it."""
+    surfaces = {EFFECTS[n].surface for n in final.effects if EFFECTS[n].surface}
+    beside, names = [], {}
+    for name, entry in tried.items():
+        last = last_step(entry)
+        if (name in final.effects or name in decided or EFFECTS[name].surface in surfaces or last is None
+                or not last[1] >= UNTAKEN_Z):
+            continue
+        fit = fit_model(data, set(final.effects) | {name}, with_stderr=False)
+        if outside_range(data, fit, name) is None:
+            beside.append(fit)
+            names[name] = round(last[1], 2)
+    if not beside:
+        return named
+    return [e | _with_term(e, "untaken_candidate", untaken_term(final, beside, e["name"]))
+            | {"untaken_candidates": names} if e["name"] in final.effects else e for e in named]
+
+
+def _mass_checked(effect: dict[str, Any], k_T: float, k_T_yaml: float | None) -> dict[str, Any]:
+    """A named ``effect`` entry with the **mass** term of :mod:`uavturb.gap.uncertainty` where it has one (force-unit
+    parameters, ``vehicle.yaml`` stating a thrust coefficient ``k_T_yaml`` near the flights' ``k_T``)."""
+    spec = EFFECTS[effect["name"]]
+    terms = mass_term(effect["params"], dict(zip(spec.params, spec.units)), k_T, k_T_yaml)
+    return effect | _with_term(effect, "mass", terms) if terms else effect
 
 
 def _with_term(effect: dict[str, Any], term: str, values: dict[str, float]) -> dict[str, Any]:

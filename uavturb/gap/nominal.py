@@ -275,6 +275,11 @@ OFFSET_DECISIVE_Z = 10.0
 #: squared fall as thrust rises, as an idle speed does, and read alone the offset took it (a 32 g vehicle's idle
 #: speed read three times the truth, 6 errors off)
 OFFSET_VOLTAGE_GRID = tuple(float(x) for x in np.linspace(0.0, 3.0, 31))
+#: where ``battery_sag`` is named (commanded speeds, no voltage): the shares of the thrust lost over the longest
+#: recording at which the offset is read jointly with the sag (0-30 %): a sag in time makes thrust per command
+#: squared fall as the commands rise to hold the vehicle up, as an idle speed does (a hexarotor's idle of 32 % of
+#: its hover speed read 12 +- 2 %, and the sag s = 1.29e-3 +- 0.07e-3 /s for 1e-3)
+OFFSET_SAG_GRID = tuple(float(x) for x in np.linspace(0.0, 0.3, 31))
 
 
 @dataclass(frozen=True)
@@ -399,7 +404,7 @@ def _best_offset(sums: dict[str, np.ndarray], n: int) -> float:
 
 def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarray, t: np.ndarray,
                  S: np.ndarray | None = None, voltage_dev: np.ndarray | None = None,
-                 voltage_mean: float = float("nan")) -> SpeedOffset | None:
+                 voltage_mean: float = float("nan"), sag_time: np.ndarray | None = None) -> SpeedOffset | None:
     """The offset ``delta`` [rad/s] that makes thrust per ``sum((w + delta)^2)`` constant within each cell
     (module docstring, **Thrust map**); None with fewer than :data:`OFFSET_MIN_ROWS` rows in cells.
 
@@ -415,6 +420,9 @@ def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarra
     voltage_mean : V, its mean: the offset is read jointly with the voltage's slope ``k_V``, the thrust divided by
         ``1 + k_V voltage_dev`` at each ``k_V V`` of :data:`OFFSET_VOLTAGE_GRID`, the least residual refined by a
         parabola through its neighbours (in the jackknife too)
+    sag_time : (K,) s, each row's time less its recording's middle, where ``battery_sag`` stands in for a voltage
+        (and none is known): the offset is read jointly with the sag ``s`` (``k_V`` then holds it, 1/s), the thrust
+        divided by ``1 - s sag_time`` at each share of :data:`OFFSET_SAG_GRID` lost over the longest recording
     """
     m = (np.asarray(cell) >= 0) & np.isfinite(y_thrust)
     if m.sum() < OFFSET_MIN_ROWS:
@@ -428,9 +436,12 @@ def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarra
     chunk = np.empty(len(y), np.int64)
     for k, rows in enumerate(np.array_split(order, OFFSET_CHUNKS)):
         chunk[rows] = k
-    known = voltage_dev is not None and np.isfinite(voltage_mean) and voltage_mean > 0
-    slopes = [x / voltage_mean for x in OFFSET_VOLTAGE_GRID] if known else [0.0]
-    dv = np.zeros(len(y)) if voltage_dev is None else np.asarray(voltage_dev, float)[m]
+    slopes, dv = [0.0], np.zeros(len(y))
+    if voltage_dev is not None and np.isfinite(voltage_mean) and voltage_mean > 0:
+        slopes, dv = [x / voltage_mean for x in OFFSET_VOLTAGE_GRID], np.asarray(voltage_dev, float)[m]
+    elif sag_time is not None:
+        span = 2.0 * float(np.max(np.abs(sag_time)))
+        slopes, dv = [x / span for x in OFFSET_SAG_GRID] if span > 0 else [0.0], -np.asarray(sag_time, float)[m]
     cached: dict[float, _OffsetSums] = {}
 
     def sums_at(k: float) -> _OffsetSums:  # the cells' sums with the thrust divided by the voltage's factor

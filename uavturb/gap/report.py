@@ -9,6 +9,7 @@ import numpy as np
 
 from uavturb.gap.decide import PRACTICAL_SHARE
 from uavturb.gap.locate import AXES, features
+from uavturb.gap.selection import Z_IMPROVE, last_step
 from uavturb.gap.plotting import (
     COLUMNS_PER_PIXEL,
     column_envelope,
@@ -19,7 +20,7 @@ from uavturb.gap.plotting import (
 )
 from uavturb.gap.surface_curve import SurfaceCurve
 from uavturb.gap.surface_laws import LawFit
-from uavturb.gap.uncertainty import BUDGET_TERMS
+from uavturb.gap.uncertainty import BUDGET_TERMS, YAML_THRUST_DIFFERS
 from uavturb.io.reader import recording_labels
 from uavturb.physics.effects import EFFECTS
 from uavturb.io.strict_json import dumps_strict
@@ -39,8 +40,6 @@ NOMINAL_MISS_SHARE = 0.15
 #: what "before" means in each plot: the two use different fits of the nominal model
 BEFORE_ALL = "before (nominal model, robust fit on all data)"
 BEFORE_HELDOUT = "before (nominal model fitted on the other folds)"
-#: %, difference between the flights' thrust coefficient and vehicle.yaml's from which report.md remarks on it
-YAML_THRUST_DIFFERS_PERCENT = 15.0
 
 
 def format_params(params: dict | None, stderr: dict | None = None) -> str:
@@ -240,6 +239,10 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                              f"own rows ({why}): left out of the spread between recordings")
                 L.append(f"  - error of {k}: ± {b['stderr']:.3g}, limited by {b['limited_by'].replace('_', ' ')} "
                          f"({terms}){left}")
+            if e.get("untaken_candidates"):
+                L.append("  - its error covers " + ", ".join(
+                    f"`{c}` (held-out gain {z:.2g} errors: not taken)" for c, z in e["untaken_candidates"].items())
+                    + " fitted beside it: the held-out rows cannot tell how much of the force is theirs")
             if e.get("time_domain"):
                 td = e["time_domain"]
                 L.append(f"  - named from the measured surface curve; found in time as `{td['name']}` "
@@ -406,7 +409,7 @@ def _recording_lines(report: dict, names: dict[str, str]) -> list[str]:
             off = 100 * (k / yaml_k - 1)
             L[-1] += (f" vehicle.yaml states {yaml_k:.4g} ({off:+.1f} %" + (
                 "; the flights' own value is used: a thrust coefficient that far off, or rotor speeds in other "
-                "units, changes every law in rotor speed)." if abs(off) > YAML_THRUST_DIFFERS_PERCENT else ")."))
+                "units, changes every law in rotor speed)." if abs(off) > 100 * YAML_THRUST_DIFFERS else ")."))
     if nominal.get("rotor_speed_offset"):
         L += ["", f"Thrust map: {nominal['rotor_speed_offset']['note']}."]
     return L
@@ -433,10 +436,37 @@ def _undecided_lines(report: dict, names: dict[str, str]) -> list[str]:
             reasons.setdefault((r["why"], r["to_separate"]), []).append(f"`{r['name']}`")
         for (why, to_test), names in reasons.items():
             L.append(f"- {', '.join(names)}: {why}. To test {'it' if len(names) == 1 else 'them'}: {to_test}.")
+    L += _not_named_lines(report)
     nominal = report.get("nominal", {})
     if nominal.get("accel_bias_note"):
         L += ["", "Accelerometer bias: " + nominal["accel_bias_note"] + "."]
     return L
+
+
+def _not_named_lines(report: dict) -> list[str]:
+    """Every candidate tried that is neither named nor undecided, outside its range or untestable: its held-out
+    gain at the last step it was tried at, whether it was chosen and dropped, and whether the named effects' errors
+    carry it (``untaken_candidates``), with the flight that would show it."""
+    said = ({e["name"] for e in report.get("effects", [])} | {r["name"] for r in report.get("rejected", [])}
+            | {r["name"] for r in report.get("not_testable", [])} | set(report.get("sim_effects", []))
+            | {c for a in report.get("ambiguous", []) for c in a["candidates"]})
+    carried = {c for e in report.get("effects", []) for c in e.get("untaken_candidates", {})}
+    surfaces = {EFFECTS[n].surface for n in said if n in EFFECTS and EFFECTS[n].surface}
+    L: list[str] = []
+    for name, tried in (report.get("candidates_tried") or {}).items():
+        last = last_step(tried)
+        if name in said or name not in EFFECTS or last is None or EFFECTS[name].surface in surfaces:
+            continue  # a surface law beside one said of its surface: the measured surface curve compares them
+        text = f"- `{name}`: held-out gain {last[1]:.2g} errors at step {last[0]} ({Z_IMPROVE:g} needed)"
+        if "dropped_z" in tried:
+            text += (f"; chosen, then dropped: without it the held-out fit was worse by only "
+                     f"{tried['dropped_z']:.2g} errors")
+        if name in carried:
+            text += "; fitted beside the named effects, it is in their errors (untaken candidate)"
+        manoeuvre = EFFECTS[name].manoeuvre
+        L.append(text + (f". To show it: {manoeuvre}." if manoeuvre else "."))
+    return (["", "## Tried, not named",
+             "Each candidate the data did not support, with what it gained on the held-out rows."] + L) if L else []
 
 
 def write_json(folder: Path, report: dict) -> None:

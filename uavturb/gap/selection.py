@@ -70,6 +70,7 @@ of evidence:
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -466,6 +467,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
             z_keep = improvement_z(ho, cur_ho)
             if z_keep < z_improve and not curve.supports(s.name, z_keep):
                 steps.remove(s)
+                tried.setdefault(s.name, {})["dropped_z"] = float(z_keep)  # said in report.md's "Tried, not named"
                 current, cur_ho, changed = without, ho, True
                 break
     sel = finish(data, frozenset(base), steps, offset=offset, lag=lag, tried=tried, known=known)
@@ -473,6 +475,13 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
     sel.look_alikes = look_alikes
     sel.rivals = rivals
     return sel
+
+
+def last_step(tried: dict[str, float]) -> tuple[int, float] | None:
+    """The last selection step a candidate was tried at and its held-out z there (a :attr:`Selection.tried`
+    entry: ``step<k>_z`` keys), None where it was never tried."""
+    steps = [int(m.group(1)) for k in tried if (m := re.fullmatch(r"step(\d+)_z", k))]
+    return (max(steps), float(tried[f"step{max(steps)}_z"])) if steps else None
 
 
 def untested_on_heldout(data: GapData, final: ModelFit, fold_masks, candidates: list[str], decided: set[str],

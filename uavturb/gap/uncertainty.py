@@ -66,11 +66,28 @@ other and of the noise) added in quadrature:
   (:func:`uavturb.gap.finder.read_on_moved_speeds`), and each value's error carries half its change from the
   recorded speeds' reading.
 
+- **mass** (parameters in newtons or kilograms: ``k_d``, ``c_d``, ``f_x``, ``f_y``; :func:`mass_term`): the
+  forces are ``vehicle.yaml``'s mass times accelerations, so a mass off by 3 % (a battery swapped) scales every
+  force-unit parameter by 3 %, which no fit can see: the blind probe's hexarotor read k_d 8.45e-5 +- 0.7e-6
+  and a push of (0.513 +- 0.0016, -0.310 +- 0.0007) N for 8.06e-5 and (0.5, -0.3). Where ``vehicle.yaml``
+  also states the thrust coefficient, the flights' own (in newtons through that mass) differs from it by the
+  mass's error or by the stated coefficient's: within :data:`YAML_THRUST_DIFFERS` that difference is the term's
+  share of each such parameter; beyond it the stated coefficient is no measure (rotor speeds in other units, a
+  guess) and there is no term.
+
+- **untaken candidate** (:func:`untaken_term`): half the largest change of the parameter when a candidate the
+  selection did not take, but whose held-out gain at its last step reached :data:`UNTAKEN_Z` errors, is fitted
+  beside the named effects (within its physical range). Two laws can share a residual that the held-out rows
+  cannot split: on the blind probe's hexarotor with body drag (c_d = 0.05 kg/m) and rotor drag at about 1 m/s,
+  body drag's gain read 1.9 errors, so it was not named, and rotor drag took its force: k_d 9.46e-5 +- 0.43e-5
+  for 8.06e-5.
+
 The report keeps every term (``error_budget``) and names the one that limits the parameter.
 """
 
 from __future__ import annotations
 
+import re
 from typing import Callable
 
 import numpy as np
@@ -251,7 +268,13 @@ def honest_stderr(budget: dict[str, dict[str, float]]) -> dict[str, float]:
 
 #: the terms of a budget that are systematic (their sources independent of each other and of the sample
 #: noise): a stated error adds each in quadrature to what was stated before it
-SYSTEMATIC_TERMS = ("surface_curve", "rotor_timing", "stream_rate", "thrust_map", "command_sampling", "speed_offset")
+SYSTEMATIC_TERMS = ("surface_curve", "rotor_timing", "stream_rate", "thrust_map", "command_sampling", "speed_offset",
+                    "mass", "untaken_candidate")
+#: held-out errors of gain, at its last step, from which a candidate not taken counts in the named effects' errors
+UNTAKEN_Z = 1.0
+#: relative difference between the flights' thrust coefficient and ``vehicle.yaml``'s beyond which the stated one
+#: is read as no measure of the mass (report.md then says they differ)
+YAML_THRUST_DIFFERS = 0.15
 #: every term a budget may hold, in the order they are added
 BUDGET_TERMS = ("sample", "height_reference", "between_recordings", "between_blocks", *SYSTEMATIC_TERMS)
 
@@ -291,6 +314,34 @@ def command_sampling_term(hold_periods_s: list[float]) -> dict[str, float]:
     return {"tau": max(held) / 4.0 if held else float("nan")}
 
 
+def scales_with_mass(unit: str) -> bool:
+    """Whether a parameter in ``unit`` (an :class:`~uavturb.physics.effects.EffectSpec`'s) is a force's: newtons
+    or kilograms among its factors."""
+    return bool({"N", "kg"} & set(re.split(r"[\s/^*()]+", unit)))
+
+
+def mass_term(params: dict[str, float], units: dict[str, str], k_T: float, k_T_yaml: float | None
+              ) -> dict[str, float]:
+    """The **mass** term of each force-unit parameter in ``params`` (``units`` theirs): its value times the
+    relative difference between the flights' thrust coefficient ``k_T`` and ``vehicle.yaml``'s ``k_T_yaml``
+    [N/(rad/s)^2], where that is stated and within :data:`YAML_THRUST_DIFFERS`; empty otherwise."""
+    if not k_T_yaml or not np.isfinite(k_T) or k_T <= 0:
+        return {}
+    share = abs(k_T / k_T_yaml - 1.0)
+    if share > YAML_THRUST_DIFFERS:
+        return {}
+    return {k: abs(float(v)) * share for k, v in params.items() if scales_with_mass(units[k])}
+
+
+def untaken_term(final: ModelFit, beside: list[ModelFit], name: str) -> dict[str, float]:
+    """The **untaken candidate** term of the named effect ``name``'s parameters: half the largest change from
+    ``final`` among the fits ``beside`` (``final``'s effects and one candidate more); empty without any."""
+    if not beside:
+        return {}
+    params, _ = final.effect_params(name)
+    return {k: max(abs(fit.effect_params(name)[0][k] - v) for fit in beside) / 2.0 for k, v in params.items()}
+
+
 def timing_term(low: dict[str, float] | None, high: dict[str, float] | None, keys: tuple[str, ...]
                 ) -> dict[str, float]:
     """The **rotor timing** term: half the change of each parameter between the fits at the two ends of
@@ -320,13 +371,23 @@ def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None 
     lag's included: the offset is read on the lagged speeds' sums); a surface's lift stays in it, constant
     within each cell of one height. ``residual``: ``final.residual(data)`` where the caller has it (K, 3) N."""
     cells = offset_cells(data.group, data.d_down, data.d_up, data.rotor_radius, surface_reach_m(data))
-    nl = _nl_values(final.nonlinear)
-    S_thrust = effective_S(data, set(final.effects), nl)  # lagged, times each row's level
-    rest = final.residual(data) if residual is None else residual
-    y_thrust = np.einsum("ki,ki->k", rest, data.R[:, :, 2]) + final.coef["k_T"] * S_thrust
     volts = [v for v in data.voltage_means.values() if np.isfinite(v)]
+    sag = "battery_sag" in final.effects and not volts
+    read = final
+    if sag:  # the offset is read with the sag, not on thrusts the sag's own fit (biased by the offset) took out
+        read = fit_model(data, set(final.effects) - {"battery_sag"}, with_stderr=False)
+        residual = None
+    nl = _nl_values(read.nonlinear)
+    S_thrust = effective_S(data, set(read.effects), nl)  # lagged, times each row's level
+    rest = read.residual(data) if residual is None else residual
+    y_thrust = np.einsum("ki,ki->k", rest, data.R[:, :, 2]) + read.coef["k_T"] * S_thrust
+    middle = np.zeros(len(data.t))
+    for g in np.unique(data.group):
+        rows = data.group == g
+        middle[rows] = 0.5 * (data.t[rows].min() + data.t[rows].max())
     found = speed_offset(y_thrust, data.rotor_speeds, cells, data.t, S=S_thrust / data.thrust_level,
-                         voltage_dev=data.voltage_dev, voltage_mean=float(np.mean(volts)) if volts else float("nan"))
+                         voltage_dev=data.voltage_dev, voltage_mean=float(np.mean(volts)) if volts else float("nan"),
+                         sag_time=data.t - middle if sag else None)
     if found is None or not found.counts or not final.effects:
         return found, {}
     effects = frozenset(final.effects)
