@@ -122,3 +122,26 @@ def test_heights_are_the_rotor_planes_in_simulator_and_physics(tmp_path, offset)
     # closer rotors, more lift: the simulator's effect force follows the rotor plane's height
     lift, lift0 = truth.effect_force[settled, 2].mean(), truth0.effect_force[settled, 2].mean()
     assert (lift > lift0) == (offset < 0)
+
+
+CRAZYFLIE = {"mass": 0.032, "rotor_count": 4, "arm_length": 0.046, "rotor_angles_deg": [45, 135, -135, -45],
+             "rotor_directions": [1, -1, 1, -1], "rotor_radius": 0.0231}
+
+
+@pytest.mark.parametrize("changes, refused", [
+    ({}, False),
+    ({"rotor_radius": 0.0462}, True),  # the propeller's diameter given as its radius: the discs overlap 1.42 times
+    ({"rotor_radius": 0.0286}, False),  # 24 % larger: overlapping 0.88 times, as staggered frames may
+    ({"rotor_count": 8, "rotor_angles_deg": [45, 45, 135, 135, -135, -135, -45, -45],  # coaxial: one angle per pair
+      "rotor_directions": [1, -1, -1, 1, 1, -1, -1, 1]}, False),
+])
+def test_a_rotor_radius_whose_discs_would_overlap_is_refused(changes, refused):
+    d = CRAZYFLIE | changes
+    if not refused:
+        assert Vehicle.from_dict(d, where="v.yaml").rotor_radius == d["rotor_radius"]
+        return
+    with pytest.raises(InputError) as e:
+        Vehicle.from_dict(d, where="v.yaml")
+    assert str(e.value) == ("v.yaml: key 'rotor_radius' is 0.0462 m, but rotors 0 and 1 sit 0.0651 m apart "
+                            "(arm_length 0.046 m): their discs would overlap 1.42 times over; rotor_radius is half the "
+                            "propeller's diameter")

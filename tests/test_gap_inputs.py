@@ -198,7 +198,7 @@ def test_a_thrust_coefficient_off_by_half_is_said_beside_the_flights_own(tmp_pat
 
 
 @pytest.mark.parametrize("key, value, match", [
-    ("rotor_radius", 0.2, r"rotor_radius 0.2 here, [0-9.]+ in .*good/vehicle.yaml: recordings analysed together"),
+    ("rotor_radius", 0.12, r"rotor_radius 0.12 here, [0-9.]+ in .*good/vehicle.yaml: recordings analysed together"),
     ("mass", None, r"mass [0-9.]+ kg here, [0-9.]+ kg in .*good/vehicle.yaml \(\+10.0 %, over the 5 % batteries"),
 ])
 def test_recordings_of_vehicles_described_apart_are_refused_naming_the_key(tmp_path, capsys, good, another, key,

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -273,6 +273,7 @@ class Vehicle:
             if value > top:
                 raise InputError(where, f"key '{key}' is {value:g} {unit}, over {top:g} {unit}: vehicle.yaml is in SI "
                                         "units (kg, m), not grams or millimetres")
+        _check_rotors_apart(where, arm, radius, angles)
         return cls(
             name=str(name),
             mass=mass,
@@ -283,6 +284,30 @@ class Vehicle:
             extra={k: d[k] for k in unknown},
             **kwargs,
         )
+
+#: how far the discs of two rotors at different angles may overlap, as their radii's sum over their centres'
+#: distance, before vehicle.yaml's rotor_radius is refused: rotors in one plane cannot overlap (their blades would
+#: strike), a frame with staggered heights overlaps them a little, and a diameter given as the radius reads 1.4-1.7
+#: (a Crazyflie 1.42, a 2.5 kg hexarotor 1.69): a surface law's height in rotor radii, and mu with it, goes with it
+ROTOR_OVERLAP_MAX = 1.25
+
+
+def _check_rotors_apart(where: str | Path, arm: float, radius: float, angles: Sequence[float]) -> None:
+    """Refuse a ``rotor_radius`` whose discs, at ``arm`` [m] from the centre at ``angles`` [deg], would overlap
+    by more than :data:`ROTOR_OVERLAP_MAX` (coaxial rotors, at one angle, excepted)."""
+    a = np.radians(np.asarray(angles, float))
+    xy = arm * np.stack([np.cos(a), np.sin(a)], axis=1)
+    dist = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    apart = np.abs((np.degrees(a[:, None] - a[None, :]) + 180.0) % 360.0 - 180.0) > 1.0
+    if not apart.any():
+        return
+    i, j = np.unravel_index(np.argmin(np.where(apart, dist, np.inf)), dist.shape)
+    ratio = 2.0 * radius / dist[i, j]
+    if ratio > ROTOR_OVERLAP_MAX:
+        raise InputError(where, f"key 'rotor_radius' is {radius:g} m, but rotors {min(i, j)} and {max(i, j)} sit "
+                                f"{dist[i, j]:.3g} m apart (arm_length {arm:g} m): their discs would overlap "
+                                f"{ratio:.2f} times over; rotor_radius is half the propeller's diameter")
+
 
 #: kg and m: no multirotor this project reads is heavier, or has arms, rotors or a rotor plane offset larger (a
 #: vehicle.yaml in grams or millimetres is)
