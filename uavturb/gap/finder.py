@@ -43,8 +43,8 @@ from uavturb.gap.selection import (
     folds,
     heldout,
     improvement_z,
-    lift_not_named,
     last_step,
+    lift_not_named,
     look_alike_entry,
     near_misses,
     select,
@@ -594,8 +594,8 @@ def _untaken_checked(named: list[dict[str, Any]], data: GapData, final: ModelFit
                      decided: set[str]) -> list[dict[str, Any]]:
     """``named`` with the **untaken candidate** term of :mod:`uavturb.gap.uncertainty` in each budget: the
     candidates not taken (nor ``decided`` otherwise) whose last held-out gain reached ``UNTAKEN_Z`` errors,
-    each fitted beside ``final``'s effects, within its physical range. A surface law where one of its surface
-    is named is an alternative to it, not a candidate beside it."""
+    each fitted beside ``final``'s effects, within its physical range. A surface law where a law of its surface is
+    named is an alternative to that one, not a candidate beside it."""
     surfaces = {EFFECTS[n].surface for n in final.effects if EFFECTS[n].surface}
     beside, names = [], {}
     for name, entry in tried.items():

@@ -311,7 +311,7 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
         fd = flight_data(rec)
         lever = lever_arm(fd)
         if lever is not None and lever.decisive:
-            levers.append({"recording": path, "applied": True} | lever.as_dict())
+            levers.append({"recording": path} | lever.as_dict())
             lines.append(_lever_line(rec, lever))
             rec = moved_origin(rec, lever.move_m, keep_rotor_plane=rec.vehicle.rotor_plane_z != 0.0)
             fd = flight_data(rec)

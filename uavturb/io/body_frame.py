@@ -121,11 +121,11 @@ def to_sensor(rec: Recording) -> Recording:
 
 
 def moved_origin(rec: Recording, r: np.ndarray, keep_rotor_plane: bool) -> Recording:
-    """``rec`` (frame B) with its origin moved to the point its streams were measured ``r`` [m] (3,) from (in B):
-    the ground truth and IMU moved there (the rotation's accelerations at ``r`` taken out) and the vehicle's
-    ``T_BS`` composed with the move (:mod:`uavturb.sysid.lever_arm`). ``keep_rotor_plane``: ``rotor_plane_z`` is
-    raised by ``r_z``, so that the rotor plane stays where it was; otherwise it stays the same number, now
-    counted from the new origin."""
+    """``rec`` (frame B) at a new origin, its streams having been measured at ``r`` [m] (3,) from it (in B, as
+    :mod:`uavturb.sysid.lever_arm` reads it): the ground truth and IMU moved to the new origin (the rotation's
+    accelerations at ``r`` taken out) and the vehicle's ``T_BS`` composed with the move. ``keep_rotor_plane``:
+    ``rotor_plane_z`` is raised by ``r_z``, so that the rotor plane stays where it was; otherwise it stays the same
+    number, now counted from the new origin."""
     T = np.eye(4)
     T[:3, 3] = np.asarray(r, float)
     rotor_plane_z = rec.vehicle.rotor_plane_z + (float(r[2]) if keep_rotor_plane else 0.0)
