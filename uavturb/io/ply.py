@@ -232,17 +232,35 @@ def read_ply(path: str | Path, allow_non_finite: bool = False) -> np.ndarray:
         Naming ``path``: missing file, not a PLY, no vertices, no ``x``/``y``/``z``
         properties, truncated or non-numeric data, non-finite coordinates.
     """
+    return _vertices(_opened(path), allow_non_finite)
+
+
+@dataclass
+class _Opened:
+    """A PLY file read once: its bytes, format, elements and where its body starts."""
+    path: Path
+    data: bytes
+    fmt: str
+    elements: list[_Element]
+    offset: int
+
+
+def _opened(path: str | Path) -> _Opened:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file not found")
     data = path.read_bytes()
-    fmt, elements, offset = _parse_header(path, data)
-    k, xyz = _vertex_element(path, elements)
-    endian = FORMATS[fmt]
+    return _Opened(path, data, *_parse_header(path, data))
+
+
+def _vertices(ply: _Opened, allow_non_finite: bool) -> np.ndarray:
+    path = ply.path
+    k, xyz = _vertex_element(path, ply.elements)
+    endian = FORMATS[ply.fmt]
     if endian is None:
-        points = _read_ascii(path, data, offset, elements, k, xyz)
+        points = _read_ascii(path, ply.data, ply.offset, ply.elements, k, xyz)
     else:
-        points = _read_binary(path, data, offset, elements, k, xyz, endian)
+        points = _read_binary(path, ply.data, ply.offset, ply.elements, k, xyz, endian)
     if not allow_non_finite and not np.isfinite(points).all():
         r = int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
         raise InputError(path, f"PLY vertex {r} has a non-finite coordinate")
@@ -345,21 +363,22 @@ def read_ply_faces(path: str | Path, n_vertices: int) -> np.ndarray | None:
     InputError
         Naming ``path``: a face list truncated or unparsable, or an index outside the vertices.
     """
-    path = Path(path)
-    data = path.read_bytes()
-    fmt, elements, offset = _parse_header(path, data)
-    found = _face_element(elements)
+    return _faces(_opened(path), n_vertices)
+
+
+def _faces(ply: _Opened, n_vertices: int) -> np.ndarray | None:
+    found = _face_element(ply.elements)
     if found is None:
         return None
     k, j = found
-    endian = FORMATS[fmt]
-    faces = _ascii_faces(path, data, offset, elements, k, j) if endian is None \
-        else _binary_faces(path, data, offset, elements, k, j, endian)
+    endian = FORMATS[ply.fmt]
+    faces = _ascii_faces(ply.path, ply.data, ply.offset, ply.elements, k, j) if endian is None \
+        else _binary_faces(ply.path, ply.data, ply.offset, ply.elements, k, j, endian)
     bad = (faces < 0) | (faces >= n_vertices)
     if bad.any():
         f = int(np.flatnonzero(bad.any(axis=1))[0])
-        raise InputError(path, f"PLY face {f} refers to vertex {int(faces[f][bad[f]][0])}, and the file has "
-                               f"{n_vertices} vertices")
+        raise InputError(ply.path, f"PLY face {f} refers to vertex {int(faces[f][bad[f]][0])}, and the file has "
+                                   f"{n_vertices} vertices")
     return faces
 
 
@@ -425,8 +444,9 @@ def scene_points(path: str | Path, notes: list[str]) -> np.ndarray:
     InputError
         As :func:`read_ply` and :func:`read_ply_faces`, and where no vertex is finite.
     """
-    path = Path(path)
-    vertices = read_ply(path, allow_non_finite=True)
+    ply = _opened(path)
+    path = ply.path
+    vertices = _vertices(ply, allow_non_finite=True)
     finite = np.isfinite(vertices).all(axis=1)
     if not finite.any():
         raise InputError(path, f"none of the PLY's {len(vertices)} vertices has finite coordinates")
@@ -434,7 +454,7 @@ def scene_points(path: str | Path, notes: list[str]) -> np.ndarray:
     if not finite.all():
         notes.append(f"{where}: {int((~finite).sum())} of {len(vertices)} vertices have non-finite coordinates (a "
                      "scanner's no-returns) and are left out")
-    faces = read_ply_faces(path, len(vertices))
+    faces = _faces(ply, len(vertices))  # the file read once
     if faces is None or len(faces) == 0:
         return vertices[finite]
     faces = faces[finite[faces].all(axis=1)]
