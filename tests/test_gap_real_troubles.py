@@ -503,3 +503,21 @@ def test_a_battery_sag_under_normalised_commands_reads_the_idle_speed_with_it(tm
     offset = report["nominal"]["rotor_speed_offset"]
     idle = truth["a"] * truth["rotor_speed_scale"] / truth["b"]  # the recorded speeds' offset, rad/s
     assert offset["delta_rad_s"] == pytest.approx(idle, rel=0.05)
+
+
+def test_a_drag_that_holds_only_beside_an_undecided_push_is_undecided_with_it(tmp_path):
+    """A minute of a 2 kg quadrotor at one fixed heading in a 1.5 m/s wind (rotor and body drag on the airspeed): the
+    push is rightly left undecided against a thrust-axis tilt, and rotor drag, chosen beside it (k_d > 0), refitted
+    without it read k_d < 0 and had been "rejected" as outside its physical range, a reason its own fit beside the
+    push contradicts. It is undecided with the push, with both values said."""
+    vehicle = tmp_path / "quad20.yaml"
+    vehicle.write_text(HEAVY_QUAD)
+    path = tmp_path / "windy"
+    generate_conditioned_flight(str(vehicle), "rotor_drag", duration=60, kind="mixed", seed=201,
+                                conditions=Conditions(wind_speed=(1.5, 0.0), fixed_heading=True), out=path)
+    report, _ = analyse(load_recordings([path]), {})
+    assert report["effects"] == [] and "rotor_drag" not in {r["name"] for r in report["rejected"]}
+    (entry,) = [a for a in report["ambiguous"] if a["candidates"][0] == "rotor_drag"]
+    assert entry["candidates"] == ["rotor_drag", "wind"] and entry["params_if_named"]["k_d"] > 0
+    assert "without it" in entry["why"] and "outside its physical range" in entry["why"]
+    assert any(a["candidates"] == ["wind", "thrust_axis_tilt"] for a in report["ambiguous"])

@@ -859,6 +859,25 @@ def _budget(data: GapData, final: ModelFit, name: str, height_uncertainty: float
                         height_reference_m=height_uncertainty, refits=refits)
 
 
+def _held_beside(data: GapData, fit: ModelFit, name: str) -> bool:
+    """Whether ``name`` is in ``fit`` (the fit before effects were left undecided) within its physical range and
+    large enough to matter."""
+    return name in fit.effects and outside_range(data, fit, name) is None and too_small(data, fit, name) is None
+
+
+def _hangs_on(fit: ModelFit, name: str, undecided: list[str], without: str) -> dict[str, Any]:
+    """The ``ambiguous`` entry of an effect whose fit holds beside the ``undecided`` effects (as in ``fit``) and
+    fails without them (``without``: why): which it is hangs on what the flights leave undecided (real wind at a
+    fixed heading: rotor drag beside the push read k_d = 8.4e-5, without it -5.2e-5, and had been "rejected" as
+    outside its range)."""
+    params, _ = fit.effect_params(name)
+    values = ", ".join(f"{k} = {v:.3g}" for k, v in params.items())
+    entry = look_alike_entry(name, undecided[0], f"beside {' and '.join(undecided)}, left undecided, {name} reads "
+                                                 f"{values}; without {'them' if len(undecided) > 1 else 'it'}, "
+                                                 f"{without}: its value hangs on what is undecided")
+    return entry | {"candidates": [name, *undecided], "params_if_named": params}
+
+
 def not_pinned(data: GapData, final: ModelFit, name: str, refits: Refits | None = None) -> str | None:
     """Why ``name`` is no discovery when none of its parameters that say it is there
     (:attr:`~uavturb.physics.effects.EffectSpec.presence_params`) stands :data:`HONEST_Z` honest standard errors
@@ -927,6 +946,8 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
     ambiguous: list[dict] = list(sel.look_alikes)  # pairs the held-out data could not tell apart
     rejected: list[dict] = list(sel.rejected)  # outside their range when the selection would have taken them
     steps, rivals = list(sel.steps), sel.rivals
+    undecided: list[str] = []  # effects dropped to ``ambiguous`` so far, and the fit that still held them
+    with_undecided: ModelFit | None = None
     while True:
         final = sel.final
         facts = flight_facts(data, final.coef["k_T"])
@@ -935,6 +956,11 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
             params, _ = final.effect_params(s.name)
             bad = (outside_range(data, final, s.name, facts) or too_small(data, final, s.name)
                    or not_pinned(data, final, s.name, refits))
+            if bad is not None and with_undecided is not None and _held_beside(data, with_undecided, s.name):
+                # it held beside an effect left undecided, and fails without it: its value hangs on that one
+                ambiguous.append(_hangs_on(with_undecided, s.name, undecided, bad))
+                drop = s
+                break
             if bad is not None:
                 rejected.append({"name": s.name, "params": params, "why": bad})
                 drop = s
@@ -956,6 +982,10 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
                 drop = next(s for s in steps if s.name == "rotor_drag")
         if drop is None:
             break
+        if any(drop.name in a["candidates"] for a in ambiguous) and drop.name not in undecided:
+            if with_undecided is None:
+                with_undecided = final
+            undecided.append(drop.name)
         steps.remove(drop)
         # as select() fitted it (sim effects in the base), reusing its fits of the same effect sets
         sel = finish(data, sel.base, steps, tried=sel.tried, known=sel.known)
