@@ -39,6 +39,7 @@ import numpy as np
 
 from uavturb.io.consistency import FLIGHT_SHARE
 from uavturb.numerics.blocks import block_labels, jackknife_se
+from uavturb.physics import frames
 from uavturb.physics import quaternion as quat
 from uavturb.physics.constants import GRAVITY
 from uavturb.sysid.flight_data import FlightData
@@ -97,11 +98,15 @@ class LeverArm:
                 "weakly to use)")
 
 
-def _skew(a: np.ndarray) -> np.ndarray:
-    """(K, 3, 3) cross-product matrices of ``a`` (K, 3): ``_skew(a) @ b = a x b``."""
-    z = np.zeros(len(a))
-    return np.stack([np.stack([z, -a[:, 2], a[:, 1]], 1), np.stack([a[:, 2], z, -a[:, 0]], 1),
-                     np.stack([-a[:, 1], a[:, 0], z], 1)], 1)
+def _per_metre(omega_B: np.ndarray, alpha_B: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) m/s^2 per m: column ``j`` holds the rotation's accelerations of a point 1 m along B's axis ``j``
+    (:func:`uavturb.physics.frames.lever_arm_acceleration`, linear in the lever arm), so ``L @ r`` is that of ``r``."""
+    columns = []
+    for j in range(3):
+        T = np.eye(4)
+        T[j, 3] = 1.0
+        columns.append(frames.lever_arm_acceleration(omega_B, alpha_B, T))
+    return np.stack(columns, axis=2)
 
 
 def _design(fd: FlightData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -115,7 +120,7 @@ def _design(fd: FlightData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         f = np.einsum("kji,kj->ki", R, fd.dv + np.array([0.0, 0.0, GRAVITY]))
     v_B = np.einsum("kji,kj->ki", R, fd.v)
     w_sum = fd.rotor_speeds.sum(axis=1)
-    L = _skew(fd.dw) + _skew(fd.w) @ _skew(fd.w)  # alpha x r + omega x (omega x r) = L r
+    L = _per_metre(fd.w, fd.dw)  # alpha x r + omega x (omega x r) = L r
     X = np.zeros((len(f), 2, 7))
     X[:, :, 0:3] = L[:, 0:2]
     X[:, 0, 3] = X[:, 1, 4] = 1.0
