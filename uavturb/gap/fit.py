@@ -304,6 +304,70 @@ def search_nonlinear(prof: Profile, effects: frozenset[str], fixed: dict[str, fl
     return nl
 
 
+def _linearised(data: GapData, effects: frozenset[str], nl: dict[str, float], free: list[str], A: np.ndarray,
+                coef: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """(3K, P) the model linearised about its fit: the design ``A`` with a column per free nonlinear parameter (the
+    central difference of the prediction, at the coefficients ``coef``), and those parameters' names. A parameter
+    at 0 (absent: no derivative in the log-parametrised search) has no column."""
+    cols, extra = [A], []
+    for e in free:
+        p = nl[e]
+        if p == 0.0:
+            continue
+        hi, lo = difference_points(e, p)
+        Ap, _ = design(data, effects, _nl_values(nl | {e: hi}))
+        Am, _ = design(data, effects, _nl_values(nl | {e: lo}))
+        cols.append(((Ap - Am) @ coef / (hi - lo))[:, None])
+        extra.append(NONLINEAR[e][0])
+    return np.hstack(cols), extra
+
+
+def information_shares(data: GapData, fit: ModelFit, name: str, labels: np.ndarray) -> dict[str, np.ndarray]:
+    """Per parameter of the effect ``name`` (``effects.md`` units): (B,) the share of its least-squares variance
+    that the rows of each label ``0 .. B - 1`` of ``labels`` (K,) carry, from ``fit`` linearised on ``data``
+    (every nonlinear parameter free): ``g' C J_b' J_b C g / g' C g`` with ``C = (J' J)^-1`` and ``g`` the
+    parameter's gradient in the model's coefficients. The shares sum to 1; a label whose rows alone pin the
+    parameter has a share near 1 (a slow flight's one near-floor stretch, :func:`uavturb.gap.uncertainty.
+    error_budget`)."""
+    nl = dict(fit.nonlinear)
+    free = sorted(e for e in fit.effects if e in NONLINEAR)
+    A, names = design(data, fit.effects, _nl_values(nl))
+    coef = np.array([fit.coef[n] for n in names])
+    J, extra = _linearised(data, fit.effects, nl, free, A, coef)
+    scale = np.linalg.norm(J, axis=0)
+    scale[scale == 0] = 1.0
+    Js = J / scale
+    C = np.linalg.pinv(Js.T @ Js, rcond=1e-12)
+    columns = names + extra
+    by_param = {NONLINEAR[e][0]: e for e in free}
+    base = fit.effect_params(name)[0]
+
+    def params_at(j: int, step: float) -> dict[str, float]:
+        column = columns[j]
+        if column in by_param:
+            moved = ModelFit(fit.effects, nl | {by_param[column]: nl[by_param[column]] + step}, fit.coef, {}, fit.rmse)
+        else:
+            moved = ModelFit(fit.effects, nl, fit.coef | {column: fit.coef[column] + step}, {}, fit.rmse)
+        return moved.effect_params(name)[0]
+
+    values = np.array([fit.coef[c] if c not in by_param else nl[by_param[c]] for c in columns])
+    grads = {k: np.zeros(len(columns)) for k in base}
+    for j, v in enumerate(values):
+        step = 1e-6 * max(abs(v), 1e-12)
+        up, down = params_at(j, step), params_at(j, -step)
+        for k in base:
+            grads[k][j] = (up[k] - down[k]) / (2 * step) / scale[j]  # per unit of the scaled column
+    rows = np.tile(np.asarray(labels), 3)  # the stacked rows: x, y, z of every sample
+    B = int(np.max(labels)) + 1
+    out = {}
+    for k, g in grads.items():
+        Cg = C @ g
+        per = np.array([float(np.sum((Js[rows == b] @ Cg) ** 2)) for b in range(B)])
+        total = per.sum()
+        out[k] = per / total if total > 0 and np.isfinite(total) else np.full(B, np.nan)
+    return out
+
+
 def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 50,
               fixed_nonlinear: dict[str, float] | None = None, with_stderr: bool = True) -> ModelFit:
     """Fit the model with ``effects`` on ``data``.
@@ -325,18 +389,7 @@ def fit_model(data: GapData, effects: set[str] | frozenset[str], *, lag: int = 5
     coef, sse = _solve(A, y)
     stderr: dict[str, float] = {}
     if with_stderr:
-        # linearise in the nonlinear parameters (central differences of the prediction)
-        cols, extra = [A], []
-        for e in free:
-            p = nl[e]
-            if p == 0.0:  # absent: no derivative in the log-parametrised search, no standard error
-                continue
-            hi, lo = difference_points(e, p)
-            Ap, _ = design(data, effects, _nl_values(nl | {e: hi}))
-            Am, _ = design(data, effects, _nl_values(nl | {e: lo}))
-            cols.append(((Ap - Am) @ coef / (hi - lo))[:, None])
-            extra.append(NONLINEAR[e][0])
-        J = np.hstack(cols)
+        J, extra = _linearised(data, effects, nl, free, A, coef)
         groups = np.concatenate([data.group + 1000 * k for k in range(3)])
         lin = lstsq(J, y - A @ coef, lag=lag, groups=groups)  # the increments are ~0; we want the covariance
         se = lin.stderr

@@ -20,7 +20,7 @@ from uavturb.gap.plotting import (
 )
 from uavturb.gap.surface_curve import SurfaceCurve
 from uavturb.gap.surface_laws import LawFit
-from uavturb.gap.uncertainty import BUDGET_TERMS, YAML_THRUST_DIFFERS
+from uavturb.gap.uncertainty import BUDGET_TERMS, ONE_STRETCH_SHARE, TIME_BLOCKS, YAML_THRUST_DIFFERS
 from uavturb.io.reader import recording_labels
 from uavturb.physics.effects import EFFECTS
 from uavturb.io.strict_json import dumps_strict
@@ -237,6 +237,12 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                            f"the effect there under {100 * PRACTICAL_SHARE:.1g} % of the weight")
                     left += (f"; {', '.join(untested)} cannot test it on {'its' if len(untested) == 1 else 'their'} "
                              f"own rows ({why}): left out of the spread between recordings")
+                share = b.get("largest_block_share")
+                if share is not None and share >= ONE_STRETCH_SHARE:
+                    left += (f"; one of {TIME_BLOCKS} stretches of the flight in time carries {100 * share:.0f} % of "
+                             "what pins it, so its spread between stretches is mostly unmeasured (each stretch "
+                             "weighted by what it holds): fly near the surface through more of the flight to "
+                             "measure it")
                 L.append(f"  - error of {k}: ± {b['stderr']:.3g}, limited by {b['limited_by'].replace('_', ' ')} "
                          f"({terms}){left}")
             if e.get("untaken_candidates"):
