@@ -15,6 +15,7 @@ from uavturb.gap.decide import can_test_alone
 from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels
 from uavturb.gap.finder import (
     _cross_checked,
+    _curves_at_open_offsets,
     _nominal,
     analyse,
     composed_offset,
@@ -22,8 +23,8 @@ from uavturb.gap.finder import (
     read_on_moved_speeds,
 )
 from uavturb.gap.fit import ModelFit, fit_model
-from uavturb.gap.nominal import (ThrustLevels, matched_height_levels, SpeedOffset, offset_cells, speed_offset,
-                                 thrust_levels)
+from uavturb.gap.nominal import (UNREAD_OFFSET_SPAN, ThrustLevels, matched_height_levels, SpeedOffset,
+                                 offset_cells, speed_offset, thrust_levels)
 from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, rotor_speeds_moved, timing_interval
 from uavturb.gap.surface_laws import finder_surface_curve
 from uavturb.gap.uncertainty import (
@@ -133,8 +134,9 @@ def test_a_thrust_level_between_recordings_does_not_move_mu():
     assert abs(pooled - 2.0) > abs(own - 2.0)
 
 
-def _floor_flights(speed_offset: float, mu: float = 2.0, seconds: float = 40.0, seed: int = 5) -> GapData:
-    """Two recordings hovering down to the floor and up (rotor plane 0.12-1.5 m), thrust 6 % up and down
+def _floor_flights(speed_offset: float, mu: float = 2.0, seconds: float = 40.0, seed: int = 5,
+                   top: float = 1.52) -> GapData:
+    """Two recordings hovering down to the floor and up (rotor plane 0.12 m to ``top``), thrust 6 % up and down
     as they manoeuvre, the controller easing it near the floor so that the Cheeseman-Bennett lift of ``mu``
     carries the rest; the rotors turn ``speed_offset`` [rad/s] faster than recorded (an idle speed in the
     command map); motion capture only."""
@@ -143,7 +145,7 @@ def _floor_flights(speed_offset: float, mu: float = 2.0, seconds: float = 40.0, 
     for g in range(2):
         K = int(seconds * 100)
         t = np.arange(K) * 0.01
-        d = 0.12 + 1.4 * (0.5 - 0.5 * np.cos(2 * np.pi * t / 10.0 + g)) ** 2
+        d = 0.12 + (top - 0.12) * (0.5 - 0.5 * np.cos(2 * np.pi * t / 10.0 + g)) ** 2
         R = quat.to_rotation_matrix(quat.from_euler(0.02 * np.sin(t), 0.02 * np.cos(t), np.zeros(K)))
         lift = MASS * GRAVITY * (1 + 0.06 * np.sin(1.7 * t))  # N, what the rotors and the floor's lift make
         thrust = lift / (1 + force_ratio(d, mu, R_ROTOR))  # N, the rotors' own
@@ -203,16 +205,35 @@ def test_the_thrust_map_term_covers_a_ground_effect_read_on_offset_speeds():
     w_h = np.sqrt(MASS * GRAVITY / (6 * K_T))
     data = _floor_flights(w_h / 3)
     final = fit_model(data, {"ground_effect"})
-    found, terms = thrust_map_term(data, final)
+    found, ends, terms = thrust_map_term(data, final)
     mu = final.nonlinear["ground_effect"]
     moved = fit_model(data.with_speed_offset(found.delta), {"ground_effect"}).nonlinear["ground_effect"]
+    assert found.counts and ends == (0.0, found.delta)
     assert abs(mu - 2.0) > 0.1 and moved == pytest.approx(2.0, rel=0.03)
     assert terms["ground_effect"]["mu"] == pytest.approx(abs(moved - mu) / 2, rel=0.02)
     budget = with_systematic(error_budget(data, final, "ground_effect"), "thrust_map", terms["ground_effect"])
     assert budget["mu"]["stderr"] >= budget["mu"]["thrust_map"] and abs(mu - 2.0) <= 2 * budget["mu"]["stderr"]
-    clean = _floor_flights(0.0, seed=6)
-    found0, terms0 = thrust_map_term(clean, fit_model(clean, {"ground_effect"}))
-    assert found0.z < 2 and terms0 == {}
+    clean = _floor_flights(0.0, seed=6)  # no offset: one standard error either side of a reading near none
+    found0, ends0, terms0 = thrust_map_term(clean, fit_model(clean, {"ground_effect"}))
+    assert found0.z < 2 and ends0 == pytest.approx((found0.delta - found0.stderr, found0.delta + found0.stderr))
+    assert terms0["ground_effect"]["mu"] < 0.1 * terms["ground_effect"]["mu"]
+
+
+def test_an_offset_no_flight_reads_is_left_open_in_the_errors():
+    """The same flights kept under six rotor radii (0.12-0.5 m): no row reads the offset, so the errors carry the
+    change over the idle speeds left open (none to half the recorded hover speed), which covers the truth, a third
+    of it."""
+    w_h = np.sqrt(MASS * GRAVITY / (6 * K_T))
+    data = _floor_flights(w_h / 4, top=0.5)  # recorded at hover: 3/4 of w_h, so the offset is a third of that
+    final = fit_model(data, {"ground_effect"})
+    found, ends, terms = thrust_map_term(data, final)
+    assert found is None and UNREAD_OFFSET_SPAN[0] <= 1 / 3 <= UNREAD_OFFSET_SPAN[1]
+    assert ends[0] == 0.0 and ends[1] == pytest.approx(UNREAD_OFFSET_SPAN[1] * 0.75 * w_h, rel=0.05)
+    mu = final.nonlinear["ground_effect"]
+    budget = with_systematic(error_budget(data, final, "ground_effect"), "thrust_map", terms["ground_effect"])
+    assert abs(mu - 2.0) > 3 * budget["mu"]["sample"]  # the records alone are confidently wrong
+    assert abs(mu - 2.0) <= 2 * budget["mu"]["stderr"]
+    assert abs(mu - 2.0) <= 2 * budget["mu"]["thrust_map"]  # the term alone covers it
 
 
 def test_a_law_named_from_the_curve_carries_the_thrust_map_term_too():
@@ -226,16 +247,17 @@ def test_a_law_named_from_the_curve_carries_the_thrust_map_term_too():
     mu = fits["ground_effect"].params["mu"]
     entry = {"name": "ground_effect", "params": {"mu": mu}, "named_from": "surface_curve",
              "error_budget": {"mu": {"sample": 0.01, "stderr": 0.01, "limited_by": "sample"}}, "stderr": {"mu": 0.01}}
-    found, _ = thrust_map_term(data, final)
-    speed_map = {"counts": True, "delta_rad_s": found.delta}
-    out = curve_named_thrust_map([copy.deepcopy(entry)], data, final, speed_map)[0]
+    found, ends, _ = thrust_map_term(data, final)
+    at_ends = _curves_at_open_offsets(data, final, {"open_interval_rad_s": list(ends)})
+    out = curve_named_thrust_map([copy.deepcopy(entry)], None, at_ends)[0][0]
     moved = data.with_speed_offset(found.delta)
     _, _, moved_fits = finder_surface_curve(moved, fit_model(moved, {"ground_effect"}), resample=False)
     assert moved_fits["ground_effect"].params["mu"] == pytest.approx(2.0, rel=0.05) and abs(mu - 2.0) > 0.2
     assert (out["error_budget"]["mu"]["thrust_map"]
             == pytest.approx(abs(moved_fits["ground_effect"].params["mu"] - mu) / 2))
     assert out["error_budget"]["mu"]["limited_by"] == "thrust_map" and abs(mu - 2.0) <= 2.1 * out["stderr"]["mu"]
-    assert curve_named_thrust_map([copy.deepcopy(entry)], data, final, speed_map | {"counts": False}) == [entry]
+    assert curve_named_thrust_map([copy.deepcopy(entry)], None, []) == ([entry], None)
+    assert _curves_at_open_offsets(data, final, {"open_interval_rad_s": [0.0, 0.0]}) == []
 
 
 def test_speeds_moved_by_an_offset_leave_the_rows_they_came_from_alone():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from uavturb.gap.finder import height_reference
 from uavturb.gap.report import format_effect, format_params, write_markdown
+from uavturb.gap.selection import better_law_not_named
 
 
 def test_effects_print_as_names_and_values_not_dicts():
@@ -259,3 +260,43 @@ def test_every_candidate_tried_and_not_named_is_said_with_its_gain(tmp_path):
             "worse by only 0.86 errors") in lines[0]
     assert "held-out gain 1.9 errors at step 2" in lines[1] and "it is in their errors (untaken candidate)" in lines[1]
     assert lines[2].endswith("To show it: fly the same pattern at two or more headings and speeds.")
+
+
+def _one_effect_report(effect: dict, **more) -> dict:
+    return {"recordings": ["a/q1"], "sim_effects": [], "protocol": "last-30%-of-each-recording",
+            "residual_source": "mocap", "baseline": {"heldout_rmse_N": 0.52, "rmse_N": 0.52},
+            "final": {"heldout_rmse_N": 0.17}, "noise": {"rms_N": 0.08}, "effects": [effect],
+            "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 0.1, "drivers": []},
+            "sim_effect_params": {}} | more
+
+
+def test_a_better_law_left_unnamed_without_a_curve_is_said(tmp_path):
+    """No measured curve judged the shapes, and the exponential law fitted the held-out rows better than the one
+    named, by too little to be named instead: the report says the law is not decided, by how much, and what to fly;
+    the selection's record gives the last comparison, and none where the alternative lost or would have won."""
+    tried = {"ground_effect_exponential": {"step1_z_over_ground_effect": 3.55},
+             "ground_effect_multirotor": {"step1_z_over_ground_effect": -0.4}}
+    assert better_law_not_named("ground_effect", tried) == ("ground_effect_exponential", 3.55)
+    assert better_law_not_named("ground_effect", {"ground_effect_exponential": {
+        "step1_z_over_ground_effect": 3.0, "step2_z_over_ground_effect": -0.5}}) is None  # its last comparison lost
+    assert better_law_not_named("ground_effect", {"ground_effect_exponential": {
+        "step1_z_over_ground_effect": 4.5}}) is None  # beyond Z_IMPROVE it would have been named (the shape decided)
+    ge = {"name": "ground_effect", "params": {"mu": 5.15}, "stderr": {"mu": 0.69}, "explanation": "Extra lift ...",
+          "heldout_rmse_before_N": 0.52, "heldout_rmse_after_N": 0.17, "z_heldout": 11.4,
+          "law_shape_open": {"law": "ground_effect_exponential", "heldout_z_over": 3.55, "needed": 4.0}}
+    write_markdown(tmp_path, _one_effect_report(ge), [])
+    assert ("  - its law is not decided: `ground_effect_exponential` fitted the held-out rows better, by 3.5 errors "
+            "(4 needed to name it instead), and no measured surface curve judged their shapes"
+            ) in (tmp_path / "report.md").read_text()
+
+
+def test_a_curve_on_commanded_speeds_with_an_open_offset_says_how_far_it_moves(tmp_path):
+    curve = {"far_m": 0.12, "law": "ground_effect", "params": {"mu": 2.6}, "stderr": {"mu": 0.42}, "chi2_dof": 0.7,
+             "law_fits": True, "why": "it fits.", "thrust_map": {"mu": 0.42},
+             "bins": [{"d_m": 0.05, "n": 40, "ratio": 1.12, "stderr": 0.01, "law": 1.12, "stderr_thrust_map": 0.051},
+                      {"d_m": 0.09, "n": 40, "ratio": 1.03, "stderr": 0.01, "law": 1.03, "stderr_thrust_map": 0.02}]}
+    ge = {"name": "ground_effect", "params": {"mu": 2.6}, "stderr": {"mu": 2.7}, "explanation": "Extra lift ...",
+          "heldout_rmse_before_N": 0.0083, "heldout_rmse_after_N": 0.0006, "z_heldout": 30.0}
+    write_markdown(tmp_path, _one_effect_report(ge, surface_curve=curve), [])
+    assert ("across the offsets left open each bin's ratio moves by up to ± 0.051 beside its ± above, and the law's "
+            "values on the curve by mu ± 0.42 (in their stated errors)") in (tmp_path / "report.md").read_text()

@@ -33,12 +33,22 @@ from uavturb.gap.design import (
 )
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
-from uavturb.gap.nominal import OFFSET_DECISIVE_Z, OFFSET_RADII, OFFSET_SPAN, ThrustLevels
+from uavturb.gap.nominal import (
+    OFFSET_DECISIVE_Z,
+    OFFSET_PRACTICAL,
+    OFFSET_RADII,
+    OFFSET_SPAN,
+    UNREAD_OFFSET_SPAN,
+    ThrustLevels,
+    hover_speed,
+)
 from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted, rotor_speeds_moved, state_thinned
 from uavturb.gap.selection import (
     Z_DISTINCT,
+    Z_IMPROVE,
     CurveEvidence,
     Selection,
+    better_law_not_named,
     finish,
     folds,
     heldout,
@@ -338,19 +348,21 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
     sel, ambiguous, rejected = _decide(data, sel, candidates, refits)
     sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim, base.offset)
-    ambiguous += near_misses(sel.tried, set(sel.chosen) | {r["name"] for r in rejected}
-                             | {c for a in ambiguous for c in a["candidates"]})
     final: ModelFit = sel.final
-    not_testable += untested_on_heldout(data, final, fm, candidates,
-                                        set(sel.chosen) | {r["name"] for r in rejected}
-                                        | {c for a in ambiguous for c in a["candidates"]},
-                                        lambda fit, name: outside_range(data, fit, name), protocol)
     facts = flight_facts(data, final.coef["k_T"])
     rf = final.residual(data)
     _, rsf, _ = locate.segments(data, rf, update_step_s=step)
     _, draws = locate.window_rows(data, 0.5, step)
     beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / draws)))
     unexplained = {"rms_N": beyond, "drivers": locate.drivers(data, rsf)}
+    height_driver = max((d["score"] for d in unexplained["drivers"] if d["feature"] == "d_down"), default=0.0)
+    ambiguous += near_misses(sel.tried, set(sel.chosen) | {r["name"] for r in rejected}
+                             | {c for a in ambiguous for c in a["candidates"]},
+                             height_driver=height_driver if heights_broken is None else 0.0, beyond_noise_N=beyond)
+    not_testable += untested_on_heldout(data, final, fm, candidates,
+                                        set(sel.chosen) | {r["name"] for r in rejected}
+                                        | {c for a in ambiguous for c in a["candidates"]},
+                                        lambda fit, name: outside_range(data, fit, name), protocol)
     look_alike = next((a for a in ambiguous if "thrust_axis_tilt" in a["candidates"]), None)
     if look_alike is not None:  # the push left undecided: each recording's tilt, with its error, for the reader
         per, _ = tilt_per_recording(data, final, rf)
@@ -383,8 +395,13 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     named, speed_map = _thrust_map_checked(named, data, final, not measured_rotor_speeds(recordings), rf)
     named, curve_report = law_named_from_curve(named, curve_report, curve, curve_fits, data, facts,
                                                height_uncertainty)
-    named = curve_named_thrust_map(named, data, final, speed_map)
+    named, curve_report = curve_named_thrust_map(named, curve_report, _curves_at_open_offsets(data, final, speed_map))
     named = [_mass_checked(e, final.coef["k_T"], vehicle.thrust_coefficient) for e in named]
+    if curve_report is None:  # no measured curve judged the laws' shapes: the held-out margin of a better one, said
+        for e in named:
+            found = better_law_not_named(e["name"], sel.tried) if EFFECTS[e["name"]].surface else None
+            if found is not None:
+                e["law_shape_open"] = {"law": found[0], "heldout_z_over": found[1], "needed": Z_IMPROVE}
     named = _untaken_checked(named, data, final, sel.tried, {e["name"] for e in rejected + not_testable}
                              | {c for a in ambiguous for c in a["candidates"]})
     if curve_report is not None:
@@ -631,13 +648,25 @@ def _with_term(effect: dict[str, Any], term: str, values: dict[str, float]) -> d
 def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: ModelFit, commanded: bool,
                         residual: np.ndarray) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
     """``effects`` with the **thrust map** term of :mod:`uavturb.gap.uncertainty` in each budget, and the
-    report's ``nominal.rotor_speed_offset`` (None with measured rotor speeds, which are the rotors' own, or
-    too few rows high enough over the floor to read it). ``residual``: ``final``'s on ``data`` (K, 3) N."""
+    report's ``nominal.rotor_speed_offset`` (None with measured rotor speeds, which are the rotors' own).
+    ``residual``: ``final``'s on ``data`` (K, 3) N."""
     if not commanded:
         return effects, None
-    found, terms = thrust_map_term(data, final, residual)  # final holds the simulator's effects, refitted
+    found, ends, terms = thrust_map_term(data, final, residual)  # final holds the simulator's effects, refitted
+    carried = (f"the named effects' errors, and the measured surface curve's, carry what moving the recorded speeds "
+               f"from {ends[0]:.4g} to {ends[1]:.4g} rad/s changes (thrust map)")
     if found is None:
-        return effects, None
+        w_hover = hover_speed(data.rotor_speeds)
+        low, high = (100 * x for x in UNREAD_OFFSET_SPAN)
+        note = (f"too few rows fly {OFFSET_RADII:.0f} rotor radii or more over the floor, at steady heights, to read "
+                f"the offset of the recorded (commanded) speeds, so the thrust the rotors make per command is not "
+                f"known apart from a surface's lift: an idle speed of {low:.0f} to {high:.0f} % of the hover speed "
+                f"({w_hover:.4g} rad/s) is left open, and {carried}. To read it: hover at two or more heights far "
+                f"from the floor")
+        return _with_thrust_map(effects, terms), {
+            "delta_rad_s": None, "stderr_rad_s": None, "share_of_hover_speed": None, "hover_speed_rad_s": w_hover,
+            "rows": 0, "cells": 0, "sse_ratio": None, "voltage_k_V": None, "z": None, "counts": False,
+            "decisive": False, "applied": False, "open_interval_rad_s": [float(x) for x in ends], "note": note}
     share = found.delta / found.w_hover
     note = (f"at each height ({found.rows} rows in {found.cells} cells of one recording and one height, from "
             f"{OFFSET_RADII:.0f} rotor radii up) thrust per sum((w + delta)^2) is steadiest at delta = "
@@ -648,44 +677,88 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
                  f"least residual with it)")
     if found.at_bound:
         low, high = (100 * x for x in OFFSET_SPAN)
+        left = (100 * x for x in UNREAD_OFFSET_SPAN)
         note += (f": that is an end of the range searched ({low:+.0f} to {high:+.0f} % of the hover speed), so no "
-                 "offset within it steadies the thrust: no reading, and the recorded speeds' squares are taken as "
-                 "they are (something else moves the thrust per speed squared: another vehicle's downwash, a thrust "
-                 "that does not follow the speed squared)")
+                 "offset within it steadies the thrust: no reading (something else moves the thrust per speed "
+                 "squared: another vehicle's downwash, a thrust that does not follow the speed squared, too few "
+                 f"heights); an idle speed of {next(left):.0f} to {next(left):.0f} % of the hover speed is left open, "
+                 f"and {carried}")
     elif found.counts:
         note += (": the recorded (commanded) speeds may be off by an offset, as commands with an idle speed are; the "
                  "named effects' errors carry what that reading changes (thrust map)")
+    elif ends[1] - ends[0] >= 2 * OFFSET_PRACTICAL * found.w_hover:
+        note += (f": no offset that counts (two errors from zero and 2.5 % of the hover speed), but the reading "
+                 f"leaves one standard error either side of it open: {carried}")
     else:
         note += (": no offset that matters (two errors from zero and 2.5 % of the hover speed), the recorded speeds' "
                  "squares carry the thrust")
+    return _with_thrust_map(effects, terms), {
+        "delta_rad_s": found.delta, "stderr_rad_s": found.stderr, "share_of_hover_speed": share,
+        "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells, "sse_ratio": found.sse_ratio,
+        "voltage_k_V": found.k_V if data.voltage_dev is not None else None, "z": found.z, "counts": found.counts,
+        "decisive": found.decisive, "applied": False, "open_interval_rad_s": [float(x) for x in ends], "note": note}
+
+
+def _with_thrust_map(effects: list[dict[str, Any]], terms: dict[str, dict[str, float]]) -> list[dict[str, Any]]:
     for e in effects:
         if e["name"] in terms:
             e.update(_with_term(e, "thrust_map", terms[e["name"]]))
-    return effects, {"delta_rad_s": found.delta, "stderr_rad_s": found.stderr, "share_of_hover_speed": share,
-                     "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells,
-                     "sse_ratio": found.sse_ratio, "voltage_k_V": found.k_V if data.voltage_dev is not None else None,
-                     "z": found.z, "counts": found.counts, "decisive": found.decisive, "applied": False, "note": note}
-
-
-def curve_named_thrust_map(effects: list[dict[str, Any]], data: GapData, final: ModelFit,
-                           speed_map: dict[str, Any] | None) -> list[dict[str, Any]]:
-    """``effects`` with the **thrust map** term for a law named from the measured surface curve (its values are
-    the curve's, which the speeds' offset moves too): half the change of the law fitted to the curve measured
-    on the speeds moved by the offset (``speed_map``: the report's ``nominal.rotor_speed_offset``), where it
-    counts."""
-    from_curve = [e for e in effects if e.get("named_from") == "surface_curve"]
-    if not from_curve or not speed_map or not speed_map["counts"]:
-        return effects
-    moved = data.with_speed_offset(speed_map["delta_rad_s"])
-    try:
-        _, _, fits = finder_surface_curve(moved, fit_model(moved, final.effects, with_stderr=False), resample=False)
-    except (InputError, np.linalg.LinAlgError, ValueError):
-        fits = {}
-    for e in from_curve:
-        f = fits.get(e["name"])
-        term = {k: abs(float(f.params[k]) - float(v)) / 2.0 if f else float("nan") for k, v in e["params"].items()}
-        e.update(_with_term(e, "thrust_map", term))
     return effects
+
+
+def _curves_at_open_offsets(data: GapData, final: ModelFit, speed_map: dict[str, Any] | None
+                            ) -> list[tuple[Any, dict[str, Any]]]:
+    """The measured surface curve and its laws' fits on the speeds moved to either end of the offsets the thrust
+    map leaves open (``speed_map``: the report's ``nominal.rotor_speed_offset``); [] where none are open."""
+    ends = (speed_map or {}).get("open_interval_rad_s")
+    if not ends or ends[0] == ends[1]:
+        return []
+    out = []
+    for d in ends:
+        moved = data.with_speed_offset(d) if d != 0.0 else data
+        try:
+            _, curve, fits = finder_surface_curve(moved, fit_model(moved, final.effects, with_stderr=False),
+                                                  resample=False)
+        except (InputError, np.linalg.LinAlgError, ValueError):
+            return []
+        if curve is None:
+            return []
+        out.append((curve, fits))
+    return out
+
+
+def curve_named_thrust_map(effects: list[dict[str, Any]], curve_report: dict | None,
+                           at_ends: list[tuple[Any, dict[str, Any]]]) -> tuple[list[dict[str, Any]], dict | None]:
+    """``effects`` with the **thrust map** term for a law named from the measured surface curve (its values are
+    the curve's, which the speeds' offset moves too), and ``curve_report`` with it in its law's errors and each
+    bin's (``stderr_thrust_map``): half the change of the law fitted to the curve, and of each bin's ratio, measured
+    on the speeds moved to either end of the offsets the thrust map leaves open (``at_ends``:
+    :func:`_curves_at_open_offsets`). A curve read on commanded speeds whose offset is not known is no better known
+    than that offset: the blind probe's Crazyflie-like flights near the floor, commands with an idle of a third of
+    the hover speed, read mu = 2.60 +- 0.034 on the curve for a true 2."""
+    if len(at_ends) != 2:
+        return effects, curve_report
+    (c_lo, f_lo), (c_hi, f_hi) = at_ends
+
+    def half_change(law: str, params: dict[str, float]) -> dict[str, float]:
+        a, b = f_lo.get(law), f_hi.get(law)
+        return {k: abs(float(b.params[k]) - float(a.params[k])) / 2.0 if a and b else float("nan") for k in params}
+
+    for e in effects:
+        if e.get("named_from") == "surface_curve":
+            e.update(_with_term(e, "thrust_map", half_change(e["name"], e["params"])))
+    if curve_report is None:
+        return effects, curve_report
+    law = curve_report.get("law")
+    terms = half_change(law, {k: v for k, v in curve_report["params"].items() if k != "level"}) if law else {}
+    curve_report["thrust_map"] = terms
+    curve_report["stderr"] = {k: float(np.hypot(v, terms[k])) if np.isfinite(terms.get(k, np.nan)) else v
+                              for k, v in curve_report["stderr"].items()}
+    d = np.array([b["d_m"] for b in curve_report["bins"]])
+    lo, hi = (np.interp(d, [b.d_m for b in c.bins], [b.ratio for b in c.bins]) for c in (c_lo, c_hi))
+    for b, x, y in zip(curve_report["bins"], lo, hi):  # each bin's ratio at its height on either moved curve
+        b["stderr_thrust_map"] = abs(float(y) - float(x)) / 2.0
+    return effects, curve_report
 
 
 @dataclass

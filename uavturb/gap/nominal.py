@@ -253,6 +253,12 @@ def thrust_levels(group: np.ndarray, t: np.ndarray, y_thrust: np.ndarray, S: np.
 #: rad/s per rad/s of hover speed: the offsets :func:`speed_offset` searches (an idle speed up to half
 #: the hover speed reads as delta up to 1 hover speed; a map bent the other way as negative)
 OFFSET_SPAN = (-0.5, 1.0)
+#: hover speeds: the offsets of commanded rotor speeds that a thrust map not read leaves open (no reading, or the
+#: least residual at an end of :data:`OFFSET_SPAN`): from none to half the hover speed. Neural-Swarm's Crazyflies
+#: read 0.06-0.54 of theirs where the reading counts (0.66 in the others' downwash); the blind probe's Crazyflie-like
+#: commands with an idle of a third of the hover speed, flown only near the floor, left no reading and named
+#: mu = 2.6 for a true 2 on a curve stated +- 0.034
+UNREAD_OFFSET_SPAN = (0.0, 0.5)
 #: time chunks of the rows for the jackknife of :func:`speed_offset`
 OFFSET_CHUNKS = 10
 #: rows :func:`speed_offset` needs, and each cell of :func:`offset_cells`
@@ -325,6 +331,30 @@ class SpeedOffset:
     def decisive(self) -> bool:
         """It counts and stands :data:`OFFSET_DECISIVE_Z` errors from zero: the speeds are read moved by it."""
         return self.counts and self.z >= OFFSET_DECISIVE_Z
+
+    def open_interval(self) -> tuple[float, float]:
+        """rad/s, the offsets this reading leaves open (the **thrust map** term's ends): none to the reading where
+        it counts; one standard error either side of it where it does not (within :data:`OFFSET_SPAN`); and
+        :func:`unread_interval` where it is none (at a bound)."""
+        if self.at_bound or not np.isfinite(self.delta):
+            return unread_interval(self.w_hover)
+        if self.counts:
+            return 0.0, self.delta
+        lo, hi = (x * self.w_hover for x in OFFSET_SPAN)
+        return max(lo, self.delta - self.stderr), min(hi, self.delta + self.stderr)
+
+
+def unread_interval(w_hover: float) -> tuple[float, float]:
+    """rad/s, the offsets of commanded speeds hovering at ``w_hover`` [rad/s] that no reading narrows
+    (:data:`UNREAD_OFFSET_SPAN`)."""
+    return UNREAD_OFFSET_SPAN[0] * w_hover, UNREAD_OFFSET_SPAN[1] * w_hover
+
+
+def hover_speed(rotor_speeds: np.ndarray) -> float:
+    """rad/s, the median over rows of the mean rotor speed ``rotor_speeds`` (K, N) where the rotors turn."""
+    mean = np.mean(np.asarray(rotor_speeds, float), axis=1)
+    spinning = mean[mean > 0]
+    return float(np.median(spinning)) if len(spinning) else float("nan")
 
 
 def offset_cells(group: np.ndarray, d_down: np.ndarray, d_up: np.ndarray, rotor_radius: float, reach: float

@@ -245,6 +245,13 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                              "measure it")
                 L.append(f"  - error of {k}: ± {b['stderr']:.3g}, limited by {b['limited_by'].replace('_', ' ')} "
                          f"({terms}){left}")
+            if e.get("law_shape_open"):
+                o = e["law_shape_open"]
+                L.append(f"  - its law is not decided: `{o['law']}` fitted the held-out rows better, by "
+                         f"{o['heldout_z_over']:.2g} errors ({o['needed']:g} needed to name it instead), and no "
+                         "measured surface curve judged their shapes; between and beyond these flights' heights the "
+                         f"two may differ by more than the error above. To tell them apart: hover far from the floor "
+                         "and at several low heights, a few seconds each")
             if e.get("untaken_candidates"):
                 L.append("  - its error covers " + ", ".join(
                     f"`{c}` (held-out gain {z:.2g} errors: not taken)" for c, z in e["untaken_candidates"].items())
@@ -344,6 +351,13 @@ def _surface_curve_lines(curve: dict | None, height: dict | None = None, missing
     for alt in curve.get("alternatives", []):
         L.append(f"\nAlternative `{alt['law']}`: {format_params(alt['params'], alt['stderr'])}, chi^2/dof = "
                  f"{alt['chi2_dof']:.2f} ({'fits' if alt['law_fits'] else 'does not fit'}).")
+    moved = [b["stderr_thrust_map"] for b in curve["bins"] if "stderr_thrust_map" in b]
+    if moved:
+        terms = ", ".join(f"{k} ± {v:.2g}" for k, v in curve.get("thrust_map", {}).items() if np.isfinite(v))
+        L.append(f"\n**Commanded speeds' offset**: the ratios are read on commanded rotor speeds whose offset is "
+                 f"not pinned (below, Thrust map): across the offsets left open each bin's ratio moves by up to "
+                 f"± {max(moved):.3f} beside its ± above, and the law's values on the curve by "
+                 f"{terms or 'an unknown amount'} (in their stated errors).")
     offset = (height or {}).get("offset_read_from_curve")
     if offset:
         L.append(f"\n**Heights off?** {offset['why']}.")

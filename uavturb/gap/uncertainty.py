@@ -66,7 +66,11 @@ other and of the noise) added in quadrature:
   errors from zero and at least 2.5 % of the hover speed, :attr:`~uavturb.gap.nominal.SpeedOffset.counts`).
   An idle speed in the motors' command map reads as a stronger ground effect (the rotors turn slower near
   the floor); the data cannot always tell it from other physics that depends on the thrust level, so the
-  named values stay and the error covers the other reading.
+  named values stay and the error covers the other reading. Where it does not count, half the change between
+  the refits at one standard error either side of the reading; where there is no reading (too few steady rows
+  far from the floor, or a least residual at an end of the range searched), between none and
+  :data:`~uavturb.gap.nominal.UNREAD_OFFSET_SPAN` of the hover speed
+  (:meth:`~uavturb.gap.nominal.SpeedOffset.open_interval`).
 - **speed offset** (commanded rotor speeds whose offset is decisive,
   :attr:`~uavturb.gap.nominal.SpeedOffset.decisive`): the finder runs again on the speeds moved by it
   (:func:`uavturb.gap.finder.read_on_moved_speeds`), and each value's error carries half its change from the
@@ -100,7 +104,7 @@ import numpy as np
 
 from uavturb.gap.design import MIN_ROWS, GapData, effective_S, surface_reach_m
 from uavturb.gap.fit import ModelFit, _nl_values, fit_model, information_shares
-from uavturb.gap.nominal import SpeedOffset, offset_cells, speed_offset
+from uavturb.gap.nominal import SpeedOffset, hover_speed, offset_cells, speed_offset, unread_interval
 from uavturb.numerics.blocks import contiguous_blocks, jackknife_se, weighted_jackknife_se
 from uavturb.physics.effects import EFFECTS
 
@@ -391,11 +395,12 @@ def stream_rate_term(recorded: dict[str, float], thinned: dict[str, float] | Non
 
 
 def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None = None
-                    ) -> tuple[SpeedOffset | None, dict[str, dict[str, float]]]:
-    """The **thrust map** term: the recorded speeds' offset (None where too few rows are at least
-    :data:`~uavturb.gap.nominal.OFFSET_RADII` rotor radii over the floor) and, where it counts
-    (:attr:`~uavturb.gap.nominal.SpeedOffset.counts`), ``{effect: {param: half the change}}`` of every effect of
-    ``final`` between its refit on ``data`` and on ``data`` with the speeds moved by it (``{}`` otherwise).
+                    ) -> tuple[SpeedOffset | None, tuple[float, float], dict[str, dict[str, float]]]:
+    """The **thrust map** term of commanded rotor speeds: the recorded speeds' offset (None where too few rows are at
+    least :data:`~uavturb.gap.nominal.OFFSET_RADII` rotor radii over the floor), the offsets it leaves open [rad/s]
+    (:meth:`~uavturb.gap.nominal.SpeedOffset.open_interval`; :func:`~uavturb.gap.nominal.unread_interval` where
+    there is no reading), and ``{effect: {param: half the change}}`` of every effect of ``final`` between its refits
+    on ``data`` with the speeds moved by either end of them.
 
     ``data``: the rows ``final`` was fitted on (the simulator's own effects among its effects). The thrust
     the rotors make is the measured force along the body z axis less every other force of ``final`` (the motor
@@ -419,13 +424,15 @@ def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None 
     found = speed_offset(y_thrust, data.rotor_speeds, cells, data.t, S=S_thrust / data.thrust_level,
                          voltage_dev=data.voltage_dev, voltage_mean=float(np.mean(volts)) if volts else float("nan"),
                          sag_time=data.t - middle if sag else None)
-    if found is None or not found.counts or not final.effects:
-        return found, {}
+    ends = found.open_interval() if found is not None else unread_interval(hover_speed(data.rotor_speeds))
+    if not final.effects or not all(np.isfinite(ends)) or ends[0] == ends[1]:
+        return found, ends, {}
     effects = frozenset(final.effects)
     try:
-        before = fit_model(data, effects, with_stderr=False)
-        after = fit_model(data.with_speed_offset(found.delta), effects, with_stderr=False)
+        lo, hi = (fit_model(data.with_speed_offset(d) if d != 0.0 else data, effects, with_stderr=False)
+                  for d in ends)
     except (np.linalg.LinAlgError, ValueError):
-        return found, {name: {k: float("nan") for k in _params(final, name)} for name in effects}
-    return found, {name: {k: abs(float(after.effect_params(name)[0][k]) - float(v)) / 2.0
-                          for k, v in _params(before, name).items()} for name in effects}
+        return found, ends, {name: {k: float("nan") for k in _params(final, name)} for name in effects}
+    return found, ends, {name: {k: abs(float(hi.effect_params(name)[0][k]) - float(v)) / 2.0
+                                for k, v in _params(lo, name).items()} for name in effects}
+
