@@ -139,6 +139,9 @@ def test_the_multirotor_law_flown_is_named_over_cheeseman_bennett(tmp_path):
     assert named["ground_effect_multirotor"]["params"]["K_b"] == pytest.approx(1.5, rel=0.15)
     curve = report["surface_curve"]
     assert curve["named"]["agrees"] and curve["named"]["largest_difference"] < 0.01
+    # beside each bin, how far the named law moves within its stated error: the largest is said
+    band = [b["law_stderr"] for b in curve["bins"]]
+    assert all(x >= 0 for x in band) and curve["named"]["largest_band"] == pytest.approx(max(band))
     alternatives = {a["law"]: a for a in curve["alternatives"]}
     assert set(alternatives) == {"ground_effect", "ground_effect_exponential"}
     assert not alternatives["ground_effect"]["law_fits"]

@@ -26,6 +26,7 @@ from uavturb.gap.surface_laws import (
     HOVER_THRUST_RATE,
     LAW_FITS_CHI2_DOF,
     fit_law,
+    law_band,
     law_in_bins,
     law_named_from_curve,
     law_on_curve,
@@ -728,3 +729,24 @@ def test_a_thrust_level_following_the_voltage_is_read_on_the_far_samples_and_its
     assert found["shifts"] == pytest.approx(expected, rel=0.06) and found["largest"] > 0.02
     assert voltage_drift(curve_of((d, need, model, g, t)), d, need / model, dv, g, t, use) is None
     assert voltage_drift(curve, d, need / model, np.zeros(len(t)), g, t, use) is None
+
+
+def test_a_law_band_is_how_far_the_law_moves_within_its_errors():
+    """Half the change of the law in each bin between its parameter one stated error below and above, the
+    parameters' in quadrature; a law known exactly has none, an unknown error gives nan, and a parameter's lower
+    end stops at the bottom of its search (the exponential law's A at 0)."""
+    curve = curve_of(hovers(cheeseman_bennett(2.0), seed=3))
+    mu, se = 2.0, 0.5
+    band = law_band(curve, "ground_effect", {"mu": mu}, {"mu": se}, R, **GEOMETRY)
+    expected = (law_in_bins(curve, "ground_effect", [mu + se], R, **GEOMETRY)
+                - law_in_bins(curve, "ground_effect", [mu - se], R, **GEOMETRY)) / 2
+    assert band == pytest.approx(expected) and band[0] > band[-1] > 0  # widest nearest the floor
+    assert np.all(law_band(curve, "ground_effect", {"mu": mu}, {"mu": 0.0}, R, **GEOMETRY) == 0.0)
+    assert np.all(np.isnan(law_band(curve, "ground_effect", {"mu": mu}, {"mu": np.nan}, R, **GEOMETRY)))
+    A, lam = 0.3, 1.5
+    both = law_band(curve, "ground_effect_exponential", {"A": A, "lam": lam}, {"A": 0.5, "lam": 0.2}, R, **GEOMETRY)
+    a_part = (law_in_bins(curve, "ground_effect_exponential", [0.8, lam], R, **GEOMETRY)
+              - law_in_bins(curve, "ground_effect_exponential", [0.0, lam], R, **GEOMETRY)) / 2  # A floored at 0
+    lam_part = (law_in_bins(curve, "ground_effect_exponential", [A, 1.7], R, **GEOMETRY)
+                - law_in_bins(curve, "ground_effect_exponential", [A, 1.3], R, **GEOMETRY)) / 2
+    assert both == pytest.approx(np.hypot(a_part, lam_part))

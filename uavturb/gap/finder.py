@@ -65,6 +65,7 @@ from uavturb.gap.surface_laws import (
     HeightOffset,
     finder_surface_curve,
     height_offset,
+    law_band,
     law_named_from_curve,
     law_on_curve,
 )
@@ -405,6 +406,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     named = _untaken_checked(named, data, final, sel.tried, {e["name"] for e in rejected + not_testable}
                              | {c for a in ambiguous for c in a["candidates"]})
     if curve_report is not None:
+        curve_report = _with_law_band(curve_report, curve, named, data)
         decided = ({e["name"] for e in named + rejected + not_testable}
                    | {c for a in ambiguous for c in a["candidates"]})
         curve_report["not_named"] = lift_not_named(evidence, sel.tried, decided, *_held_out_near_s(data, fm),
@@ -677,11 +679,11 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
                  f"least residual with it)")
     if found.at_bound:
         low, high = (100 * x for x in OFFSET_SPAN)
-        left = (100 * x for x in UNREAD_OFFSET_SPAN)
+        open_low, open_high = (100 * x for x in UNREAD_OFFSET_SPAN)
         note += (f": that is an end of the range searched ({low:+.0f} to {high:+.0f} % of the hover speed), so no "
                  "offset within it steadies the thrust: no reading (something else moves the thrust per speed "
                  "squared: another vehicle's downwash, a thrust that does not follow the speed squared, too few "
-                 f"heights); an idle speed of {next(left):.0f} to {next(left):.0f} % of the hover speed is left open, "
+                 f"heights); an idle speed of {open_low:.0f} to {open_high:.0f} % of the hover speed is left open, "
                  f"and {carried}")
     elif found.counts:
         note += (": the recorded (commanded) speeds may be off by an offset, as commands with an idle speed are; the "
@@ -697,6 +699,21 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
         "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells, "sse_ratio": found.sse_ratio,
         "voltage_k_V": found.k_V if data.voltage_dev is not None else None, "z": found.z, "counts": found.counts,
         "decisive": found.decisive, "applied": False, "open_interval_rad_s": [float(x) for x in ends], "note": note}
+
+
+def _with_law_band(curve_report: dict, curve: Any, named: list[dict[str, Any]], data: GapData) -> dict:
+    """``curve_report`` with each bin's ``law_stderr``, how far the named surface law moves there within its stated
+    errors (:func:`~uavturb.gap.surface_laws.law_band`), and the largest under ``named.largest_band``: beside the
+    measured ratio it says whether the law is known to 2 % of thrust in a bin."""
+    law = (curve_report.get("named") or {}).get("law")
+    entry = next((e for e in named if e["name"] == law), None)
+    if entry is None or curve is None:
+        return curve_report
+    band = law_band(curve, law, entry["params"], entry.get("stderr") or {}, data.rotor_radius, **data.geometry)
+    for b, x in zip(curve_report["bins"], band):
+        b["law_stderr"] = float(x)
+    curve_report["named"]["largest_band"] = float(np.nanmax(band)) if np.any(np.isfinite(band)) else None
+    return curve_report
 
 
 def _with_thrust_map(effects: list[dict[str, Any]], terms: dict[str, dict[str, float]]) -> list[dict[str, Any]]:

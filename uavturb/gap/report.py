@@ -340,9 +340,19 @@ def _surface_curve_lines(curve: dict | None, height: dict | None = None, missing
          f"rotor plane's height{plane}; law: `{curve['law']}` ({format_params(curve['params'], curve['stderr'])} "
          f"fitted to the curve, chi^2/dof = {curve['chi2_dof']:.2f}). "
          f"{'The law fits the curve' if curve['law_fits'] else 'The law does not fit the curve'}: {curve['why']}",
-         "", "| rotor-plane height [m] | samples | measured ratio | ± | law |", "|---|---|---|---|---|"]
+         ""]
+    band = all("law_stderr" in b for b in curve["bins"])
+    L += ["| rotor-plane height [m] | samples | measured ratio | ± | law |" + (" law ± |" if band else ""),
+          "|---|---|---|---|---|" + ("---|" if band else "")]
     for b in curve["bins"]:
-        L.append(f"| {b['d_m']:.3f} | {b['n']} | {b['ratio']:.4f} | {b['stderr']:.4f} | {b['law']:.4f} |")
+        L.append(f"| {b['d_m']:.3f} | {b['n']} | {b['ratio']:.4f} | {b['stderr']:.4f} | {b['law']:.4f} |"
+                 + (f" {b['law_stderr']:.4f} |" if band else ""))
+    largest = (curve.get("named") or {}).get("largest_band")
+    if band and largest is not None:
+        L.append(f"\nLaw ±: how far the named law moves in each bin within its stated errors (each parameter one "
+                 f"error either way), up to {100 * largest:.1f} % of thrust"
+                 + (": it is known to within 2 % in every bin." if largest <= 0.02 else
+                    ": beyond 2 % these flights do not pin the law down at every height."))
     lo, hi = curve["bins"][0].get("lo_m"), curve["bins"][-1].get("hi_m")
     if lo is not None and hi is not None:
         L.append(f"\nMeasured between {lo:.3f} and {hi:.3f} m (the hover-like samples' rotor-plane heights): the law's "
