@@ -288,6 +288,10 @@ def test_a_better_law_left_unnamed_without_a_curve_is_said(tmp_path):
     assert ("  - its law is not decided: `ground_effect_exponential` fitted the held-out rows better, by 3.5 errors "
             "(4 needed to name it instead), and no measured surface curve judged their shapes"
             ) in (tmp_path / "report.md").read_text()
+    ge["law_shape_open"] = {"law": None, "heldout_z_over": None, "needed": 4.0}  # no better law: the shape unchecked
+    write_markdown(tmp_path, _one_effect_report(ge), [])
+    text = (tmp_path / "report.md").read_text()
+    assert "  - its shape was not checked: no surface curve was measured, so" in text and "not decided" not in text
 
 
 def test_a_curve_on_commanded_speeds_with_an_open_offset_says_how_far_it_moves(tmp_path):
@@ -300,3 +304,31 @@ def test_a_curve_on_commanded_speeds_with_an_open_offset_says_how_far_it_moves(t
     write_markdown(tmp_path, _one_effect_report(ge, surface_curve=curve), [])
     assert ("across the offsets left open each bin's ratio moves by up to ± 0.051 beside its ± above, and the law's "
             "values on the curve by mu ± 0.42 (in their stated errors)") in (tmp_path / "report.md").read_text()
+
+
+def test_the_law_band_says_whether_the_named_law_is_known_to_two_percent(tmp_path):
+    ge = {"name": "ground_effect", "params": {"mu": 6.3}, "stderr": {"mu": 3.1}, "explanation": "Extra lift ...",
+          "heldout_rmse_before_N": 0.0115, "heldout_rmse_after_N": 0.007, "z_heldout": 5.9}
+    bins = [{"d_m": 0.051, "n": 30, "ratio": 1.0846, "stderr": 0.0062, "law": 1.0899, "law_stderr": 0.0483},
+            {"d_m": 0.087, "n": 48, "ratio": 1.0329, "stderr": 0.0176, "law": 1.0405, "law_stderr": 0.0211}]
+    curve = {"far_m": 0.23, "law": "ground_effect", "params": {"mu": 6.0}, "stderr": {"mu": 0.62}, "chi2_dof": 0.09,
+             "law_fits": True, "why": "it fits.", "bins": bins,
+             "named": {"law": "ground_effect", "params": {"mu": 6.3}, "largest_band": 0.0483}}
+    write_markdown(tmp_path, _one_effect_report(ge, surface_curve=curve), [])
+    text = (tmp_path / "report.md").read_text()
+    assert "| rotor-plane height [m] | samples | measured ratio | ± | law | law ± |" in text
+    assert "| 0.051 | 30 | 1.0846 | 0.0062 | 1.0899 | 0.0483 |" in text
+    assert ("up to 4.8 % of thrust: beyond 2 % these flights do not pin the law down at every height." in text
+            and "Each parameter is moved alone" not in text)
+    curve["named"]["largest_band"] = 0.015
+    write_markdown(tmp_path, _one_effect_report(ge, surface_curve=curve), [])
+    assert "up to 1.5 % of thrust: it is known to within 2 % in every bin." in (tmp_path / "report.md").read_text()
+    curve["named"]["law"] = "ground_effect_exponential"  # two parameters, each moved alone: said
+    write_markdown(tmp_path, _one_effect_report(ge, surface_curve=curve), [])
+    assert ("Each parameter is moved alone: where they trade against each other, together they move the law less."
+            in (tmp_path / "report.md").read_text())
+    for b in bins:
+        del b["law_stderr"]
+    write_markdown(tmp_path, _one_effect_report(ge, surface_curve=curve), [])
+    text = (tmp_path / "report.md").read_text()
+    assert "law ± |" not in text and "Law ±" not in text  # no band: the table as before

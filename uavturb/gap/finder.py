@@ -398,11 +398,12 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                                                height_uncertainty)
     named, curve_report = curve_named_thrust_map(named, curve_report, _curves_at_open_offsets(data, final, speed_map))
     named = [_mass_checked(e, final.coef["k_T"], vehicle.thrust_coefficient) for e in named]
-    if curve_report is None:  # no measured curve judged the laws' shapes: the held-out margin of a better one, said
+    if curve_report is None:  # no measured curve judged the law's shape: said, with the margin of a better one
         for e in named:
-            found = better_law_not_named(e["name"], sel.tried) if EFFECTS[e["name"]].surface else None
-            if found is not None:
-                e["law_shape_open"] = {"law": found[0], "heldout_z_over": found[1], "needed": Z_IMPROVE}
+            if EFFECTS[e["name"]].surface == "d_down":
+                found = better_law_not_named(e["name"], sel.tried)
+                e["law_shape_open"] = {"law": found[0] if found else None,
+                                       "heldout_z_over": found[1] if found else None, "needed": Z_IMPROVE}
     named = _untaken_checked(named, data, final, sel.tried, {e["name"] for e in rejected + not_testable}
                              | {c for a in ambiguous for c in a["candidates"]})
     if curve_report is not None:

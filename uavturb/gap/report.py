@@ -247,11 +247,16 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                          f"({terms}){left}")
             if e.get("law_shape_open"):
                 o = e["law_shape_open"]
-                L.append(f"  - its law is not decided: `{o['law']}` fitted the held-out rows better, by "
-                         f"{o['heldout_z_over']:.2g} errors ({o['needed']:g} needed to name it instead), and no "
-                         "measured surface curve judged their shapes; between and beyond these flights' heights the "
-                         f"two may differ by more than the error above. To tell them apart: hover far from the floor "
-                         "and at several low heights, a few seconds each")
+                if o.get("law"):
+                    L.append(f"  - its law is not decided: `{o['law']}` fitted the held-out rows better, by "
+                             f"{o['heldout_z_over']:.2g} errors ({o['needed']:g} needed to name it instead), and no "
+                             "measured surface curve judged their shapes; between and beyond these flights' heights "
+                             "the two may differ by more than the error above. To tell them apart: hover far from the "
+                             "floor and at several low heights, a few seconds each")
+                else:
+                    L.append("  - its shape was not checked: no surface curve was measured, so between and "
+                             "beyond these flights' heights another law of the registry may describe the lift better. "
+                             "To measure it: hover far from the floor and at several low heights, a few seconds each")
             if e.get("untaken_candidates"):
                 L.append("  - its error covers " + ", ".join(
                     f"`{c}` (held-out gain {z:.2g} errors: not taken)" for c, z in e["untaken_candidates"].items())
@@ -347,12 +352,16 @@ def _surface_curve_lines(curve: dict | None, height: dict | None = None, missing
     for b in curve["bins"]:
         L.append(f"| {b['d_m']:.3f} | {b['n']} | {b['ratio']:.4f} | {b['stderr']:.4f} | {b['law']:.4f} |"
                  + (f" {b['law_stderr']:.4f} |" if band else ""))
-    largest = (curve.get("named") or {}).get("largest_band")
+    named = curve.get("named") or {}
+    largest = named.get("largest_band")
     if band and largest is not None:
+        several = named.get("law") in EFFECTS and len(EFFECTS[named["law"]].params) > 1
         L.append(f"\nLaw ±: how far the named law moves in each bin within its stated errors (each parameter one "
                  f"error either way), up to {100 * largest:.1f} % of thrust"
                  + (": it is known to within 2 % in every bin." if largest <= 0.02 else
-                    ": beyond 2 % these flights do not pin the law down at every height."))
+                    ": beyond 2 % these flights do not pin the law down at every height.")
+                 + (" Each parameter is moved alone: where they trade against each other, together they move the "
+                    "law less." if several else ""))
     lo, hi = curve["bins"][0].get("lo_m"), curve["bins"][-1].get("hi_m")
     if lo is not None and hi is not None:
         L.append(f"\nMeasured between {lo:.3f} and {hi:.3f} m (the hover-like samples' rotor-plane heights): the law's "
