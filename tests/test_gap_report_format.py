@@ -332,3 +332,20 @@ def test_the_law_band_says_whether_the_named_law_is_known_to_two_percent(tmp_pat
     write_markdown(tmp_path, _one_effect_report(ge, surface_curve=curve), [])
     text = (tmp_path / "report.md").read_text()
     assert "law ± |" not in text and "Law ±" not in text  # no band: the table as before
+
+
+def test_a_state_too_slow_for_a_surface_effect_says_when_one_was_named_all_the_same(tmp_path):
+    """The ground truth updating at 9 Hz is too slow for a surface effect; where one was named anyway, its error
+    carrying the stream-rate term, the line says so rather than leave the two looking at odds."""
+    slow = ("a_q/state_groundtruth_estimate0 updates at 9.0 Hz (82 % of its rows repeat the last value): too slow "
+            "for a surface effect (heights crossed in 0.2 s), which needs updates at 10 Hz or faster")
+    ge = {"name": "ground_effect", "params": {"mu": 2.03}, "stderr": {"mu": 0.28}, "explanation": "Extra lift ...",
+          "heldout_rmse_before_N": 0.5, "heldout_rmse_after_N": 0.08, "z_heldout": 12.0,
+          "error_budget": {"mu": {"sample": 0.05, "stream_rate": 0.1, "stderr": 0.28, "limited_by": "sample"}}}
+    report = _one_effect_report(ge, streams={"streams": [], "stream_limits": [slow], "delays": [], "dropouts": []})
+    write_markdown(tmp_path, report, [])
+    assert (f"- **Too slow**: {slow}; `ground_effect` named all the same, its error carrying what thinning these "
+            "updates to every other one changes (stream rate)") in (tmp_path / "report.md").read_text()
+    del ge["error_budget"]["mu"]["stream_rate"]
+    write_markdown(tmp_path, report, [])
+    assert f"- **Too slow**: {slow}\n" in (tmp_path / "report.md").read_text()

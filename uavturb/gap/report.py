@@ -425,7 +425,12 @@ def _recording_lines(report: dict, names: dict[str, str]) -> list[str]:
     streams = report.get("streams") or {}
     if streams:
         L += ["", "## What the streams hold"] + [f"- {line}" for line in streams.get("streams", [])]
-        L += [f"- **Too slow**: {why}" for why in streams.get("stream_limits", [])]
+        rated = [f"`{e['name']}`" for e in report.get("effects", []) if EFFECTS[e["name"]].surface
+                 and any("stream_rate" in b for b in (e.get("error_budget") or {}).values())]
+        L += [f"- **Too slow**: {why}" + (f"; {', '.join(rated)} named all the same, its error carrying what thinning "
+                                          "these updates to every other one changes (stream rate)"
+                                          if rated and "a surface effect" in why else "")
+              for why in streams.get("stream_limits", [])]
         L += [_delay_line(d, names) for d in streams.get("delays", [])]
         L += _dropout_lines(streams.get("dropouts", []), names)
     nominal = report.get("nominal", {})
