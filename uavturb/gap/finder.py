@@ -42,7 +42,15 @@ from uavturb.gap.nominal import (
     ThrustLevels,
     hover_speed,
 )
-from uavturb.gap.preparation import contact_masks, prepared, rotor_shifted, rotor_speeds_moved, state_thinned
+from uavturb.gap.landed_heights import LandedHeights
+from uavturb.gap.preparation import (
+    contact_masks,
+    landings_aligned,
+    prepared,
+    rotor_shifted,
+    rotor_speeds_moved,
+    state_thinned,
+)
 from uavturb.gap.selection import (
     Z_DISTINCT,
     Z_IMPROVE,
@@ -304,7 +312,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     paths = [str(r.path) if r.path else r.name for r in recordings]
     progress("aligning the streams")
     recordings, fds, held = prepared(recordings, paths)
-    data, contact_report = _flight_rows(fds, [r.vehicle for r in recordings], paths)
+    data, contact_report, landed = _flight_rows(fds, [r.vehicle for r in recordings], paths)
     # emptied as the rows were built; what they keep lives on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
     del fds
     if len(data) < MIN_ANALYSIS_ROWS and data.dense is not None:
@@ -386,7 +394,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     # a lever arm read from the motion: the rotor plane is counted from the recorded origin or from the centre of
     # mass (preparation._lever_line), which lie r_z apart
     height_uncertainty = max([height_uncertainty] + [abs(lever["r_m"][2]) for lever in held["lever_arms"]]
-                             + held["levelled_m"])  # a tilted scan, levelled (preparation.prepared)
+                             + held["levelled_m"]  # a tilted scan, levelled (preparation.prepared)
+                             + [landed.uncertainty_m])  # recordings landing apart, some not moved (landed_heights)
     named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty, refits), curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
     named = _rate_checked(named, final, recordings, paths, held["state_too_slow"])
@@ -431,6 +440,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "height_reference": height_reference(vehicle.rotor_plane_z, height_uncertainty, any(
             EFFECTS[n].surface for n in [e["name"] for e in named + rejected]
             + [c for a in ambiguous for c in a["candidates"] if c in EFFECTS])) | {"passes_floor": heights_broken}
+        | {"landed_heights": landed.as_report(paths)}
         | {"offset_read_from_curve": None if offset is None else {
             "law": offset.law, "dz_m": offset.dz_m, "chi2_dof": offset.chi2_dof,
             "chi2_dof_as_measured": offset.chi2_dof_as_measured, "params": offset.params, "why": offset.sentence()}},
@@ -493,21 +503,24 @@ def _check_thrust_scale(fd: Any, vehicle: Any, path: str) -> None:
                                 "coefficient or mass off")
 
 
-def _flight_rows(fds: list, vehicles: Sequence[Any], paths: Sequence[str]) -> tuple[GapData, list[dict[str, Any]]]:
-    """The flights' rows in the air (ground contact found and left out) and the report's ``ground_contact``, each
-    flight's forces with its own vehicle.yaml's mass (``vehicles``, one per flight: one vehicle, io.reader checks, whose
-    batteries may weigh differently). Rotor speeds at odds with vehicle.yaml's thrust coefficient are refused
-    (:func:`_check_thrust_scale`). ``fds`` is emptied as the rows are built (its places set to None:
-    :func:`~uavturb.gap.design.gap_data`'s ``release``)."""
+def _flight_rows(fds: list, vehicles: Sequence[Any], paths: Sequence[str]
+                 ) -> tuple[GapData, list[dict[str, Any]], LandedHeights]:
+    """The flights' rows in the air (ground contact found and left out), the report's ``ground_contact`` and the
+    recordings' landed heights, each flight's heights moved so that they land at one
+    (:func:`~uavturb.gap.preparation.landings_aligned`), and its forces with its own vehicle.yaml's mass
+    (``vehicles``, one per flight: one vehicle, io.reader checks, whose batteries may weigh differently). Rotor
+    speeds at odds with vehicle.yaml's thrust coefficient are refused (:func:`_check_thrust_scale`). ``fds`` is
+    emptied as the rows are built (its places set to None: :func:`~uavturb.gap.design.gap_data`'s ``release``)."""
     for fd, vehicle_of, path in zip(fds, vehicles, paths):
         if vehicle_of.thrust_coefficient:
             _check_thrust_scale(fd, vehicle_of, path)
     vehicle = vehicles[0]
+    fds[:], landed = landings_aligned(fds, vehicle)
     contact, contact_report = contact_masks(fds, vehicle, paths)
     masses = [v.mass for v in vehicles]
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient, release=True,
                     arm_length=vehicle.arm_length, exclude=contact, masses=None if len(set(masses)) == 1 else masses)
-    return data, contact_report
+    return data, contact_report, landed
 
 
 def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordings: Sequence, paths: Sequence[str],
@@ -530,7 +543,7 @@ def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordi
     for side in (0, 1):
         recs = [rotor_shifted(r, interval[p][side]) if p in interval else r for r, p in zip(recordings, paths)]
         try:
-            shifted, _ = _flight_rows([flight_data(r) for r in recs], [r.vehicle for r in recs], paths)
+            shifted, _, _ = _flight_rows([flight_data(r) for r in recs], [r.vehicle for r in recs], paths)
         except InputError:
             continue
         apply_thrust_levels(shifted)
@@ -566,7 +579,7 @@ def _refit_on(recordings: Sequence, paths: Sequence[str], final: ModelFit) -> Mo
     """``final``'s effects fitted on the flights of ``recordings`` (streams changed for a systematic term: rotor
     timing, stream rate), each recording's thrust level its own where levels differ; None where that fails."""
     try:
-        data, _ = _flight_rows([flight_data(r) for r in recordings], [r.vehicle for r in recordings], paths)
+        data, _, _ = _flight_rows([flight_data(r) for r in recordings], [r.vehicle for r in recordings], paths)
         apply_thrust_levels(data)
         return fit_model(data, final.effects, with_stderr=False)
     except (InputError, np.linalg.LinAlgError, ValueError):

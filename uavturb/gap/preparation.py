@@ -24,6 +24,7 @@ import numpy as np
 from scipy.ndimage import median_filter
 
 from uavturb.errors import InputError
+from uavturb.gap.landed_heights import LandedHeights, landed_alignment, moved_heights
 from uavturb.io.body_frame import moved_origin
 from uavturb.io.consistency import FLIGHT_SHARE
 from uavturb.io.recording import GroundTruth, Recording, Rotors
@@ -207,6 +208,39 @@ def _vehicle_landed_height(lows: Sequence[float | None], d_downs: Sequence[np.nd
     return min(float(np.min(median_filter(d[np.isfinite(d)], 5, mode="nearest"))) for d in d_downs), False
 
 
+def _contact_rows(fd: FlightData, vehicle: Vehicle
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """What ground contact is read from in one flight: tilt [deg], thrust [N] (vehicle.yaml's k_T, or the weight
+    at the median speeds), ``d_down`` [m] (None: no surface under any row) and the strongest surface lift the
+    registry allows at each row's height [-] (None without heights; 1 where no surface is below)."""
+    geometry = {"arm_length": vehicle.arm_length, "rotor_count": vehicle.rotor_count}
+    R = quat.to_rotation_matrix(fd.q)
+    tilt = np.degrees(np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0)))
+    S = np.sum(fd.rotor_speeds**2, axis=1)
+    k_T = vehicle.thrust_coefficient
+    thrust = k_T * S if k_T else S / np.median(S) * vehicle.mass * GRAVITY
+    d_down = fd.d_down if fd.d_down is not None and np.any(np.isfinite(fd.d_down)) else None
+    lift = None if fd.d_down is None else np.where(
+        np.isfinite(fd.d_down), strongest_surface_lift(fd.d_down, "d_down", vehicle.rotor_radius, **geometry), 1.0)
+    return tilt, thrust, d_down, lift
+
+
+def _landed_low(fd: FlightData, rows: tuple, mass: float) -> float | None:
+    """m, one flight's landed rotor-plane height (:func:`uavturb.sysid.contact.landed_height`; ``rows``: its
+    :func:`_contact_rows`), None where it never lands or has no heights."""
+    tilt, thrust, d_down, lift = rows
+    if d_down is None:
+        return None
+    return landed_height(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass, d_down=d_down, limits=CONTACT_LIMITS, lift=lift)
+
+
+def landings_aligned(fds: Sequence[FlightData], vehicle: Vehicle) -> tuple[list[FlightData], LandedHeights]:
+    """The flights with their heights moved so that the recordings that land land at one rotor-plane height
+    (:mod:`uavturb.gap.landed_heights`), and what was read and moved."""
+    landed = landed_alignment([_landed_low(fd, _contact_rows(fd, vehicle), vehicle.mass) for fd in fds])
+    return [moved_heights(fd, s) for fd, s in zip(fds, landed.shifts)], landed
+
+
 def contact_masks(fds: Sequence[FlightData], vehicle: Vehicle, paths: Sequence[str]
                   ) -> tuple[list[np.ndarray], list[dict[str, Any]]]:
     """Per flight, the rows where the floor carries the vehicle, and the report's ``ground_contact``.
@@ -222,24 +256,9 @@ def contact_masks(fds: Sequence[FlightData], vehicle: Vehicle, paths: Sequence[s
     and only for dips moving throughout (real walks' dips to their lowest set point; a still vehicle there
     hovers). A still stretch that stays higher than ``skim_m`` over its recording's landed height is a rest only
     where its thrust could not hold a hover there under that law."""
-    mass, k_T = vehicle.mass, vehicle.thrust_coefficient
-    geometry = {"arm_length": vehicle.arm_length, "rotor_count": vehicle.rotor_count}
-
-    def hover_lift(h: np.ndarray) -> np.ndarray:
-        return strongest_surface_lift(h, "d_down", vehicle.rotor_radius, **geometry)
-
-    rows = []  # per flight: tilt [deg], thrust [N], d_down [m] (None: no surface under any row), lift [-]
-    for fd in fds:
-        R = quat.to_rotation_matrix(fd.q)
-        tilt = np.degrees(np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0)))
-        S = np.sum(fd.rotor_speeds**2, axis=1)
-        thrust = k_T * S if k_T else S / np.median(S) * mass * GRAVITY
-        d_down = fd.d_down if fd.d_down is not None and np.any(np.isfinite(fd.d_down)) else None
-        lift = None if fd.d_down is None else np.where(np.isfinite(fd.d_down), hover_lift(fd.d_down), 1.0)
-        rows.append((tilt, thrust, d_down, lift))
-    lows = [None if d_down is None else
-            landed_height(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass, d_down=d_down, limits=CONTACT_LIMITS, lift=lift)
-            for fd, (tilt, thrust, d_down, lift) in zip(fds, rows)]
+    mass = vehicle.mass
+    rows = [_contact_rows(fd, vehicle) for fd in fds]
+    lows = [_landed_low(fd, row, mass) for fd, row in zip(fds, rows)]
     skim_top, skim_landed = _vehicle_landed_height(lows, [r[2] for r in rows])
     if skim_top is not None:
         skim_top += CONTACT_LIMITS.skim_m

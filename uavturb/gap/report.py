@@ -8,6 +8,7 @@ from typing import Callable
 import numpy as np
 
 from uavturb.gap.decide import PRACTICAL_SHARE
+from uavturb.gap.landed_heights import LandedHeights
 from uavturb.gap.locate import AXES, features
 from uavturb.gap.selection import Z_IMPROVE, last_step
 from uavturb.gap.plotting import (
@@ -422,6 +423,11 @@ def _recording_lines(report: dict, names: dict[str, str]) -> list[str]:
         L += ["", "## Left out: ground contact"]
         L += [f"- {names[c['recording']]} {c['t_start']:.2f}-{c['t_end']:.2f} s: {c['why']}"
               for c in report["ground_contact"]]
+    landed = (report.get("height_reference") or {}).get("landed_heights")
+    if landed:
+        entries = landed["recordings"]
+        said = LandedHeights.from_report(landed).sentence([names[e["recording"]] for e in entries])
+        L += ["", f"**Landed heights**: {said}."]
     streams = report.get("streams") or {}
     if streams:
         L += ["", "## What the streams hold"] + [f"- {line}" for line in streams.get("streams", [])]
