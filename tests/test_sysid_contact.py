@@ -492,3 +492,22 @@ def test_rotors_spinning_on_the_gear_deep_in_ground_effect_rest_where_their_thru
     no_ramp = ContactLimits(ramp_ratio=np.inf)
     _, missed = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down, hover_lift=lift, limits=no_ramp)
     assert missed == []
+
+
+def test_a_hover_over_a_box_nearer_it_than_the_gear_holds_the_rotors_does_not_hide_the_landings():
+    """A blind probe's quadrotor rested on the floor with its rotor plane 0.170 m up and hovered 0.148 m over a 25 cm
+    box: the lowest height was that hover, no rest there, and both landings (7.5-7.9 N of floor reaction) had been
+    fitted as flight. The still stretches above the lowest are tried: the floor is seen at the rests."""
+    phases = TAKEOFF_LANDING[:4] + [("floor", 0.25), ("move", 1.5, -0.073), ("hover", 3.0), ("move", 1.5, 0.073),
+                                    ("floor", 0.0)] + TAKEOFF_LANDING[4:]
+    t, z, v, tilt, thrust, contact, floor = flight(phases, seed=5, z_noise=0.0005)
+    d_down = z - floor + 0.15  # rotor plane 15 cm above the body origin: rests at 0.163 m, hovers at 0.140 m
+    over_box = floor > 0
+    assert np.min(d_down[over_box]) < np.min(d_down[contact]) - 0.015
+    lift = _hover_lift_cheeseman_bennett(mu=2.0)
+    low = landed_height(t, z, v, tilt, thrust, MASS, d_down=d_down, calibrate=False, hover_lift=lift)
+    assert low == pytest.approx(Z_LAND + 0.15, abs=0.002)
+    mask, found = ground_contact(t, z, v, tilt, thrust, MASS, d_down=d_down, calibrate=False, hover_lift=lift)
+    assert_matches(found, t, contact)
+    assert not mask[over_box].any()
+    assert "the lowest still height where the floor is seen to carry the vehicle; it came down to 0.139 m" in found[0].why

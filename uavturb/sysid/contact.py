@@ -33,7 +33,10 @@ that do land: real Crazyflies switch their motors off on the floor (0 % of the w
 ramp their rotors from 30 to 53 % of the weight in a second at 0.6 rotor radius, where the strongest law has its
 pole and no thrust is too low for a hover (without the ramp both ends of such a flight were missed: 4-9 N of floor
 reaction fitted as aerodynamics). A still vehicle at a constant thrust there, never idling, is a hover as far as
-anything recorded can tell. Where no bound is known (no ``d_down``), the lowest height is taken as it is.
+anything recorded can tell. Where no bound is known (no ``d_down``), the lowest height is taken as it is. Where
+the floor is not seen at the lowest height, the still stretches above it are tried, lowest first (up to
+:data:`REST_CANDIDATES`): a hover over a box or a platform can bring the rotor plane nearer the surface below than
+the landing gear holds it on the floor.
 
 A recording without such a landed height has no rests at its lowest height; its idle rests count (below). Closer
 than :attr:`ContactLimits.skim_m` to the landed height a still stretch is a rest (the gear may touch there);
@@ -227,7 +230,9 @@ def landed_height(t: np.ndarray, z: np.ndarray, v: np.ndarray, tilt_deg: np.ndar
     """m, the height (of ``d_down`` where given, else of ``z``) at which the floor carries the vehicle in one
     recording, as :func:`ground_contact` reads it, or None where it never lands.
 
-    It is the lowest height the recording reaches (5-row median), where somewhere within
+    It is the lowest height the recording reaches (5-row median), or failing that the lowest height of a still
+    stretch above it (a hover over a box can come nearer a surface than the gear holds the rotor plane), where
+    somewhere within
     :attr:`ContactLimits.height_tol_m` of it the vehicle is still and level with a thrust no hover could need:
     under :attr:`ContactLimits.idle_ratio` of the weight, or under the least share that could hold a hover there
     under the strongest surface lift (``hover_lift`` or ``lift``), for :attr:`ContactLimits.min_s` or more
@@ -297,7 +302,8 @@ class _Reading:
 
     Attributes
     ----------
-    h0 : m, the lowest height the recording reaches (or the one given)
+    h0 : m, the landed height: given, or the lowest height the recording reaches where the floor is seen to carry
+        the vehicle there, or the lowest still height above it where it is (:func:`_read`)
     landed : whether the floor carries the vehicle at ``h0`` (given, seen, or no lift known to tell)
     resting : (n,) bool, rows still and level at ``h0`` (none where not ``landed``)
     known : (n,) bool, rows that hold an update with a finite height (or follow one)
@@ -307,6 +313,7 @@ class _Reading:
     ratio : (n,) -, share of the weight the thrust carries (scaled, median over ``window_s``)
     scale : -, the factor the thrust was scaled by
     hover_at : (n,) -, the least share of the weight that could hold a hover on each row (0: no bound)
+    lowest : m, the lowest height the recording reaches, where ``h0`` is a still height above it (else None)
     """
 
     h0: float
@@ -319,20 +326,67 @@ class _Reading:
     ratio: np.ndarray
     scale: float
     hover_at: np.ndarray
+    lowest: float | None = None
+
+
+#: other still heights tried as the landed height where the floor is not seen to carry the vehicle at its lowest
+REST_CANDIDATES = 4
 
 
 def _read(rec: _Recording, mass: float, landed: float | None, calibrate: bool, lim: ContactLimits,
           rotor_plane: bool) -> _Reading | None:
     """One recording's landed height, rests at it, stillness and thrust share (None: too few updates, or a
-    rotor plane that never came within landing-gear height of a surface)."""
-    n = len(rec.t)
+    rotor plane that never came within landing-gear height of a surface).
+
+    The landed height is ``landed`` where given; else the lowest height the recording reaches where the floor is
+    seen to carry the vehicle there, or failing that the lowest height of a still stretch above it
+    (:func:`_rest_heights`) where the floor is: a hover over a box or a platform may bring the rotor plane nearer
+    a surface than its landing gear holds it (a blind probe's quadrotor hovered 0.148 m over a 25 cm box and rested
+    on the floor at 0.170 m: its rests at both ends, 7.5-7.9 N of floor reaction, had been fitted as flight, and
+    its ground effect lost). Where none shows the floor, the lowest height, not landed."""
     rec.update[0] = True
     u = np.flatnonzero(rec.update & np.isfinite(rec.h))
     if len(u) < 5:
         return None
-    h0 = float(np.min(median_filter(rec.h[u], 5, mode="nearest"))) if landed is None else float(landed)
-    if rotor_plane and landed is None and h0 > lim.gear_max_m:
+    if landed is not None:
+        return _read_at(rec, u, mass, float(landed), True, calibrate, lim)
+    lowest = float(np.min(median_filter(rec.h[u], 5, mode="nearest")))
+    if rotor_plane and lowest > lim.gear_max_m:
         return None  # never within landing-gear height of a surface
+    first = _read_at(rec, u, mass, lowest, False, calibrate, lim)
+    if first.landed or rec.lift is None:
+        return first
+    for h0 in _rest_heights(rec, u, first.still, lowest, lim, rotor_plane):
+        reading = _read_at(rec, u, mass, h0, False, calibrate, lim)
+        if reading.landed:
+            reading.lowest = lowest
+            return reading
+    return first
+
+
+def _rest_heights(rec: _Recording, u: np.ndarray, still: np.ndarray, lowest: float, lim: ContactLimits,
+                  rotor_plane: bool) -> list[float]:
+    """m, ascending, the heights (median) of the still stretches (``still``, per row) of at least ``min_s`` above
+    ``lowest`` by more than ``height_tol_m``, one per ``height_tol_m`` band, up to :data:`REST_CANDIDATES` of
+    them, and with a rotor plane (``rotor_plane``) none over ``gear_max_m``."""
+    heights = []
+    for a, b in _runs(still & np.isfinite(rec.h)):
+        if rec.t[b - 1] - rec.t[a] >= lim.min_s:
+            heights.append(float(np.median(rec.h[a:b])))
+    out: list[float] = []
+    for h in sorted(heights):
+        if h <= lowest + lim.height_tol_m or (rotor_plane and h > lim.gear_max_m):
+            continue
+        if not out or h > out[-1] + lim.height_tol_m:
+            out.append(h)
+    return out[:REST_CANDIDATES]
+
+
+def _read_at(rec: _Recording, u: np.ndarray, mass: float, h0: float, given: bool, calibrate: bool,
+             lim: ContactLimits) -> _Reading:
+    """One recording's reading with its landed height taken at ``h0`` [m] (``given``: told, not read; ``u``: the
+    rows that hold an update with a finite height)."""
+    n = len(rec.t)
     rest_u, speed_u, still_u = _resting_updates(rec, u, h0, lim)
     is_u = np.zeros(n, bool)
     is_u[u] = True
@@ -351,7 +405,7 @@ def _read(rec: _Recording, mass: float, landed: float | None, calibrate: bool, l
     if rec.lift is not None:
         bounded = np.isfinite(rec.lift) & (rec.lift > 0)
         hover_at[bounded] = 1.0 / rec.lift[bounded]
-    seen = landed is not None or rec.lift is None or _floor_carries(rec.t, rec.h, resting, ratio, hover_at, lim)
+    seen = given or rec.lift is None or _floor_carries(rec.t, rec.h, resting, ratio, hover_at, lim)
     return _Reading(h0, seen, resting if seen else np.zeros(n, bool), last >= 0, still, speed_u, pos, ratio, scale,
                     hover_at)
 
@@ -418,7 +472,7 @@ def _contact_in(rec: _Recording, mass: float, landed: float | None, calibrate: b
         decides = hover_at[core] > 0
         found.append(_why(rec, core, h0, landed is not None, rotor_plane, float(np.max(reading.speed[pos[core]])),
                           median, scale, lim, float(np.min(hover_at[core][decides])) if decides.any() else None,
-                          bool(np.all(idle[core]))))
+                          bool(np.all(idle[core])), reading.lowest))
     top = h0 + lim.skim_m if skim_top is None else skim_top
     seen = reading.landed if skim_top is None else skim_landed
     low = top - lim.skim_m
@@ -509,22 +563,27 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _why(rec: _Recording, core: slice, h0: float, given: bool, rotor_plane: bool, speed: float, ratio: float,
-         scale: float, lim: ContactLimits, hover_at: float | None = None, idle_only: bool = False
-         ) -> tuple[float, float, str]:
+         scale: float, lim: ContactLimits, hover_at: float | None = None, idle_only: bool = False,
+         lowest: float | None = None) -> tuple[float, float, str]:
     """``(t_start, t_end, sentence)`` of one contact core (margins not included in the times); ``ratio``
     is the share of the weight the thrust carried there (median); ``hover_at`` the least share that could
-    have held a hover on its rows beyond the gear's reach (None: none there)."""
+    have held a hover on its rows beyond the gear's reach (None: none there); ``lowest`` the lowest height the
+    recording reached where the landed height ``h0`` is a still height above it."""
     h = rec.h[core]
     name = "rotor-plane height" if rotor_plane else "height"
     ref = (f"the landed height given, {h0:.3f} m" if given
-           else f"within {100 * lim.height_tol_m:.1f} cm of the lowest the recording reached, {h0:.3f} m")
+           else f"within {100 * lim.height_tol_m:.1f} cm of the lowest the recording reached, {h0:.3f} m"
+           if lowest is None else
+           f"within {100 * lim.height_tol_m:.1f} cm of {h0:.3f} m, the lowest still height where the floor is seen "
+           f"to carry the vehicle; it came down to {lowest:.3f} m elsewhere, nearer another surface below")
     scaled = (f" (thrust scaled by {scale:.2f} so that it carries the weight in the air)" if abs(scale - 1) > 0.02
               else "")
     hover = ("" if hover_at is None else
              f"; more than {100 * lim.skim_m:.1f} cm up it stayed under the {100 * hover_at:.0f} % that could hold a "
              f"hover there in the strongest ground effect allowed")
     if idle_only:  # away from the landed height: the idling rotors alone tell it
-        ref = (f"{np.min(h) - h0:.2f} m over the lowest the recording reached: the height drifts, but rotors idling "
+        below = "the lowest the recording reached" if lowest is None else "its landed height"
+        ref = (f"{np.min(h) - h0:.2f} m over {below}: the height drifts, but rotors idling "
                f"under {100 * lim.idle_ratio:.0f} % of the weight hold no still vehicle in the air")
     why = (f"on the landing gear: {name} {np.min(h):.3f}-{np.max(h):.3f} m ({ref}), speed under {speed:.2f} m/s, "
            f"level within {np.max(rec.tilt[core]):.0f} deg and thrust {100 * ratio:.0f} % of the weight"
