@@ -521,3 +521,52 @@ def test_a_drag_that_holds_only_beside_an_undecided_push_is_undecided_with_it(tm
     assert entry["candidates"] == ["rotor_drag", "wind"] and entry["params_if_named"]["k_d"] > 0
     assert "without it" in entry["why"] and "outside its physical range" in entry["why"]
     assert any(a["candidates"] == ["wind", "thrust_axis_tilt"] for a in report["ambiguous"])
+
+
+def test_a_floor_and_a_ceiling_a_metre_apart_are_named_together(tmp_path, monkeypatch):
+    """A 2 kg quadrotor (rotor plane 15 cm over its origin) hovering at 1.5-4 rotor radii over the floor and under
+    a ceiling 1 m above it (Cheeseman-Bennett mu = 2 and kappa = 4), the blind probe's flight: both lifts raise the
+    thrust per rotor speed squared, the least of it midway, so neither law alone improved the held-out fit (the
+    ground law alone fitted mu = 0) and nothing was named. They are tried together and both named right, each
+    saying so."""
+    import uavturb.sim.flights.conditions as conditions
+    from uavturb.scene.layouts import box_room
+    from uavturb.sim.core.waypoint_plan import WaypointPlan
+    from uavturb.sim.flights.simulate import low_heights
+
+    height, r = 1.0, 0.1  # m, the ceiling over the floor, and the rotor radius
+
+    def plan(vehicle, room, duration, seed):
+        rest = low_heights(vehicle)["rest_height"]
+        p = WaypointPlan(np.array([0.0, 0.0, rest]), 0.3)
+        p.hold(1.0, "rest")
+        steps = [(0.0, 0.0, plane, i % 2) for i, plane in enumerate((0.15, 0.2, 0.3, 0.4))]
+        steps += [(0.4, 0.3, height - k * r, i % 2) for i, k in enumerate((4.0, 3.0, 2.0, 1.5))]
+        steps += [(-0.4, -0.3, 0.5, 0), (0.0, 0.0, 0.25, 1), (0.3, -0.3, height - 2.5 * r, 0)]
+        for x, y, plane, turn in steps:
+            p.move((x, y, max(plane - vehicle.rotor_plane_z, rest + 0.015)), p.yaw + 0.5 * turn if turn else None)
+            p.hold(3.0)
+        p.move((0.0, 0.0, p.p[2]), None, 0.5)
+        p.move((0.0, 0.0, rest), speed=0.3)
+        p.hold(1.0, "rest")
+        return p.reference("floor_and_ceiling", max(duration, p.t))
+
+    monkeypatch.setattr(conditions, "flight_room", lambda kind: box_room((8.0, 6.0), height, []))
+    monkeypatch.setattr(conditions, "make_reference", lambda kind, duration, seed, v, room: plan(v, room, duration,
+                                                                                                seed))
+    vehicle = tmp_path / "quad.yaml"
+    vehicle.write_text(HEAVY_QUAD)
+    path = tmp_path / "both"
+    generate_conditioned_flight(str(vehicle), {"ground_effect": {"mu": 2.0}, "ceiling_effect": {"kappa": 4.0}},
+                                duration=65.0, kind="mixed", seed=201, out=path,
+                                conditions=Conditions(rotor_plane_z=0.15, rate_hz=100))
+    report, _ = analyse(load_recordings([path]), {})
+    named = {e["name"]: e for e in report["effects"]}
+    tried = report["candidates_tried"]
+    assert set(named) == {"ground_effect", "ceiling_effect"}, tried
+    for name, key, truth in (("ground_effect", "mu", 2.0), ("ceiling_effect", "kappa", 4.0)):
+        assert abs(named[name]["params"][key] - truth) < 2 * named[name]["stderr"][key]
+    assert named["ground_effect"].get("named_with") == "ceiling_effect", tried
+    assert "Named together with ceiling_effect" in named["ground_effect"]["explanation"]
+    assert tried["ground_effect"]["step1_z"] < 4.0 < tried["ground_effect"]["step1_z_with_ceiling_effect"]
+    assert named["ground_effect"]["heldout_rmse_after_N"] == named["ceiling_effect"]["heldout_rmse_after_N"]
