@@ -329,8 +329,11 @@ class _Reading:
     lowest: float | None = None
 
 
-#: other still heights tried as the landed height where the floor is not seen to carry the vehicle at its lowest
-REST_CANDIDATES = 4
+#: other still heights of the rotor plane tried as the landed height where the floor is not seen to carry the
+#: vehicle at its lowest, and the share of the least thrust that could hold a hover there under which one counts
+#: (a still hover on commanded speeds reads a few percent under the weight as its battery sags: a share of 1 had
+#: taken a battery test's still hover at 1.25 m for a landing)
+REST_CANDIDATES, REST_CANDIDATE_SHARE = 4, 0.85
 
 
 def _read(rec: _Recording, mass: float, landed: float | None, calibrate: bool, lim: ContactLimits,
@@ -354,28 +357,28 @@ def _read(rec: _Recording, mass: float, landed: float | None, calibrate: bool, l
     if rotor_plane and lowest > lim.gear_max_m:
         return None  # never within landing-gear height of a surface
     first = _read_at(rec, u, mass, lowest, False, calibrate, lim)
-    if first.landed or rec.lift is None:
+    if first.landed or rec.lift is None or not rotor_plane:
         return first
-    for h0 in _rest_heights(rec, u, first.still, lowest, lim, rotor_plane):
-        reading = _read_at(rec, u, mass, h0, False, calibrate, lim)
+    for h0 in _rest_heights(rec, u, first.still, lowest, lim):
+        reading = _read_at(rec, u, mass, h0, False, calibrate, lim, share=REST_CANDIDATE_SHARE)
         if reading.landed:
             reading.lowest = lowest
             return reading
     return first
 
 
-def _rest_heights(rec: _Recording, u: np.ndarray, still: np.ndarray, lowest: float, lim: ContactLimits,
-                  rotor_plane: bool) -> list[float]:
-    """m, ascending, the heights (median) of the still stretches (``still``, per row) of at least ``min_s`` above
-    ``lowest`` by more than ``height_tol_m``, one per ``height_tol_m`` band, up to :data:`REST_CANDIDATES` of
-    them, and with a rotor plane (``rotor_plane``) none over ``gear_max_m``."""
+def _rest_heights(rec: _Recording, u: np.ndarray, still: np.ndarray, lowest: float, lim: ContactLimits
+                  ) -> list[float]:
+    """m, ascending, the rotor-plane heights (median) of the still stretches (``still``, per row) of at least
+    ``min_s`` above ``lowest`` by more than ``height_tol_m`` and at most ``gear_max_m`` up, one per
+    ``height_tol_m`` band, up to :data:`REST_CANDIDATES` of them."""
     heights = []
     for a, b in _runs(still & np.isfinite(rec.h)):
         if rec.t[b - 1] - rec.t[a] >= lim.min_s:
             heights.append(float(np.median(rec.h[a:b])))
     out: list[float] = []
     for h in sorted(heights):
-        if h <= lowest + lim.height_tol_m or (rotor_plane and h > lim.gear_max_m):
+        if h <= lowest + lim.height_tol_m or h > lim.gear_max_m:
             continue
         if not out or h > out[-1] + lim.height_tol_m:
             out.append(h)
@@ -383,9 +386,10 @@ def _rest_heights(rec: _Recording, u: np.ndarray, still: np.ndarray, lowest: flo
 
 
 def _read_at(rec: _Recording, u: np.ndarray, mass: float, h0: float, given: bool, calibrate: bool,
-             lim: ContactLimits) -> _Reading:
+             lim: ContactLimits, share: float = 1.0) -> _Reading:
     """One recording's reading with its landed height taken at ``h0`` [m] (``given``: told, not read; ``u``: the
-    rows that hold an update with a finite height)."""
+    rows that hold an update with a finite height; ``share``: of the least thrust that could hold a hover, under
+    which a still thrust shows the floor carrying the vehicle, :func:`_floor_carries`)."""
     n = len(rec.t)
     rest_u, speed_u, still_u = _resting_updates(rec, u, h0, lim)
     is_u = np.zeros(n, bool)
@@ -405,7 +409,7 @@ def _read_at(rec: _Recording, u: np.ndarray, mass: float, h0: float, given: bool
     if rec.lift is not None:
         bounded = np.isfinite(rec.lift) & (rec.lift > 0)
         hover_at[bounded] = 1.0 / rec.lift[bounded]
-    seen = given or rec.lift is None or _floor_carries(rec.t, rec.h, resting, ratio, hover_at, lim)
+    seen = given or rec.lift is None or _floor_carries(rec.t, rec.h, resting, ratio, share * hover_at, lim)
     return _Reading(h0, seen, resting if seen else np.zeros(n, bool), last >= 0, still, speed_u, pos, ratio, scale,
                     hover_at)
 
