@@ -16,7 +16,7 @@ import pytest
 from uavturb import progress
 from uavturb.cli import main
 from uavturb.commands.identify import residuals_to_file
-from uavturb.io.consistency import check_rotor_clock, stream_span_notes
+from uavturb.io.consistency import check_quaternion_order, check_rotor_clock, stream_span_notes
 from uavturb.io.ply import read_ply, write_ply
 from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES, analyse
 from uavturb.gap.preparation import state_thinned, stream_limits
@@ -263,6 +263,23 @@ def test_units_and_frames_that_pass_the_format_are_refused(tmp_path, capsys, goo
     rec = _copy(good, tmp_path)
     _rewrite_csv(rec / "mav0" / stream / "data.csv", rewrite)
     _gap_fails(tmp_path, capsys, [rec], match=match)
+
+
+def test_quaternions_written_x_y_z_w_are_refused_without_an_imu_too(tmp_path, capsys):
+    """Without an IMU no gyroscope tells the quaternions' order: the probe's quadrotor, its columns stored x, y, z, w,
+    gave exit 0 and a report whose nominal model missed by 99 % of the weight. The rotor axis against the motion
+    capture's specific force tells it (median over rows in flight) where the heading turns; the file as written
+    reads within a few degrees. (A flight that holds its heading reads alike both ways: no refusal.)"""
+    rec = tmp_path / "turning"
+    generate_flight(vehicle="hex", effects="none", duration=40.0, kind="mixed", seed=3, out=rec)  # it turns
+    shutil.rmtree(rec / "mav0" / "imu0")
+    (kept,) = load_recordings([rec])
+    read, swapped = check_quaternion_order(kept)
+    assert read < 3.0 and swapped > 20.0
+    _rewrite_csv(rec / "mav0" / "state_groundtruth_estimate0" / "data.csv",
+                 lambda i, l: ",".join(l.split(",")[:4] + l.split(",")[5:8] + [l.split(",")[4]] + l.split(",")[8:]))
+    line = _gap_fails(tmp_path, capsys, [rec], match="state_groundtruth_estimate0/data.csv: the rotor axis lies ")
+    assert re.search(r"deg with the quaternion columns read as x, y, z, w: quaternions must be stored w, x, y, z", line)
 
 
 def test_velocities_left_at_zero_are_taken_from_the_positions(tmp_path, capsys, good):

@@ -90,13 +90,19 @@ def test_read_csv_sorts_a_few_rows_out_of_order_where_asked(tmp_path):
     notes: list[str] = []
     t, x = euroc_csv.read_csv(path, 2, repeated_times=notes)
     assert t.tolist() == [10 * k for k in range(300)] and x[:, 0].tolist() == list(range(300))
-    assert notes == [f"{path}: 2 rows stamped earlier than the row before (first at line 103; a logger writing from "
-                     "two threads) put in time order"]
+    assert notes == [f"{path}: 4 rows out of time order, none by more than 5 of the stream's steps (first at line "
+                     "103; a logger writing from two threads) put in time order"]
     many = rows[:]
     for k in range(0, 20, 2):
         many[k], many[k + 1] = many[k + 1], many[k]
     with pytest.raises(InputError, match="out of order"):
         euroc_csv.read_csv(write(tmp_path, "#t,a\n" + "\n".join(many) + "\n", "many.csv"), 2, repeated_times=[])
+    # a block of rows stamped 0.3 s early (30 steps back) or a logger restarted 10 s back: refused, not interleaved
+    for name, start, stop, shift in (("block.csv", 200, 250, 300), ("restart.csv", 150, 300, 1000)):
+        moved = [f"{10 * k - shift * (start <= k < stop)},{k}" for k in range(300)]
+        with pytest.raises(InputError, match=f"line {start + 2}: timestamp {10 * start - shift} is out of order: "
+                                             f"{(shift - 10) * 1e-9:.4g} s before the previous row's"):
+            euroc_csv.read_csv(write(tmp_path, "#t,a\n" + "\n".join(moved) + "\n", name), 2, repeated_times=[])
 
 
 def test_read_csv_missing_file(tmp_path):

@@ -111,6 +111,51 @@ def check_thrust_axis(rec: Recording) -> float:
     return angle
 
 
+#: without an IMU, quaternions are read as stored x, y, z, w where the rotor axis lies this many degrees or more from
+#: the motion capture's specific force in flight (median over rows) as read, and under :data:`QUATERNION_ALIGNED_DEG`
+#: (and a third of that) with the columns read as x, y, z, w. A flight's thrust follows its attitude within a few
+#: degrees (drag and noise); the probe's quadrotor, its columns stored x, y, z, w, read a 180 degree turn about an
+#: axis near z: the mean force passed :func:`check_thrust_axis`, and the report said the nominal model missed by 99 %
+QUATERNION_MISREAD_DEG, QUATERNION_ALIGNED_DEG = 20.0, 10.0
+
+
+def check_quaternion_order(rec: Recording) -> tuple[float, float]:
+    """Without an IMU (whose gyroscope tells the quaternions' order, :func:`check_imu`), the median angle [deg] in
+    flight between the rotor axis and the motion capture's specific force ``dv/dt + g e_z``, as the quaternions are
+    read (w, x, y, z) and with the columns read as x, y, z, w; raises where the second reading fits and the first
+    does not (:data:`QUATERNION_MISREAD_DEG`). ``(nan, nan)`` with an IMU, a ``T_BS`` (its rotation was applied to
+    the quaternions as read), or too few rows in flight.
+
+    Raises
+    ------
+    InputError
+        ``<rec>/mav0/state_groundtruth_estimate0/data.csv: the rotor axis lies A deg from the specific force ...``
+    """
+    nan = (float("nan"), float("nan"))
+    if (rec.imu is not None and len(rec.imu) > 0) or not np.allclose(rec.vehicle.T_BS_matrix, np.eye(4)):
+        return nan
+    gt = rec.ground_truth
+    t = (gt.t_ns - gt.t_ns[0]) * 1e-9
+    f_W = derivative(t, gt.v, MOCAP_DERIVATIVE_WINDOW_S) + np.array([0.0, 0.0, GRAVITY])  # m/s^2, W
+    norm = np.linalg.norm(f_W, axis=1)
+    rows = in_flight(rec, gt.t_ns) & np.isfinite(norm) & (norm > MIN_SPECIFIC_FORCE)
+    if rows.sum() < MIN_FLIGHT_ROWS:
+        return nan
+    unit = f_W[rows] / norm[rows, None]
+
+    def median_angle(q: np.ndarray) -> float:
+        axis = quat.to_rotation_matrix(quat.normalize(q))[:, :, 2]  # rotor axis z_B in W
+        return float(np.degrees(np.median(np.arccos(np.clip(np.sum(axis * unit, axis=1), -1.0, 1.0)))))
+
+    as_read, as_xyzw = median_angle(gt.q[rows]), median_angle(gt.q[rows][:, [3, 0, 1, 2]])
+    if as_read >= QUATERNION_MISREAD_DEG and as_xyzw < min(QUATERNION_ALIGNED_DEG, as_read / 3.0):
+        raise InputError(_where(rec, "mav0/state_groundtruth_estimate0/data.csv"),
+                         f"the rotor axis lies {as_read:.0f} deg from the motion capture's specific force in flight "
+                         f"(median over rows), {as_xyzw:.1f} deg with the quaternion columns read as x, y, z, w: "
+                         "quaternions must be stored w, x, y, z (recordings.md)")
+    return as_read, as_xyzw
+
+
 #: below this correlation between vertical acceleration and vertical thrust the world's z looks inverted
 MIN_VERTICAL_CORRELATION = -0.2
 
@@ -703,12 +748,14 @@ def stream_span_notes(rec: Recording) -> list[str]:
 
 def check_recording(rec: Recording) -> list[str]:
     """The checks physics commands run: :func:`check_rotor_columns`, :func:`check_thrust_axis`,
-    :func:`check_position_velocity`, :func:`check_imu` and :func:`check_rotor_clock`; returns the notes of checks
-    that passed with something to say (and :func:`stream_span_notes`) (for the recording's ``read_notes``).
+    :func:`check_quaternion_order`, :func:`check_position_velocity`, :func:`check_imu` and
+    :func:`check_rotor_clock`; returns the notes of checks that passed with something to say (and
+    :func:`stream_span_notes`) (for the recording's ``read_notes``).
     (:func:`check_vertical_response` runs on imported logs only: flights that barely climb read correlations
     near zero either way, -0.22 on a test bag.)"""
     check_rotor_columns(rec)
     check_thrust_axis(rec)
+    check_quaternion_order(rec)
     check_position_velocity(rec)
     check_imu(rec)
     note = check_rotor_clock(rec)
