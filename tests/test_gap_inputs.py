@@ -596,6 +596,25 @@ def test_a_vehicle_file_giving_a_key_twice_or_a_mass_no_multirotor_has_is_refuse
     _gap_fails(tmp_path, capsys, [rec], match="key 'mass' is 1e-09 kg, under 0.001 kg")
 
 
+
+def test_a_vehicle_file_with_a_key_misspelt_or_a_rotor_plane_metres_away_is_refused(tmp_path, capsys, good):
+    """The probe's typos (``thrust_coeficient``, ``rotor_plane_Z``) had been dropped without a word (k_T identified
+    instead; the rotor plane taken at the origin), and a rotor_plane_z of 4 m blamed on the point cloud. A key that
+    is not read and is not a near miss of one absent stays (a note for the reader of the file)."""
+    rec = _copy(good, tmp_path)
+    text = (rec / "vehicle.yaml").read_text()
+    without_k_T = re.sub(r"(?m)^thrust_coefficient: .*\n", "", text)
+    for typo, meant in (("thrust_coeficient: 8.5e-06", "thrust_coefficient"), ("rotor_plane_Z: 0.15", "rotor_plane_z")):
+        (rec / "vehicle.yaml").write_text(without_k_T + typo + "\n")
+        _gap_fails(tmp_path, capsys, [rec], match=f"vehicle.yaml: key '{typo.split(':')[0]}' is not a vehicle.yaml "
+                                                  f"key: did you mean '{meant}'")
+    (rec / "vehicle.yaml").write_text(text + "rotor_plane_z: 4.0\n")
+    _gap_fails(tmp_path, capsys, [rec], match="vehicle.yaml: key 'rotor_plane_z' is 4 m: the rotor plane lies within 1 m")
+    (rec / "vehicle.yaml").write_text(text + "notes: built in 2024\nframe: hex\n")
+    (kept,) = load_recordings([rec])
+    assert kept.vehicle.extra == {"notes": "built in 2024", "frame": "hex"}
+
+
 def test_a_battery_stream_is_listed_but_sets_no_update_rate(good):
     rec = read_recording(good)
     plain = stream_limits(rec)

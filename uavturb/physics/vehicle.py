@@ -14,6 +14,7 @@ above). With rotor speeds ``w`` [rad/s]::
 
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -241,6 +242,12 @@ class Vehicle:
         if any(s not in (1.0, -1.0) for s in dirs):
             raise InputError(where, "key 'rotor_directions' must hold only +1 or -1")
         unknown = sorted(set(d) - set(REQUIRED_KEYS) - set(OPTIONAL_KEYS))
+        for key in unknown:  # a typo of a key the tools read, that key absent, would drop its value without a word
+            near = difflib.get_close_matches(str(key).lower(), [k for k in REQUIRED_KEYS + OPTIONAL_KEYS if k not in d],
+                                             n=1, cutoff=KEY_TYPO_CUTOFF)
+            if near:
+                raise InputError(where, f"key '{key}' is not a vehicle.yaml key: did you mean '{near[0]}'? (its value "
+                                        "would be ignored)")
         kwargs: dict[str, Any] = {}
         for key in ("thrust_coefficient", "moment_coefficient", "max_rotor_speed"):
             if d.get(key) is not None:
@@ -273,6 +280,11 @@ class Vehicle:
             if value > top:
                 raise InputError(where, f"key '{key}' is {value:g} {unit}, over {top:g} {unit}: vehicle.yaml is in SI "
                                         "units (kg, m), not grams or millimetres")
+        plane, reach = abs(kwargs.get("rotor_plane_z", 0.0)), max(ROTOR_PLANE_MAX_M, 2.0 * arm)
+        if plane > reach:
+            raise InputError(where, f"key 'rotor_plane_z' is {kwargs['rotor_plane_z']:g} m: the rotor plane lies "
+                                    f"within {reach:g} m of the body origin on any multirotor (arm_length {arm:g} m); "
+                                    "it is the rotors' height above the origin along z_B, in metres")
         _check_rotors_apart(where, arm, radius, angles)
         return cls(
             name=str(name),
@@ -312,6 +324,12 @@ def _check_rotors_apart(where: str | Path, arm: float, radius: float, angles: Se
 #: kg and m: no multirotor this project reads is heavier, or has arms, rotors or a rotor plane offset larger (a
 #: vehicle.yaml in grams or millimetres is)
 MAX_MASS_KG, MAX_SIZE_M = 1000.0, 5.0
+#: m, the farthest a rotor plane may lie from the body origin along z_B, or twice the arm where that is more (a
+#: motion-capture origin 10-20 cm from the rotors on real frames, recordings.md; 4-5 m had been read as the point
+#: cloud's fault)
+ROTOR_PLANE_MAX_M = 1.0
+#: how alike a key must be to one vehicle.yaml's readers read (difflib's ratio) to be refused as its typo
+KEY_TYPO_CUTOFF = 0.85
 #: kg: the lightest multirotor read (the smallest nano quadrotors weigh about 10 g, a Crazyflie 27-32 g)
 MIN_MASS_KG = 1e-3
 
