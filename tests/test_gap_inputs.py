@@ -282,6 +282,16 @@ def test_quaternions_written_x_y_z_w_are_refused_without_an_imu_too(tmp_path, ca
     assert re.search(r"deg with the quaternion columns read as x, y, z, w: quaternions must be stored w, x, y, z", line)
 
 
+def test_a_flight_under_the_floor_of_its_room_is_refused(tmp_path, capsys, good):
+    """Positions and velocities with z down (NED) beside quaternions with z up, and no IMU to tell it: the whole
+    flight lies under the room's floor, which read as a ceiling, and the probe's report named a ceiling effect."""
+    rec = _copy(good, tmp_path)
+    shutil.rmtree(rec / "mav0" / "imu0")
+    _rewrite_csv(rec / "mav0" / "state_groundtruth_estimate0" / "data.csv", _scaled_columns({3, 10}, -1.0))
+    _gap_fails(tmp_path, capsys, [rec], match="state_groundtruth_estimate0/data.csv: the rotor plane flies under the "
+                                              "point cloud's floor in 100 % of the rows")
+
+
 def test_velocities_left_at_zero_are_taken_from_the_positions(tmp_path, capsys, good):
     """An exporter that left every velocity at 0 (the positions move): the velocities are the positions'
     derivative, said in one note, and the report is the complete file's (it had been refused: "the positions move

@@ -353,6 +353,7 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
                          "cloud under their rotor plane within its footprint (a floor given as a sparse grid, or a "
                          "scan's hole): their heights are over the plane through the cloud's floor")
         if rec.points is not None:
+            _check_flight_over_cloud(path, rec, fd)
             lines += _cloud_scale_note(rec, fd)
         if fd.floor_tilt is not None:
             lines.append(f"{rec.name}/pointcloud0: the cloud's floor slopes by {fd.floor_tilt[0]:.2g} degrees, where "
@@ -369,6 +370,34 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
     return recs, fds, {"streams": lines, "stream_limits": limits, "delays": delays, "dropouts": gaps,
                        "slowest_update_hz": slowest, "state_too_slow": slow_state, "lever_arms": levers,
                        "levelled_m": [fd.floor_tilt[1] for fd in fds if fd.floor_tilt is not None]}
+
+
+#: m, a cloud whose points span more than this in height is a room (floor, walls, furniture), not one flat layer;
+#: m, how far under its lowest points a rotor plane counts as under its floor; and the share of the rows there
+#: from which the recording is refused
+ROOM_HEIGHT_M, UNDER_FLOOR_M, UNDER_FLOOR_SHARE = 1.0, 0.05, 0.5
+
+
+def _check_flight_over_cloud(path: str, rec: Recording, fd: FlightData) -> None:
+    """Refuse a flight whose rotor plane lies under a room-sized point cloud's lowest points (its 1st percentile
+    height) for most of its rows: positions with z down (NED) beside attitudes with z up, or a cloud in another
+    frame. The finder had named a ceiling effect, the floor above read as a ceiling, on a blind probe's flight whose
+    positions' and velocities' z were negated (no IMU to tell it). A cloud of one flat layer (a ceiling scanned
+    alone) may lie over the whole flight."""
+    z = rec.points[:, 2]
+    low, high = (float(np.percentile(z, q)) for q in (1.0, 99.0))
+    if high - low <= ROOM_HEIGHT_M or len(fd.t) == 0:
+        return
+    plane = fd.p[:, 2] + rec.vehicle.rotor_plane_z * quat.to_rotation_matrix(fd.q)[:, 2, 2]  # m, W
+    under = plane < low - UNDER_FLOOR_M
+    if float(np.mean(under)) < UNDER_FLOOR_SHARE:
+        return
+    raise InputError(f"{path}/mav0/state_groundtruth_estimate0/data.csv",
+                     f"the rotor plane flies under the point cloud's floor in {100 * float(np.mean(under)):.0f} % of "
+                     f"the rows (down to {low - float(np.min(plane)):.2f} m under the cloud's lowest points, at z = "
+                     f"{low:.2f} m, where the cloud rises {high - low:.1f} m above them): positions with z down (NED) "
+                     "beside attitudes with z up, or a cloud in another frame (recordings.md: world z up, the cloud "
+                     "in the world frame)")
 
 
 #: a point cloud spanning more than this many times the flight's horizontal span, and over
