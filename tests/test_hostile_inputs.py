@@ -159,8 +159,9 @@ def test_a_million_columns_are_refused_on_the_first_row(rec):
 
 def test_a_file_over_the_row_limit_is_refused_with_the_memory_it_would_need(rec, monkeypatch):
     monkeypatch.setattr(euroc_csv, "MAX_ROWS", 100)
+    monkeypatch.setattr(euroc_csv, "ANALYSIS_BYTES_PER_ROW", 10**7)
     _refused(read_recording, rec, match=r"holds about 400 rows, more than 100 \(the limit of a file\); reading it "
-                                        r"would need about 0\.0 GB")
+                                        r"would need about 0\.0 GB of memory, analysing it about 4\.0 GB")
 
 
 def test_headers_accept_any_text_a_bom_and_bytes_that_are_not_utf8(rec):
