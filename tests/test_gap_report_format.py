@@ -349,3 +349,23 @@ def test_a_state_too_slow_for_a_surface_effect_says_when_one_was_named_all_the_s
     del ge["error_budget"]["mu"]["stream_rate"]
     write_markdown(tmp_path, report, [])
     assert f"- **Too slow**: {slow}\n" in (tmp_path / "report.md").read_text()
+
+
+def test_a_ground_law_not_named_on_flights_that_hovered_near_the_floor_asks_for_more_of_them_not_for_the_hovers(
+        tmp_path):
+    """A probe's ladders of 1.5-8 rotor radii with ESC speeds at 3 Hz had been told to "hover over the floor at
+    several heights"; flights that came near it are told what the held-out rows lacked, and of the slow stream."""
+    base = {"recordings": ["a/lad"], "sim_effects": [], "protocol": "last-30%-of-each-recording",
+            "residual_source": "ground_truth", "baseline": {"heldout_rmse_N": 0.46, "rmse_N": 0.46},
+            "final": {"heldout_rmse_N": 0.46}, "noise": {"rms_N": 0.37}, "effects": [], "sim_effect_params": {},
+            "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 0.0, "drivers": []},
+            "candidates_tried": {"ground_effect": {"step1_z": 0.27}, "rotor_drag": {"step1_z": -0.3}},
+            "streams": {"streams": [], "slowest_update_hz": 3.1}}
+    for near, said in ((0.17, "To show it: these flights came within 0.17 m of the floor; what the held-out rows "
+                              "(last-30%-of-each-recording) hold near it was too little to test it: longer hovers near "
+                              "it, or more recordings, or a faster stream than the slowest here (3.1 Hz updates)."),
+                       (1.4, "To show it: hover over the floor at several heights within a few rotor radii.")):
+        write_markdown(tmp_path, base | {"facts": {"d_down_min_m": near}}, [])
+        text = (tmp_path / "report.md").read_text()
+        assert said in text
+        assert "`rotor_drag`: held-out gain -0.3 errors at step 1 (4 needed). To show it: fly at several" in text

@@ -513,10 +513,30 @@ def _not_named_lines(report: dict) -> list[str]:
                      f"{tried['dropped_z']:.2g} errors")
         if name in carried:
             text += "; fitted beside the named effects, it is in their errors (untaken candidate)"
-        manoeuvre = EFFECTS[name].manoeuvre
+        manoeuvre = _surface_flown(report, name) or EFFECTS[name].manoeuvre
         L.append(text + (f". To show it: {manoeuvre}." if manoeuvre else "."))
     return (["", "## Tried, not named",
              "Each candidate the data did not support, with what it gained on the held-out rows."] + L) if L else []
+
+
+#: m, a rotor plane that came this near the floor flew what a ground law's test asks (its manoeuvre); Hz, a stream
+#: updating slower than this thins what the held-out rows hold
+FLOWN_NEAR_FLOOR_M, SLOW_STREAM_HZ = 0.5, 20.0
+
+
+def _surface_flown(report: dict, name: str) -> str | None:
+    """What would show the ground law ``name`` where the flights flew its manoeuvre already (their rotor plane came
+    within :data:`FLOWN_NEAR_FLOOR_M` of the floor): more held-out rows near it, and faster streams where one updates
+    slowly; None otherwise (the law's own manoeuvre is the advice). A blind probe's ladders of 1.5-8 rotor radii, its
+    ESC speeds at 3 Hz, had been told to "hover over the floor at several heights"."""
+    near = (report.get("facts") or {}).get("d_down_min_m")
+    if EFFECTS[name].surface != "d_down" or near is None or not near <= FLOWN_NEAR_FLOOR_M:
+        return None
+    hz = (report.get("streams") or {}).get("slowest_update_hz")
+    slow = hz is not None and np.isfinite(hz) and hz < SLOW_STREAM_HZ
+    return (f"these flights came within {near:.2f} m of the floor; what the held-out rows ({report.get('protocol')}) "
+            "hold near it was too little to test it: longer hovers near it, or more recordings"
+            + (f", or a faster stream than the slowest here ({hz:.2g} Hz updates)" if slow else ""))
 
 
 def write_json(folder: Path, report: dict) -> None:
