@@ -225,5 +225,8 @@ def test_overlap():
     assert align.overlap(a, np.array([5, 30])) == (5, 20)
     assert align.overlap(a, np.array([5, 30]), np.array([-1, 15])) == (5, 15)
     assert align.require_overlap(a, np.array([15, 40]), "x.csv") == (15, 20)
+    with pytest.raises(InputError, match=r"x.csv: cannot be aligned with the ground truth, which holds 1 row\(s\) at "
+                                         r"one instant \(7 ns\): a recording needs a flight's worth of rows"):
+        align.require_overlap(np.array([7], dtype=np.int64), np.array([7]), "x.csv")
     with pytest.raises(InputError, match="x.csv: does not overlap the ground truth in time"):
         align.require_overlap(a, np.array([21, 40]), "x.csv")

@@ -105,6 +105,9 @@ def require_overlap(t_ref: np.ndarray, t: np.ndarray, where: str | Path,
     InputError
         ``where``: the stream's span does not overlap ``reference``.
     """
+    if len(t_ref) and t_ref[-1] == t_ref[0]:  # a recording of one instant: no stream can overlap it
+        raise InputError(where, f"cannot be aligned with {reference}, which holds {len(t_ref)} row(s) at one instant "
+                                f"({int(t_ref[0])} ns): a recording needs a flight's worth of rows")
     start, end = overlap(t_ref, t)
     if end <= start:
         span = lambda x: f"[{int(x[0])}, {int(x[-1])}] ns"  # noqa: E731
