@@ -85,6 +85,8 @@ def test_battery_round_trip_with_and_without_current(tmp_path):
     ("#timestamp [ns],voltage [V],current [A]\n1,16.0,1.0,3.0\n2,16.0,1.0,3.0\n", "has 4 columns"),
     ("#timestamp [ns],voltage [V]\n1,16.0\n2,-1.0\n", "row 2: battery voltage -1 V is not positive"),
     ("#timestamp [ns],voltage [V]\n1,16.0\n2,abc\n", "line 3"),
+    ("#timestamp [ns],voltage [V]\n1,16400\n2,16380\n3,16370\n", "battery voltages of 16380 V \\(median\\), over the "
+                                                               "150 V of any multirotor's pack"),
 ])
 def test_bad_battery_file_names_the_file(tmp_path, body, message):
     write_recording(make_recording(), tmp_path / "r")

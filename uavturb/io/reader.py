@@ -387,6 +387,10 @@ def _absent_if_empty(path: Path, notes: list[str]) -> bool:
     return True
 
 
+#: V, the highest median battery voltage read (a 24-cell pack is 100 V full; a log in millivolts reads thousands)
+MAX_BATTERY_V = 150.0
+
+
 def _read_battery(root: Path, notes: list[str]) -> Battery | None:
     """``battery0`` when present: voltage [V] and, in a third column, current [A]."""
     battery_file = root / BATTERY_CSV
@@ -399,6 +403,10 @@ def _read_battery(root: Path, notes: list[str]) -> Battery | None:
     if np.any(x[:, 0] <= 0):
         k = int(np.argmax(x[:, 0] <= 0))
         raise InputError(battery_file, f"row {k + 1}: battery voltage {x[k, 0]:.6g} V is not positive")
+    if np.median(x[:, 0]) > MAX_BATTERY_V:
+        raise InputError(battery_file, f"battery voltages of {np.median(x[:, 0]):.6g} V (median), over the "
+                                       f"{MAX_BATTERY_V:g} V of any multirotor's pack: recordings.md asks for volts, "
+                                       "not millivolts")
     return Battery(t_ns=t, voltage=x[:, 0], current=x[:, 1] if x.shape[1] == 2 else None)
 
 
