@@ -72,6 +72,9 @@ def test_the_law_is_one_registry_entry():
                         voltage_mean=15.0, voltage_span=1.0)
     assert spec.physical_range.violation({"k_V": 2.0 / 15.0}, facts) is None
     assert "outside" in spec.physical_range.violation({"k_V": 0.25}, facts)  # k_V V = 3.75
+    # a probe's payload taken on over a flight on commanded speeds was named battery_sag: the explanation says so
+    assert EFFECTS["battery_sag"].explain({"s": 1e-3}, facts).endswith(
+        "(A mass that grows by 6 % over the flight, a payload taken on, reads alike on commanded speeds.)")
 
 
 @pytest.fixture(scope="module")

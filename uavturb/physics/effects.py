@@ -536,7 +536,9 @@ def _explain_wind(p: dict, f: FlightFacts) -> str:
 def _explain_battery(p: dict, f: FlightFacts) -> str:
     return (f"Thrust per rotor speed falls as the flight goes on, by {100 * p['s'] * 60:.2g} % per minute "
             f"(s = {p['s']:.3g} 1/s, {100 * p['s'] * f.duration_s:.2g} % over these {f.duration_s:.0f} s): "
-            f"battery voltage sag. Model it, or feed the controller the voltage.")
+            f"battery voltage sag. Model it, or feed the controller the voltage. (A mass that grows by "
+            f"{100 * p['s'] * f.duration_s:.2g} % over the flight, a payload taken on, reads alike on commanded "
+            f"speeds.)")
 
 
 def _explain_battery_voltage(p: dict, f: FlightFacts) -> str:
