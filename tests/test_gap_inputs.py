@@ -234,6 +234,8 @@ def _scaled_columns(columns, factor):
 @pytest.mark.parametrize("stream, rewrite, match", [
     ("state_groundtruth_estimate0", _scaled_columns({1, 2, 3}, 1000.0),
      "state_groundtruth_estimate0/data.csv: on axis x the positions move 1e+03 times as far as the velocities say"),
+    ("state_groundtruth_estimate0", _scaled_columns({1, 2, 3, 8, 9, 10}, 1000.0),
+     "state_groundtruth_estimate0/data.csv: the velocities change by "),
     ("state_groundtruth_estimate0", _scaled_columns({8, 9, 10}, 0.1),
      "state_groundtruth_estimate0/data.csv: on axis x the positions move 10 times as far as the velocities say"),
     ("imu0", _scaled_columns({4, 5, 6}, 1 / 9.81),

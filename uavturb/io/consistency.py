@@ -111,6 +111,37 @@ def check_thrust_axis(rec: Recording) -> float:
     return angle
 
 
+#: the median acceleration in flight [g] over which the ground truth's positions and velocities are read as in
+#: millimetres (105 real Crazyflie flights: 0.02-0.21 g; millimetres make it a thousand times that)
+MAX_MEDIAN_ACCELERATION_G = 3.0
+
+
+def check_state_units(rec: Recording) -> float:
+    """The median acceleration in flight [m/s^2] of the ground truth's velocities; raises where it is over
+    :data:`MAX_MEDIAN_ACCELERATION_G`: positions and velocities in millimetres alike pass
+    :func:`check_position_velocity`, and had been blamed on the quaternions or on ``T_BS``. ``nan`` with too few
+    rows in flight.
+
+    Raises
+    ------
+    InputError
+        ``<rec>/mav0/state_groundtruth_estimate0/data.csv: the velocities change by A g (median in flight) ...``
+    """
+    gt = rec.ground_truth
+    t = (gt.t_ns - gt.t_ns[0]) * 1e-9
+    a = np.linalg.norm(derivative(t, gt.v, MOCAP_DERIVATIVE_WINDOW_S), axis=1)
+    rows = in_flight(rec, gt.t_ns) & np.isfinite(a)
+    if rows.sum() < MIN_FLIGHT_ROWS:
+        return float("nan")
+    median = float(np.median(a[rows]))
+    if median > MAX_MEDIAN_ACCELERATION_G * GRAVITY:
+        raise InputError(_where(rec, "mav0/state_groundtruth_estimate0/data.csv"),
+                         f"the velocities change by {median / GRAVITY:.3g} g (median in flight), where flights stay "
+                         "well under one (real Crazyflies' 0.02-0.21 g): positions and velocities in millimetres? "
+                         "(recordings.md: metres, m/s)")
+    return median
+
+
 #: without an IMU, quaternions are read as stored x, y, z, w where the rotor axis lies this many degrees or more from
 #: the motion capture's specific force in flight (median over rows) as read, and under :data:`QUATERNION_ALIGNED_DEG`
 #: (and a third of that) with the columns read as x, y, z, w. A flight's thrust follows its attitude within a few
@@ -747,13 +778,14 @@ def stream_span_notes(rec: Recording) -> list[str]:
 
 
 def check_recording(rec: Recording) -> list[str]:
-    """The checks physics commands run: :func:`check_rotor_columns`, :func:`check_thrust_axis`,
-    :func:`check_quaternion_order`, :func:`check_position_velocity`, :func:`check_imu` and
+    """The checks physics commands run: :func:`check_rotor_columns`, :func:`check_state_units`,
+    :func:`check_thrust_axis`, :func:`check_quaternion_order`, :func:`check_position_velocity`, :func:`check_imu` and
     :func:`check_rotor_clock`; returns the notes of checks that passed with something to say (and
     :func:`stream_span_notes`) (for the recording's ``read_notes``).
     (:func:`check_vertical_response` runs on imported logs only: flights that barely climb read correlations
     near zero either way, -0.22 on a test bag.)"""
     check_rotor_columns(rec)
+    check_state_units(rec)
     check_thrust_axis(rec)
     check_quaternion_order(rec)
     check_position_velocity(rec)
