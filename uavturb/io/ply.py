@@ -175,6 +175,12 @@ def _read_ascii(path: Path, data: bytes, offset: int, elements: list[_Element], 
     block = lines[start:start + vertex.count]
     if len(block) < vertex.count:
         raise InputError(path, f"PLY data is truncated: expected {vertex.count} vertex lines, found {len(block)}")
+    after = sum(e.count for e in elements[k + 1:])  # one line per item of each element after the vertices
+    extra = len(lines) - start - vertex.count - after
+    if extra > 0:  # a header that undercounts its vertices would drop the rest of the scan without a word
+        raise InputError(path, f"PLY body holds {extra} more line(s) than its header declares ({vertex.count} "
+                               f"vertices{f' and {after} other items' if after else ''}): the header's element counts "
+                               "are wrong")
     if vertex.has_lists:  # rare: walk each line
         out = np.empty((vertex.count, 3))
         for r, line in enumerate(block):
