@@ -204,7 +204,7 @@ def test_ply_ascii_with_faces_and_extra_properties(tmp_path, faces_first):
     (ply_header("ascii", [("float", "x"), ("float", "y"), ("float", "z")]) + b"1 2 3\n4 5 6\n",
      "truncated: expected 3 vertex lines, found 2"),
     (ply_header("ascii", [("float", "x"), ("float", "y"), ("float", "z")]) + b"1 2 3\n4 5 6\n7 8 9\n1 1 1\n2 2 2\n",
-     "PLY body holds 2 more line(s) than its header declares (3 vertices)"),
+     "PLY body holds 1 more line(s) than its header declares (3 vertices and 1 other items)"),
     (ply_header("binary_little_endian", [("float", "x"), ("float", "y"), ("float", "z")]) + b"\0" * 20,
      "truncated: 3 vertices need 36 bytes, found 20"),
     (ply_header("ascii", [("float", "x"), ("float", "y"), ("float", "q")]) + b"1 2 3\n4 5 6\n7 8 9\n",
