@@ -621,7 +621,8 @@ def test_a_vehicle_file_with_a_key_misspelt_or_a_rotor_plane_metres_away_is_refu
         _gap_fails(tmp_path, capsys, [rec], match=f"vehicle.yaml: key '{typo.split(':')[0]}' is not a vehicle.yaml "
                                                   f"key: did you mean '{meant}'")
     (rec / "vehicle.yaml").write_text(text + "rotor_plane_z: 4.0\n")
-    _gap_fails(tmp_path, capsys, [rec], match="vehicle.yaml: key 'rotor_plane_z' is 4 m: the rotor plane lies within 1 m")
+    _gap_fails(tmp_path, capsys, [rec],
+               match="vehicle.yaml: key 'rotor_plane_z' is 4 m: the rotor plane lies within 1 m")
     (rec / "vehicle.yaml").write_text(text + "notes: built in 2024\nframe: hex\n")
     (kept,) = load_recordings([rec])
     assert kept.vehicle.extra == {"notes": "built in 2024", "frame": "hex"}
