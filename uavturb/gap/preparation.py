@@ -376,6 +376,9 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
 #: m, how far under its lowest points a rotor plane counts as under its floor; and the share of the rows there
 #: from which the recording is refused
 ROOM_HEIGHT_M, UNDER_FLOOR_M, UNDER_FLOOR_SHARE = 1.0, 0.05, 0.5
+#: m, a cloud rising more than this is in other units than metres: the rests' check names the cloud
+#: (:func:`_check_cloud_under_rests`), and :func:`_cloud_scale_note` says it
+ROOM_HEIGHT_MAX_M = 50.0
 
 
 def _check_flight_over_cloud(path: str, rec: Recording, fd: FlightData) -> None:
@@ -386,7 +389,7 @@ def _check_flight_over_cloud(path: str, rec: Recording, fd: FlightData) -> None:
     alone) may lie over the whole flight."""
     z = rec.points[:, 2]
     low, high = (float(np.percentile(z, q)) for q in (1.0, 99.0))
-    if high - low <= ROOM_HEIGHT_M or len(fd.t) == 0:
+    if not ROOM_HEIGHT_M < high - low <= ROOM_HEIGHT_MAX_M or len(fd.t) == 0:
         return
     plane = fd.p[:, 2] + rec.vehicle.rotor_plane_z * quat.to_rotation_matrix(fd.q)[:, 2, 2]  # m, W
     under = plane < low - UNDER_FLOOR_M
