@@ -1013,17 +1013,17 @@ def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
         budget = _budget(data, final, s.name, height_uncertainty, refits)
         effects_out.append({
             "name": s.name, "params": params, "stderr": honest_stderr(budget),
-            "explanation": explanation(s.name, params, facts) + _together(s),
+            "explanation": explanation(s.name, params, facts) + _together(s, sel.chosen),
             "heldout_rmse_before_N": s.heldout_before, "heldout_rmse_after_N": s.heldout_after,
             "z_heldout": s.z, "error_budget": budget,
-        } | ({"named_with": s.named_with} if s.named_with else {}))
+        } | ({"named_with": s.named_with} if s.named_with in sel.chosen else {}))
     return effects_out
 
 
-def _together(step: Any) -> str:
-    """The sentence an effect named together with another gets (:func:`~uavturb.gap.selection._surfaces_together`),
-    or ''."""
-    if not step.named_with:
+def _together(step: Any, chosen: Sequence[str]) -> str:
+    """The sentence an effect named together with another still ``chosen`` gets
+    (:func:`~uavturb.gap.selection._surfaces_together`), or ''."""
+    if step.named_with not in chosen:
         return ""
     return (f" Named together with {step.named_with}: with surfaces both below and above, both lifts raise the "
             "thrust per rotor speed squared and neither law alone improved the held-out fit beyond noise; together "
