@@ -351,24 +351,22 @@ def _read(rec: _Recording, mass: float, landed: float | None, calibrate: bool, l
     u = np.flatnonzero(rec.update & np.isfinite(rec.h))
     if len(u) < 5:
         return None
-    if landed is not None:
-        return _read_at(rec, u, mass, float(landed), True, calibrate, lim)
-    lowest = float(np.min(median_filter(rec.h[u], 5, mode="nearest")))
-    if rotor_plane and lowest > lim.gear_max_m:
+    lowest = float(np.min(median_filter(rec.h[u], 5, mode="nearest"))) if landed is None else float(landed)
+    if rotor_plane and landed is None and lowest > lim.gear_max_m:
         return None  # never within landing-gear height of a surface
-    first = _read_at(rec, u, mass, lowest, False, calibrate, lim)
+    basis = _basis(rec, u, mass, lowest, lim)
+    first = _read_at(rec, basis, lowest, landed is not None, calibrate, lim)
     if first.landed or rec.lift is None or not rotor_plane:
         return first
-    for h0 in _rest_heights(rec, u, first.still, lowest, lim):
-        reading = _read_at(rec, u, mass, h0, False, calibrate, lim, share=REST_CANDIDATE_SHARE)
+    for h0 in _rest_heights(rec, first.still, lowest, lim):
+        reading = _read_at(rec, basis, h0, False, calibrate, lim, share=REST_CANDIDATE_SHARE)
         if reading.landed:
             reading.lowest = lowest
             return reading
     return first
 
 
-def _rest_heights(rec: _Recording, u: np.ndarray, still: np.ndarray, lowest: float, lim: ContactLimits
-                  ) -> list[float]:
+def _rest_heights(rec: _Recording, still: np.ndarray, lowest: float, lim: ContactLimits) -> list[float]:
     """m, ascending, the rotor-plane heights (median) of the still stretches (``still``, per row) of at least
     ``min_s`` above ``lowest`` by more than ``height_tol_m`` and at most ``gear_max_m`` up, one per
     ``height_tol_m`` band, up to :data:`REST_CANDIDATES` of them."""
@@ -385,33 +383,57 @@ def _rest_heights(rec: _Recording, u: np.ndarray, still: np.ndarray, lowest: flo
     return out[:REST_CANDIDATES]
 
 
-def _read_at(rec: _Recording, u: np.ndarray, mass: float, h0: float, given: bool, calibrate: bool,
-             lim: ContactLimits, share: float = 1.0) -> _Reading:
-    """One recording's reading with its landed height taken at ``h0`` [m] (``given``: told, not read; ``u``: the
-    rows that hold an update with a finite height; ``share``: of the least thrust that could hold a hover, under
-    which a still thrust shows the floor carrying the vehicle, :func:`_floor_carries`)."""
+@dataclass
+class _Basis:
+    """What a recording's reading needs whatever landed height it is read at (:func:`_read_at`): the updates
+    ``u`` (rows), the update each row holds (``last``: -1 before the first; ``pos``: its index in ``u``), stillness
+    and speed on the updates, the thrust's share of the weight unscaled (median over ``window_s``), and the least
+    share that could hold a hover on each row (0 inside a law's pole), and the weight [N]."""
+
+    u: np.ndarray
+    last: np.ndarray
+    pos: np.ndarray
+    still_u: np.ndarray
+    speed_u: np.ndarray
+    ratio: np.ndarray
+    hover_at: np.ndarray
+    weight: float
+
+
+def _basis(rec: _Recording, u: np.ndarray, mass: float, h0: float, lim: ContactLimits) -> _Basis:
     n = len(rec.t)
-    rest_u, speed_u, still_u = _resting_updates(rec, u, h0, lim)
+    _, speed_u, still_u = _resting_updates(rec, u, h0, lim)
     is_u = np.zeros(n, bool)
     is_u[u] = True
     last = np.maximum.accumulate(np.where(is_u, np.arange(n), -1))
     pos = np.searchsorted(u, last)  # the update each row holds (rows before the first finite one: none)
-    held = np.minimum(pos, len(u) - 1)
-    resting = (last >= 0) & np.isfinite(rec.h) & rest_u[held]
-    still = (last >= 0) & still_u[held]
-    weight = mass * GRAVITY
-    scale = _thrust_scale(rec, h0, weight, lim) if calibrate else 1.0
     # a held thrust is late by half its update step: read it on its updates; rotors off (zero thrust) are
     # a state, not a stale value, and hold every row (interpolated, a restart would lift a rest off zero)
     fresh = update_mask(rec.thrust) | (rec.thrust <= 0)
-    ratio = _window_median(rec.t, np.interp(rec.t, rec.t[fresh], rec.thrust[fresh]) * scale / weight, lim.window_s)
-    hover_at = np.zeros(n)  # the least share of the weight that could hold a hover (0 inside a law's pole)
+    weight = mass * GRAVITY
+    ratio = _window_median(rec.t, np.interp(rec.t, rec.t[fresh], rec.thrust[fresh]) / weight, lim.window_s)
+    hover_at = np.zeros(n)
     if rec.lift is not None:
         bounded = np.isfinite(rec.lift) & (rec.lift > 0)
         hover_at[bounded] = 1.0 / rec.lift[bounded]
-    seen = given or rec.lift is None or _floor_carries(rec.t, rec.h, resting, ratio, share * hover_at, lim)
-    return _Reading(h0, seen, resting if seen else np.zeros(n, bool), last >= 0, still, speed_u, pos, ratio, scale,
-                    hover_at)
+    return _Basis(u, last, pos, still_u, speed_u, ratio, hover_at, weight)
+
+
+def _read_at(rec: _Recording, basis: _Basis, h0: float, given: bool, calibrate: bool, lim: ContactLimits,
+             share: float = 1.0) -> _Reading:
+    """One recording's reading with its landed height taken at ``h0`` [m] (``given``: told, not read; ``basis``:
+    :func:`_basis`; ``share``: of the least thrust that could hold a hover, under which a still thrust shows the
+    floor carrying the vehicle, :func:`_floor_carries`)."""
+    n, u, last = len(rec.t), basis.u, basis.last
+    held = np.minimum(basis.pos, len(u) - 1)
+    rest_u = basis.still_u & (np.abs(rec.h[u] - h0) <= lim.height_tol_m)
+    resting = (last >= 0) & np.isfinite(rec.h) & rest_u[held]
+    still = (last >= 0) & basis.still_u[held]
+    scale = _thrust_scale(rec, h0, basis.weight, lim) if calibrate else 1.0
+    ratio = basis.ratio * scale  # a median commutes with a positive factor
+    seen = given or rec.lift is None or _floor_carries(rec.t, rec.h, resting, ratio, share * basis.hover_at, lim)
+    return _Reading(h0, seen, resting if seen else np.zeros(n, bool), last >= 0, still, basis.speed_u, basis.pos,
+                    ratio, scale, basis.hover_at)
 
 
 def _floor_carries(t: np.ndarray, h: np.ndarray, resting: np.ndarray, ratio: np.ndarray, hover_at: np.ndarray,
