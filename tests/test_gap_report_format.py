@@ -283,10 +283,10 @@ def test_a_better_law_left_unnamed_without_a_curve_is_said(tmp_path):
         "step1_z_over_ground_effect": 4.5}}) is None  # beyond Z_IMPROVE it would have been named (the shape decided)
     ge = {"name": "ground_effect", "params": {"mu": 5.15}, "stderr": {"mu": 0.69}, "explanation": "Extra lift ...",
           "heldout_rmse_before_N": 0.52, "heldout_rmse_after_N": 0.17, "z_heldout": 11.4,
-          "law_shape_open": {"law": "ground_effect_exponential", "heldout_z_over": 3.55, "needed": 4.0}}
-    write_markdown(tmp_path, _one_effect_report(ge), [])
-    assert ("  - its law is not decided: `ground_effect_exponential` fitted the held-out rows better, by 3.5 errors "
-            "(4 needed to name it instead), and no measured surface curve judged their shapes"
+          "law_shape_open": {"law": "ground_effect_exponential", "heldout_z_over": 1.21, "needed": 2.0}}
+    write_markdown(tmp_path, _one_effect_report(ge), [])  # without a curve, 2 errors would have named it instead
+    assert ("  - its law is not decided: `ground_effect_exponential` fitted the held-out rows better, by 1.2 errors "
+            "(2 needed to name it instead), and no measured surface curve judged their shapes"
             ) in (tmp_path / "report.md").read_text()
     ge["law_shape_open"] = {"law": None, "heldout_z_over": None, "needed": 4.0}  # no better law: the shape unchecked
     write_markdown(tmp_path, _one_effect_report(ge), [])
