@@ -1106,6 +1106,9 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
                 with_undecided = final
             undecided.append(drop.name)
         steps.remove(drop)
+        for s in [s for s in steps if s.named_with == drop.name]:  # it passed only together with the one dropped
+            steps.remove(s)
+            sel.tried.setdefault(s.name, {})[f"dropped_with_{drop.name}"] = 1.0
         # as select() fitted it (sim effects in the base), reusing its fits of the same effect sets
         sel = finish(data, sel.base, steps, tried=sel.tried, known=sel.known)
     sel.known = None  # its folds' rows and fits are not needed past the decisions (memory)

@@ -511,6 +511,10 @@ def _not_named_lines(report: dict) -> list[str]:
         if "dropped_z" in tried:
             text += (f"; chosen, then dropped: without it the held-out fit was worse by only "
                      f"{tried['dropped_z']:.2g} errors")
+        partner = next((k[len("dropped_with_"):] for k in tried if k.startswith("dropped_with_")), None)
+        if partner is not None:
+            text += (f"; chosen together with `{partner}` (neither gained enough alone), then dropped with it when "
+                     f"`{partner}` was not named (see above)")
         if name in carried:
             text += "; fitted beside the named effects, it is in their errors (untaken candidate)"
         manoeuvre = _surface_flown(report, name) or EFFECTS[name].manoeuvre
