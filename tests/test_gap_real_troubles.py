@@ -596,3 +596,27 @@ def test_a_floor_and_a_ceiling_a_metre_apart_are_named_together(tmp_path, monkey
     write_markdown(tmp_path, alone, [])
     assert ("; chosen together with `ceiling_effect` (neither gained enough alone), then dropped with it"
             in (tmp_path / "report.md").read_text())
+
+
+def test_sessions_whose_thrust_levels_could_not_be_read_apart_leave_a_surface_law_undecided(tmp_path, monkeypatch):
+    """No effect: one session near the floor and the ceiling at thrust level 1.04, another midway only at 0.96 (no
+    heights flown in both, none far from every surface: their levels cannot be measured apart). The sixth blind
+    probe's such sessions named a ground and a ceiling law (mu = 3.3 +- 1.8, kappa = 3.3 +- 1.5). Refitted with each
+    recording's own level (alternating least squares: the levels 8 % apart come back), a surface law falls to
+    nothing: undecided with the thrust coefficient, not named."""
+    from uavturb.gap.decide import free_levels, level_alike
+    from uavturb.gap.fit import fit_model
+
+    a = _between_floor_and_ceiling(tmp_path, monkeypatch, "near", {}, NEAR_BOTH, 871, thrust_level=1.04)
+    b = _between_floor_and_ceiling(tmp_path, monkeypatch, "mid", {}, MIDWAY, 872, thrust_level=0.96)
+    report, extras = analyse(load_recordings([a, b]), {})
+    assert report["nominal"]["thrust_level_basis"] == "none"
+    assert not [e for e in report["effects"] if EFFECTS[e["name"]].surface], report["effects"]
+    data = extras["data"]
+    law = fit_model(data, {"ground_effect"})
+    _, level = free_levels(data, law)
+    assert level[0] / level[1] == pytest.approx(1.04 / 0.96, rel=0.01)
+    entry = level_alike(data, law, "ground_effect", levels_read=False)
+    assert entry["candidates"] == ["ground_effect", "thrust_coefficient"]
+    assert "levels 8 % apart" in entry["why"] and "could not be measured apart" in entry["why"]
+    assert level_alike(data, law, "ground_effect", levels_read=True) is None  # levels measured: nothing to say

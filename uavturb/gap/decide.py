@@ -46,6 +46,7 @@ from uavturb.gap.design import (
     bias_count,
     design,
     difference_points,
+    effective_S,
     stack_target,
     unstack,
 )
@@ -331,6 +332,61 @@ def ambiguity(data: GapData, fit: ModelFit, effect: str, facts: FlightFacts) -> 
     main = partners[0]
     return {"candidates": [effect, *partners], "why": _why(effect, main, overall, facts),
             "to_separate": _to_separate(effect, main), "r2": round(overall, 4)}
+
+
+#: rounds of the alternating fit of each recording's own thrust level beside the effects (:func:`level_alike`)
+LEVEL_ROUNDS = 4
+
+
+def free_levels(data: GapData, fit: ModelFit) -> tuple[ModelFit, np.ndarray]:
+    """``fit``'s effects refitted with each recording's own thrust level (G,) [-] (mean 1), found by alternating
+    least squares: the level of each recording scales its thrust so that the force along the thrust left by the
+    fit is least, then the effects are fitted again (:data:`LEVEL_ROUNDS` rounds; the last with errors)."""
+    groups = np.unique(data.group)
+    level = np.ones(int(groups.max()) + 1)
+    moved = data
+    for _ in range(LEVEL_ROUNDS):
+        f = fit_model(moved, fit.effects, with_stderr=False)
+        thrust = f.coef["k_T"] * effective_S(moved, set(f.effects), _nl_values(f.nonlinear))
+        along = np.einsum("ki,ki->k", f.residual(moved), moved.R[:, :, 2])
+        for g in groups:
+            m = moved.group == g
+            level[g] *= 1.0 + float(np.sum(along[m] * thrust[m]) / max(np.sum(thrust[m] ** 2), 1e-300))
+        level /= level[groups].mean()
+        moved = data.with_levels(level)
+    return fit_model(moved, fit.effects), level[groups]
+
+
+def level_alike(data: GapData, fit: ModelFit, effect: str, levels_read: bool) -> dict | None:
+    """An ``ambiguous`` entry (with ``thrust_coefficient``) for a surface law that the recordings' thrust levels
+    would explain as well, else None.
+
+    Where two or more recordings share one thrust coefficient only because their levels could not be measured
+    apart (``levels_read`` False: no far hovers, no heights flown in two of them), a surface law is refitted with
+    each recording's own level (:func:`free_levels`); where its presence parameter then falls within two errors of
+    zero, or moves by more than two of its errors, a session's thrust level and the surface's lift look alike on
+    these flights. The sixth blind probe's two sessions 3-5 % apart in thrust level, one flown near the floor and a
+    ceiling, the other midway only, had named a ground law and a ceiling law (mu = 3.3 +- 1.8, kappa = 3.3 +- 1.5)
+    where neither acted."""
+    spec = EFFECTS[effect]
+    if levels_read or spec.surface is None or len(np.unique(data.group)) < 2:
+        return None
+    free, level = free_levels(data, fit)
+    key = spec.presence_params[0]
+    named, named_se = (v[key] for v in fit.effect_params(effect))
+    value, se = (v[key] for v in free.effect_params(effect))
+    if abs(value) > 2.0 * se and abs(value - named) <= 2.0 * max(named_se, se):
+        return None
+    spread = 100.0 * (float(level.max()) - float(level.min()))
+    return {"candidates": [effect, "thrust_coefficient"],
+            "why": (f"the recordings' thrust levels could not be measured apart (no hovers far from every surface, no "
+                    f"heights flown in two of them), so they shared one thrust coefficient; with each recording's "
+                    f"own (levels {spread:.2g} % apart) the law's {key} becomes {value:.3g} ± {se:.2g}, where "
+                    f"{named:.3g} ± {named_se:.2g} was fitted: a session's thrust level and the surface's lift look "
+                    "alike on these flights"),
+            "to_separate": ("fly each recording both near the surface and far from it, or at heights another "
+                            "recording flies too"),
+            "params_if_named": fit.effect_params(effect)[0]}
 
 
 def bias_alike(data: GapData, effect: str) -> float:

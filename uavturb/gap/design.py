@@ -257,6 +257,13 @@ class GapData:
         return replace(self, rotor_speeds=self.rotor_speeds + float(delta), contiguous=contiguous, dense=None,
                        _S=None, _lag_cache={}, _lag_done={}, _groups=None)
 
+    def with_levels(self, level: np.ndarray) -> "GapData":
+        """These rows with each recording's thrust level ``level`` (G,) [-] (on the contiguous flights too, where
+        the motor lag reads them)."""
+        level = np.asarray(level, float)
+        contiguous = None if self.contiguous is None else replace(self.contiguous, level=level[self.contiguous.group])
+        return replace(self, level=level[self.group], contiguous=contiguous, _lag_cache={}, _lag_done={})
+
     def subset(self, mask: np.ndarray) -> "GapData":
         """The rows where ``mask`` holds; they keep a reference to the contiguous flights."""
         block_of = None

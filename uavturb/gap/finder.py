@@ -17,6 +17,7 @@ from uavturb.gap.decide import (
     can_test_alone,
     flight_facts,
     floor_crossing,
+    level_alike,
     residual_thrust_tilt,
     surface_reach,
     thrust_tilt_alike,
@@ -355,7 +356,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                  unphysical=lambda fit, name: outside_range(data, fit, name))
     progress("deciding what the data support")
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
-    sel, ambiguous, rejected = _decide(data, sel, candidates, refits)
+    sel, ambiguous, rejected = _decide(data, sel, candidates, refits, levels_read=levels.basis != "none")
     sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim, base.offset)
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
@@ -1054,8 +1055,8 @@ def outside_range(data: GapData, fit: ModelFit, name: str, facts: Any = None) ->
     return EFFECTS[name].physical_range.violation(params, facts or flight_facts(data, fit.coef["k_T"]))
 
 
-def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits | None = None
-            ) -> tuple[Selection, list[dict], list[dict]]:
+def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits | None = None,
+            levels_read: bool = True) -> tuple[Selection, list[dict], list[dict]]:
     """Keep only what the data decide (:mod:`uavturb.gap.decide`): a chosen effect outside its
     physical range is rejected, one its data cannot tell from the other unknowns goes to
     ``ambiguous``; the selection is then refitted without them (as are the look-alikes the selection found,
@@ -1087,6 +1088,11 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
             amb = ambiguity(data, final, s.name, facts)
             if amb is not None:
                 ambiguous.append(amb | {"params_if_named": params})
+                drop = s
+                break
+            amb = level_alike(data, final, s.name, levels_read)  # levels_read: the recordings' levels measured apart
+            if amb is not None:
+                ambiguous.append(amb)
                 drop = s
                 break
         if drop is None and "wind" in {s.name for s in steps}:
