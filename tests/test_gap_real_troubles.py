@@ -620,3 +620,18 @@ def test_sessions_whose_thrust_levels_could_not_be_read_apart_leave_a_surface_la
     assert entry["candidates"] == ["ground_effect", "thrust_coefficient"]
     assert "levels 8 % apart" in entry["why"] and "could not be measured apart" in entry["why"]
     assert level_alike(data, law, "ground_effect", levels_read=True) is None  # levels measured: nothing to say
+
+
+def test_a_law_the_heights_pin_down_and_one_they_do_not(hex_flight):
+    """Without a curve an alternative ground law wins at 2 held-out errors only where its amplitude stays more than
+    two height-reference terms from zero (the sixth blind probe's Crazyflies had named an exponential law with
+    A = 2.98 +- 3.5 over a true Cheeseman-Bennett law): mu = 2 on the hexarotor's brisk flight is pinned, a ceiling
+    law on a flight that never nears a ceiling is not."""
+    from uavturb.gap.selection import _Known, _offset_taken_off, _pinned_by_heights, folds
+
+    _, extras = analyse(load_recordings([hex_flight]), {})
+    data = extras["data"]
+    _, fm = folds(data)
+    known = _Known(data, fm, None, _offset_taken_off(data, None), 50)
+    assert _pinned_by_heights(known, frozenset({"ground_effect", "rotor_drag"}), "ground_effect")
+    assert not _pinned_by_heights(known, frozenset({"ceiling_effect", "rotor_drag"}), "ceiling_effect")

@@ -288,6 +288,10 @@ def test_a_better_law_left_unnamed_without_a_curve_is_said(tmp_path):
     assert ("  - its law is not decided: `ground_effect_exponential` fitted the held-out rows better, by 1.2 errors "
             "(2 needed to name it instead), and no measured surface curve judged their shapes"
             ) in (tmp_path / "report.md").read_text()
+    ge["law_shape_open"] |= {"heldout_z_over": 2.6, "not_pinned_by_heights": True}  # over the bar, not pinned
+    write_markdown(tmp_path, _one_effect_report(ge), [])
+    assert ("by 2.6 errors (2 needed to name it instead, but its parameter moves by more than half its value with "
+            "the heights moved by the height reference's +-1 cm)") in (tmp_path / "report.md").read_text()
     ge["law_shape_open"] = {"law": None, "heldout_z_over": None, "needed": 4.0}  # no better law: the shape unchecked
     write_markdown(tmp_path, _one_effect_report(ge), [])
     text = (tmp_path / "report.md").read_text()

@@ -414,8 +414,10 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                 found = better_law_not_named(e["name"], sel.tried)
                 # the bar selection asked of it: Z_DISTINCT where no curve judged the two shapes
                 needed = Z_IMPROVE if found and evidence.judges(found[0], e["name"]) else Z_DISTINCT
+                unpinned = bool(found) and any(k.endswith("_not_pinned_by_heights") for k in sel.tried[found[0]])
                 e["law_shape_open"] = {"law": found[0] if found else None,
-                                       "heldout_z_over": found[1] if found else None, "needed": needed}
+                                       "heldout_z_over": found[1] if found else None, "needed": needed,
+                                       "not_pinned_by_heights": unpinned}
     named = _untaken_checked(named, data, final, sel.tried, {e["name"] for e in rejected + not_testable}
                              | {c for a in ambiguous for c in a["candidates"]})
     if curve_report is not None:

@@ -249,8 +249,11 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
             if e.get("law_shape_open"):
                 o = e["law_shape_open"]
                 if o.get("law"):
+                    bar = (f"{o['needed']:g} needed to name it instead, but its parameter moves by more than half "
+                           f"its value with the heights moved by the height reference's +-1 cm"
+                           if o.get("not_pinned_by_heights") else f"{o['needed']:g} needed to name it instead")
                     L.append(f"  - its law is not decided: `{o['law']}` fitted the held-out rows better, by "
-                             f"{o['heldout_z_over']:.2g} errors ({o['needed']:g} needed to name it instead), and no "
+                             f"{o['heldout_z_over']:.2g} errors ({bar}), and no "
                              "measured surface curve judged their shapes; between and beyond these flights' heights "
                              "the two may differ by more than the error above. To tell them apart: hover far from the "
                              "floor and at several low heights, a few seconds each")

@@ -200,7 +200,7 @@ def _block_spread(data: GapData, final: ModelFit, name: str, block: np.ndarray,
     return spread, largest
 
 
-def _shifted(data: GapData, dz: float) -> GapData:
+def heights_shifted(data: GapData, dz: float) -> GapData:
     """``data`` with every surface height moved by ``dz`` [m] (closer to the floor for ``dz < 0``)."""
     out = data.subset(np.ones(len(data), bool))
     out.d_down = np.maximum(data.d_down + dz, 1e-3)
@@ -237,7 +237,7 @@ def error_budget(data: GapData, final: ModelFit, name: str,
         for k in keys:
             budget[k]["height_reference"] = 0.0
     elif EFFECTS[name].surface is not None:
-        up, down = (refits.params(("height", dz), lambda dz=dz: _shifted(data, dz), effects, name)
+        up, down = (refits.params(("height", dz), lambda dz=dz: heights_shifted(data, dz), effects, name)
                     for dz in (height_reference_m, -height_reference_m))
         for k in keys:
             budget[k]["height_reference"] = abs(up[k] - down[k]) / 2 if up and down else float("nan")
