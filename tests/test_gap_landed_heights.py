@@ -41,7 +41,8 @@ def test_landings_alike_or_too_far_apart_move_nothing():
     assert "one height" in alike.sentence(["a", "b"])
     apart = landed_alignment([0.024, 0.024 + LANDED_ALIGN_MAX_M + 0.005])  # no one gear: not moved, covered
     assert not apart.applied and apart.uncertainty_m == pytest.approx((LANDED_ALIGN_MAX_M + 0.005) / 2)
-    assert "taken as recorded" in apart.sentence(["a", "b"])
+    assert "25.0 mm apart, more than the 20 mm by which one vehicle on one landing gear can differ" in apart.sentence(
+        ["a", "b"]) and "taken as recorded" in apart.sentence(["a", "b"])
     for one in ([0.024], [0.024, None], [None, None], []):
         landed = landed_alignment(one)
         assert not landed.applied and landed.as_report(["x"] * len(one)) is None and landed.uncertainty_m == 0.0

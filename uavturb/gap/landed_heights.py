@@ -105,11 +105,11 @@ class LandedHeights:
                 "cannot be checked so, and every stated error covers heights off by "
                 f"{1000 * self.uncertainty_m:.1f} mm (half that spread)") if never else ""
         if not self.applied:
-            return (f"the recordings land at rotor-plane heights {listed}: {spread} apart, more than one vehicle on "
-                    f"one landing gear differs by ({1000 * LANDED_ALIGN_MAX_M:.0f} mm: another gear, or something "
-                    "under one landing that the point cloud does not hold), so their heights are taken as recorded, "
-                    f"and every stated error covers heights off by {1000 * self.uncertainty_m:.1f} mm (half that "
-                    "spread)")
+            return (f"the recordings land at rotor-plane heights {listed}: {spread} apart, more than the "
+                    f"{1000 * LANDED_ALIGN_MAX_M:.0f} mm by which one vehicle on one landing gear can differ (another "
+                    "gear, or something under one landing that the point cloud does not hold), so their heights are "
+                    f"taken as recorded, and every stated error covers heights off by "
+                    f"{1000 * self.uncertainty_m:.1f} mm (half that spread)")
         moves = ", ".join(f"{1000 * s:+.1f} mm ({n})" for n, s, h in zip(names, self.shifts, self.heights)
                           if h is not None)
         return (f"the recordings land at rotor-plane heights {listed}: {spread} apart, where one vehicle on its "
