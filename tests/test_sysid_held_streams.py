@@ -12,13 +12,14 @@ import pytest
 from uavturb.gap import locate
 from uavturb.gap.design import gap_data
 from uavturb.io.recording import GroundTruth, Rotors
+from uavturb.numerics.stream_updates import staggered
 from uavturb.physics.effects import parse_effects
 from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import simulate_flight
 from uavturb.sim.core.signals import Constant, Reference, Sines
 from uavturb.sysid.flight_data import flight_data, held_updates
-from uavturb.sysid.streams import staggered, stream_updates
+from uavturb.sysid.streams import stream_updates
 
 
 def _bobbing():

@@ -19,6 +19,7 @@ from uavturb.sysid.accelerometer import flight_accel_bias
 from uavturb.sysid.flight_data import flight_data
 from uavturb.sysid.identification import Identification, identify
 from uavturb.sysid.residuals import Residuals, residual_forces, write_residuals
+from uavturb.sysid.streams import needed_rate_hz, slow_for, stream_updates
 
 
 def identify_recordings(paths: Sequence[str | Path], *, model: str = "auto",
@@ -33,24 +34,56 @@ def identify_recordings(paths: Sequence[str | Path], *, model: str = "auto",
     return ident
 
 
-#: identified k_T over vehicle.yaml's beyond which the two cannot both describe these rotor speeds
-KT_DISAGREEMENT = 1.5
+#: identified k_T over vehicle.yaml's beyond which the two cannot both describe these rotor speeds; and the share
+#: by which they differ, at least ``KT_NOTED_ERRORS`` stated errors, for a note that only k_T/m is measured
+KT_DISAGREEMENT, KT_NOTED_SHARE, KT_NOTED_ERRORS = 1.5, 0.03, 3.0
 
 
 def thrust_coefficient_disagreement(ident: Identification, vehicle: Vehicle) -> str | None:
     """A sentence where the identified thrust coefficient and ``vehicle.yaml``'s differ by more than a factor
     :data:`KT_DISAGREEMENT` (a mass off by two gives twice as much; rotor speeds in rpm read as rad/s, 91 times
-    less, are refused by their blade tips' speed as they are read), else None. The identified value is right for the
-    numbers as given; the units may not be."""
+    less, are refused by their blade tips' speed as they are read), or by :data:`KT_NOTED_SHARE` and
+    :data:`KT_NOTED_ERRORS` stated errors (a probe's mass 10 % off had passed without a word), else None. The
+    identified value is right for the numbers as given; the units or the mass may not be."""
     k_nominal, k = vehicle.thrust_coefficient, float(ident.thrust_coefficient)
     if not k_nominal or not np.isfinite(k) or k <= 0:
         return None
     ratio = k / k_nominal
     if 1 / KT_DISAGREEMENT <= ratio <= KT_DISAGREEMENT:
-        return None
+        se = float(ident.thrust_coefficient_se)
+        if abs(ratio - 1) < KT_NOTED_SHARE or not abs(k - k_nominal) > KT_NOTED_ERRORS * se:
+            return None
+        return (f"the identified k_T {k:.4g} ± {se:.2g} N/(rad/s)^2 is {100 * (ratio - 1):+.1f} % off vehicle.yaml's "
+                f"thrust_coefficient {k_nominal:.4g}: sessions, batteries and propellers differ by a few percent, "
+                "and a mass off by as much reads alike (a flight measures k_T/m; k_T and the inertia scale with the "
+                "mass given)")
     return (f"the identified k_T {k:.4g} N/(rad/s)^2 is {ratio:.3g} times vehicle.yaml's thrust_coefficient "
             f"{k_nominal:.4g}: check that rotors0 holds rad/s (rotor_speed_scale converts rpm or raw values) and "
             "vehicle.yaml's mass")
+
+
+#: s, the time a residual force series resolves at its rows' rate, and Hz, the updates that asks of a stream it reads
+RESIDUAL_TIMESCALE_S = 0.1
+RESIDUAL_NEEDED_HZ = needed_rate_hz(RESIDUAL_TIMESCALE_S)
+
+
+def _say_slow_streams(command: str, rec: Recording) -> None:
+    """On stderr, each stream the residual force reads (ground truth, rotors) that updates slower than
+    :data:`RESIDUAL_NEEDED_HZ`: between its updates the residual carries what that stream did not see (rotor
+    speeds held at 3 Hz had tripled a probe's residual without a word; ``recordings.md``: the tools say when a
+    stream updates too slowly for what they are asked)."""
+    streams = [("state_groundtruth_estimate0", rec.ground_truth.t_ns,
+                np.hstack([rec.ground_truth.p, rec.ground_truth.q, rec.ground_truth.v]))]
+    if rec.rotors is not None:
+        streams.append(("rotors0", rec.rotors.t_ns, rec.rotors.speeds))
+    for name, t_ns, values in streams:
+        if len(t_ns) < 3:
+            continue
+        said = slow_for(stream_updates(name, t_ns, values), RESIDUAL_NEEDED_HZ,
+                        f"a residual force resolved to {RESIDUAL_TIMESCALE_S:g} s (between its updates the residual "
+                        "carries what it did not see, not the air's force)")
+        if said:
+            print(f"uavturb {command}: {said}", file=sys.stderr)
 
 
 def _say_read_notes(command: str, recs: Sequence[Recording]) -> None:
@@ -67,7 +100,11 @@ def format_identification(ident: Identification) -> str:
              "theta_0": "theta_0 = k_T/m", "theta_1": "theta_1 = l k_T/J_x", "theta_2": "theta_2 = k_M/J_z",
              "theta_3": "theta_3 = J_z/J_x", "accel_bias": "accelerometer bias"}
     lines = [f"identified from {len(ident.recordings)} recording(s), {ident.n_samples} samples in free flight, "
-             f"inertia model {ident.model}", f"{'parameter':<22}{'value':>14}{'std. error':>14}  unit"]
+             f"inertia model {ident.model}"]
+    if ident.near_surface_m is not None:
+        lines.append(f"the flights stay near a surface: rows down to {ident.near_surface_m:.2g} m from it, its "
+                     "Cheeseman-Bennett lift fitted beside k_T (not in it)")
+    lines.append(f"{'parameter':<22}{'value':>14}{'std. error':>14}  unit")
     undetermined = []
     for key, label in names.items():
         s = ident.status[key]
@@ -135,13 +172,19 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     check_output_file(out, overwrite=overwrite)
     (rec,) = load_recordings([path], vehicle)
     _say_read_notes("residuals", [rec])
+    _say_slow_streams("residuals", rec)
     if params == "identified":
         v = _identified_for_forces(identify([rec], rec.vehicle), rec.vehicle)
     elif params == "nominal":
         v = rec.vehicle
-        if not v.is_complete():
-            raise InputError(Path(path) / "vehicle.yaml",
-                             "--params nominal needs thrust_coefficient, moment_coefficient and inertia")
+        if v.thrust_coefficient is None:
+            raise InputError(Path(path) / "vehicle.yaml", "--params nominal needs thrust_coefficient")
+        if not v.is_complete():  # the force needs k_T alone
+            missing = [k for k, x in (("moment_coefficient", v.moment_coefficient), ("inertia", v.inertia))
+                       if x is None]
+            print(f"uavturb residuals: torques left out (nan): vehicle.yaml has no {' or '.join(missing)}",
+                  file=sys.stderr)
+            v = v.with_params(moment_coefficient=None, inertia=None)
     else:
         raise InputError("--params", f"unknown value '{params}' (allowed: identified, nominal)")
     fd = flight_data(rec, time_base="groundtruth" if source == "mocap" else "auto")  # an IMU unread cuts no rows

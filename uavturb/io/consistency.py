@@ -33,7 +33,7 @@ from uavturb.io import align
 from uavturb.io.differentiate import derivative
 from uavturb.io.recording import Recording
 from uavturb.numerics.filters import high_passed
-from uavturb.numerics.stream_updates import hold_period_s, update_mask
+from uavturb.numerics.stream_updates import hold_period_s, read_between_updates, staggered, update_mask
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 
@@ -551,6 +551,9 @@ COMMAND_LATE_S, COMMAND_LATE_MAX_S = 0.08, 0.3
 #: stamped), and the gain over the stamps (0.25 s late had passed at 0.45 against 0.31, under the 0.5 asked of any
 #: other offset)
 COMMAND_LATE_CORRELATION, COMMAND_LATE_STAMPED, COMMAND_LATE_GAIN = 0.4, 0.2, 0.03
+#: the least correlation, and gain over the stamps, of a late match read so whatever the stamps' own correlation
+#: (commands 0.19 s late had passed: 0.94 against 0.16 as stamped, under COMMAND_LATE_STAMPED)
+COMMAND_LATE_CLEAR, COMMAND_LATE_CLEAR_GAIN = 0.7, 0.3
 
 
 def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal: np.ndarray
@@ -673,6 +676,21 @@ def _check_imu_clock(rec: Recording, t: np.ndarray, f_mocap_z: np.ndarray, t_imu
 TORQUE_CLOCK_MIN_CORRELATION, TORQUE_CLOCK_AGREE_S = 0.3, 0.1
 
 
+def _rotor_updates(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """(U, n) rotor speeds [rad/s] at the rotor stream's update rows and (U,) s, their times since the ground truth's
+    first row: a held stream read on its updates (its steps lag by half a step: 0.17 s at 3 Hz), the last row kept;
+    one whose rotors report in turn (:func:`~uavturb.numerics.stream_updates.staggered`) each between its own
+    updates, where the rows any rotor changes on are nearly all rows (a probe's 40 ms late telemetry, one ESC at a
+    time at 10 Hz, had read 90 ms late and been refused)."""
+    w = rec.rotors.speeds
+    t = (rec.rotors.t_ns - rec.ground_truth.t_ns[0]) * 1e-9
+    fresh = update_mask(w)
+    fresh[-1] = True
+    if staggered(w):
+        w = read_between_updates(t, w)
+    return w[fresh], t[fresh]
+
+
 def rotor_torque_offset(rec: Recording) -> tuple[float, float, float]:
     """:func:`clock_offset` of the rotors' roll or pitch torque shape (``sum(sin a_i w_i^2)``, ``-sum(cos a_i
     w_i^2)``, a rotor at angle ``a_i``) against the body's angular acceleration about that axis (the IMU's gyroscope
@@ -682,10 +700,8 @@ def rotor_torque_offset(rec: Recording) -> tuple[float, float, float]:
     thrust led the force by 0.18-0.32 s) moves the thrust only."""
     gt = rec.ground_truth
     t = (gt.t_ns - gt.t_ns[0]) * 1e-9
-    fresh = update_mask(rec.rotors.speeds)
-    fresh[-1] = True
-    w2 = rec.rotors.speeds[fresh] ** 2
-    t_rot = (rec.rotors.t_ns[fresh] - gt.t_ns[0]) * 1e-9
+    w, t_rot = _rotor_updates(rec)
+    w2 = w ** 2
     angles = np.radians(np.asarray(rec.vehicle.rotor_angles_deg, float))
     if rec.imu is not None and len(rec.imu) >= MIN_FLIGHT_ROWS and rec.frame == "B":
         rate = np.stack([align.interpolate(rec.imu.t_ns, rec.imu.gyro[:, k], gt.t_ns) for k in range(2)], axis=1)
@@ -703,10 +719,14 @@ def rotor_torque_offset(rec: Recording) -> tuple[float, float, float]:
 
 def _commands_late(offset: tuple[float, float, float]) -> bool:
     """Whether a :func:`clock_offset` of commanded speeds' thrust reads them late, as commands cannot be: between
-    :data:`COMMAND_LATE_S` and :data:`COMMAND_LATE_MAX_S`, with the correlations of ``COMMAND_LATE_*``."""
+    :data:`COMMAND_LATE_S` and :data:`COMMAND_LATE_MAX_S`, with the correlations of ``COMMAND_LATE_*`` (or clearly,
+    :data:`COMMAND_LATE_CLEAR`, whatever the stamps read)."""
     lag, best, at_zero = offset
-    return bool(np.isfinite(lag) and COMMAND_LATE_S <= lag <= COMMAND_LATE_MAX_S and best >= COMMAND_LATE_CORRELATION
-                and at_zero >= COMMAND_LATE_STAMPED and best - at_zero >= COMMAND_LATE_GAIN)
+    if not (np.isfinite(lag) and COMMAND_LATE_S <= lag <= COMMAND_LATE_MAX_S):
+        return False
+    clear = best >= COMMAND_LATE_CLEAR and best - at_zero >= COMMAND_LATE_CLEAR_GAIN
+    return bool(clear or (best >= COMMAND_LATE_CORRELATION and at_zero >= COMMAND_LATE_STAMPED
+                          and best - at_zero >= COMMAND_LATE_GAIN))
 
 
 def check_rotor_clock(rec: Recording) -> str | None:
@@ -727,19 +747,16 @@ def check_rotor_clock(rec: Recording) -> str | None:
         need = a_z * up
     else:
         need = derivative(t, gt.v[:, 2], MOCAP_DERIVATIVE_WINDOW_S) + GRAVITY
-    w = rec.rotors.speeds
-    # a held stream read on its updates (its steps lag by half a step: 0.17 s at 3 Hz)
-    fresh = update_mask(w)
-    fresh[-1] = True
-    S = np.sum(w[fresh] ** 2, axis=1)
-    t_rot = (rec.rotors.t_ns[fresh] - gt.t_ns[0]) * 1e-9
+    w, t_rot = _rotor_updates(rec)
+    S = np.sum(w ** 2, axis=1)
     R33 = np.interp(t_rot, t, up)
     ref = np.where(in_flight(rec, gt.t_ns), need, np.nan)
     thrust = clock_offset(t, ref, t_rot, R33 * S)
     if rec.vehicle.rotor_speed_source != "measured" and _commands_late(thrust):
         raise InputError(_where(rec, "mav0/rotors0/data.csv"),
                          f"{_clock_text(thrust, 'its vertical thrust')} (commanded speeds lead the force they make by "
-                         "a motor lag; they cannot trail it): it must be stamped on the ground truth's clock")
+                         "a motor lag; they cannot trail it): it must be stamped on the ground truth's clock (or, if "
+                         "these are the ESCs' measured speeds, vehicle.yaml must say rotor_speed_source: measured)")
     if not _off_clock(thrust, ROTOR_CLOCK_MAX_S, ROTOR_CLOCK_MIN_CORRELATION):
         return None
     torque = rotor_torque_offset(rec)

@@ -3,7 +3,8 @@
 Loggers write rows at one rate but often repeat the last value until a new one arrives (sample-and-hold,
 ``recordings.md``, "Streams that may be missing"); repeats are bit-identical, so an update is a row whose
 value differs from the previous row's. Here, beneath the readers' checks (:mod:`uavturb.io.consistency`) and
-the stream analysis built on it (:mod:`uavturb.sysid.streams`: rates, delays, staggered columns, noise).
+the stream analysis built on it (:mod:`uavturb.sysid.streams`: rates, delays, noise); here too, whether a
+stream's columns update one after another (round-robin telemetry) and a held stream read between its updates.
 """
 
 from __future__ import annotations
@@ -49,3 +50,65 @@ def hold_period_s(t_ns: np.ndarray, values: np.ndarray) -> float:
         if len(steps):
             periods.append(float(np.median(steps)))
     return float(np.median(periods)) if periods else 0.0
+
+
+#: a staggered stream (round-robin ESC telemetry reports one motor at a time): its median column changes on
+#: fewer than ``STAGGER_SHARE`` of the rows where any column changes, at least ``STAGGER_ONE_SHARE`` of those rows
+#: change one column only, and a column's updates come at regular intervals (median absolute deviation of its
+#: intervals under ``STAGGER_REGULARITY`` of their median, in rows). Columns of a quantised stream also change
+#: one at a time where the values barely move (a position at rest in millimetres), but at random intervals,
+#: often flickering for a single row.
+STAGGER_SHARE, STAGGER_ONE_SHARE, STAGGER_REGULARITY = 0.6, 0.8, 0.25
+
+
+def column_update_masks(values: np.ndarray) -> np.ndarray:
+    """(C, N) bool, each column's own update rows (:func:`update_mask` of that column alone) of a stream's
+    rows ``values`` (N, C)."""
+    x = np.asarray(values)
+    x = x[:, None] if x.ndim == 1 else x
+    return np.stack([update_mask(x[:, c]) for c in range(x.shape[1])])
+
+
+def staggered(values: np.ndarray) -> bool:
+    """Whether a multi-column stream ``values`` (N, C) updates its columns on their own, one after another
+    (held rotor speeds reported one ESC at a time; the thresholds: :data:`STAGGER_SHARE`). A stream whose
+    columns change together is not, nor a quantised one whose columns change at random, nor one column."""
+    x = np.asarray(values)
+    if x.ndim == 1 or x.shape[1] < 2 or len(x) < 3:
+        return False
+    own = column_update_masks(x)[:, 1:]
+    changed = own.sum(axis=0)  # columns changing at each row
+    union = int((changed > 0).sum())
+    if union == 0 or not np.median(own.sum(axis=1)) < STAGGER_SHARE * union:
+        return False
+    if not (changed == 1).sum() >= STAGGER_ONE_SHARE * union:
+        return False
+    spread = []
+    for rows in own:
+        steps = np.diff(np.flatnonzero(rows))
+        if len(steps) >= 3:
+            med = float(np.median(steps))
+            # a held column's value stays two rows or more (a quantised value flickering for one row does not)
+            spread.append(float(np.median(np.abs(steps - med))) / med if med >= 2 else np.inf)
+    return bool(spread) and float(np.median(spread)) <= STAGGER_REGULARITY
+
+
+def read_between_updates(t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(N, C) a held stream read between its updates: each column's value at every row ``t`` (N,) interpolated
+    linearly between that column's own update rows (:func:`update_mask` of the column), where a staircase read as
+    held lags by half its step. For a staggered stream (round-robin ESC telemetry, :func:`staggered`) the rows
+    where any column changes are nearly all rows, and reading them as updates kept each rotor's half step of lag
+    (50 ms at 10 Hz): 40 ms late telemetry then read 90 ms late, over what commanded speeds may trail the force.
+
+    Parameters
+    ----------
+    t : (N,) times (any unit, increasing)
+    values : (N,) or (N, C) the stream's rows
+    """
+    x = np.asarray(values, float)
+    x = x[:, None] if x.ndim == 1 else x
+    out = np.empty_like(x)
+    for c in range(x.shape[1]):
+        m = update_mask(x[:, c])
+        out[:, c] = np.interp(t, np.asarray(t)[m], x[m, c])
+    return out

@@ -30,8 +30,8 @@ from uavturb.io.differentiate import local_quadratic
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.scene.heights import SurfaceIndex
-from uavturb.numerics.stream_updates import update_mask
-from uavturb.sysid.streams import column_update_masks, dropouts, staggered
+from uavturb.numerics.stream_updates import column_update_masks, staggered, update_mask
+from uavturb.sysid.streams import dropouts
 
 
 @dataclass

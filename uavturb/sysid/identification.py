@@ -23,9 +23,10 @@ and assumes ``J_x = J_y``. We fit the same equations, generalised to ``J_x != J_
   When ``a_x`` and ``a_y`` do not differ beyond their uncertainty, the paper's ``J_x = J_y``
   model is fitted instead (``model = "jx=jy"``).
 
-Samples near a surface (ground or ceiling effect) or on the ground (contact forces) are
-left out. Standard errors: Newey-West covariances of each fit (``least_squares``),
-propagated to derived quantities by Monte Carlo.
+Samples near a surface (ground or ceiling effect: within six rotor radii) or on the ground (contact
+forces) are left out; flights that spend their time near a surface are read down to two rotor radii from it,
+its Cheeseman-Bennett law fitted beside ``k_T`` (:func:`surface_columns`). Standard errors: Newey-West
+covariances of each fit (``least_squares``), propagated to derived quantities by Monte Carlo.
 """
 
 from __future__ import annotations
@@ -108,6 +109,9 @@ class Identification:
     #: ``{recording: (b, its standard error)}``, (3,) m/s^2 in B each: the accelerometer bias each recording's IMU
     #: reads beyond its motion capture (two or more recordings with an IMU; ``accel_bias`` pools them)
     accel_bias_per_recording: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    #: m, how near a surface the rows come where the flights spend their time near one (their surfaces' law then
+    #: fitted beside ``k_T``, :func:`surface_columns`); None where the rows keep six rotor radii from every surface
+    near_surface_m: float | None = None
 
     def identified(self, name: str) -> bool:
         """Whether the flight determines constant ``name`` (``k_T``, ``J_z``, ...)."""
@@ -173,6 +177,7 @@ class Identification:
             "theta_names": ["k_T/m", "l*k_T/J_x", "k_M/J_z", "J_z/J_x"],
             "accel_bias": None if self.accel_bias is None else [float(b) for b in self.accel_bias],
             "accel_bias_stderr": None if self.accel_bias is None else [float(b) for b in self.accel_bias_se],
+            "near_surface_m": self.near_surface_m,
             "accel_bias_per_recording": {n: {"value": [float(x) for x in b], "stderr": [float(x) for x in se]}
                                          for n, (b, se) in self.accel_bias_per_recording.items()},
             "sources": "imu+mocap" if self.accel_bias is not None else "mocap",
@@ -186,6 +191,31 @@ class Identification:
                            "cond_max": COND_MAX, "bias_se_max_m_s2": BIAS_SE_MAX, "lowpass_s": LOWPASS_S,
                            "triangle_slack": TRIANGLE_SLACK, "share_min": SHARE_MIN},
         }
+
+
+#: rows a fit needs; the share of rows more that flights spend between ``NEAR_SURFACE_RADII`` and six rotor radii
+#: of a surface (``usable_mask``'s cut) than beyond it for the rows to come down to ``NEAR_SURFACE_RADII`` (a 3 kg
+#: hexarotor's six radii are 1.1 m: its indoor flights had been refused); and rotor radii within which a surface's
+#: Cheeseman-Bennett column is then fitted beside ``k_T``
+MIN_ROWS, NEAR_SHARE_MIN, NEAR_SURFACE_RADII, SURFACE_TERM_RADII = 50, 0.01, 2.0, 12.0
+
+
+def surface_columns(fd: FlightData, vehicle: Vehicle, mask: np.ndarray) -> np.ndarray:
+    """(K, s) the Cheeseman-Bennett shape ``(r / (4 d))^2`` of the rotor plane's height ``d`` over the floor and
+    under the ceiling [-], one column for each surface that a row of ``mask`` comes within
+    :data:`SURFACE_TERM_RADII` rotor radii of (0 where a row has no height). ``k_T S (1 + mu (r / 4d)^2)`` is the
+    thrust with the law linearised (``effects.md``'s ``ground_effect``, ``rho / (1 - rho)`` to first order): its
+    column fitted beside ``S`` keeps the lift out of ``k_T`` (left in, 0.35 % at six radii with mu = 2, it had put
+    ``k_T`` 9-22 stated errors high on flights near the floor, away from ``gap``'s)."""
+    r = vehicle.rotor_radius
+    cols = []
+    for d in (fd.d_down, fd.d_up):
+        if d is None or not np.any(mask & (d < SURFACE_TERM_RADII * r)):
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = (r / (4.0 * d)) ** 2
+        cols.append(np.where(np.isfinite(c) & (d > 0), c, 0.0))
+    return np.stack(cols, axis=1) if cols else np.zeros((len(fd), 0))
 
 
 def usable_mask(fd: FlightData, vehicle: Vehicle, *, min_height_radii: float = 6.0,
@@ -217,10 +247,14 @@ def usable_mask(fd: FlightData, vehicle: Vehicle, *, min_height_radii: float = 6
     return keep
 
 
-def _rows(fds: Sequence[FlightData], vehicle: Vehicle, masks: Sequence[np.ndarray]) -> dict[str, np.ndarray]:
-    """Stack the regression rows of several flights."""
+def _rows(fds: Sequence[FlightData], vehicle: Vehicle, masks: Sequence[np.ndarray], near_surface: bool = False
+          ) -> dict[str, np.ndarray]:
+    """Stack the regression rows of several flights (with ``near_surface``, the surfaces' columns too)."""
     M = vehicle.mixer()
     parts: dict[str, list[np.ndarray]] = {}
+    surfaces = [surface_columns(fd, vehicle, m) if near_surface else np.zeros((len(fd), 0))
+                for fd, m in zip(fds, masks)]
+    n_surf = max(c.shape[1] for c in surfaces)
 
     def add(key, value):
         parts.setdefault(key, []).append(value)
@@ -232,6 +266,8 @@ def _rows(fds: Sequence[FlightData], vehicle: Vehicle, masks: Sequence[np.ndarra
         spec_mocap = np.einsum("kji,kj->ki", R, fd.dv + np.array([0.0, 0.0, GRAVITY]))
         w = fd.w
         add("S_smooth", fd.smooth(S)[m])
+        c = np.hstack([surfaces[g], np.zeros((len(fd), n_surf - surfaces[g].shape[1]))])
+        add("S_surface", fd.smooth(S[:, None] * c)[m] if n_surf else np.zeros((m.sum(), 0)))
         add("S", S[m])
         add("t", fd.t[m])
         add("y_mocap", spec_mocap[m, 2])
@@ -283,7 +319,7 @@ def _fit_translation(rows: dict[str, np.ndarray], lag: int) -> dict[str, Any]:
         if len(per) >= 2:  # IMUs of other sessions read other biases: the pooled one's error covers their spread
             bias_se = np.maximum(bias_se, np.std([a.b for a in per.values()], axis=0, ddof=1))
         b_z = np.array([per[int(g)].b[2] for g in with_imu["group"]])
-        A = np.concatenate([rows["S_smooth"], with_imu["S_smooth"]])[:, None]
+        A = np.concatenate([_thrust_columns(rows), _thrust_columns(with_imu)])
         y = np.concatenate([rows["y_mocap"], with_imu["acc_smooth"][:, 2] - b_z])
         first = lstsq(A, y, lag=lag)
         var_m = np.var(first.residual[:K])
@@ -293,15 +329,27 @@ def _fit_translation(rows: dict[str, np.ndarray], lag: int) -> dict[str, Any]:
         return {"theta0": fit.coef[0], "theta0_se": fit.stderr[0], "has_imu": True, "bias": pooled.b,
                 "bias_se": bias_se, "bias_per_recording": per,
                 "rms": float(np.sqrt(np.mean(fit.residual[K:] ** 2))), "cond": fit.cond}
-    fit = lstsq(rows["S_smooth"][:, None], rows["y_mocap"], lag=lag, groups=groups)
+    fit = lstsq(_thrust_columns(rows), rows["y_mocap"], lag=lag, groups=groups)
     return {"theta0": fit.coef[0], "theta0_se": fit.stderr[0], "has_imu": False, "bias": np.full(3, np.nan),
             "bias_se": np.full(3, np.nan), "rms": fit.rms, "cond": fit.cond}
 
 
+def _thrust_columns(rows: dict[str, np.ndarray]) -> np.ndarray:
+    """(K, 1 + s) the translation fit's regressors: ``S`` and, beside it, each surface's ``S (r / 4d)^2``
+    (:func:`surface_columns`) where a surface is within reach; a column all zeros (no row near it) is left out."""
+    surf = rows["S_surface"]
+    keep = np.any(surf != 0.0, axis=0) if surf.size else np.zeros(surf.shape[1], bool)
+    return np.column_stack([rows["S_smooth"], surf[:, keep]])
+
+
 def _usable_flights(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Vehicle | None, model: str,
-                    window_s: float) -> tuple[Vehicle, list[FlightData], list[str], list[np.ndarray]]:
-    """(vehicle, flight data, names, usable-row masks) of the flights, or :class:`InputError` when they
-    cannot identify anything (none given, no vehicle, an unknown model, under 50 usable samples)."""
+                    window_s: float) -> tuple[Vehicle, list[FlightData], list[str], list[np.ndarray], bool]:
+    """(vehicle, flight data, names, usable-row masks, whether the rows come down to :data:`NEAR_SURFACE_RADII`)
+    of the flights, or :class:`InputError` when they cannot identify anything (none given, no vehicle, an unknown
+    model, under :data:`MIN_ROWS` usable samples). The rows lie beyond six rotor radii of every surface
+    (:func:`usable_mask`) unless the flights spend :data:`NEAR_SHARE_MIN` as many rows again nearer, or too few
+    beyond: then they come down to :data:`NEAR_SURFACE_RADII`, and the surfaces' law is fitted beside ``k_T``
+    (:func:`surface_columns`)."""
     if not recordings:
         raise InputError("identify", "no recording given")
     if vehicle is None:
@@ -313,10 +361,17 @@ def _usable_flights(recordings: Sequence[Recording] | Sequence[FlightData], vehi
     fds = [r if isinstance(r, FlightData) else flight_data(r, window_s=window_s) for r in recordings]
     names = [str(r.path) if isinstance(r, Recording) and r.path else fd.name for r, fd in zip(recordings, fds)]
     masks = [usable_mask(fd, vehicle) for fd in fds]
-    n = int(sum(m.sum() for m in masks))
-    if n < 50:
-        raise InputError(names[0], f"only {n} samples in free flight away from surfaces; cannot identify")
-    return vehicle, fds, names, masks
+    near = [usable_mask(fd, vehicle, min_height_radii=NEAR_SURFACE_RADII) for fd in fds]
+    n, n_near = int(sum(m.sum() for m in masks)), int(sum(m.sum() for m in near))
+    near_surface = n < MIN_ROWS or n_near > (1.0 + NEAR_SHARE_MIN) * n
+    if near_surface:  # flights that visit a surface's reach: read down to it, its law fitted beside k_T
+        masks, n = near, n_near
+    if n < MIN_ROWS:
+        h = NEAR_SURFACE_RADII * vehicle.rotor_radius
+        raise InputError(names[0], f"only {n} samples in flight with the rotors over a third of the weight and "
+                                   f"more than {h:.2g} m ({NEAR_SURFACE_RADII:g} rotor radii) from any surface; "
+                                   "cannot identify (residuals --params nominal uses vehicle.yaml's constants)")
+    return vehicle, fds, names, masks, near_surface
 
 
 def _columns(*cols: np.ndarray | None) -> np.ndarray:
@@ -412,8 +467,8 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     lag_s : correlation length for the Newey-West standard errors [s]
     n_draws : Monte Carlo draws propagating the standard errors
     """
-    vehicle, fds, names, masks = _usable_flights(recordings, vehicle, model, window_s)
-    rows = _rows(fds, vehicle, masks)
+    vehicle, fds, names, masks, near_surface = _usable_flights(recordings, vehicle, model, window_s)
+    rows = _rows(fds, vehicle, masks, near_surface)
     lag = max(1, int(round(lag_s / fds[0].dt)))
 
     # translation: theta_0 (the accelerometer's bias measured apart); with two or more recordings, each alone too
@@ -469,7 +524,8 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
         conditions={k: float(v) for k, v in conds.items()}, accel_bias_se=tr["bias_se"],
         thrust_coefficient_per_recording={n: (float(m * t), float(m * se)) for n, (t, se) in per_recording.items()},
         accel_bias_per_recording=({names[g]: (a.b, a.stderr) for g, a in tr["bias_per_recording"].items()}
-                                  if tr["has_imu"] and len(fds) > 1 else {}))
+                                  if tr["has_imu"] and len(fds) > 1 else {}),
+        near_surface_m=NEAR_SURFACE_RADII * vehicle.rotor_radius if near_surface else None)
 
 
 #: rows a recording needs for its own ``theta_0`` (the spread between recordings)

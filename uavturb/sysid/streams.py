@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.numerics.stream_updates import update_mask
+from uavturb.numerics.stream_updates import column_update_masks, staggered, update_mask
 
 MAD_TO_SIGMA = 1.4826  # sigma of a normal distribution per median absolute deviation
 
@@ -39,47 +39,6 @@ def updates_only(t_ns: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.n
     """
     m = update_mask(values)
     return np.asarray(t_ns)[m], np.asarray(values)[m]
-
-
-#: a staggered stream (round-robin ESC telemetry reports one motor at a time): its median column changes on
-#: fewer than ``STAGGER_SHARE`` of the rows where any column changes, at least ``STAGGER_ONE_SHARE`` of those rows
-#: change one column only, and a column's updates come at regular intervals (median absolute deviation of its
-#: intervals under ``STAGGER_REGULARITY`` of their median, in rows). Columns of a quantised stream also change
-#: one at a time where the values barely move (a position at rest in millimetres), but at random intervals,
-#: often flickering for a single row.
-STAGGER_SHARE, STAGGER_ONE_SHARE, STAGGER_REGULARITY = 0.6, 0.8, 0.25
-
-
-def column_update_masks(values: np.ndarray) -> np.ndarray:
-    """(C, N) bool, each column's own update rows (:func:`update_mask` of that column alone) of a stream's
-    rows ``values`` (N, C)."""
-    x = np.asarray(values)
-    x = x[:, None] if x.ndim == 1 else x
-    return np.stack([update_mask(x[:, c]) for c in range(x.shape[1])])
-
-
-def staggered(values: np.ndarray) -> bool:
-    """Whether a multi-column stream ``values`` (N, C) updates its columns on their own, one after another
-    (held rotor speeds reported one ESC at a time; the thresholds: :data:`STAGGER_SHARE`). A stream whose
-    columns change together is not, nor a quantised one whose columns change at random, nor one column."""
-    x = np.asarray(values)
-    if x.ndim == 1 or x.shape[1] < 2 or len(x) < 3:
-        return False
-    own = column_update_masks(x)[:, 1:]
-    changed = own.sum(axis=0)  # columns changing at each row
-    union = int((changed > 0).sum())
-    if union == 0 or not np.median(own.sum(axis=1)) < STAGGER_SHARE * union:
-        return False
-    if not (changed == 1).sum() >= STAGGER_ONE_SHARE * union:
-        return False
-    spread = []
-    for rows in own:
-        steps = np.diff(np.flatnonzero(rows))
-        if len(steps) >= 3:
-            med = float(np.median(steps))
-            # a held column's value stays two rows or more (a quantised value flickering for one row does not)
-            spread.append(float(np.median(np.abs(steps - med))) / med if med >= 2 else np.inf)
-    return bool(spread) and float(np.median(spread)) <= STAGGER_REGULARITY
 
 
 def _update_rate(t: np.ndarray, m: np.ndarray) -> tuple[float, float]:

@@ -1,0 +1,93 @@
+"""``identify`` and ``residuals`` on flights that stay near a surface, slow streams and vehicle files that lack
+constants: a blind probe's findings (a 2.5 kg hexarotor's six rotor radii reach 0.76 m: its indoor flights had been
+refused by both; ``k_T`` had taken in a floor's lift; rotor speeds held at 3 Hz and a mass 10 % off passed without a
+word; ``--params nominal`` had asked for constants the force does not need)."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from uavturb.cli import main
+from uavturb.commands.identify import identify_recordings, residuals_to_file
+from uavturb.sim.flights.condition_schema import Conditions
+from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
+from uavturb.sim.flights.simulate import generate_flight
+
+from other_vehicles import HEAVY_HEX
+
+
+@pytest.fixture(scope="module")
+def low_hex(tmp_path_factory):
+    """A 2.5 kg hexarotor flying low passes over a floor and a table (rotor plane 0.2-1.2 m up) under
+    Cheeseman-Bennett with mu = 2."""
+    root = tmp_path_factory.mktemp("lowhex")
+    (root / "hex.yaml").write_text(HEAVY_HEX)
+    path = root / "low"
+    generate_conditioned_flight(str(root / "hex.yaml"), "ground_effect:mu=2", duration=40.0, kind="low_passes",
+                                seed=60, conditions=Conditions(), out=path)
+    return path
+
+
+def test_a_flight_near_the_floor_is_identified_with_its_lift_beside_k_t(low_hex, capsys):
+    ident = identify_recordings([low_hex])
+    truth = read_truth(low_hex)["vehicle"]["thrust_coefficient"]
+    assert ident.near_surface_m == pytest.approx(2 * 0.127)
+    assert ident.identified("k_T")
+    # the lift is fitted beside k_T, not in it: within three stated errors of the truth (the error honest, not wide)
+    assert abs(ident.thrust_coefficient - truth) < 3 * ident.thrust_coefficient_se
+    assert ident.thrust_coefficient_se < 0.005 * truth
+    assert main(["identify", str(low_hex)]) == 0
+    assert "the flights stay near a surface: rows down to 0.25 m from it" in capsys.readouterr().out
+
+
+def test_its_residuals_are_written_and_show_the_lift_near_the_floor(low_hex, tmp_path):
+    res, path = residuals_to_file(low_hex, tmp_path / "r.csv")
+    table = pd.read_csv(path)
+    assert len(table) > 1000 and np.isfinite(table["F_z [N]"]).mean() > 0.9
+
+
+def test_residuals_with_vehicle_constants_need_only_k_t(low_hex, tmp_path, capsys):
+    rec = tmp_path / "lean"
+    shutil.copytree(low_hex, rec)
+    lean = rec / "vehicle.yaml"
+    lean.write_text(yaml.safe_dump({k: v for k, v in yaml.safe_load(lean.read_text()).items()
+                                    if k not in ("moment_coefficient", "inertia")}))
+    res, path = residuals_to_file(rec, tmp_path / "n.csv", params="nominal")
+    table = pd.read_csv(path)
+    assert np.all(np.isnan(table["tau_Bx [N m]"])) and np.isfinite(table["F_z [N]"]).mean() > 0.9
+    assert "torques left out (nan): vehicle.yaml has no moment_coefficient or inertia" in capsys.readouterr().err
+    lean.write_text(yaml.safe_dump({k: v for k, v in yaml.safe_load(lean.read_text()).items()
+                                    if k != "thrust_coefficient"}))
+    assert main(["residuals", str(rec), "--out", str(tmp_path / "b.csv"), "--params", "nominal"]) == 2
+    assert "--params nominal needs thrust_coefficient" in capsys.readouterr().err
+
+
+def test_residuals_say_when_the_rotor_speeds_update_too_slowly(tmp_path, capsys):
+    path = tmp_path / "held"
+    generate_conditioned_flight("hex", "none", duration=12.0, kind="mixed", seed=16, out=path,
+                                conditions=Conditions(rotor_hold_hz=3))
+    residuals_to_file(path, tmp_path / "r.csv")
+    err = capsys.readouterr().err
+    assert "rotors0 updates at 3.0 Hz" in err or "rotors0 updates at 2.9 Hz" in err
+    assert "too slow for a residual force resolved to 0.1 s" in err
+    residuals_to_file(path.parent / "held", tmp_path / "again.csv")  # the state stream is not called slow
+    assert "state_groundtruth_estimate0 updates" not in capsys.readouterr().err
+
+
+def test_identify_says_when_its_k_t_is_percents_off_vehicle_yaml(tmp_path, capsys):
+    path = tmp_path / "heavy"
+    generate_conditioned_flight("hex", "none", duration=12.0, kind="mixed", seed=16, out=path,
+                                conditions=Conditions(mass_error=0.1))
+    ident = identify_recordings([path])
+    err = capsys.readouterr().err
+    assert "% off vehicle.yaml's thrust_coefficient" in err and "a mass off by as much reads alike" in err
+    assert ident.thrust_coefficient / read_truth(path)["vehicle"]["thrust_coefficient"] == pytest.approx(1.1, rel=0.01)
+    ok = tmp_path / "ok"
+    generate_flight(vehicle="hex", effects="none", duration=12.0, kind="mixed", seed=16, out=ok)
+    identify_recordings([ok])
+    assert "off vehicle.yaml's" not in capsys.readouterr().err
