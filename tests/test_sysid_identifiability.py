@@ -77,17 +77,18 @@ def test_a_held_heading_with_a_noisy_gyro_does_not_give_theta_2():
 
 
 def test_noisy_rotor_commands_shrink_the_torque_slope_and_say_so():
-    """Rotor speeds recorded with 20 % noise: least squares shrinks theta_2 to the column's share of the variance;
-    the share is read, and theta_2 is not given as a result."""
-    fd, _ = inverse_dynamics_flight(HEXAROTOR, duration=40.0, seed=4, rate_amp=(1.6, 1.6, 0.3), rotor_noise=0.2)
+    """Rotor speeds recorded with 25 % noise: least squares shrinks theta_2 to the column's share of the variance;
+    the share is read, and theta_2 is not given as a result. (With the torques filtered as the derivative filters
+    them, 20 % noise left 79 % of the share, where the value smoother had left 66 %.)"""
+    fd, _ = inverse_dynamics_flight(HEXAROTOR, duration=40.0, seed=4, rate_amp=(1.6, 1.6, 0.3), rotor_noise=0.25)
     ident = identify([fd], HEXAROTOR)
     truth = HEXAROTOR.moment_coefficient / HEXAROTOR.inertia[2]
     share = ident.excitation["yaw"].share
     assert share < idf.SHARE_MIN and ident.theta[2] < 0.75 * truth  # shrunk, as the share says
     assert ident.theta[2] / share == pytest.approx(truth, rel=0.05)  # the reverse regression's bound holds the truth
     st = ident.status["theta_2"]
-    assert st.reason == "ill-conditioned" and "rotor-torque column carries 66 %" in st.why
-    assert "up to 1.5 times the estimate" in st.why
+    assert st.reason == "ill-conditioned" and "rotor-torque column carries 71 %" in st.why
+    assert "up to 1.4 times the estimate" in st.why
     assert not ident.status["k_M"].identifiable
     clean = identify([inverse_dynamics_flight(HEXAROTOR, duration=40.0, seed=4, rate_amp=(1.6, 1.6, 0.3))[0]],
                      HEXAROTOR)

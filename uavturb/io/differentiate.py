@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from uavturb.numerics.filters import savgol_filter
+from uavturb.numerics.filters import savgol_coeffs, savgol_filter
 
 #: fewest samples in a window (at 50 Hz a 0.05 s window would hold 3)
 MIN_WINDOW_SAMPLES = 5
@@ -91,3 +91,36 @@ def derivative(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray:
     """``dx/dt`` of samples ``x`` (N,) or (N, D) at times ``t`` [s], by :func:`local_quadratic`
     over ``window_s`` seconds (:func:`window_samples`)."""
     return local_quadratic(t, x, window_samples(np.asarray(t, float), window_s), deriv=1)
+
+
+def derivative_matched(t: np.ndarray, x: np.ndarray, window: int) -> np.ndarray:
+    """``x`` (N,) or (N, D) at times ``t`` [s] through the filter that :func:`local_quadratic`'s derivative puts on
+    a rate: where ``dy/dt = x`` exactly, ``local_quadratic(t, y, window, deriv=1)`` equals this (the trapezoid rule
+    aside). A regression of a derivative on its causes wants them filtered alike: against the value smoother
+    (``deriv=0``), which lowers a swing less than the slope of a local fit does (by about ``1 - (w h)^2 / 10``), a
+    rotor torque's slope came out low and the inertia 0.2-10 % high for windows of 0.02-0.2 s, without noise.
+
+    The derivative's coefficients ``c_k`` (``k = -h .. h``) weigh the increments ``y_{i+m+1} - y_i+m`` by
+    ``g_m = sum_{k > m} c_k`` (``m >= 0``; mirrored below), each increment ``dt (x_{i+m} + x_{i+m+1}) / 2``; the
+    weights sum to 1. The kernel is built on the median step; rows within ``window // 2`` of an end keep their
+    value smoothed (:func:`local_quadratic`, ``deriv=0``), as the fits there are one-sided.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    N = len(t)
+    if N < 3:
+        return x.copy()
+    n = min(window, N if N % 2 else N - 1)
+    h = n // 2
+    dt = float(np.median(np.diff(t)))
+    c = savgol_coeffs(n, 2, deriv=1, delta=dt)[::-1]  # c[h + k] weighs y_{i+k}
+    g = np.array([c[h + m + 1:].sum() if m >= 0 else -c[:h + m + 1].sum() for m in range(-h, h)])  # m = -h..h-1
+    weights = np.zeros(n)  # on x_{i+j}, j = -h..h
+    weights[:-1] += 0.5 * dt * g  # x_{i+m}
+    weights[1:] += 0.5 * dt * g  # x_{i+m+1}
+    flat = x.reshape(N, -1)
+    out = local_quadratic(t, flat, n, deriv=0)
+    if N > 2 * h:
+        inner = np.stack([np.convolve(flat[:, d], weights[::-1], mode="valid") for d in range(flat.shape[1])], axis=1)
+        out[h:N - h] = inner
+    return out.reshape(x.shape)

@@ -26,7 +26,7 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.io import align
 from uavturb.io.body_frame import to_body
-from uavturb.io.differentiate import local_quadratic
+from uavturb.io.differentiate import derivative_matched, local_quadratic
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.scene.heights import SurfaceIndex
@@ -104,6 +104,11 @@ class FlightData:
     def smooth(self, x: np.ndarray) -> np.ndarray:
         """The filter of the derivatives, without differentiating (axis 0)."""
         return local_quadratic(self.t, np.asarray(x, float), self.window, deriv=0)
+
+    def matched(self, x: np.ndarray) -> np.ndarray:
+        """The filter the derivatives ``dv``, ``dw`` put on a rate, on ``x`` (axis 0): a cause regressed against a
+        derivative, filtered alike (:func:`~uavturb.io.differentiate.derivative_matched`)."""
+        return derivative_matched(self.t, np.asarray(x, float), self.window)
 
     def subset(self, mask: np.ndarray) -> "FlightData":
         """Rows where ``mask`` holds (derivatives already computed stay as they are)."""

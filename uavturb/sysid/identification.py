@@ -265,17 +265,21 @@ def _rows(fds: Sequence[FlightData], vehicle: Vehicle, masks: Sequence[np.ndarra
         R = quat.to_rotation_matrix(fd.q)
         spec_mocap = np.einsum("kji,kj->ki", R, fd.dv + np.array([0.0, 0.0, GRAVITY]))
         w = fd.w
-        add("S_smooth", fd.smooth(S)[m])
-        c = np.hstack([surfaces[g], np.zeros((len(fd), n_surf - surfaces[g].shape[1]))])
-        add("S_surface", fd.smooth(S[:, None] * c)[m] if n_surf else np.zeros((m.sum(), 0)))
+        add("S_smooth", fd.smooth(S)[m])  # beside the IMU's smoothed specific force
+        add("S_matched", fd.matched(S)[m])  # beside the motion capture's differentiated velocity
+        c = S[:, None] * np.hstack([surfaces[g], np.zeros((len(fd), n_surf - surfaces[g].shape[1]))])
+        add("S_surface_smooth", fd.smooth(c)[m] if n_surf else np.zeros((m.sum(), 0)))
+        add("S_surface_matched", fd.matched(c)[m] if n_surf else np.zeros((m.sum(), 0)))
         add("S", S[m])
         add("t", fd.t[m])
         add("y_mocap", spec_mocap[m, 2])
         add("spec_mocap", spec_mocap[m])
         add("acc", fd.acc[m] if fd.acc is not None else np.full((m.sum(), 3), np.nan))
         add("acc_smooth", fd.smooth(fd.acc)[m] if fd.acc is not None else np.full((m.sum(), 3), np.nan))
-        add("u", fd.smooth(u)[m])
-        add("ww", fd.smooth(np.stack([w[:, 1] * w[:, 2], w[:, 0] * w[:, 2], w[:, 0] * w[:, 1]], 1))[m])
+        # the causes of the angular acceleration filtered as its derivative filters them (against the value
+        # smoother, a probe's inertia came out 0.7 % high at 17-20 stated errors, without noise)
+        add("u", fd.matched(u)[m])
+        add("ww", fd.matched(np.stack([w[:, 1] * w[:, 2], w[:, 0] * w[:, 2], w[:, 0] * w[:, 1]], 1))[m])
         add("dw", fd.dw[m])
         add("group", np.full(m.sum(), g))
     return {k: np.concatenate(v) for k, v in parts.items()}
@@ -319,7 +323,7 @@ def _fit_translation(rows: dict[str, np.ndarray], lag: int) -> dict[str, Any]:
         if len(per) >= 2:  # IMUs of other sessions read other biases: the pooled one's error covers their spread
             bias_se = np.maximum(bias_se, np.std([a.b for a in per.values()], axis=0, ddof=1))
         b_z = np.array([per[int(g)].b[2] for g in with_imu["group"]])
-        A = np.concatenate([_thrust_columns(rows), _thrust_columns(with_imu)])
+        A = np.concatenate([_thrust_columns(rows, "matched"), _thrust_columns(with_imu, "smooth")])
         y = np.concatenate([rows["y_mocap"], with_imu["acc_smooth"][:, 2] - b_z])
         first = lstsq(A, y, lag=lag)
         var_m = np.var(first.residual[:K])
@@ -329,17 +333,19 @@ def _fit_translation(rows: dict[str, np.ndarray], lag: int) -> dict[str, Any]:
         return {"theta0": fit.coef[0], "theta0_se": fit.stderr[0], "has_imu": True, "bias": pooled.b,
                 "bias_se": bias_se, "bias_per_recording": per,
                 "rms": float(np.sqrt(np.mean(fit.residual[K:] ** 2))), "cond": fit.cond}
-    fit = lstsq(_thrust_columns(rows), rows["y_mocap"], lag=lag, groups=groups)
+    fit = lstsq(_thrust_columns(rows, "matched"), rows["y_mocap"], lag=lag, groups=groups)
     return {"theta0": fit.coef[0], "theta0_se": fit.stderr[0], "has_imu": False, "bias": np.full(3, np.nan),
             "bias_se": np.full(3, np.nan), "rms": fit.rms, "cond": fit.cond}
 
 
-def _thrust_columns(rows: dict[str, np.ndarray]) -> np.ndarray:
+def _thrust_columns(rows: dict[str, np.ndarray], filtered: str) -> np.ndarray:
     """(K, 1 + s) the translation fit's regressors: ``S`` and, beside it, each surface's ``S (r / 4d)^2``
-    (:func:`surface_columns`) where a surface is within reach; a column all zeros (no row near it) is left out."""
-    surf = rows["S_surface"]
-    keep = np.any(surf != 0.0, axis=0) if surf.size else np.zeros(surf.shape[1], bool)
-    return np.column_stack([rows["S_smooth"], surf[:, keep]])
+    (:func:`surface_columns`) where a surface is within reach (a column all zeros, no row near it, left out),
+    ``filtered`` as the specific force they explain: ``"smooth"`` (the IMU's) or ``"matched"`` (the motion
+    capture's, differentiated)."""
+    surf = rows[f"S_surface_{filtered}"]
+    keep = np.any(rows["S_surface_smooth"] != 0.0, axis=0) if surf.size else np.zeros(surf.shape[1], bool)
+    return np.column_stack([rows[f"S_{filtered}"], surf[:, keep]])
 
 
 def _usable_flights(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Vehicle | None, model: str,
