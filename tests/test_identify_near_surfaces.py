@@ -91,3 +91,17 @@ def test_identify_says_when_its_k_t_is_percents_off_vehicle_yaml(tmp_path, capsy
     generate_flight(vehicle="hex", effects="none", duration=12.0, kind="mixed", seed=16, out=ok)
     identify_recordings([ok])
     assert "off vehicle.yaml's" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("measured", [False, True])
+def test_identify_says_the_inertia_rests_on_commanded_speeds(tmp_path, capsys, measured):
+    """A command map with an idle speed scales the rotor torques that the inertia is read from, which no fit of
+    identify sees (a probe's PX4-like commands: J 36 % high at 63-80 stated errors): said where the speeds are
+    commanded and the inertia is given, not where the ESCs measured them."""
+    path = tmp_path / "cmd"
+    generate_conditioned_flight("hex", "none", duration=20.0, kind="excitation", seed=16, out=path,
+                                conditions=Conditions(measured_rotors=measured))
+    ident = identify_recordings([path])
+    assert ident.identified("J_x")
+    said = "come from commanded rotor speeds (vehicle.yaml's rotor_speed_source)" in capsys.readouterr().err
+    assert said is not measured

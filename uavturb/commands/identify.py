@@ -28,10 +28,24 @@ def identify_recordings(paths: Sequence[str | Path], *, model: str = "auto",
     recs = load_recordings(paths, vehicle)
     _say_read_notes("identify", recs)
     ident = identify(recs, recs[0].vehicle, model=model)
-    note = thrust_coefficient_disagreement(ident, recs[0].vehicle)
-    if note:
-        print(f"uavturb identify: {note}", file=sys.stderr)
+    for note in (thrust_coefficient_disagreement(ident, recs[0].vehicle), commanded_speeds_caveat(ident, recs)):
+        if note:
+            print(f"uavturb identify: {note}", file=sys.stderr)
     return ident
+
+
+def commanded_speeds_caveat(ident: Identification, recs: Sequence[Recording]) -> str | None:
+    """A sentence where the rotational constants come from commanded rotor speeds (``rotor_speed_source``
+    absent or ``commanded``), else None: a command map with an idle speed (``w = a + b u``, the recorded speeds
+    a scale of ``u``) makes the recorded speeds' differences, and so the rotor torques, larger or smaller than the
+    rotors' own, which scales the inertia and ``k_M`` alike and no fit here can see (a probe's PX4-like commands,
+    idle at 124 rad/s: the inertia 36 % high, at 63-80 stated errors). ``k_T`` holds at hover."""
+    rotational = [n for n in ("J_x", "J_y", "J_z", "k_M") if ident.identified(n)]
+    if not rotational or all(r.vehicle.rotor_speed_source == "measured" for r in recs):
+        return None
+    return (f"{', '.join(rotational)} come from commanded rotor speeds (vehicle.yaml's rotor_speed_source): they "
+            "hold where the rotors turn as commanded; a command map with an idle speed scales the rotor torques and "
+            "these with them (uavturb gap reads that offset: nominal.rotor_speed_offset)")
 
 
 #: identified k_T over vehicle.yaml's beyond which the two cannot both describe these rotor speeds; and the share
