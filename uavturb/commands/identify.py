@@ -118,6 +118,10 @@ def format_identification(ident: Identification) -> str:
     if ident.near_surface_m is not None:
         lines.append(f"the flights stay near a surface: rows down to {ident.near_surface_m:.2g} m from it, its "
                      "Cheeseman-Bennett lift fitted beside k_T (not in it)")
+    if ident.surface_term is not None:
+        lines.append(f"k_T's error carries {ident.surface_term:.2g} N/(rad/s)^2, half its change between the rows "
+                     "six rotor radii or more from any surface and the rows nearer with a Cheeseman-Bennett lift "
+                     "beside it (surface)")
     lines.append(f"{'parameter':<22}{'value':>14}{'std. error':>14}  unit")
     undetermined = []
     for key, label in names.items():

@@ -112,6 +112,11 @@ class Identification:
     #: m, how near a surface the rows come where the flights spend their time near one (their surfaces' law then
     #: fitted beside ``k_T``, :func:`surface_columns`); None where the rows keep six rotor radii from every surface
     near_surface_m: float | None = None
+    #: N/(rad/s)^2, half the change of ``k_T`` between the rows beyond six rotor radii of every surface and the rows
+    #: down to :data:`NEAR_SURFACE_RADII` with the surfaces' law beside it, in its error (quadrature) where the
+    #: flights visit a surface's reach and both are read (a Crazyflie's walks 5-45 cm over the floor, whose curve
+    #: no law fits: 0.34 %); None otherwise
+    surface_term: float | None = None
 
     def identified(self, name: str) -> bool:
         """Whether the flight determines constant ``name`` (``k_T``, ``J_z``, ...)."""
@@ -178,6 +183,7 @@ class Identification:
             "accel_bias": None if self.accel_bias is None else [float(b) for b in self.accel_bias],
             "accel_bias_stderr": None if self.accel_bias is None else [float(b) for b in self.accel_bias_se],
             "near_surface_m": self.near_surface_m,
+            "thrust_coefficient_surface_term": self.surface_term,
             "accel_bias_per_recording": {n: {"value": [float(x) for x in b], "stderr": [float(x) for x in se]}
                                          for n, (b, se) in self.accel_bias_per_recording.items()},
             "sources": "imu+mocap" if self.accel_bias is not None else "mocap",
@@ -193,11 +199,11 @@ class Identification:
         }
 
 
-#: rows a fit needs; the share of rows more that flights spend between ``NEAR_SURFACE_RADII`` and six rotor radii
-#: of a surface (``usable_mask``'s cut) than beyond it for the rows to come down to ``NEAR_SURFACE_RADII`` (a 3 kg
-#: hexarotor's six radii are 1.1 m: its indoor flights had been refused); and rotor radii within which a surface's
-#: Cheeseman-Bennett column is then fitted beside ``k_T``
-MIN_ROWS, NEAR_SHARE_MIN, NEAR_SURFACE_RADII, SURFACE_TERM_RADII = 50, 0.01, 2.0, 12.0
+#: rows a fit needs; rotor radii from a surface that rows near it come down to; the share of those rows (``near``)
+#: that must lie beyond six rotor radii (``usable_mask``'s cut) for the fit to keep to them (a 3 kg hexarotor's six
+#: radii are 1.1 m: its indoor flights had been refused), and the share of rows more between the two for a surface
+#: to count as visited; rotor radii within which a surface's Cheeseman-Bennett column is fitted beside ``k_T``
+MIN_ROWS, NEAR_SURFACE_RADII, FAR_SHARE_MIN, NEAR_SHARE_MIN, SURFACE_TERM_RADII = 50, 2.0, 0.25, 0.01, 12.0
 
 
 def surface_columns(fd: FlightData, vehicle: Vehicle, mask: np.ndarray) -> np.ndarray:
@@ -348,14 +354,25 @@ def _thrust_columns(rows: dict[str, np.ndarray], filtered: str) -> np.ndarray:
     return np.column_stack([rows[f"S_{filtered}"], surf[:, keep]])
 
 
+@dataclass
+class _Rows:
+    """The usable rows of each flight: ``masks`` (the fit's), whether they come down to
+    :data:`NEAR_SURFACE_RADII` (``near``: the surfaces' law then fitted beside ``k_T``), and the other reading's
+    masks where the flights visit a surface's reach and both can be read (``other``: the far rows where the fit
+    reads the near ones, or the reverse), None otherwise."""
+
+    masks: list[np.ndarray]
+    near: bool
+    other: list[np.ndarray] | None
+
+
 def _usable_flights(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Vehicle | None, model: str,
-                    window_s: float) -> tuple[Vehicle, list[FlightData], list[str], list[np.ndarray], bool]:
-    """(vehicle, flight data, names, usable-row masks, whether the rows come down to :data:`NEAR_SURFACE_RADII`)
-    of the flights, or :class:`InputError` when they cannot identify anything (none given, no vehicle, an unknown
-    model, under :data:`MIN_ROWS` usable samples). The rows lie beyond six rotor radii of every surface
-    (:func:`usable_mask`) unless the flights spend :data:`NEAR_SHARE_MIN` as many rows again nearer, or too few
-    beyond: then they come down to :data:`NEAR_SURFACE_RADII`, and the surfaces' law is fitted beside ``k_T``
-    (:func:`surface_columns`)."""
+                    window_s: float) -> tuple[Vehicle, list[FlightData], list[str], _Rows]:
+    """(vehicle, flight data, names, usable rows) of the flights, or :class:`InputError` when they cannot identify
+    anything (none given, no vehicle, an unknown model, under :data:`MIN_ROWS` usable samples). The rows lie beyond
+    six rotor radii of every surface (:func:`usable_mask`) unless under :data:`FAR_SHARE_MIN` of the rows down to
+    :data:`NEAR_SURFACE_RADII` (or :data:`MIN_ROWS`) do: then they come down to it, and the surfaces' law is fitted
+    beside ``k_T`` (:func:`surface_columns`)."""
     if not recordings:
         raise InputError("identify", "no recording given")
     if vehicle is None:
@@ -366,18 +383,20 @@ def _usable_flights(recordings: Sequence[Recording] | Sequence[FlightData], vehi
         raise InputError("identify.model", f"unknown model '{model}' (allowed: auto, general, jx=jy)")
     fds = [r if isinstance(r, FlightData) else flight_data(r, window_s=window_s) for r in recordings]
     names = [str(r.path) if isinstance(r, Recording) and r.path else fd.name for r, fd in zip(recordings, fds)]
-    masks = [usable_mask(fd, vehicle) for fd in fds]
+    far = [usable_mask(fd, vehicle) for fd in fds]
     near = [usable_mask(fd, vehicle, min_height_radii=NEAR_SURFACE_RADII) for fd in fds]
-    n, n_near = int(sum(m.sum() for m in masks)), int(sum(m.sum() for m in near))
-    near_surface = n < MIN_ROWS or n_near > (1.0 + NEAR_SHARE_MIN) * n
-    if near_surface:  # flights that visit a surface's reach: read down to it, its law fitted beside k_T
-        masks, n = near, n_near
+    n_far, n_near = int(sum(m.sum() for m in far)), int(sum(m.sum() for m in near))
+    visited = n_near > (1.0 + NEAR_SHARE_MIN) * n_far and n_far >= MIN_ROWS and n_near >= MIN_ROWS
+    if n_far < MIN_ROWS or n_far < FAR_SHARE_MIN * n_near:  # flights that stay near a surface: read down to it
+        rows, n = _Rows(near, True, far if visited else None), n_near
+    else:
+        rows, n = _Rows(far, False, near if visited else None), n_far
     if n < MIN_ROWS:
         h = NEAR_SURFACE_RADII * vehicle.rotor_radius
         raise InputError(names[0], f"only {n} samples in flight with the rotors over a third of the weight and "
                                    f"more than {h:.2g} m ({NEAR_SURFACE_RADII:g} rotor radii) from any surface; "
                                    "cannot identify (residuals --params nominal uses vehicle.yaml's constants)")
-    return vehicle, fds, names, masks, near_surface
+    return vehicle, fds, names, rows
 
 
 def _columns(*cols: np.ndarray | None) -> np.ndarray:
@@ -473,8 +492,9 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     lag_s : correlation length for the Newey-West standard errors [s]
     n_draws : Monte Carlo draws propagating the standard errors
     """
-    vehicle, fds, names, masks, near_surface = _usable_flights(recordings, vehicle, model, window_s)
-    rows = _rows(fds, vehicle, masks, near_surface)
+    vehicle, fds, names, usable = _usable_flights(recordings, vehicle, model, window_s)
+    masks = usable.masks
+    rows = _rows(fds, vehicle, masks, usable.near)
     lag = max(1, int(round(lag_s / fds[0].dt)))
 
     # translation: theta_0 (the accelerometer's bias measured apart); with two or more recordings, each alone too
@@ -485,6 +505,13 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     spread = _spread_between(per_recording) if per_recording else _theta0_between_blocks(rows, lag)
     if spread > tr["theta0_se"]:
         tr = tr | {"theta0_se": spread}
+    # a surface's lift on the rows: where the flights visit its reach, read both beyond it and down to it (its law
+    # beside theta_0), and the error carries half the difference
+    surface_term = 0.0
+    if usable.other is not None:
+        other = _fit_translation(_rows(fds, vehicle, usable.other, not usable.near), lag)
+        surface_term = abs(float(other["theta0"]) - float(tr["theta0"])) / 2.0
+        tr = tr | {"theta0_se": float(np.hypot(tr["theta0_se"], surface_term))}
     # rotation: without yaw motion the gyroscopic columns (w_y w_z, w_x w_z) hold only noise: they are
     # left out, and J_z (which only they carry) is not estimated
     ex = axis_excitation([fd.w for fd in fds], [fd.dw for fd in fds], masks, [fd.dt for fd in fds])
@@ -531,7 +558,8 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
         thrust_coefficient_per_recording={n: (float(m * t), float(m * se)) for n, (t, se) in per_recording.items()},
         accel_bias_per_recording=({names[g]: (a.b, a.stderr) for g, a in tr["bias_per_recording"].items()}
                                   if tr["has_imu"] and len(fds) > 1 else {}),
-        near_surface_m=NEAR_SURFACE_RADII * vehicle.rotor_radius if near_surface else None)
+        near_surface_m=NEAR_SURFACE_RADII * vehicle.rotor_radius if usable.near else None,
+        surface_term=float(m * surface_term) if usable.other is not None else None)
 
 
 #: rows a recording needs for its own ``theta_0`` (the spread between recordings)
