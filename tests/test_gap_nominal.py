@@ -419,6 +419,10 @@ def test_the_pooled_thrust_coefficient_error_covers_the_recordings_spread():
     own = _nominal(data, fit, differ)
     assert own["thrust_coefficient_stderr"] == pytest.approx(np.std(k, ddof=1))
     assert own["thrust_coefficient_per_recording"] == pytest.approx(dict(zip(data.names, k)))
+    # each recording's own with its error: the pooled fit's and its level's (a probe's sessions had none)
+    assert own["thrust_coefficient_per_recording_stderr"] == pytest.approx(
+        {n: kk * np.hypot(1e-3, 2e-9 / kk) for n, kk in zip(data.names, k)})
+    assert out["thrust_coefficient_per_recording_stderr"] == pytest.approx({n: 1e-9 for n in data.names})
 
 
 def test_a_disagreeing_surface_curve_widens_the_stated_error():
