@@ -18,22 +18,7 @@ from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
 from uavturb.sim.flights.simulate import generate_flight
 
-from other_vehicles import HEAVY_HEX
-
-
-#: a 3 kg hexarotor with 0.19 m rotors (six radii: 1.14 m), as the probe flew
-BIG_HEX = """name: hex-3kg
-mass: 3.0
-rotor_count: 6
-arm_length: 0.35
-rotor_angles_deg: [30, 90, 150, -150, -90, -30]
-rotor_directions: [1, -1, 1, -1, 1, -1]
-rotor_radius: 0.19
-thrust_coefficient: 3.0e-05
-moment_coefficient: 6.0e-07
-inertia: [0.08, 0.085, 0.15]
-max_rotor_speed: 800.0
-"""
+from other_vehicles import BIG_HEX, HEAVY_HEX
 
 
 def _low_passes(root, yaml_text, seed, effects="ground_effect:mu=2"):
