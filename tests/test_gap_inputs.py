@@ -361,13 +361,14 @@ def test_a_stream_a_tenth_of_a_second_off_the_clock_is_refused(tmp_path, capsys,
     assert re.search(match, line), line
 
 
-@pytest.mark.parametrize("also_late_s, refused", [(0.0, False), (0.1, True), (0.15, True)])
+@pytest.mark.parametrize("also_late_s, refused", [(0.0, False), (0.04, False), (0.1, True), (0.15, True)])
 def test_round_robin_telemetry_a_little_late_is_read_on_each_rotors_updates(tmp_path, also_late_s, refused):
     """Rotor speeds reported one ESC at a time at 10 Hz and 40 ms late (``recordings.md``: telemetry 40-80 ms
     late), with no ``rotor_speed_source``: the rows any rotor changes on are nearly every row, and read as the
     stream's updates they had kept each rotor's 50 ms half step, read 0.08 s late and refused by every command
-    (a probe's). Each rotor is now read between its own updates; the same stream 0.1 s later is still refused, and
-    0.15 s later too (0.94 against 0.16 as stamped: it had passed, under the stamps' least correlation)."""
+    (a probe's). Each rotor is now read between its own updates, and 80 ms late passes (the telemetry's range in
+    ``recordings.md``, where vehicle.yaml does not say the speeds are measured); 0.14 s late is still refused, and
+    0.19 s (0.94 against 0.16 as stamped: it had passed, under the stamps' least correlation)."""
     rec = tmp_path / "stag"
     generate_conditioned_flight("hex", "none", duration=20.0, kind="mixed", seed=31, out=rec,
                                 conditions=Conditions(rotor_hold_hz=10, rotor_hold_staggered=True,

@@ -543,9 +543,10 @@ IMU_CLOCK_MAX_S, ROTOR_CLOCK_MAX_S = 0.05, 0.25
 #: stamps, 0.90-0.99; one vehicle's 15-30 ms, 0.71-0.81 against 0.49-0.61, under IMU_CLOCK_MAX_S)
 IMU_CLOCK_GAIN = 0.02
 #: s, how late commanded rotor speeds may match the force they make (commands lead it by a motor lag: 15-135 ms
-#: early on 80 real Crazyflie flights, never over 10 ms late), and s, the latest match read so (beyond it the search
-#: for another clock decides, ``ROTOR_CLOCK_MAX_S``)
-COMMAND_LATE_S, COMMAND_LATE_MAX_S = 0.08, 0.3
+#: early on 80 real Crazyflie flights, never over 10 ms late; ESC telemetry written without its
+#: ``rotor_speed_source``, 40-80 ms late in ``recordings.md``, passes), and s, the latest match read so (beyond it
+#: the search for another clock decides, ``ROTOR_CLOCK_MAX_S``)
+COMMAND_LATE_S, COMMAND_LATE_MAX_S = 0.1, 0.3
 #: the least correlation of a late match, the least as stamped (a stream late by tenths of a second still resembles
 #: the force: 0.31-0.53 on the probe's, against a spurious 0.35 at 0.46 s on a valid 30 s flight with -0.03 as
 #: stamped), and the gain over the stamps (0.25 s late had passed at 0.45 against 0.31, under the 0.5 asked of any

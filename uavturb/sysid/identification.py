@@ -203,7 +203,7 @@ class Identification:
 #: that must lie beyond six rotor radii (``usable_mask``'s cut) for the fit to keep to them (a 3 kg hexarotor's six
 #: radii are 1.1 m: its indoor flights had been refused), and the share of rows more between the two for a surface
 #: to count as visited; rotor radii within which a surface's Cheeseman-Bennett column is fitted beside ``k_T``
-MIN_ROWS, NEAR_SURFACE_RADII, FAR_SHARE_MIN, NEAR_SHARE_MIN, SURFACE_TERM_RADII = 50, 2.0, 0.25, 0.01, 12.0
+MIN_ROWS, NEAR_SURFACE_RADII, FAR_SHARE_MIN, NEAR_SHARE_MIN, SURFACE_TERM_RADII = 50, 2.0, 0.25, 0.01, 6.0
 
 
 def surface_columns(fd: FlightData, vehicle: Vehicle, mask: np.ndarray) -> np.ndarray:
