@@ -5,6 +5,7 @@ word; ``--params nominal`` had asked for constants the force does not need)."""
 
 from __future__ import annotations
 
+import re
 import shutil
 
 import numpy as np
@@ -121,3 +122,22 @@ def test_identify_says_the_inertia_rests_on_commanded_speeds(tmp_path, capsys, m
     assert ident.identified("J_x")
     said = "come from commanded rotor speeds (vehicle.yaml's rotor_speed_source)" in capsys.readouterr().err
     assert said is not measured
+
+
+def test_residuals_take_a_measured_streams_delay_out_as_gap_does(tmp_path, capsys):
+    """ESC telemetry 60 ms late (rotor_speed_source: measured): its delay is timed and taken out of its stamps, and
+    the residual comes back to the clean flight's size (a probe's had stayed twice the IMU's noise without a
+    word)."""
+    rms = {}
+    for delay in (0.0, 0.06):
+        path = tmp_path / f"late{delay}"
+        generate_conditioned_flight("hex", "none", duration=30.0, kind="excitation", seed=16, out=path,
+                                    conditions=Conditions(measured_rotors=True, rotor_delay_s=delay))
+        res, out = residuals_to_file(path, tmp_path / f"r{delay}.csv")
+        table = pd.read_csv(out)
+        flying = table["ground_contact"] == 0
+        rms[delay] = float(np.sqrt(np.mean(table.loc[flying, "F_z [N]"] ** 2)))
+    err = capsys.readouterr().err
+    said = re.search(r"rotors0 \(measured rotor speeds\) late by (\d+) ± \d+ ms .*: taken out of its timestamps", err)
+    assert said and 45 <= int(said.group(1)) <= 75
+    assert rms[0.06] < 1.2 * rms[0.0]

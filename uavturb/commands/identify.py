@@ -10,7 +10,7 @@ from typing import Sequence
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.gap.preparation import contact_masks
+from uavturb.gap.preparation import contact_masks, delay_corrected
 from uavturb.io.publish import check_apart, check_output_file
 from uavturb.io.reader import load_recordings, recording_labels
 from uavturb.io.recording import Recording
@@ -98,6 +98,21 @@ def _say_slow_streams(command: str, rec: Recording) -> None:
                         "carries what it did not see, not the air's force)")
         if said:
             print(f"uavturb {command}: {said}", file=sys.stderr)
+
+
+def _telemetry_on_time(rec: Recording) -> Recording:
+    """``rec`` with its measured rotor speeds' delay taken out of their timestamps where one is timed, as ``uavturb
+    gap`` takes it out (:func:`~uavturb.gap.preparation.delay_corrected`), said on stderr: ESC telemetry 60 ms late
+    had left a residual twice the IMU's noise in a probe's series without a word. Commanded speeds are returned as
+    they are (they lead the force by the motor lag, which is physics)."""
+    if rec.vehicle.rotor_speed_source != "measured":
+        return rec
+    moved, found = delay_corrected(rec, flight_data(rec))
+    if found is not None and found["applied"]:
+        print(f"uavturb residuals: {found['describe']}: taken out of its timestamps", file=sys.stderr)
+    elif found is not None:
+        print(f"uavturb residuals: {found['describe']}: read as stamped", file=sys.stderr)
+    return moved
 
 
 def _say_read_notes(command: str, recs: Sequence[Recording]) -> None:
@@ -191,6 +206,7 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     (rec,) = load_recordings([path], vehicle)
     _say_read_notes("residuals", [rec])
     _say_slow_streams("residuals", rec)
+    rec = _telemetry_on_time(rec)
     if params == "identified":
         v = _identified_for_forces(identify([rec], rec.vehicle), rec.vehicle)
     elif params == "nominal":
