@@ -356,9 +356,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                  unphysical=lambda fit, name: outside_range(data, fit, name))
     progress("deciding what the data support")
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
-    hold_s = max((hold_period_s(r.rotors.t_ns, r.rotors.speeds) for r in recordings), default=0.0)
-    sel, ambiguous, rejected = _decide(data, sel, candidates, refits, levels_read=levels.basis != "none",
-                                       rotor_hold_s=hold_s)
+    sel, ambiguous, rejected = _decide(data, sel, candidates, refits, levels_read=levels.basis != "none")
     sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim, base.offset)
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
@@ -1021,27 +1019,6 @@ def not_pinned(data: GapData, final: ModelFit, name: str, refits: Refits | None 
             f"{HONEST_Z:.0f} standard errors of zero once the spread between recordings or blocks is counted")
 
 
-#: share of the rotor stream's hold period under which a motor lag reads alike with the stream's own holding
-LAG_HOLD_SHARE = 0.5
-
-
-def within_hold(final: ModelFit, name: str, rotor_hold_s: float) -> str | None:
-    """Why ``motor_lag`` is no discovery where its ``tau`` is under :data:`LAG_HOLD_SHARE` of the rotor stream's
-    hold period ``rotor_hold_s`` [s] (:func:`~uavturb.numerics.stream_updates.hold_period_s`: how long each rotor's
-    value stays): commands held between rows, or quantised speeds unchanged over steps, lag what the rotors do by
-    up to a hold period themselves (the **command sampling** term), and a lag shorter than half of it reads alike.
-    The paper's 50 g quadrotor, its speeds rounded to 1 rad/s and held 82 ms, had a lag of 22 +- 21 ms named on a
-    flight with none. None for other effects, or a longer lag."""
-    if name != "motor_lag" or not rotor_hold_s > 0:
-        return None
-    tau = final.effect_params(name)[0]["tau"]
-    if tau >= LAG_HOLD_SHARE * rotor_hold_s:
-        return None
-    return (f"its lag (tau = {1e3 * tau:.0f} ms) is under half the rotor stream's hold period "
-            f"({1e3 * rotor_hold_s:.0f} ms, how long each rotor's recorded value stays): the stream's own holding, "
-            "or speeds quantised and unchanged over steps, reads alike")
-
-
 def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
                    height_uncertainty: float = HEIGHT_REFERENCE_M, refits: Refits | None = None
                    ) -> list[dict[str, Any]]:
@@ -1094,7 +1071,7 @@ def outside_range(data: GapData, fit: ModelFit, name: str, facts: Any = None) ->
 
 
 def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits | None = None,
-            levels_read: bool = True, rotor_hold_s: float = 0.0) -> tuple[Selection, list[dict], list[dict]]:
+            levels_read: bool = True) -> tuple[Selection, list[dict], list[dict]]:
     """Keep only what the data decide (:mod:`uavturb.gap.decide`): a chosen effect outside its
     physical range is rejected, one its data cannot tell from the other unknowns goes to
     ``ambiguous``; the selection is then refitted without them (as are the look-alikes the selection found,
@@ -1113,7 +1090,7 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
         for s in steps:
             params, _ = final.effect_params(s.name)
             bad = (outside_range(data, final, s.name, facts) or too_small(data, final, s.name)
-                   or not_pinned(data, final, s.name, refits) or within_hold(final, s.name, rotor_hold_s))
+                   or not_pinned(data, final, s.name, refits))
             if bad is not None and with_undecided is not None and _held_beside(data, with_undecided, s.name):
                 # it held beside an effect left undecided, and fails without it: its value hangs on that one
                 ambiguous.append(_hangs_on(with_undecided, s.name, undecided, bad))
