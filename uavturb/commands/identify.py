@@ -122,6 +122,10 @@ def _say_read_notes(command: str, recs: Sequence[Recording]) -> None:
             print(f"uavturb {command}: {note}", file=sys.stderr)
 
 
+#: share of k_T's stated error from which the surface term is said (under it, it barely moves the error)
+SURFACE_TERM_SAID = 0.25
+
+
 def format_identification(ident: Identification) -> str:
     """A human-readable table of the constants the flights determine, with standard errors; then
     the ones they do not, each with its reason (estimate in brackets, or ``-``: never as a result)."""
@@ -133,7 +137,7 @@ def format_identification(ident: Identification) -> str:
     if ident.near_surface_m is not None:
         lines.append(f"the flights stay near a surface: rows down to {ident.near_surface_m:.2g} m from it, its "
                      "Cheeseman-Bennett lift fitted beside k_T (not in it)")
-    if ident.surface_term is not None:
+    if ident.surface_term is not None and ident.surface_term >= SURFACE_TERM_SAID * ident.thrust_coefficient_se:
         lines.append(f"k_T's error carries {ident.surface_term:.2g} N/(rad/s)^2, half its change between the rows "
                      "six rotor radii or more from any surface and the rows nearer with a Cheeseman-Bennett lift "
                      "beside it (surface)")
