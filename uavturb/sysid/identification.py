@@ -25,7 +25,8 @@ and assumes ``J_x = J_y``. We fit the same equations, generalised to ``J_x != J_
 
 Samples near a surface (ground or ceiling effect: within six rotor radii) or on the ground (contact
 forces) are left out; flights that spend their time near a surface are read down to two rotor radii from it,
-its Cheeseman-Bennett law fitted beside ``k_T`` (:func:`surface_columns`). Standard errors: Newey-West
+its Cheeseman-Bennett law fitted beside ``k_T`` (:func:`surface_columns`), and where flights visit a surface's
+reach ``k_T``'s error carries half the change between the two readings. Standard errors: Newey-West
 covariances of each fit (``least_squares``), propagated to derived quantities by Monte Carlo.
 """
 
