@@ -572,7 +572,7 @@ def test_default_sim_effects_follow_the_simulator_config(tmp_path, good):
 
 
 def test_rotor_quantum_and_rounding_floor_known_answers():
-    from uavturb.gap.design import rotor_quantum
+    from uavturb.numerics.stream_updates import rotor_quantum
 
     rng = np.random.default_rng(0)
     w = rng.uniform(400, 700, size=(1000, 6))
@@ -587,6 +587,15 @@ def test_rotor_quantum_and_rounding_floor_known_answers():
     data = SimpleNamespace(S=np.full(10, 6 * 536.0**2))
     assert rounding_floor(data, 8.54858e-6, 1.0) == pytest.approx((2 * 8.54858e-6) ** 2 * 6 * 536.0**2 / 12)
     assert rounding_floor(data, 8.54858e-6, 0.0) == 0.0
+    # the share of sum(w^2) a steady hover's rounding leaves: q / sqrt(3) / sqrt(sum(w_i^2)) at the median row
+    from uavturb.numerics.stream_updates import rounding_share
+
+    hover = np.full((50, 4), 500.0)
+    assert rounding_share(hover, 1.0) == pytest.approx(1.0 / np.sqrt(3.0) / 1000.0)
+    assert rounding_share(hover, 0.0) == 0.0
+    # the same by simulation: speeds rounded once and held, the relative error of their sum of squares
+    errs = [np.sum(np.round(w0) ** 2) / np.sum(w0**2) - 1 for w0 in rng.uniform(499.5, 500.5, size=(4000, 4))]
+    assert np.std(errs) == pytest.approx(rounding_share(hover, 1.0), rel=0.05)
 
 
 def test_an_output_that_would_replace_or_enter_an_input_is_refused(tmp_path, capsys, good):

@@ -409,7 +409,7 @@ def test_the_pooled_thrust_coefficient_error_covers_the_recordings_spread():
     levels differ each recording has its own, and the one stated for the vehicle covers their spread (a probe's two
     sessions 8 % apart had read k_T +- 0.0094 %)."""
     fit = ModelFit(frozenset(), {}, {"k_T": 1.0e-6}, {"k_T": 1.0e-9}, 0.01)
-    data = SimpleNamespace(names=["a", "b", "c"], fits_bias=False, anchored={})
+    data = SimpleNamespace(names=["a", "b", "c"], fits_bias=False, anchored={}, rotor_quantum=0.0)
     k = np.array([0.99e-6, 1.0e-6, 1.02e-6])
     agree = ThrustLevels(k, np.full(3, 2e-9), np.ones(3), False, "agree")
     out = _nominal(data, fit, agree)

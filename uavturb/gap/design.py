@@ -105,7 +105,8 @@ class GapData:
     voltage_dev : (K,) V, the battery's voltage minus its recording's mean in flight (``battery0``; None where a
         recording has none: :func:`gap_data`), and
     voltage_means : ``{recording name: V}``, those means
-    rotor_quantum : rad/s, the recorded rotor speeds' resolution (:func:`rotor_quantum`; 0: not quantised), set by
+    rotor_quantum : rad/s, the recorded rotor speeds' resolution
+        (:func:`~uavturb.numerics.stream_updates.rotor_quantum`; 0: not quantised), set by
         the finder on the rows it analyses (subsets and block means do not carry it)
     dense : where a held rotor stream thinned the rows to its updates (:attr:`FlightData.rotor_fresh`), the
         rows in flight before that (sums over many rows, such as thrust levels, average the interpolation
@@ -678,24 +679,6 @@ def unstack(r: np.ndarray) -> np.ndarray:
 #: effects whose force acts along the thrust (they scale or lag the thrust): a thrust regressor
 #: corrupted by rounded rotor speeds can be mistaken for them (from the registry)
 THRUST_AXIS = frozenset(n for n, e in EFFECTS.items() if e.along_thrust)
-
-
-def rotor_quantum(speeds: np.ndarray) -> float:
-    """Resolution [rad/s] of recorded rotor speeds ``(K, N)``: the step all values are whole
-    multiples of (EuRoC's integer motor speeds times their scale; 1 rad/s for the project's
-    synthetic flights), or 0 when they are not quantised."""
-    w = np.asarray(speeds, float).ravel()
-    w = w[np.isfinite(w)]
-    u = np.unique(w)
-    if len(u) < 3:
-        return 0.0
-    d = np.diff(u)
-    d = d[d > 1e-9 * max(float(np.abs(u).max()), 1.0)]
-    if not len(d):
-        return 0.0
-    q = float(np.min(d))
-    frac = np.abs(w / q - np.round(w / q))
-    return q if np.mean(frac < 1e-3) > 0.99 else 0.0
 
 
 def rounding_floor(data: GapData, k_T: float, quantum: float) -> float:

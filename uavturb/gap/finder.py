@@ -29,7 +29,6 @@ from uavturb.gap.design import (
     GapData,
     apply_thrust_levels,
     gap_data,
-    rotor_quantum,
     rounding_floor,
 )
 from uavturb.gap.explain import explanation
@@ -96,7 +95,7 @@ from uavturb.gap.uncertainty import (
     with_curve_check,
     with_systematic,
 )
-from uavturb.numerics.stream_updates import hold_period_s
+from uavturb.numerics.stream_updates import hold_period_s, rotor_quantum, rounding_share
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
     DEFAULT_EFFECTS,
@@ -945,6 +944,8 @@ def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels, undecided: Se
     trade = {law: abs(fit_model(data, set(final.effects) | {law}, with_stderr=False).coef["k_T"] - k_T)
              for law in undecided}
     terms = {"sample": sample, "between_recordings": between}
+    if data.rotor_quantum > 0:  # rounded rotor speeds: a steady hover keeps its rounding (rounding_share)
+        terms["rotor_resolution"] = k_T * rounding_share(data.rotor_speeds, data.rotor_quantum)
     if trade:
         terms["undecided_surface_law"] = max(trade.values())
     out: dict[str, Any] = {

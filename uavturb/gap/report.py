@@ -450,7 +450,9 @@ def _recording_lines(report: dict, names: dict[str, str]) -> list[str]:
         k, se = nominal["thrust_coefficient"], nominal["thrust_coefficient_stderr"]
         limit = {"sample": "sample noise", "between_recordings": "the spread between recordings",
                  "undecided_surface_law": "the surface law left undecided beside it (what it moves by with the law "
-                                          "fitted)"}[max(terms, key=lambda t: np.nan_to_num(terms[t], nan=-1.0))]
+                                          "fitted)",
+                 "rotor_resolution": "the rotor speeds' rounding (a steady hover keeps it)",
+                 }[max(terms, key=lambda t: np.nan_to_num(terms[t], nan=-1.0))]
         sag = next((e for e in report.get("effects", []) if e["name"] == "battery_sag"), None)
         when = (f" It is the value at each recording's start: with `battery_sag` named (s = {sag['params']['s']:.3g} "
                 "/s) the thrust per rotor speed squared is k_T (1 - s t), lower later in the flight, as `identify`, "

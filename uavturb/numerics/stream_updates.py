@@ -112,3 +112,35 @@ def read_between_updates(t: np.ndarray, values: np.ndarray) -> np.ndarray:
         m = update_mask(x[:, c])
         out[:, c] = np.interp(t, np.asarray(t)[m], x[m, c])
     return out
+
+
+def rotor_quantum(speeds: np.ndarray) -> float:
+    """Resolution [rad/s] of recorded rotor speeds ``(K, N)``: the step all values are whole
+    multiples of (EuRoC's integer motor speeds times their scale; 1 rad/s for the project's
+    synthetic flights), or 0 when they are not quantised."""
+    w = np.asarray(speeds, float).ravel()
+    w = w[np.isfinite(w)]
+    u = np.unique(w)
+    if len(u) < 3:
+        return 0.0
+    d = np.diff(u)
+    d = d[d > 1e-9 * max(float(np.abs(u).max()), 1.0)]
+    if not len(d):
+        return 0.0
+    q = float(np.min(d))
+    frac = np.abs(w / q - np.round(w / q))
+    return q if np.mean(frac < 1e-3) > 0.99 else 0.0
+
+
+def rounding_share(speeds: np.ndarray, quantum: float) -> float:
+    """The relative error [-] of ``sum(w_i^2)`` that rotor speeds ``speeds`` (K, N) [rad/s] rounded to ``quantum``
+    [rad/s] leave at their median row: ``w_i`` off by ``e_i`` uniform in ``+-quantum/2`` puts the sum off by
+    ``2 sum(w_i e_i)``, one standard deviation ``quantum / sqrt(3) / sqrt(sum(w_i^2))`` of it. In a steady hover
+    the rounding stays the same for seconds, so a thrust coefficient read on such speeds carries it whole: a
+    probe's 1.2 kg quadrotor, its speeds rounded to 1 rad/s, read k_T 0.08 % high at 11 stated errors (this
+    share: 0.06 %). 0 where the speeds are not quantised."""
+    if not quantum > 0:
+        return 0.0
+    S = np.sum(np.asarray(speeds, float) ** 2, axis=1)
+    S = S[np.isfinite(S) & (S > 0)]
+    return float(quantum / np.sqrt(3.0) / np.sqrt(np.median(S))) if len(S) else 0.0

@@ -40,6 +40,7 @@ import numpy as np
 from uavturb.errors import InputError
 from uavturb.io.recording import Recording
 from uavturb.numerics.blocks import block_labels, block_mean_and_se, contiguous_blocks, jackknife_se
+from uavturb.numerics.stream_updates import rotor_quantum, rounding_share
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.vehicle import Vehicle
@@ -513,6 +514,12 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
         other = _fit_translation(_rows(fds, vehicle, usable.other, not usable.near), lag)
         surface_term = abs(float(other["theta0"]) - float(tr["theta0"])) / 2.0
         tr = tr | {"theta0_se": float(np.hypot(tr["theta0_se"], surface_term))}
+    # rotor speeds rounded to a quantum: in a steady hover the rounding stays, and k_T carries it whole
+    raw = [r.rotors.speeds if isinstance(r, Recording) and r.rotors is not None else fd.rotor_speeds
+           for r, fd in zip(recordings, fds)]
+    share = max(rounding_share(w, rotor_quantum(w)) for w in raw)
+    if share > 0:
+        tr = tr | {"theta0_se": float(np.hypot(tr["theta0_se"], share * tr["theta0"]))}
     # rotation: without yaw motion the gyroscopic columns (w_y w_z, w_x w_z) hold only noise: they are
     # left out, and J_z (which only they carry) is not estimated
     ex = axis_excitation([fd.w for fd in fds], [fd.dw for fd in fds], masks, [fd.dt for fd in fds])
