@@ -422,7 +422,9 @@ def test_the_pooled_thrust_coefficient_error_covers_the_recordings_spread():
     # each recording's own with its error: the pooled fit's and its level's (a probe's sessions had none)
     assert own["thrust_coefficient_per_recording_stderr"] == pytest.approx(
         {n: kk * np.hypot(1e-3, 2e-9 / kk) for n, kk in zip(data.names, k)})
-    assert out["thrust_coefficient_per_recording_stderr"] == pytest.approx({n: 1e-9 for n in data.names})
+    # agreeing, each has the pooled value and its stated error
+    assert out["thrust_coefficient_per_recording_stderr"] == pytest.approx(
+        {n: out["thrust_coefficient_stderr"] for n in data.names})
 
 
 def test_a_disagreeing_surface_curve_widens_the_stated_error():

@@ -913,15 +913,16 @@ def _testable_candidates(data: GapData, sim: dict[str, dict[str, float]], measur
     return candidates, not_testable, frozenset(e for e in sim if e in testable)
 
 
-def _per_recording_stderr(k_T: float, sample: float, levels: ThrustLevels, names: Sequence[str]) -> dict[str, float]:
+def _per_recording_stderr(k_T: float, sample: float, levels: ThrustLevels, names: Sequence[str], stated: float
+                          ) -> dict[str, float]:
     """``{recording: N/(rad/s)^2}``, the standard error of each recording's thrust coefficient ``k_T`` times its level:
-    the pooled fit's ``sample`` error and, where the levels differ, each level's own (its measured coefficient's
-    relative error; a probe's three sessions had their coefficients stated with none); nan where a level that
-    differs was not measured."""
-    rel = np.full(len(names), 0.0)
-    if levels.differ:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rel = np.asarray(levels.stderr, float) / np.asarray(levels.k_T, float)
+    where the levels differ, the pooled fit's ``sample`` error and each level's own (its measured coefficient's
+    relative error; a probe's three sessions had their coefficients stated with none; nan where a level was not
+    measured); where they agree, each recording has the pooled value and its ``stated`` error."""
+    if not levels.differ:
+        return {n: float(stated) for n in names}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.asarray(levels.stderr, float) / np.asarray(levels.k_T, float)
     return {n: float(k_T * float(lv) * np.hypot(sample / k_T, r)) for n, lv, r in zip(names, levels.level, rel)}
 
 
@@ -954,7 +955,8 @@ def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels, undecided: Se
         "thrust_levels_differ": levels.differ, "thrust_level_note": levels.why,
         "thrust_level_spread_percent": levels.spread_percent,
         "thrust_coefficient_per_recording": {n: k_T * float(lv) for n, lv in zip(data.names, levels.level)},
-        "thrust_coefficient_per_recording_stderr": _per_recording_stderr(k_T, sample, levels, data.names),
+        "thrust_coefficient_per_recording_stderr": _per_recording_stderr(
+            k_T, sample, levels, data.names, float(np.nanmax(list(terms.values())))),
         "thrust_level_basis": levels.basis,
     }
     measured_at = "thrust_coefficient_at_matched_heights" if levels.basis == "matched heights" else \
