@@ -14,6 +14,7 @@ from uavturb.cli import main
 from uavturb.gap.decide import can_test_alone
 from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels
 from uavturb.gap.finder import (
+    _at_stated_offset,
     _cross_checked,
     _curves_at_open_offsets,
     _nominal,
@@ -24,7 +25,7 @@ from uavturb.gap.finder import (
 )
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.gap.nominal import (UNREAD_OFFSET_SPAN, ThrustLevels, matched_height_levels, SpeedOffset,
-                                 offset_cells, speed_offset, thrust_levels)
+                                 offset_cells, speed_offset, stated_offset, thrust_levels)
 from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, rotor_speeds_moved, timing_interval
 from uavturb.gap.surface_laws import finder_surface_curve
 from uavturb.gap.uncertainty import (
@@ -258,6 +259,59 @@ def test_a_law_named_from_the_curve_carries_the_thrust_map_term_too():
     assert out["error_budget"]["mu"]["limited_by"] == "thrust_map" and abs(mu - 2.0) <= 2.1 * out["stderr"]["mu"]
     assert curve_named_thrust_map([copy.deepcopy(entry)], None, []) == ([entry], None)
     assert _curves_at_open_offsets(data, final, {"open_interval_rad_s": [0.0, 0.0]}) == []
+
+
+def test_named_values_are_stated_at_the_centre_of_the_offsets_left_open():
+    """Where the offset counts but is not decisive, the values are stated halfway to it; where it does not count
+    but leaves a wide interval open, at the reading (the interval's centre; 0 lay outside it: Neural-Swarm's 32 g
+    take-off, 401 +- 274 rad/s); at 0 where nothing that matters is open, where the reading is decisive (the whole
+    analysis moves the speeds) and where there is no reading (no data move the declared speeds)."""
+    counts = SpeedOffset(206.0, 61.0, 1900.0, 5000, 20, 0.9)
+    assert counts.counts and not counts.decisive and stated_offset(counts, counts.open_interval()) == 103.0
+    wide = SpeedOffset(400.9, 273.7, 1900.0, 900, 4, 0.97)
+    assert not wide.counts and stated_offset(wide, wide.open_interval()) == pytest.approx(400.9)
+    narrow = SpeedOffset(1.36, 0.24, 535.0, 60_000, 120, 0.9994)
+    assert stated_offset(narrow, narrow.open_interval()) == 0.0
+    decisive = SpeedOffset(48.0, 1.1, 150.0, 5000, 5, 0.28)
+    assert decisive.decisive and stated_offset(decisive, decisive.open_interval()) == 0.0
+    at_bound = SpeedOffset(1900.0, 0.0, 1900.0, 5000, 5, 0.5, at_bound=True)
+    assert at_bound.open_interval()[1] > 0 and stated_offset(at_bound, at_bound.open_interval()) == 0.0
+    assert stated_offset(None, (0.0, 800.0)) == 0.0
+    assert stated_offset(counts, (float("nan"), float("nan"))) == 0.0
+
+
+def test_a_value_stated_at_the_centre_of_an_offset_that_counts_is_nearer_the_truth():
+    """mu = 2 under rotors a third of the hover speed faster than recorded, the thrust level wandering 2 % as the
+    flights go on: the offset reads counting but short of decisive; at the recorded speeds (one end of what it
+    leaves open) mu reads far off, at the centre nearer, within the term (both ends' half change). The refit keeps
+    the effects chosen and the hover speed; with measured speeds (no thrust map) nothing moves."""
+    w_h = np.sqrt(MASS * GRAVITY / (6 * K_T))
+    data = _floor_flights(w_h / 3)
+    wander = 1.0 + 0.02 * np.sin(2 * np.pi * data.t / 13.0 + data.group)
+    data = dataclasses.replace(data, y=data.y * wander[:, None])
+    final = fit_model(data, {"ground_effect"})
+    thrust_map = thrust_map_term(data, final)
+    found, ends, terms = thrust_map
+    assert found.counts and not found.decisive and ends == (0.0, found.delta)
+    stated, moved, at = _at_stated_offset(data, final, thrust_map)
+    assert stated == pytest.approx(found.delta / 2) and at.effects == final.effects
+    hover = np.median(np.mean(data.rotor_speeds, axis=1))
+    assert np.median(np.mean(moved.rotor_speeds, axis=1)) == pytest.approx(hover, rel=0.01)
+    mu0, mu = final.nonlinear["ground_effect"], at.nonlinear["ground_effect"]
+    assert abs(mu0 - 2.0) > 0.5 and abs(mu - 2.0) < 0.5 * abs(mu0 - 2.0)
+    assert abs(mu - 2.0) <= terms["ground_effect"]["mu"]
+    assert _at_stated_offset(data, final, None) == (0.0, data, final)
+
+
+def test_speeds_moved_keeping_the_hover_speed_keep_stopped_rotors_stopped():
+    """(w + delta) w_h / (w_h + delta): the hover speed stays, 0 stays 0, the rest moves as the affine map says."""
+    data = _ground_flights(seed=5)
+    data.rotor_speeds[:3] = 0.0
+    w_h = float(np.median(data.rotor_speeds[3:]))
+    moved = data.with_speed_offset(100.0, w_h)
+    np.testing.assert_allclose(moved.rotor_speeds[3:], (data.rotor_speeds[3:] + 100.0) * w_h / (w_h + 100.0))
+    assert np.all(moved.rotor_speeds[:3] == 0.0)
+    assert np.median(moved.rotor_speeds[3:]) == pytest.approx(w_h)
 
 
 def test_speeds_moved_by_an_offset_leave_the_rows_they_came_from_alone():

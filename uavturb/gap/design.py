@@ -250,12 +250,18 @@ class GapData:
             self._plan = [(k, rows, lag_stretches(self.t[rows])) for k, rows in parts]
         return self._plan
 
-    def with_speed_offset(self, delta: float) -> "GapData":
-        """These rows with every recorded rotor speed moved by ``delta`` [rad/s] (on the contiguous flights
-        too, so the motor lag filters the moved speeds); nothing is shared with ``self`` that the move changes
-        (:mod:`uavturb.gap.nominal`, **Thrust map**)."""
-        contiguous = None if self.contiguous is None else self.contiguous.with_speed_offset(delta)
-        return replace(self, rotor_speeds=self.rotor_speeds + float(delta), contiguous=contiguous, dense=None,
+    def with_speed_offset(self, delta: float, w_hover: float | None = None) -> "GapData":
+        """These rows with every turning rotor's recorded speed ``w`` [rad/s] moved by ``delta`` [rad/s]: to ``w +
+        delta``, or where the hover speed ``w_hover`` [rad/s] is given to ``(w + delta) w_hover / (w_hover + delta)``,
+        the scale kept exact at the hover speed as :func:`~uavturb.gap.preparation.rotor_speeds_moved` keeps it
+        (laws linear in the speeds, such as rotor drag, keep their units' meaning); on the contiguous flights too,
+        so the motor lag filters the moved speeds. Stopped rotors (0) stay stopped. Nothing is shared with ``self``
+        that the move changes (:mod:`uavturb.gap.nominal`, **Thrust map**)."""
+        contiguous = None if self.contiguous is None else self.contiguous.with_speed_offset(delta, w_hover)
+        scale = 1.0 if w_hover is None else float(w_hover) / (float(w_hover) + float(delta))
+        w = self.rotor_speeds
+        moved = np.where(w > 0, np.maximum((w + float(delta)) * scale, 0.0), w)
+        return replace(self, rotor_speeds=moved, contiguous=contiguous, dense=None,
                        _S=None, _lag_cache={}, _lag_done={}, _groups=None)
 
     def with_levels(self, level: np.ndarray) -> "GapData":

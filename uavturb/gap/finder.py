@@ -41,6 +41,7 @@ from uavturb.gap.nominal import (
     UNREAD_OFFSET_SPAN,
     ThrustLevels,
     hover_speed,
+    stated_offset,
 )
 from uavturb.gap.landed_heights import LandedHeights
 from uavturb.gap.preparation import (
@@ -386,9 +387,12 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
                                                        np.mean(np.sum(rst**2, axis=1)) - np.sum(sigma**2) / draws)))
         unexplained |= {"drivers": locate.drivers(data, rst), "thrust_axis_tilt": entry}
     progress("the surface curve")
-    curve_report, curve, curve_fits = finder_surface_curve(data, final) if heights_broken is None else (None, None, {})
+    thrust_map = thrust_map_term(data, final, rf) if not measured_rotor_speeds(recordings) else None
+    stated, data_at, final_at = _at_stated_offset(data, final, thrust_map)  # where the thrust map is left open
+    curve_report, curve, curve_fits = (finder_surface_curve(data_at, final_at) if heights_broken is None
+                                       else (None, None, {}))
     progress("honest errors")
-    offset = _height_offset(curve, curve_fits, sel.chosen, data)
+    offset = _height_offset(curve, curve_fits, sel.chosen, data_at)
     if offset is not None:  # every stated error covers heights off by as much as the curve's shape reads
         height_uncertainty = max(height_uncertainty, abs(offset.dz_m))
     # a lever arm read from the motion: the rotor plane is counted from the recorded origin or from the centre of
@@ -396,13 +400,14 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     height_uncertainty = max([height_uncertainty] + [abs(lever["r_m"][2]) for lever in held["lever_arms"]]
                              + held["levelled_m"]  # a tilted scan, levelled (preparation.prepared)
                              + [landed.uncertainty_m])  # recordings landing apart, some not moved (landed_heights)
-    named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty, refits), curve_fits)
+    named = _cross_checked(_effects_named(data, sel, final, facts, height_uncertainty, refits, values=final_at),
+                           curve_fits)
     named = _timing_checked(named, final, recordings, paths, held["delays"])
     named = _rate_checked(named, final, recordings, paths, held["state_too_slow"])
     named = [e | _with_term(e, "command_sampling", command_sampling_term(
         [hold_period_s(r.rotors.t_ns, r.rotors.speeds) for r in recordings])) if e["name"] == "motor_lag" else e
              for e in named]
-    named, speed_map = _thrust_map_checked(named, data, final, not measured_rotor_speeds(recordings), rf)
+    named, speed_map = _thrust_map_checked(named, data, thrust_map, stated)
     named, curve_report = law_named_from_curve(named, curve_report, curve, curve_fits, data, facts,
                                                height_uncertainty)
     named, curve_report = curve_named_thrust_map(named, curve_report, _curves_at_open_offsets(data, final, speed_map))
@@ -448,7 +453,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         | {"offset_read_from_curve": None if offset is None else {
             "law": offset.law, "dz_m": offset.dz_m, "chi2_dof": offset.chi2_dof,
             "chi2_dof_as_measured": offset.chi2_dof_as_measured, "params": offset.params, "why": offset.sentence()}},
-        "sim_effect_params": {name: {"sim": p, "fitted": final.effect_params(name)[0] if name in final.effects
+        "sim_effect_params": {name: {"sim": p, "fitted": final_at.effect_params(name)[0] if name in final.effects
                                      else {}} for name, p in sim.items()},
         "nominal": _nominal(data, final, levels, [a["candidates"][0] for a in ambiguous
                                                   if a["candidates"][1:] == ["thrust_coefficient"]])
@@ -665,16 +670,39 @@ def _with_term(effect: dict[str, Any], term: str, values: dict[str, float]) -> d
     return {"error_budget": budget, "stderr": honest_stderr(budget)}
 
 
-def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: ModelFit, commanded: bool,
-                        residual: np.ndarray) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+def _at_stated_offset(data: GapData, final: ModelFit, thrust_map: tuple | None
+                      ) -> tuple[float, GapData, ModelFit]:
+    """``(offset [rad/s], data, final)`` where the named effects and the measured surface curve are stated: the
+    recorded speeds (0, ``data``, ``final``) unless the thrust map (``thrust_map``: what
+    :func:`~uavturb.gap.uncertainty.thrust_map_term` returned; None with measured rotor speeds) leaves offsets open,
+    then ``data`` with its speeds moved to their centre (:func:`~uavturb.gap.nominal.stated_offset`, the hover
+    speed kept) and ``final``'s effects refitted there. The effects chosen stay ``final``'s."""
+    if thrust_map is None:
+        return 0.0, data, final
+    found, ends, _ = thrust_map
+    stated = stated_offset(found, ends)
+    if stated == 0.0:
+        return 0.0, data, final
+    moved = data.with_speed_offset(stated, found.w_hover if found is not None else hover_speed(data.rotor_speeds))
+    try:
+        return stated, moved, fit_model(moved, final.effects, with_stderr=False)
+    except (np.linalg.LinAlgError, ValueError):
+        return 0.0, data, final
+
+
+def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, thrust_map: tuple | None, stated: float
+                        ) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
     """``effects`` with the **thrust map** term of :mod:`uavturb.gap.uncertainty` in each budget, and the
-    report's ``nominal.rotor_speed_offset`` (None with measured rotor speeds, which are the rotors' own).
-    ``residual``: ``final``'s on ``data`` (K, 3) N."""
-    if not commanded:
+    report's ``nominal.rotor_speed_offset`` (None with measured rotor speeds, which are the rotors' own:
+    ``thrust_map`` None). ``stated``: the offset [rad/s] the named values are stated at (:func:`_at_stated_offset`)."""
+    if thrust_map is None:
         return effects, None
-    found, ends, terms = thrust_map_term(data, final, residual)  # final holds the simulator's effects, refitted
+    found, ends, terms = thrust_map
     carried = (f"the named effects' errors, and the measured surface curve's, carry what moving the recorded speeds "
                f"from {ends[0]:.4g} to {ends[1]:.4g} rad/s changes (thrust map)")
+    at = "" if stated == 0.0 else (
+        f"; the named values and the measured surface curve are stated at the centre of what is left open, the "
+        f"speeds moved by {stated:.4g} rad/s (the hover speed kept), so that their error bars centre on it")
     if found is None:
         w_hover = hover_speed(data.rotor_speeds)
         low, high = (100 * x for x in UNREAD_OFFSET_SPAN)
@@ -682,11 +710,12 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
                 f"the offset of the recorded (commanded) speeds, so the thrust the rotors make per command is not "
                 f"known apart from a surface's lift: an idle speed of {low:.0f} to {high:.0f} % of the hover speed "
                 f"({w_hover:.4g} rad/s) is left open, and {carried}. To read it: hover at two or more heights far "
-                f"from the floor")
+                f"from the floor{at}")
         return _with_thrust_map(effects, terms), {
             "delta_rad_s": None, "stderr_rad_s": None, "share_of_hover_speed": None, "hover_speed_rad_s": w_hover,
             "rows": 0, "cells": 0, "sse_ratio": None, "voltage_k_V": None, "z": None, "counts": False,
-            "decisive": False, "applied": False, "open_interval_rad_s": [float(x) for x in ends], "note": note}
+            "decisive": False, "applied": False, "open_interval_rad_s": [float(x) for x in ends],
+            "stated_at_rad_s": stated, "note": note}
     share = found.delta / found.w_hover
     note = (f"at each height ({found.rows} rows in {found.cells} cells of one recording and one height, from "
             f"{OFFSET_RADII:.0f} rotor radii up) thrust per sum((w + delta)^2) is steadiest at delta = "
@@ -716,7 +745,8 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, final: Mod
         "delta_rad_s": found.delta, "stderr_rad_s": found.stderr, "share_of_hover_speed": share,
         "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells, "sse_ratio": found.sse_ratio,
         "voltage_k_V": found.k_V if data.voltage_dev is not None else None, "z": found.z, "counts": found.counts,
-        "decisive": found.decisive, "applied": False, "open_interval_rad_s": [float(x) for x in ends], "note": note}
+        "decisive": found.decisive, "applied": False, "open_interval_rad_s": [float(x) for x in ends],
+        "stated_at_rad_s": stated, "note": note + at}
 
 
 def _with_law_band(curve_report: dict, curve: Any, named: list[dict[str, Any]], data: GapData) -> dict:
@@ -748,9 +778,9 @@ def _curves_at_open_offsets(data: GapData, final: ModelFit, speed_map: dict[str,
     ends = (speed_map or {}).get("open_interval_rad_s")
     if not ends or ends[0] == ends[1]:
         return []
-    out = []
+    out, w_hover = [], speed_map.get("hover_speed_rad_s")
     for d in ends:
-        moved = data.with_speed_offset(d) if d != 0.0 else data
+        moved = data.with_speed_offset(d, w_hover) if d != 0.0 else data
         try:
             _, curve, fits = finder_surface_curve(moved, fit_model(moved, final.effects, with_stderr=False),
                                                   resample=False)
@@ -1023,14 +1053,16 @@ def not_pinned(data: GapData, final: ModelFit, name: str, refits: Refits | None 
 
 
 def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
-                   height_uncertainty: float = HEIGHT_REFERENCE_M, refits: Refits | None = None
-                   ) -> list[dict[str, Any]]:
+                   height_uncertainty: float = HEIGHT_REFERENCE_M, refits: Refits | None = None,
+                   values: ModelFit | None = None) -> list[dict[str, Any]]:
     """The report's ``effects``: each chosen effect's fitted parameters with honest errors
     (:mod:`uavturb.gap.uncertainty`: sample, height reference, between recordings or blocks), the
-    explanation and the held-out gain."""
+    explanation and the held-out gain. ``values``: the same model fitted where its values are stated (the rotor
+    speeds moved to the centre of the offsets the thrust map leaves open, :func:`_at_stated_offset`), ``final``
+    where None; the error budgets are ``final``'s, whose spreads the offset does not move."""
     effects_out = []
     for s in sel.steps:
-        params, _ = final.effect_params(s.name)
+        params, _ = (values or final).effect_params(s.name)
         budget = _budget(data, final, s.name, height_uncertainty, refits)
         effects_out.append({
             "name": s.name, "params": params, "stderr": honest_stderr(budget),

@@ -344,6 +344,31 @@ class SpeedOffset:
         return max(lo, self.delta - self.stderr), min(hi, self.delta + self.stderr)
 
 
+def stated_offset(found: SpeedOffset | None, ends: tuple[float, float]) -> float:
+    """rad/s, the offset of the recorded (commanded) speeds at which the named effects and the measured surface
+    curve are stated: where a reading leaves offsets open (``ends``: :meth:`SpeedOffset.open_interval`), their
+    centre, whose half range their errors carry (**thrust map**): the reading halved where it counts short of
+    decisive, the reading itself where it does not count but leaves :data:`OFFSET_PRACTICAL` of the hover speed or
+    more either side. 0 elsewhere: where the reading leaves no offset that matters, where it is decisive (the whole
+    analysis runs again on the speeds moved by it), and where there is no reading (none, or one at an end of the
+    range searched): no data then move the speeds the vehicle's files declare, and the idle speeds left open
+    (:func:`unread_interval`) bound the error only.
+
+    Stated at 0, a value stood at an end of [0, delta] where the reading counts, and outside [delta - se, delta +
+    se] where it does not, its error bar centred elsewhere: a blind study's simulated take-offs, commands idling at
+    a quarter of the hover speed read counting but not decisively, named mu 19-44 % high, never low (an idle speed
+    is never below 0), and Neural-Swarm's 32 g take-off stated mu at 0 for an interval of 127-675 rad/s. Moved to
+    the unread interval's centre, a simulated hexarotor under a low ceiling, its commands exact, read kappa 1.15 for a
+    true 2 (1.90 on the recorded speeds)."""
+    if found is None or found.at_bound or not np.isfinite(found.delta):
+        return 0.0
+    if not (np.isfinite(ends[0]) and np.isfinite(ends[1])) or ends[0] == ends[1]:
+        return 0.0
+    if found.decisive or (not found.counts and ends[1] - ends[0] < 2 * OFFSET_PRACTICAL * found.w_hover):
+        return 0.0
+    return 0.5 * (float(ends[0]) + float(ends[1]))
+
+
 def unread_interval(w_hover: float) -> tuple[float, float]:
     """rad/s, the offsets of commanded speeds hovering at ``w_hover`` [rad/s] that no reading narrows
     (:data:`UNREAD_OFFSET_SPAN`)."""

@@ -428,8 +428,9 @@ def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None 
     if not final.effects or not all(np.isfinite(ends)) or ends[0] == ends[1]:
         return found, ends, {}
     effects = frozenset(final.effects)
+    w_hover = found.w_hover if found is not None else hover_speed(data.rotor_speeds)
     try:
-        lo, hi = (fit_model(data.with_speed_offset(d) if d != 0.0 else data, effects, with_stderr=False)
+        lo, hi = (fit_model(data.with_speed_offset(d, w_hover) if d != 0.0 else data, effects, with_stderr=False)
                   for d in ends)
     except (np.linalg.LinAlgError, ValueError):
         return found, ends, {name: {k: float("nan") for k in _params(final, name)} for name in effects}
