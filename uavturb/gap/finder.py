@@ -1062,7 +1062,7 @@ def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
     where None; the error budgets are ``final``'s, whose spreads the offset does not move."""
     effects_out = []
     for s in sel.steps:
-        params, _ = (values or final).effect_params(s.name)
+        params, _ = (final if values is None else values).effect_params(s.name)
         budget = _budget(data, final, s.name, height_uncertainty, refits)
         effects_out.append({
             "name": s.name, "params": params, "stderr": honest_stderr(budget),
