@@ -683,7 +683,7 @@ def _at_stated_offset(data: GapData, final: ModelFit, thrust_map: tuple | None
     stated = stated_offset(found, ends)
     if stated == 0.0:
         return 0.0, data, final
-    moved = data.with_speed_offset(stated, found.w_hover if found is not None else hover_speed(data.rotor_speeds))
+    moved = data.with_speed_offset(stated, found.w_hover)  # a stated offset has a reading (stated_offset)
     try:
         return stated, moved, fit_model(moved, final.effects, with_stderr=False)
     except (np.linalg.LinAlgError, ValueError):
@@ -710,7 +710,7 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, thrust_map
                 f"the offset of the recorded (commanded) speeds, so the thrust the rotors make per command is not "
                 f"known apart from a surface's lift: an idle speed of {low:.0f} to {high:.0f} % of the hover speed "
                 f"({w_hover:.4g} rad/s) is left open, and {carried}. To read it: hover at two or more heights far "
-                f"from the floor{at}")
+                f"from the floor")
         return _with_thrust_map(effects, terms), {
             "delta_rad_s": None, "stderr_rad_s": None, "share_of_hover_speed": None, "hover_speed_rad_s": w_hover,
             "rows": 0, "cells": 0, "sse_ratio": None, "voltage_k_V": None, "z": None, "counts": False,

@@ -400,7 +400,8 @@ def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None 
     least :data:`~uavturb.gap.nominal.OFFSET_RADII` rotor radii over the floor), the offsets it leaves open [rad/s]
     (:meth:`~uavturb.gap.nominal.SpeedOffset.open_interval`; :func:`~uavturb.gap.nominal.unread_interval` where
     there is no reading), and ``{effect: {param: half the change}}`` of every effect of ``final`` between its refits
-    on ``data`` with the speeds moved by either end of them.
+    on ``data`` with the speeds moved by either end of them (the hover speed kept: laws linear in the speeds keep
+    their scale).
 
     ``data``: the rows ``final`` was fitted on (the simulator's own effects among its effects). The thrust
     the rotors make is the measured force along the body z axis less every other force of ``final`` (the motor
