@@ -700,7 +700,7 @@ def test_speed_offset_read_with_the_battery_voltage():
     assert plain.delta == pytest.approx(before.delta, rel=1e-9) and plain.k_V == 0.0
 
 
-def test_a_thrust_coefficient_beside_an_undecided_surface_law_states_what_the_law_would_take():
+def test_a_thrust_coefficient_beside_an_undecided_thrust_law_states_what_the_law_would_take():
     """Flights that stay 12-17 cm over the floor (all within the ground effect, mu = 2): fitted without the law,
     k_T holds the lift, several times its sample error off the truth. Beside a surface law left undecided its
     error is how far it moves with the law fitted, which covers the truth."""
@@ -709,10 +709,10 @@ def test_a_thrust_coefficient_beside_an_undecided_surface_law_states_what_the_la
     nominal = _nominal(data, final, apply_thrust_levels(data), ["ground_effect"])
     terms = nominal["thrust_coefficient_stderr_terms"]
     with_law = fit_model(data, {"ground_effect"}, with_stderr=False).coef["k_T"]
-    assert terms["undecided_surface_law"] == pytest.approx(abs(with_law - final.coef["k_T"]))
+    assert terms["undecided_thrust_law"] == pytest.approx(abs(with_law - final.coef["k_T"]))
     off = abs(nominal["thrust_coefficient"] - K_T)
     assert off > 5 * terms["sample"]  # the sample error alone was far from covering it
-    assert nominal["thrust_coefficient_stderr"] == terms["undecided_surface_law"] and off < 2 * terms[
-        "undecided_surface_law"]
-    assert "undecided_surface_law" not in _nominal(data, final, apply_thrust_levels(data))[
+    assert nominal["thrust_coefficient_stderr"] == terms["undecided_thrust_law"] and off < 2 * terms[
+        "undecided_thrust_law"]
+    assert "undecided_thrust_law" not in _nominal(data, final, apply_thrust_levels(data))[
         "thrust_coefficient_stderr_terms"]

@@ -224,10 +224,10 @@ def test_a_thrust_coefficient_left_undecided_beside_a_surface_law_says_what_limi
               "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 1.0, "drivers": []},
               "nominal": {"thrust_coefficient": 1.637e-05, "thrust_coefficient_stderr": 1.2e-06,
                           "thrust_coefficient_stderr_terms": {"sample": 1.1e-07, "between_recordings": 4.6e-07,
-                                                              "undecided_surface_law": 1.2e-06}}}
+                                                              "undecided_thrust_law": 1.2e-06}}}
     write_markdown(tmp_path, report, [])
-    assert ("Thrust coefficient k_T = 1.637e-05 ± 1.2e-06 N/(rad/s)^2 (7.3 %, limited by the surface law left "
-            "undecided beside it") in (tmp_path / "report.md").read_text()
+    assert ("Thrust coefficient k_T = 1.637e-05 ± 1.2e-06 N/(rad/s)^2 (7.3 %, limited by the law scaling the thrust "
+            "left undecided beside it") in (tmp_path / "report.md").read_text()
     report["nominal"]["thrust_coefficient_stderr_terms"] = {"sample": 1.1e-07, "between_recordings": 4.6e-07}
     report["nominal"]["thrust_coefficient_stderr"] = 4.6e-07
     write_markdown(tmp_path, report, [])

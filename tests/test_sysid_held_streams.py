@@ -12,13 +12,13 @@ import pytest
 from uavturb.gap import locate
 from uavturb.gap.design import gap_data
 from uavturb.io.recording import GroundTruth, Rotors
-from uavturb.numerics.stream_updates import staggered
+from uavturb.numerics.stream_updates import read_at_crossings, staggered, update_mask
 from uavturb.physics.effects import parse_effects
 from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import simulate_flight
 from uavturb.sim.core.signals import Constant, Reference, Sines
-from uavturb.sysid.flight_data import flight_data, held_updates
+from uavturb.sysid.flight_data import flight_data, held_updates, rotor_hold_s, rotor_repeats
 from uavturb.sysid.streams import stream_updates
 
 
@@ -185,8 +185,7 @@ def test_a_quantised_steady_hover_is_read_as_recorded_not_between_its_changes():
     true = np.where(t < 3.0, climb, np.where(t < 9.0, 147.7, 147.7 + 0.5 * (t - 9.0)))
     speeds = np.round(np.repeat(true[:, None], rec.rotors.speeds.shape[1], axis=1))
     quantised = dataclasses.replace(rec, rotors=Rotors(rec.rotors.t_ns, speeds))
-    _, on_changes = held_updates(quantised)
-    assert len(on_changes.t_ns) < 20  # every change is one step: repeats of resolution, which held_updates sees
+    assert rotor_repeats(quantised.rotors.speeds) == "rounded"  # every change is one step: repeats of resolution
     fd = flight_data(quantised, window_s=0.1)
     hover = (fd.t > 3.5) & (fd.t < 8.5)
     assert np.all(fd.rotor_speeds[hover] == 148.0)
@@ -223,3 +222,52 @@ def test_a_staggered_column_holds_its_value_across_a_long_gap():
     tr = (rotors.t_ns - stag.t_ns[0]) * 1e-9
     hover = (tr > 3.5) & (tr < 8.8)
     assert hover.sum() > 50 and np.all(rotors.speeds[hover, 0] == 500.0)
+
+
+def test_a_rounded_ramp_is_read_at_its_crossings_without_a_lead():
+    """A speed rising 20 rad/s per second, rounded to 1 rad/s in 200 Hz rows, changes every 10 rows. Read on its
+    changes it runs half a step (0.5 rad/s, 25 ms) ahead of the truth; read at its crossings (each change placed
+    halfway between its rows, at the boundary it crossed), within half a row's motion (0.05 rad/s)."""
+    t_ns = np.arange(0, 2_000_000_000, 5_000_000, dtype=np.int64)
+    t = t_ns * 1e-9
+    true = 150.2 + 20.0 * t
+    rounded = np.round(true)[:, None]
+    at, values = read_at_crossings(t_ns, rounded)
+    inner = (t > 0.1) & (t < 1.9)  # the first and last runs hold their rounded value
+    read = np.interp(t_ns[inner].astype(float), at.astype(float), values[:, 0])
+    assert np.max(np.abs(read - true[inner])) <= 0.051
+    on_changes = update_mask(rounded)
+    lead = np.interp(t_ns[inner].astype(float), t_ns[on_changes].astype(float), rounded[on_changes, 0]) - true[inner]
+    assert np.mean(lead) == pytest.approx(0.5, abs=0.06)  # what reading on changes did: half a step ahead
+
+
+def test_a_rounded_value_that_turns_holds_its_rounded_value():
+    """A value entering 150 from below and leaving it downwards again lay within 0.5 of 150 all along: the run
+    reads 150 on its rows, not a line along the boundary 149.5 it crossed twice. Columns are read on their own
+    crossings, each interpolated at the others'."""
+    t_ns = np.arange(12, dtype=np.int64) * 10
+    a = np.array([148, 149, 149, 150, 150, 150, 150, 149, 149, 148, 148, 148], float)
+    b = np.full(12, 300.0)
+    at, values = read_at_crossings(t_ns, np.column_stack([a, b]))
+    assert list(at) == sorted(set(at)) and at[0] == 0 and at[-1] == 110
+    read = dict(zip(at.tolist(), values[:, 0].tolist()))
+    assert [read[k] for k in (5, 25, 65, 85)] == [148.5, 149.5, 149.5, 148.5]  # crossings, halfway between rows
+    assert read[30] == read[60] == 150.0  # the turn's run, on its first and last rows
+    assert 10 not in read and 20 not in read  # a run crossed one way: a line between its crossings
+    assert np.all(values[:, 1] == 300.0)
+
+
+def test_a_rounded_stream_holds_a_row_a_held_one_its_updates():
+    """The command-sampling term's hold (rotor_hold_s): one row for speeds whose repeats are rounding (one step at a
+    time, runs as irregular as the speed's rate), the update period for a logger's repeats (10 Hz updates in 200 Hz
+    rows: 0.1 s), even where each of its updates moves the speed one step: its runs are its period."""
+    t_ns = np.arange(0, 4_000_000_000, 5_000_000, dtype=np.int64)
+    t = t_ns * 1e-9
+    speed = 150.0 + 8.0 * np.sin(1.3 * t) + 4.0 * np.sin(5.1 * t + 1.0)  # rad/s
+    rounded = np.round(speed)[:, None].repeat(4, axis=1)
+    assert rotor_repeats(rounded) == "rounded" and rotor_hold_s(Rotors(t_ns, rounded)) == pytest.approx(0.005)
+    held = speed[(np.arange(len(t)) // 20) * 20][:, None].repeat(4, axis=1)
+    assert rotor_repeats(held) == "held" and rotor_hold_s(Rotors(t_ns, held)) == pytest.approx(0.1)
+    steps = (150.0 + np.arange(len(t)) // 20 % 2)[:, None].repeat(4, axis=1)  # held, each update one step
+    assert rotor_repeats(steps) == "held"
+    assert rotor_repeats(speed[:, None].repeat(4, axis=1)) is None

@@ -96,7 +96,7 @@ from uavturb.gap.uncertainty import (
     with_curve_check,
     with_systematic,
 )
-from uavturb.numerics.stream_updates import hold_period_s, rotor_quantum, rounding_share
+from uavturb.numerics.stream_updates import rotor_quantum, rounding_share
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
     DEFAULT_EFFECTS,
@@ -105,7 +105,7 @@ from uavturb.physics.effects import (
     defaults,
     total_force,
 )
-from uavturb.sysid.flight_data import flight_data
+from uavturb.sysid.flight_data import flight_data, rotor_hold_s
 
 SCHEMA = "uavturb.gap/1"
 #: the stages of ``uavturb gap``, for its progress bar (:class:`uavturb.progress.Stages`); :func:`analyse`
@@ -405,7 +405,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     named = _timing_checked(named, final, recordings, paths, held["delays"])
     named = _rate_checked(named, final, recordings, paths, held["state_too_slow"])
     named = [e | _with_term(e, "command_sampling", command_sampling_term(
-        [hold_period_s(r.rotors.t_ns, r.rotors.speeds) for r in recordings])) if e["name"] == "motor_lag" else e
+        [rotor_hold_s(r.rotors) for r in recordings])) if e["name"] == "motor_lag" else e
              for e in named]
     named, speed_map = _thrust_map_checked(named, data, thrust_map, stated)
     named, curve_report = law_named_from_curve(named, curve_report, curve, curve_fits, data, facts,
@@ -959,10 +959,10 @@ def _per_recording_stderr(k_T: float, sample: float, levels: ThrustLevels, names
 def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels, undecided: Sequence[str] = ()
              ) -> dict[str, Any]:
     """The report's ``nominal``: the thrust coefficient (one per recording where their levels differ,
-    with the spread), and the accelerometer bias as measured against motion capture. ``undecided``: surface laws
-    left undecided beside the thrust coefficient (:func:`~uavturb.gap.selection.near_misses`): its error then
-    covers how far it moves with the law fitted beside it (an 8 s flight's k_T, 10 % over the truth with the lift
-    in it, had been stated to 3.3 %)."""
+    with the spread), and the accelerometer bias as measured against motion capture. ``undecided``: laws scaling
+    the thrust (surface laws, a battery's sag) left undecided beside the thrust coefficient
+    (:func:`~uavturb.gap.selection.near_misses`): its error then covers how far it moves with the law fitted beside
+    it (an 8 s flight's k_T, 10 % over the truth with the lift in it, had been stated to 3.3 %)."""
     k_T = final.coef["k_T"]
     sample = float(final.stderr.get("k_T", np.nan))
     measured = levels.k_T[np.isfinite(levels.k_T)]
@@ -978,7 +978,7 @@ def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels, undecided: Se
     if data.rotor_quantum > 0:  # rounded rotor speeds: a steady hover keeps its rounding (rounding_share)
         terms["rotor_resolution"] = k_T * rounding_share(data.rotor_speeds, data.rotor_quantum)
     if trade:
-        terms["undecided_surface_law"] = max(trade.values())
+        terms["undecided_thrust_law"] = max(trade.values())
     out: dict[str, Any] = {
         "thrust_coefficient": k_T, "thrust_coefficient_stderr": float(np.nanmax(list(terms.values()))),
         "thrust_coefficient_stderr_terms": terms,
@@ -1075,12 +1075,15 @@ def _effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
 
 def _together(step: Any, chosen: Sequence[str]) -> str:
     """The sentence an effect named together with another still ``chosen`` gets
-    (:func:`~uavturb.gap.selection._surfaces_together`), or ''."""
+    (:func:`~uavturb.gap.selection._thrust_laws_together`), or ''."""
     if step.named_with not in chosen:
         return ""
-    return (f" Named together with {step.named_with}: with surfaces both below and above, both lifts raise the "
-            "thrust per rotor speed squared and neither law alone improved the held-out fit beyond noise; together "
-            f"they do (z = {step.z:.1f}).")
+    both = {EFFECTS[step.name].surface, EFFECTS[step.named_with].surface}
+    how = ("with surfaces both below and above, both lifts raise the thrust per rotor speed squared" if both == {
+        "d_down", "d_up"} else "the battery lowers the thrust per rotor speed squared as it sags, while the surface "
+           "raises it where the flights came near, so each law alone takes part of the other")
+    return (f" Named together with {step.named_with}: {how}, and neither law alone improved the held-out fit beyond "
+            f"noise; together they do (z = {step.z:.1f}).")
 
 
 def _cross_checked(effects: list[dict[str, Any]], curve_fits: dict) -> list[dict[str, Any]]:

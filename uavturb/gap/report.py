@@ -449,8 +449,8 @@ def _recording_lines(report: dict, names: dict[str, str]) -> list[str]:
     if terms and nominal.get("thrust_coefficient"):
         k, se = nominal["thrust_coefficient"], nominal["thrust_coefficient_stderr"]
         limit = {"sample": "sample noise", "between_recordings": "the spread between recordings",
-                 "undecided_surface_law": "the surface law left undecided beside it (what it moves by with the law "
-                                          "fitted)",
+                 "undecided_thrust_law": "the law scaling the thrust left undecided beside it (what it moves by with "
+                                         "the law fitted)",
                  "rotor_resolution": "the rotor speeds' rounding (a steady hover keeps it)",
                  }[max(terms, key=lambda t: np.nan_to_num(terms[t], nan=-1.0))]
         sag = next((e for e in report.get("effects", []) if e["name"] == "battery_sag"), None)

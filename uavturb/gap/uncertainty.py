@@ -344,7 +344,7 @@ def with_curve_check(budget: dict[str, dict[str, float]], params: dict[str, floa
 def command_sampling_term(hold_periods_s: list[float]) -> dict[str, float]:
     """The **command sampling** term of ``motor_lag``'s ``tau`` [s]: a quarter of the longest of the
     recordings' rotor-stream hold periods ``hold_periods_s`` [s] (the median interval between a rotor's own
-    updates, :func:`uavturb.numerics.stream_updates.hold_period_s`; nan with none)."""
+    updates as the stream is read, :func:`uavturb.sysid.flight_data.rotor_hold_s`; nan with none)."""
     held = [p for p in hold_periods_s if p > 0 and np.isfinite(p)]
     return {"tau": max(held) / 4.0 if held else float("nan")}
 

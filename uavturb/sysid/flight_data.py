@@ -30,7 +30,8 @@ from uavturb.io.differentiate import derivative_matched, local_quadratic
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.physics import quaternion as quat
 from uavturb.scene.heights import SurfaceIndex
-from uavturb.numerics.stream_updates import column_update_masks, staggered, update_mask
+from uavturb.numerics.stream_updates import (column_update_masks, hold_period_s, read_at_crossings, rounding_steps,
+                                             staggered, update_mask)
 from uavturb.sysid.streams import dropouts
 
 
@@ -57,7 +58,7 @@ class FlightData:
     rotor_fresh : (K,) bool or None, where the rotor stream is held (:func:`held_updates`): the rows
         nearest each of its updates, the only rows whose rotor speeds were measured rather than
         interpolated between updates (None: the stream updates on every row, or its repeats are those of
-        its resolution, :func:`_quantisation_steps`)
+        its resolution, :func:`rotor_repeats`)
     covered : (K,) bool or None, rows where every stream the physics reads has samples around them (None:
         no stream has a dropout); see :func:`uavturb.sysid.streams.dropouts`
     gaps : the dropouts, ``(stream file, t_start, t_end)`` [s since the first ground-truth row]
@@ -134,13 +135,17 @@ def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
     updates instead of on steps. Rotor speeds whose columns update on their own (:func:`uavturb.sysid.streams.
     staggered`: one ESC reported at a time) keep every row where some column updated, each column
     interpolated between its own updates. A value holds across a gap far longer than the stream's others
-    (:func:`held_across_long_gaps`). Streams that update on every row are returned as they are."""
+    (:func:`held_across_long_gaps`). Rotor speeds that repeat because they are rounded (:func:`rotor_repeats`) are
+    read where they crossed a rounding boundary (:func:`~uavturb.numerics.stream_updates.read_at_crossings`).
+    Streams that update on every row are returned as they are."""
     gt, rotors = rec.ground_truth, rec.rotors
     m = _updates(np.hstack([gt.p, gt.q, gt.v]))
     if m is not None:
         gt = GroundTruth(t_ns=gt.t_ns[m], p=gt.p[m], q=gt.q[m], v=gt.v[m], b_w=gt.b_w[m], b_a=gt.b_a[m])
     m = _updates(rotors.speeds)
-    if m is not None and staggered(rotors.speeds):
+    if m is not None and rounding_steps(rotors.speeds):
+        rotors = Rotors(*read_at_crossings(rotors.t_ns, rotors.speeds))
+    elif m is not None and staggered(rotors.speeds):
         rotors = _columns_on_their_updates(rotors, m)
     elif m is not None:
         rotors = held_across_long_gaps(Rotors(t_ns=rotors.t_ns[m], speeds=rotors.speeds[m]), rotors.t_ns)
@@ -223,7 +228,7 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     if rec.rotors is None:
         raise InputError(f"{where}/mav0/rotors0/data.csv", "rotor speeds are needed but the recording has none")
     gt, rotors = held_updates(rec)
-    rotors_held = len(rotors.t_ns) < len(rec.rotors.t_ns) and not _quantisation_steps(rotors.speeds)
+    rotors_held = rotor_repeats(rec.rotors.speeds) == "held"
     use_imu = rec.imu is not None and time_base in ("auto", "imu")
     if time_base == "imu" and rec.imu is None:
         raise InputError(f"{where}/mav0/imu0/data.csv", "file not found (time_base=imu)")
@@ -368,15 +373,23 @@ def _covered(t_ns: np.ndarray, t0_ns: int, window: int, streams: list[tuple[str,
     return covered, [(name, (a - t0_ns) * 1e-9, (b - t0_ns) * 1e-9) for name, a, b in gaps]
 
 
-def _quantisation_steps(updates: np.ndarray) -> bool:
-    """Whether a stream's updates ``(U, N)`` mostly move by one step of its resolution (rotor speeds
-    rounded to 1 rad/s in a steady hover: repeats of rounding, not of a slow logger, and the values
-    between are as well known as at the changes)."""
-    steps = np.max(np.abs(np.diff(updates, axis=0)), axis=1)
-    steps = steps[steps > 0]
-    if len(steps) < 3:
-        return False
-    return bool(np.median(steps) <= 1.5 * np.min(steps))
+def rotor_repeats(speeds: np.ndarray) -> str | None:
+    """Why a rotor stream ``speeds`` (K, N) repeats rows: ``"held"`` (a logger writing faster than the stream
+    updates, :func:`_updates`), ``"rounded"`` (values that change by one step of their resolution, repeated until
+    the speed moves by a step: :func:`~uavturb.numerics.stream_updates.rounding_steps`), or None (it updates on
+    nearly every row, or repeats only in bursts)."""
+    if _updates(speeds) is None:
+        return None
+    return "rounded" if rounding_steps(speeds) else "held"
+
+
+def rotor_hold_s(rotors: Rotors) -> float:
+    """s, how long the rotor stream ``rotors`` holds a value as read (:func:`held_updates`): its updates' period
+    (:func:`~uavturb.numerics.stream_updates.hold_period_s`), one row's where its repeats are rounding (read at its
+    crossings, which are known to a row)."""
+    if rotor_repeats(rotors.speeds) == "rounded":
+        return float(np.median(np.diff(np.asarray(rotors.t_ns, np.int64)))) * 1e-9
+    return hold_period_s(rotors.t_ns, rotors.speeds)
 
 
 def _nearest_rows(t_ns: np.ndarray, update_ns: np.ndarray) -> np.ndarray:
