@@ -1,4 +1,4 @@
-"""The nominal model's unknowns cannot swallow an effect (gap/nominal.py), and stated errors are honest
+"""The nominal model's unknowns cannot swallow an effect (sysid/nominal.py), and stated errors are honest
 (gap/uncertainty.py): known answers on data the tests make."""
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from uavturb.gap.finder import (
     read_on_moved_speeds,
 )
 from uavturb.gap.fit import ModelFit, fit_model
-from uavturb.gap.nominal import (UNREAD_OFFSET_SPAN, ThrustLevels, matched_height_levels, SpeedOffset,
+from uavturb.sysid.nominal import (UNREAD_OFFSET_SPAN, ThrustLevels, matched_height_levels, SpeedOffset,
                                  offset_cells, speed_offset, stated_offset, thrust_levels)
 from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, rotor_speeds_moved, timing_interval
 from uavturb.gap.surface_laws import finder_surface_curve

@@ -124,6 +124,45 @@ def test_identify_says_the_inertia_rests_on_commanded_speeds(tmp_path, capsys, m
     assert said is not measured
 
 
+def test_identify_reads_an_idle_speed_in_commands_and_identifies_on_the_moved_speeds(tmp_path, capsys):
+    """PX4-like commands (rotors0 holds u; the rotors turn at w = a + b u, a a quarter of the hover speed, the scale
+    exact at hover): the recorded speeds' differences, and so the rotor torques, were a third too large, and the
+    inertia came out 36 % high at 63-80 stated errors. identify reads the offset as gap does (thrust per
+    sum((w + delta)^2) steadiest), identifies on the speeds moved by it, and the inertia lands within 2 % and three
+    stated errors of the truth; the offset read is the command map's, a scale / b, within 5 %. Exact speeds read
+    no offset and are not moved; residuals read the commands moved as identify did."""
+    path = tmp_path / "cmd"
+    generate_conditioned_flight("hex", "none", duration=30.0, kind="excitation", seed=16, out=path,
+                                conditions=Conditions(motor_commands=True))
+    truth = read_truth(path)
+    ident = identify_recordings([path])
+    found = ident.rotor_speed_offset
+    law = truth["conditions"]["motor_commands"]
+    assert found["decisive"] and found["applied_rad_s"] == found["delta_rad_s"]
+    assert found["delta_rad_s"] == pytest.approx(law["a"] * law["rotor_speed_scale"] / law["b"], rel=0.05)
+    J, se = ident.inertia, ident.inertia_se
+    for i in (0, 1):
+        true = truth["vehicle"]["inertia"][i]
+        assert J[i] == pytest.approx(true, rel=0.02) and abs(J[i] - true) < 3 * se[i]
+    assert found["terms"]["J_x"] > 0 and ident.to_dict()["rotor_speed_offset"] == found
+    assert "so they were identified on the speeds moved by it" in capsys.readouterr().err
+    exact = tmp_path / "exact"
+    generate_conditioned_flight("hex", "none", duration=30.0, kind="excitation", seed=16, out=exact)
+    plain = identify_recordings([exact])
+    assert plain.rotor_speed_offset["applied_rad_s"] == 0.0 and not plain.rotor_speed_offset["counts"]
+    assert "read no such offset that matters" in capsys.readouterr().err
+    # residuals read the commands as identify read them: the rotors' own torques beside the rotors' own inertia
+    # (on the recorded speeds the residual torques came out eight times the exact flight's)
+    torques = {}
+    for name, rec in (("cmd", path), ("exact", exact)):
+        _, out = residuals_to_file(rec, tmp_path / f"{name}.csv")
+        table = pd.read_csv(out)
+        flying = table["ground_contact"] == 0
+        torques[name] = [float(np.sqrt(np.mean(table.loc[flying, c] ** 2))) for c in ("tau_Bx [N m]", "tau_By [N m]")]
+    assert torques["cmd"] == pytest.approx(torques["exact"], rel=0.1)
+    assert "the commanded rotor speeds read as identify read them" in capsys.readouterr().err
+
+
 def test_residuals_take_a_measured_streams_delay_out_as_gap_does(tmp_path, capsys):
     """ESC telemetry 60 ms late (rotor_speed_source: measured): its delay is timed and taken out of its stamps, and
     the residual comes back to the clean flight's size (a probe's had stayed twice the IMU's noise without a

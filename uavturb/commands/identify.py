@@ -36,16 +36,33 @@ def identify_recordings(paths: Sequence[str | Path], *, model: str = "auto",
 
 def commanded_speeds_caveat(ident: Identification, recs: Sequence[Recording]) -> str | None:
     """A sentence where the rotational constants come from commanded rotor speeds (``rotor_speed_source``
-    absent or ``commanded``), else None: a command map with an idle speed (``w = a + b u``, the recorded speeds
-    a scale of ``u``) makes the recorded speeds' differences, and so the rotor torques, larger or smaller than the
-    rotors' own, which scales the inertia and ``k_M`` alike and no fit here can see (a probe's PX4-like commands,
-    idle at 124 rad/s: the inertia 36 % high, at 63-80 stated errors). ``k_T`` holds at hover."""
+    absent or ``commanded``), else None. A command map with an idle speed (``w = a + b u``, the recorded speeds a
+    scale of ``u``) makes the recorded speeds' differences, and so the rotor torques, larger than the rotors' own,
+    which scales the inertia and ``k_M`` alike (a probe's PX4-like commands, idle at 124 rad/s: the inertia 36 %
+    high, at 63-80 stated errors). ``identify`` reads that offset (``Identification.rotor_speed_offset``): where it
+    applied one, or stated the constants at the centre of the offsets left open, the sentence says so and what
+    the errors carry; where it read none, that the constants rest on the recorded speeds. ``k_T`` holds at
+    hover."""
     rotational = [n for n in ("J_x", "J_y", "J_z", "k_M") if ident.identified(n)]
     if not rotational or all(r.vehicle.rotor_speed_source == "measured" for r in recs):
         return None
-    return (f"{', '.join(rotational)} come from commanded rotor speeds (vehicle.yaml's rotor_speed_source): they "
-            "hold where the rotors turn as commanded; a command map with an idle speed scales the rotor torques and "
-            "these with them (uavturb gap reads that offset: nominal.rotor_speed_offset)")
+    found = ident.rotor_speed_offset
+    names = ", ".join(rotational)
+    if found is not None and found["applied_rad_s"] != 0.0:
+        read = (f"an offset of {found['delta_rad_s']:.4g} ± {found['stderr_rad_s']:.2g} rad/s "
+                f"({100 * found['delta_rad_s'] / found['hover_speed_rad_s']:+.0f} % of the hover speed, "
+                f"{found['z']:.0f} errors from zero)")
+        how = ("so they were identified on the speeds moved by it" if found["decisive"] else
+               f"which leaves {found['ends_rad_s'][0]:.4g}-{found['ends_rad_s'][1]:.4g} rad/s open, so they were "
+               f"identified on the speeds moved to its centre, {found['applied_rad_s']:.4g} rad/s")
+        return (f"{names} come from commanded rotor speeds (vehicle.yaml's rotor_speed_source); thrust per "
+                f"sum((w + delta)^2) in free flight reads {read}: an idle speed in the command map, which scales the "
+                f"rotor torques; {how} (the hover speed kept), and their errors carry half their change across "
+                f"{found['ends_rad_s'][0]:.4g}-{found['ends_rad_s'][1]:.4g} rad/s")
+    return (f"{names} come from commanded rotor speeds (vehicle.yaml's rotor_speed_source): they hold where the "
+            "rotors turn as commanded; a command map with an idle speed scales the rotor torques and these with "
+            "them, and these flights read no such offset that matters (uavturb gap reads it too: "
+            "nominal.rotor_speed_offset)")
 
 
 #: identified k_T over vehicle.yaml's beyond which the two cannot both describe these rotor speeds; and the share
@@ -211,8 +228,10 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     _say_read_notes("residuals", [rec])
     _say_slow_streams("residuals", rec)
     rec = _telemetry_on_time(rec)
+    ident = None
     if params == "identified":
-        v = _identified_for_forces(identify([rec], rec.vehicle), rec.vehicle)
+        ident = identify([rec], rec.vehicle)
+        v = _identified_for_forces(ident, rec.vehicle)
     elif params == "nominal":
         v = rec.vehicle
         if v.thrust_coefficient is None:
@@ -226,6 +245,11 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     else:
         raise InputError("--params", f"unknown value '{params}' (allowed: identified, nominal)")
     fd = flight_data(rec, time_base="groundtruth" if source == "mocap" else "auto")  # an IMU unread cuts no rows
+    if ident is not None and ident.rotor_speed_offset and ident.rotor_speed_offset["applied_rad_s"] != 0.0:
+        fd = dataclasses.replace(fd, rotor_speeds=ident.rotor_speeds_read(fd.rotor_speeds))
+        print(f"uavturb residuals: the commanded rotor speeds read as identify read them, moved by "
+              f"{ident.rotor_speed_offset['applied_rad_s']:.4g} rad/s (an idle speed in the command map, the hover "
+              "speed kept): the torques of the identified inertia need the rotors' own speeds", file=sys.stderr)
     (contact,), _ = contact_masks([fd], v, [str(path)])  # the rows the gap finder leaves out
     bias = flight_accel_bias(fd, ~contact) if source in ("auto", "imu") else None  # a sensor's error, no force
     if bias is not None:

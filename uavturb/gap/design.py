@@ -29,7 +29,7 @@ from typing import Sequence
 
 import numpy as np
 
-from uavturb.gap.nominal import ThrustLevels, thrust_levels
+from uavturb.sysid.nominal import ThrustLevels, moved_speeds, thrust_levels
 from uavturb.numerics.filters import savgol_filter
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
@@ -93,8 +93,8 @@ class GapData:
     names : recording names
     imu : (K,) bool, rows whose force comes from an accelerometer
     fits_bias : the model has accelerometer-bias columns (False where the bias was anchored
-        against motion capture, :mod:`uavturb.gap.nominal`, or there is no IMU)
-    level : (K,) -, thrust level of each row's recording (:func:`uavturb.gap.nominal.thrust_levels`;
+        against motion capture, :mod:`uavturb.sysid.nominal`, or there is no IMU)
+    level : (K,) -, thrust level of each row's recording (:func:`uavturb.sysid.nominal.thrust_levels`;
         None: all 1)
     contiguous : the flights before rows were dropped (motor lag needs contiguous rows), and
     rows : (K,) int, the indices of these rows in ``contiguous``; where rows are block means of
@@ -252,16 +252,13 @@ class GapData:
 
     def with_speed_offset(self, delta: float, w_hover: float | None = None) -> "GapData":
         """These rows with every turning rotor's recorded speed ``w`` [rad/s] moved by ``delta`` [rad/s]: to ``w +
-        delta``, or where the hover speed ``w_hover`` [rad/s] is given to ``(w + delta) w_hover / (w_hover + delta)``,
-        the scale kept exact at the hover speed as :func:`~uavturb.gap.preparation.rotor_speeds_moved` keeps it
-        (laws linear in the speeds, such as rotor drag, keep their units' meaning); on the contiguous flights too,
+        delta``, or where the hover speed ``w_hover`` [rad/s] is given to ``(w + delta) w_hover / (w_hover + delta)``
+        (:func:`~uavturb.sysid.nominal.moved_speeds`); on the contiguous flights too,
         so the motor lag filters the moved speeds. Stopped rotors (0) stay stopped. Nothing is shared with ``self``
-        that the move changes (:mod:`uavturb.gap.nominal`, **Thrust map**)."""
+        that the move changes (:mod:`uavturb.sysid.nominal`, **Thrust map**)."""
         contiguous = None if self.contiguous is None else self.contiguous.with_speed_offset(delta, w_hover)
-        scale = 1.0 if w_hover is None else float(w_hover) / (float(w_hover) + float(delta))
-        w = self.rotor_speeds
-        moved = np.where(w > 0, np.maximum((w + float(delta)) * scale, 0.0), w)
-        return replace(self, rotor_speeds=moved, contiguous=contiguous, dense=None,
+        return replace(self, rotor_speeds=moved_speeds(self.rotor_speeds, delta, w_hover), contiguous=contiguous,
+                       dense=None,
                        _S=None, _lag_cache={}, _lag_done={}, _groups=None)
 
     def with_levels(self, level: np.ndarray) -> "GapData":
@@ -468,7 +465,7 @@ def surface_reach_m(data: GapData) -> float:
 
 def apply_thrust_levels(data: GapData) -> ThrustLevels:
     """Measure each recording's thrust level far from surfaces, or at matched heights where the flights
-    stay within a surface's reach (:func:`uavturb.gap.nominal.thrust_levels`), and, where they differ,
+    stay within a surface's reach (:func:`uavturb.sysid.nominal.thrust_levels`), and, where they differ,
     give each row its recording's level (``data.level``)."""
     reach = surface_reach_m(data)
     rows = data if data.dense is None else data.dense  # sums: every row in flight counts

@@ -33,7 +33,7 @@ from uavturb.gap.design import (
 )
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
-from uavturb.gap.nominal import (
+from uavturb.sysid.nominal import (
     OFFSET_DECISIVE_Z,
     OFFSET_PRACTICAL,
     OFFSET_RADII,
@@ -240,7 +240,7 @@ def _named_on_curve(curve_report: dict | None, curve, data: GapData) -> tuple[st
 
 def read_on_moved_speeds(recorded: dict, moved: dict, applied: Sequence[float] | None = None) -> dict:
     """The report ``moved`` of the analysis run again on rotor speeds moved by the decisive offset that the
-    analysis ``recorded`` of the recorded speeds read (:attr:`~uavturb.gap.nominal.SpeedOffset.decisive`: an idle
+    analysis ``recorded`` of the recorded speeds read (:attr:`~uavturb.sysid.nominal.SpeedOffset.decisive`: an idle
     speed in the command map). Each named effect's error carries half its change from the recorded speeds'
     reading (**speed offset**): the value the recorded speeds named, or for a surface law they did not name, its
     fit to their measured curve (:func:`_curve_readings`; nan where neither is there), and
@@ -675,7 +675,7 @@ def _at_stated_offset(data: GapData, final: ModelFit, thrust_map: tuple | None
     """``(offset [rad/s], data, final)`` where the named effects and the measured surface curve are stated: the
     recorded speeds (0, ``data``, ``final``) unless the thrust map (``thrust_map``: what
     :func:`~uavturb.gap.uncertainty.thrust_map_term` returned; None with measured rotor speeds) leaves offsets open,
-    then ``data`` with its speeds moved to their centre (:func:`~uavturb.gap.nominal.stated_offset`, the hover
+    then ``data`` with its speeds moved to their centre (:func:`~uavturb.sysid.nominal.stated_offset`, the hover
     speed kept) and ``final``'s effects refitted there. The effects chosen stay ``final``'s."""
     if thrust_map is None:
         return 0.0, data, final

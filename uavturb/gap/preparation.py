@@ -36,6 +36,7 @@ from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.accelerometer import mocap_specific_force
 from uavturb.sysid.contact import ContactLimits, ground_contact, landed_height
 from uavturb.sysid.flight_data import FlightData, flight_data, held_updates
+from uavturb.sysid.nominal import moved_speeds
 from uavturb.sysid.lever_arm import LeverArm, lever_arm
 from uavturb.sysid.streams import estimate_lag, needed_rate_hz, slow_for, stream_updates
 
@@ -136,14 +137,12 @@ def rotor_shifted(rec: Recording, delay_s: float) -> Recording:
 
 def rotor_speeds_moved(rec: Recording, delta: float, w_hover: float) -> Recording:
     """``rec`` with every turning rotor's recorded speed ``w`` read as the affine ``(w + delta) w_hover /
-    (w_hover + delta)`` [rad/s]: an idle speed in the command map (:mod:`uavturb.gap.nominal`, **Thrust map**)
+    (w_hover + delta)`` [rad/s]: an idle speed in the command map (:mod:`uavturb.sysid.nominal`, **Thrust map**)
     whose scale is kept exact at the hover speed ``w_hover`` (what the records say there stays, so laws linear
     in the speeds, such as rotor drag, keep their scale). Stopped rotors (0) stay stopped, and none is moved
     below 0."""
-    w = rec.rotors.speeds
-    moved = (w + float(delta)) * (float(w_hover) / (float(w_hover) + float(delta)))
     return dataclasses.replace(rec, rotors=Rotors(t_ns=rec.rotors.t_ns,
-                                                  speeds=np.where(w > 0, np.maximum(moved, 0.0), w)))
+                                                  speeds=moved_speeds(rec.rotors.speeds, delta, w_hover)))
 
 
 def stream_limits(rec: Recording) -> tuple[list[str], dict[str, str], float]:

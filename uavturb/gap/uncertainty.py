@@ -62,17 +62,17 @@ other and of the noise) added in quadrature:
   off. Half the half step is the term, so that two stated errors cover either convention.
 - **thrust map** (commanded rotor speeds, :func:`thrust_map_term`): half the change of the parameter when
   the recorded speeds are moved by the offset that makes thrust per ``sum((w + delta)^2)`` constant at
-  each height of each recording (:func:`uavturb.gap.nominal.speed_offset`), where that offset counts (two
-  errors from zero and at least 2.5 % of the hover speed, :attr:`~uavturb.gap.nominal.SpeedOffset.counts`).
+  each height of each recording (:func:`uavturb.sysid.nominal.speed_offset`), where that offset counts (two
+  errors from zero and at least 2.5 % of the hover speed, :attr:`~uavturb.sysid.nominal.SpeedOffset.counts`).
   An idle speed in the motors' command map reads as a stronger ground effect (the rotors turn slower near
   the floor); the data cannot always tell it from other physics that depends on the thrust level, so the
   named values stay and the error covers the other reading. Where it does not count, half the change between
   the refits at one standard error either side of the reading; where there is no reading (too few steady rows
   far from the floor, or a least residual at an end of the range searched), between none and
-  :data:`~uavturb.gap.nominal.UNREAD_OFFSET_SPAN` of the hover speed
-  (:meth:`~uavturb.gap.nominal.SpeedOffset.open_interval`).
+  :data:`~uavturb.sysid.nominal.UNREAD_OFFSET_SPAN` of the hover speed
+  (:meth:`~uavturb.sysid.nominal.SpeedOffset.open_interval`).
 - **speed offset** (commanded rotor speeds whose offset is decisive,
-  :attr:`~uavturb.gap.nominal.SpeedOffset.decisive`): the finder runs again on the speeds moved by it
+  :attr:`~uavturb.sysid.nominal.SpeedOffset.decisive`): the finder runs again on the speeds moved by it
   (:func:`uavturb.gap.finder.read_on_moved_speeds`), and each value's error carries half its change from the
   recorded speeds' reading.
 
@@ -104,7 +104,7 @@ import numpy as np
 
 from uavturb.gap.design import MIN_ROWS, GapData, effective_S, surface_reach_m
 from uavturb.gap.fit import ModelFit, _nl_values, fit_model, information_shares
-from uavturb.gap.nominal import SpeedOffset, hover_speed, offset_cells, speed_offset, unread_interval
+from uavturb.sysid.nominal import SpeedOffset, hover_speed, offset_cells, speed_offset, unread_interval
 from uavturb.numerics.blocks import contiguous_blocks, jackknife_se, weighted_jackknife_se
 from uavturb.physics.effects import EFFECTS
 
@@ -397,8 +397,8 @@ def stream_rate_term(recorded: dict[str, float], thinned: dict[str, float] | Non
 def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None = None
                     ) -> tuple[SpeedOffset | None, tuple[float, float], dict[str, dict[str, float]]]:
     """The **thrust map** term of commanded rotor speeds: the recorded speeds' offset (None where too few rows are at
-    least :data:`~uavturb.gap.nominal.OFFSET_RADII` rotor radii over the floor), the offsets it leaves open [rad/s]
-    (:meth:`~uavturb.gap.nominal.SpeedOffset.open_interval`; :func:`~uavturb.gap.nominal.unread_interval` where
+    least :data:`~uavturb.sysid.nominal.OFFSET_RADII` rotor radii over the floor), the offsets it leaves open [rad/s]
+    (:meth:`~uavturb.sysid.nominal.SpeedOffset.open_interval`; :func:`~uavturb.sysid.nominal.unread_interval` where
     there is no reading), and ``{effect: {param: half the change}}`` of every effect of ``final`` between its refits
     on ``data`` with the speeds moved by either end of them (the hover speed kept: laws linear in the speeds keep
     their scale).

@@ -4,7 +4,8 @@ Loggers write rows at one rate but often repeat the last value until a new one a
 ``recordings.md``, "Streams that may be missing"); repeats are bit-identical, so an update is a row whose
 value differs from the previous row's. Here, beneath the readers' checks (:mod:`uavturb.io.consistency`) and
 the stream analysis built on it (:mod:`uavturb.sysid.streams`: rates, delays, noise); here too, whether a
-stream's columns update one after another (round-robin telemetry) and a held stream read between its updates.
+stream's columns update one after another (round-robin telemetry) and a held stream read between its updates;
+and whether a stream repeats because it is rounded, read then where it crossed its rounding boundaries.
 """
 
 from __future__ import annotations

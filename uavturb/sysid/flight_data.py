@@ -11,7 +11,8 @@ timestamps too); the window holds at least 5 samples, so at 50 Hz a 0.05 s windo
 0.1 s. The same filter smooths regressors, so that fits compare like with like. Streams at
 other rates (rotor speeds at 50 Hz, jittered) are interpolated linearly at their true times.
 Streams a logger writes faster than they update (sample-and-hold repeats) are read on their
-updates (:func:`held_updates`). A stream that stops for a while (a logger's or a radio's dropout, motion
+updates (:func:`held_updates`), rotor speeds that repeat because they are rounded where they crossed a rounding
+boundary (:func:`rotor_repeats`). A stream that stops for a while (a logger's or a radio's dropout, motion
 capture losing the markers) is not interpolated across: the rows in its dropouts, and those within a
 derivative window of them, are marked (:attr:`FlightData.covered`) for fits to leave out
 (:func:`uavturb.sysid.streams.dropouts`).

@@ -32,7 +32,7 @@ covariances of each fit (``least_squares``), propagated to derived quantities by
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -44,7 +44,7 @@ from uavturb.numerics.stream_updates import rotor_quantum, rounding_share
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.vehicle import Vehicle
-from uavturb.sysid.accelerometer import BLOCK_S, AnchoredBias
+from uavturb.sysid.accelerometer import BLOCK_S, AnchoredBias, mocap_specific_force
 from uavturb.sysid.flight_data import FlightData, flight_data
 from uavturb.sysid.identifiability import (
     ACC_MIN,
@@ -62,6 +62,8 @@ from uavturb.sysid.identifiability import (
     column_share,
 )
 from uavturb.sysid.least_squares import lstsq
+from uavturb.sysid.nominal import (SpeedOffset, moved_speeds, offset_cells, speed_offset,
+                                     stated_offset)
 
 
 @dataclass
@@ -119,6 +121,21 @@ class Identification:
     #: flights visit a surface's reach and both are read (a Crazyflie's walks 5-45 cm over the floor, whose curve
     #: no law fits: 0.34 %); None otherwise
     surface_term: float | None = None
+    #: the commanded rotor speeds' offset read on the rows (an idle speed in the command map,
+    #: :func:`idle_offset`): the reading, the offset the constants were identified at (``applied_rad_s``, the hover
+    #: speed kept) and each constant's term for the offsets it leaves open (``terms``, in the error); None for
+    #: measured speeds or too few rows
+    rotor_speed_offset: dict[str, Any] | None = None
+
+    def rotor_speeds_read(self, rotor_speeds: np.ndarray) -> np.ndarray:
+        """Recorded rotor speeds ``rotor_speeds`` (K, N) [rad/s] as these constants were identified on them: moved
+        by the offset applied (:attr:`rotor_speed_offset`, the hover speed kept; an idle speed in the command map),
+        as they are where none was. Torques from these constants need them: the inertia is the rotors' own, and
+        the recorded speeds' differences are larger by the map's scale."""
+        found = self.rotor_speed_offset
+        if not found or found["applied_rad_s"] == 0.0:
+            return np.asarray(rotor_speeds, float)
+        return moved_speeds(rotor_speeds, found["applied_rad_s"], found["hover_speed_rad_s"])
 
     def identified(self, name: str) -> bool:
         """Whether the flight determines constant ``name`` (``k_T``, ``J_z``, ...)."""
@@ -186,6 +203,7 @@ class Identification:
             "accel_bias_stderr": None if self.accel_bias is None else [float(b) for b in self.accel_bias_se],
             "near_surface_m": self.near_surface_m,
             "thrust_coefficient_surface_term": self.surface_term,
+            "rotor_speed_offset": self.rotor_speed_offset,
             "accel_bias_per_recording": {n: {"value": [float(x) for x in b], "stderr": [float(x) for x in se]}
                                          for n, (b, se) in self.accel_bias_per_recording.items()},
             "sources": "imu+mocap" if self.accel_bias is not None else "mocap",
@@ -495,6 +513,93 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     n_draws : Monte Carlo draws propagating the standard errors
     """
     vehicle, fds, names, usable = _usable_flights(recordings, vehicle, model, window_s)
+    raw = [r.rotors.speeds if isinstance(r, Recording) and r.rotors is not None else fd.rotor_speeds
+           for r, fd in zip(recordings, fds)]
+    reading = idle_offset(fds, usable.masks, vehicle) if vehicle.rotor_speed_source != "measured" else None
+    at, ends = offset_plan(reading)
+    terms: dict[str, float] = {}
+    if ends is not None:  # the offsets the reading leaves open: each constant's error carries half its change
+        lo, hi = (_identified(vehicle, _moved(fds, e, reading), names, usable, raw, model, lag_s, OFFSET_END_DRAWS,
+                              seed) for e in ends)
+        terms = {k: abs(float(hi.values[k]) - float(lo.values[k])) / 2.0 for k in OFFSET_TERM_KEYS}
+    out = _identified(vehicle, _moved(fds, at, reading), names, usable, raw, model, lag_s, n_draws, seed, terms)
+    out.identification.rotor_speed_offset = _offset_report(reading, at, ends, terms)
+    return out.identification
+
+
+#: draws of the Monte Carlo at the ends of the offsets a reading leaves open (their medians only are read)
+OFFSET_END_DRAWS = 500
+#: the constants whose error carries the offsets left open (``k_T`` keeps the hover speed: it barely moves)
+OFFSET_TERM_KEYS = ("k_T", "k_M", "J_x", "J_y", "J_z", "theta_0", "theta_1", "theta_2", "theta_3")
+
+
+def idle_offset(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle: Vehicle) -> SpeedOffset | None:
+    """The recorded (commanded) rotor speeds' offset (:func:`uavturb.sysid.nominal.speed_offset`, **Thrust map**)
+    read on the rows ``masks`` of the flights ``fds``, one cell per recording beyond :data:`SURFACE_TERM_RADII`
+    rotor radii of every surface (rows nearer are left out): the thrust the rotors make, ``m`` times the specific
+    force along the body z axis that the motion capture shows (an IMU's bias, measured apart, cannot lean on it), per
+    ``sum((w + delta)^2)``. None with too few rows."""
+    reach = SURFACE_TERM_RADII * vehicle.rotor_radius
+    y, w, t, cells = [], [], [], []
+    for g, (fd, m) in enumerate(zip(fds, masks)):
+        acc = mocap_specific_force(quat.to_rotation_matrix(fd.q), fd.dv)
+        far = np.full(len(fd), np.inf)
+        cell = offset_cells(np.full(len(fd), g), far if fd.d_down is None else fd.d_down,
+                            far if fd.d_up is None else fd.d_up, vehicle.rotor_radius, reach)
+        y.append(vehicle.mass * acc[m, 2])
+        w.append(fd.rotor_speeds[m])
+        t.append(fd.t[m])
+        cells.append(np.where(cell[m] >= 0, g, -1))
+    return speed_offset(np.concatenate(y), np.concatenate(w), np.concatenate(cells), np.concatenate(t))
+
+
+def offset_plan(reading: SpeedOffset | None) -> tuple[float, tuple[float, float] | None]:
+    """(the offset [rad/s] the constants are identified at, the two offsets [rad/s] whose change their errors
+    carry, or None) for a ``reading`` of the commanded speeds' offset, as ``gap`` states its values: a decisive
+    reading is applied, its error either side the ends; a reading that leaves offsets open is stated at their
+    centre (:func:`uavturb.sysid.nominal.stated_offset`), the ends theirs; without a reading (none, or at the bound of
+    the range searched) the recorded speeds stand and ``identify`` says what they rest on."""
+    if reading is None or reading.at_bound or not np.isfinite(reading.delta):
+        return 0.0, None
+    if reading.decisive:
+        return reading.delta, (reading.delta - reading.stderr, reading.delta + reading.stderr)
+    ends = reading.open_interval()
+    at = stated_offset(reading, ends)
+    return (at, ends) if at != 0.0 else (0.0, None)
+
+
+def _moved(fds: Sequence[FlightData], delta: float, reading: SpeedOffset | None) -> list[FlightData]:
+    """The flights with their rotor speeds moved by ``delta`` [rad/s], the hover speed kept
+    (:func:`uavturb.sysid.nominal.moved_speeds`); as they are at 0."""
+    if delta == 0.0 or reading is None:
+        return list(fds)
+    return [replace(fd, rotor_speeds=moved_speeds(fd.rotor_speeds, delta, reading.w_hover)) for fd in fds]
+
+
+def _offset_report(reading: SpeedOffset | None, at: float, ends: tuple[float, float] | None,
+                   terms: dict[str, float]) -> dict[str, Any] | None:
+    """``Identification.rotor_speed_offset``: the reading, the offset applied and each constant's term."""
+    if reading is None:
+        return None
+    return {"delta_rad_s": float(reading.delta), "stderr_rad_s": float(reading.stderr), "z": float(reading.z),
+            "hover_speed_rad_s": float(reading.w_hover), "counts": reading.counts, "decisive": reading.decisive,
+            "at_bound": reading.at_bound, "applied_rad_s": float(at),
+            "ends_rad_s": None if ends is None else [float(e) for e in ends], "terms": terms}
+
+
+@dataclass
+class _Identified:
+    """One identification: the result, and its raw estimates by name (the offset's ends read them)."""
+
+    identification: "Identification"
+    values: dict[str, float]
+
+
+def _identified(vehicle: Vehicle, fds: Sequence[FlightData], names: list[str], usable: "_Rows",
+                raw: Sequence[np.ndarray], model: str, lag_s: float, n_draws: int, seed: int,
+                offset_terms: dict[str, float] | None = None) -> _Identified:
+    """:func:`identify` on flights ``fds`` as read (their rotor speeds moved or not), with ``offset_terms`` (name ->
+    the offset's term, in each constant's unit) added to the errors in quadrature."""
     masks = usable.masks
     rows = _rows(fds, vehicle, masks, usable.near)
     lag = max(1, int(round(lag_s / fds[0].dt)))
@@ -515,8 +620,6 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
         surface_term = abs(float(other["theta0"]) - float(tr["theta0"])) / 2.0
         tr = tr | {"theta0_se": float(np.hypot(tr["theta0_se"], surface_term))}
     # rotor speeds rounded to a quantum: in a steady hover the rounding stays, and k_T carries it whole
-    raw = [r.rotors.speeds if isinstance(r, Recording) and r.rotors is not None else fd.rotor_speeds
-           for r, fd in zip(recordings, fds)]
     share = max(rounding_share(w, rotor_quantum(w)) for w in raw)
     if share > 0:
         tr = tr | {"theta0_se": float(np.hypot(tr["theta0_se"], share * tr["theta0"]))}
@@ -554,11 +657,15 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     errors = {"k_T": float(m * tr["theta0_se"]), "k_M": kM_se, "J_x": inertia_se[0], "J_y": inertia_se[1],
               "J_z": inertia_se[2], **{f"theta_{i}": float(theta_se[i]) for i in range(4)},
               "accel_bias": tr["bias_se"]}
+    for k, term in (offset_terms or {}).items():  # the offsets the commanded speeds' reading leaves open
+        errors[k] = float(np.hypot(errors[k], term)) if np.isfinite(term) else errors[k]
+    theta_se = np.array([errors[f"theta_{i}"] for i in range(4)])
     status = assess(values, errors, ex, conds, has_imu=tr["has_imu"], mass=m, arm_length=l,
                     rotor_radius=vehicle.rotor_radius, jx_equals_jy=chosen == "jx=jy")
-    return Identification(
+    return _Identified(Identification(
         mass=m, thrust_coefficient=values["k_T"], thrust_coefficient_se=errors["k_T"], moment_coefficient=kM_est,
-        moment_coefficient_se=kM_se, inertia=np.array(inertia), inertia_se=np.array(inertia_se), theta=theta,
+        moment_coefficient_se=errors["k_M"], inertia=np.array(inertia),
+        inertia_se=np.array([errors[n] for n in ("J_x", "J_y", "J_z")]), theta=theta,
         theta_se=theta_se, accel_bias=tr["bias"] if tr["has_imu"] else None,
         angular_bias=np.array([*J.bias_xy, fit_z.coef[2]]), model=chosen, n_samples=int(sum(mk.sum() for mk in masks)),
         rms={"thrust": tr["rms"], **J.rms, "yaw": fit_z.rms}, recordings=names, status=status, excitation=ex,
@@ -567,7 +674,7 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
         accel_bias_per_recording=({names[g]: (a.b, a.stderr) for g, a in tr["bias_per_recording"].items()}
                                   if tr["has_imu"] and len(fds) > 1 else {}),
         near_surface_m=NEAR_SURFACE_RADII * vehicle.rotor_radius if usable.near else None,
-        surface_term=float(m * surface_term) if usable.other is not None else None)
+        surface_term=float(m * surface_term) if usable.other is not None else None), values)
 
 
 #: rows a recording needs for its own ``theta_0`` (the spread between recordings)

@@ -375,6 +375,17 @@ def unread_interval(w_hover: float) -> tuple[float, float]:
     return UNREAD_OFFSET_SPAN[0] * w_hover, UNREAD_OFFSET_SPAN[1] * w_hover
 
 
+def moved_speeds(rotor_speeds: np.ndarray, delta: float, w_hover: float | None = None) -> np.ndarray:
+    """Recorded rotor speeds ``rotor_speeds`` (K, N) [rad/s] read with an offset ``delta`` [rad/s] (an idle speed in
+    the command map, module docstring, **Thrust map**): every turning rotor's ``w`` to ``w + delta``, or where the
+    hover speed ``w_hover`` [rad/s] is given to ``(w + delta) w_hover / (w_hover + delta)``, the scale kept exact at
+    the hover speed (what the records say there stays, so laws linear in the speeds, such as rotor drag, keep their
+    units' meaning). Stopped rotors (0) stay stopped, and none is moved below 0."""
+    w = np.asarray(rotor_speeds, float)
+    scale = 1.0 if w_hover is None else float(w_hover) / (float(w_hover) + float(delta))
+    return np.where(w > 0, np.maximum((w + float(delta)) * scale, 0.0), w)
+
+
 def hover_speed(rotor_speeds: np.ndarray) -> float:
     """rad/s, the median over rows of the mean rotor speed ``rotor_speeds`` (K, N) where the rotors turn."""
     mean = np.mean(np.asarray(rotor_speeds, float), axis=1)
