@@ -289,3 +289,7 @@ def test_rounded_exact_rotor_speeds_name_no_motor_lag(tmp_path):
     report, named = _named([path])
     assert list(named) == ["ground_effect"], report["candidates_tried"]
     assert abs(named["ground_effect"]["params"]["mu"] - 3.0) < 2 * named["ground_effect"]["stderr"]["mu"]
+    # every row a sample: the report calls the stream rounded, not too slow for a motor lag (it had said 25 Hz)
+    (rotors,) = [line for line in report["streams"]["streams"] if "/rotors0:" in line]
+    assert "rounded:" in rotors and "read where it crossed a rounding boundary" in rotors
+    assert not any("rotors0" in why for why in report["streams"]["stream_limits"])

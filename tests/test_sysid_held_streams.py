@@ -19,7 +19,7 @@ from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import simulate_flight
 from uavturb.sim.core.signals import Constant, Reference, Sines
 from uavturb.sysid.flight_data import flight_data, held_updates, rotor_hold_s, rotor_repeats
-from uavturb.sysid.streams import stream_updates
+from uavturb.sysid.streams import needed_rate_hz, slow_for, stream_updates
 
 
 def _bobbing():
@@ -271,3 +271,18 @@ def test_a_rounded_stream_holds_a_row_a_held_one_its_updates():
     steps = (150.0 + np.arange(len(t)) // 20 % 2)[:, None].repeat(4, axis=1)  # held, each update one step
     assert rotor_repeats(steps) == "held"
     assert rotor_repeats(speed[:, None].repeat(4, axis=1)) is None
+
+
+def test_a_rounded_rotor_stream_is_described_as_sampled_on_every_row():
+    """Speeds rounded to 1 rad/s repeat at their resolution: stream_updates with ``rounded`` counts their changes
+    but gives the rows' rate as the update rate, so a motor lag of 20 ms is not said to need a faster stream; the
+    same rows described as held read 25 Hz or so and are."""
+    t_ns = np.arange(0, 20_000_000_000, 5_000_000, dtype=np.int64)
+    t = t_ns * 1e-9
+    speeds = np.round(150.0 + 8.0 * np.sin(1.3 * t) + 4.0 * np.sin(5.1 * t + 1.0))[:, None].repeat(4, axis=1)
+    assert rotor_repeats(speeds) == "rounded"
+    rounded = stream_updates("rotors0", t_ns, speeds, rounded=True)
+    assert rounded.update_rate_hz == pytest.approx(200.0) and rounded.updates < len(t_ns) / 5
+    assert "rounded:" in rounded.describe() and slow_for(rounded, needed_rate_hz(0.02)) is None
+    held = stream_updates("rotors0", t_ns, speeds)
+    assert held.update_rate_hz < 50.0 and slow_for(held, needed_rate_hz(0.02)) is not None

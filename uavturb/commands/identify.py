@@ -16,7 +16,7 @@ from uavturb.io.reader import load_recordings, recording_labels
 from uavturb.io.recording import Recording
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.accelerometer import flight_accel_bias
-from uavturb.sysid.flight_data import flight_data
+from uavturb.sysid.flight_data import flight_data, rotor_repeats
 from uavturb.sysid.identification import Identification, identify
 from uavturb.sysid.residuals import Residuals, residual_forces, write_residuals
 from uavturb.sysid.streams import needed_rate_hz, slow_for, stream_updates
@@ -110,7 +110,8 @@ def _say_slow_streams(command: str, rec: Recording) -> None:
     for name, t_ns, values in streams:
         if len(t_ns) < 3:
             continue
-        said = slow_for(stream_updates(name, t_ns, values), RESIDUAL_NEEDED_HZ,
+        rounded = name == "rotors0" and rotor_repeats(values) == "rounded"  # every row a sample
+        said = slow_for(stream_updates(name, t_ns, values, rounded=rounded), RESIDUAL_NEEDED_HZ,
                         f"a residual force resolved to {RESIDUAL_TIMESCALE_S:g} s (between its updates the residual "
                         "carries what it did not see, not the air's force)")
         if said:

@@ -35,7 +35,7 @@ from uavturb.physics.effects import strongest_surface_lift
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.accelerometer import mocap_specific_force
 from uavturb.sysid.contact import ContactLimits, ground_contact, landed_height
-from uavturb.sysid.flight_data import FlightData, flight_data, held_updates
+from uavturb.sysid.flight_data import FlightData, flight_data, held_updates, rotor_repeats
 from uavturb.sysid.nominal import moved_speeds
 from uavturb.sysid.lever_arm import LeverArm, lever_arm
 from uavturb.sysid.streams import estimate_lag, needed_rate_hz, slow_for, stream_updates
@@ -156,7 +156,7 @@ def stream_limits(rec: Recording) -> tuple[list[str], dict[str, str], float]:
         streams["imu0"] = (rec.imu.t_ns, rec.imu.acc)
     lines, limits, slowest = [], {}, np.inf
     for name, (t, x) in streams.items():
-        u = stream_updates(f"{rec.name}/{name}", t, x)
+        u = stream_updates(f"{rec.name}/{name}", t, x, rounded=name == "rotors0" and rotor_repeats(x) == "rounded")
         lines.append(u.describe())
         slowest = min(slowest, u.update_rate_hz)
         if name == "state_groundtruth_estimate0":

@@ -69,6 +69,9 @@ class StreamUpdates:
         then the median column's, each value's own, and ``updates`` counts the rows where any column changed
     any_column_rate_hz : Hz, staggered streams: the rate of rows where any column changed (else equal to
         ``update_rate_hz``)
+    rounded : the stream repeats because it is rounded (:func:`~uavturb.numerics.stream_updates.rounding_steps`):
+        every row is a sample, ``update_rate_hz`` is its rows' rate, ``updates`` counts its changes of one step and
+        ``max_gap_s`` its longest run (a steady hover), and it is read where it crossed a rounding boundary
     """
 
     name: str
@@ -80,9 +83,14 @@ class StreamUpdates:
     max_gap_s: float
     staggered: bool = False
     any_column_rate_hz: float = float("nan")
+    rounded: bool = False
 
     def describe(self) -> str:
         """One line for reports, e.g. ``rotors0: 1200 rows at 50 Hz hold 36 updates at 3.0 Hz (97 % repeats)``."""
+        if self.rounded:
+            return (f"{self.name}: {self.rows} rows at {self.row_rate_hz:.0f} Hz, rounded: {self.updates} changes of "
+                    f"one step of its resolution ({100 * self.held_share:.0f} % of its rows repeat at it, longest run "
+                    f"{self.max_gap_s:.2f} s); every row a sample, read where it crossed a rounding boundary")
         if self.staggered:
             return (f"{self.name}: {self.rows} rows at {self.row_rate_hz:.0f} Hz, each column updating on its own at "
                     f"{self.update_rate_hz:.1f} Hz, staggered ({self.updates} rows with a new value in some column, "
@@ -92,7 +100,7 @@ class StreamUpdates:
                 f"{self.max_gap_s:.2f} s)")
 
 
-def stream_updates(name: str, t_ns: np.ndarray, values: np.ndarray) -> StreamUpdates:
+def stream_updates(name: str, t_ns: np.ndarray, values: np.ndarray, rounded: bool = False) -> StreamUpdates:
     """Count a stream's updates and measure their rate.
 
     Parameters
@@ -100,6 +108,9 @@ def stream_updates(name: str, t_ns: np.ndarray, values: np.ndarray) -> StreamUpd
     name : str, the stream's name (for messages)
     t_ns : (N,) int ns, increasing
     values : (N,) or (N, C), the stream's values (raw, as logged: repeats must be bit-identical)
+    rounded : its repeats are its resolution's (rotor speeds, :func:`uavturb.sysid.flight_data.rotor_repeats`):
+        every row is a sample, and it updates at its rows' rate (a 50 g quadrotor's speeds rounded to 1 rad/s,
+        changing every 7 rows on median at 200 Hz, had been called too slow for a motor lag at 25 Hz)
 
     Raises
     ------
@@ -120,6 +131,8 @@ def stream_updates(name: str, t_ns: np.ndarray, values: np.ndarray) -> StreamUpd
         per_column = np.array([_update_rate(t, mc) for mc in own])
         c = int(np.argsort(per_column[:, 0])[len(per_column) // 2])  # the median column
         out.staggered, out.update_rate_hz, out.max_gap_s = True, float(per_column[c, 0]), float(per_column[c, 1])
+    elif rounded:
+        out.rounded, out.update_rate_hz = True, row_rate
     return out
 
 
