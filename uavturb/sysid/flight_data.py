@@ -143,13 +143,13 @@ def held_updates(rec: Recording) -> tuple[GroundTruth, Rotors]:
     m = _updates(np.hstack([gt.p, gt.q, gt.v]))
     if m is not None:
         gt = GroundTruth(t_ns=gt.t_ns[m], p=gt.p[m], q=gt.q[m], v=gt.v[m], b_w=gt.b_w[m], b_a=gt.b_a[m])
-    m = _updates(rotors.speeds)
-    if m is not None and rounding_steps(rotors.speeds):
+    repeats = rotor_repeats(rotors.speeds)
+    if repeats == "rounded":
         rotors = Rotors(*read_at_crossings(rotors.t_ns, rotors.speeds))
-    elif m is not None and staggered(rotors.speeds):
-        rotors = _columns_on_their_updates(rotors, m)
-    elif m is not None:
-        rotors = held_across_long_gaps(Rotors(t_ns=rotors.t_ns[m], speeds=rotors.speeds[m]), rotors.t_ns)
+    elif repeats == "held":
+        m = _updates(rotors.speeds)
+        rotors = (_columns_on_their_updates(rotors, m) if staggered(rotors.speeds) else
+                  held_across_long_gaps(Rotors(t_ns=rotors.t_ns[m], speeds=rotors.speeds[m]), rotors.t_ns))
     return gt, rotors
 
 
