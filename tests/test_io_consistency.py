@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from uavturb.io.consistency import POSITION_WINDOW_S, _window_edges, in_flight
+from uavturb.io.consistency import POSITION_WINDOW_S, _masked_correlation, _window_edges, clock_offset, in_flight
 from uavturb.io.recording import Rotors
 from uavturb.numerics.stream_updates import hold_period_s
 
@@ -63,3 +63,29 @@ def test_position_windows_are_bounded_by_the_samples_not_the_span():
     assert np.all(ends - starts == pytest.approx(POSITION_WINDOW_S))
     # no window spans a gap: each lies inside one stretch of the stream
     assert np.all((ends <= 10.0) | ((starts >= 1e7) & (ends <= 1e7 + 4.0)))
+
+
+def test_masked_correlation_is_pearsons_r_on_each_rows_samples():
+    rng = np.random.default_rng(2)
+    x, y = rng.normal(size=(4, 500)), rng.normal(size=(4, 500))
+    y[1] = 2.0 * x[1] + 0.1 * y[1]
+    ok = rng.uniform(size=(4, 500)) < 0.8
+    ok[3, 10:] = False  # under MIN_FLIGHT_ROWS samples: nan
+    r = _masked_correlation(x, y, ok)
+    for j in range(3):
+        assert r[j] == pytest.approx(np.corrcoef(x[j, ok[j]], y[j, ok[j]])[0, 1], abs=1e-12)
+    assert r[1] > 0.99 and np.isnan(r[3])
+    assert np.isnan(_masked_correlation(np.ones((1, 100)), y[:1, :100], np.ones((1, 100), bool))[0])
+
+
+@pytest.mark.parametrize("late_s", [0.0, 0.15, -0.4, 2.5])
+def test_clock_offset_finds_a_known_offset_near_and_far(late_s):
+    """A signal stamped ``late_s`` late is found there, near (the fine grid: 5 ms) and beyond the near search."""
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 60.0, 0.005)
+    base = np.convolve(rng.normal(size=len(t)), np.ones(40) / 40, "same")  # swings of a fifth of a second
+    t_sig = t[::2]
+    signal = np.interp(t_sig - late_s, t, base) + 0.05 * rng.normal(size=len(t_sig))
+    lag, best, at_zero = clock_offset(t, base, t_sig, signal)
+    assert lag == pytest.approx(late_s, abs=0.006) and best > 0.9
+    assert (at_zero > 0.9) == (late_s == 0.0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from uavturb.numerics.blocks import block_labels, block_mean_and_se, contiguous_blocks, jackknife_se
+from uavturb.numerics.blocks import block_labels, block_mean_and_se, contiguous_blocks, jackknife_se, unique_inverse
 
 
 def test_block_labels_count_whole_blocks_from_the_first_time():
@@ -41,3 +41,15 @@ def test_jackknife_of_a_mean_is_its_standard_error():
     assert np.allclose(jackknife_se(np.stack([leave_one_out, 3 * leave_one_out], 1)),
                        np.array([1, 3]) * np.std(x, ddof=1) / np.sqrt(len(x)))
     assert np.isnan(jackknife_se(np.array([1.0])))
+
+
+def test_unique_inverse_is_numpys_unique_with_its_inverse():
+    """Hashing, not sorting: the same sorted labels and indices as ``np.unique`` (labels as the surface curve makes
+    them: a recording times 10^7 plus a block), negative and repeated labels included."""
+    rng = np.random.default_rng(7)
+    for labels in (rng.integers(0, 12, 5000) * 10_000_000 + rng.integers(0, 300, 5000),
+                   np.array([5, -3, 5, 0, -3, 2**40]), np.array([4]), np.zeros(0, np.int64)):
+        u, inv = unique_inverse(labels)
+        u0, inv0 = np.unique(labels, return_inverse=True)
+        assert np.array_equal(u, u0) and np.array_equal(inv, inv0.reshape(-1))
+        assert np.array_equal(u[inv], labels)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from uavturb.numerics.filters import first_order_lag, high_passed, savgol_coeffs, savgol_filter
+from uavturb.numerics.filters import first_order_lag, high_passed, moving_mean_bounds, savgol_coeffs, savgol_filter
 
 
 def close(a, b, tol=1e-12):
@@ -124,3 +124,15 @@ def test_high_passed_keeps_what_changes_faster_than_its_window():
     out = high_passed(t, np.column_stack([swing + 5.0, 2 * swing]), 2.0)
     assert (np.allclose(out[inner, 0], swing[inner], atol=0.01)
             and np.allclose(out[inner, 1], 2 * swing[inner], atol=0.02))
+
+
+def test_high_passed_with_its_bounds_given_is_the_same_to_the_bit():
+    """A search that high-passes many signals on one set of times computes the moving mean's rows once."""
+    rng = np.random.default_rng(11)
+    t = np.cumsum(rng.uniform(0.004, 0.006, 3000))  # s, jittered rows
+    x = rng.normal(size=(3000, 3))
+    bounds = moving_mean_bounds(t, 2.0)
+    lo, hi = bounds
+    assert np.all(t[hi - 1] <= t + 1.0) and np.all(t[lo] >= t - 1.0) and np.all(lo <= np.arange(3000))
+    assert np.array_equal(high_passed(t, x, 2.0, bounds), high_passed(t, x, 2.0))
+    assert np.array_equal(high_passed(t, x, 2.0, bounds)[:, 1], high_passed(t, x[:, 1], 2.0))

@@ -44,6 +44,7 @@ from typing import Callable
 import numpy as np
 
 from uavturb.errors import InputError
+from uavturb.numerics.blocks import unique_inverse
 
 #: default far height in rotor radii (normalisation above it)
 FAR_RADII = 10.0
@@ -271,18 +272,19 @@ def bin_stats(x: np.ndarray, group: np.ndarray, block: np.ndarray) -> tuple[floa
     """``(mean, stderr, blocks, recordings)`` of one bin's ratios (module docstring, honest errors)."""
     n, mean = len(x), float(np.mean(x))
     e = x - mean
-    ub, inv = np.unique(block, return_inverse=True)
+    ub, inv = unique_inverse(block)
     se_c = np.nan
     if len(ub) >= 2:
         sums = np.bincount(inv, weights=e)
         se_c = float(np.sqrt(len(ub) / (len(ub) - 1) * np.sum(sums**2)) / n)
-    recs = [int(g) for g in np.unique(group) if np.sum(group == g) >= MIN_RECORDING_N]
+    ug, ig = unique_inverse(group)
+    recs = [int(g) for g, count in zip(ug, np.bincount(ig, minlength=len(ug))) if count >= MIN_RECORDING_N]
     se_b = np.nan
     if len(recs) >= 2:
         means = np.array([np.mean(x[group == g]) for g in recs])
         se_b = float(np.std(means, ddof=1) / np.sqrt(len(recs)))
     se = np.nanmax([se_c, se_b]) if np.isfinite([se_c, se_b]).any() else np.nan
-    return mean, float(se), len(ub), tuple(int(g) for g in np.unique(group))
+    return mean, float(se), len(ub), tuple(int(g) for g in ug)
 
 
 def measured_curve(d, thrust_needed, thrust_modelled, group, *, hover, far_m: float | None = None,
@@ -427,7 +429,7 @@ def voltage_drift(curve: SurfaceCurve, d: np.ndarray, raw: np.ndarray, voltage_d
         rows = far & (group == g)
         y = raw[rows] / curve.levels[int(g)]
         block = np.floor((t[rows] - t[rows].min()) / DRIFT_BLOCK_S).astype(int)
-        _, inv = np.unique(block, return_inverse=True)
+        _, inv = unique_inverse(block)
         n = np.bincount(inv)
         xb, yb = np.bincount(inv, voltage_dev[rows]) / n, np.bincount(inv, y) / n
         xs.append(xb - xb.mean())

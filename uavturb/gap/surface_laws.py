@@ -296,7 +296,7 @@ def _bin_covariance(curve: SurfaceCurve, binned: _BinnedLaw) -> np.ndarray:
 
 
 def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False, resample: bool = True,
-            **geometry) -> LawFit:
+            start: np.ndarray | None = None, **geometry) -> LawFit:
     """Weighted least squares (weights ``1/stderr^2``) of a surface law's ``T_IGE/T_OGE`` to the bins.
 
     Parameters
@@ -307,6 +307,7 @@ def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False
     free_level : also fit the far level (the curve's normalisation height may still feel the surface)
     resample : refit on each recording alone (or, with one, a jackknife over time blocks) for the honest
         error; without, the error is the fit's alone (enough where only the shape's chi^2 is read)
+    start : the law's parameters (then the level where it is free) to start the search from (None: a grid)
     geometry : ``arm_length`` [m], ``rotor_count`` (laws that use the rotor spacing)
     """
     spec = EFFECTS.get(law)
@@ -321,7 +322,7 @@ def fit_law(curve: SurfaceCurve, law: str, r: float, *, free_level: bool = False
         raise InputError("surface curve", f"{int(keep.sum())} bins with errors: too few to fit {law}")
     binned = _BinnedLaw(curve, spec, r, geometry, free_level)
     chol = cholesky(_bin_covariance(curve, binned)[np.ix_(keep, keep)], lower=True)
-    z, res, J = _weighted_fit(binned.bins, np.where(keep, y, np.nan), se, spec, free_level, chol)
+    z, res, J = _weighted_fit(binned.bins, np.where(keep, y, np.nan), se, spec, free_level, chol, start)
     chi2, dof = float(np.sum(res**2)), int(keep.sum()) - npar
     chi2_dof = chi2 / dof if dof > 0 else float("nan")
     try:
@@ -415,20 +416,28 @@ def height_offset(curve: SurfaceCurve, fit: LawFit, r: float, **geometry) -> Hei
     shape a shift leaves alone, the exponential one, never finds one: a shift scales its amplitude.)"""
     if fit.law_fits or not np.isfinite(fit.chi2) or fit.dof < 1:
         return None
-    best, lowest = None, min(b.lo for b in curve.bins)
+    best, lowest, start = None, min(b.lo for b in curve.bins), None
     for dz in np.arange(-HEIGHT_OFFSET_SEARCH_M, HEIGHT_OFFSET_SEARCH_M + HEIGHT_OFFSET_STEP_M / 2,
                         HEIGHT_OFFSET_STEP_M):
         if abs(dz) < HEIGHT_OFFSET_STEP_M / 2 or lowest + dz <= 0.0:
             continue
-        try:
-            moved = fit_law(shifted_curve(curve, float(dz)), fit.law, r, resample=False, **geometry)
+        try:  # each offset's fit starts where its neighbour's ended (the grid each time was most of the search)
+            moved = fit_law(shifted_curve(curve, float(dz)), fit.law, r, resample=False, start=start, **geometry)
         except (InputError, ValueError, np.linalg.LinAlgError):
+            start = None
             continue
+        start = np.array(list(moved.params.values()), float)
         if np.isfinite(moved.chi2) and moved.in_range and (best is None or moved.chi2 < best[1].chi2):
             best = (float(dz), moved)
-    if best is None or not best[1].law_fits or best[1].chi2 > fit.chi2 - HEIGHT_OFFSET_DELTA_CHI2:
+    if best is None:
         return None
-    dz, moved = best
+    dz = best[0]
+    try:  # the offset found, fitted from a grid
+        moved = fit_law(shifted_curve(curve, dz), fit.law, r, resample=False, **geometry)
+    except (InputError, ValueError, np.linalg.LinAlgError):
+        return None
+    if not moved.law_fits or not moved.in_range or moved.chi2 > fit.chi2 - HEIGHT_OFFSET_DELTA_CHI2:
+        return None
     return HeightOffset(fit.law, dz, moved.chi2_dof, fit.chi2_dof, dict(moved.params))
 
 

@@ -32,7 +32,7 @@ from uavturb.errors import InputError
 from uavturb.io import align
 from uavturb.io.differentiate import derivative
 from uavturb.io.recording import Recording
-from uavturb.numerics.filters import high_passed
+from uavturb.numerics.filters import high_passed, moving_mean_bounds
 from uavturb.numerics.stream_updates import hold_period_s, read_between_updates, staggered, update_mask
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
@@ -568,22 +568,26 @@ def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
     idx = np.flatnonzero(rows)
     idx = idx[:: max(1, len(idx) // CLOCK_ROWS)]  # a long flight's rows thinned evenly: the time stays bounded
     tr = t[idx]
-    y = high_passed(tr, reference[idx], CLOCK_HIGH_PASS_S)
+    bounds = moving_mean_bounds(tr, CLOCK_HIGH_PASS_S)  # the rows each moving mean takes: the same at every lag
+    y = high_passed(tr, reference[idx], CLOCK_HIGH_PASS_S, bounds)
 
-    def correlation(lag: float) -> float:
+    def correlations(lags: np.ndarray) -> np.ndarray:
+        # every lag's shifted signal at once, a column each: one interpolation and one moving mean
+        shifted = np.interp(lags[:, None] + tr[None, :], t_sig, signal).T  # rows in time order: interp's guess holds
+        shifted = high_passed(tr, shifted, CLOCK_HIGH_PASS_S, bounds)
         with np.errstate(invalid="ignore", divide="ignore"):
-            return float(np.corrcoef(y, high_passed(tr, np.interp(tr + lag, t_sig, signal), CLOCK_HIGH_PASS_S))[0, 1])
+            return np.array([np.corrcoef(y, column)[0, 1] for column in shifted.T])
 
     # a coarse grid, then the best of it refined on a fine one
     coarse = np.arange(-CLOCK_SEARCH_S, CLOCK_SEARCH_S + CLOCK_STEPS_S[0] / 2, CLOCK_STEPS_S[0])
-    corr = np.array([correlation(lag) for lag in coarse])
+    corr = correlations(coarse)
     if not np.any(np.isfinite(corr)):
         return float("nan"), float("nan"), float("nan")
     centre = coarse[int(np.nanargmax(corr))]
     fine = centre + np.arange(-CLOCK_STEPS_S[0], CLOCK_STEPS_S[0] + CLOCK_STEPS_S[1] / 2, CLOCK_STEPS_S[1])
-    fine_corr = np.array([correlation(lag) for lag in fine])
+    fine_corr = correlations(fine)
     k = int(np.nanargmax(fine_corr))
-    at_zero = correlation(0.0)
+    at_zero = float(correlations(np.zeros(1))[0])
     flying = np.isfinite(reference)  # every row: a far offset leaves the near search's edges out of its overlap
     wide = _wide_offset(t[flying], reference[flying], t_sig, signal, float(fine_corr[k]))
     if wide is not None:
@@ -604,16 +608,15 @@ def _wide_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
     tr, y = t[idx], high_passed(t[idx], reference[idx], CLOCK_HIGH_PASS_S)
     sig = high_passed(t_sig, signal, CLOCK_HIGH_PASS_S)
 
-    def correlation(lag: float) -> float:
-        ok = (tr + lag >= t_sig[0]) & (tr + lag <= t_sig[-1])
-        if ok.sum() < MIN_FLIGHT_ROWS:
-            return float("nan")
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return float(np.corrcoef(y[ok], np.interp(tr[ok] + lag, t_sig, sig))[0, 1])
+    def correlations(lags: np.ndarray) -> np.ndarray:
+        # all lags at once, a row each: Pearson's r on the rows whose shifted times the signal covers
+        shifted = tr[None, :] + lags[:, None]
+        ok = (shifted >= t_sig[0]) & (shifted <= t_sig[-1])
+        return _masked_correlation(np.broadcast_to(y, ok.shape), np.interp(shifted, t_sig, sig), ok)
 
     lags = np.arange(-CLOCK_WIDE_S, CLOCK_WIDE_S + CLOCK_WIDE_STEP_S / 2, CLOCK_WIDE_STEP_S)
     lags = lags[np.abs(lags) > CLOCK_SEARCH_S]
-    corr = np.array([correlation(lag) for lag in lags])
+    corr = correlations(lags)
     if not np.any(np.isfinite(corr)) or np.nanmax(corr) < max(near_best + CLOCK_GAIN, CLOCK_WIDE_MIN_CORRELATION):
         return None
     centre = lags[int(np.nanargmax(corr))]
@@ -621,9 +624,24 @@ def _wide_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
     if np.any(np.isfinite(others)) and np.nanmax(corr) < np.nanmax(others) + CLOCK_GAIN:
         return None  # no single peak: a flight that repeats itself
     fine = centre + np.arange(-CLOCK_WIDE_STEP_S, CLOCK_WIDE_STEP_S + CLOCK_STEPS_S[1] / 2, CLOCK_STEPS_S[1])
-    fine_corr = np.array([correlation(lag) for lag in fine])
+    fine_corr = correlations(fine)
     k = int(np.nanargmax(fine_corr))
     return float(fine[k]), float(fine_corr[k])
+
+
+def _masked_correlation(x: np.ndarray, y: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(L,) Pearson's correlation of each row of ``x`` and ``y`` (L, N) on its rows' ``ok`` (L, N) samples; nan
+    where under :data:`MIN_FLIGHT_ROWS` samples are ok or either row is constant there."""
+    n = ok.sum(axis=1)
+    m = np.maximum(n, 1)
+    xm = np.where(ok, x, 0.0).sum(axis=1) / m
+    ym = np.where(ok, y, 0.0).sum(axis=1) / m
+    dx = np.where(ok, x - xm[:, None], 0.0)
+    dy = np.where(ok, y - ym[:, None], 0.0)
+    sxx, syy, sxy = (dx * dx).sum(axis=1), (dy * dy).sum(axis=1), (dx * dy).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.clip(sxy / np.sqrt(sxx * syy), -1.0, 1.0)
+    return np.where((n >= MIN_FLIGHT_ROWS) & (sxx > 0) & (syy > 0), r, np.nan)
 
 
 #: s, the slow part taken off both signals before they are timed (a surface lifting the vehicle changes the thrust

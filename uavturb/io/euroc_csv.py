@@ -135,18 +135,29 @@ class _Block:
     commas: np.ndarray  # offsets of every ','
 
     @classmethod
-    def of(cls, lines: np.ndarray, body: bytes) -> "_Block":
+    def of(cls, lines: np.ndarray | None, body: bytes) -> "_Block":
+        """The block of ``body``'s rows (``lines``: their line numbers; None: numbered from 0)."""
         buf = np.frombuffer(body, dtype=np.uint8)
         nl = np.flatnonzero(buf == ord("\n"))
+        if lines is None:
+            lines = np.arange(len(nl) + 1 if len(buf) else 0, dtype=np.int64)
         return cls(lines, body, buf, np.concatenate(([0], nl + 1)), np.append(nl, len(buf)),
                    np.flatnonzero(buf == ord(",")))
+
+    def after(self, k: int) -> "_Block":
+        """The rows from the ``k``-th on (a header's lines dropped), sliced from this block's offsets."""
+        a = int(self.starts[k])
+        body = self.body[a:]
+        return _Block(self.lines[k:], body, np.frombuffer(body, dtype=np.uint8), self.starts[k:] - a, self.ends[k:] - a,
+                      self.commas[np.searchsorted(self.commas, a):] - a)
 
 
 def _rows(first_line: int, block: bytes) -> _Block:
     """The data rows of a block of lines (``#`` and blank lines dropped, wherever they are)."""
     body = block[:-1] if block.endswith(b"\n") else block
-    n = body.count(b"\n") + 1 if body else 0
-    rows = _Block.of(np.arange(first_line, first_line + n, dtype=np.int64), body)
+    rows = _Block.of(None, body)
+    rows.lines += first_line
+    n = len(rows.lines)
     first = rows.buf[rows.starts[rows.starts < len(body)]]  # first byte of each non-empty row
     if body and len(first) == n and not _ROW_STARTS_ODDLY[first].any():  # the usual block: only rows
         return rows
@@ -155,7 +166,7 @@ def _rows(first_line: int, block: bytes) -> _Block:
         k = int(odd[-1]) + 1
         if k < n and len(odd) == k and k <= 64 and all(_droppable(body[a:b]) for a, b in zip(rows.starts[:k],
                                                                                           rows.ends[:k])):
-            return _Block.of(rows.lines[k:], body[rows.starts[k]:])
+            return rows.after(k)
     kept = [(i, s) for i, s in enumerate(body.split(b"\n"), first_line)
             if s.strip() and not s.lstrip().startswith(b"#")]
     lines = np.fromiter((i for i, _ in kept), dtype=np.int64, count=len(kept))

@@ -158,7 +158,16 @@ def first_order_lag(x: np.ndarray, a: float, y_before: np.ndarray, out: np.ndarr
     return y
 
 
-def high_passed(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray:
+def moving_mean_bounds(t: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) each row's first and (N,) one past its last row within ``window_s / 2`` [s] of it (``t``: (N,) s,
+    increasing): the rows :func:`high_passed` averages, which depend on the times only (a search that high-passes
+    many signals on one set of times computes them once)."""
+    t = np.asarray(t, float)
+    return np.searchsorted(t, t - window_s / 2), np.searchsorted(t, t + window_s / 2, side="right")
+
+
+def high_passed(t: np.ndarray, x: np.ndarray, window_s: float,
+                bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """``x`` less its centred moving mean over ``window_s`` [s]: what changes faster than the window.
 
     Parameters
@@ -166,15 +175,14 @@ def high_passed(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray:
     t : (N,) s, increasing row times (any spacing)
     x : (N,) or (N, C) values at ``t``
     window_s : s, the moving mean's width (rows within ``window_s / 2`` of each row, the row included)
+    bounds : :func:`moving_mean_bounds` of ``t`` and ``window_s`` where already computed
 
     Returns
     -------
     array shaped like ``x``.
     """
-    t = np.asarray(t, float)
     x = np.asarray(x, float)
     c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
-    lo = np.searchsorted(t, t - window_s / 2)
-    hi = np.searchsorted(t, t + window_s / 2, side="right")
+    lo, hi = moving_mean_bounds(t, window_s) if bounds is None else bounds
     n = np.maximum(hi - lo, 1).reshape((-1,) + (1,) * (x.ndim - 1))
     return x - (c[hi] - c[lo]) / n

@@ -133,8 +133,11 @@ def _block_sums(X: np.ndarray, y: np.ndarray, labels: np.ndarray) -> tuple[np.nd
     """Each block's ``X^T X`` (B, p, p) and ``X^T y`` (B, p) over its rows and axes (``labels`` ascending)."""
     starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
     ends = np.r_[starts[1:], len(labels)]
-    xtx = np.stack([np.einsum("kai,kaj->ij", X[a:b], X[a:b]) for a, b in zip(starts, ends)])
-    xty = np.stack([np.einsum("kai,ka->i", X[a:b], y[a:b]) for a, b in zip(starts, ends)])
+    p = X.shape[2]
+    rows, ys = X.reshape(-1, p), y.reshape(-1)  # a row per sample and axis (matrix products: BLAS, not einsum)
+    n = X.shape[1]
+    xtx = np.stack([rows[n * a:n * b].T @ rows[n * a:n * b] for a, b in zip(starts, ends)])
+    xty = np.stack([rows[n * a:n * b].T @ ys[n * a:n * b] for a, b in zip(starts, ends)])
     return xtx, xty
 
 
