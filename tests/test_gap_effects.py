@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from uavturb.gap.finder import analyse
+from uavturb.gap.report import write_markdown
 from uavturb.io.reader import read_recording
 from uavturb.numerics.stream_updates import hold_period_s
 from uavturb.sim.flights.sensors import SensorNoise
@@ -277,6 +278,26 @@ def test_a_battery_sag_and_a_ground_effect_are_named_together(tmp_path):
     assert tried["battery_sag"]["step1_z"] < 4.0 < tried["battery_sag"]["step1_z_with_ground_effect"]
     assert named["battery_sag"].get("named_with") == "ground_effect"
     assert "Named together with ground_effect: the battery lowers" in named["battery_sag"]["explanation"]
+
+
+def test_a_ground_law_that_passed_only_beside_a_sag_out_of_range_says_so(tmp_path):
+    """The same flight on a battery sagging 0.2 %/s, the edge of the sag's range: the pair passes, but the sag fits
+    just over the range (0.00202 /s for 0.002) and is rejected, and the ground law with it (followed word for word:
+    a fit outside its range is no discovery). The report says the ground law passed beside the sag, not that the
+    held-out rows held too little to test it."""
+    path = tmp_path / "sag"
+    generate_flight(vehicle="quad", effects="ground_effect:mu=3,battery_sag:s=0.002", duration=60.0,
+                    kind="low_passes", seed=0, out=path)
+    report, named = _named([path])
+    tried = report["candidates_tried"]
+    assert "battery_sag" in {r["name"] for r in report["rejected"]} and "ground_effect" not in named, tried
+    assert tried["ground_effect"]["step1_passed_with_unphysical_battery_sag"] == 1.0
+    assert tried["ground_effect"]["step1_z_with_battery_sag"] >= 4.0
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    (line,) = [x for x in text.splitlines() if x.startswith("- `ground_effect`: held-out gain")]
+    assert "with `battery_sag` beside it the held-out fit improved by" in line
+    assert "outside its physical range" in line
 
 
 def test_rounded_exact_rotor_speeds_name_no_motor_lag(tmp_path):

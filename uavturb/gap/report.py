@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 from pathlib import Path
 from typing import Callable
 
@@ -522,10 +524,28 @@ def _not_named_lines(report: dict) -> list[str]:
                      f"`{partner}` was not named (see above)")
         if name in carried:
             text += "; fitted beside the named effects, it is in their errors (untaken candidate)"
+        beside = _passed_beside_unphysical(tried)
+        if beside is not None:
+            partner, step, z = beside
+            text += (f"; with `{partner}` beside it the held-out fit improved by {z:.2g} errors at step {step}, but "
+                     f"`{partner}`'s fit lies outside its physical range (see above): neither is named, a fit outside "
+                     f"its range being no discovery")
         manoeuvre = _surface_flown(report, name) or EFFECTS[name].manoeuvre
         L.append(text + (f". To show it: {manoeuvre}." if manoeuvre else "."))
     return (["", "## Tried, not named",
              "Each candidate the data did not support, with what it gained on the held-out rows."] + L) if L else []
+
+
+def _passed_beside_unphysical(tried: dict[str, float]) -> tuple[str, int, float] | None:
+    """``(partner, step, held-out z)`` where a candidate passed a selection step only together with a partner whose
+    fit lay outside its physical range (``step<k>_passed_with_unphysical_<partner>``, the pair's z under
+    ``step<k>_z_with_<partner>``), the last such step; None otherwise."""
+    found = [(int(m.group(1)), m.group(2)) for k in tried
+             if (m := re.fullmatch(r"step(\d+)_passed_with_unphysical_(\w+)", k))]
+    if not found:
+        return None
+    step, partner = max(found)
+    return partner, step, float(tried.get(f"step{step}_z_with_{partner}", float("nan")))
 
 
 #: m, a rotor plane that came this near the floor flew what a ground law's test asks (its manoeuvre); Hz, a stream

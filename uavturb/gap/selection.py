@@ -481,6 +481,8 @@ def _pair_taken(known: "_Known", current: frozenset[str], pair: tuple, unphysica
         if why is not None:
             tried[c][f"step{step}_outside_physical_range"] = 1.0
             rejected[c] = {"name": c, "params": fit.effect_params(c)[0], "why": why}
+            # the partner passed only beside it: the report says so rather than "too little to test it"
+            tried[names[1] if c == names[0] else names[0]][f"step{step}_passed_with_unphysical_{c}"] = 1.0
             return None
         if not _signed_ok(fit, c, z_min):
             tried[c][f"step{step}_rejected_with_{names[1] if c == names[0] else names[0]}"] = 1.0
