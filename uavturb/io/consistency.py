@@ -557,6 +557,10 @@ COMMAND_LATE_CORRELATION, COMMAND_LATE_STAMPED, COMMAND_LATE_GAIN = 0.4, 0.2, 0.
 COMMAND_LATE_CLEAR, COMMAND_LATE_CLEAR_GAIN = 0.7, 0.3
 
 
+#: lags whose shifted signals a clock search holds at once (a few of the rows' copies in memory: tens of MB at most)
+CLOCK_LAGS_AT_ONCE = 32
+
+
 def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal: np.ndarray
                  ) -> tuple[float, float, float]:
     """(s, the offset ``d`` within ``+-`` :data:`CLOCK_SEARCH_S` at which ``signal(t + d)`` correlates best with
@@ -572,11 +576,14 @@ def clock_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
     y = high_passed(tr, reference[idx], CLOCK_HIGH_PASS_S, bounds)
 
     def correlations(lags: np.ndarray) -> np.ndarray:
-        # every lag's shifted signal at once, a column each: one interpolation and one moving mean
-        shifted = np.interp(lags[:, None] + tr[None, :], t_sig, signal).T  # rows in time order: interp's guess holds
-        shifted = high_passed(tr, shifted, CLOCK_HIGH_PASS_S, bounds)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.array([np.corrcoef(y, column)[0, 1] for column in shifted.T])
+        # CLOCK_LAGS_AT_ONCE lags' shifted signals at once, a column each: one interpolation and one moving mean
+        out = []
+        for chunk in np.array_split(lags, -(-len(lags) // CLOCK_LAGS_AT_ONCE)):
+            shifted = np.interp(chunk[:, None] + tr[None, :], t_sig, signal).T  # time-ordered rows: interp's guess
+            shifted = high_passed(tr, shifted, CLOCK_HIGH_PASS_S, bounds)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                out += [np.corrcoef(y, column)[0, 1] for column in shifted.T]
+        return np.array(out)
 
     # a coarse grid, then the best of it refined on a fine one
     coarse = np.arange(-CLOCK_SEARCH_S, CLOCK_SEARCH_S + CLOCK_STEPS_S[0] / 2, CLOCK_STEPS_S[0])
@@ -609,10 +616,13 @@ def _wide_offset(t: np.ndarray, reference: np.ndarray, t_sig: np.ndarray, signal
     sig = high_passed(t_sig, signal, CLOCK_HIGH_PASS_S)
 
     def correlations(lags: np.ndarray) -> np.ndarray:
-        # all lags at once, a row each: Pearson's r on the rows whose shifted times the signal covers
-        shifted = tr[None, :] + lags[:, None]
-        ok = (shifted >= t_sig[0]) & (shifted <= t_sig[-1])
-        return _masked_correlation(np.broadcast_to(y, ok.shape), np.interp(shifted, t_sig, sig), ok)
+        # CLOCK_LAGS_AT_ONCE lags at once, a row each: Pearson's r on the rows whose shifted times the signal covers
+        out = []
+        for chunk in np.array_split(lags, -(-len(lags) // CLOCK_LAGS_AT_ONCE)):
+            shifted = tr[None, :] + chunk[:, None]
+            ok = (shifted >= t_sig[0]) & (shifted <= t_sig[-1])
+            out.append(_masked_correlation(np.broadcast_to(y, ok.shape), np.interp(shifted, t_sig, sig), ok))
+        return np.concatenate(out)
 
     lags = np.arange(-CLOCK_WIDE_S, CLOCK_WIDE_S + CLOCK_WIDE_STEP_S / 2, CLOCK_WIDE_STEP_S)
     lags = lags[np.abs(lags) > CLOCK_SEARCH_S]
