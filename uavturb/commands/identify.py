@@ -159,6 +159,16 @@ def format_identification(ident: Identification) -> str:
         lines.append(f"k_T's error carries {ident.surface_term:.2g} N/(rad/s)^2, half its change between the rows "
                      "six rotor radii or more from any surface and the rows nearer with a Cheeseman-Bennett lift "
                      "beside it (surface)")
+    lag = ident.command_lag
+    if lag is not None and lag["applied_s"] > 0.0:
+        lines.append(f"the rotors lag the commanded speeds by {1e3 * lag['tau_s']:.1f} ± {1e3 * lag['stderr_s']:.1f} "
+                     "ms "
+                     f"(where the roll and pitch torques correlate best with the angular acceleration: "
+                     f"{lag['correlation']:.3f}, against {lag['correlation_at_zero']:.3f} as recorded): the constants "
+                     "are identified on the lagged speeds, their errors carry half their change across that error")
+    elif lag is not None:
+        lines.append(f"the rotors follow the commanded speeds without a lag the torques' timing shows (read "
+                     f"{1e3 * lag['tau_s']:.1f} ± {1e3 * lag['stderr_s']:.1f} ms: not applied)")
     lines.append(f"{'parameter':<22}{'value':>14}{'std. error':>14}  unit")
     undetermined = []
     for key, label in names.items():
@@ -246,11 +256,16 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     else:
         raise InputError("--params", f"unknown value '{params}' (allowed: identified, nominal)")
     fd = flight_data(rec, time_base="groundtruth" if source == "mocap" else "auto")  # an IMU unread cuts no rows
-    if ident is not None and ident.rotor_speed_offset and ident.rotor_speed_offset["applied_rad_s"] != 0.0:
-        fd = dataclasses.replace(fd, rotor_speeds=ident.rotor_speeds_read(fd.rotor_speeds))
-        print(f"uavturb residuals: the commanded rotor speeds read as identify read them, moved by "
-              f"{ident.rotor_speed_offset['applied_rad_s']:.4g} rad/s (an idle speed in the command map, the hover "
-              "speed kept): the torques of the identified inertia need the rotors' own speeds", file=sys.stderr)
+    moved = ident is not None and ident.rotor_speed_offset and ident.rotor_speed_offset["applied_rad_s"] != 0.0
+    late = ident is not None and ident.command_lag and ident.command_lag["applied_s"] > 0.0
+    if moved or late:
+        fd = dataclasses.replace(fd, rotor_speeds=ident.rotor_speeds_read(fd.rotor_speeds, fd.t))
+        how = ([f"moved by {ident.rotor_speed_offset['applied_rad_s']:.4g} rad/s (an idle speed in the command map, "
+                "the hover speed kept)"] if moved else []) + \
+            ([f"lagged by {1e3 * ident.command_lag['applied_s']:.0f} ms (the motors' lag behind their commands)"]
+             if late else [])
+        print(f"uavturb residuals: the commanded rotor speeds read as identify read them, {' and '.join(how)}: the "
+              "torques of the identified inertia need the rotors' own speeds", file=sys.stderr)
     (contact,), _ = contact_masks([fd], v, [str(path)])  # the rows the gap finder leaves out
     bias = flight_accel_bias(fd, ~contact) if source in ("auto", "imu") else None  # a sensor's error, no force
     if bias is not None:

@@ -44,7 +44,9 @@ from uavturb.numerics.stream_updates import rotor_quantum, rounding_share
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.vehicle import Vehicle
+from uavturb.physics.effects import lag_rotor_speeds
 from uavturb.sysid.accelerometer import BLOCK_S, AnchoredBias, mocap_specific_force
+from uavturb.sysid.command_lag import CommandLag, command_lag, lagged
 from uavturb.sysid.flight_data import FlightData, flight_data
 from uavturb.sysid.identifiability import (
     ACC_MIN,
@@ -126,16 +128,25 @@ class Identification:
     #: speed kept) and each constant's term for the offsets it leaves open (``terms``, in the error); None for
     #: measured speeds or too few rows
     rotor_speed_offset: dict[str, Any] | None = None
+    #: the rotors' lag behind commanded speeds read on the torques (:mod:`uavturb.sysid.command_lag`): the reading,
+    #: the lag the constants were identified at (``applied_s``) and each constant's term for the lags it leaves open
+    #: (``terms``, in the error); None for measured speeds or too few rows
+    command_lag: dict[str, Any] | None = None
 
-    def rotor_speeds_read(self, rotor_speeds: np.ndarray) -> np.ndarray:
-        """Recorded rotor speeds ``rotor_speeds`` (K, N) [rad/s] as these constants were identified on them: moved
-        by the offset applied (:attr:`rotor_speed_offset`, the hover speed kept; an idle speed in the command map),
-        as they are where none was. Torques from these constants need them: the inertia is the rotors' own, and
-        the recorded speeds' differences are larger by the map's scale."""
+    def rotor_speeds_read(self, rotor_speeds: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
+        """Recorded rotor speeds ``rotor_speeds`` (K, N) [rad/s] at times ``t`` (K,) [s] as these constants were
+        identified on them: moved by the offset applied (:attr:`rotor_speed_offset`, the hover speed kept; an idle
+        speed in the command map) and lagged by the lag applied (:attr:`command_lag`; only with ``t``), as they are
+        where neither was. Torques from these constants need them: the inertia is the rotors' own, the recorded
+        speeds' differences are larger by the map's scale, and commands lead the rotors by their lag."""
+        out = np.asarray(rotor_speeds, float)
         found = self.rotor_speed_offset
-        if not found or found["applied_rad_s"] == 0.0:
-            return np.asarray(rotor_speeds, float)
-        return moved_speeds(rotor_speeds, found["applied_rad_s"], found["hover_speed_rad_s"])
+        if found and found["applied_rad_s"] != 0.0:
+            out = moved_speeds(out, found["applied_rad_s"], found["hover_speed_rad_s"])
+        lag = self.command_lag
+        if t is not None and lag and lag["applied_s"] > 0.0:
+            out = lag_rotor_speeds(t, out, lag["applied_s"])
+        return out
 
     def identified(self, name: str) -> bool:
         """Whether the flight determines constant ``name`` (``k_T``, ``J_z``, ...)."""
@@ -204,6 +215,7 @@ class Identification:
             "near_surface_m": self.near_surface_m,
             "thrust_coefficient_surface_term": self.surface_term,
             "rotor_speed_offset": self.rotor_speed_offset,
+            "command_lag": self.command_lag,
             "accel_bias_per_recording": {n: {"value": [float(x) for x in b], "stderr": [float(x) for x in se]}
                                          for n, (b, se) in self.accel_bias_per_recording.items()},
             "sources": "imu+mocap" if self.accel_bias is not None else "mocap",
@@ -515,16 +527,48 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     vehicle, fds, names, usable = _usable_flights(recordings, vehicle, model, window_s)
     raw = [r.rotors.speeds if isinstance(r, Recording) and r.rotors is not None else fd.rotor_speeds
            for r, fd in zip(recordings, fds)]
-    reading = idle_offset(fds, usable.masks, vehicle) if vehicle.rotor_speed_source != "measured" else None
+    commanded = vehicle.rotor_speed_source != "measured"
+    reading = idle_offset(fds, usable.masks, vehicle) if commanded else None
     at, ends = offset_plan(reading)
-    terms: dict[str, float] = {}
-    if ends is not None:  # the offsets the reading leaves open: each constant's error carries half its change
-        lo, hi = (_identified(vehicle, _moved(fds, e, reading), names, usable, raw, model, lag_s, OFFSET_END_DRAWS,
-                              seed) for e in ends)
-        terms = {k: abs(float(hi.values[k]) - float(lo.values[k])) / 2.0 for k in OFFSET_TERM_KEYS}
-    out = _identified(vehicle, _moved(fds, at, reading), names, usable, raw, model, lag_s, n_draws, seed, terms)
+    lag = None
+    if commanded:
+        # the rotors' lag behind the commands, read on the speeds moved as they are identified at; the offset is
+        # then read again on the lagged speeds (commands ahead of the thrust they make blur its level: a
+        # hexarotor's 60 ms lag had moved the offset read, and the inertia 4 % low at 7 errors), and the lag on
+        # the speeds moved by it (a lag and the offset's move commute: the move is affine)
+        lag = command_lag(_moved(fds, at, reading), usable.masks, vehicle)
+        if lag is not None and lag.decisive:
+            reading = idle_offset(lagged(fds, lag.tau_s), usable.masks, vehicle)
+            at, ends = offset_plan(reading)
+            lag = command_lag(_moved(fds, at, reading), usable.masks, vehicle)
+    tau, tau_ends = lag_plan(lag)
+
+    def read_at(offset: float, lag_s_: float) -> list[FlightData]:
+        return lagged(_moved(fds, offset, reading), lag_s_)
+
+    def half_change(pair) -> dict[str, float]:  # each constant's half change between two identifications
+        lo, hi = (_identified(vehicle, read_at(*p), names, usable, raw, model, lag_s, OFFSET_END_DRAWS, seed)
+                  for p in pair)
+        return {k: abs(float(hi.values[k]) - float(lo.values[k])) / 2.0 for k in OFFSET_TERM_KEYS}
+
+    # the offsets and the lags the readings leave open: each constant's error carries half its change across each
+    terms = half_change([(e, tau) for e in ends]) if ends is not None else {}
+    lag_terms = half_change([(at, e) for e in tau_ends]) if tau_ends is not None else {}
+    both = {k: float(np.hypot(terms.get(k, 0.0), lag_terms.get(k, 0.0))) for k in set(terms) | set(lag_terms)}
+    out = _identified(vehicle, read_at(at, tau), names, usable, raw, model, lag_s, n_draws, seed, both)
     out.identification.rotor_speed_offset = _offset_report(reading, at, ends, terms)
+    out.identification.command_lag = None if lag is None else lag.to_dict() | {
+        "applied_s": tau, "ends_s": None if tau_ends is None else list(tau_ends), "terms": lag_terms}
     return out.identification
+
+
+def lag_plan(lag: CommandLag | None) -> tuple[float, tuple[float, float] | None]:
+    """(s, the lag the constants are identified at; s, the two lags whose change their errors carry, or None) for
+    a :func:`~uavturb.sysid.command_lag.command_lag` reading: its value and one standard error either side (the
+    lower clipped at 0) where it is decisive; none otherwise (a lag the torques' timing cannot tell from none)."""
+    if lag is None or not lag.decisive:
+        return 0.0, None
+    return lag.tau_s, lag.ends
 
 
 #: draws of the Monte Carlo at the ends of the offsets a reading leaves open (their medians only are read)

@@ -1,0 +1,76 @@
+"""The rotors' lag behind commanded speeds, read on the torques (``uavturb.sysid.command_lag``): known answers on
+simulated flights whose motors lag their recorded commands, and ``identify`` on the lagged speeds."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from uavturb.commands.identify import format_identification, identify_recordings
+from uavturb.io.reader import read_recording
+from uavturb.sim.flights.condition_schema import Conditions
+from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
+from uavturb.sysid.command_lag import command_lag
+from uavturb.sysid.identification import _usable_flights, identify
+from uavturb.physics.vehicle import HEXAROTOR
+from synthetic import inverse_dynamics_flight
+
+
+@pytest.fixture(scope="module")
+def lagged_commands(tmp_path_factory):
+    """A hexarotor's 30 s excitation flight, its motors 60 ms behind PX4-like commands (an idle speed in the map)."""
+    path = tmp_path_factory.mktemp("lag") / "cmd"
+    generate_conditioned_flight("hex", "motor_lag:tau=0.06", duration=30.0, kind="excitation", seed=16, out=path,
+                                conditions=Conditions(motor_commands=True))
+    return path
+
+
+def test_the_lag_is_read_where_the_torques_fit_best(lagged_commands):
+    vehicle, fds, _, usable = _usable_flights([read_recording(lagged_commands)], None, "auto", 0.05)
+    lag = command_lag(fds, usable.masks, vehicle)
+    assert lag.tau_s == pytest.approx(0.06, abs=0.002) and abs(lag.tau_s - 0.06) < 4 * lag.stderr_s + 1e-3
+    assert 0.0025 <= lag.stderr_s < 0.005 and lag.decisive and lag.ends[0] < lag.tau_s < lag.ends[1]
+    assert lag.correlation > lag.correlation_at_zero
+
+
+def test_identify_reads_the_lag_and_the_inertia_lands_on_the_truth(lagged_commands, capsys):
+    """On the commands as recorded the inertia came out 10-11 % high at 3.6-3.8 stated errors (the torques lead the
+    angular acceleration they cause); read on the lagged speeds, with the idle offset read again on them, it lands
+    within 1 % and two stated errors of the truth, and residuals read the speeds as identify did."""
+    ident = identify_recordings([lagged_commands])
+    truth = read_truth(lagged_commands)
+    lag = ident.command_lag
+    assert lag["applied_s"] == pytest.approx(0.06, abs=0.002) and set(lag["terms"]) >= {"J_x", "J_y"}
+    assert ident.to_dict()["command_lag"] == lag
+    for i in range(3):
+        true = truth["vehicle"]["inertia"][i]
+        assert ident.inertia[i] == pytest.approx(true, rel=0.01)
+        assert abs(ident.inertia[i] - true) < 2 * ident.inertia_se[i]
+
+
+def test_exact_speeds_without_a_lag_read_none_and_are_not_lagged(tmp_path):
+    path = tmp_path / "exact"
+    generate_conditioned_flight("hex", "none", duration=30.0, kind="excitation", seed=16, out=path)
+    ident = identify_recordings([path])
+    lag = ident.command_lag
+    assert lag["tau_s"] < 0.004 and lag["applied_s"] == 0.0 and not lag["decisive"]
+    fd_speeds = read_recording(path).rotors.speeds
+    assert (ident.rotor_speeds_read(fd_speeds, None) == fd_speeds).all()
+
+
+def test_the_identification_says_the_lag_it_read(lagged_commands):
+    text = format_identification(identify_recordings([lagged_commands]))
+    assert re.search(r"the rotors lag the commanded speeds by (59|60)\.\d ± 2\.\d ms", text)
+    assert "identified on the lagged speeds" in text
+
+
+def test_noisy_commands_read_no_lag():
+    """Commands recorded with 5 % white noise and no lag: torques of lagged commands fit the angular acceleration
+    better only because the lag smooths the noise (a least-squares profile read 45 ms, the inertia 13 % higher still
+    than the noise's own attenuation leaves it); the correlation's peak stays within a few milliseconds of zero, and
+    nothing is applied."""
+    fd, _ = inverse_dynamics_flight(HEXAROTOR, duration=40.0, seed=4, rate_amp=(1.6, 1.6, 0.3), rotor_noise=0.05)
+    ident = identify([fd], HEXAROTOR)
+    assert ident.command_lag["tau_s"] < 0.005 and ident.command_lag["applied_s"] == 0.0
+    assert not ident.command_lag["decisive"] and ident.command_lag["terms"] == {}
