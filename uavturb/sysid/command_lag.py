@@ -7,16 +7,18 @@ lead the angular acceleration they cause, and a regression of one on the other r
 ``l k_T / gain`` comes out high (a hexarotor's commands 30 ms ahead of its rotors: ``J_x``, ``J_y`` 3-4 % high at
 2-3 stated errors; 60 ms ahead: 10-13 % at 3.4-3.8).
 
-:func:`command_lag` reads the lag as the time shift ``s`` at which the roll and pitch torques of the commands
-correlate best with the angular acceleration they cause (Pearson's r of ``u_1(t - s)`` with ``w_dot_x(t)`` and of
-``u_2(t - s)`` with ``w_dot_y(t)``, averaged; the causes filtered as the derivative is, as
-:mod:`uavturb.sysid.identification` fits them), on a lattice of ``s``, refined through a parabola at its peak. On
-the simulator's motors (a first-order lag) the peak lies at the time constant (32.5 ms for 30, 60 for 60). A shift
-is read, not the least squares of the torques on lagged commands: a lag smooths noise out of the commands, and that
-fit read 45 ms on noisy commands with no lag at all (the inertia then 13 % high), where the correlation's peak, which
-noise lowers at every shift alike, stays at 0-2.5 ms. Its standard error is the jackknife over
-:data:`LAG_BLOCKS` contiguous blocks of the flights and half a sample step in quadrature (a command held over a step
-acts from its stamp to the next); a lag under two of them is not applied.
+:func:`command_lag` reads the lag ``tau`` at which the roll and pitch torques of the lagged commands line up with the
+angular acceleration they cause: the time shift at which the two correlate best (Pearson's r of ``u_1(t - s)`` with
+``w_dot_x(t)`` and of ``u_2(t - s)`` with ``w_dot_y(t)``, averaged; the causes filtered as the derivative is, as
+:mod:`uavturb.sysid.identification` fits them) falls to zero. A shift's peak is what is read, not the least squares
+of the torques on lagged commands: a lag smooths noise out of the commands, and that fit read 45 ms on noisy commands
+with no lag at all (the inertia then 13 % high), where the peak, which noise lowers at every shift alike, stays at
+zero. Nor the shift of the commands as recorded: a first-order lag delays a swing by ``atan(omega tau) / omega``,
+less than ``tau`` for fast swings (the simulator's 30 ms motors read 32.5 so; the lagged commands' peak reaches zero at
+30.3). On a lattice of ``tau`` the peak's shift is found for all the rows and without each of :data:`LAG_BLOCKS`
+contiguous blocks in turn; where it crosses zero (linearly between lattice values) is the lag, the jackknife of the
+blocks' values its error, with half a sample step in quadrature (a command held over a step acts from its stamp to
+the next); a lag under :data:`LAG_DECISIVE_Z` errors is not applied.
 """
 
 from __future__ import annotations
@@ -27,13 +29,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from uavturb.numerics.blocks import contiguous_blocks, jackknife_se
-from uavturb.physics.effects import lag_rotor_speeds
+from uavturb.physics.effects import lag_rotor_speeds, lag_stretches
 from uavturb.physics.vehicle import Vehicle
 from uavturb.sysid.flight_data import FlightData
 
 #: s, the largest lag searched (beyond every motor in ``effects.md``'s magnitudes and Neural-Swarm's Crazyflies), and
-#: s, the lattice's step
-COMMAND_LAG_MAX_S, COMMAND_LAG_STEP_S = 0.2, 0.0025
+#: s, the lattice of lags' step; s, the shifts tried either side of zero for the peak, and their step
+COMMAND_LAG_MAX_S, TAU_STEP_S = 0.2, 0.005
+SHIFT_HALF_S, COMMAND_LAG_STEP_S = 0.02, 0.0025
 
 
 #: contiguous blocks of each flight left out in turn for the lag's jackknife error; a lag applied stands this many
@@ -49,12 +52,12 @@ class CommandLag:
 
     Attributes
     ----------
-    tau_s : s, the shift at which the torques of the commands correlate best with the angular acceleration
+    tau_s : s, the lag at which the lagged commands' torques correlate best with the angular acceleration unshifted
     stderr_s : s, its standard error: the jackknife over :data:`LAG_BLOCKS` blocks and half a sample step in
         quadrature (``inf`` where it cannot be formed)
     rows : rows the reading used
-    correlation, correlation_at_zero : the torques' mean correlation with the angular acceleration at ``tau_s`` and
-        as recorded
+    correlation, correlation_at_zero : the torques' mean correlation with the angular acceleration, unshifted, with
+        the commands lagged by ``tau_s`` and as recorded
     """
 
     tau_s: float
@@ -98,47 +101,88 @@ def command_lag(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle:
     for fd, m in zip(fds, masks):
         if m.sum() < 10:
             continue
-        u = fd.matched((fd.rotor_speeds**2) @ M[1:3].T)  # the roll and pitch torques' rotor columns
         idx = np.flatnonzero(m)[::step]
-        parts.append((fd.t, u, idx, fd.dw[idx, :2], contiguous_blocks(fd.t[idx], LAG_BLOCKS)))
-    rows = sum(len(p[2]) for p in parts)
+        parts.append((fd, idx, fd.dw[idx, :2], contiguous_blocks(fd.t[idx], LAG_BLOCKS), lag_stretches(fd.t)))
+    rows = sum(len(p[1]) for p in parts)
     if rows < 50:
         return None
-    shifts = np.arange(0.0, COMMAND_LAG_MAX_S + COMMAND_LAG_STEP_S / 2, COMMAND_LAG_STEP_S)
-    # each flight's torques at its rows shifted by every lattice value, once (the jackknife reuses them)
-    shifted = [np.stack([np.stack([np.interp(t[idx] - s, t, u[:, a]) for a in (0, 1)], 1) for s in shifts])
-               for t, u, idx, _, _ in parts]
+    shifts = np.arange(-SHIFT_HALF_S, SHIFT_HALF_S + COMMAND_LAG_STEP_S / 2, COMMAND_LAG_STEP_S)
+    taus = np.arange(0.0, COMMAND_LAG_MAX_S + TAU_STEP_S / 2, TAU_STEP_S)
+    at_zero = int(np.argmin(np.abs(shifts)))
 
-    def profile(left_out: int | None) -> np.ndarray:
-        r = []
-        for a in (0, 1):
-            keep = [p[4] != left_out for p in parts]
-            y = np.concatenate([p[3][k, a] for p, k in zip(parts, keep)])
-            x = np.concatenate([sh[:, k, a] for sh, k in zip(shifted, keep)], axis=1)  # (shifts, rows)
-            x = x - x.mean(axis=1, keepdims=True)
-            y = y - y.mean()
-            with np.errstate(invalid="ignore", divide="ignore"):
-                r.append((x @ y) / np.sqrt((x * x).sum(axis=1) * (y @ y)))
-        return np.mean(r, axis=0)
+    def block_sums(tau: float) -> np.ndarray:
+        """(LAG_BLOCKS, 2 axes, 5, shifts): per block, the sums of x, y, xy, xx, yy of the torques' rotor columns
+        shifted (x) and the angular acceleration (y)."""
+        out = np.zeros((LAG_BLOCKS, 2, 5, len(shifts)))
+        for fd, idx, dw, block, stretches in parts:
+            speeds = fd.rotor_speeds if tau <= 0 else lag_rotor_speeds(fd.t, fd.rotor_speeds, tau, stretches)
+            u = fd.matched((speeds**2) @ M[1:3].T)  # the roll and pitch torques' rotor columns
+            for a in (0, 1):
+                x = np.stack([np.interp(fd.t[idx] - sh, fd.t, u[:, a]) for sh in shifts])  # (shifts, rows)
+                y = dw[:, a]
+                for b in range(LAG_BLOCKS):
+                    k = block == b
+                    xb, yb = x[:, k], y[k]
+                    out[b, a] += [xb.sum(axis=1), np.full(len(shifts), yb.sum()), xb @ yb, (xb * xb).sum(axis=1),
+                                  np.full(len(shifts), yb @ yb)]
+        return out
 
-    def peak(corr: np.ndarray) -> float:
-        if not np.any(np.isfinite(corr)):
-            return float("nan")
-        k = int(np.nanargmax(corr))
-        if k == 0 or k == len(shifts) - 1:
-            return float(shifts[k])
-        left, mid, right = corr[k - 1:k + 2]
-        den = left - 2.0 * mid + right
-        return float(shifts[k] + (0.5 * COMMAND_LAG_STEP_S * (left - right) / den if den < 0 else 0.0))
+    def correlation(sums: np.ndarray, n: float) -> np.ndarray:
+        """(shifts,) the mean over the two axes of Pearson's r from ``sums`` (2, 5, shifts) of ``n`` rows."""
+        sx, sy, sxy, sxx, syy = np.moveaxis(sums, 1, 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = (sxy - sx * sy / n) / np.sqrt((sxx - sx * sx / n) * (syy - sy * sy / n))
+        return r.mean(axis=0)
 
-    corr = profile(None)
-    if not np.any(np.isfinite(corr)):
+    counts = np.zeros(LAG_BLOCKS)
+    for _, _, _, block, _ in parts:
+        counts += np.bincount(block, minlength=LAG_BLOCKS)[:LAG_BLOCKS]
+    peaks = np.full((LAG_BLOCKS + 1, len(taus)), np.nan)  # row 0: every row; row 1 + b: without block b
+    corr_at_zero = np.full(len(taus), np.nan)
+    for j, tau in enumerate(taus):
+        sums = block_sums(float(tau))
+        whole = correlation(sums.sum(axis=0), counts.sum())
+        corr_at_zero[j] = whole[at_zero]
+        peaks[0, j] = _peak(shifts, whole)
+        for b in range(LAG_BLOCKS):
+            peaks[1 + b, j] = _peak(shifts, correlation(sums.sum(axis=0) - sums[b], counts.sum() - counts[b]))
+        if np.all(peaks[:, j] <= 0):
+            break  # every reading has crossed zero: larger lags move the peak further below it
+    if not np.isfinite(peaks[0, 0]):
         return None
-    tau = peak(corr)
-    loo = np.array([peak(profile(b)) for b in range(LAG_BLOCKS)])
+    tau = _crossing(taus, peaks[0])
+    loo = np.array([_crossing(taus, p) for p in peaks[1:]])
     loo = loo[np.isfinite(loo)]
     se = float(jackknife_se(loo)) if len(loo) >= 2 else float("inf")
-    # a command held over a sample step acts from its stamp to the next: its timing is known to half a step (the
-    # simulator's exact commands, held so, read 2.4 +- 0.4 ms by the jackknife alone; its 30 ms motors 32.5 ms)
-    half_step = 0.5 * float(np.median(np.concatenate([np.diff(p[0]) for p in parts])))
-    return CommandLag(tau, float(np.hypot(se, half_step)), rows, float(np.nanmax(corr)), float(corr[0]))
+    half_step = 0.5 * float(np.median(np.concatenate([np.diff(p[0].t) for p in parts])))
+    done = np.isfinite(corr_at_zero)
+    at = float(np.interp(tau, taus[done], corr_at_zero[done]))
+    return CommandLag(tau, float(np.hypot(se, half_step)), rows, at, float(corr_at_zero[0]))
+
+
+def _peak(shifts: np.ndarray, corr: np.ndarray) -> float:
+    """s, the shift at which ``corr`` (one a shift) peaks, refined through a parabola (nan where it is not finite)."""
+    if not np.any(np.isfinite(corr)):
+        return float("nan")
+    k = int(np.nanargmax(corr))
+    if k == 0 or k == len(shifts) - 1:
+        return float(shifts[k])
+    left, mid, right = corr[k - 1:k + 2]
+    den = left - 2.0 * mid + right
+    return float(shifts[k] + (0.5 * (shifts[1] - shifts[0]) * (left - right) / den if den < 0 else 0.0))
+
+
+def _crossing(taus: np.ndarray, peaks: np.ndarray) -> float:
+    """s, the first lag at which the peak's shift ``peaks`` (one a lag, nan beyond those computed) falls to zero,
+    linearly between lattice values: 0 where it is not above zero without a lag, the largest lag where it never
+    falls; nan where it cannot be read."""
+    if not np.isfinite(peaks[0]):
+        return float("nan")
+    if peaks[0] <= 0:
+        return 0.0
+    for j in range(1, len(taus)):
+        if not np.isfinite(peaks[j]):
+            return float("nan")
+        if peaks[j] <= 0:
+            return float(taus[j - 1] + (taus[j] - taus[j - 1]) * peaks[j - 1] / (peaks[j - 1] - peaks[j]))
+    return float(taus[-1])
