@@ -109,7 +109,13 @@ def flight_facts(data: GapData, k_T: float) -> FlightFacts:
                        bias_anchored=data.has_imu and not data.fits_bias, arm_length=data.arm_length,
                        d_down_min=float(d_down.min()) if len(d_down) else float("inf"),
                        d_up_min=float(d_up.min()) if len(d_up) else float("inf"), duration_s=duration,
-                       **_voltage_facts(data))
+                       **_voltage_facts(data), **_torque_facts(data))
+
+
+def _torque_facts(data: GapData) -> dict[str, float]:
+    """The torques' lag behind commanded rotor speeds and its error [s] (:attr:`GapData.torque_lag`; {} without)."""
+    lag = data.torque_lag
+    return {} if lag is None else {"torque_lag_s": lag.tau_s, "torque_lag_stderr_s": lag.stderr_s}
 
 
 def _voltage_facts(data: GapData) -> dict[str, float]:

@@ -25,7 +25,7 @@ registry (:data:`uavturb.physics.effects.EFFECTS`), never listed here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -144,6 +144,9 @@ class GapData:
     _groups: frozenset | None = field(default=None, repr=False)
     _zb: np.ndarray | None = field(default=None, repr=False)
     dense: "GapData | None" = field(default=None, repr=False)
+    #: the roll and pitch torques' lag behind commanded rotor speeds (:class:`~uavturb.sysid.command_lag.CommandLag`)
+    #: read on the contiguous flights (None: measured or held speeds; subsets do not carry it)
+    torque_lag: Any = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.t)

@@ -105,6 +105,7 @@ from uavturb.physics.effects import (
     defaults,
     total_force,
 )
+from uavturb.sysid.command_lag import CommandLag, command_lag
 from uavturb.sysid.flight_data import flight_data, rotor_hold_s
 
 SCHEMA = "uavturb.gap/1"
@@ -471,7 +472,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         "facts": {"weight_N": facts.mass * GRAVITY, "heading_span_deg": facts.heading_span_deg,
                   "speed_p90_m_s": facts.speed_p90,
                   "d_down_min_m": facts.d_down_min, "d_up_min_m": facts.d_up_min, "has_imu": facts.has_imu,
-                  "duration_s": facts.duration_s},
+                  "duration_s": facts.duration_s}
+        | ({"torque_lag": data.torque_lag.to_dict()} if data.torque_lag is not None else {}),
         "final": {"heldout_rmse_N": sel.final_heldout.rmse, "rmse_N": float(np.sqrt(np.mean(np.sum(rf**2, 1))))},
         "unexplained": unexplained,
         "open_loop": {"horizon_s": 0.5, "before_m": _open_loop(data, base.force),
@@ -527,9 +529,21 @@ def _flight_rows(fds: list, vehicles: Sequence[Any], paths: Sequence[str]
     fds[:], landed = landings_aligned(fds, vehicle)
     contact, contact_report = contact_masks(fds, vehicle, paths)
     masses = [v.mass for v in vehicles]
+    torque = _torques_timed(fds, vehicle, contact)
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient, release=True,
                     arm_length=vehicle.arm_length, exclude=contact, masses=None if len(set(masses)) == 1 else masses)
+    data.torque_lag = torque
     return data, contact_report, landed
+
+
+def _torques_timed(fds: list, vehicle: Any, contact: list[np.ndarray]) -> CommandLag | None:
+    """How far the roll and pitch torques lag commanded rotor speeds, timed on the angular acceleration in the air
+    (:func:`uavturb.sysid.command_lag.command_lag`, as ``identify`` reads it): a motor-lag explanation checks its
+    thrust's lag against it. None for measured speeds (the rotors' own) and held streams (a hold reads as a lag)."""
+    if vehicle.rotor_speed_source == "measured" or any(fd.rotor_fresh is not None for fd in fds):
+        return None
+    masks = [~c & np.isfinite(fd.dw).all(axis=1) for fd, c in zip(fds, contact)]
+    return command_lag(fds, masks, vehicle)
 
 
 def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordings: Sequence, paths: Sequence[str],
