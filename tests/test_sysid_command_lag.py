@@ -14,6 +14,7 @@ from uavturb.io.reader import read_recording
 from uavturb.physics.effects import FlightFacts
 from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
+import uavturb.sysid.command_lag as cl
 from uavturb.sysid.command_lag import command_lag
 from uavturb.sysid.identification import _usable_flights, identify
 from uavturb.physics.vehicle import HEXAROTOR
@@ -98,3 +99,15 @@ def test_a_motor_lag_explanation_says_what_the_torques_time():
     assert "lag them by 30 ± 2 ms" in alike or "lag them by 30 ± 3 ms" in alike
     plain = explanation("motor_lag", {"tau": 0.030}, _facts())
     assert plain.startswith("The rotors follow") and "torques" not in plain
+
+
+def test_a_long_flight_is_read_on_a_bounded_stretch(lagged_commands, monkeypatch):
+    """The reading runs its filters over a stretch of at most LAG_ROWS rows from the middle of the flights (and a
+    second before it for the lag filter to settle), not the whole flight at every lag: a tenth of the rows reads the
+    same lag within its error."""
+    vehicle, fds, _, usable = _usable_flights([read_recording(lagged_commands)], None, "auto", 0.05)
+    whole = command_lag(fds, usable.masks, vehicle)
+    monkeypatch.setattr(cl, "LAG_ROWS", 600)
+    part = command_lag(fds, usable.masks, vehicle)
+    assert part.rows == 600 < whole.rows
+    assert abs(part.tau_s - 0.06) < 2 * part.stderr_s and part.stderr_s >= whole.stderr_s * 0.9

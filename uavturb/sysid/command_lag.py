@@ -42,8 +42,10 @@ SHIFT_HALF_S, COMMAND_LAG_STEP_S = 0.02, 0.0025
 #: contiguous blocks of each flight left out in turn for the lag's jackknife error; a lag applied stands this many
 #: standard errors from zero
 LAG_BLOCKS, LAG_DECISIVE_Z = 5, 2.0
-#: rows the reading uses at most (evenly thinned beyond: 81 shifts of 20,000 rows' two torques are 26 MB)
-LAG_ROWS = 20_000
+#: rows the reading uses at most, shared among the flights, each's from the middle of its rows (17 shifts of 20,000
+#: rows' two torques are 5 MB), and s, the rows before them its lag filter runs over to settle (five of the longest
+#: lag searched)
+LAG_ROWS, LAG_WARM_UP_S = 20_000, 1.0
 
 
 @dataclass(frozen=True)
@@ -95,13 +97,13 @@ def command_lag(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle:
     """The rotors' lag behind the commanded speeds of ``fds`` read on their rows ``masks`` (module docstring); None
     with too few rows, or where the torques do not vary."""
     M = vehicle.mixer()
-    total = int(sum(m.sum() for m in masks))
-    step = max(1, total // LAG_ROWS)  # a long flight's rows thinned evenly: memory and time stay bounded
+    per = max(LAG_ROWS // max(len(fds), 1), 10)
     parts = []
     for fd, m in zip(fds, masks):
         if m.sum() < 10:
             continue
-        idx = np.flatnonzero(m)[::step]
+        fd, m = _window(fd, m, per)
+        idx = np.flatnonzero(m)
         parts.append((fd, idx, fd.dw[idx, :2], contiguous_blocks(fd.t[idx], LAG_BLOCKS), lag_stretches(fd.t)))
     rows = sum(len(p[1]) for p in parts)
     if rows < 50:
@@ -158,6 +160,24 @@ def command_lag(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle:
     done = np.isfinite(corr_at_zero)
     at = float(np.interp(tau, taus[done], corr_at_zero[done]))
     return CommandLag(tau, float(np.hypot(se, half_step)), rows, at, float(corr_at_zero[0]))
+
+
+def _window(fd: FlightData, mask: np.ndarray, rows: int) -> tuple[FlightData, np.ndarray]:
+    """The flight cut to a stretch of its rows holding at most ``rows`` of ``mask``'s (its middle ones), with
+    :data:`LAG_WARM_UP_S` before them for the lag filter to settle, and the mask on it: a long recording's filters
+    then run over a bounded stretch, not the whole flight at every lag tried."""
+    idx = np.flatnonzero(mask)
+    if len(idx) <= rows:
+        return fd, mask
+    first = (len(idx) - rows) // 2
+    start, stop = idx[first], idx[first + rows - 1] + 1
+    begin = int(np.searchsorted(fd.t, fd.t[start] - LAG_WARM_UP_S))
+    keep = np.zeros(len(fd), bool)
+    keep[begin:stop] = True
+    inner = mask.copy()
+    inner[:start] = False
+    inner[stop:] = False
+    return fd.subset(keep), inner[keep]
 
 
 def _peak(shifts: np.ndarray, corr: np.ndarray) -> float:
