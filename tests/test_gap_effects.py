@@ -90,7 +90,7 @@ def lag_flights(tmp_path_factory):
     return [_flight(root, f"lag{k}", "motor_lag:tau=0.03", 51 + k) for k in range(2)]
 
 
-def test_motor_lag_named_and_fitted_over_two_recordings(lag_flights):
+def test_motor_lag_named_and_fitted_over_two_recordings(lag_flights, tmp_path):
     report, named = _named(lag_flights)
     assert report["protocol"] == "leave-one-recording-out"
     assert list(named) == ["motor_lag"]
@@ -109,6 +109,9 @@ def test_motor_lag_named_and_fitted_over_two_recordings(lag_flights):
     assert abs(torque["tau_s"] - 0.03) < 2 * torque["stderr_s"] and torque["decisive"]
     text = named["motor_lag"]["explanation"]
     assert text.startswith("The rotors follow their recorded speeds") and "the roll and pitch torques" in text
+    write_markdown(tmp_path, report, [])
+    md = (tmp_path / "report.md").read_text()
+    assert "- **Commanded rotor speeds**: the roll and pitch torques line up" in md and "the motors' own lag" in md
 
 
 # --- slower: each effect alone, look-alike drags, pairs --------------------------------------------

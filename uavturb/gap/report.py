@@ -444,6 +444,7 @@ def _recording_lines(report: dict, names: dict[str, str]) -> list[str]:
               for why in streams.get("stream_limits", [])]
         L += [_delay_line(d, names) for d in streams.get("delays", [])]
         L += _dropout_lines(streams.get("dropouts", []), names)
+        L += _torque_lag_line((report.get("facts") or {}).get("torque_lag"))
     nominal = report.get("nominal", {})
     if nominal.get("thrust_level_note"):
         L += ["", f"Thrust levels: {nominal['thrust_level_note']}."]
@@ -534,6 +535,17 @@ def _not_named_lines(report: dict) -> list[str]:
         L.append(text + (f". To show it: {manoeuvre}." if manoeuvre else "."))
     return (["", "## Tried, not named",
              "Each candidate the data did not support, with what it gained on the held-out rows."] + L) if L else []
+
+
+def _torque_lag_line(lag: dict | None) -> list[str]:
+    """The commanded rotor speeds' timing against the torques they make (``facts.torque_lag``), or nothing."""
+    if not lag:
+        return []
+    said = (f"the roll and pitch torques line up with the angular acceleration with the commands lagged by "
+            f"{1e3 * lag['tau_s']:.0f} ± {1e3 * lag['stderr_s']:.0f} ms (correlation {lag['correlation']:.2f}, "
+            f"against {lag['correlation_at_zero']:.2f} as recorded)")
+    how = ("the motors' own lag" if lag["decisive"] else "no lag the torques can tell from none")
+    return [f"- **Commanded rotor speeds**: {said}: {how}."]
 
 
 def _passed_beside_unphysical(tried: dict[str, float]) -> tuple[str, int, float] | None:
