@@ -2,9 +2,9 @@
 
 Most vehicles record the speeds they command (``vehicle.yaml``'s ``rotor_speed_source``: commanded), and their
 motors follow them with a first-order lag (``effects.md``'s ``motor_lag``: RotorS's 12.5-25 ms, Neural-Lander's
-45 ms, Neural-Swarm's Crazyflies 60-80 ms as ``uavturb gap`` reads them). Torques computed from the commands then
-lead the angular acceleration they cause, and a regression of one on the other reads a smaller gain: the inertia
-``l k_T / gain`` comes out high (a hexarotor's commands 30 ms ahead of its rotors: ``J_x``, ``J_y`` 3-4 % high at
+45 ms; on Neural-Swarm's Crazyflies the thrust lags 56-77 ms, the torques 10-23 ms). Torques computed from the
+commands then lead the angular acceleration they cause, and a regression of one on the other reads a smaller gain:
+the inertia ``l k_T / gain`` comes out high (a hexarotor's commands 30 ms ahead of its rotors: ``J_x``, ``J_y`` 3-4 % high at
 2-3 stated errors; 60 ms ahead: 10-13 % at 3.4-3.8).
 
 :func:`command_lag` reads the lag ``tau`` at which the roll and pitch torques of the lagged commands line up with the
@@ -15,7 +15,7 @@ of the torques on lagged commands: a lag smooths noise out of the commands, and 
 with no lag at all (the inertia then 13 % high), where the peak, which noise lowers at every shift alike, stays at
 zero. Nor the shift of the commands as recorded: a first-order lag delays a swing by ``atan(omega tau) / omega``,
 less than ``tau`` for fast swings (the simulator's 30 ms motors read 32.5 so; the lagged commands' peak reaches zero at
-30.3). On a lattice of ``tau`` the peak's shift is found for all the rows and without each of :data:`LAG_BLOCKS`
+30.4). On a lattice of ``tau`` the peak's shift is found for all the rows and without each of :data:`LAG_BLOCKS`
 contiguous blocks in turn; where it crosses zero (linearly between lattice values) is the lag, the jackknife of the
 blocks' values its error, with half a sample step in quadrature (a command held over a step acts from its stamp to
 the next); a lag under :data:`LAG_DECISIVE_Z` errors is not applied.
@@ -36,7 +36,7 @@ from uavturb.sysid.flight_data import FlightData
 #: s, the largest lag searched (beyond every motor in ``effects.md``'s magnitudes and Neural-Swarm's Crazyflies), and
 #: s, the lattice of lags' step; s, the shifts tried either side of zero for the peak, and their step
 COMMAND_LAG_MAX_S, TAU_STEP_S = 0.2, 0.005
-SHIFT_HALF_S, COMMAND_LAG_STEP_S = 0.02, 0.0025
+SHIFT_HALF_S, SHIFT_STEP_S = 0.02, 0.0025
 
 
 #: contiguous blocks of each flight left out in turn for the lag's jackknife error; a lag applied stands this many
@@ -108,7 +108,7 @@ def command_lag(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle:
     rows = sum(len(p[1]) for p in parts)
     if rows < 50:
         return None
-    shifts = np.arange(-SHIFT_HALF_S, SHIFT_HALF_S + COMMAND_LAG_STEP_S / 2, COMMAND_LAG_STEP_S)
+    shifts = np.arange(-SHIFT_HALF_S, SHIFT_HALF_S + SHIFT_STEP_S / 2, SHIFT_STEP_S)
     taus = np.arange(0.0, COMMAND_LAG_MAX_S + TAU_STEP_S / 2, TAU_STEP_S)
     at_zero = int(np.argmin(np.abs(shifts)))
 
