@@ -4,8 +4,8 @@ Most vehicles record the speeds they command (``vehicle.yaml``'s ``rotor_speed_s
 motors follow them with a first-order lag (``effects.md``'s ``motor_lag``: RotorS's 12.5-25 ms, Neural-Lander's
 45 ms; on Neural-Swarm's Crazyflies the thrust lags 56-77 ms, the torques 10-23 ms). Torques computed from the
 commands then lead the angular acceleration they cause, and a regression of one on the other reads a smaller gain:
-the inertia ``l k_T / gain`` comes out high (a hexarotor's commands 30 ms ahead of its rotors: ``J_x``, ``J_y`` 3-4 % high at
-2-3 stated errors; 60 ms ahead: 10-13 % at 3.4-3.8).
+the inertia ``l k_T / gain`` comes out high (a hexarotor's commands 30 ms ahead of its rotors: ``J_x``, ``J_y``
+3-4 % high at 2-3 stated errors; 60 ms ahead: 10-13 % at 3.4-3.8).
 
 :func:`command_lag` reads the lag ``tau`` at which the roll and pitch torques of the lagged commands line up with the
 angular acceleration they cause: the time shift at which the two correlate best (Pearson's r of ``u_1(t - s)`` with
