@@ -539,11 +539,13 @@ def _not_named_lines(report: dict) -> list[str]:
 
 def _torque_lag_line(lag: dict | None) -> list[str]:
     """The commanded rotor speeds' timing against the torques they make (``facts.torque_lag``), or nothing."""
-    if not lag:
+    if not lag or lag.get("tau_s") is None:
         return []
+    se = lag.get("stderr_s")
+    error = f" ± {1e3 * se:.0f}" if se is not None and np.isfinite(se) else ""
     said = (f"the roll and pitch torques line up with the angular acceleration with the commands lagged by "
-            f"{1e3 * lag['tau_s']:.0f} ± {1e3 * lag['stderr_s']:.0f} ms (correlation {lag['correlation']:.2f}, "
-            f"against {lag['correlation_at_zero']:.2f} as recorded)")
+            f"{1e3 * lag['tau_s']:.0f}{error} ms (correlation {lag['correlation']:.2f}, against "
+            f"{lag['correlation_at_zero']:.2f} as recorded)")
     how = ("the motors' own lag" if lag["decisive"] else "no lag the torques can tell from none")
     return [f"- **Commanded rotor speeds**: {said}: {how}."]
 

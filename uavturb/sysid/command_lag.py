@@ -153,6 +153,8 @@ def command_lag(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle:
     if not np.isfinite(peaks[0, 0]):
         return None
     tau = _crossing(taus, peaks[0])
+    if not np.isfinite(tau):
+        return None  # rows whose torques are not finite at some lag: nothing to state
     loo = np.array([_crossing(taus, p) for p in peaks[1:]])
     loo = loo[np.isfinite(loo)]
     se = float(jackknife_se(loo)) if len(loo) >= 2 else float("inf")
