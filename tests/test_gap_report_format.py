@@ -373,3 +373,24 @@ def test_a_ground_law_not_named_on_flights_that_hovered_near_the_floor_asks_for_
         text = (tmp_path / "report.md").read_text()
         assert said in text
         assert "`rotor_drag`: held-out gain -0.3 errors at step 1 (4 needed). To show it: fly at several" in text
+
+
+def test_a_motor_lag_not_named_says_what_the_torques_time(tmp_path):
+    """A gentle flight's thrust cannot show a 30 ms motor lag on its held-out rows (z 1.3), but its roll and pitch
+    torques time it (facts.torque_lag, decisive): the line under Tried, not named says so."""
+    report = _one_effect_report({"name": "ground_effect", "params": {"mu": 3.0}, "stderr": {"mu": 1.0},
+                                 "heldout_rmse_before_N": 0.5, "heldout_rmse_after_N": 0.2, "z_heldout": 9.0,
+                                 "explanation": "lift"},
+                                candidates_tried={"motor_lag": {"step1_z": 1.3}},
+                                facts={"torque_lag": {"tau_s": 0.0304, "stderr_s": 0.0025, "decisive": True,
+                                                      "correlation": 0.99, "correlation_at_zero": 0.97, "rows": 6000}},
+                                streams={"streams": ["a/q1/rotors0: 8001 rows"]})
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    (line,) = [x for x in text.splitlines() if x.startswith("- `motor_lag`: held-out gain 1.3")]
+    assert "the roll and pitch torques lag the commands by 30 ± 2 ms" in line or "by 30 ± 3 ms" in line
+    assert "- **Commanded rotor speeds**: the roll and pitch torques line up" in text and "the motors' own lag" in text
+    report["facts"]["torque_lag"]["decisive"] = False
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert "torques lag the commands" not in text and "no lag the torques can tell from none" in text

@@ -525,6 +525,11 @@ def _not_named_lines(report: dict) -> list[str]:
                      f"`{partner}` was not named (see above)")
         if name in carried:
             text += "; fitted beside the named effects, it is in their errors (untaken candidate)"
+        lag = (report.get("facts") or {}).get("torque_lag")
+        if name == "motor_lag" and lag and lag.get("decisive"):
+            text += (f"; the roll and pitch torques lag the commands by {1e3 * lag['tau_s']:.0f} ± "
+                     f"{1e3 * lag['stderr_s']:.0f} ms (What the streams hold): the motors lag, though the thrust's "
+                     "held-out rows could not show it")
         beside = _passed_beside_unphysical(tried)
         if beside is not None:
             partner, step, z = beside

@@ -18,7 +18,8 @@ less than ``tau`` for fast swings (the simulator's 30 ms motors read 32.5 so; th
 30.4). On a lattice of ``tau`` the peak's shift is found for all the rows and without each of :data:`LAG_BLOCKS`
 contiguous blocks in turn; where it crosses zero (linearly between lattice values) is the lag, the jackknife of the
 blocks' values its error, with half a sample step in quadrature (a command held over a step acts from its stamp to
-the next); a lag under :data:`LAG_DECISIVE_Z` errors is not applied.
+the next); a lag under :data:`LAG_DECISIVE_Z` errors is not applied. Torques that correlate with the angular
+acceleration under ``io.consistency``'s ``TORQUE_CLOCK_MIN_CORRELATION`` at every lag tried give no reading.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from uavturb.io.consistency import TORQUE_CLOCK_MIN_CORRELATION
 from uavturb.numerics.blocks import contiguous_blocks, jackknife_se
 from uavturb.physics.effects import lag_rotor_speeds, lag_stretches
 from uavturb.physics.vehicle import Vehicle
@@ -155,6 +157,10 @@ def command_lag(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle:
     tau = _crossing(taus, peaks[0])
     if not np.isfinite(tau):
         return None  # rows whose torques are not finite at some lag: nothing to state
+    if not np.nanmax(corr_at_zero) >= TORQUE_CLOCK_MIN_CORRELATION:
+        # torques that barely resemble the angular acceleration (a no-IMU flight's differentiated attitude: 0.03)
+        # time nothing; their peak would read "0 +- 5 ms" with every block agreeing on noise
+        return None
     loo = np.array([_crossing(taus, p) for p in peaks[1:]])
     loo = loo[np.isfinite(loo)]
     se = float(jackknife_se(loo)) if len(loo) >= 2 else float("inf")
