@@ -543,8 +543,8 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
             lag = command_lag(_moved(fds, at, reading), usable.masks, vehicle)
     tau, tau_ends = lag_plan(lag)
 
-    def read_at(offset: float, lag_s_: float) -> list[FlightData]:
-        return lagged(_moved(fds, offset, reading), lag_s_)
+    def read_at(offset: float, tau_s: float) -> list[FlightData]:  # the flights' speeds moved, then lagged
+        return lagged(_moved(fds, offset, reading), tau_s)
 
     def half_change(pair) -> dict[str, float]:  # each constant's half change between two identifications
         lo, hi = (_identified(vehicle, read_at(*p), names, usable, raw, model, lag_s, OFFSET_END_DRAWS, seed)
