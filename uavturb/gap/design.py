@@ -25,7 +25,7 @@ registry (:data:`uavturb.physics.effects.EFFECTS`), never listed here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -35,6 +35,7 @@ from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, EffectInputs, lag_rotor_speeds, lag_stretches
 from uavturb.sysid.accelerometer import anchored_bias
+from uavturb.sysid.command_lag import CommandLag
 from uavturb.sysid.flight_data import FlightData
 
 #: rows in flight a recording needs to be fitted alone for the spread between recordings
@@ -144,9 +145,9 @@ class GapData:
     _groups: frozenset | None = field(default=None, repr=False)
     _zb: np.ndarray | None = field(default=None, repr=False)
     dense: "GapData | None" = field(default=None, repr=False)
-    #: the roll and pitch torques' lag behind commanded rotor speeds (:class:`~uavturb.sysid.command_lag.CommandLag`)
+    #: the roll and pitch torques' lag behind commanded rotor speeds
     #: read on the contiguous flights (None: measured or held speeds; subsets do not carry it)
-    torque_lag: Any = field(default=None, repr=False)
+    torque_lag: CommandLag | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.t)
