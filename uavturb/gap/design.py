@@ -31,6 +31,7 @@ import numpy as np
 
 from uavturb.sysid.nominal import ThrustLevels, moved_speeds, thrust_levels
 from uavturb.numerics.filters import savgol_filter
+from uavturb.numerics.threads import in_threads
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, EffectInputs, lag_rotor_speeds, lag_stretches
@@ -213,10 +214,14 @@ class GapData:
         at least (None: all); each recording's lag is filtered once per ``key``."""
         out = self._recently_used(key) if key in self._lag_cache else self._keep_lagged(key, np.empty(len(self)))
         done = self._lag_done.setdefault(key, set())
-        for g, rows, stretches in self._lag_plan():
-            if g not in done and (groups is None or g in groups):
-                out[rows] = sum_of_squares(lag_rotor_speeds(self.t[rows], self.rotor_speeds[rows], key, stretches))
-                done.add(g)
+        todo = [(g, rows, stretches) for g, rows, stretches in self._lag_plan()
+                if g not in done and (groups is None or g in groups)]
+        # each recording alone, so several at once (the filter's passes over whole arrays release the GIL)
+        for (g, rows, _), lagged in zip(todo, in_threads(
+                lambda plan: sum_of_squares(lag_rotor_speeds(self.t[plan[1]], self.rotor_speeds[plan[1]], key,
+                                                             plan[2])), todo)):
+            out[rows] = lagged
+            done.add(g)
         return out
 
     def _recently_used(self, key: float) -> np.ndarray:

@@ -29,6 +29,7 @@ from uavturb.io.body_frame import moved_origin
 from uavturb.io.consistency import FLIGHT_SHARE
 from uavturb.io.recording import GroundTruth, Recording, Rotors
 from uavturb.numerics.stream_updates import update_mask
+from uavturb.numerics.threads import in_threads
 from uavturb.physics import quaternion as quat
 from uavturb.physics.constants import GRAVITY
 from uavturb.physics.effects import strongest_surface_lift
@@ -236,7 +237,8 @@ def _landed_low(fd: FlightData, rows: tuple, mass: float) -> float | None:
 def landings_aligned(fds: Sequence[FlightData], vehicle: Vehicle) -> tuple[list[FlightData], LandedHeights]:
     """The flights with their heights moved so that the recordings that land land at one rotor-plane height
     (:mod:`uavturb.gap.landed_heights`), and what was read and moved."""
-    landed = landed_alignment([_landed_low(fd, _contact_rows(fd, vehicle), vehicle.mass) for fd in fds])
+    landed = landed_alignment(list(in_threads(lambda fd: _landed_low(fd, _contact_rows(fd, vehicle), vehicle.mass),
+                                              fds)))
     return [moved_heights(fd, s) for fd, s in zip(fds, landed.shifts)], landed
 
 
@@ -256,13 +258,16 @@ def contact_masks(fds: Sequence[FlightData], vehicle: Vehicle, paths: Sequence[s
     hovers). A still stretch that stays higher than ``skim_m`` over its recording's landed height is a rest only
     where its thrust could not hold a hover there under that law."""
     mass = vehicle.mass
-    rows = [_contact_rows(fd, vehicle) for fd in fds]
-    lows = [_landed_low(fd, row, mass) for fd, row in zip(fds, rows)]
+    rows = list(in_threads(lambda fd: _contact_rows(fd, vehicle), fds))
+    lows = list(in_threads(lambda fd_row: _landed_low(*fd_row, mass), zip(fds, rows)))
     skim_top, skim_landed = _vehicle_landed_height(lows, [r[2] for r in rows])
     if skim_top is not None:
         skim_top += CONTACT_LIMITS.skim_m
-    masks, report = [], []
-    for fd, path, (tilt, thrust, d_down, lift) in zip(fds, paths, rows):
+
+    def contact(fd_rows: tuple[FlightData, tuple]) -> tuple[np.ndarray, list, np.ndarray | None]:
+        """One flight's contact rows, its intervals and (with a point cloud) its rests found from the body's
+        height."""
+        fd, (tilt, thrust, d_down, lift) = fd_rows
         # no point cloud: where the floor lies is unknown, and a still hover at the lowest height may hold any lift
         # (a 2.5 kg hexarotor hovering at 6.7 cm on 58 % of its weight had been read as on its gear): only idling
         # rotors or a thrust ramp on the spot show the floor carrying it
@@ -270,11 +275,18 @@ def contact_masks(fds: Sequence[FlightData], vehicle: Vehicle, paths: Sequence[s
         mask, intervals = ground_contact(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass, d_down=d_down,
                                          limits=CONTACT_LIMITS, skim_top=skim_top if d_down is not None else None,
                                          skim_landed=skim_landed, lift=lift if d_down is not None else unbounded)
-        if fd.d_down is not None:  # a point cloud: it must be under the vehicle where it rests
+        by_height = None
+        if fd.d_down is not None:
             # rests found from the body's height, the floor seen to carry the vehicle by the same rule (the lift
             # read off the cloud's heights: 1 where it puts no surface below)
             by_height = mask if d_down is None else ground_contact(fd.t, fd.p[:, 2], fd.v, tilt, thrust, mass,
                                                                    limits=CONTACT_LIMITS, lift=lift)[0]
+        return mask, intervals, by_height
+
+    masks, report = [], []
+    for fd, path, d_down, (mask, intervals, by_height) in zip(fds, paths, (r[2] for r in rows),
+                                                              in_threads(contact, zip(fds, rows))):
+        if by_height is not None:  # a point cloud: it must be under the vehicle where it rests
             _check_cloud_under_rests(path, fd.t, fd.d_down, by_height, mask if d_down is not None else
                                      np.zeros_like(mask))
         masks.append(mask)
@@ -316,6 +328,13 @@ def _check_cloud_under_rests(path: str, t: np.ndarray, d_down: np.ndarray, rests
                      "cloud's floor is not where the ground truth lands (its height, units or frame off)")
 
 
+def _with_lever_arm(rec: Recording) -> tuple[FlightData, LeverArm | None]:
+    """A recording's flight data and the lever arm read off them (what :func:`prepared` starts from: each
+    recording alone, so several at once)."""
+    fd = flight_data(rec)
+    return fd, lever_arm(fd)
+
+
 def prepared(recordings: Sequence[Recording], paths: Sequence[str]
              ) -> tuple[list[Recording], list[FlightData], dict[str, Any]]:
     """The recordings with late telemetry corrected, their flight data, and what was found
@@ -325,9 +344,7 @@ def prepared(recordings: Sequence[Recording], paths: Sequence[str]
     ``levelled_m``: the largest height levelled in each tilted scan)."""
     recs, fds, delays, lines, limits, gaps, slow_state, levers = [], [], [], [], [], [], [], []
     slowest = np.inf
-    for rec, path in zip(recordings, paths):
-        fd = flight_data(rec)
-        lever = lever_arm(fd)
+    for rec, path, (fd, lever) in zip(recordings, paths, in_threads(_with_lever_arm, recordings)):
         if lever is not None and lever.decisive:
             levers.append({"recording": path} | lever.as_dict())
             lines.append(_lever_line(rec, lever))

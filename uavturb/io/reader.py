@@ -31,6 +31,7 @@ from uavturb.io.stream_faults import (
     velocity_from_positions,
 )
 from uavturb.io.vehicle_file import load_vehicle, named_vehicle
+from uavturb.numerics.threads import in_threads
 from uavturb.physics import quaternion as quat
 from uavturb.physics.vehicle import Vehicle
 
@@ -514,15 +515,18 @@ def load_recordings(paths: Sequence[str | Path], vehicle: str | Vehicle | None =
         if key in seen:
             raise InputError(p, f"is given twice (also as {seen[key]}): each recording once")
         seen[key] = p
-    recs = []
-    for p in paths:  # a crash's or lost tracking's tail left out before the checks read the whole recording
+
+    def read(p: str | Path) -> Recording:  # a crash's or lost tracking's tail left out before the checks read it all
         rec, lost = without_lost_tail(read_recording(p, vehicle=v, require_rotors=True))
-        recs.append(dataclasses.replace(rec, read_notes=rec.read_notes + ((lost,) if lost else ())))
+        return dataclasses.replace(rec, read_notes=rec.read_notes + ((lost,) if lost else ()))
+
+    recs = list(in_threads(read, paths))  # several at once: each alone, on a core of its own
     for r in recs[1:]:
         _check_same_vehicle(recs[0], r)
     if not repeats_allowed:
         _refuse_one_flight_twice(recs, paths)
-    recs = [dataclasses.replace(r, read_notes=r.read_notes + tuple(check_recording(r))) for r in recs]
+    recs = list(in_threads(lambda r: dataclasses.replace(r, read_notes=r.read_notes + tuple(check_recording(r))),
+                           recs))
     recs = [r if label == Path(p).name else dataclasses.replace(r, label=label)
             for r, p, label in zip(recs, paths, recording_labels(paths))]
     return recs

@@ -1,0 +1,66 @@
+"""Per-recording work on several cores: threads, since what takes the time (CSV parsing, numpy's arithmetic on
+whole arrays) releases Python's GIL, and threads share the arrays instead of copying them into processes.
+
+:func:`in_threads` is ``map`` with the loop's error order: results come in the items' order and an item's error
+is raised where the loop reaches it, so a caller that checks each item as it takes it raises what the plain loop
+would have raised first.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import os
+import platform
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable, Iterable, Iterator, TypeVar
+
+#: glibc's mallopt parameter: how many malloc arenas (per-thread heaps) it may make
+_M_ARENA_MAX = -8
+
+#: threads at most, whatever the cores: each holds one recording's temporaries at once, and two cores already
+#: read a dozen 5-minute recordings 1.46x faster than one (7.9 -> 5.4 s)
+MAX_THREADS = 4
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system tells it, else all of them)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+@functools.cache
+def _one_malloc_arena() -> bool:
+    """Make glibc's malloc keep one heap for all threads (``M_ARENA_MAX`` 1; the ``MALLOC_ARENA_MAX=1`` of its
+    manual, set from inside the process, before any thread of :func:`in_threads` allocates); False where the C
+    library is not glibc.
+
+    By default glibc gives threads heaps of their own, and memory freed in one is not reused by another: with the
+    reading threaded, a flight-hour's analysis peaked 160 MB higher (1083 against 920 MB); with one heap, 935 MB
+    and the same speed (the threads allocate a few large arrays each, so they seldom wait on its lock)."""
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        return False
+    try:
+        return bool(ctypes.CDLL("libc.so.6").mallopt(_M_ARENA_MAX, 1))
+    except (OSError, AttributeError):
+        return False
+
+
+def in_threads(func: Callable[[_T], _R], items: Iterable[_T], max_threads: int | None = None) -> Iterator[_R]:
+    """``func`` of each of ``items``, in their order, computed on up to ``max_threads`` threads (default
+    :data:`MAX_THREADS`; no more than the usable cores or the items; one: the plain loop, on this thread, lazily).
+
+    Every item is computed before the first result is returned (a bounded amount of work: the items asked for);
+    a failed item's exception is raised when its result is reached, after the results before it."""
+    items = list(items)
+    workers = min(MAX_THREADS if max_threads is None else max_threads, usable_cores(), len(items))
+    if workers <= 1:
+        return (func(x) for x in items)
+    _one_malloc_arena()
+    with ThreadPoolExecutor(workers, thread_name_prefix="uavturb") as pool:
+        futures = [pool.submit(func, x) for x in items]
+    return (f.result() for f in futures)
