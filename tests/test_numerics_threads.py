@@ -25,8 +25,17 @@ def test_results_in_the_items_order_whatever_finishes_first(two_cores):
 
 def test_work_runs_on_the_pool_threads_with_two_cores(two_cores):
     names = list(in_threads(lambda _: threading.current_thread().name, range(4)))
-    assert all(n.startswith("uavturb") for n in names)
-    assert len(set(names)) <= 2  # no more threads than the usable cores
+    assert all(n.startswith("uavturb-threads") for n in names)
+    assert len(set(names)) <= threads.MAX_THREADS
+
+
+def test_a_pool_thread_asking_for_threads_runs_its_items_itself(two_cores):
+    """No pool thread waits on items queued behind it (a nested call would deadlock a full pool)."""
+    def outer(x):
+        here = threading.current_thread().name
+        return [n == here for n in in_threads(lambda _: threading.current_thread().name, range(3))]
+
+    assert list(in_threads(outer, range(4))) == [[True] * 3] * 4
 
 
 def test_one_thread_is_the_plain_lazy_loop(monkeypatch):

@@ -68,6 +68,9 @@ ROWS_LAG_CACHE_BYTES = 32 << 20
 #: benchmark's line through a 5- and a 10-minute measurement carried that growth to an hour (1.01 GB per
 #: flight-hour for 0.89 GB with these caps, the same reports to the bit)
 LAG_CACHE_TAUS, ROWS_LAG_CACHE_TAUS = 12, 46
+#: rows from which the lagged sums' recordings are filtered on several threads: a minute at 100 Hz filters in a
+#: tenth of a millisecond, less than handing it to a thread costs
+LAG_THREADS_FROM_ROWS = 100_000
 
 #: Hz, the rate the gap finder analyses at (block means of faster recordings; :func:`gap_data`)
 RATE_HZ = 25.0
@@ -216,10 +219,13 @@ class GapData:
         done = self._lag_done.setdefault(key, set())
         todo = [(g, rows, stretches) for g, rows, stretches in self._lag_plan()
                 if g not in done and (groups is None or g in groups)]
-        # each recording alone, so several at once (the filter's passes over whole arrays release the GIL)
+        # each recording alone, so several at once where they are long (the filter's passes over whole arrays
+        # release the GIL)
+        rows_to_filter = sum(r.stop - r.start if isinstance(r, slice) else len(r) for _, r, _ in todo)
         for (g, rows, _), lagged in zip(todo, in_threads(
                 lambda plan: sum_of_squares(lag_rotor_speeds(self.t[plan[1]], self.rotor_speeds[plan[1]], key,
-                                                             plan[2])), todo)):
+                                                             plan[2])), todo,
+                max_threads=None if rows_to_filter >= LAG_THREADS_FROM_ROWS else 1)):
             out[rows] = lagged
             done.add(g)
         return out

@@ -12,7 +12,8 @@ import ctypes
 import functools
 import os
 import platform
-from concurrent.futures import ThreadPoolExecutor
+import threading
+from concurrent.futures import ThreadPoolExecutor, wait
 from typing import Callable, Iterable, Iterator, TypeVar
 
 #: glibc's mallopt parameter: how many malloc arenas (per-thread heaps) it may make
@@ -51,16 +52,35 @@ def _one_malloc_arena() -> bool:
 
 
 def in_threads(func: Callable[[_T], _R], items: Iterable[_T], max_threads: int | None = None) -> Iterator[_R]:
-    """``func`` of each of ``items``, in their order, computed on up to ``max_threads`` threads (default
-    :data:`MAX_THREADS`; no more than the usable cores or the items; one: the plain loop, on this thread, lazily).
+    """``func`` of each of ``items``, in their order, computed on the shared pool's threads when two or more may
+    run (``max_threads``, default :data:`MAX_THREADS`, the usable cores and the items all allow it; otherwise, and
+    on a pool thread itself, the plain loop, on this thread, lazily).
 
     Every item is computed before the first result is returned (a bounded amount of work: the items asked for);
     a failed item's exception is raised when its result is reached, after the results before it."""
     items = list(items)
     workers = min(MAX_THREADS if max_threads is None else max_threads, usable_cores(), len(items))
-    if workers <= 1:
-        return (func(x) for x in items)
+    if workers <= 1 or threading.current_thread().name.startswith(_PREFIX):  # a pool thread waiting on its pool
+        return (func(x) for x in items)  # could wait forever
     _one_malloc_arena()
-    with ThreadPoolExecutor(workers, thread_name_prefix="uavturb") as pool:
-        futures = [pool.submit(func, x) for x in items]
+    pool = _shared_pool()
+    futures = [pool.submit(func, x) for x in items]
+    wait(futures)
     return (f.result() for f in futures)
+
+
+#: the shared pool's threads' names start with this
+_PREFIX = "uavturb-threads"
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def _shared_pool() -> ThreadPoolExecutor:
+    """One pool of :data:`MAX_THREADS` threads at most (no more than the usable cores) for the process, started on
+    first use: the motor-lag filters of a fit run per recording at each of tens of lags, and starting threads
+    for each (676 thread starts on three one-minute flights) had cost more than it saved."""
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(min(MAX_THREADS, usable_cores()), thread_name_prefix=_PREFIX)
+        return _pool
