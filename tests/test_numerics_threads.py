@@ -81,3 +81,23 @@ def test_no_items_gives_no_results(two_cores):
 @pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="glibc only")
 def test_one_malloc_arena_is_set_on_glibc():
     assert threads._one_malloc_arena() is True
+
+
+@pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="glibc only")
+def test_free_pages_are_returned_after_threaded_work(two_cores, monkeypatch):
+    calls = []
+    real = threads._glibc()
+
+    class Recording:
+        def malloc_trim(self, pad):
+            calls.append(pad)
+            return real.malloc_trim(pad)
+
+        def mallopt(self, *a):
+            return real.mallopt(*a)
+
+    monkeypatch.setattr(threads, "_glibc", lambda: Recording())
+    assert list(in_threads(lambda x: x + 1, range(3))) == [1, 2, 3]
+    assert calls == [0]
+    assert list(in_threads(lambda x: x, range(3), max_threads=1)) == [0, 1, 2]
+    assert calls == [0]  # the plain loop leaves the heap as it is

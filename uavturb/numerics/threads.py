@@ -35,6 +35,18 @@ def usable_cores() -> int:
 
 
 @functools.cache
+def _glibc() -> ctypes.CDLL | None:
+    """The C library where it is glibc (whose malloc :func:`_one_malloc_arena` and :func:`_free_pages_returned`
+    tune), else None."""
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        return None
+    try:
+        return ctypes.CDLL("libc.so.6")
+    except OSError:
+        return None
+
+
+@functools.cache
 def _one_malloc_arena() -> bool:
     """Make glibc's malloc keep one heap for all threads (``M_ARENA_MAX`` 1; the ``MALLOC_ARENA_MAX=1`` of its
     manual, set from inside the process, before any thread of :func:`in_threads` allocates); False where the C
@@ -43,12 +55,18 @@ def _one_malloc_arena() -> bool:
     By default glibc gives threads heaps of their own, and memory freed in one is not reused by another: with the
     reading threaded, a flight-hour's analysis peaked 160 MB higher (1083 against 920 MB); with one heap, 935 MB
     and the same speed (the threads allocate a few large arrays each, so they seldom wait on its lock)."""
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
-        return False
-    try:
-        return bool(ctypes.CDLL("libc.so.6").mallopt(_M_ARENA_MAX, 1))
-    except (OSError, AttributeError):
-        return False
+    libc = _glibc()
+    return libc is not None and bool(libc.mallopt(_M_ARENA_MAX, 1))
+
+
+def _free_pages_returned() -> None:
+    """Hand the heap's free pages back to the system (glibc's ``malloc_trim(0)``), after threads have worked side
+    by side: their temporaries, freed interleaved, leave holes that later large arrays do not fill, and a
+    flight-hour's analysis peaked 60-75 MB higher (980-995 MB against 919-923 MB with the pages returned, the
+    serial loop's 918-920 MB)."""
+    libc = _glibc()
+    if libc is not None:
+        libc.malloc_trim(0)
 
 
 def in_threads(func: Callable[[_T], _R], items: Iterable[_T], max_threads: int | None = None) -> Iterator[_R]:
@@ -66,6 +84,7 @@ def in_threads(func: Callable[[_T], _R], items: Iterable[_T], max_threads: int |
     pool = _shared_pool()
     futures = [pool.submit(func, x) for x in items]
     wait(futures)
+    _free_pages_returned()
     return (f.result() for f in futures)
 
 
