@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 
 from uavturb.bench.gap import HOUR_ROWS, bench_gap
+from uavturb.numerics import threads
 from uavturb.sim.flights.simulate import generate_flight
 
 
@@ -19,6 +20,7 @@ def test_bench_gap_measures_the_analysis_and_its_own_memory(tmp_path, capsys):
     assert fig["flights"] == 2 and fig["flight time [s]"] == pytest.approx(60.0, abs=0.1)
     assert fig["rows (IMU or ground truth)"] == pytest.approx(2 * 30 * 200, abs=4)  # 200 Hz IMU
     assert fig["first halves: rows"] == pytest.approx(fig["rows (IMU or ground truth)"] / 2, abs=4)
+    assert fig["threads for per-recording work"] == min(threads.MAX_THREADS, threads.usable_cores()) >= 1
     # the reading and the analysis are measured above what the imports left resident: they hold the flights
     # (two 30 s flights: at least their 12,000 rows of 7 float64 columns), and nothing near a gigabyte
     assert 12_000 * 7 * 8 / 2**20 < fig["read + analyse: peak above that [MB]"] < 1024

@@ -101,3 +101,23 @@ def test_free_pages_are_returned_after_threaded_work(two_cores, monkeypatch):
     assert calls == [0]
     assert list(in_threads(lambda x: x, range(3), max_threads=1)) == [0, 1, 2]
     assert calls == [0]  # the plain loop leaves the heap as it is
+
+
+def test_an_interrupted_wait_drops_the_items_not_started(two_cores, monkeypatch):
+    """Ctrl-C while waiting: what has not started is cancelled, not run before the process may exit."""
+    started = []
+
+    def slow(x):
+        started.append(x)
+        time.sleep(0.2)
+        return x
+
+    def interrupted(futures):
+        time.sleep(0.05)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(threads, "wait", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        in_threads(slow, range(20))
+    time.sleep(0.5)  # the items running when interrupted finish
+    assert len(started) <= threads.MAX_THREADS

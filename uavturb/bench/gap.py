@@ -13,7 +13,9 @@ two, in rows analysed, is carried to an hour at 200 Hz (720,000 rows): what does
 flight (start-up, the reader's blocks of at most 16 MB, fits over a few columns) stays out of the
 slope, where scaling one measurement in proportion had counted it once per five minutes. The same line
 is drawn through the child's CPU seconds (``time.process_time``): on a shared machine wall time varies
-by a third between runs of the same code, CPU time far less.
+by a third between runs of the same code, CPU time far less. Per-recording work runs on up to
+``threads`` threads (:mod:`uavturb.numerics.threads`, printed among the figures), so the CPU seconds exceed
+the wall seconds on a machine with two cores or more.
 
 The line holds for an hour in as many recordings as were given. An hour is also **measured** whole
 (``measured_hour``): the recordings repeated (hard links where possible) until they make an hour of flight, each
@@ -34,6 +36,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from uavturb.numerics.threads import MAX_THREADS, usable_cores
 from uavturb.sim.flights.simulate import generate_flight
 
 #: rows of one flight-hour at 200 Hz
@@ -110,6 +113,7 @@ def bench_gap(recordings: Sequence[str] = (), minutes: float = 5.0, measured_hou
     grow, grow_half = mb["peak_kib"] - mb["start_kib"], (h["peak_kib"] - h["start_kib"]) / 1024.0
     figures = {
         "flights": len(paths), "flight time [s]": r["flight_s"], "rows (IMU or ground truth)": r["rows"],
+        "threads for per-recording work": min(MAX_THREADS, usable_cores()),
         "read [s]": r["read_s"], "analyse [s]": r["analyse_s"], "wall, with start-up [s]": wall,
         "interpreter and imports, peak [MB]": mb["import_peak_kib"],
         "resident after imports [MB]": mb["start_kib"],

@@ -83,7 +83,12 @@ def in_threads(func: Callable[[_T], _R], items: Iterable[_T], max_threads: int |
     _one_malloc_arena()
     pool = _shared_pool()
     futures = [pool.submit(func, x) for x in items]
-    wait(futures)
+    try:
+        wait(futures)
+    except BaseException:  # Ctrl-C: the items not started are dropped (the pool would run them all before exiting)
+        for f in futures:
+            f.cancel()
+        raise
     _free_pages_returned()
     return (f.result() for f in futures)
 
