@@ -70,16 +70,18 @@ def _free_pages_returned() -> None:
 
 
 def in_threads(func: Callable[[_T], _R], items: Iterable[_T], max_threads: int | None = None) -> Iterator[_R]:
-    """``func`` of each of ``items``, in their order, computed on the shared pool's threads when two or more may
-    run (``max_threads``, default :data:`MAX_THREADS`, the usable cores and the items all allow it; otherwise, and
-    on a pool thread itself, the plain loop, on this thread, lazily).
+    """``func`` of each of ``items``, in their order, computed on the shared pool's threads (at most
+    :data:`MAX_THREADS`, no more than the usable cores) where two or more may run. ``max_threads`` 1 (or a single
+    item, a single core, or a call from a pool thread itself) runs the plain loop on this thread, lazily; a larger
+    value cannot give more threads than the pool has.
 
     Every item is computed before the first result is returned (a bounded amount of work: the items asked for);
     a failed item's exception is raised when its result is reached, after the results before it."""
     items = list(items)
     workers = min(MAX_THREADS if max_threads is None else max_threads, usable_cores(), len(items))
-    if workers <= 1 or threading.current_thread().name.startswith(_PREFIX):  # a pool thread waiting on its pool
-        return (func(x) for x in items)  # could wait forever
+    # a pool thread runs its items itself: waiting on items queued behind it in its own pool could wait forever
+    if workers <= 1 or threading.current_thread().name.startswith(_PREFIX):
+        return (func(x) for x in items)
     _one_malloc_arena()
     pool = _shared_pool()
     futures = [pool.submit(func, x) for x in items]
