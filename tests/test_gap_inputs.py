@@ -579,6 +579,12 @@ def test_rotor_quantum_and_rounding_floor_known_answers():
     assert rotor_quantum(np.round(w)) == pytest.approx(1.0)
     assert rotor_quantum(np.round(w / 5.0) * 5.0) == pytest.approx(5.0)  # EuRoC-like: integer units times a scale
     assert rotor_quantum(w) == 0.0  # not quantised
+    # commands u = (w - a) / b of speeds rounded to 1 rad/s, written as u times a scale of 350 rad/s: steps of
+    # 350 / b rad/s on a lattice offset from zero (a = 37.5 rad/s, b = 262.5 rad/s)
+    written = 350.0 * (np.round(w) - 37.5) / 262.5
+    assert rotor_quantum(written) == pytest.approx(350.0 / 262.5)
+    assert rotor_quantum(written + 0.3) == pytest.approx(350.0 / 262.5)
+    assert rotor_quantum(350.0 * (w - 37.5) / 262.5) == 0.0
     # the floor: (2 k_T)^2 sum(w_i^2) q^2 / 12 at six rotors of 536 rad/s, q = 1 rad/s
     from types import SimpleNamespace
 
