@@ -585,6 +585,8 @@ def test_rotor_quantum_and_rounding_floor_known_answers():
     assert rotor_quantum(written) == pytest.approx(350.0 / 262.5)
     assert rotor_quantum(written + 0.3) == pytest.approx(350.0 / 262.5)
     assert rotor_quantum(350.0 * (w - 37.5) / 262.5) == 0.0
+    stopped = np.vstack([np.zeros((200, 6)), written])  # rotors stopped on the ground: zeros, off the lattice
+    assert rotor_quantum(stopped) == pytest.approx(350.0 / 262.5)
     # the floor: (2 k_T)^2 sum(w_i^2) q^2 / 12 at six rotors of 536 rad/s, q = 1 rad/s
     from types import SimpleNamespace
 

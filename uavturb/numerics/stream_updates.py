@@ -117,13 +117,14 @@ def read_between_updates(t: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 def rotor_quantum(speeds: np.ndarray) -> float:
     """Resolution [rad/s] of recorded rotor speeds ``(K, N)``: the step all values are whole
-    multiples of, counted from the lowest (EuRoC's integer motor speeds times their scale; 1 rad/s for the project's
-    synthetic flights; commands whose map to speed has an offset, ``w = a + b u`` rounded to 1 rad/s and written as
-    ``u`` times a scale, sit on a lattice of steps that does not pass through zero), or 0 when they are not
-    quantised."""
+    multiples of, counted from the most frequent value (EuRoC's integer motor speeds times their scale; 1 rad/s for
+    the project's synthetic flights; commands whose map to speed has an offset, ``w = a + b u`` rounded to 1 rad/s
+    and written as ``u`` times a scale, sit on a lattice of steps that does not pass through zero), or 0 when they
+    are not quantised. Zeros (rotors stopped before take-off, after landing) say nothing of the resolution and are
+    left out: on an offset lattice they lie off it."""
     w = np.asarray(speeds, float).ravel()
-    w = w[np.isfinite(w)]
-    u = np.unique(w)
+    w = w[np.isfinite(w) & (w != 0)]
+    u, counts = np.unique(w, return_counts=True)
     if len(u) < 3:
         return 0.0
     d = np.diff(u)
@@ -131,7 +132,7 @@ def rotor_quantum(speeds: np.ndarray) -> float:
     if not len(d):
         return 0.0
     q = float(np.min(d))
-    steps = (w - u[0]) / q
+    steps = (w - u[int(np.argmax(counts))]) / q
     frac = np.abs(steps - np.round(steps))
     return q if np.mean(frac < 1e-3) > 0.99 else 0.0
 
