@@ -394,3 +394,40 @@ def test_a_motor_lag_not_named_says_what_the_torques_time(tmp_path):
     write_markdown(tmp_path, report, [])
     text = (tmp_path / "report.md").read_text()
     assert "torques lag the commands" not in text and "no lag the torques can tell from none" in text
+
+
+def test_an_alternative_law_better_by_less_than_the_rounding_is_said_beside_the_standard_law(tmp_path):
+    """Rotor speeds rounded to their resolution: the exponential law fitted the held-out rows better than
+    Cheeseman-Bennett by 4.4 errors, but its gain in mean squared error lay under what the rounding can fake, so the
+    standard law is named (selection's ``_standard_law``) and the report says why, once, with the margin."""
+    import numpy as np
+
+    from uavturb.gap.selection import CurveEvidence, HeldOut, _standard_law
+
+    rng = np.random.default_rng(3)
+    resid = rng.normal(0.0, 1.0e-3, size=(4000, 3))
+    t, group = np.arange(4000) * 0.01, np.zeros(4000, int)  # s: 40 s of held-out rows at 100 Hz
+    standard = HeldOut(resid * 1.08, np.arange(4000) // 100, t, group)  # Cheeseman-Bennett's held-out residuals
+    better = HeldOut(resid, np.arange(4000) // 100, t, group)  # the exponential law's, 8 % smaller
+    passed = {"ground_effect": ("ground_effect", standard, 9.0),
+              "ground_effect_exponential": ("ground_effect_exponential", better, 11.0)}
+    gain = float(np.mean(standard.err2) - np.mean(better.err2))  # N^2
+    for floor, named in ((0.0, "ground_effect_exponential"), (0.5 * gain, "ground_effect_exponential"),
+                         (2.0 * gain, "ground_effect")):
+        tried = {"ground_effect_exponential": {}}
+        chosen = _standard_law(passed["ground_effect_exponential"], passed, 4.0, tried, 2, CurveEvidence(),
+                               thrust_floor=floor)
+        assert chosen[0] == named
+        assert ("step2_over_ground_effect_below_rounding_floor" in tried["ground_effect_exponential"]) == (
+            named == "ground_effect")
+    report = _one_effect_report({"name": "ground_effect", "params": {"mu": 1.86}, "stderr": {"mu": 1.7},
+                                 "explanation": "lift", "heldout_rmse_before_N": 0.0032,
+                                 "heldout_rmse_after_N": 0.0013, "z_heldout": 8.7},
+                                candidates_tried={"ground_effect_exponential": tried["ground_effect_exponential"]
+                                                  | {"step2_z": 11.5}})
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    z = tried["ground_effect_exponential"]["step2_z_over_ground_effect"]
+    assert (f"- `ground_effect_exponential`: fitted the held-out rows better than `ground_effect` by {z:.2g} errors at "
+            "step 2, but by less than the rotor speeds' rounding can fake along the thrust") in text
+    assert text.count("`ground_effect_exponential`") == 1

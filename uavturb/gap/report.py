@@ -513,6 +513,14 @@ def _not_named_lines(report: dict) -> list[str]:
     L: list[str] = []
     for name, tried in (report.get("candidates_tried") or {}).items():
         last = last_step(tried)
+        rounded = _beaten_within_rounding(tried)
+        if name not in said and rounded is not None:
+            step, standard, z = rounded
+            L.append(f"- `{name}`: fitted the held-out rows better than `{standard}` by {z:.2g} errors at step {step}, "
+                     f"but by less than the rotor speeds' rounding can fake along the thrust (a hover holds one rounded "
+                     f"value while the law's lift moves): `{standard}` is named, as effects.md's standard law; the "
+                     f"measured surface curve compares their shapes.")
+            continue
         if name in said or name not in EFFECTS or last is None or EFFECTS[name].surface in surfaces:
             continue  # a surface law beside one said of its surface: the measured surface curve compares them
         text = f"- `{name}`: held-out gain {last[1]:.2g} errors at step {last[0]} ({Z_IMPROVE:g} needed)"
@@ -540,6 +548,21 @@ def _not_named_lines(report: dict) -> list[str]:
         L.append(text + (f". To show it: {manoeuvre}." if manoeuvre else "."))
     return (["", "## Tried, not named",
              "Each candidate the data did not support, with what it gained on the held-out rows."] + L) if L else []
+
+
+def _beaten_within_rounding(tried: dict[str, float]) -> tuple[int, str, float] | None:
+    """``(step, standard law, held-out z over it)`` where an alternative law beat its standard law on the held-out
+    rows by less than the rounding floor (``step<k>_over_<law>_below_rounding_floor``, selection's
+    ``_standard_law``), at the last such step; None where it never did."""
+    found = None
+    for key in tried:
+        if key.startswith("step") and key.endswith("_below_rounding_floor") and "_over_" in key:
+            step = int(key[4:key.index("_")])
+            standard = key[key.index("_over_") + len("_over_"):-len("_below_rounding_floor")]
+            z = tried.get(f"step{step}_z_over_{standard}")
+            if z is not None and (found is None or step > found[0]):
+                found = (step, standard, float(z))
+    return found
 
 
 def _torque_lag_line(lag: dict | None) -> list[str]:
