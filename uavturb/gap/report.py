@@ -516,10 +516,10 @@ def _not_named_lines(report: dict) -> list[str]:
         rounded = _beaten_within_rounding(tried)
         if name not in said and rounded is not None:
             step, standard, z = rounded
-            L.append(f"- `{name}`: fitted the held-out rows better than `{standard}` by {z:.2g} errors at step {step}, "
-                     f"but by less than the rotor speeds' rounding can fake along the thrust (a hover holds one rounded "
-                     f"value while the law's lift moves): `{standard}` is named, as effects.md's standard law; the "
-                     f"measured surface curve compares their shapes.")
+            L.append(f"- `{name}`: fitted the held-out rows better than `{standard}` by {z:.2g} errors at step "
+                     f"{step}, but by less than the rotor speeds' rounding can fake along the thrust (a hover holds "
+                     f"one rounded value while the law's lift moves): `{standard}` is named, as effects.md's standard "
+                     f"law; the measured surface curve compares their shapes.")
             continue
         if name in said or name not in EFFECTS or last is None or EFFECTS[name].surface in surfaces:
             continue  # a surface law beside one said of its surface: the measured surface curve compares them
