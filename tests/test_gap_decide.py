@@ -237,11 +237,12 @@ def test_a_tilted_thrust_axis_is_not_named_wind_even_where_the_heading_turned():
     assert "the tilt explains it" in amb["why"] and "heading changed by 90 deg" in amb["why"]
 
 
-def _two_recordings(tilts_deg, yaw) -> GapData:
-    """Two recordings of :func:`_data` (headings ``yaw``), the thrust axis of each tilted by its ``(deg, azimuth
-    deg)``."""
-    parts = [_data(yaw, imu=False, seed=i, thrust_tilt=(np.radians(a) * np.cos(np.radians(b)),
-                                                     np.radians(a) * np.sin(np.radians(b))))
+def _two_recordings(tilts_deg, yaw, push=(0.0, 0.0)) -> GapData:
+    """Two recordings of :func:`_data` (headings ``yaw``, or a pair of heading arrays, one a recording; a world push
+    ``push`` [N] on both), the thrust axis of each tilted by its ``(deg, azimuth deg)``."""
+    yaws = yaw if isinstance(yaw, (list, tuple)) else [yaw, yaw]
+    parts = [_data(yaws[i], imu=False, seed=i, push=push, thrust_tilt=(np.radians(a) * np.cos(np.radians(b)),
+                                                                     np.radians(a) * np.sin(np.radians(b))))
              for i, (a, b) in enumerate(tilts_deg)]
     a, b = parts
     cat = {k: np.concatenate([getattr(a, k), getattr(b, k)])
@@ -297,6 +298,37 @@ def test_wind_over_turning_headings_stands_apart_from_a_tilt():
     fit = fit_model(fixed, {"wind"})
     amb = thrust_tilt_alike(fixed, fit, flight_facts(fixed, fit.coef["k_T"]))
     assert amb is not None and amb["r2"] > 0.99 and amb["thrust_axis_tilt_deg"] == pytest.approx(1.24, abs=0.02)
+
+
+def _held_headings(main_deg: float, turned_deg: float, turned_share: float, n: int = 4000) -> np.ndarray:
+    """(n,) rad: a heading held at ``main_deg``, then for the last ``turned_share`` of the rows at ``turned_deg``."""
+    yaw = np.full(n, np.radians(main_deg))
+    yaw[int(n * (1 - turned_share)):] = np.radians(turned_deg)
+    return yaw
+
+
+def test_each_recordings_own_tilt_pointing_the_pushes_one_way_is_not_named_wind():
+    """Two sessions whose markers were re-placed: tilts of 1.2 deg at azimuths 0 and 120 deg, headings held at 39 and
+    -79 deg for most of each flight, so both pushes point within 2 deg of one world direction (gap-proof's PX4 row on
+    another seed had named a wind of 0.29 N there). One tilt for both cannot fit; one tilt a recording explains the
+    rows where a heading turned, which a world-fixed push does not: the push is the tilts', each read within 0.05
+    deg. A true wind over the same headings keeps its name: where the headings turned it stayed fixed in the world."""
+    yaws = [_held_headings(38.8, 81.5, 0.1), _held_headings(-79.3, -148.6, 0.25)]
+    data = _two_recordings([(1.2, 0.0), (1.2, 120.0)], yaws)
+    fit = fit_model(data, {"wind"})
+    amb = thrust_tilt_alike(data, fit, flight_facts(data, fit.coef["k_T"]))
+    assert amb is not None and amb["candidates"] == ["wind", "thrust_axis_tilt"]
+    per = amb["thrust_axis_tilt_per_recording_deg"]
+    assert per["one"] == pytest.approx(1.2, abs=0.05) and per["two"] == pytest.approx(1.2, abs=0.05)
+    assert amb["push_beyond_tilts_z"] < 4.0 and amb["tilts_beyond_push_z"] > 4.0
+    assert "each recording's own thrust-axis tilt" in amb["why"]
+    wind = _two_recordings([(0.0, 0.0), (0.0, 0.0)], yaws, push=(0.23, 0.18))
+    fit = fit_model(wind, {"wind"})
+    assert thrust_tilt_alike(wind, fit, flight_facts(wind, fit.coef["k_T"])) is None
+    held = [np.full(4000, np.radians(38.8)), np.full(4000, np.radians(-79.3))]  # a wind tunnel: no heading turned
+    tunnel = _two_recordings([(0.0, 0.0), (0.0, 0.0)], held, push=(0.23, 0.18))
+    fit = fit_model(tunnel, {"wind"})
+    assert thrust_tilt_alike(tunnel, fit, flight_facts(tunnel, fit.coef["k_T"])) is None
 
 
 def test_drag_read_on_the_airspeed_with_body_drag_fitted_beside():

@@ -118,6 +118,10 @@ CONDITIONS: tuple[Condition, ...] = (
               Conditions(rotor_plane_z=0.15), GROUND_EFFECT, ("ground_effect",), "low_passes"),
     Condition("small quadrotor, rotors 2.5 cm below the body origin, ground effect mu = 2",
               Conditions(rotor_plane_z=-0.025), GROUND_EFFECT, ("ground_effect",), "low_passes", vehicle="quad"),
+    Condition("small quadrotor on commands through an idle speed (w = 37.5 + 262.5 u, rounded to 1 rad/s), MoCap and "
+              "commands at 100 Hz, motors 40 ms late, ground effect mu = 2",
+              Conditions(motor_commands=True, rate_hz=100), {"ground_effect": {"mu": 2.0}, "motor_lag": {"tau": 0.04}},
+              ("ground_effect",), "low_passes", vehicle="quad"),
     Condition("measured rotor speeds (30 ms motor lag), battery sag in the physics, battery0",
               Conditions(measured_rotors=True, battery_voltage=16.8),
               {"battery_sag": {"s": 1e-3}, "motor_lag": {"tau": 0.03}}),
