@@ -60,7 +60,7 @@ try:  # reset the peak, so that what follows is the reading's and the analysis's
     with open("/proc/self/clear_refs", "w") as f:
         f.write("5")
     start = status_kib("VmRSS")
-    import_peak = max(import_peak, start)  # pages the lines between touched count to the imports' peak
+    import_peak = max(import_peak, start or 0)  # pages the lines between touched count to the imports' peak
 except OSError:
     start = None
 c1 = time.process_time()
