@@ -505,8 +505,7 @@ def _tilts_per_recording_alike(data: GapData, A: np.ndarray, T: np.ndarray, own:
            f"re-placed between sessions tilt each its own way): with one tilt per recording in the model the push "
            f"left is {left:.2g} ± {left_se:.2g} N, {z_push:.1f} standard errors from none (a push needs "
            f"{TILT_SEPARATION_Z:.0f}), while the tilts stand {z_tilts:.1f} beyond the push: where a heading turned, "
-           f"the force turned with the body, as a tilt's does and a wind's does not; indoors the tilt is the likelier "
-           f"reading")
+           f"the force turned with the body, as a tilt's does and a wind's does not: the tilts explain it")
     return {"candidates": ["wind", "thrust_axis_tilt"], "why": why,
             "to_separate": "fly the same pattern at two or more headings 90 deg apart, holding each for a while (a "
                            "tilt turns with the body, a wind does not), or check each session's thrust axis against "
