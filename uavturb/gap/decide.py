@@ -500,7 +500,8 @@ def _tilts_per_recording_alike(data: GapData, A: np.ndarray, T: np.ndarray, own:
     if np.any(degrees > TILT_MAX_DEG):
         return None
     share = f"{push:.3g} N ({100 * push / (data.mass * GRAVITY):.2g} % of the weight)"
-    listed = ", ".join(f"{name} {deg:.2f} deg" for name, deg in zip(data.names, degrees))
+    names = [data.names[int(g)] for g in groups]  # a recording with no rows left has no tilt
+    listed = ", ".join(f"{name} {deg:.2f} deg" for name, deg in zip(names, degrees))
     why = (f"a steady push of {share} is also what each recording's own thrust-axis tilt gives ({listed}; markers "
            f"re-placed between sessions tilt each its own way): with one tilt per recording in the model the push "
            f"left is {left:.2g} ± {left_se:.2g} N, {z_push:.1f} standard errors from none (a push needs "
@@ -511,7 +512,7 @@ def _tilts_per_recording_alike(data: GapData, A: np.ndarray, T: np.ndarray, own:
                            "tilt turns with the body, a wind does not), or check each session's thrust axis against "
                            "the attitude on a bench",
             "params_if_named": wind, "thrust_axis_tilt_deg": float(np.max(degrees)),
-            "thrust_axis_tilt_per_recording_deg": {name: float(deg) for name, deg in zip(data.names, degrees)},
+            "thrust_axis_tilt_per_recording_deg": {name: float(deg) for name, deg in zip(names, degrees)},
             "push_beyond_tilts_N": left, "push_beyond_tilts_stderr_N": left_se, "push_beyond_tilts_z": round(z_push, 2),
             "tilts_beyond_push_z": round(z_tilts, 2)}
 
