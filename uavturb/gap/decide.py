@@ -38,7 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtrc, ndtri  # chi^2 survival and the normal quantile, without scipy.stats
 
 from uavturb.gap.design import (
     AMPLITUDE,
@@ -540,7 +540,7 @@ def tilts_beyond_push(data: GapData, A: np.ndarray, tilts: np.ndarray) -> float:
     idx = np.arange(A.shape[1], A.shape[1] + tilts.shape[1])
     f, C = fit.coef[idx], fit.cov[np.ix_(idx, idx)]
     wald = float(max(f @ np.linalg.pinv(C) @ f, 0.0))
-    return float(stats.norm.isf(max(stats.chi2.sf(wald, len(idx)), 1e-300)))
+    return float(-ndtri(max(float(chdtrc(len(idx), wald)), 1e-300)))
 
 
 #: deg: the smallest tilt of the thrust axis left in the residual worth a line of the report (0.3 deg is a push of
