@@ -55,7 +55,7 @@ from uavturb.gap.fit import ModelFit, _nl_values, fit_model
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, FlightFacts
 from uavturb.sysid.flight_data import UNDER_SURFACE_M, UNDER_SURFACE_ROWS
-from uavturb.sysid.least_squares import lstsq
+from uavturb.sysid.least_squares import LstsqResult, lstsq
 
 #: uncentred R^2 above which two sets of regressors are taken as indistinguishable (VIF > 100)
 R2_AMBIGUOUS = 0.99
@@ -446,7 +446,7 @@ def thrust_tilt_alike(data: GapData, fit: ModelFit, facts: FlightFacts) -> dict 
     else:
         left, left_se, z = push_beyond_tilt(data, A, tilt_cols, own)
         if z >= TILT_SEPARATION_Z:
-            return _tilts_per_recording_alike(data, A, T, own, rest, wind, push, facts)
+            return _tilts_per_recording_alike(data, A, T, own, rest, wind, push)
         verdict = ("the tilt explains it" if left < TILT_EXPLAINS * push else
                    "these flights do not tell it from the tilt; indoors the tilt is the likelier reading")
         why = (f"a steady push of {share} is also what a thrust axis tilted by {tilt:.2f} deg from the recorded "
@@ -463,7 +463,7 @@ def thrust_tilt_alike(data: GapData, fit: ModelFit, facts: FlightFacts) -> dict 
 
 
 def _tilts_per_recording_alike(data: GapData, A: np.ndarray, T: np.ndarray, own: list[int], rest: list[int],
-                               wind: dict[str, float], push: float, facts: FlightFacts) -> dict | None:
+                               wind: dict[str, float], push: float) -> dict | None:
     """An ``ambiguous`` entry where each recording's own thrust-axis tilt explains a push named ``wind`` that one tilt
     for all recordings did not (:func:`thrust_tilt_alike`), else None.
 
@@ -517,7 +517,7 @@ def _tilts_per_recording_alike(data: GapData, A: np.ndarray, T: np.ndarray, own:
             "tilts_beyond_push_z": round(z_tilts, 2)}
 
 
-def _robust_fit(data: GapData, J: np.ndarray):
+def _robust_fit(data: GapData, J: np.ndarray) -> LstsqResult:
     """The stacked target of ``data`` fitted on the columns ``J`` (3K, p) with Newey-West errors over
     :data:`TILT_LAG_S`, recordings and axes independent (:func:`~uavturb.sysid.least_squares.lstsq`)."""
     step = float(np.median(np.diff(data.t))) if len(data) > 1 else 1.0
