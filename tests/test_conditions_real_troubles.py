@@ -331,3 +331,21 @@ def test_residuals_flag_the_rows_on_the_ground(landing_flight, tmp_path, capsys)
     air = np.sqrt(np.mean(np.sum(table.loc[~flagged, ["F_x [N]", "F_y [N]", "F_z [N]"]].to_numpy() ** 2, axis=1)))
     printed = capsys.readouterr().out
     assert f"residual RMS in flight {air:.4f} N ({flagged.sum()} on the ground" in printed
+
+
+def test_commands_through_an_idle_speed_are_read_as_rounded(tmp_path):
+    """``--motor-commands`` writes ``u = (w - a) / b`` of speeds rounded to 1 rad/s, times the vehicle's
+    ``rotor_speed_scale``: steps of ``scale / b`` rad/s on a lattice that does not pass through zero (the small
+    quadrotor: a = 37.5, b = 262.5, scale 350 rad/s). The reader's rotor speeds are read as rounded to that step, so
+    the surface curve's bins carry the rounding (twelve such flights had named the exponential law without it)."""
+    from uavturb.io.reader import load_recordings
+    from uavturb.numerics.stream_updates import rotor_quantum
+    from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
+
+    path = tmp_path / "commands"
+    generate_conditioned_flight("quad", {}, duration=10.0, kind="low_passes", seed=3,
+                                conditions=Conditions(motor_commands=True), out=path, overwrite=True)
+    law = read_truth(path)["conditions"]["motor_commands"]
+    speeds = load_recordings([path])[0].rotors.speeds
+    assert rotor_quantum(speeds) == pytest.approx(law["rotor_speed_scale"] / law["b"], rel=1e-9)
+    assert np.mean(np.abs(speeds / rotor_quantum(speeds) - np.round(speeds / rotor_quantum(speeds))) > 0.01) > 0.5
