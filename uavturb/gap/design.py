@@ -68,9 +68,11 @@ ROWS_LAG_CACHE_BYTES = 32 << 20
 #: benchmark's line through a 5- and a 10-minute measurement carried that growth to an hour (1.01 GB per
 #: flight-hour for 0.89 GB with these caps, the same reports to the bit)
 LAG_CACHE_TAUS, ROWS_LAG_CACHE_TAUS = 12, 46
-#: rows from which the lagged sums' recordings are filtered on several threads: a minute at 100 Hz filters in a
-#: tenth of a millisecond, less than handing it to a thread costs
-LAG_THREADS_FROM_ROWS = 100_000
+#: rows from which the lagged sums' recordings are filtered on several threads, in all and per recording on
+#: average: a minute at 100 Hz filters in a tenth of a millisecond, less than handing it to a thread costs. Twelve
+#: one-minute flights (144,000 rows of 12,000) analysed in 9.5-10.1 s on one thread and 11.2-11.3 s on two (2 cores,
+#: in turn); the benchmark's hour in 5-minute recordings (60,000 rows each) gains from them
+LAG_THREADS_FROM_ROWS, LAG_THREADS_RECORDING_ROWS = 100_000, 30_000
 
 #: Hz, the rate the gap finder analyses at (block means of faster recordings; :func:`gap_data`)
 RATE_HZ = 25.0
@@ -222,10 +224,10 @@ class GapData:
         # each recording alone, so several at once where they are long (the filter's passes over whole arrays
         # release the GIL)
         rows_to_filter = sum(r.stop - r.start if isinstance(r, slice) else len(r) for _, r, _ in todo)
+        threaded = rows_to_filter >= max(LAG_THREADS_FROM_ROWS, LAG_THREADS_RECORDING_ROWS * len(todo))
         for (g, rows, _), lagged in zip(todo, in_threads(
                 lambda plan: sum_of_squares(lag_rotor_speeds(self.t[plan[1]], self.rotor_speeds[plan[1]], key,
-                                                             plan[2])), todo,
-                max_threads=None if rows_to_filter >= LAG_THREADS_FROM_ROWS else 1)):
+                                                             plan[2])), todo, max_threads=None if threaded else 1)):
             out[rows] = lagged
             done.add(g)
         return out
