@@ -473,8 +473,8 @@ def _tilts_per_recording_alike(data: GapData, A: np.ndarray, T: np.ndarray, own:
     neither. The rows where a heading turned tell them apart: a tilt turns with the body there, a wind does not. The
     push is taken for the tilts where, with one tilt per recording in the model (columns ``T R e_x``, ``T R e_y`` on
     that recording's rows), what is left of the push stands under :data:`TILT_SEPARATION_Z` standard errors, while
-    the tilts stand :data:`TILT_SEPARATION_Z` beyond the push (their Wald statistic on ``2 R`` degrees of freedom,
-    as the one-sided normal deviate of the same tail probability), and each tilt is plausible
+    the tilts stand :data:`TILT_SEPARATION_Z` beyond the push (:func:`_wald_z`: their Wald statistic on ``2 R``
+    degrees of freedom, as the one-sided normal deviate of the same tail probability), and each tilt is plausible
     (:data:`TILT_MAX_DEG`). Where neither stands beyond the other (every recording at one heading throughout: a
     wind tunnel) the push stays named: one push for all recordings is then the simpler reading.
 
@@ -489,10 +489,11 @@ def _tilts_per_recording_alike(data: GapData, A: np.ndarray, T: np.ndarray, own:
         on = np.where(data.group == g, T, 0.0)
         cols += [(on[:, None] * data.R[:, :, j]).T.reshape(-1) for j in (0, 1)]
     tilts = np.stack(cols, axis=1)  # (3K, 2R)
-    left, left_se, z_push = push_beyond_tilt(data, A, tilts, own)
+    fit = _robust_fit(data, np.hstack([A, tilts]))  # the push and the tilts side by side
+    left, left_se, z_push = _push_left(fit, own)
     if z_push >= TILT_SEPARATION_Z:
         return None
-    z_tilts = tilts_beyond_push(data, A, tilts)
+    z_tilts = _wald_z(fit, np.arange(A.shape[1], A.shape[1] + tilts.shape[1]))
     if z_tilts < TILT_SEPARATION_Z:
         return None
     d = _coefficients(data, np.hstack([A[:, rest], tilts]))[len(rest):].reshape(-1, 2)  # rad, per recording
@@ -531,13 +532,10 @@ def _coefficients(data: GapData, J: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(J, stack_target(data.y), rcond=None)[0]
 
 
-def tilts_beyond_push(data: GapData, A: np.ndarray, tilts: np.ndarray) -> float:
-    """How far thrust-axis tilts stand apart from the model's columns ``A`` (3K, p), a push among them: the Wald
-    statistic of the tilts' columns ``tilts`` (3K, q) fitted beside ``A`` (Newey-West errors over
-    :data:`TILT_LAG_S`, recordings independent, as :func:`push_beyond_tilt`), on ``q`` degrees of freedom, given
-    as the one-sided normal deviate with the same tail probability (comparable with a z of one parameter)."""
-    fit = _robust_fit(data, np.hstack([A, tilts]))
-    idx = np.arange(A.shape[1], A.shape[1] + tilts.shape[1])
+def _wald_z(fit: LstsqResult, idx: np.ndarray) -> float:
+    """How far the coefficients ``idx`` of ``fit`` (thrust-axis tilts fitted beside the model's columns, a push
+    among them) stand from zero: their Wald statistic on ``len(idx)`` degrees of freedom, given as the one-sided
+    normal deviate with the same tail probability (comparable with a z of one parameter)."""
     f, C = fit.coef[idx], fit.cov[np.ix_(idx, idx)]
     wald = float(max(f @ np.linalg.pinv(C) @ f, 0.0))
     return float(-ndtri(max(float(chdtrc(len(idx), wald)), 1e-300)))
@@ -652,7 +650,12 @@ def push_beyond_tilt(data: GapData, A: np.ndarray, tilt_cols: np.ndarray, own: l
     stderr : N, its standard error (along the push)
     z : the push's Wald statistic's square root, ``sqrt(f^T C^-1 f)`` (C: the push's 2x2 covariance)
     """
-    fit = _robust_fit(data, np.hstack([A, tilt_cols]))
+    return _push_left(_robust_fit(data, np.hstack([A, tilt_cols])), own)
+
+
+def _push_left(fit: LstsqResult, own: list[int]) -> tuple[float, float, float]:
+    """``(push [N], its standard error along itself [N], z)`` of the push's columns ``own`` in ``fit``
+    (:func:`push_beyond_tilt`)."""
     f = fit.coef[own]
     C = fit.cov[np.ix_(own, own)]
     push = float(np.hypot(*f))
