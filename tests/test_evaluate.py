@@ -23,10 +23,10 @@ from uavturb.data.recordings import (
 )
 from uavturb.errors import InputError
 from uavturb.evaluation.bands import band_edges, band_metrics, ground_effect_height
-from uavturb.evaluation.law import law_consistency
+from uavturb.evaluation.law import evaluation_vehicle, law_consistency
 from uavturb.evaluation.metrics import FlightResult, predict_heights
 from uavturb.io.reader import read_recording
-from uavturb.physics.ground_effect import GroundEffectFit, phi_alpha_beta
+from uavturb.physics.ground_effect import GroundEffectFit, identify_alpha_beta, phi_alpha_beta
 from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import generate_flight
@@ -145,6 +145,39 @@ def test_an_accelerometer_bias_is_not_ground_truth_turbulence(setup):
     cam = forward_camera(16, 16, 70.0, 45.0)
     fa, fa_biased = (recording_sequence(r, rec.vehicle, cam, frame_dt=0.25).fa for r in (rec, biased))
     assert np.abs(fa_biased - fa).max() < 0.005
+
+
+def test_commands_through_an_idle_speed_are_read_as_identified(setup):
+    """The same noise-free flight with its rotor speeds recorded as commands 30 % of the hover speed under the
+    rotors' own (an idle speed in the command map): the vehicle identified on it reads the offset, and every
+    flight's ground-truth f_a and sum of squared speeds are read on the speeds so moved. Then f_a is the true one
+    again and the law's mu the simulator's; read as recorded, with the same constants, f_a was a third of its size
+    off and mu 2.6."""
+    _, _, _, flights = setup
+    rec = read_recording(flights[0])
+    w = rec.rotors.speeds
+    idle = 0.3 * float(np.median(w))
+    commands = dataclasses.replace(rec, rotors=dataclasses.replace(rec.rotors, speeds=np.where(w > 0, w - idle, 0.0)))
+    veh, source, read = evaluation_vehicle(commands, progress=False)
+    assert read is not None and "moved by" in source
+    cam = forward_camera(16, 16, 70.0, 45.0)
+    truth = recording_sequence(rec, rec.vehicle, cam, frame_dt=0.25)
+    size = np.sqrt(np.mean(truth.fa**2))
+
+    def fa_error(seq):
+        return np.sqrt(np.mean((seq.fa - truth.fa) ** 2)) / size
+
+    def mu(seq):
+        fit = identify_alpha_beta(seq.fa[seq.airborne], seq.d[seq.airborne], seq.sum_omega2[seq.airborne])
+        return 16 * fit.beta / HEXAROTOR.rotor_radius**2
+
+    as_read = recording_sequence(commands, veh, cam, frame_dt=0.25, speeds_read=read)
+    as_recorded = recording_sequence(commands, veh, cam, frame_dt=0.25)
+    assert fa_error(as_read) < 0.03 and mu(as_read) == pytest.approx(MU, rel=0.03)
+    assert fa_error(as_recorded) > 0.2 and mu(as_recorded) > 1.2 * MU
+    # speeds the identification leaves as recorded: no reading, and the sequence is the recorded one
+    veh_exact, _, read_exact = evaluation_vehicle(rec, progress=False)
+    assert read_exact is None
 
 
 def test_cameras():

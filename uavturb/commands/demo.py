@@ -37,6 +37,7 @@ from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.runs.store import METRICS, RMSE_D, RMSE_FA_SCALED, ui_url
 from uavturb.runs.sweep import sweep
 from uavturb.runs.table1 import compare
+from uavturb.sysid.flight_data import flight_data
 from uavturb.sysid.residuals import residual_forces, write_residuals
 
 TRUE_MU = 2.0
@@ -73,7 +74,10 @@ def physics_on_flight(rec_path: Path, out: Path) -> dict:
     _say(f"k_T error {100 * err_kT:+.2f} %, J_z/J_x error {100 * err_ratio:+.2f} % (true values from the simulator)")
 
     (rec,) = load_recordings([rec_path])
-    res = residual_forces(rec, ident.apply(rec.vehicle))
+    how = ident.speeds_read_note()
+    if how:
+        _say(f"rotor speeds read as identified: {how}")
+    res = residual_forces(ident.flight_data_read(flight_data(rec)), ident.apply(rec.vehicle))
     csv = write_residuals(res, out / "residuals.csv", overwrite=True)
     _say(f"residual force series ({res.source}) -> {csv}, RMS {res.rmse:.3f} N")
 

@@ -125,9 +125,9 @@ def evaluate(run_id: str | None, recordings: Sequence[str | Path], *, out: str |
     size = image_size_of(camera)
 
     recs = load_recordings(recordings, vehicle)
-    veh, vehicle_source = evaluation_vehicle(recs[0], progress)
+    veh, vehicle_source, read = evaluation_vehicle(recs[0], progress)
     seqs = [recording_sequence(r, veh, camera, frame_dt=frame_dt if frame_dt is not None else camera.frame_dt,
-                               progress=progress) for r in recs]
+                               speeds_read=read, progress=progress) for r in recs]
     law = evaluation_law(recs, seqs[0], veh, vehicle_source, ge_fraction, progress)
     fit, h_ge = law.fit, law.h_ge
     results, rows = flight_results(module, seqs, fit, h_ge)
@@ -238,7 +238,7 @@ class _SharedFlights:
 
     def __init__(self, recs: list[Any], ge_fraction: float, progress: bool):
         self.recs, self.ge_fraction, self.progress = recs, ge_fraction, progress
-        self.vehicle, self.vehicle_source = evaluation_vehicle(recs[0], progress)
+        self.vehicle, self.vehicle_source, self.speeds_read = evaluation_vehicle(recs[0], progress)
         self._by_camera: dict[str, list[Any]] = {}
         self.law: EvaluationLaw | None = None
 
@@ -247,7 +247,8 @@ class _SharedFlights:
         key = json.dumps({"camera": camera.record(), "frame_dt": frame_dt}, sort_keys=True)
         if key not in self._by_camera:
             self._by_camera[key] = [recording_sequence(r, self.vehicle, camera, frame_dt=frame_dt,
-                                                       progress=self.progress) for r in self.recs]
+                                                       speeds_read=self.speeds_read, progress=self.progress)
+                                    for r in self.recs]
         seqs = self._by_camera[key]
         if self.law is None:  # the law depends on the first flight's frames, not on the camera
             self.law = evaluation_law(self.recs, seqs[0], self.vehicle, self.vehicle_source, self.ge_fraction,

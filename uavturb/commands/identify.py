@@ -256,16 +256,11 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     else:
         raise InputError("--params", f"unknown value '{params}' (allowed: identified, nominal)")
     fd = flight_data(rec, time_base="groundtruth" if source == "mocap" else "auto")  # an IMU unread cuts no rows
-    moved = ident is not None and ident.rotor_speed_offset and ident.rotor_speed_offset["applied_rad_s"] != 0.0
-    late = ident is not None and ident.command_lag and ident.command_lag["applied_s"] > 0.0
-    if moved or late:
-        fd = dataclasses.replace(fd, rotor_speeds=ident.rotor_speeds_read(fd.rotor_speeds, fd.t))
-        how = ([f"moved by {ident.rotor_speed_offset['applied_rad_s']:.4g} rad/s (an idle speed in the command map, "
-                "the hover speed kept)"] if moved else []) + \
-            ([f"lagged by {1e3 * ident.command_lag['applied_s']:.0f} ms (the motors' lag behind their commands)"]
-             if late else [])
-        print(f"uavturb residuals: the commanded rotor speeds read as identify read them, {' and '.join(how)}: the "
-              "torques of the identified inertia need the rotors' own speeds", file=sys.stderr)
+    how = ident.speeds_read_note() if ident is not None else None
+    if how:
+        fd = ident.flight_data_read(fd)
+        print(f"uavturb residuals: the commanded rotor speeds read as identify read them, {how}: the torques of the "
+              "identified inertia need the rotors' own speeds", file=sys.stderr)
     (contact,), _ = contact_masks([fd], v, [str(path)])  # the rows the gap finder leaves out
     bias = flight_accel_bias(fd, ~contact) if source in ("auto", "imu") else None  # a sensor's error, no force
     if bias is not None:

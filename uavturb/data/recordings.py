@@ -34,6 +34,7 @@ Choices (ours):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
@@ -52,7 +53,7 @@ from uavturb.scene.camera import CameraModel, scaled_intrinsics
 from uavturb.scene.heights import SurfaceIndex
 from uavturb.scene.projection import camera_pose_world, depth_from_points, prepare_cloud
 from uavturb.sysid.accelerometer import flight_accel_bias
-from uavturb.sysid.flight_data import flight_data
+from uavturb.sysid.flight_data import FlightData, flight_data
 from uavturb.sysid.residuals import residual_forces
 
 DEFAULT_FRAME_DT = 0.05  # s: the training shards' 20 Hz camera
@@ -133,7 +134,9 @@ def box_average(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray, width: floa
 
 
 def recording_sequence(rec: Recording, vehicle: Vehicle, camera: CameraModel, *, frame_dt: float | None = None,
-                       gt_window_s: float = 0.05, progress: bool = False) -> RecordingSequence:
+                       gt_window_s: float = 0.05,
+                       speeds_read: Callable[[FlightData], FlightData] | None = None,
+                       progress: bool = False) -> RecordingSequence:
     """A recording as depth frames, true heights and ground-truth ``f_a`` (see the module docstring).
 
     Parameters
@@ -145,6 +148,10 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, camera: CameraModel, *,
     frame_dt : s, frame period where the recording lists no cam0 frames (default: cam0's
         ``rate_hz``, else 0.05)
     gt_window_s : s, longest averaging window of the ground-truth f_a
+    speeds_read : the flight data with its rotor speeds read as ``vehicle`` was identified on them
+        (:meth:`~uavturb.sysid.identification.Identification.flight_data_read`: commands moved by an idle speed,
+        lagged by the motors' lag); None: as recorded. The ground-truth f_a, ``sum_omega2`` and ``rotor_speeds``
+        are read on them
     progress : print frames/s to stderr
 
     Raises
@@ -156,6 +163,8 @@ def recording_sequence(rec: Recording, vehicle: Vehicle, camera: CameraModel, *,
     if rec.points is None:
         raise InputError(f"{where}/{POINTS_PLY}", "point cloud needed (depth images and heights come from it)")
     fd = flight_data(rec, heights=False)
+    if speeds_read is not None:
+        fd = speeds_read(fd)
     (contact,), _ = contact_masks([fd], vehicle, [str(where)])  # the bias is measured in flight
     bias = flight_accel_bias(fd, ~contact)  # an accelerometer's bias, measured against the motion capture
     res = residual_forces(fd, vehicle, accel_bias=None if bias is None else bias.b)

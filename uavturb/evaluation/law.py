@@ -9,23 +9,33 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from uavturb.errors import InputError
 from uavturb.evaluation.bands import ground_effect_height
 from uavturb.physics.ground_effect import identify_alpha_beta
+from uavturb.sysid.flight_data import FlightData
 from uavturb.sysid.identification import identify
 
 
-def evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
-    """(vehicle, where its constants come from): identified on the first flight, else (said so) its
-    ``vehicle.yaml``'s constants."""
+def evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str, Callable[[FlightData], FlightData] | None]:
+    """(vehicle, where its constants come from, how every flight's rotor speeds are read for them): identified on
+    the first flight, else (said so) its ``vehicle.yaml``'s constants. The reading is the identification's
+    (:meth:`~uavturb.sysid.identification.Identification.flight_data_read`: commanded speeds moved by an idle speed
+    and lagged by the motors' lag where it read and applied them, said so); None where the speeds are read as
+    recorded. The ground-truth f_a and the law's sum of squared speeds need it: a thrust coefficient identified on
+    moved speeds, applied to the speeds as recorded, misreads the thrust away from hover."""
+    read = None
     try:
         ident = identify([first], first.vehicle)
         veh = ident.apply(first.vehicle)
         vehicle_source = f"identified on {first.name}"
         if ident.fallbacks(first.vehicle):
             vehicle_source += "; " + "; ".join(ident.fallbacks(first.vehicle))
+        how = ident.speeds_read_note()
+        if how:
+            read = ident.flight_data_read
+            vehicle_source += f"; every flight's commanded rotor speeds read as they were identified, {how}"
     except InputError as e:
         if not first.vehicle.is_complete():
             raise InputError(f"{first.path}/vehicle.yaml", f"cannot identify the vehicle ({e.problem}) and "
@@ -34,7 +44,7 @@ def evaluation_vehicle(first: Any, progress: bool) -> tuple[Any, str]:
         vehicle_source = f"{first.name}/vehicle.yaml (identification impossible: {e.problem})"
     if progress:
         print(f"vehicle constants: {vehicle_source}", file=sys.stderr)
-    return veh, vehicle_source
+    return veh, vehicle_source, read
 
 
 def fit_ground_effect_law(first: Any, path: Any, ge_fraction: float, progress: bool) -> tuple[Any, float]:
