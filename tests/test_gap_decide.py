@@ -457,3 +457,47 @@ def test_a_small_surface_gain_is_undecided_where_the_residual_left_follows_the_h
     assert selection.near_misses(tried, decided=set(), height_driver=0.30, beyond_noise_N=0.19) == []
     lost = {"ground_effect": tried["ground_effect_exponential"]}
     assert selection.near_misses(lost, decided=set(), height_driver=0.77, beyond_noise_N=0.19) == []
+
+
+def test_an_unpinned_alternative_law_is_no_candidate():
+    """An alternative ground law (the exponential one) taken first and rejected as not pinned had kept out the
+    laws that pass with another effect beside them: the selection is made again without it, and its outcome is kept
+    where it names a ground law; the law rejected stays in ``rejected``, saying what was named instead."""
+    from types import SimpleNamespace
+
+    from uavturb.gap.finder import _without_unpinned_laws
+
+    candidates = ["ground_effect", "ground_effect_exponential", "battery_voltage", "rotor_drag"]
+    unpinned = {"name": "ground_effect_exponential", "params": {"A": 0.38, "lam": 0.98}, "reason": "not_pinned",
+                "why": "its fitted value lies within 2 standard errors of zero"}
+    first = (SimpleNamespace(chosen=[], tried={"ground_effect_exponential": {"step1_z": 3.2}}), [], [unpinned])
+    asked = []
+
+    def selected_naming(names):
+        def selected(among):
+            asked.append(list(among))
+            return SimpleNamespace(chosen=list(names), tried={})
+        return selected
+
+    def decide(sel, among):
+        return sel, [], [{"name": "rotor_drag", "reason": "too_small", "why": "too small"}]
+
+    sel, ambiguous, rejected = _without_unpinned_laws(first, candidates, selected_naming(
+        ["ground_effect", "battery_voltage"]), decide)
+    assert asked == [["ground_effect", "battery_voltage", "rotor_drag"]]  # the unpinned law is no candidate
+    assert sel.chosen == ["ground_effect", "battery_voltage"] and ambiguous == []
+    assert [r["name"] for r in rejected] == ["rotor_drag", "ground_effect_exponential"]
+    assert rejected[1]["why"].endswith("the selection made again without it names `ground_effect`")
+    assert sel.tried["ground_effect_exponential"] == {"step1_z": 3.2, "not_pinned_selected_again": 1.0}
+    # made again, it names no ground law: what was decided first stands
+    assert _without_unpinned_laws(first, candidates, selected_naming(["battery_voltage"]), decide) is first
+    # a law rejected for its range, or one not pinned beside a ground law named: nothing made again
+    asked.clear()
+    outside = (first[0], [], [unpinned | {"reason": "outside_range"}])
+    assert _without_unpinned_laws(outside, candidates, selected_naming(["ground_effect"]), decide) is outside
+    named = (SimpleNamespace(chosen=["ground_effect"], tried={}), [], [unpinned])
+    assert _without_unpinned_laws(named, candidates, selected_naming(["ground_effect"]), decide) is named
+    assert asked == []
+    # Cheeseman-Bennett, the standard law, is no alternative: rejected as not pinned, nothing is made again
+    standard = (first[0], [], [unpinned | {"name": "ground_effect"}])
+    assert _without_unpinned_laws(standard, candidates, selected_naming(["ground_effect"]), decide) is standard

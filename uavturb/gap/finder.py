@@ -353,11 +353,18 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     floor = rounding_floor(data, base.nominal.coef["k_T"], quantum)
     progress("selecting effects")
     evidence = nominal_curve_evidence(data, base.least_squares, heights_broken is None)
-    sel = select(data, candidates, base=sim_fit_base, thrust_floor=floor, curve=evidence,
-                 unphysical=lambda fit, name: outside_range(data, fit, name))
+
+    def selected(among: list[str]) -> Selection:
+        return select(data, among, base=sim_fit_base, thrust_floor=floor, curve=evidence,
+                      unphysical=lambda fit, name: outside_range(data, fit, name))
+
+    sel = selected(candidates)
     progress("deciding what the data support")
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
     sel, ambiguous, rejected = _decide(data, sel, candidates, refits, levels_read=levels.basis != "none")
+    sel, ambiguous, rejected = _without_unpinned_laws((sel, ambiguous, rejected), candidates, selected,
+                                                      lambda s, among: _decide(data, s, among, refits,
+                                                                               levels_read=levels.basis != "none"))
     sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim, base.offset)
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
@@ -1122,6 +1129,52 @@ def outside_range(data: GapData, fit: ModelFit, name: str, facts: Any = None) ->
     return EFFECTS[name].physical_range.violation(params, facts or flight_facts(data, fit.coef["k_T"]))
 
 
+def _no_discovery(data: GapData, fit: ModelFit, name: str, facts: Any, refits: Refits | None = None
+                  ) -> tuple[str | None, str | None]:
+    """(why the effect ``name`` as ``fit`` has it is no discovery, which check says so: ``outside_range``,
+    ``too_small`` or ``not_pinned``), or (None, None); the checks in that order, the costly one last."""
+    for reason, check in (("outside_range", lambda: outside_range(data, fit, name, facts)),
+                          ("too_small", lambda: too_small(data, fit, name)),
+                          ("not_pinned", lambda: not_pinned(data, fit, name, refits))):
+        why = check()
+        if why is not None:
+            return why, reason
+    return None, None
+
+
+def _without_unpinned_laws(decided: tuple[Selection, list[dict], list[dict]], candidates: list[str],
+                           selected: Callable[[list[str]], Selection],
+                           decide: Callable[[Selection, list[str]], tuple[Selection, list[dict], list[dict]]]
+                           ) -> tuple[Selection, list[dict], list[dict]]:
+    """``decided`` (the selection, ``ambiguous``, ``rejected`` after :func:`_decide`), or, where it rejected an
+    alternative surface law (``EffectSpec.alternative_to``) as not pinned (:func:`not_pinned`: its parameters trade
+    against each other on these heights) and names no law of that surface, the selection and decisions made again
+    without that law, where they name one. A law the data do not pin is no candidate: taken first, it had kept out
+    the laws that pass with other effects beside them. A 50 g quadrotor's 40 s flight under Cheeseman-Bennett
+    (mu = 3), its commands following a sagging battery (k_V = 0.05), had the exponential law taken at the first step
+    on the curve's support (A = 0.38 +- 0.23, lam = 0.98 +- 1.1), rejected, and the battery's law after it: nothing
+    named, the curve 49 standard errors above 1. Without it, Cheeseman-Bennett and the battery's law pass together:
+    mu = 2.98 +- 2.7, k_V = 0.050 +- 0.003. The law rejected stays in ``rejected``, saying what was named instead;
+    its held-out figures stay in ``candidates_tried``."""
+    sel, ambiguous, rejected = decided
+    named_surfaces = {EFFECTS[n].surface for n in sel.chosen}
+    unpinned = [r for r in rejected if r.get("reason") == "not_pinned" and EFFECTS[r["name"]].alternative_to
+                and EFFECTS[r["name"]].surface not in named_surfaces]
+    if not unpinned:
+        return decided
+    left_out = {r["name"] for r in unpinned}
+    among = [c for c in candidates if c not in left_out]
+    again, ambiguous_again, rejected_again = decide(selected(among), among)
+    found = [n for n in again.chosen if EFFECTS[n].surface in {EFFECTS[r["name"]].surface for r in unpinned}]
+    if not found:
+        return decided
+    for name in left_out:
+        again.tried[name] = sel.tried.get(name, {}) | {"not_pinned_selected_again": 1.0}
+    said = [r | {"why": f"{r['why']}; the selection made again without it names {', '.join(f'`{n}`' for n in found)}"}
+            for r in unpinned]
+    return again, ambiguous_again, rejected_again + said
+
+
 def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits | None = None,
             levels_read: bool = True) -> tuple[Selection, list[dict], list[dict]]:
     """Keep only what the data decide (:mod:`uavturb.gap.decide`): a chosen effect outside its
@@ -1141,15 +1194,14 @@ def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits
         drop = None
         for s in steps:
             params, _ = final.effect_params(s.name)
-            bad = (outside_range(data, final, s.name, facts) or too_small(data, final, s.name)
-                   or not_pinned(data, final, s.name, refits))
+            bad, reason = _no_discovery(data, final, s.name, facts, refits)
             if bad is not None and with_undecided is not None and _held_beside(data, with_undecided, s.name):
                 # it held beside an effect left undecided, and fails without it: its value hangs on that one
                 ambiguous.append(_hangs_on(with_undecided, s.name, undecided, bad))
                 drop = s
                 break
             if bad is not None:
-                rejected.append({"name": s.name, "params": params, "why": bad})
+                rejected.append({"name": s.name, "params": params, "reason": reason, "why": bad})
                 drop = s
                 break
             amb = ambiguity(data, final, s.name, facts)
