@@ -501,3 +501,18 @@ def test_an_unpinned_alternative_law_is_no_candidate():
     # Cheeseman-Bennett, the standard law, is no alternative: rejected as not pinned, nothing is made again
     standard = (first[0], [], [unpinned | {"name": "ground_effect"}])
     assert _without_unpinned_laws(standard, candidates, selected_naming(["ground_effect"]), decide) is standard
+
+
+def test_a_lift_the_curve_shows_is_said_beside_an_unpinned_ground_law():
+    """A ground law rejected as not pinned while the curve stands well above 1 and no ground law is named: its line
+    says the lift is there; not where a ground law is named, the curve shows too little, or another check failed."""
+    from uavturb.gap.finder import _lift_beside_unpinned
+
+    unpinned = {"name": "ground_effect_exponential", "reason": "not_pinned", "why": "within 2 standard errors of zero"}
+    other = {"name": "battery_voltage", "reason": "not_pinned", "why": "within 2 standard errors of zero"}
+    ranged = {"name": "ground_effect", "reason": "outside_range", "why": "mu outside its range"}
+    out = _lift_beside_unpinned([unpinned, other, ranged], ["rotor_drag"], 48.8)
+    assert "the measured surface curve stands 49 standard errors above 1" in out[0]["why"]
+    assert out[1] == other and out[2] == ranged
+    for chosen, lift in ((["ground_effect"], 48.8), (["rotor_drag"], 3.9)):
+        assert _lift_beside_unpinned([unpinned], chosen, lift) == [unpinned]

@@ -53,6 +53,7 @@ from uavturb.gap.preparation import (
     state_thinned,
 )
 from uavturb.gap.selection import (
+    LIFT_Z,
     Z_DISTINCT,
     Z_IMPROVE,
     CurveEvidence,
@@ -365,6 +366,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     sel, ambiguous, rejected = _without_unpinned_laws((sel, ambiguous, rejected), candidates, selected,
                                                       lambda s, among: _decide(data, s, among, refits,
                                                                                levels_read=levels.basis != "none"))
+    rejected = _lift_beside_unpinned(rejected, sel.chosen, evidence.lift_z)
     sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim, base.offset)
     final: ModelFit = sel.final
     facts = flight_facts(data, final.coef["k_T"])
@@ -1173,6 +1175,19 @@ def _without_unpinned_laws(decided: tuple[Selection, list[dict], list[dict]], ca
     said = [r | {"why": f"{r['why']}; the selection made again without it names {', '.join(f'`{n}`' for n in found)}"}
             for r in unpinned]
     return again, ambiguous_again, rejected_again + said
+
+
+def _lift_beside_unpinned(rejected: list[dict], chosen: Sequence[str], lift: float) -> list[dict]:
+    """``rejected`` with the entry of each ground law rejected as not pinned, while no ground law is named, saying
+    the lift the measured surface curve shows (``lift``: its standard errors above 1 near the floor, at
+    :data:`~uavturb.gap.selection.LIFT_Z` or more): "within two standard errors of zero" alone reads as no lift,
+    where a curve 49 standard errors above 1 says there is one whose law these flights leave open."""
+    if lift < LIFT_Z or any(EFFECTS[n].surface == "d_down" for n in chosen):
+        return rejected
+    return [r | {"why": f"{r['why']}; yet the measured surface curve stands {lift:.0f} standard errors above 1 near "
+                        "the floor: a lift is there, whose law's values these heights leave open (hover over the "
+                        "floor at several heights within a few rotor radii to pin them)"}
+            if r.get("reason") == "not_pinned" and EFFECTS[r["name"]].surface == "d_down" else r for r in rejected]
 
 
 def _decide(data: GapData, sel: Selection, candidates: list[str], refits: Refits | None = None,
