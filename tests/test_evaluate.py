@@ -176,7 +176,7 @@ def test_commands_through_an_idle_speed_are_read_as_identified(setup):
     assert fa_error(as_read) < 0.03 and mu(as_read) == pytest.approx(MU, rel=0.03)
     assert fa_error(as_recorded) > 0.2 and mu(as_recorded) > 1.2 * MU
     # speeds the identification leaves as recorded: no reading, and the sequence is the recorded one
-    veh_exact, _, read_exact = evaluation_vehicle(rec, progress=False)
+    _, _, read_exact = evaluation_vehicle(rec, progress=False)
     assert read_exact is None
 
 

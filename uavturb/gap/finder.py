@@ -362,10 +362,11 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     sel = selected(candidates)
     progress("deciding what the data support")
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
-    sel, ambiguous, rejected = _decide(data, sel, candidates, refits, levels_read=levels.basis != "none")
-    sel, ambiguous, rejected = _without_unpinned_laws((sel, ambiguous, rejected), candidates, selected,
-                                                      lambda s, among: _decide(data, s, among, refits,
-                                                                               levels_read=levels.basis != "none"))
+
+    def decided(chosen: Selection, among: list[str]) -> tuple[Selection, list[dict], list[dict]]:
+        return _decide(data, chosen, among, refits, levels_read=levels.basis != "none")
+
+    sel, ambiguous, rejected = _without_unpinned_laws(decided(sel, candidates), candidates, selected, decided)
     rejected = _lift_beside_unpinned(rejected, sel.chosen, evidence.lift_z)
     sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim, base.offset)
     final: ModelFit = sel.final
