@@ -51,11 +51,9 @@ def local_quadratic(t: np.ndarray, x: np.ndarray, window: int, deriv: int = 1) -
     if N < 3:
         return np.zeros_like(x) if deriv else x.copy()
     n = min(window, N if N % 2 else N - 1)
-    step = np.diff(t)
-    dt = float(np.median(step))
-    if dt > 0 and float(np.max(np.abs(step - dt))) <= UNIFORM_TOLERANCE * dt:
+    if _uniform(t):
         # uniform sampling: the same fits by Savitzky-Golay's convolution (equal to 1e-10), ~50x faster
-        return savgol_filter(x, n, 2, deriv=deriv, delta=dt, axis=0)
+        return savgol_filter(x, n, 2, deriv=deriv, delta=float(np.median(np.diff(t))), axis=0)
     out = np.empty_like(flat)
     for a in range(0, N, CHUNK_ROWS):  # in chunks: the (rows, n, 3) fits of an hour at 200 Hz would take GBs
         rows = np.arange(a, min(a + CHUNK_ROWS, N))
@@ -65,6 +63,15 @@ def local_quadratic(t: np.ndarray, x: np.ndarray, window: int, deriv: int = 1) -
 
 #: relative spread of the time steps under which sampling counts as uniform (:func:`local_quadratic`)
 UNIFORM_TOLERANCE = 1e-6
+
+
+def _uniform(t: np.ndarray) -> bool:
+    """Whether the times ``t`` [s] (N >= 2,) are evenly spaced within :data:`UNIFORM_TOLERANCE` of their median step."""
+    step = np.diff(t)
+    dt = float(np.median(step))
+    return dt > 0 and float(np.max(np.abs(step - dt))) <= UNIFORM_TOLERANCE * dt
+
+
 #: rows fitted at once by :func:`local_quadratic` (bounds its memory to ~100 MB whatever the length)
 CHUNK_ROWS = 65536
 
@@ -119,8 +126,13 @@ def derivative_matched(t: np.ndarray, x: np.ndarray, window: int) -> np.ndarray:
     weights[:-1] += 0.5 * dt * g  # x_{i+m}
     weights[1:] += 0.5 * dt * g  # x_{i+m+1}
     flat = x.reshape(N, -1)
-    out = local_quadratic(t, flat, n, deriv=0)
-    if N > 2 * h:
-        inner = np.stack([np.convolve(flat[:, d], weights[::-1], mode="valid") for d in range(flat.shape[1])], axis=1)
-        out[h:N - h] = inner
+    out = np.empty_like(flat)  # n <= N, so at least one row lies inside
+    out[h:N - h] = np.stack([np.convolve(flat[:, d], weights[::-1], mode="valid") for d in range(flat.shape[1])],
+                            axis=1)
+    if _uniform(t):  # the smoother's convolution is cheap on every row; its end rows as local_quadratic gives them
+        ends = local_quadratic(t, flat, n, deriv=0)
+        out[:h], out[N - h:] = ends[:h], ends[N - h:]
+    else:  # the end rows' fits only (a fit on every row had taken 2/3 of the rotor timing's reading, jittered logs)
+        out[:h] = _fits(t, flat, np.arange(h), n, 0)
+        out[N - h:] = _fits(t, flat, np.arange(N - h, N), n, 0)
     return out.reshape(x.shape)
