@@ -750,3 +750,14 @@ def test_a_law_band_is_how_far_the_law_moves_within_its_errors():
     lam_part = (law_in_bins(curve, "ground_effect_exponential", [A, 1.7], R, **GEOMETRY)
                 - law_in_bins(curve, "ground_effect_exponential", [A, 1.3], R, **GEOMETRY)) / 2
     assert both == pytest.approx(np.hypot(a_part, lam_part))
+
+
+def test_a_curve_of_one_height_bin_says_why_no_law_is_judged():
+    """Hovers at one low height and far from the floor only: one height bin, too few to judge a law's shape; the
+    curve's notes say so with its samples and bins (a report had said "Not measured" and nothing of why)."""
+    data = _steps_and_climbs(2.0, 0.0)
+    data = data.subset(np.isclose(data.d_down, 0.15) | (data.d_down >= 1.6))
+    report, curve, fits = surface_laws.finder_surface_curve(data, fit_model(data, {"ground_effect"}), resample=False)
+    assert report is None and fits == {} and len(curve.bins) == 1
+    assert curve.notes[-1].startswith("1 height bin(s) from 800 hover-like samples in 8 time blocks under 1.00 m")
+    assert "too few to judge a law's shape, which needs 2 bins or more" in curve.notes[-1]

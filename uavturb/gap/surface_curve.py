@@ -349,6 +349,17 @@ def measured_curve(d, thrust_needed, thrust_modelled, group, *, hover, far_m: fl
     return SurfaceCurve(out, far, levels, notes, level_error, dn, ratio, gn, bn, edges, far_d)
 
 
+def too_few_bins_note(curve: SurfaceCurve, needed: int = 2) -> str:
+    """The sentence saying why ``curve`` judges no law's shape: it holds fewer than ``needed`` height bins (a
+    one-parameter law needs two, the fewest any law of the registry needs), with how many hover-like samples and
+    time blocks lay under its normalisation height and what a bin asks of them."""
+    blocks = len(set(zip(curve.group.tolist(), curve.block.tolist())))
+    return (f"{len(curve.bins)} height bin(s) from {len(curve.d)} hover-like samples in {blocks} time blocks "
+            f"under {curve.far_m:.2f} m (a bin needs {MIN_BIN_N} samples from {MIN_BLOCKS} blocks): too few to "
+            f"judge a law's shape, which needs {needed} bins or more; hover at several low heights, a few seconds "
+            f"each, to measure it")
+
+
 def resolution_error(quantum: float, rotor_speeds: np.ndarray) -> np.ndarray | None:
     """(K,) -, the relative thrust error rotor speeds ``(K, N)`` [rad/s] recorded to ``quantum`` [rad/s] leave in a
     steady hover: every rotor off by the same rounding ``e``, uniform in ``+-quantum/2``, moves ``sum(w^2)`` by

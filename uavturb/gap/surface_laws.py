@@ -30,12 +30,14 @@ from uavturb.gap.design import GapData, dependent_columns
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, _nl_values
 from uavturb.gap.surface_curve import (
+    MIN_BIN_N,
     SurfaceCurve,
     bin_of,
     bin_stats,
     measured_curve,
     resolution_error,
     shifted_curve,
+    too_few_bins_note,
     voltage_drift,
 )
 from uavturb.gap.uncertainty import HONEST_Z, honest_stderr, presence_z, with_systematic
@@ -677,6 +679,8 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
     curve.notes.extend(_hover_notes(curve, data, needed / modelled, hover, slow,
                                     "battery_voltage" in final.effects))
     if not curve.bins:
+        if len(curve.d) >= MIN_BIN_N:  # (fewer: measured_curve's own note says so)
+            curve.notes.append(too_few_bins_note(curve))
         return None, curve, {}
     geometry = data.geometry
     fits = {}
@@ -687,6 +691,7 @@ def finder_surface_curve(data: GapData, final: ModelFit, *, resample: bool = Tru
             except (InputError, ValueError, np.linalg.LinAlgError):
                 continue
     if not fits:
+        curve.notes.append(too_few_bins_note(curve))
         return None, curve, {}
     named = sorted(surface)
     chosen = named[0] if named and named[0] in fits else None
