@@ -516,3 +516,38 @@ def test_a_lift_the_curve_shows_is_said_beside_an_unpinned_ground_law():
     assert out[1] == other and out[2] == ranged
     for chosen, lift in ((["ground_effect"], 48.8), (["rotor_drag"], 3.9)):
         assert _lift_beside_unpinned([unpinned], chosen, lift) == [unpinned]
+
+
+def test_a_law_resting_on_one_sample_is_not_pinned(monkeypatch):
+    """Known answer: two minutes of hover 0.5 m over the floor (Cheeseman-Bennett mu = 2) with one sample at 6 cm;
+    that sample carries most of what pins mu (its lift is 53 % of the thrust, the others' 0.5 %, and they pin the
+    thrust coefficient), so mu is no discovery however far from zero it stands, and the reason names the sample.
+    Thirty samples there, spread through the flight, share it: mu is pinned, and fitted right."""
+    from uavturb.gap import uncertainty
+    from uavturb.gap.finder import not_pinned
+    from uavturb.gap.uncertainty import one_sample
+
+    def hover(low_rows: int) -> GapData:
+        K = 12000
+        d = np.full(K, 0.5)
+        d[np.arange(low_rows) * (K // low_rows) + 6000 % (K // low_rows)] = 0.06  # spread through the flight
+        data = _data(np.zeros(K), d_down=d, seed=4)
+        thrust = 8.5e-6 * np.sum(data.rotor_speeds**2, axis=1)
+        data.y = data.y + (thrust * ge.force_ratio(d, 2.0, 0.1))[:, None] * data.R[:, :, 2]
+        return data
+
+    data = hover(1)
+    fit = fit_model(data, {"ground_effect"})
+    why = one_sample(data, fit, "ground_effect")
+    assert why is not None and why.startswith("its mu rests on one sample (synthetic at t = 60.00 s, 0.060 m from "
+                                               "the surface below), which carries 72 %")
+    assert why.endswith(" of what pins it (of 12000 samples): a value one sample gives cannot be told from that "
+                        "sample's own error")
+    assert not_pinned(data, fit, "ground_effect") == why
+    monkeypatch.setattr(uncertainty, "ONE_SAMPLE_MAX_ROWS", len(data) - 1)  # more samples: the shares are not read
+    assert one_sample(data, fit, "ground_effect") is None
+    monkeypatch.undo()
+    data = hover(30)
+    fit = fit_model(data, {"ground_effect"})
+    assert one_sample(data, fit, "ground_effect") is None and not_pinned(data, fit, "ground_effect") is None
+    assert fit.effect_params("ground_effect")[0]["mu"] == pytest.approx(2.0, rel=0.02)

@@ -88,6 +88,7 @@ from uavturb.gap.uncertainty import (
     error_budget,
     honest_stderr,
     mass_term,
+    one_sample,
     presence_z,
     statistical_errors,
     stream_rate_term,
@@ -1063,14 +1064,15 @@ def _hangs_on(fit: ModelFit, name: str, undecided: list[str], without: str) -> d
 def not_pinned(data: GapData, final: ModelFit, name: str, refits: Refits | None = None) -> str | None:
     """Why ``name`` is no discovery when none of its parameters that say it is there
     (:attr:`~uavturb.physics.effects.EffectSpec.presence_params`) stands :data:`HONEST_Z` honest standard errors
-    from zero (the spread between recordings or blocks counted), else None."""
+    from zero (the spread between recordings or blocks counted), or when one of its parameters rests on one sample
+    (:func:`~uavturb.gap.uncertainty.one_sample`), else None."""
     if not EFFECTS[name].absent_at_zero:
         return None
     params, _ = final.effect_params(name)
     budget = _budget(data, final, name, height_uncertainty=0.0, refits=refits)
     z = presence_z(budget, params, EFFECTS[name].presence_params)
     if not np.isfinite(z) or z >= HONEST_Z:
-        return None
+        return one_sample(data, final, name)
     se = statistical_errors(budget)
     return (f"its fitted value ({', '.join(f'{k} = {v:.3g} ± {se[k]:.2g}' for k, v in params.items())}) lies within "
             f"{HONEST_Z:.0f} standard errors of zero once the spread between recordings or blocks is counted")
