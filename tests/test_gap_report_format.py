@@ -175,6 +175,23 @@ def test_a_nominal_model_that_misses_by_much_of_the_weight_says_what_to_check(tm
     assert "3.4 % of the weight" in text and "misses by" not in text
 
 
+def test_effects_fitted_but_not_discoveries_say_why_each_is_not(tmp_path):
+    report = {"recordings": ["a/hex"], "sim_effects": [], "protocol": "2-fold", "residual_source": "imu",
+              "baseline": {"heldout_rmse_N": 0.17, "rmse_N": 0.24}, "final": {"heldout_rmse_N": 0.17},
+              "noise": {"rms_N": 0.09}, "effects": [], "sim_effect_params": {},
+              "mismatch": {"segments": [], "drivers": []}, "unexplained": {"rms_N": 0.1, "drivers": []},
+              "facts": {"weight_N": 14.715},
+              "rejected": [{"name": "ground_effect_exponential", "reason": "not_pinned", "why": "its A rests on one "
+                            "sample"}, {"name": "body_drag", "reason": "outside_range", "why": "c_d = 0.12 kg/m"},
+                           {"name": "wind", "why": "a push of 0.0007 N"}]}
+    write_markdown(tmp_path, report, [])
+    text = (tmp_path / "report.md").read_text()
+    assert ("## Fitted, not discoveries\n- `ground_effect_exponential` (not pinned by these flights): its A rests on "
+            "one sample.\n- `body_drag` (outside its physical range): c_d = 0.12 kg/m.\n- `wind`: a push of 0.0007 N."
+            ) in text
+    assert "Fits outside their physical range" not in text
+
+
 def test_with_battery_sag_named_k_T_is_said_to_be_the_start_of_the_flight_s(tmp_path):
     sag = {"name": "battery_sag", "params": {"s": 0.0012}, "stderr": {"s": 0.0002}, "explanation": "sags",
            "heldout_rmse_before_N": 0.03, "heldout_rmse_after_N": 0.02, "z_heldout": 6.0}

@@ -32,6 +32,9 @@ from uavturb.io.strict_json import dumps_strict
 FEATURE_UNITS = {"d_down": "m", "d_up": "m", "v_x": "m/s", "v_y": "m/s", "v_z": "m/s", "v_Bx": "m/s", "v_By": "m/s",
                  "v_Bz": "m/s", "speed": "m/s", "rotor_speed_sum": "rad/s", "rotor_speed_rate": "rad/s^2",
                  "thrust_sum_omega2": "rad^2/s^2", "t": "s"}
+#: report.md's words for each ``reason`` of a ``rejected`` entry (:func:`uavturb.gap.finder._no_discovery`)
+REJECTION_REASONS = {"outside_range": "outside its physical range", "too_small": "too small to matter",
+                     "not_pinned": "not pinned by these flights"}
 #: resolution of the report's PNG figures [dots per inch]
 PLOT_DPI = 100
 #: width [inch] of a recording's cell in a figure with a cell per recording (:func:`recording_grid`)
@@ -484,9 +487,10 @@ def _undecided_lines(report: dict, names: dict[str, str]) -> list[str]:
             if a.get("per_recording"):
                 L.append(f"  - read as a tilt, each recording alone: {_tilts_text(a['per_recording'], names)}")
     if report.get("rejected"):
-        L += ["", "## Fits outside their physical range (not discoveries)"]
+        L += ["", "## Fitted, not discoveries"]
         for r in report["rejected"]:
-            L.append(f"- `{r['name']}`: {r['why']}.")
+            reason = REJECTION_REASONS.get(r.get("reason", ""))
+            L.append(f"- `{r['name']}`{f' ({reason})' if reason else ''}: {r['why']}.")
     if report.get("not_testable"):
         L += ["", "## Not testable on these flights"]
         reasons: dict[tuple[str, str], list[str]] = {}  # effects that share why and what would test them: one line
