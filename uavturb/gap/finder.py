@@ -1189,7 +1189,7 @@ def _lift_beside_unpinned(rejected: list[dict], chosen: Sequence[str], lift: flo
     if lift < LIFT_Z or any(EFFECTS[n].surface == "d_down" for n in chosen):
         return rejected
     return [r | {"why": f"{r['why']}; yet the measured surface curve stands {lift:.0f} standard errors above 1 near "
-                        "the floor: a lift is there, whose law's values these heights leave open (hover over the "
+                        "the floor: a lift is there, whose law's values these flights leave open (hover over the "
                         "floor at several heights within a few rotor radii to pin them)"}
             if r.get("reason") == "not_pinned" and EFFECTS[r["name"]].surface == "d_down" else r for r in rejected]
 
