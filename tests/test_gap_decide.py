@@ -372,6 +372,7 @@ def test_a_candidate_outside_its_range_when_chosen_gives_the_step_to_the_next():
     sel = selection.select(data, laws, unphysical=unphysical)
     assert sel.chosen == [other]
     assert [r["name"] for r in sel.rejected] == [winner] and sel.rejected[0]["why"] == "outside the test's range"
+    assert sel.rejected[0]["reason"] == "outside_range"  # report.md says why each is no discovery
     assert set(sel.rejected[0]["params"]) == set(EFFECTS[winner].params)
     assert sel.tried[winner]["step1_outside_physical_range"] == 1.0
     assert seen[0] == (winner, {winner}) and (other, {other}) in seen

@@ -487,7 +487,7 @@ def _pair_taken(known: "_Known", current: frozenset[str], pair: tuple, unphysica
         why = unphysical(fit, c) if unphysical is not None else None
         if why is not None:
             tried[c][f"step{step}_outside_physical_range"] = 1.0
-            rejected[c] = {"name": c, "params": fit.effect_params(c)[0], "why": why}
+            rejected[c] = {"name": c, "params": fit.effect_params(c)[0], "reason": "outside_range", "why": why}
             # the partner passed only beside it: the report says so rather than "too little to test it"
             tried[names[1] if c == names[0] else names[0]][f"step{step}_passed_with_unphysical_{c}"] = 1.0
             return None
@@ -567,7 +567,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         why = unphysical(fit, c) if unphysical is not None else None
         if why is not None:  # no discovery: the step again without it
             tried[c][f"step{len(steps) + 1}_outside_physical_range"] = 1.0
-            rejected[c] = {"name": c, "params": fit.effect_params(c)[0], "why": why}
+            rejected[c] = {"name": c, "params": fit.effect_params(c)[0], "reason": "outside_range", "why": why}
             held_back.add(c)
             continue
         # with the curve's evidence beside it, a parameter needs the same two standard errors as its held-out gain
