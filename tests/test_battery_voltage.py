@@ -14,8 +14,9 @@ from uavturb.io.recording import Battery
 from uavturb.physics.effects import EFFECTS
 from uavturb.sim.flights.condition_schema import Conditions
 from uavturb.sim.flights.conditions import generate_conditioned_flight, read_truth
-from uavturb.sim.flights.stream_troubles import loaded_voltage, voltage_commands
-from uavturb.sysid.flight_data import battery_voltage
+from uavturb.sim.flights.stream_troubles import (BATTERY_NOISE_V, BATTERY_QUANTUM_V, loaded_voltage,
+                                                 voltage_commands)
+from uavturb.sysid.flight_data import battery_voltage, battery_voltage_noise
 
 #: V, a full 4S pack; the share it loses at hover; k_V of a motor driven at a duty cycle (k_V V = 2)
 V0, LOAD_SAG = 16.8, 0.08
@@ -58,6 +59,32 @@ def test_battery_voltage_on_the_time_base():
     assert v[3] == pytest.approx(15.2) and np.isnan(v[4])
     object.__setattr__(rec, "battery", None)
     assert battery_voltage(rec, at) is None
+
+
+def _battery_recording(t_ns: np.ndarray, volts: np.ndarray):
+    from uavturb.io.recording import Recording
+
+    rec = Recording.__new__(Recording)
+    object.__setattr__(rec, "battery", Battery(t_ns=t_ns, voltage=volts))
+    return rec
+
+
+def test_battery_voltage_noise_known_answers():
+    """A voltage draining and sagging smoothly, sampled at 10 Hz with 5 mV of white noise: read at 100 Hz rows, the
+    noise's variance at a row is 2/3 of the samples' (linear interpolation: all of it at a sample, half midway);
+    at the samples themselves all of it. Without noise it reads the curvature's share only (0.1 mV), and rounded to
+    10 mV without noise none."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 120.0, 0.1)
+    smooth = 16.0 - 0.004 * t - 0.05 * np.sin(2 * np.pi * t / 7.0)
+    t_ns = (t * 1e9).astype(np.int64)
+    rows = np.arange(int(t_ns[0]), int(t_ns[-1]), 10_000_000, dtype=np.int64)
+    noisy = _battery_recording(t_ns, smooth + rng.normal(0.0, 0.005, len(t)))
+    assert battery_voltage_noise(noisy, rows) == pytest.approx(2.0 / 3.0 * 0.005**2, rel=0.15)
+    assert battery_voltage_noise(noisy, t_ns) == pytest.approx(0.005**2, rel=0.15)
+    assert battery_voltage_noise(_battery_recording(t_ns, smooth), rows) < 0.0003**2  # its curvature only
+    assert battery_voltage_noise(_battery_recording(t_ns, np.round(smooth / 0.01) * 0.01), rows) == 0.0
+    assert battery_voltage_noise(_battery_recording(t_ns[:3], smooth[:3]), rows) is None
 
 
 def test_the_law_is_one_registry_entry():
@@ -127,6 +154,10 @@ def test_a_load_sagging_battery_is_named_with_its_voltage(loaded_flights):
     assert k_V == pytest.approx(K_V, rel=0.15) and abs(k_V - K_V) < 2 * se
     assert "per volt" in e["explanation"] and e["heldout_rmse_after_N"] < 0.8 * e["heldout_rmse_before_N"]
     assert any("battery0" in line and "read by battery_voltage" in line for line in report["streams"]["streams"])
+    # the stream's noise read from its samples: white and its rounding's, 2/3 of it at a row between them
+    noise = 2.0 / 3.0 * (BATTERY_NOISE_V**2 + BATTERY_QUANTUM_V**2 / 12.0)
+    assert extras["data"].voltage_noise == {"v1": pytest.approx(noise, rel=0.25), "v2": pytest.approx(noise, rel=0.25)}
+    assert report["nominal"]["rotor_speed_offset"]["voltage_noise_rad_s"] >= 0.0
     fit = fit_model(extras["data"], {"battery_voltage"})
     assert fit.effect_params("battery_voltage")[0]["k_V"] == pytest.approx(K_V, rel=0.1)
 

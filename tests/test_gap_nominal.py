@@ -700,6 +700,36 @@ def test_speed_offset_read_with_the_battery_voltage():
     assert plain.delta == pytest.approx(before.delta, rel=1e-9) and plain.k_V == 0.0
 
 
+def test_speed_offset_with_a_noisy_voltage_carries_the_voltage_noise_term():
+    """The same known answer with the voltage read through white noise of 30 mV (its sag under load 3 V per unit of
+    relative thrust, 0.13 V rms): the noise pulls the slope read towards 0 (k_V V 1.4 for 2) and the offset away from
+    the truth, 5 jackknife errors; given the noise's variance, the reading's error carries the voltage noise term,
+    which covers the truth, and the slope read with the noise taken into account is the true one. Noise of
+    variance 0 changes nothing."""
+    w_h = np.sqrt(MASS * GRAVITY / (6 * K_T))
+    delta, k_V, v_mean = w_h / 3, 2.0 / 15.5, 15.5
+    data = _floor_flights(delta, mu=0.0, seed=5)
+    y = np.einsum("ki,ki->k", data.y, data.R[:, :, 2])
+    true = np.sum((data.rotor_speeds + delta) ** 2, axis=1)
+    dv = -3.0 * (true / np.mean(true) - 1.0) - 0.004 * (data.t - np.mean(data.t))
+    y_v = y * (1.0 + k_V * dv)
+    noisy = dv + np.random.default_rng(8).normal(0.0, 0.03, len(dv))
+    cells = offset_cells(data.group, data.d_down, data.d_up, R_ROTOR, reach=1.0)
+    read = speed_offset(y_v, data.rotor_speeds, cells, data.t, voltage_dev=noisy, voltage_mean=v_mean)
+    assert abs(read.delta - delta) > 3 * read.stderr and read.voltage_noise == 0.0
+    var = np.full(len(dv), 0.03**2)
+    honest = speed_offset(y_v, data.rotor_speeds, cells, data.t, voltage_dev=noisy, voltage_mean=v_mean,
+                          voltage_var=var)
+    assert honest.delta == read.delta and honest.k_V == read.k_V  # the reading stays; its error grows
+    assert honest.stderr == pytest.approx(np.hypot(read.stderr, honest.voltage_noise))
+    assert abs(honest.delta - delta) < 2 * honest.stderr
+    assert honest.k_V_noise_free * v_mean == pytest.approx(2.0, abs=0.3) and read.k_V * v_mean < 1.7
+    quiet = speed_offset(y_v, data.rotor_speeds, cells, data.t, voltage_dev=noisy, voltage_mean=v_mean,
+                         voltage_var=np.zeros(len(dv)))
+    assert (quiet.delta, quiet.stderr, quiet.k_V, quiet.voltage_noise) == (read.delta, read.stderr, read.k_V, 0.0)
+    assert np.isnan(quiet.k_V_noise_free)
+
+
 def test_a_thrust_coefficient_beside_an_undecided_thrust_law_states_what_the_law_would_take():
     """Flights that stay 12-17 cm over the floor (all within the ground effect, mu = 2): fitted without the law,
     k_T holds the lift, several times its sample error off the truth. Beside a surface law left undecided its

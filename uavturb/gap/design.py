@@ -112,6 +112,9 @@ class GapData:
     voltage_dev : (K,) V, the battery's voltage minus its recording's mean in flight (``battery0``; None where a
         recording has none: :func:`gap_data`), and
     voltage_means : ``{recording name: V}``, those means
+    voltage_noise : ``{recording name: V^2}``, the variance of each recording's voltage noise at a row
+        (:func:`~uavturb.sysid.flight_data.battery_voltage_noise`; block means keep it: a bound, blocks averaging
+        samples of the battery stream have less)
     rotor_quantum : rad/s, the recorded rotor speeds' resolution
         (:func:`~uavturb.numerics.stream_updates.rotor_quantum`; 0: not quantised), set by
         the finder on the rows it analyses (subsets and block means do not carry it)
@@ -143,6 +146,7 @@ class GapData:
     arm_length: float = float("nan")
     voltage_dev: np.ndarray | None = None
     voltage_means: dict = field(default_factory=dict, repr=False)
+    voltage_noise: dict = field(default_factory=dict, repr=False)
     rotor_quantum: float = 0.0
     _S: np.ndarray | None = field(default=None, repr=False)
     _lag_cache: dict = field(default_factory=dict, repr=False)
@@ -302,7 +306,7 @@ class GapData:
                        None if self.level is None else self.level[mask],
                        self if self.contiguous is None else self.contiguous, rows, block_of, self.anchored,
                        self.arm_length, None if self.voltage_dev is None else self.voltage_dev[mask],
-                       self.voltage_means)
+                       self.voltage_means, self.voltage_noise)
 
 
 def _smooth_height(t: np.ndarray, z: np.ndarray, window_s: float) -> np.ndarray:
@@ -359,7 +363,7 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     joined: building a flight-hour in twelve recordings peaked 92 MB lower (the whole analysis 48 MB). The caller's
     list is left holding None.
     """
-    parts, anchored, names, voltage_means = [], {}, [f.name for f in flights], {}
+    parts, anchored, names, voltage_means, voltage_noise = [], {}, [f.name for f in flights], {}, {}
     for g, fd in enumerate(flights):
         if release:
             flights[g] = None
@@ -389,7 +393,8 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
         d_up = np.where(np.isfinite(fd.d_up), fd.d_up - dz, np.inf) if fd.d_up is not None else inf
         parts.append(dict(group=np.full(len(fd), g), t=fd.t, p=fd.p, y=y, R=R, rotor_speeds=fd.rotor_speeds, v=fd.v,
                           d_down=d_down, d_up=d_up, keep=keep, fresh=fresh, imu=np.full(len(fd), use_imu),
-                          src="imu" if use_imu else "mocap", volts=_voltage_deviation(fd, keep, voltage_means)))
+                          src="imu" if use_imu else "mocap",
+                          volts=_voltage_deviation(fd, keep, voltage_means, voltage_noise)))
     sources = "+".join(sorted({p.pop("src") for p in parts}))
     volts = [p.pop("volts") for p in parts]
     voltage_dev = None if any(v is None for v in volts) else np.concatenate(volts)
@@ -401,7 +406,8 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     full = GapData(**cat, mass=mass, rotor_radius=rotor_radius, names=names,
                    source=sources,
                    fits_bias=bool(np.any(cat["imu"])) and not anchor_bias, arm_length=arm_length,
-                   voltage_dev=voltage_dev, voltage_means=voltage_means if voltage_dev is not None else {})
+                   voltage_dev=voltage_dev, voltage_means=voltage_means if voltage_dev is not None else {},
+                   voltage_noise=voltage_noise if voltage_dev is not None else {})
     full.anchored = anchored
     n = block_size(full, rate_hz)
     if not fresh.any():  # nothing in flight: the caller says so in one line
@@ -418,16 +424,18 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
 VOLTAGE_COVER = 0.9
 
 
-def _voltage_deviation(fd: FlightData, keep: np.ndarray, means: dict) -> np.ndarray | None:
+def _voltage_deviation(fd: FlightData, keep: np.ndarray, means: dict, noise: dict) -> np.ndarray | None:
     """(K,) V, the flight's battery voltage minus its mean over the rows in flight (``keep``), 0 where the stream
-    does not reach; its mean goes into ``means`` under the flight's name. None without a battery stream, or one that
-    covers under :data:`VOLTAGE_COVER` of the rows in flight (a law in the voltage cannot be fitted there)."""
+    does not reach; its mean goes into ``means`` under the flight's name, and its noise's variance at a row [V^2]
+    (``FlightData.voltage_noise_v2``) into ``noise``. None without a battery stream, or one that covers under
+    :data:`VOLTAGE_COVER` of the rows in flight (a law in the voltage cannot be fitted there)."""
     if fd.voltage is None or not keep.any():
         return None
     known = np.isfinite(fd.voltage)
     if known[keep].mean() < VOLTAGE_COVER:
         return None
     means[fd.name] = float(np.mean(fd.voltage[keep & known]))
+    noise[fd.name] = float(fd.voltage_noise_v2 or 0.0)
     return np.where(known, fd.voltage - means[fd.name], 0.0)
 
 
@@ -469,7 +477,8 @@ def block_means(full: GapData, keep: np.ndarray, n: int) -> GapData:
                    np.where(np.isnan(d_up), np.inf, d_up), full.mass, full.rotor_radius, full.names, full.source,
                    None if full.imu is None else mean(full.imu) > 0.5, full.fits_bias, None, full, idx,
                    block_of, full.anchored, full.arm_length,
-                   None if full.voltage_dev is None else mean(full.voltage_dev), full.voltage_means)
+                   None if full.voltage_dev is None else mean(full.voltage_dev), full.voltage_means,
+                   full.voltage_noise)
     return data
 
 

@@ -738,7 +738,8 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, thrust_map
                 f"from the floor")
         return _with_thrust_map(effects, terms), {
             "delta_rad_s": None, "stderr_rad_s": None, "share_of_hover_speed": None, "hover_speed_rad_s": w_hover,
-            "rows": 0, "cells": 0, "sse_ratio": None, "voltage_k_V": None, "z": None, "counts": False,
+            "rows": 0, "cells": 0, "sse_ratio": None, "voltage_k_V": None, "voltage_noise_rad_s": None, "z": None,
+            "counts": False,
             "decisive": False, "applied": False, "open_interval_rad_s": [float(x) for x in ends],
             "stated_at_rad_s": stated, "note": note}
     share = found.delta / found.w_hover
@@ -749,6 +750,10 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, thrust_map
     if data.voltage_dev is not None:
         note += (f", read with the thrust following the battery's voltage at k_V = {found.k_V:.3g} /V (the slope of "
                  f"least residual with it)")
+    if found.voltage_noise > 0:
+        note += (f"; its error carries {found.voltage_noise:.3g} rad/s of voltage noise: the battery stream's own "
+                 f"noise (read from its samples) pulls that slope towards 0, and read with the noise taken into "
+                 f"account the slope is {found.k_V_noise_free:.3g} /V and the offset moves by that much")
     if found.at_bound:
         low, high = (100 * x for x in OFFSET_SPAN)
         open_low, open_high = (100 * x for x in UNREAD_OFFSET_SPAN)
@@ -769,7 +774,9 @@ def _thrust_map_checked(effects: list[dict[str, Any]], data: GapData, thrust_map
     return _with_thrust_map(effects, terms), {
         "delta_rad_s": found.delta, "stderr_rad_s": found.stderr, "share_of_hover_speed": share,
         "hover_speed_rad_s": found.w_hover, "rows": found.rows, "cells": found.cells, "sse_ratio": found.sse_ratio,
-        "voltage_k_V": found.k_V if data.voltage_dev is not None else None, "z": found.z, "counts": found.counts,
+        "voltage_k_V": found.k_V if data.voltage_dev is not None else None,
+        "voltage_noise_rad_s": found.voltage_noise if data.voltage_dev is not None else None, "z": found.z,
+        "counts": found.counts,
         "decisive": found.decisive, "applied": False, "open_interval_rad_s": [float(x) for x in ends],
         "stated_at_rad_s": stated, "note": note + at}
 

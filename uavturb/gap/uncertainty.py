@@ -457,9 +457,10 @@ def thrust_map_term(data: GapData, final: ModelFit, residual: np.ndarray | None 
     for g in np.unique(data.group):
         rows = data.group == g
         middle[rows] = 0.5 * (data.t[rows].min() + data.t[rows].max())
+    noise = np.array([data.voltage_noise.get(name, 0.0) for name in data.names])[data.group] if volts else None
     found = speed_offset(y_thrust, data.rotor_speeds, cells, data.t, S=S_thrust / data.thrust_level,
                          voltage_dev=data.voltage_dev, voltage_mean=float(np.mean(volts)) if volts else float("nan"),
-                         sag_time=data.t - middle if sag else None)
+                         sag_time=data.t - middle if sag else None, voltage_var=noise)
     ends = found.open_interval() if found is not None else unread_interval(hover_speed(data.rotor_speeds))
     if not final.effects or not all(np.isfinite(ends)) or ends[0] == ends[1]:
         return found, ends, {}

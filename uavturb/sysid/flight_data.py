@@ -65,6 +65,8 @@ class FlightData:
     gaps : the dropouts, ``(stream file, t_start, t_end)`` [s since the first ground-truth row]
     voltage : (K,) V or None, the battery's voltage (``battery0``, interpolated between its updates; nan outside
         its span); None where the recording has no battery stream
+    voltage_noise_v2 : V^2 or None, the variance of ``voltage``'s noise at a row, mean over the rows
+        (:func:`battery_voltage_noise`); None without a battery stream
     scan_noise_m : m or None, the point cloud's noise that the heights were read through
         (:attr:`uavturb.scene.heights.SurfaceIndex.scan_noise_m`; 0: answered point by point); None without heights
     floor_filled : share of the rows whose ``d_down`` is over the cloud's floor plane, no point of the cloud lying
@@ -94,6 +96,7 @@ class FlightData:
     scan_noise_m: float | None = None
     floor_filled: float | None = None
     floor_tilt: tuple[float, float] | None = None
+    voltage_noise_v2: float | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -120,7 +123,7 @@ class FlightData:
                           self.w[mask], pick(self.acc), self.rotor_speeds[mask], self.dv[mask], self.dw[mask],
                           pick(self.d_down), pick(self.d_up), self.window, pick(self.rotor_fresh),
                           pick(self.covered), list(self.gaps), pick(self.voltage), self.scan_noise_m, self.floor_filled,
-                          self.floor_tilt)
+                          self.floor_tilt, self.voltage_noise_v2)
 
 
 #: share of repeated rows above which a stream may be held (read on its updates only: sample-and-hold loggers)
@@ -295,13 +298,13 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
                                                                                  rec.rotors.t_ns)]
     covered, gaps = _covered(t_ns, rec.t0_ns, window, rows + streams[2:])
     return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh, covered, gaps,
-                      battery_voltage(rec, t_ns), scan_noise, floor_filled, floor_tilt)
+                      battery_voltage(rec, t_ns), scan_noise, floor_filled, floor_tilt,
+                      battery_voltage_noise(rec, t_ns))
 
 
-def battery_voltage(rec: Recording, t_ns: np.ndarray) -> np.ndarray | None:
-    """(K,) V, the battery's voltage at ``t_ns`` [ns]: interpolated linearly between the stream's updates where a
-    logger repeats them (:func:`_updates`), between its rows otherwise; nan outside its span and where it holds
-    no finite voltage. None without a ``battery0`` stream of two rows or more."""
+def _battery_samples(rec: Recording) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(t_ns, V)`` of the battery stream's samples: its updates where a logger repeats them (:func:`_updates`),
+    its rows otherwise, finite voltages only; None without two of them."""
     bat = rec.battery
     if bat is None or len(bat.t_ns) < 2:
         return None
@@ -310,10 +313,50 @@ def battery_voltage(rec: Recording, t_ns: np.ndarray) -> np.ndarray | None:
     keep = np.isfinite(volts) if m is None else (m & np.isfinite(volts))
     if keep.sum() < 2:
         return None
-    tb, vb = bat.t_ns[keep], volts[keep]
+    return bat.t_ns[keep], volts[keep]
+
+
+def battery_voltage(rec: Recording, t_ns: np.ndarray) -> np.ndarray | None:
+    """(K,) V, the battery's voltage at ``t_ns`` [ns]: interpolated linearly between the stream's updates where a
+    logger repeats them (:func:`_updates`), between its rows otherwise; nan outside its span and where it holds
+    no finite voltage. None without a ``battery0`` stream of two rows or more."""
+    samples = _battery_samples(rec)
+    if samples is None:
+        return None
+    tb, vb = samples
     out = np.interp(t_ns.astype(float), tb.astype(float), vb)
     out[(t_ns < tb[0]) | (t_ns > tb[-1])] = np.nan
     return out
+
+
+#: the median absolute deviation of a normal variable over its standard deviation
+_MAD_PER_SD = 0.6745
+
+
+def battery_voltage_noise(rec: Recording, t_ns: np.ndarray) -> float | None:
+    """V^2, the variance of the noise of :func:`battery_voltage` at ``t_ns`` [ns], mean over the rows within the
+    stream's span; None without a battery stream (or under four samples).
+
+    The samples' own noise ``s^2`` is read from their second differences, ``v[k+1] - 2 v[k] + v[k-1]``, whose
+    variance is ``6 s^2`` for white noise on a voltage that changes smoothly from sample to sample: ``s`` is their
+    median absolute deviation over 0.6745 sqrt(6), which the few steps of a load changing within a sample interval
+    (a take-off) do not move. A row between samples ``k`` and ``k + 1``, a fraction ``f`` of the way, holds
+    ``(1 - f)^2 + f^2`` of ``s^2`` (linear interpolation: half at the middle). A voltage that changes by less than
+    its resolution between samples has second differences of 0 mostly, and reads no noise: its rounding is then
+    no error that varies from row to row."""
+    samples = _battery_samples(rec)
+    if samples is None or len(samples[0]) < 4:
+        return None
+    tb, vb = (np.asarray(x, float) for x in samples)
+    d2 = vb[2:] - 2.0 * vb[1:-1] + vb[:-2]
+    s2 = (float(np.median(np.abs(d2 - np.median(d2)))) / _MAD_PER_SD) ** 2 / 6.0
+    t = np.asarray(t_ns, float)
+    t = t[(t >= tb[0]) & (t <= tb[-1])]
+    if not len(t):
+        return None
+    k = np.clip(np.searchsorted(tb, t, side="right") - 1, 0, len(tb) - 2)
+    f = (t - tb[k]) / (tb[k + 1] - tb[k])
+    return s2 * float(np.mean((1.0 - f) ** 2 + f**2))
 
 
 #: m, how far under the surface below the body origin the rotor plane may seem to dip (a scan's noise, a

@@ -39,11 +39,18 @@ in a low room never leaves every law's reach). The finder carries what it does t
 its error budget (``thrust map``, :mod:`uavturb.gap.uncertainty`). It is a reading, not a correction: the
 speeds vary by a few percent in flight, and other physics that depends on the thrust level (inflow in a
 climb) leans the same way.
+
+Where the battery's voltage is logged, the offset is read jointly with the thrust's slope in the voltage,
+and a voltage that sags under load moves thrust per command squared as the offset does: only the voltage's
+changes that the load does not make tell the two apart, and its noise pulls the slope read towards 0, and
+the offset up. The reading's error carries the **voltage noise** term: how far the offset moves where the
+slope is read with the noise the battery stream itself shows taken into account (:func:`speed_offset`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -295,7 +302,8 @@ class SpeedOffset:
     Attributes
     ----------
     delta : rad/s, the offset that makes thrust per ``sum((w + delta)^2)`` constant within each cell
-    stderr : rad/s, jackknife over :data:`OFFSET_CHUNKS` time chunks of the rows used
+    stderr : rad/s, jackknife over :data:`OFFSET_CHUNKS` time chunks of the rows used, and the **voltage noise**
+        term ``voltage_noise`` beside it (in quadrature)
     w_hover : rad/s, the median mean rotor speed of those rows
     rows : how many rows; cells : in how many cells
     sse_ratio : residual sum of squares at ``delta`` over that at 0 (how much of the thrust's scatter it explains)
@@ -303,6 +311,10 @@ class SpeedOffset:
     at_bound : the least residual lies at an end of :data:`OFFSET_SPAN`: no offset within the plausible range steadies
         the thrust, and the reading is none (Neural-Swarm's swarm walks 0.5-1.3 m up, in the others' downwash, read
         +100 % of the hover speed with a jackknife error of 0: taken as 10 errors from zero, it moved k_T by 7-12 %)
+    voltage_noise : rad/s, the **voltage noise** term of a reading with the battery's voltage: how far the offset
+        moves where the voltage's slope is read with its noise taken into account (:func:`speed_offset`); 0 without
+        a voltage, or where its noise is not known
+    k_V_noise_free : 1/V, that slope (nan where the term is not read)
     """
 
     delta: float
@@ -313,6 +325,8 @@ class SpeedOffset:
     sse_ratio: float
     k_V: float = 0.0
     at_bound: bool = False
+    voltage_noise: float = 0.0
+    k_V_noise_free: float = float("nan")
 
     @property
     def z(self) -> float:
@@ -470,7 +484,8 @@ def _best_offset(sums: dict[str, np.ndarray], n: int) -> float:
 
 def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarray, t: np.ndarray,
                  S: np.ndarray | None = None, voltage_dev: np.ndarray | None = None,
-                 voltage_mean: float = float("nan"), sag_time: np.ndarray | None = None) -> SpeedOffset | None:
+                 voltage_mean: float = float("nan"), sag_time: np.ndarray | None = None,
+                 voltage_var: np.ndarray | None = None) -> SpeedOffset | None:
     """The offset ``delta`` [rad/s] that makes thrust per ``sum((w + delta)^2)`` constant within each cell
     (module docstring, **Thrust map**); None with fewer than :data:`OFFSET_MIN_ROWS` rows in cells.
 
@@ -489,6 +504,15 @@ def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarra
     sag_time : (K,) s, each row's time less its recording's middle, where ``battery_sag`` stands in for a voltage
         (and none is known): the offset is read jointly with the sag ``s`` (``k_V`` then holds it, 1/s), the thrust
         divided by ``1 - s sag_time`` at each share of :data:`OFFSET_SAG_GRID` lost over the longest recording
+    voltage_var : (K,) V^2, the variance of ``voltage_dev``'s noise at each row
+        (:func:`~uavturb.sysid.flight_data.battery_voltage_noise`): the **voltage noise** term
+        (:attr:`SpeedOffset.voltage_noise`, module docstring, **Thrust map**). A noisy voltage divides the thrust by
+        a noisy factor, which adds about ``k_V^2 sum(y^2 var / (1 + k_V dv)^4)`` to the residual at the slope
+        ``k_V``: the least residual lies at too small a slope, and the offset, which a sag under load imitates, takes
+        the rest. The slope read with that sum taken off the residual gives a second offset, and the reading's
+        error carries the whole difference (a 67 g vehicle's simulated take-offs, battery read at 10 Hz with 5 mV
+        of noise, its voltage sagging under load: the offset read 976-1105 rad/s over eight flights for a true 796,
+        each +- 60-90; taken off, the slope gave 668-855)
     """
     m = (np.asarray(cell) >= 0) & np.isfinite(y_thrust)
     if m.sum() < OFFSET_MIN_ROWS:
@@ -521,11 +545,13 @@ def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarra
         d = _best_offset(sums, n)
         return d, _offset_sse(sums, n, d)
 
-    def best(without: int | None) -> tuple[float, float]:  # offset and slope of least residual: grid, then parabola
+    def best(without: int | None, noise: Callable[[float], float] | None = None) -> tuple[float, float]:
+        """Offset and slope of least residual (less ``noise(k)``, where given): grid, then parabola."""
         found = [at(k, without) for k in slopes]
-        i = int(np.argmin([f[1] for f in found]))
+        sse = [f[1] - (noise(k) if noise is not None else 0.0) for f, k in zip(found, slopes)]
+        i = int(np.argmin(sse))
         if 0 < i < len(slopes) - 1:
-            a, b, e = found[i - 1][1], found[i][1], found[i + 1][1]
+            a, b, e = sse[i - 1], sse[i], sse[i + 1]
             curv = a - 2 * b + e
             if curv > 0:
                 k = slopes[i] + 0.5 * (a - e) / curv * (slopes[1] - slopes[0])
@@ -535,8 +561,16 @@ def speed_offset(y_thrust: np.ndarray, rotor_speeds: np.ndarray, cell: np.ndarra
     delta, k_V = best(None)
     loo = np.array([best(j)[0] for j in range(OFFSET_CHUNKS)])
     se = float(jackknife_se(loo))
+    noise_term, k_free = 0.0, float("nan")
+    if voltage_var is not None and len(slopes) > 1:
+        var = np.asarray(voltage_var, float)[m]
+        if np.any(var > 0):
+            def noise(k: float) -> float:  # the residual a noisy voltage adds at the slope k [N^2]
+                return float(np.sum(k**2 * y**2 * var / np.clip(1.0 + k * dv, 0.1, None) ** 4))
+            d_free, k_free = best(None, noise)
+            noise_term = abs(d_free - delta)
     total = sums_at(k_V).total
     ratio = _offset_sse(total, n, delta) / _offset_sse(total, n, 0.0)
     at_bound = bool(np.isclose(delta, OFFSET_SPAN[0]) or np.isclose(delta, OFFSET_SPAN[1]))
-    return SpeedOffset(delta * w_hover, se * w_hover, w_hover, int(m.sum()), int(c.max()) + 1, float(ratio),
-                       float(k_V), at_bound)
+    return SpeedOffset(delta * w_hover, float(np.hypot(se, noise_term)) * w_hover, w_hover, int(m.sum()),
+                       int(c.max()) + 1, float(ratio), float(k_V), at_bound, noise_term * w_hover, float(k_free))
