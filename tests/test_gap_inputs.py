@@ -22,7 +22,7 @@ from uavturb.io.ply import read_ply, write_ply
 from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES, analyse
 from uavturb.gap.preparation import state_thinned, stream_limits
 from uavturb.io.reader import load_recordings, read_recording, recording_labels
-from uavturb.io.stream_faults import clipped_axes
+from uavturb.io.stream_faults import clipped_axes, stopped_rotor_rows
 from uavturb.numerics.stream_updates import staggered
 from uavturb.physics import quaternion as quat
 from uavturb.io.recording import Battery, GroundTruth
@@ -786,6 +786,43 @@ def test_measured_rotor_glitches_are_left_out_and_said(tmp_path, good):
             assert said == [f"{source}/rotors0: 12 rows where one rotor's speed jumps by over 25 % for one update "
                             f"and back (first at line {rows[0] + 1}; no rotor turns that fast) left out: telemetry "
                             "glitches"]
+        else:
+            assert len(loaded.rotors.t_ns) == len(lines) - 1 and said == []
+
+
+def test_stopped_rotor_rows_known_answers():
+    """A rotor at 0 beside others near hover is a dropout; on the gear, one ESC not yet started beside others at
+    idle (30 % of hover) is not, nor are all rotors at 0 (motors off)."""
+    hover = np.full((10, 4), 500.0)
+    x = np.vstack([np.zeros((3, 4)), [[0.0, 150.0, 150.0, 150.0]], hover, [[500.0, 0.0, 510.0, 490.0]],
+                   [[0.0, 0.0, 320.0, 320.0]]])
+    assert stopped_rotor_rows(x).tolist() == [False] * 4 + [False] * 10 + [True, True]
+    assert not stopped_rotor_rows(np.zeros((5, 4))).any() and not stopped_rotor_rows(np.zeros((0, 4))).any()
+
+
+def test_a_rotor_read_0_for_half_a_second_in_flight_is_left_out_and_said(tmp_path, good):
+    """Measured speeds with one rotor at 0 for 0.5 s mid-flight (more than one update: no glitch) are left out and
+    said with the first line; commanded speeds are read as written."""
+    for source in ("measured", "commanded"):
+        rec = _copy(good, tmp_path, source)
+        yaml_path = rec / "vehicle.yaml"
+        yaml_path.write_text(yaml_path.read_text() + f"rotor_speed_source: {source}\n")
+        csv = rec / "mav0" / "rotors0" / "data.csv"
+        lines = csv.read_text().splitlines()
+        t = np.array([int(line.split(",")[0]) for line in lines[1:]]) * 1e-9
+        rows = np.flatnonzero((t - t[0] > 6.0) & (t - t[0] < 6.5)) + 1
+        for row in rows:
+            cells = lines[row].split(",")
+            cells[3] = "0"
+            lines[row] = ",".join(cells)
+        csv.write_text("\n".join(lines) + "\n")
+        (loaded,) = load_recordings([rec])
+        said = [n for n in loaded.read_notes if "dropouts written as 0" in n]
+        if source == "measured":
+            assert len(loaded.rotors.t_ns) == len(lines) - 1 - len(rows) and len(rows) > 40
+            assert said == [f"{source}/rotors0: {len(rows)} rows where a rotor reads 0 while another turns at over "
+                            f"60 % of the hover-like speed (first at line {rows[0] + 1}; no multirotor flies so) left "
+                            "out: telemetry dropouts written as 0"]
         else:
             assert len(loaded.rotors.t_ns) == len(lines) - 1 and said == []
 

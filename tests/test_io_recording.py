@@ -113,7 +113,8 @@ def test_negative_rotor_speed(folder):
     lines = path.read_text().splitlines()
     lines[3] = lines[3].split(",", 1)[0] + ",-1" + ",1" * 5
     path.write_text("\n".join(lines) + "\n")
-    with pytest.raises(InputError, match=r"rotors0/data.csv: line 4: negative rotor speed -1.0 for rotor 0"):
+    with pytest.raises(InputError, match=r"rotors0/data.csv: line 4: negative rotor speed -1.0 for rotor 0 "
+                       r"\(speeds are magnitudes; vehicle.yaml's rotor_directions gives each rotor's spin\)$"):
         read_recording(folder)
 
 

@@ -23,11 +23,13 @@ from uavturb.io.crash import without_lost_tail
 from uavturb.io.recording import Battery, Camera, GroundTruth, Imu, Poses, Recording, Rotors
 from uavturb.io.stream_faults import (
     GLITCH_SHARE,
+    STOPPED_BESIDE_SHARE,
     UNFILLED_VELOCITY_MOTION_M,
     VELOCITY_FROM_POSITIONS_S,
     clipped_axes,
     frozen_rows,
     rotor_glitches,
+    stopped_rotor_rows,
     velocity_from_positions,
 )
 from uavturb.io.vehicle_file import load_vehicle, named_vehicle
@@ -102,7 +104,8 @@ def check_rotor_speeds(path: str | Path, speeds: np.ndarray, vehicle: Vehicle, l
     if len(neg):
         k, c = neg[0]
         at = lines[k] if lines is not None else k + 1
-        raise InputError(path, f"{unit} {at}: negative rotor speed {speeds[k, c]} for rotor {c}")
+        raise InputError(path, f"{unit} {at}: negative rotor speed {speeds[k, c]} for rotor {c} (speeds are "
+                               "magnitudes; vehicle.yaml's rotor_directions gives each rotor's spin)")
     with np.errstate(over="ignore"):  # 1e308 scaled is inf, and refused
         scaled = speeds * float(vehicle.rotor_speed_scale)
     fast = np.argwhere(scaled > MAX_ROTOR_SPEED_RAD_S)
@@ -349,7 +352,14 @@ def _read_rotors(root: Path, t_gt: np.ndarray, vehicle: Vehicle, notes: list[str
         notes.append(f"{root.name}/rotors0: {int(glitch.sum())} row{'s' if glitch.sum() > 1 else ''} where one rotor's "
                      f"speed jumps by over {100 * GLITCH_SHARE:g} % for one update and back (first at line "
                      f"{lines[np.flatnonzero(glitch)[0]]}; no rotor turns that fast) left out: telemetry glitches")
-        t, x = t[~glitch], x[~glitch]
+        t, x, lines = t[~glitch], x[~glitch], lines[~glitch]
+    stopped = stopped_rotor_rows(x) if vehicle.rotor_speed_source == "measured" else np.zeros(len(t), bool)
+    if stopped.any():
+        notes.append(f"{root.name}/rotors0: {int(stopped.sum())} row{'s' if stopped.sum() > 1 else ''} where a rotor "
+                     f"reads 0 while another turns at over {100 * STOPPED_BESIDE_SHARE:g} % of the hover-like speed "
+                     f"(first at line {lines[np.flatnonzero(stopped)[0]]}; no multirotor flies so) left out: "
+                     "telemetry dropouts written as 0")
+        t, x = t[~stopped], x[~stopped]
     return Rotors(t_ns=t, speeds=x * vehicle.rotor_speed_scale)
 
 
