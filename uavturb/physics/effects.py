@@ -521,12 +521,12 @@ def _explain_rotor_drag(p: dict, f: FlightFacts) -> str:
     per = p["k_d"] * f.wsum_hover
     return (f"Horizontal drag proportional to rotor speed and body-horizontal airspeed is missing: about "
             f"{per:.3g} N per m/s at hover ({per * f.speed_p90:.2g} N at these flights' 90th-percentile "
-            f"{f.speed_p90:.1f} m/s). Add RotorS-style rotor drag with k_d = {p['k_d']:.3g} N s^2/m.")
+            f"{f.speed_p90:.2g} m/s). Add RotorS-style rotor drag with k_d = {p['k_d']:.3g} N s^2/m.")
 
 
 def _explain_body_drag(p: dict, f: FlightFacts) -> str:
     return (f"The airframe's quadratic drag is missing: {p['c_d'] * f.speed_p90**2:.2g} N at these flights' "
-            f"90th-percentile {f.speed_p90:.1f} m/s, growing with the square of speed. "
+            f"90th-percentile {f.speed_p90:.2g} m/s, growing with the square of speed. "
             f"Add body drag with c_d = {p['c_d']:.3g} kg/m.")
 
 
