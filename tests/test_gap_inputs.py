@@ -508,6 +508,22 @@ def test_nan_in_groundtruth_is_a_missing_row_and_inf_is_refused(tmp_path, capsys
     assert "Traceback" not in line
 
 
+def test_missing_rotor_speeds_are_dropouts_and_inf_is_refused(tmp_path, capsys, good):
+    """Rotor speeds missing (NaN or an empty field: ESC telemetry that logged none) leave their rows out, said, and
+    the stream has a dropout there; an infinite speed is refused naming the line."""
+    rec = _copy(good, tmp_path)
+    csv = rec / "mav0" / "rotors0" / "data.csv"
+    _rewrite_csv(csv, lambda i, l: ",".join(l.split(",")[:2] + ["nan"] + l.split(",")[3:]) if 300 <= i < 320 else
+                 ",".join(l.split(",")[:3] + [""] + l.split(",")[4:]) if i == 700 else l)
+    (loaded,) = load_recordings([rec])
+    assert any("rotors0/data.csv: 21 rows with a value missing (empty or NaN: no speed logged) left out, in 2 "
+               "stretches from line 302: read as dropouts" in n for n in loaded.read_notes)
+    assert len(loaded.rotors.t_ns) == len(csv.read_text().splitlines()) - 1 - 21
+    _rewrite_csv(csv, lambda i, l: ",".join(l.split(",")[:2] + ["inf"] + l.split(",")[3:]) if i == 60 else l)
+    line = _gap_fails(tmp_path, capsys, [rec], match="rotors0/data.csv: line 62, column 3: value inf is not finite")
+    assert "Traceback" not in line
+
+
 def test_two_recordings_of_different_vehicles(tmp_path, capsys, good):
     a = _copy(good, tmp_path, "a")
     b = _copy(good, tmp_path, "b")

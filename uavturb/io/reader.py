@@ -343,7 +343,8 @@ def _read_rotors(root: Path, t_gt: np.ndarray, vehicle: Vehicle, notes: list[str
         if required:
             raise InputError(rotors_file, "file not found (rotor speeds are required)")
         return None
-    t, x, lines = euroc_csv.read_csv(rotors_file, None, "rotor speed", return_lines=True, repeated_times=notes)
+    t, x, lines = euroc_csv.read_csv(rotors_file, None, "rotor speed", return_lines=True, repeated_times=notes,
+                                     missing_rows=notes, lost="no speed logged")
     check_time_unit(rotors_file, t)
     check_rotor_speeds(rotors_file, x, vehicle, lines)
     align.require_overlap(t_gt, t, rotors_file)
