@@ -485,11 +485,19 @@ def test_an_optional_stream_with_no_rows_is_read_as_absent_and_said(tmp_path, go
     assert read_recording(good).imu is not None  # a stream with rows is read as before
 
 
-def test_nan_in_imu(tmp_path, capsys, good):
+def test_nan_in_imu_is_a_dropout_and_inf_is_refused(tmp_path, capsys, good):
+    """An IMU row with a value missing is left out and said (the stream has a dropout there, as the ground truth's
+    and the rotors'); an infinite value is refused naming the line."""
     rec = _copy(good, tmp_path)
-    _rewrite_csv(rec / "mav0" / "imu0" / "data.csv",
-                 lambda i, l: ",".join(l.split(",")[:4] + ["nan"] + l.split(",")[5:]) if i == 100 else l)
-    _gap_fails(tmp_path, capsys, [rec], match="imu0")
+    imu = rec / "mav0" / "imu0" / "data.csv"
+    rows = len(imu.read_text().splitlines()) - 1
+    _rewrite_csv(imu, lambda i, l: ",".join(l.split(",")[:4] + ["nan"] + l.split(",")[5:]) if i == 100 else l)
+    (loaded,) = load_recordings([rec])
+    assert any("imu0/data.csv: 1 row with a value missing (empty or NaN: no sample logged) left out, in 1 stretch "
+               "from line 102: read as dropouts" in n for n in loaded.read_notes)
+    assert len(loaded.imu.t_ns) == rows - 1
+    _rewrite_csv(imu, lambda i, l: ",".join(l.split(",")[:4] + ["inf"] + l.split(",")[5:]) if i == 200 else l)
+    _gap_fails(tmp_path, capsys, [rec], match="imu0/data.csv: line 202, column 5: value inf is not finite")
 
 
 def test_nan_in_groundtruth_is_a_missing_row_and_inf_is_refused(tmp_path, capsys, good):

@@ -321,7 +321,8 @@ def _read_imu(root: Path, t_gt: np.ndarray, notes: list[str], *, required: bool)
         return None
     if not required and _absent_if_empty(imu_file, notes):
         return None
-    t, x, lines = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU", return_lines=True, repeated_times=notes)
+    t, x, lines = euroc_csv.read_csv(imu_file, euroc_csv.IMU_COLUMNS, "IMU", return_lines=True, repeated_times=notes,
+                                     missing_rows=notes, lost="no sample logged")
     check_time_unit(imu_file, t)
     check_magnitudes(imu_file, x, lines, IMU_LIMITS)
     align.require_overlap(t_gt, t, imu_file)
