@@ -785,17 +785,23 @@ def test_an_imu_logged_over_part_of_the_flight_is_said_and_cuts_only_what_reads_
     assert not stream_span_notes(load_recordings([good])[0])  # a whole IMU says nothing
 
 
+def _rotors_of(good, tmp_path, source: str):
+    """A copy of ``good`` whose rotor speeds are ``source`` (``rotor_speed_source``): the copy, its rotors0 file and
+    that file's lines."""
+    rec = _copy(good, tmp_path, source)
+    yaml_path = rec / "vehicle.yaml"
+    yaml_path.write_text(yaml_path.read_text() + f"rotor_speed_source: {source}\n")
+    csv = rec / "mav0" / "rotors0" / "data.csv"
+    return rec, csv, csv.read_text().splitlines()
+
+
 def test_measured_rotor_glitches_are_left_out_and_said(tmp_path, good):
     """ESC telemetry reading 0 or twice a rotor's speed for one row (a rotor cannot jump by a quarter and back in
     10 ms): with rotor_speed_source measured, those rows are left out and said; commanded speeds may jump (the
     rotors follow through their lag) and are read as written."""
     rng = np.random.default_rng(1)
     for source in ("measured", "commanded"):
-        rec = _copy(good, tmp_path, source)
-        yaml_path = rec / "vehicle.yaml"
-        yaml_path.write_text(yaml_path.read_text() + f"rotor_speed_source: {source}\n")
-        csv = rec / "mav0" / "rotors0" / "data.csv"
-        lines = csv.read_text().splitlines()
+        rec, csv, lines = _rotors_of(good, tmp_path, source)
         rows = np.sort(rng.choice(np.arange(200, len(lines) - 200), 12, replace=False))
         for k, row in enumerate(rows):
             cells = lines[row].split(",")
@@ -828,11 +834,7 @@ def test_a_rotor_read_0_for_half_a_second_in_flight_is_left_out_and_said(tmp_pat
     """Measured speeds with one rotor at 0 for 0.5 s mid-flight (more than one update: no glitch) are left out and
     said with the first line; commanded speeds are read as written."""
     for source in ("measured", "commanded"):
-        rec = _copy(good, tmp_path, source)
-        yaml_path = rec / "vehicle.yaml"
-        yaml_path.write_text(yaml_path.read_text() + f"rotor_speed_source: {source}\n")
-        csv = rec / "mav0" / "rotors0" / "data.csv"
-        lines = csv.read_text().splitlines()
+        rec, csv, lines = _rotors_of(good, tmp_path, source)
         t = np.array([int(line.split(",")[0]) for line in lines[1:]]) * 1e-9
         rows = np.flatnonzero((t - t[0] > 6.0) & (t - t[0] < 6.5)) + 1
         for row in rows:
