@@ -822,11 +822,14 @@ def test_measured_rotor_glitches_are_left_out_and_said(tmp_path, good):
 
 def test_stopped_rotor_rows_known_answers():
     """A rotor at 0 beside others near hover is a dropout; on the gear, one ESC not yet started beside others at
-    idle (30 % of hover) is not, nor are all rotors at 0 (motors off)."""
+    idle (30 % of hover) is not, nor are all rotors at 0 (motors off); also where the vehicle idled on its gear for
+    most of the log."""
     hover = np.full((10, 4), 500.0)
     x = np.vstack([np.zeros((3, 4)), [[0.0, 150.0, 150.0, 150.0]], hover, [[500.0, 0.0, 510.0, 490.0]],
                    [[0.0, 0.0, 320.0, 320.0]]])
     assert stopped_rotor_rows(x).tolist() == [False] * 4 + [False] * 10 + [True, True]
+    idling = np.vstack([np.full((40, 4), 150.0), x])  # the median turning speed is the idle's
+    assert stopped_rotor_rows(idling).tolist() == [False] * 44 + [False] * 10 + [True, True]
     assert not stopped_rotor_rows(np.zeros((5, 4))).any() and not stopped_rotor_rows(np.zeros((0, 4))).any()
 
 
@@ -847,7 +850,7 @@ def test_a_rotor_read_0_for_half_a_second_in_flight_is_left_out_and_said(tmp_pat
         if source == "measured":
             assert len(loaded.rotors.t_ns) == len(lines) - 1 - len(rows) and len(rows) > 40
             assert said == [f"{source}/rotors0: {len(rows)} rows where a rotor reads 0 while another turns at over "
-                            f"60 % of the hover-like speed (first at line {rows[0] + 1}; no multirotor flies so) left "
+                            f"60 % of the flying speed (first at line {rows[0] + 1}; no multirotor flies so) left "
                             "out: telemetry dropouts written as 0"]
         else:
             assert len(loaded.rotors.t_ns) == len(lines) - 1 and said == []

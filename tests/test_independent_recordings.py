@@ -126,8 +126,8 @@ CORRUPTIONS = {
                              lambda p: p.unlink()),
     "wrong column count": ("mav0/imu0/data.csv",
                            lambda p: _corrupt_lines(p, lambda l: l[:5] + [l[5].rsplit(",", 1)[0]] + l[6:])),
-    "NaN": ("mav0/rotors0/data.csv",
-            lambda p: _corrupt_lines(p, lambda l: l[:9] + [l[9].rsplit(",", 1)[0] + ",nan"] + l[10:])),
+    "infinite value": ("mav0/rotors0/data.csv",  # NaN there is a dropout (left out and said), inf no measurement
+                       lambda p: _corrupt_lines(p, lambda l: l[:9] + [l[9].rsplit(",", 1)[0] + ",inf"] + l[10:])),
     "non-numeric": ("mav0/imu0/data.csv",
                     lambda p: _corrupt_lines(p, lambda l: l[:7] + [l[7].replace(",", ",abc,", 1)[:-4]] + l[8:])),
     "timestamps out of order": ("mav0/state_groundtruth_estimate0/data.csv",  # 2 % of the rows go back

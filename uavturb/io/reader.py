@@ -358,7 +358,7 @@ def _read_rotors(root: Path, t_gt: np.ndarray, vehicle: Vehicle, notes: list[str
     stopped = stopped_rotor_rows(x) if vehicle.rotor_speed_source == "measured" else np.zeros(len(t), bool)
     if stopped.any():
         notes.append(f"{root.name}/rotors0: {int(stopped.sum())} row{'s' if stopped.sum() > 1 else ''} where a rotor "
-                     f"reads 0 while another turns at over {100 * STOPPED_BESIDE_SHARE:g} % of the hover-like speed "
+                     f"reads 0 while another turns at over {100 * STOPPED_BESIDE_SHARE:g} % of the flying speed "
                      f"(first at line {lines[np.flatnonzero(stopped)[0]]}; no multirotor flies so) left out: "
                      "telemetry dropouts written as 0")
         t, x = t[~stopped], x[~stopped]

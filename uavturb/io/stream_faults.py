@@ -129,15 +129,18 @@ def rotor_glitches(t_ns: np.ndarray, speeds: np.ndarray) -> np.ndarray:
     return out
 
 
-#: share of the stream's hover-like speed (the median mean speed of the rows where every rotor turns) above which
-#: another rotor must turn while one reads 0 for the row to be a telemetry dropout: a multirotor does not fly with a
-#: rotor stopped beside others near hover; on its gear, spinning up, ESCs start apart at idle speeds well under it
+#: share of the stream's flying speed (the 90th percentile, over the rows where every rotor turns, of their mean
+#: speed: near hover, however long the vehicle idled on its gear first) above which another rotor must turn while
+#: one reads 0 for the row to be a telemetry dropout: a multirotor does not fly with a rotor stopped beside others
+#: near hover; on its gear, spinning up, ESCs start apart at idle speeds well under it
 STOPPED_BESIDE_SHARE = 0.6
+#: the percentile of :data:`STOPPED_BESIDE_SHARE`'s flying speed
+FLYING_PERCENTILE = 90.0
 
 
 def stopped_rotor_rows(speeds: np.ndarray) -> np.ndarray:
     """(N,) bool, the rows of a measured rotor stream (``speeds`` (N, K) as written) where some rotor reads exactly 0
-    while another turns faster than :data:`STOPPED_BESIDE_SHARE` of the stream's hover-like speed: ESC telemetry that
+    while another turns faster than :data:`STOPPED_BESIDE_SHARE` of the stream's flying speed: ESC telemetry that
     lost a rotor for a while and wrote 0 (:func:`rotor_glitches` finds one update of it, not a run). Half a second of
     one rotor at 0 mid-flight had moved a simulated quadrotor's ground effect from mu = 2.92 to 2.40 (truth 3), said
     nowhere. Every rotor at 0 (motors off) is no such row."""
@@ -149,5 +152,5 @@ def stopped_rotor_rows(speeds: np.ndarray) -> np.ndarray:
     all_turn = ~zero.any(axis=1)
     if not all_turn.any():
         return out
-    level = float(np.median(np.mean(x[all_turn], axis=1)))
+    level = float(np.percentile(np.mean(x[all_turn], axis=1), FLYING_PERCENTILE))
     return zero.any(axis=1) & (np.max(x, axis=1) > STOPPED_BESIDE_SHARE * level)
