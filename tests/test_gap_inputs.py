@@ -532,6 +532,22 @@ def test_missing_rotor_speeds_are_dropouts_and_inf_is_refused(tmp_path, capsys, 
     assert "Traceback" not in line
 
 
+def test_missing_battery_readings_are_left_out(tmp_path, good):
+    """A battery0 row with its voltage or current missing (NaN, empty) is left out and said; the voltage is
+    interpolated over the rest."""
+    rec = _copy(good, tmp_path)
+    (rec / "mav0" / "battery0").mkdir(exist_ok=True)
+    t0 = int((rec / "mav0" / "rotors0" / "data.csv").read_text().splitlines()[1].split(",")[0])
+    rows = [f"{t0 + k * 100_000_000},{16.0 - 0.01 * k:.2f},{'nan' if k == 5 else 12.0}" for k in range(120)]
+    rows[7] = f"{t0 + 700_000_000},,12.0"
+    (rec / "mav0" / "battery0" / "data.csv").write_text("#timestamp [ns],voltage [V],current [A]\n"
+                                                         + "\n".join(rows) + "\n")
+    (loaded,) = load_recordings([rec])
+    assert len(loaded.battery.t_ns) == 118 and loaded.battery.voltage[5] == pytest.approx(15.94)
+    assert any("battery0/data.csv: 2 rows with a value missing (empty or NaN: no reading logged) left out, in 2 "
+               "stretches from line 7: the voltage is interpolated over them" in n for n in loaded.read_notes)
+
+
 def test_two_recordings_of_different_vehicles(tmp_path, capsys, good):
     a = _copy(good, tmp_path, "a")
     b = _copy(good, tmp_path, "b")

@@ -313,7 +313,8 @@ def _last_of_each_time(path: Path, lines: np.ndarray, t_ns: np.ndarray, values: 
 
 def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
              return_lines: bool = False, repeated_times: list[str] | None = None,
-             missing_rows: list[str] | None = None, lost: str = "tracking lost") -> tuple[np.ndarray, ...]:
+             missing_rows: list[str] | None = None, lost: str = "tracking lost",
+             then: str = "read as dropouts") -> tuple[np.ndarray, ...]:
     """Read an EuRoC-style numeric CSV file, in blocks, within this module's bounds.
 
     Parameters
@@ -337,7 +338,8 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
     missing_rows : where given, rows with a value missing (an empty field, NaN: motion capture that lost the
         vehicle) are left out, and one sentence saying how many, in how many stretches, is appended to this list
         (the stream then has a dropout there); a file with no complete row is refused.
-    lost : what a missing value means in that sentence (motion capture: ``tracking lost``)
+    lost, then : what a missing value means in that sentence (motion capture: ``tracking lost``), and what comes of
+        the rows left out (``read as dropouts``)
 
     Raises
     ------
@@ -356,7 +358,7 @@ def read_csv(path: str | Path, n_cols: int | None, what: str = "data", *,
     lines, values, t_ns = (np.concatenate(p) if len(parts) > 1 else p[0] for p in zip(*parts))
     del parts
     if missing_rows is not None:
-        lines, values, t_ns = _complete_rows(path, lines, values, t_ns, missing_rows, lost)
+        lines, values, t_ns = _complete_rows(path, lines, values, t_ns, missing_rows, lost, then)
     if repeated_times is not None:
         lines, values, t_ns = _in_time_order(path, lines, values, t_ns, repeated_times)
     _check_times(path, lines, t_ns, allow_repeats=repeated_times is not None)
@@ -397,9 +399,10 @@ def _in_time_order(path: Path, lines: np.ndarray, values: np.ndarray, t_ns: np.n
 
 
 def _complete_rows(path: Path, lines: np.ndarray, values: np.ndarray, t_ns: np.ndarray, notes: list[str],
-                   lost: str = "tracking lost") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The rows with every value present; a sentence on those left out (a missing value meaning ``lost``) appended
-    to ``notes``."""
+                   lost: str = "tracking lost", then: str = "read as dropouts"
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows with every value present; a sentence on those left out (a missing value meaning ``lost``, the rows
+    then ``then``) appended to ``notes``."""
     complete = ~np.isnan(values).any(axis=1)
     if complete.all():
         return lines, values, t_ns
@@ -410,7 +413,7 @@ def _complete_rows(path: Path, lines: np.ndarray, values: np.ndarray, t_ns: np.n
     n = int(gone.sum())
     notes.append(f"{path}: {n} row{'s' if n > 1 else ''} with a value missing (empty or NaN: {lost}) "
                  f"left out, in {len(starts)} stretch{'es' if len(starts) > 1 else ''} from line "
-                 f"{lines[starts[0]]}: read as dropouts")
+                 f"{lines[starts[0]]}: {then}")
     return lines[complete], values[complete], t_ns[complete]
 
 

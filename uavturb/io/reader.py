@@ -409,7 +409,8 @@ def _read_battery(root: Path, notes: list[str]) -> Battery | None:
     battery_file = root / BATTERY_CSV
     if not battery_file.is_file() or _absent_if_empty(battery_file, notes):
         return None
-    t, x = euroc_csv.read_csv(battery_file, None, "battery", repeated_times=notes)
+    t, x = euroc_csv.read_csv(battery_file, None, "battery", repeated_times=notes, missing_rows=notes,
+                              lost="no reading logged", then="the voltage is interpolated over them")
     if x.shape[1] > 2:
         raise InputError(battery_file, f"has {x.shape[1] + 1} columns; expected timestamp, voltage [V] "
                                        "and optionally current [A]")
