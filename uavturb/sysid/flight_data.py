@@ -33,7 +33,7 @@ from uavturb.physics import quaternion as quat
 from uavturb.scene.heights import SurfaceIndex
 from uavturb.numerics.stream_updates import (column_update_masks, hold_period_s, read_at_crossings, rounding_steps,
                                              staggered, update_mask)
-from uavturb.sysid.streams import dropouts
+from uavturb.sysid.streams import MAD_TO_SIGMA, dropouts
 
 
 @dataclass
@@ -329,17 +329,13 @@ def battery_voltage(rec: Recording, t_ns: np.ndarray) -> np.ndarray | None:
     return out
 
 
-#: the median absolute deviation of a normal variable over its standard deviation
-_MAD_PER_SD = 0.6745
-
-
 def battery_voltage_noise(rec: Recording, t_ns: np.ndarray) -> float | None:
     """V^2, the variance of the noise of :func:`battery_voltage` at ``t_ns`` [ns], mean over the rows within the
     stream's span; None without a battery stream (or under four samples).
 
     The samples' own noise ``s^2`` is read from their second differences, ``v[k+1] - 2 v[k] + v[k-1]``, whose
     variance is ``6 s^2`` for white noise on a voltage that changes smoothly from sample to sample: ``s`` is their
-    median absolute deviation over 0.6745 sqrt(6), which the few steps of a load changing within a sample interval
+    median absolute deviation times 1.4826 over sqrt(6), which the few steps of a load changing within a sample interval
     (a take-off) do not move. A row between samples ``k`` and ``k + 1``, a fraction ``f`` of the way, holds
     ``(1 - f)^2 + f^2`` of ``s^2`` (linear interpolation: half at the middle). A voltage that changes by less than
     its resolution between samples has second differences of 0 mostly, and reads no noise: its rounding is then
@@ -349,7 +345,7 @@ def battery_voltage_noise(rec: Recording, t_ns: np.ndarray) -> float | None:
         return None
     tb, vb = (np.asarray(x, float) for x in samples)
     d2 = vb[2:] - 2.0 * vb[1:-1] + vb[:-2]
-    s2 = (float(np.median(np.abs(d2 - np.median(d2)))) / _MAD_PER_SD) ** 2 / 6.0
+    s2 = (MAD_TO_SIGMA * float(np.median(np.abs(d2 - np.median(d2))))) ** 2 / 6.0
     t = np.asarray(t_ns, float)
     t = t[(t >= tb[0]) & (t <= tb[-1])]
     if not len(t):
