@@ -17,7 +17,13 @@ from uavturb import progress
 from uavturb.errors import InputError
 from uavturb.cli import main
 from uavturb.commands.identify import residuals_to_file
-from uavturb.io.consistency import check_quaternion_order, check_rotor_clock, stream_span_notes
+from uavturb.io.consistency import (
+    MIN_VERTICAL_CORRELATION_RECORDING,
+    check_quaternion_order,
+    check_rotor_clock,
+    check_vertical_response,
+    stream_span_notes,
+)
 from uavturb.io.ply import read_ply, write_ply
 from uavturb.gap.finder import MOVED_SPEEDS_STAGE, STAGES, analyse
 from uavturb.gap.preparation import state_thinned, stream_limits
@@ -289,13 +295,35 @@ def test_quaternions_written_x_y_z_w_are_refused_without_an_imu_too(tmp_path, ca
 
 
 def test_a_flight_under_the_floor_of_its_room_is_refused(tmp_path, capsys, good):
-    """Positions and velocities with z down (NED) beside quaternions with z up, and no IMU to tell it: the whole
-    flight lies under the room's floor, which read as a ceiling, and the probe's report named a ceiling effect."""
+    """A room's cloud in another frame than the flight's (raised by 5 m), and no IMU: the whole flight lies under
+    the room's floor, which read as a ceiling. A blind probe's flight with z-down positions (no IMU) had so named a
+    ceiling effect; the vertical response refuses that one first (the next test)."""
     rec = _copy(good, tmp_path)
     shutil.rmtree(rec / "mav0" / "imu0")
-    _rewrite_csv(rec / "mav0" / "state_groundtruth_estimate0" / "data.csv", _scaled_columns({3, 10}, -1.0))
+    cloud = rec / "mav0" / "pointcloud0" / "data.ply"
+    write_ply(cloud, read_ply(cloud) + np.array([0.0, 0.0, 5.0]))
     _gap_fails(tmp_path, capsys, [rec], match="state_groundtruth_estimate0/data.csv: the rotor plane flies under the "
                                               "point cloud's floor in 100 % of the rows")
+
+
+def test_a_flight_with_z_down_over_a_flat_floor_is_refused_by_its_vertical_response(tmp_path, capsys, good):
+    """The same z-down positions over a cloud of one flat layer (a floor, or a ceiling scanned alone: the flight may
+    lie under it): the vehicle accelerates down when its rotors speed up. A Neural-Swarm walk so negated had
+    reported no surface below the vehicle and a rejected ceiling effect."""
+    rec = _copy(good, tmp_path)
+    shutil.rmtree(rec / "mav0" / "imu0")
+    cloud = rec / "mav0" / "pointcloud0" / "data.ply"
+    points = read_ply(cloud)
+    floor = float(np.percentile(points[:, 2], 1.0))
+    xs, ys = np.meshgrid(np.linspace(-10, 10, 41), np.linspace(-10, 10, 41))
+    write_ply(cloud, np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, floor)]))
+    (kept,) = load_recordings([rec])  # z up over the flat floor: read
+    assert check_vertical_response(kept, MIN_VERTICAL_CORRELATION_RECORDING) > 0.5
+    _rewrite_csv(rec / "mav0" / "state_groundtruth_estimate0" / "data.csv", _scaled_columns({3, 10}, -1.0))
+    line = _gap_fails(tmp_path, capsys, [rec], match="state_groundtruth_estimate0/data.csv: the vehicle accelerates "
+                                                     "down when its rotors speed up (correlation -0.")
+    assert line.endswith("the world's z axis looks inverted against the attitudes (positions and velocities with z "
+                         "down, NED, beside quaternions with z up?; recordings.md: world z up)")
 
 
 def test_velocities_left_at_zero_are_taken_from_the_positions(tmp_path, capsys, good):
