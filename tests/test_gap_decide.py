@@ -378,6 +378,33 @@ def test_a_candidate_outside_its_range_when_chosen_gives_the_step_to_the_next():
     assert seen[0] == (winner, {winner}) and (other, {other}) in seen
 
 
+def test_a_selection_made_again_on_the_same_data_reuses_what_the_first_evaluated(monkeypatch):
+    """``select(..., known=first.known)``: the effect sets the first selection evaluated are not evaluated again (a
+    selection made again without an unpinned law had repeated every first-step candidate), and the result is the
+    same to the bit; another selection's data is refused."""
+    K = 6000
+    d = 0.12 + 0.5 * (1 + np.sin(np.linspace(0, 12 * np.pi, K))) / 2  # m
+    data = _data(np.linspace(0, 2 * np.pi, K), d_down=d, push=(1.5, -0.5), seed=5)
+    thrust = 8.5e-6 * np.sum(data.rotor_speeds**2, axis=1)
+    data.y[:, 2] += thrust * (ge.thrust_ratio(d, 2.0, 0.1) - 1.0)
+    evaluated = []
+    heldout = selection.FoldFits.heldout
+    monkeypatch.setattr(selection.FoldFits, "heldout",
+                        lambda self, effects, fixed=None: evaluated.append(frozenset(effects)) or heldout(
+                            self, effects, fixed))
+    first = selection.select(data, ["wind", "ground_effect", "rotor_drag"])
+    assert first.chosen == ["wind", "ground_effect"] and len(evaluated) == len(set(evaluated))
+    fresh = selection.select(data, ["wind", "ground_effect"])
+    evaluated.clear()
+    again = selection.select(data, ["wind", "ground_effect"], known=first.known)
+    assert evaluated == []  # every set this selection asks for, the first had evaluated
+    assert again.chosen == fresh.chosen and again.final.coef == fresh.final.coef
+    assert again.final.nonlinear == fresh.final.nonlinear and again.tried == fresh.tried
+    other = _data(np.linspace(0, 2 * np.pi, K), d_down=d, seed=6)
+    with pytest.raises(ValueError, match="another selection's data"):
+        selection.select(other, ["wind"], known=first.known)
+
+
 def test_a_candidate_held_back_at_one_step_comes_back_at_a_later_one():
     """A push that is unphysical alone (the test says so while no ground law stands beside it) is held back at the
     first step, where the ground law is chosen instead, and chosen at the second; it is then not listed as

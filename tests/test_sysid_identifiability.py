@@ -161,6 +161,24 @@ def test_physical_bounds():
     st = idf.assess(est, se, EXCITED, {}, has_imu=True, **GEOMETRY)
     assert (st["theta_1"].reason == "physically impossible"
             and "J_x = l k_T / theta_1 at 2.28 kg m^2" in st["theta_1"].why)
+    assert st["theta_1"].why.endswith("(rotor columns in another order than vehicle.yaml's angles?)")
+    # the same 15-times-too-small slope where the rotor-torque column carries 5 % of the roll acceleration's variance:
+    # noise in the recorded speeds can shrink the slope 20 times, and the order is not asked about
+    est, se = _est(theta_1=5.3e-5 / 15, J_x=0.215 * 8.56e-6 / (5.3e-5 / 15))
+    noisy_roll = EXCITED | {"roll": idf.AxisExcitation(0.3, 1.0, 0.05)}
+    st = idf.assess(est, se, noisy_roll, {}, has_imu=True, **GEOMETRY)
+    assert st["theta_1"].reason == "ill-conditioned" and "another order" not in st["theta_1"].why
+    assert "(3.5 times it: within what noise in the recorded rotor speeds does to the slope (up to 20 times))" \
+        in st["theta_1"].why
+    # 100 times too small (23 times the bound): beyond what that noise does, so the order is asked about again
+    est, se = _est(theta_1=5.3e-5 / 100, J_x=0.215 * 8.56e-6 / (5.3e-5 / 100))
+    st = idf.assess(est, se, noisy_roll, {}, has_imu=True, **GEOMETRY)
+    assert st["theta_1"].why.endswith("(rotor columns in another order than vehicle.yaml's angles?)")
+    # a column that carries 1 % tells nothing of the order: both are said
+    st = idf.assess(est, se, EXCITED | {"roll": idf.AxisExcitation(0.3, 1.0, 0.01)}, {}, has_imu=True, **GEOMETRY)
+    assert st["theta_1"].why.endswith("(23 times it: noise in the recorded rotor speeds, whose torque column carries "
+                                      "1 % of the acceleration's variance, or rotor columns in another order than "
+                                      "vehicle.yaml's angles?)")
 
 
 def test_collinear_columns_are_ill_conditioned():

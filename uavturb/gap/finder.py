@@ -356,9 +356,9 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("selecting effects")
     evidence = nominal_curve_evidence(data, base.least_squares, heights_broken is None)
 
-    def selected(among: list[str]) -> Selection:
+    def selected(among: list[str], known=None) -> Selection:
         return select(data, among, base=sim_fit_base, thrust_floor=floor, curve=evidence,
-                      unphysical=lambda fit, name: outside_range(data, fit, name))
+                      unphysical=lambda fit, name: outside_range(data, fit, name), known=known)
 
     sel = selected(candidates)
     progress("deciding what the data support")
@@ -367,7 +367,8 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     def decided(chosen: Selection, among: list[str]) -> tuple[Selection, list[dict], list[dict]]:
         return _decide(data, chosen, among, refits, levels_read=levels.basis != "none")
 
-    sel, ambiguous, rejected = _without_unpinned_laws(decided(sel, candidates), candidates, selected, decided)
+    sel, ambiguous, rejected = _without_unpinned_laws(decided(sel, candidates), candidates,
+                                                      lambda among: selected(among, sel.known), decided)
     rejected = _lift_beside_unpinned(rejected, sel.chosen, evidence.lift_z)
     sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim, base.offset)
     final: ModelFit = sel.final
