@@ -515,7 +515,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
     docstring, rule 4; no check where None). ``known``: the held-out errors and fits of another selection on the
     same ``data``, ``offset`` and ``lag`` (its :attr:`Selection.known`): the effect sets it evaluated are taken from
     it, not evaluated again (the same numbers; a selection made again without a law that the data do not pin had
-    repeated every first-step candidate, 6 s of twelve Crazyflie walks' 21)."""
+    repeated every first-step candidate: on twelve Crazyflie walks 10 of 52 held-out evaluations, 0.5 s of 3.3)."""
     curve = curve or CurveEvidence()
     protocol, fm = folds(data)
     current = frozenset(base)
