@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -67,6 +68,19 @@ def test_motor_commands_follow_the_affine_curve(flight, tmp_path):
     assert mc["rotor_speed_scale"] * mc["u_hover"] == pytest.approx(w_h)  # exact at hover
     err = rec.rotors.speeds - truth.rotor_commands  # the nominal model's error: a (w - w_h) / (w_h - a)
     np.testing.assert_allclose(err, mc["a"] * (truth.rotor_commands - w_h) / (w_h - mc["a"]), atol=1e-6)
+
+
+def test_motor_commands_are_written_as_commanded_whatever_the_vehicle_file_said(flight, tmp_path):
+    """A vehicle file saying its rotor speeds are measured (an ESC-telemetry quadrotor), flown with motor commands
+    in rotors0: the recording's vehicle.yaml says commanded (it had kept measured, and a probe's finder read the
+    commands' map as speeds: mu 3.77 +- 0.39 for 3); with measured rotors it says measured."""
+    rec, truth = flight
+    said_measured = (dataclasses.replace(rec, vehicle=rec.vehicle.with_params(rotor_speed_source="measured")), truth)
+    assert read_recording(_conditioned(said_measured, tmp_path / "a")[1]).vehicle.rotor_speed_source == "measured"
+    c, path = _conditioned(said_measured, tmp_path / "b", motor_commands=True)
+    assert read_recording(path).vehicle.rotor_speed_source == "commanded"
+    _, path = _conditioned(flight, tmp_path / "c", measured_rotors=True)
+    assert read_recording(path).vehicle.rotor_speed_source == "measured"
 
 
 def test_sensor_frame_has_the_lever_arm_accelerations(flight, tmp_path):

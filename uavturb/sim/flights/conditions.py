@@ -502,8 +502,9 @@ def _held_streams(rec: Recording, cond: Conditions, doc: dict[str, Any]) -> Reco
 
 def _vehicle_file(rec: Recording, cond: Conditions, true_vehicle: Vehicle, truth: Any,
                   doc: dict[str, Any]) -> Recording:
-    """What ``vehicle.yaml`` says: a mass off, the nominal thrust coefficient, the rotor speeds' source,
-    the rotor plane's height (already the simulated vehicle's)."""
+    """What ``vehicle.yaml`` says: a mass off, the nominal thrust coefficient, the rotor speeds' source (``measured``
+    with measured rotors, ``commanded`` with motor commands, whatever the vehicle file given said), the rotor
+    plane's height (already the simulated vehicle's)."""
     v = rec.vehicle
     if cond.mass_error:
         m = true_vehicle.mass
@@ -517,6 +518,8 @@ def _vehicle_file(rec: Recording, cond: Conditions, true_vehicle: Vehicle, truth
                                "law": "true k_T = vehicle.yaml's k_T * factor (a per-recording thrust level)"}
     if cond.measured_rotors:
         v = v.with_params(rotor_speed_source="measured")
+    elif cond.motor_commands:  # commands, whatever the vehicle file given said: one that said measured had been
+        v = v.with_params(rotor_speed_source="commanded")  # kept, and the finder read the commands' map as speeds
     if cond.rotor_plane_z != 0.0:
         z_body = truth.x[:, 2]
         doc["rotor_plane_z"] = {"m": cond.rotor_plane_z, "in": "vehicle.yaml",
