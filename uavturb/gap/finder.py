@@ -356,9 +356,11 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
     progress("selecting effects")
     evidence = nominal_curve_evidence(data, base.least_squares, heights_broken is None)
 
-    def selected(among: list[str], known=None) -> Selection:
+    def selected(among: list[str], after: Selection | None = None) -> Selection:
+        """The selection among ``among``; ``after``: one made before on the same data, whose evaluations it reuses."""
         return select(data, among, base=sim_fit_base, thrust_floor=floor, curve=evidence,
-                      unphysical=lambda fit, name: outside_range(data, fit, name), known=known)
+                      unphysical=lambda fit, name: outside_range(data, fit, name),
+                      known=None if after is None else after.known)
 
     sel = selected(candidates)
     progress("deciding what the data support")
@@ -368,7 +370,7 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         return _decide(data, chosen, among, refits, levels_read=levels.basis != "none")
 
     sel, ambiguous, rejected = _without_unpinned_laws(decided(sel, candidates), candidates,
-                                                      lambda among: selected(among, sel.known), decided)
+                                                      lambda among: selected(among, after=sel), decided)
     rejected = _lift_beside_unpinned(rejected, sel.chosen, evidence.lift_z)
     sel = _timing_robust(data, sel, ambiguous, recordings, paths, held["delays"], sim, base.offset)
     final: ModelFit = sel.final

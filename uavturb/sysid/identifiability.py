@@ -63,6 +63,9 @@ COND_MAX = 1.0e3
 #: smallest share of the angular acceleration's variance that the rotor-torque column must carry for its
 #: slope to be identified: the slope then lies between the estimate and 1/SHARE_MIN = 1 + REL_SE_MAX times it
 SHARE_MIN = 1.0 / (1.0 + REL_SE_MAX)
+#: a rotor-torque column's share of the variance under which it tells nothing of the rotors' order (an inertia
+#: read above its physical bound is then said to come from noise or from columns in another order alike)
+SHARE_TELLS = 0.05
 #: m/s^2, largest standard error of an identified accelerometer bias component
 BIAS_SE_MAX = 0.05
 #: how far J_k may exceed J_i + J_j: RotorS's Firefly inertia, used by the built-in hexarotor
@@ -253,10 +256,6 @@ def _why_too_large(times: float, ex: AxisExcitation) -> str:
                 "vehicle.yaml's angles?")
     return (f"{times:.2g} times it: within what noise in the recorded rotor speeds does to the slope "
             f"(up to {1 / s:.2g} times)")
-
-
-#: a rotor-torque column's share of the variance under which it tells nothing of the rotors' order
-SHARE_TELLS = 0.05
 
 
 def _inherit(f: _Findings, name: str, status: dict[str, ParameterStatus], deps: Sequence[str]) -> None:
