@@ -77,7 +77,7 @@ def test_motor_commands_are_written_as_commanded_whatever_the_vehicle_file_said(
     rec, truth = flight
     said_measured = (dataclasses.replace(rec, vehicle=rec.vehicle.with_params(rotor_speed_source="measured")), truth)
     assert read_recording(_conditioned(said_measured, tmp_path / "a")[1]).vehicle.rotor_speed_source == "measured"
-    c, path = _conditioned(said_measured, tmp_path / "b", motor_commands=True)
+    _, path = _conditioned(said_measured, tmp_path / "b", motor_commands=True)
     assert read_recording(path).vehicle.rotor_speed_source == "commanded"
     _, path = _conditioned(flight, tmp_path / "c", measured_rotors=True)
     assert read_recording(path).vehicle.rotor_speed_source == "measured"
