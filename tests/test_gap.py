@@ -10,6 +10,10 @@ import pytest
 
 from uavturb.errors import InputError
 from uavturb.commands.gap import gap
+from uavturb.gap import report as gap_report
+from uavturb.gap.finder import analyse, parse_sim_effects
+from uavturb.io.reader import load_recordings
+from uavturb.numerics import processes
 from uavturb.io.physics_config import load_physics_config
 from uavturb.physics.effects import DEFAULT_EFFECTS
 from uavturb.sim.flights.condition_schema import Conditions
@@ -185,3 +189,30 @@ def test_a_height_that_passes_through_the_floor_tests_no_surface_effect(tmp_path
     assert "passes through the floor" in (tmp_path / "report" / "report.md").read_text()
     # the same flight without the drift: its height holds
     assert run(tmp_path / "held", [flights["ground"]], sim_effects="none")["height_reference"]["passes_floor"] is None
+
+
+def test_the_figures_drawn_side_by_side_are_the_plain_loops_pixels(tmp_path, flights, monkeypatch):
+    """``write_plots`` draws the report's figures in forked processes: the same files to the byte as drawn one
+    after the other here, in the report's order; a figure a child could not draw is drawn here, and its error
+    raised here."""
+    recs = load_recordings([str(flights["ground"])])
+    report, ex = analyse(recs, parse_sim_effects("none"))
+    args = (ex["data"], ex["r0"], ex["rs0"], ex["rf"], ex["rsf"], ex["segs"], "d_down", ex["base_ho"], ex["final_ho"])
+    surface = (ex["curve"], ex["curve_fits"], ex.get("curve_named"))
+    assert report["surface_curve"] is not None
+    (tmp_path / "forked").mkdir()
+    (tmp_path / "plain").mkdir()
+    names = gap_report.write_plots(tmp_path / "forked", *args, surface=surface)
+    monkeypatch.setattr(processes, "forking_possible", lambda: False)
+    assert gap_report.write_plots(tmp_path / "plain", *args, surface=surface) == names == [
+        "residual_time.png", "residual_vs_driver.png", "heldout_fit.png", "surface_curve.png"]
+    for name in names:
+        assert (tmp_path / "forked" / name).read_bytes() == (tmp_path / "plain" / name).read_bytes()
+    monkeypatch.undo()
+
+    def broken(*a, **k):
+        raise RuntimeError("this figure cannot be drawn")
+
+    monkeypatch.setattr(gap_report, "plot_heldout_fit", broken)
+    with pytest.raises(RuntimeError, match="cannot be drawn"):
+        gap_report.write_plots(tmp_path / "forked", *args, surface=surface)

@@ -5,12 +5,16 @@ evidence. Known answers."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
 from uavturb.gap.design import GapData
 from uavturb.gap.fit import fit_model, information_shares
+from uavturb.gap import uncertainty
 from uavturb.gap.uncertainty import TIME_BLOCKS, error_budget
+from uavturb.numerics import processes
 from uavturb.numerics.blocks import contiguous_blocks, jackknife_se, weighted_jackknife_se
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
@@ -106,3 +110,24 @@ def test_a_lift_seen_in_one_stretch_keeps_its_evidence():
     evenly = error_budget(_hover(_low_throughout()), fit_model(_hover(_low_throughout()), {"ground_effect"}),
                           "ground_effect", height_reference_m=0.0)["mu"]
     assert evenly["largest_block_share"] < 0.3
+
+
+def test_refits_side_by_side_in_forked_processes_give_the_same_budget(monkeypatch):
+    """Four recordings, each fitted alone, and the heights moved either way (``Refits.prefetch``, forked where that is
+    worth it): the same error budget to the bit as the plain loop's, and the parent fits none of those parts."""
+    if not processes.forking_possible():
+        pytest.skip("forks only on Linux with two cores")
+    data = _hover(_low_throughout(12000))
+    data.group = np.repeat(np.arange(4), len(data) // 4)
+    data.names = [f"hover{g}" for g in range(4)]
+    fit = fit_model(data, {"ground_effect"})
+    fitted_here = []
+    refit = uncertainty._fit_or_none
+    monkeypatch.setattr(uncertainty, "_fit_or_none", lambda part, effects: (
+        fitted_here.append(os.getpid()) or refit(part, effects)))
+    forked = error_budget(data, fit, "ground_effect")["mu"]
+    assert os.getpid() not in fitted_here  # every part fitted in a child (the list of a child is its own)
+    monkeypatch.setattr(uncertainty, "forking_worth", lambda rows, fits: False)
+    plain = error_budget(data, fit, "ground_effect")["mu"]
+    assert forked == plain and plain["fits"] == 4
+    assert "between_recordings" in plain and plain["height_reference"] > 0  # both kinds of part were refitted

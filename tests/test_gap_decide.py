@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -17,6 +19,7 @@ from uavturb.gap.decide import (
     surface_reach,
     thrust_tilt_alike,
 )
+from uavturb.gap import fit as fit_module
 from uavturb.gap import selection
 from uavturb.gap.design import GapData, difference_points
 from uavturb.gap.fit import ModelFit, fit_model
@@ -24,6 +27,7 @@ from uavturb.physics import ground_effect as ge
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, lag_rotor_speeds
+from uavturb.numerics import processes
 
 
 def _data(yaw: np.ndarray, *, d_down: float | np.ndarray = np.inf, imu: bool = True, push=(0.0, 0.0),
@@ -403,6 +407,38 @@ def test_a_selection_made_again_on_the_same_data_reuses_what_the_first_evaluated
     other = _data(np.linspace(0, 2 * np.pi, K), d_down=d, seed=6)
     with pytest.raises(ValueError, match="another selection's data"):
         selection.select(other, ["wind"], known=first.known)
+
+
+def test_effect_sets_fitted_side_by_side_in_forked_processes_give_the_same_selection(monkeypatch):
+    """Four recordings (leave-one-out): each step's candidate sets, and the backward check's, are fitted in forked
+    processes (``_Known.prefetch``) where that is worth it; the selection is the same to the bit as the plain loop's,
+    and the parent fits none of the sets a child fitted."""
+    if not processes.forking_possible():
+        pytest.skip("forks only on Linux with two cores")
+    K = 8000
+    d = 0.12 + 0.5 * (1 + np.sin(np.linspace(0, 12 * np.pi, K))) / 2  # m
+    data = _data(np.linspace(0, 2 * np.pi, K), d_down=d, push=(1.5, -0.5), seed=5)
+    data.y[:, 2] += 8.5e-6 * np.sum(data.rotor_speeds**2, axis=1) * (ge.thrust_ratio(d, 2.0, 0.1) - 1.0)
+    data.group = np.repeat(np.arange(4), K // 4)
+    data.names = [f"flight{g}" for g in range(4)]
+    assert fit_module.forking_worth(len(data), 4)
+    here = []
+    heldout = selection.FoldFits.heldout
+    monkeypatch.setattr(selection.FoldFits, "heldout", lambda self, effects, fixed=None: (
+        here.append((os.getpid(), frozenset(effects))) or heldout(self, effects, fixed)))
+    candidates = ["wind", "ground_effect", "rotor_drag", "body_drag"]
+    forked = selection.select(data, candidates)
+    in_parent = [e for pid, e in here if pid == os.getpid()]
+    here.clear()
+    monkeypatch.setattr(selection, "forking_worth", lambda rows, fits: False)
+    plain = selection.select(data, candidates)
+    assert plain.chosen == forked.chosen == ["wind", "ground_effect"]
+    assert forked.tried == plain.tried and forked.final.coef == plain.final.coef
+    assert forked.final.nonlinear == plain.final.nonlinear
+    assert [(s.heldout_before, s.heldout_after) for s in forked.steps] == [
+        (s.heldout_before, s.heldout_after) for s in plain.steps]
+    every = {e for _, e in here}
+    assert len(in_parent) < len(every) and len(in_parent) == len(set(in_parent))  # each set fitted once
 
 
 def test_a_candidate_held_back_at_one_step_comes_back_at_a_later_one():

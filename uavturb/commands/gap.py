@@ -12,7 +12,7 @@ from typing import Sequence
 
 from uavturb.errors import InputError
 from uavturb.gap.finder import STAGES, analyse, parse_sim_effects
-from uavturb.gap.report import plot_surface_curve, write_json, write_markdown, write_plots
+from uavturb.gap.report import write_json, write_markdown, write_plots
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M
 from uavturb.io.physics_config import load_physics_config, write_physics_config
 from uavturb.io.publish import check_apart, check_output_file, check_output_folder, publish_folder
@@ -68,10 +68,10 @@ def _publish(out: Path, report: dict, ex: dict, *, apply: str | Path | None, ove
     """Write the report folder (plots, ``report.md``, ``report.json``) and the ``--apply`` physics config."""
     with publish_folder(out, overwrite=overwrite, command="uavturb gap") as tmp:
         top = ex["drivers"][0]["feature"] if ex["drivers"] else None
+        surface = (ex["curve"], ex["curve_fits"], ex.get("curve_named")) if report["surface_curve"] is not None \
+            else None
         plots = write_plots(tmp, ex["data"], ex["r0"], ex["rs0"], ex["rf"], ex["rsf"], ex["segs"], top,
-                            ex["base_ho"], ex["final_ho"])
-        if report["surface_curve"] is not None:
-            plots.append(plot_surface_curve(tmp, ex["curve"], ex["curve_fits"], ex.get("curve_named")))
+                            ex["base_ho"], ex["final_ho"], surface=surface)
         if apply is not None:
             # the simulator's forces only: a law of what logged commands mean (battery_voltage) is not one
             fitted = {e["name"]: e["params"] for e in report["effects"] if EFFECTS[e["name"]].simulated}

@@ -33,6 +33,19 @@ from uavturb.sysid.least_squares import lstsq
 
 GRID_POINTS = 9
 
+#: (rows times fits, rows) between which fits of several effect sets, or of several parts of the data, are computed
+#: side by side in processes forked from this one (:class:`~uavturb.numerics.processes.ForkedPool`): with less work,
+#: each fit takes about as long as starting the processes (10-80 ms; a single take-off's 2,000 rows fitted once per
+#: effect set: 0.6 s against 0.7 s forked); on more rows, each child's own arrays, on top of the parent's, cost more
+#: memory than the time is worth (a flight-hour's analysis holds about 0.9 GB by itself)
+FORKED_WORK = (20_000, 250_000)
+
+
+def forking_worth(rows: int, fits: int) -> bool:
+    """Whether ``fits`` fits on ``rows`` rows in all (a held-out test's folds; parts of the data) are worth computing
+    in forked processes (:data:`FORKED_WORK`)."""
+    return rows * fits >= FORKED_WORK[0] and rows <= FORKED_WORK[1]
+
 
 @dataclass
 class ModelFit:

@@ -27,6 +27,7 @@ from uavturb.gap.uncertainty import BUDGET_TERMS, ONE_STRETCH_SHARE, TIME_BLOCKS
 from uavturb.io.reader import recording_labels
 from uavturb.physics.effects import EFFECTS
 from uavturb.io.strict_json import dumps_strict
+from uavturb.numerics.processes import ForkedPool, forked_state
 
 #: units of the candidate drivers of :func:`uavturb.gap.locate.features` (plot axes)
 FEATURE_UNITS = {"d_down": "m", "d_up": "m", "v_x": "m/s", "v_y": "m/s", "v_z": "m/s", "v_Bx": "m/s", "v_By": "m/s",
@@ -108,13 +109,39 @@ def _plot_time(ax, t: np.ndarray, y: np.ndarray, pixels: int, **kw) -> None:
     ax.plot(t[keep], y[keep], **kw)
 
 
-@gc_paused
 def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, segs, top_driver: str | None,
-                heldout_before, heldout_after) -> list[str]:
-    """Three figures a person needs to believe the report; returns their file names."""
-    names = []
+                heldout_before, heldout_after, surface: tuple | None = None) -> list[str]:
+    """The figures a person needs to believe the report, drawn side by side in processes forked from this one
+    (:class:`~uavturb.numerics.processes.ForkedPool`: each figure is Python-bound; a dozen recordings' took 4.5 s
+    one after the other, the residual over time 3 s of it); returns their file names, in the report's order.
+
+    ``surface``: ``(curve, fits, named)`` of :func:`plot_surface_curve`, whose figure is drawn with them (none where
+    None). A figure a child could not draw is drawn here (its error raised here)."""
+    import matplotlib.backends.backend_agg  # noqa: F401 - imported once, before the children fork, not in each
+
+    figures: dict[str, Callable[[], str]] = {
+        "residual_time": lambda: plot_residual_time(folder, data, baseline_r, baseline_rs, final_rs, segs)}
+    if top_driver is not None:
+        figures["residual_vs_driver"] = lambda: plot_residual_vs_driver(folder, data, baseline_rs, final_rs,
+                                                                        top_driver)
+    figures["heldout_fit"] = lambda: plot_heldout_fit(folder, data, heldout_before, heldout_after)
+    if surface is not None:
+        figures["surface_curve"] = lambda: plot_surface_curve(folder, *surface)
+    with ForkedPool(figures) as pool:
+        drawn = pool.map(_draw_in_child, figures)
+    return [drawn[k] if k in drawn else draw() for k, draw in figures.items()]
+
+
+def _draw_in_child(name: str) -> str:
+    """In a child of :func:`write_plots`: the figure ``name`` drawn."""
+    return forked_state()[name]()
+
+
+@gc_paused
+def plot_residual_time(folder: Path, data, baseline_r, baseline_rs, final_rs, segs) -> str:
+    """``folder/residual_time.png``: the residual over time with the located segments shaded, per recording x, y
+    and z stacked; returns the file name."""
     groups = np.unique(data.group)
-    # 1. residual over time with the located segments shaded: per recording, x, y and z stacked
     cols, rows = recording_grid(len(groups))
     fig = _figure((PANEL_WIDTH_IN * cols + 1, 7 * rows))
     axes = fig.subplots(3 * rows, cols, squeeze=False)
@@ -140,31 +167,39 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
     fig.suptitle("Residual force over time; located mismatch segments shaded")
     _tight_under_title(fig)
     _save(fig, folder / "residual_time.png")
-    names.append("residual_time.png")
+    return "residual_time.png"
 
-    # 2. residual against its driving feature, before and after
-    if top_driver is not None:
-        x = features(data)[top_driver]
-        j = int(np.argmax(np.var(baseline_rs, axis=0)))
-        fig = _figure((11, 4))
-        ax = fig.subplots(1, 2, sharey=True)
-        shown = scatter_rows(x, (baseline_rs[:, j], final_rs[:, j]))  # the mean per bin below is of every row
-        for a, r, title in ((ax[0], baseline_rs, BEFORE_ALL), (ax[1], final_rs, "after")):
-            a.scatter(x[shown], r[shown, j], s=1, alpha=0.3)
-            edges = np.unique(np.quantile(x, np.linspace(0, 1, 25)))
-            idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
-            cnt = np.maximum(np.bincount(idx), 1)
-            a.plot(np.bincount(idx, weights=x) / cnt, np.bincount(idx, weights=r[:, j]) / cnt, "o-",
-                   color="k", lw=1.5, ms=3, label="mean per quantile bin")
-            a.set_title(f"{title}: smoothed F_{AXES[j]}", fontsize=9)
-            a.set_xlabel(_label(top_driver))
-            a.legend()
-        ax[0].set_ylabel(f"F_{AXES[j]} [N]")
-        fig.tight_layout()
-        _save(fig, folder / "residual_vs_driver.png")
-        names.append("residual_vs_driver.png")
 
-    # 3. held-out fit before and after: |residual| on the held-out rows, per recording, over time
+
+@gc_paused
+def plot_residual_vs_driver(folder: Path, data, baseline_rs, final_rs, top_driver: str) -> str:
+    """``folder/residual_vs_driver.png``: the residual against its driving feature, before and after; returns the
+    file name."""
+    x = features(data)[top_driver]
+    j = int(np.argmax(np.var(baseline_rs, axis=0)))
+    fig = _figure((11, 4))
+    ax = fig.subplots(1, 2, sharey=True)
+    shown = scatter_rows(x, (baseline_rs[:, j], final_rs[:, j]))  # the mean per bin below is of every row
+    for a, r, title in ((ax[0], baseline_rs, BEFORE_ALL), (ax[1], final_rs, "after")):
+        a.scatter(x[shown], r[shown, j], s=1, alpha=0.3)
+        edges = np.unique(np.quantile(x, np.linspace(0, 1, 25)))
+        idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+        cnt = np.maximum(np.bincount(idx), 1)
+        a.plot(np.bincount(idx, weights=x) / cnt, np.bincount(idx, weights=r[:, j]) / cnt, "o-",
+               color="k", lw=1.5, ms=3, label="mean per quantile bin")
+        a.set_title(f"{title}: smoothed F_{AXES[j]}", fontsize=9)
+        a.set_xlabel(_label(top_driver))
+        a.legend()
+    ax[0].set_ylabel(f"F_{AXES[j]} [N]")
+    fig.tight_layout()
+    _save(fig, folder / "residual_vs_driver.png")
+    return "residual_vs_driver.png"
+
+
+@gc_paused
+def plot_heldout_fit(folder: Path, data, heldout_before, heldout_after) -> str:
+    """``folder/heldout_fit.png``: the held-out fit before and after, ``|residual|`` on the held-out rows per
+    recording over time; returns the file name."""
     hg = heldout_before.group if heldout_before.group is not None else np.zeros(len(heldout_before.err2), int)
     ht = heldout_before.t if heldout_before.t is not None else np.arange(len(hg), dtype=float)
     hgroups = np.unique(hg)
@@ -193,8 +228,7 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
                  f"{heldout_after.rmse:.3f} N)")
     _tight_under_title(fig)
     _save(fig, folder / "heldout_fit.png")
-    names.append("heldout_fit.png")
-    return names
+    return "heldout_fit.png"
 
 
 def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:

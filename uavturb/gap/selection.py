@@ -75,13 +75,14 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 
 from uavturb.gap.design import NONLINEAR, THRUST_AXIS, GapData, stack_target
-from uavturb.gap.fit import ModelFit, Profile, fit_model, search_nonlinear
+from uavturb.gap.fit import ModelFit, Profile, fit_model, forking_worth, search_nonlinear
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, heights_shifted
+from uavturb.numerics.processes import ForkedPool, forked_state
 from uavturb.physics.effects import EFFECTS
 
 #: effects whose parameters are positive by physics (from the registry)
@@ -523,100 +524,106 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         known = _Known(data, fm, offset, _offset_taken_off(data, offset), lag)
     elif known.data is not data or known.offset is not offset or known.lag != lag:
         raise ValueError("select: known holds another selection's data, offset or lag")
-    base_ho = known.heldout(current)
-    cur_ho = base_ho
-    steps: list[Step] = []
-    tried: dict[str, dict[str, float]] = {}
-    rejected: dict[str, dict] = {}  # outside their range when last they would have been chosen
-    held_back: set[str] = set()  # outside their range at this step (with other effects beside, they may not be)
-    look_alikes: list[dict] = []
-    rivals: dict[str, str] = {}
-    remaining = [c for c in candidates if c not in current]
-    while remaining and len(steps) < max_effects:
-        best = None  # the best held-out fit among the candidates that pass the guards
-        passed: dict[str, tuple] = {}
-        for c in remaining:
-            if c in held_back:
+    try:
+        base_ho = known.heldout(current)
+        cur_ho = base_ho
+        steps: list[Step] = []
+        tried: dict[str, dict[str, float]] = {}
+        rejected: dict[str, dict] = {}  # outside their range when last they would have been chosen
+        held_back: set[str] = set()  # outside their range at this step (with other effects beside, they may not be)
+        look_alikes: list[dict] = []
+        rivals: dict[str, str] = {}
+        remaining = [c for c in candidates if c not in current]
+        while remaining and len(steps) < max_effects:
+            best = None  # the best held-out fit among the candidates that pass the guards
+            passed: dict[str, tuple] = {}
+            known.prefetch(current | {c} for c in remaining if c not in held_back)
+            for c in remaining:
+                if c in held_back:
+                    continue
+                ho = known.heldout(current | {c})
+                t = improvement_z(cur_ho, ho)
+                tried.setdefault(c, {})[f"step{len(steps) + 1}_z"] = t
+                tried[c][f"step{len(steps) + 1}_heldout_rmse_N"] = ho.rmse
+                tried[c][f"step{len(steps) + 1}_heldout_rmse_before_N"] = cur_ho.rmse
+                if t < z_improve and not curve.supports(c, t):
+                    continue
+                if t < z_improve:
+                    tried[c][f"step{len(steps) + 1}_curve_lift_z"] = curve.lift_z
+                if c in THRUST_AXIS and np.mean(cur_ho.err2) - np.mean(ho.err2) <= thrust_floor:
+                    tried[c][f"step{len(steps) + 1}_below_rounding_floor"] = 1.0
+                    continue
+                if best is None or ho.rmse < best[1].rmse:
+                    best = (c, ho, t)
+                passed[c] = (c, ho, t)
+            if best is None:
+                pair = _thrust_laws_together(known, current, cur_ho, remaining, held_back, z_improve, thrust_floor,
+                                             tried, len(steps) + 1, curve)
+                if pair is None or len(steps) + 2 > max_effects:
+                    break
+                taken = _pair_taken(known, current, pair, unphysical, z_min, tried, rejected, len(steps) + 1)
+                if taken is None:
+                    break
+                names, ho, t = pair
+                steps += [Step(name, cur_ho.rmse, ho.rmse, t, taken, named_with=other)
+                          for name, other in (names, names[::-1])]
+                current, cur_ho = current | set(names), ho
+                remaining = [r for r in remaining if not any(r == n or _same_physics(r, n) for n in names)]
+                held_back.clear()
                 continue
-            ho = known.heldout(current | {c})
-            t = improvement_z(cur_ho, ho)
-            tried.setdefault(c, {})[f"step{len(steps) + 1}_z"] = t
-            tried[c][f"step{len(steps) + 1}_heldout_rmse_N"] = ho.rmse
-            tried[c][f"step{len(steps) + 1}_heldout_rmse_before_N"] = cur_ho.rmse
-            if t < z_improve and not curve.supports(c, t):
+            c, ho, t = _standard_law(best, passed, z_improve, tried, len(steps) + 1, curve, known, current,
+                                     thrust_floor)
+            fit = known.fit(current | {c})
+            why = unphysical(fit, c) if unphysical is not None else None
+            if why is not None:  # no discovery: the step again without it
+                tried[c][f"step{len(steps) + 1}_outside_physical_range"] = 1.0
+                rejected[c] = {"name": c, "params": fit.effect_params(c)[0], "reason": "outside_range", "why": why}
+                held_back.add(c)
                 continue
-            if t < z_improve:
-                tried[c][f"step{len(steps) + 1}_curve_lift_z"] = curve.lift_z
-            if c in THRUST_AXIS and np.mean(cur_ho.err2) - np.mean(ho.err2) <= thrust_floor:
-                tried[c][f"step{len(steps) + 1}_below_rounding_floor"] = 1.0
+            # with the curve's evidence beside it, a parameter needs the same two standard errors as its held-out gain
+            if not _signed_ok(fit, c, Z_WITH_CURVE if t < z_improve else z_min):
+                tried[c]["rejected"] = 1.0
+                remaining.remove(c)
                 continue
-            if best is None or ho.rmse < best[1].rmse:
-                best = (c, ho, t)
-            passed[c] = (c, ho, t)
-        if best is None:
-            pair = _thrust_laws_together(known, current, cur_ho, remaining, held_back, z_improve, thrust_floor,
-                                         tried, len(steps) + 1, curve)
-            if pair is None or len(steps) + 2 > max_effects:
-                break
-            taken = _pair_taken(known, current, pair, unphysical, z_min, tried, rejected, len(steps) + 1)
-            if taken is None:
-                break
-            names, ho, t = pair
-            steps += [Step(name, cur_ho.rmse, ho.rmse, t, taken, named_with=other)
-                      for name, other in (names, names[::-1])]
-            current, cur_ho = current | set(names), ho
-            remaining = [r for r in remaining if not any(r == n or _same_physics(r, n) for n in names)]
+            rival = _rival(known, current, cur_ho, (c, ho), passed, z_improve, unphysical)
+            if rival is not None and rival[1] < Z_DISTINCT:
+                look_alikes.append(look_alike_entry(c, rival[0], (
+                    f"{c} and {rival[0]} explain the same residual: held-out {ho.rmse:.4g} and "
+                    f"{passed[rival[0]][1].rmse:.4g} N, {c} better by only {rival[1]:.1f} standard errors (under "
+                    f"{Z_DISTINCT:g}), and {rival[0]} adds z = {rival[2]:.1f} once {c} is in: the flights do not tell "
+                    "the two laws apart")))
+                remaining = [r for r in remaining if r not in (c, rival[0])]
+                continue
+            if rival is not None:
+                rivals[c] = rival[0]
+            steps.append(Step(c, cur_ho.rmse, ho.rmse, t, fit))
+            current = current | {c}
+            cur_ho = ho
+            remaining = [r for r in remaining if r != c and not _same_physics(r, c)]
+            rejected.pop(c, None)
             held_back.clear()
-            continue
-        c, ho, t = _standard_law(best, passed, z_improve, tried, len(steps) + 1, curve, known, current, thrust_floor)
-        fit = known.fit(current | {c})
-        why = unphysical(fit, c) if unphysical is not None else None
-        if why is not None:  # no discovery: the step again without it
-            tried[c][f"step{len(steps) + 1}_outside_physical_range"] = 1.0
-            rejected[c] = {"name": c, "params": fit.effect_params(c)[0], "reason": "outside_range", "why": why}
-            held_back.add(c)
-            continue
-        # with the curve's evidence beside it, a parameter needs the same two standard errors as its held-out gain
-        if not _signed_ok(fit, c, Z_WITH_CURVE if t < z_improve else z_min):
-            tried[c]["rejected"] = 1.0
-            remaining.remove(c)
-            continue
-        rival = _rival(known, current, cur_ho, (c, ho), passed, z_improve, unphysical)
-        if rival is not None and rival[1] < Z_DISTINCT:
-            look_alikes.append(look_alike_entry(c, rival[0], (
-                f"{c} and {rival[0]} explain the same residual: held-out {ho.rmse:.4g} and "
-                f"{passed[rival[0]][1].rmse:.4g} N, {c} better by only {rival[1]:.1f} standard errors (under "
-                f"{Z_DISTINCT:g}), and {rival[0]} adds z = {rival[2]:.1f} once {c} is in: the flights do not tell "
-                "the two laws apart")))
-            remaining = [r for r in remaining if r not in (c, rival[0])]
-            continue
-        if rival is not None:
-            rivals[c] = rival[0]
-        steps.append(Step(c, cur_ho.rmse, ho.rmse, t, fit))
-        current = current | {c}
-        cur_ho = ho
-        remaining = [r for r in remaining if r != c and not _same_physics(r, c)]
-        rejected.pop(c, None)
-        held_back.clear()
 
-    # backward check: drop an effect whose removal does not hurt significantly
-    changed = True
-    while changed and len(steps) > 1:
-        changed = False
-        for s in list(steps):
-            without = current - {s.name}
-            ho = known.heldout(without)
-            z_keep = improvement_z(ho, cur_ho)
-            if z_keep < z_improve and not curve.supports(s.name, z_keep):
-                steps.remove(s)
-                tried.setdefault(s.name, {})["dropped_z"] = float(z_keep)  # said in report.md's "Tried, not named"
-                current, cur_ho, changed = without, ho, True
-                break
-    sel = finish(data, frozenset(base), steps, offset=offset, lag=lag, tried=tried, known=known)
-    sel.rejected = list(rejected.values())
-    sel.look_alikes = look_alikes
-    sel.rivals = rivals
-    return sel
+        # backward check: drop an effect whose removal does not hurt significantly
+        changed = True
+        while changed and len(steps) > 1:
+            changed = False
+            known.prefetch(current - {s.name} for s in steps)
+            for s in list(steps):
+                without = current - {s.name}
+                ho = known.heldout(without)
+                z_keep = improvement_z(ho, cur_ho)
+                if z_keep < z_improve and not curve.supports(s.name, z_keep):
+                    steps.remove(s)
+                    tried.setdefault(s.name, {})["dropped_z"] = float(z_keep)  # said in report.md's "Tried, not named"
+                    current, cur_ho, changed = without, ho, True
+                    break
+        sel = finish(data, frozenset(base), steps, offset=offset, lag=lag, tried=tried, known=known)
+        sel.rejected = list(rejected.values())
+        sel.look_alikes = look_alikes
+        sel.rivals = rivals
+        return sel
+    finally:
+        known.release()  # the processes it forked (a selection made again forks its own)
 
 
 def last_step(tried: dict[str, float]) -> tuple[int, float] | None:
@@ -806,14 +813,37 @@ class _Known:
         self._folds: FoldFits | None = None
         self._heldout: dict[frozenset[str], HeldOut] = {}
         self._fit: dict[frozenset[str], ModelFit] = {}
+        self._pool: ForkedPool | None = None
 
     def heldout(self, effects: frozenset[str]) -> HeldOut:
         key = frozenset(effects)
         if key not in self._heldout:
-            if self._folds is None:
-                self._folds = FoldFits(self.full, self.fold_masks)
-            self._heldout[key] = self._folds.heldout(key)
+            self._heldout[key] = self._fold_fits().heldout(key)
         return self._heldout[key]
+
+    def _fold_fits(self) -> FoldFits:
+        if self._folds is None:
+            self._folds = FoldFits(self.full, self.fold_masks)
+        return self._folds
+
+    def prefetch(self, sets: Iterable[frozenset[str]]) -> None:
+        """Compute the held-out errors of the effect sets ``sets`` not known yet side by side, in processes forked
+        from this one (:class:`~uavturb.numerics.processes.ForkedPool`), where that is worth it
+        (:func:`~uavturb.gap.fit.forking_worth`); :meth:`heldout` then finds them (those a child could not compute,
+        it computes itself: the same numbers)."""
+        todo = [frozenset(s) for s in sets if frozenset(s) not in self._heldout]
+        if len(todo) < 2 or not forking_worth(len(self.full), len(self.fold_masks)):
+            return
+        if self._pool is None:
+            self._fold_fits()  # the children inherit the folds' pieces
+            self._pool = ForkedPool(self)
+        self._heldout.update(self._pool.map(_heldout_in_child, todo))
+
+    def release(self) -> None:
+        """Shut down the processes :meth:`prefetch` forked (a later prefetch forks new ones)."""
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None
 
     def fit(self, effects: frozenset[str]) -> ModelFit:
         """The model with ``effects`` fitted on all data (offset taken off), with standard errors."""
@@ -821,6 +851,11 @@ class _Known:
         if key not in self._fit:
             self._fit[key] = fit_model(self.full, key, lag=self.lag)
         return self._fit[key]
+
+
+def _heldout_in_child(effects: frozenset[str]) -> HeldOut:
+    """In a child of :meth:`_Known.prefetch`: the held-out errors of ``effects`` on the forking selection's data."""
+    return forked_state().heldout(effects)
 
 
 def finish(data: GapData, base: frozenset[str], steps: list[Step], *, offset: np.ndarray | None = None,

@@ -103,9 +103,10 @@ from typing import Callable
 import numpy as np
 
 from uavturb.gap.design import MIN_ROWS, GapData, effective_S, surface_reach_m
-from uavturb.gap.fit import ModelFit, _nl_values, fit_model, information_shares
+from uavturb.gap.fit import ModelFit, _nl_values, fit_model, forking_worth, information_shares
 from uavturb.sysid.nominal import SpeedOffset, hover_speed, offset_cells, speed_offset, unread_interval
 from uavturb.numerics.blocks import contiguous_blocks, jackknife_se, weighted_jackknife_se
+from uavturb.numerics.processes import ForkedPool, forked_state
 from uavturb.physics.effects import EFFECTS
 
 #: m, uncertainty of the height reference (rotor plane over the floor) assumed for surface effects
@@ -175,6 +176,34 @@ class Refits:
             return None
         p = _params(fit, name)
         return p if all(np.isfinite(v) for v in p.values()) else None
+
+    def prefetch(self, parts: list[tuple[tuple, Callable[[], GapData]]], effects: frozenset[str], name: str,
+                 can_test: Callable[[GapData], bool] | None = None) -> None:
+        """Fit the parts that :meth:`params` would fit with ``effects`` for ``name`` (``parts``: ``(key, build)``;
+        those ``can_test`` accepts) side by side, in processes forked from this one
+        (:class:`~uavturb.numerics.processes.ForkedPool`); :meth:`params` then finds them (a part a child could not
+        fit, it fits itself: the same numbers)."""
+        todo = {}
+        for key, part in parts:
+            if (effects, key) in self._fits:
+                continue
+            if can_test is not None:
+                if (key, name, effects) not in self._testable:
+                    self._testable[key, name, effects] = bool(can_test(part()))
+                if not self._testable[key, name, effects]:
+                    continue
+            todo[key] = part
+        if len(todo) < 2:
+            return
+        with ForkedPool((todo, effects)) as pool:
+            for key, fit in pool.map(_refit_in_child, todo).items():
+                self._fits[effects, key] = fit
+
+
+def _refit_in_child(key: tuple) -> ModelFit | None:
+    """In a child of :meth:`Refits.prefetch`: the fit of the part ``key``."""
+    parts, effects = forked_state()
+    return _fit_or_none(parts[key](), effects)
 
 
 def _spread(values: list[dict[str, float]], keys: tuple[str, ...]) -> dict[str, float]:
@@ -272,8 +301,11 @@ def error_budget(data: GapData, final: ModelFit, name: str,
         for k in keys:
             budget[k]["height_reference"] = 0.0
     elif EFFECTS[name].surface is not None:
-        up, down = (refits.params(("height", dz), lambda dz=dz: heights_shifted(data, dz), effects, name)
-                    for dz in (height_reference_m, -height_reference_m))
+        parts = [(("height", dz), lambda dz=dz: heights_shifted(data, dz)) for dz in (height_reference_m,
+                                                                                    -height_reference_m)]
+        if forking_worth(len(data), len(parts)):
+            refits.prefetch(parts, effects, name)
+        up, down = (refits.params(key, part, effects, name) for key, part in parts)
         for k in keys:
             budget[k]["height_reference"] = abs(up[k] - down[k]) / 2 if up and down else float("nan")
     groups, rows = np.unique(data.group, return_counts=True)
@@ -283,6 +315,8 @@ def error_budget(data: GapData, final: ModelFit, name: str,
     if len(groups) - short >= 2:
         parts = [(("recording", int(g)), lambda g=g: data.subset(data.group == g)) for g in groups[rows >= MIN_ROWS]]
         label = "between_recordings"
+        if forking_worth(len(data), len(parts)):
+            refits.prefetch(parts, effects, name, can_test)
         values = [v for v in (refits.params(key, part, effects, name, can_test) for key, part in parts)
                   if v is not None]
         untested = [data.names[key[1]] for key, _ in parts if refits.cannot_test(key, effects, name)]
@@ -291,6 +325,8 @@ def error_budget(data: GapData, final: ModelFit, name: str,
         block = contiguous_blocks(data.t, TIME_BLOCKS)
         parts = [(("block", b), lambda b=b: data.subset(block != b)) for b in range(TIME_BLOCKS)]
         label = "between_blocks"
+        if forking_worth(len(data), len(parts)):
+            refits.prefetch(parts, effects, name, can_test)
         kept = [(b, v) for b, v in enumerate(refits.params(key, part, effects, name, can_test) for key, part in parts)
                 if v is not None]
         values = [v for _, v in kept]

@@ -110,3 +110,14 @@ def _shared_pool() -> ThreadPoolExecutor:
         if _pool is None:
             _pool = ThreadPoolExecutor(min(MAX_THREADS, usable_cores()), thread_name_prefix=_PREFIX)
         return _pool
+
+
+def _forget_pool_in_child() -> None:
+    """In a forked child: the parent's pool, whose threads the child does not have (work queued there would wait
+    forever), is forgotten; the child starts its own if it needs one."""
+    global _pool, _pool_lock
+    _pool, _pool_lock = None, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool_in_child)
