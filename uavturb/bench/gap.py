@@ -17,6 +17,12 @@ by a third between runs of the same code, CPU time far less. Per-recording work 
 ``threads`` threads (:mod:`uavturb.numerics.threads`, printed among the figures), so the CPU seconds exceed
 the wall seconds on a machine with two cores or more.
 
+Below :data:`~uavturb.gap.fit.FORKED_WORK`'s 250,000 rows the analysis also fits effect sets, refits and figures
+in processes forked from it (:mod:`uavturb.numerics.processes`). Their CPU seconds are counted in (the children's,
+reaped when their pools shut down), and so is their memory: the peak is the larger of the process's own ``VmHWM``
+and its ``VmRSS`` plus the pages its children hold of their own (``Private_Clean`` + ``Private_Dirty`` of
+``/proc/<pid>/smaps_rollup``: what they wrote or allocated, not what they share with it), sampled every 20 ms.
+
 The line holds for an hour in as many recordings as were given. An hour is also **measured** whole
 (``measured_hour``): the recordings repeated (hard links where possible) until they make an hour of flight, each
 copy one more recording (two 5-minute flights: twelve recordings), so that what grows with the number of
@@ -36,6 +42,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from uavturb.numerics.processes import MAX_PROCESSES, forking_possible
 from uavturb.numerics.threads import MAX_THREADS, usable_cores
 from uavturb.sim.flights.simulate import generate_flight
 
@@ -43,13 +50,15 @@ from uavturb.sim.flights.simulate import generate_flight
 HOUR_ROWS = 3600 * 200
 
 _CHILD = """
-import json, resource, sys, time
+import json, os, resource, sys, threading, time
+from uavturb.bench.memory import children_private_kib, status_kib
 
-def status_kib(key):  # Linux: this process's VmHWM (peak) or VmRSS (now), KiB; None elsewhere
-    try:
-        return int(open("/proc/self/status").read().split(key + ":")[1].split()[0])
-    except (OSError, IndexError, ValueError):
-        return None
+together = [0]  # the largest of VmRSS + the children's own pages, sampled every SAMPLE_S s
+done = threading.Event()
+
+def sample():
+    while not done.wait(SAMPLE_S):
+        together[0] = max(together[0], (status_kib("VmRSS") or 0) + children_private_kib())
 
 t0 = time.perf_counter()
 from uavturb.io.reader import load_recordings
@@ -63,20 +72,26 @@ try:  # reset the peak, so that what follows is the reading's and the analysis's
     import_peak = max(import_peak, start or 0)  # pages the lines between touched count to the imports' peak
 except OSError:
     start = None
-c1 = time.process_time()
+if start is not None and os.path.exists("/proc/self/task"):
+    threading.Thread(target=sample, daemon=True).start()
+c1, k1 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN)
 recs = load_recordings(sys.argv[1:], repeats_allowed=True)  # the measured hour repeats flights on purpose
 t2 = time.perf_counter()
 report, extras = analyse(recs, {})
 t3 = time.perf_counter()
-cpu = time.process_time() - c1
+done.set()
+k2 = resource.getrusage(resource.RUSAGE_CHILDREN)  # the forked children, reaped when their pools shut down
+cpu = time.process_time() - c1 + (k2.ru_utime + k2.ru_stime) - (k1.ru_utime + k1.ru_stime)
 rows = sum(len(r.imu) if r.imu is not None else len(r.ground_truth) for r in recs)
 seconds = sum((r.ground_truth.t_ns[-1] - r.ground_truth.t_ns[0]) * 1e-9 for r in recs)
 peak = status_kib("VmHWM") if start is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+peak = max(peak, together[0])
 print(json.dumps({"import_s": t1 - t0, "read_s": t2 - t1, "analyse_s": t3 - t2, "rows": rows, "flight_s": seconds,
                   "names": [r.name for r in recs],
                   "effects": [e["name"] for e in report["effects"]], "import_peak_kib": import_peak, "cpu_s": cpu,
-                  "start_kib": start or 0, "peak_kib": max(peak, import_peak) if start is None else peak}))
-"""
+                  "start_kib": start or 0, "peak_kib": max(peak, import_peak) if start is None else peak,
+                  "sampled_peak_kib": together[0]}))
+""".replace("SAMPLE_S", "0.02")
 
 
 def _child(code: str, args: Sequence[str]) -> dict:
@@ -115,6 +130,7 @@ def bench_gap(recordings: Sequence[str] = (), minutes: float = 5.0, measured_hou
     figures = {
         "flights": len(paths), "flight time [s]": r["flight_s"], "rows (IMU or ground truth)": r["rows"],
         "threads for per-recording work": min(MAX_THREADS, usable_cores()),
+        "processes for fits side by side": min(MAX_PROCESSES, usable_cores()) if forking_possible() else 1,
         "read [s]": r["read_s"], "analyse [s]": r["analyse_s"], "wall, with start-up [s]": wall,
         "interpreter and imports, peak [MB]": mb["import_peak_kib"],
         "resident after imports [MB]": mb["start_kib"],
