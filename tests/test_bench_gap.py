@@ -27,7 +27,7 @@ def test_bench_gap_measures_the_analysis_and_its_own_memory(tmp_path, capsys):
     assert fig["rows (IMU or ground truth)"] == pytest.approx(2 * 30 * 200, abs=4)  # 200 Hz IMU
     assert fig["first halves: rows"] == pytest.approx(fig["rows (IMU or ground truth)"] / 2, abs=4)
     assert fig["threads for per-recording work"] == min(threads.MAX_THREADS, threads.usable_cores()) >= 1
-    assert fig["processes for fits side by side"] == (min(processes.MAX_PROCESSES, threads.usable_cores())
+    assert fig["processes for fits side by side, at most"] == (min(processes.MAX_PROCESSES, threads.usable_cores())
                                                        if processes.forking_possible() else 1)
     # the reading and the analysis are measured above what the imports left resident: they hold the flights
     # (two 30 s flights: at least their 12,000 rows of 7 float64 columns), and nothing near a gigabyte

@@ -17,11 +17,12 @@ by a third between runs of the same code, CPU time far less. Per-recording work 
 ``threads`` threads (:mod:`uavturb.numerics.threads`, printed among the figures), so the CPU seconds exceed
 the wall seconds on a machine with two cores or more.
 
-Below :data:`~uavturb.gap.fit.FORKED_WORK`'s 250,000 rows the analysis also fits effect sets, refits and figures
-in processes forked from it (:mod:`uavturb.numerics.processes`). Their CPU seconds are counted in (the children's,
-reaped when their pools shut down), and so is their memory: the peak is the larger of the process's own ``VmHWM``
-and its ``VmRSS`` plus the pages its children hold of their own (``Private_Clean`` + ``Private_Dirty`` of
-``/proc/<pid>/smaps_rollup``: what they wrote or allocated, not what they share with it), sampled every 20 ms.
+Where :func:`~uavturb.gap.fit.forking_worth` says so (four recordings or more, 40,000 rows or fewer), the analysis
+also fits effect sets and refits in processes forked from it (:mod:`uavturb.numerics.processes`). Their CPU
+seconds are counted in (the children's, reaped when their pools shut down), and so is their memory: the peak is
+the larger of the process's own ``VmHWM`` and its ``VmRSS`` plus the pages its children hold of their own
+(``Private_Clean`` + ``Private_Dirty`` of ``/proc/<pid>/smaps_rollup``: what they wrote or allocated, not what
+they share with it), read every 20 ms from the benchmark's own process.
 
 The line holds for an hour in as many recordings as were given. An hour is also **measured** whole
 (``measured_hour``): the recordings repeated (hard links where possible) until they make an hour of flight, each
@@ -42,6 +43,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from uavturb.bench.memory import children_private_kib, status_kib
 from uavturb.numerics.processes import MAX_PROCESSES, forking_possible
 from uavturb.numerics.threads import MAX_THREADS, usable_cores
 from uavturb.sim.flights.simulate import generate_flight
@@ -50,15 +52,8 @@ from uavturb.sim.flights.simulate import generate_flight
 HOUR_ROWS = 3600 * 200
 
 _CHILD = """
-import json, os, resource, sys, threading, time
-from uavturb.bench.memory import children_private_kib, status_kib
-
-together = [0]  # the largest of VmRSS + the children's own pages, sampled every SAMPLE_S s
-done = threading.Event()
-
-def sample():
-    while not done.wait(SAMPLE_S):
-        together[0] = max(together[0], (status_kib("VmRSS") or 0) + children_private_kib())
+import json, resource, sys, time
+from uavturb.bench.memory import status_kib
 
 t0 = time.perf_counter()
 from uavturb.io.reader import load_recordings
@@ -72,32 +67,44 @@ try:  # reset the peak, so that what follows is the reading's and the analysis's
     import_peak = max(import_peak, start or 0)  # pages the lines between touched count to the imports' peak
 except OSError:
     start = None
-if start is not None and os.path.exists("/proc/self/task"):
-    threading.Thread(target=sample, daemon=True).start()
 c1, k1 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN)
 recs = load_recordings(sys.argv[1:], repeats_allowed=True)  # the measured hour repeats flights on purpose
 t2 = time.perf_counter()
 report, extras = analyse(recs, {})
 t3 = time.perf_counter()
-done.set()
 k2 = resource.getrusage(resource.RUSAGE_CHILDREN)  # the forked children, reaped when their pools shut down
 cpu = time.process_time() - c1 + (k2.ru_utime + k2.ru_stime) - (k1.ru_utime + k1.ru_stime)
 rows = sum(len(r.imu) if r.imu is not None else len(r.ground_truth) for r in recs)
 seconds = sum((r.ground_truth.t_ns[-1] - r.ground_truth.t_ns[0]) * 1e-9 for r in recs)
 peak = status_kib("VmHWM") if start is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-peak = max(peak, together[0])
 print(json.dumps({"import_s": t1 - t0, "read_s": t2 - t1, "analyse_s": t3 - t2, "rows": rows, "flight_s": seconds,
                   "names": [r.name for r in recs],
                   "effects": [e["name"] for e in report["effects"]], "import_peak_kib": import_peak, "cpu_s": cpu,
-                  "start_kib": start or 0, "peak_kib": max(peak, import_peak) if start is None else peak,
-                  "sampled_peak_kib": together[0]}))
-""".replace("SAMPLE_S", "0.02")
+                  "start_kib": start or 0, "peak_kib": max(peak, import_peak) if start is None else peak}))
+"""
+
+
+#: s between two readings of the measured process's memory and its children's, from outside it
+SAMPLE_S = 0.02
 
 
 def _child(code: str, args: Sequence[str]) -> dict:
-    """The last line ``python -c code args`` printed in a fresh process, read as JSON."""
-    out = subprocess.run([sys.executable, "-c", code, *args], check=True, capture_output=True, text=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    """The last line ``python -c code args`` printed in a fresh process, read as JSON; its ``peak_kib`` raised to
+    the largest ``VmRSS`` plus the pages its forked children held of their own, read every :data:`SAMPLE_S` from
+    outside it (a thread inside it would have allocated from a heap of its own, and moved the peak it measures)."""
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen([sys.executable, "-c", code, *args], stdout=out, stderr=err, text=True)
+        together = 0
+        while proc.poll() is None:
+            together = max(together, (status_kib("VmRSS", proc.pid) or 0) + children_private_kib(proc.pid))
+            time.sleep(SAMPLE_S)
+        out.seek(0)
+        err.seek(0)
+        if proc.returncode:
+            raise subprocess.CalledProcessError(proc.returncode, proc.args, out.read(), err.read())
+        figures = json.loads(out.read().strip().splitlines()[-1])
+    figures["peak_kib"] = max(figures["peak_kib"], together)
+    return figures
 
 
 def _generated(folder: Path, minutes: float) -> list[str]:
@@ -130,7 +137,7 @@ def bench_gap(recordings: Sequence[str] = (), minutes: float = 5.0, measured_hou
     figures = {
         "flights": len(paths), "flight time [s]": r["flight_s"], "rows (IMU or ground truth)": r["rows"],
         "threads for per-recording work": min(MAX_THREADS, usable_cores()),
-        "processes for fits side by side": min(MAX_PROCESSES, usable_cores()) if forking_possible() else 1,
+        "processes for fits side by side, at most": min(MAX_PROCESSES, usable_cores()) if forking_possible() else 1,
         "read [s]": r["read_s"], "analyse [s]": r["analyse_s"], "wall, with start-up [s]": wall,
         "interpreter and imports, peak [MB]": mb["import_peak_kib"],
         "resident after imports [MB]": mb["start_kib"],

@@ -33,18 +33,23 @@ from uavturb.sysid.least_squares import lstsq
 
 GRID_POINTS = 9
 
-#: (rows times fits, rows) between which fits of several effect sets, or of several parts of the data, are computed
-#: side by side in processes forked from this one (:class:`~uavturb.numerics.processes.ForkedPool`): with less work,
-#: each fit takes about as long as starting the processes (10-80 ms; a single take-off's 2,000 rows fitted once per
-#: effect set: 0.6 s against 0.7 s forked); on more rows, each child's own arrays, on top of the parent's, cost more
-#: memory than the time is worth (a flight-hour's analysis holds about 0.9 GB by itself)
-FORKED_WORK = (20_000, 250_000)
+#: (fits, rows times fits, rows): fits of several effect sets, or of several parts of the data, are computed side by
+#: side in processes forked from this one (:class:`~uavturb.numerics.processes.ForkedPool`) where a held-out test
+#: has this many folds (or the data this many parts) or more, on this many rows times fits or more, and on this many
+#: rows or fewer: where the time goes to thousands of small fits in Python rather than to arithmetic on long
+#: arrays. With fewer folds each set's fit is quick, and starting the processes (10-80 ms, and the pages they copy
+#: as they write) cost more than it saved: two 5-minute flights (15,000 rows, two folds) took 2.2-2.7 s forked
+#: against 2.0-2.2 s, a take-off and two walks (three folds) gained nothing. On long rows the arithmetic shares
+#: two cores badly and each child's arrays come on top of the parent's: an hour in twelve 5-minute recordings
+#: (90,000 rows) took 11.9-12.4 s forked against 11.3-11.9 s, with 220-280 MB more. Six to twelve one-minute walks
+#: (9,500-19,000 rows) gained 10-20 %
+FORKED_WORK = (4, 20_000, 40_000)
 
 
 def forking_worth(rows: int, fits: int) -> bool:
     """Whether ``fits`` fits on ``rows`` rows in all (a held-out test's folds; parts of the data) are worth computing
     in forked processes (:data:`FORKED_WORK`)."""
-    return rows * fits >= FORKED_WORK[0] and rows <= FORKED_WORK[1]
+    return fits >= FORKED_WORK[0] and rows * fits >= FORKED_WORK[1] and rows <= FORKED_WORK[2]
 
 
 @dataclass

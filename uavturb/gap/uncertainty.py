@@ -301,11 +301,8 @@ def error_budget(data: GapData, final: ModelFit, name: str,
         for k in keys:
             budget[k]["height_reference"] = 0.0
     elif EFFECTS[name].surface is not None:
-        parts = [(("height", dz), lambda dz=dz: heights_shifted(data, dz)) for dz in (height_reference_m,
-                                                                                    -height_reference_m)]
-        if forking_worth(len(data), len(parts)):
-            refits.prefetch(parts, effects, name)
-        up, down = (refits.params(key, part, effects, name) for key, part in parts)
+        up, down = (refits.params(("height", dz), lambda dz=dz: heights_shifted(data, dz), effects, name)
+                    for dz in (height_reference_m, -height_reference_m))
         for k in keys:
             budget[k]["height_reference"] = abs(up[k] - down[k]) / 2 if up and down else float("nan")
     groups, rows = np.unique(data.group, return_counts=True)
