@@ -91,13 +91,15 @@ class ForkedPool:
             return {}
         global _state
         try:
-            if self._pool is None:
-                _state = self.state
-                with warnings.catch_warnings():  # Python 3.12's warning on forking a process that has threads
-                    warnings.simplefilter("ignore", DeprecationWarning)
+            # Python 3.12 and later warn on forking a process that has threads: the children here hold none of them
+            # (module docstring); the pool forks its children at the first submit
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DeprecationWarning)
+                if self._pool is None:
+                    _state = self.state
                     self._pool = ProcessPoolExecutor(self.workers, mp_context=get_context("fork"),
                                                      initializer=_quiet_child)
-            futures = {k: self._pool.submit(func, k) for k in keys}
+                futures = {k: self._pool.submit(func, k) for k in keys}
             wait(futures.values())
         except (BrokenProcessPool, OSError):
             self._broken = True
