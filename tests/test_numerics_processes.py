@@ -68,6 +68,22 @@ def test_one_piece_or_one_core_forks_nothing(monkeypatch):
         assert pool.workers == 0 and pool.map(_fails_on_b, ["a", "b"]) == {}
 
 
+@pytest.mark.parametrize("error", [NotImplementedError("sem_open"), ImportError("sem_open"), OSError("/dev/shm")])
+def test_a_machine_without_semaphores_computes_everything_in_the_caller(monkeypatch, error):
+    """Where the pool cannot be made (no working ``sem_open``: some serverless hosts lack ``/dev/shm``), nothing is
+    computed in children, and nothing is tried again."""
+    made = []
+
+    def no_pool(*args, **kwargs):
+        made.append(1)
+        raise error
+
+    monkeypatch.setattr(processes, "ProcessPoolExecutor", no_pool)
+    with ForkedPool({"a": 1, "b": 2}, max_processes=2) as pool:
+        assert pool.map(_fails_on_b, ["a", "c"]) == {}
+        assert pool.map(_fails_on_b, ["a", "c"]) == {} and made == [1]
+
+
 def test_children_leave_ctrl_c_to_the_parent():
     with ForkedPool(None, max_processes=2) as pool:
         assert pool.map(_sigint_handler, [1, 2, 3]) == {1: True, 2: True, 3: True}

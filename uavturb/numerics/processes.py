@@ -101,7 +101,10 @@ class ForkedPool:
                                                      initializer=_quiet_child)
                 futures = {k: self._pool.submit(func, k) for k in keys}
             wait(futures.values())
-        except (BrokenProcessPool, OSError):
+        except (BrokenProcessPool, OSError, NotImplementedError, ImportError):
+            # a pool that breaks or cannot fork; or no working semaphores, which the pool's queues need
+            # (``NotImplementedError`` from ``ProcessPoolExecutor``'s check of the system, ``ImportError`` from
+            # ``multiprocessing.synchronize``, ``OSError`` where ``/dev/shm`` is missing, as on some serverless hosts)
             self._broken = True
             self.close()
             return {}
