@@ -162,13 +162,9 @@ class Refits:
         """``name``'s parameters in the model with ``effects`` fitted on the part ``key`` (built by ``part``
         where needed), or None where the fit fails, a value is not finite or ``can_test`` says the part cannot
         test the effect."""
-        built = None
-        if can_test is not None:
-            if (key, name, effects) not in self._testable:
-                built = part()
-                self._testable[key, name, effects] = bool(can_test(built))
-            if not self._testable[key, name, effects]:
-                return None
+        testable, built = self._tests(key, part, effects, name, can_test)
+        if not testable:
+            return None
         if (effects, key) not in self._fits:
             self._fits[effects, key] = _fit_or_none(built if built is not None else part(), effects)
         fit = self._fits[effects, key]
@@ -176,6 +172,18 @@ class Refits:
             return None
         p = _params(fit, name)
         return p if all(np.isfinite(v) for v in p.values()) else None
+
+    def _tests(self, key: tuple, part: Callable[[], GapData], effects: frozenset[str], name: str,
+               can_test: Callable[[GapData], bool] | None) -> tuple[bool, GapData | None]:
+        """Whether the part ``key`` can test ``name`` with ``effects`` (``can_test``, asked once; True without it),
+        and the part where it was built to ask (None otherwise)."""
+        if can_test is None:
+            return True, None
+        built = None
+        if (key, name, effects) not in self._testable:
+            built = part()
+            self._testable[key, name, effects] = bool(can_test(built))
+        return self._testable[key, name, effects], built
 
     def prefetch(self, parts: list[tuple[tuple, Callable[[], GapData]]], effects: frozenset[str], name: str,
                  can_test: Callable[[GapData], bool] | None = None) -> None:
@@ -185,14 +193,8 @@ class Refits:
         fit, it fits itself: the same numbers)."""
         todo = {}
         for key, part in parts:
-            if (effects, key) in self._fits:
-                continue
-            if can_test is not None:
-                if (key, name, effects) not in self._testable:
-                    self._testable[key, name, effects] = bool(can_test(part()))
-                if not self._testable[key, name, effects]:
-                    continue
-            todo[key] = part
+            if (effects, key) not in self._fits and self._tests(key, part, effects, name, can_test)[0]:
+                todo[key] = part
         if len(todo) < 2:
             return
         with ForkedPool((todo, effects)) as pool:
