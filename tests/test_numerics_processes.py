@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 
@@ -108,3 +109,59 @@ def test_a_child_runs_per_recording_work_on_threads_of_its_own():
     """)
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
+
+
+def _sleeps(key):
+    """A piece that writes its pid to the file ``key`` and sleeps a minute."""
+    with open(key, "w") as f:
+        f.write(str(os.getpid()))
+    time.sleep(60)
+
+
+def _where_am_i(key):
+    """Whether this piece runs in a forked child, whether it could fork a pool of its own, and its pid."""
+    return processes.in_forked_child(), processes.forking_possible(), os.getpid()
+
+
+def test_a_piece_started_aside_is_computed_in_a_child_while_the_caller_goes_on():
+    state = {"a": 1}
+    started = ForkedPool(state, max_processes=1).start(_tenfold, "a")
+    state["a"] = 100  # the caller goes on; the child computes from the state at the fork
+    pid, value = started.result(lambda: (os.getpid(), -1))
+    assert value == 10 and pid != os.getpid()
+    # the child knows it is one, and forks no pool of its own; the caller is none
+    child, can_fork, pid = ForkedPool(None, max_processes=1).start(_where_am_i, 0).result(lambda: None)
+    assert child and not can_fork and pid != os.getpid()
+    assert not processes.in_forked_child() and processes.forking_possible()
+
+
+def test_a_piece_started_aside_that_fails_or_cannot_start_is_computed_by_the_caller(monkeypatch):
+    assert ForkedPool({"b": 2}, max_processes=1).start(_fails_on_b, "b").result(lambda: "here") == "here"
+    assert ForkedPool({"b": 2}, max_processes=1).start(_dies_on_b, "b").result(lambda: "here") == "here"
+    monkeypatch.setattr(processes, "usable_cores", lambda: 1)
+    pool = ForkedPool({"a": 1}, max_processes=1)
+    assert pool.workers == 0 and pool.start(_tenfold, "a").result(lambda: "here") == "here"
+
+
+def test_a_piece_started_aside_and_cancelled_stops_at_once(tmp_path):
+    where = tmp_path / "pid"
+    started = ForkedPool(None, max_processes=1).start(_sleeps, str(where))
+    for _ in range(500):  # the child writes its pid as it starts
+        if where.exists() and where.read_text():
+            break
+        time.sleep(0.01)
+    pid = int(where.read_text())
+    started.cancel()
+
+    def gone() -> bool:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                return f.read().split(")")[-1].split()[0] in ("Z", "X")  # exited, not yet reaped
+        except FileNotFoundError:
+            return True
+
+    for _ in range(500):
+        if gone():
+            break
+        time.sleep(0.01)
+    assert gone()

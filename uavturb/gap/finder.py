@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Generator, Sequence
 
 import numpy as np
 
@@ -32,7 +32,7 @@ from uavturb.gap.design import (
     rounding_floor,
 )
 from uavturb.gap.explain import explanation
-from uavturb.gap.fit import ModelFit, fit_model, robust_nominal
+from uavturb.gap.fit import ModelFit, fit_model, forking_worth, robust_nominal
 from uavturb.sysid.nominal import (
     OFFSET_DECISIVE_Z,
     OFFSET_PRACTICAL,
@@ -98,6 +98,7 @@ from uavturb.gap.uncertainty import (
     with_curve_check,
     with_systematic,
 )
+from uavturb.numerics.processes import ForkedPool, forked_state, in_forked_child
 from uavturb.numerics.stream_updates import rotor_quantum, rounding_share
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
@@ -201,24 +202,59 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):
-        report, extras = _analyse(recordings, sim, seed=seed, height_uncertainty=height_uncertainty,
-                                  progress=progress)
-        offset = report["nominal"].get("rotor_speed_offset")
-        if not offset or not offset["decisive"]:
-            return report, extras
-        extras = {}  # the next pass's rows replace the first's
-        progress(MOVED_SPEEDS_STAGE)  # a decisive offset: the whole analysis again, on the moved speeds
-        delta, w_hover, readings = offset["delta_rad_s"], offset["hover_speed_rad_s"], []
-        for _ in range(MAX_OFFSET_MOVES):
-            moved = [rotor_speeds_moved(r, delta, w_hover) for r in recordings]
-            again, extras = _analyse(moved, sim, seed=seed, height_uncertainty=height_uncertainty)
-            after = again["nominal"].get("rotor_speed_offset")
-            readings.append(delta)
-            if not after or not after["counts"] or len(readings) == MAX_OFFSET_MOVES:
-                break
-            extras = {}
-            delta = composed_offset(delta, w_hover, after["delta_rad_s"])
+        aside = [False]  # the first analysis's end runs aside (in a child, or here after the others): not shown
+
+        def shown(stage: str) -> None:
+            if not aside[0] and not in_forked_child():
+                progress(stage)
+
+        steps = _analysis(recordings, sim, seed=seed, height_uncertainty=height_uncertainty, progress=shown)
+        paused = next(steps)
+        if not paused.moves_speeds:
+            return _finished(steps)
+        drawn = np.random.get_state()
+        # a decisive offset: the whole analysis again, on the moved speeds. The first one's end (the surface curve,
+        # the honest errors: its report, which the last one's cites) runs in a child meanwhile, where it pays
+        first, report = None, None
+        if forking_worth(paused.rows, paused.folds):
+            aside[0] = True
+            first = ForkedPool(steps, max_processes=1).start(_report_in_child, 0)
+        else:
+            report = _finished(steps)[0]
+        progress(MOVED_SPEEDS_STAGE)
+        try:
+            again, extras, readings = _on_moved_speeds(recordings, sim, paused.offset, seed, height_uncertainty)
+        except BaseException:
+            if first is not None:
+                first.cancel()  # the error is this analysis's answer: not delayed by the first one's end
+            raise
+        if first is not None:
+            report = first.result(lambda: _resumed(steps, drawn))
         return read_on_moved_speeds(report, again, readings), extras
+
+
+def _resumed(steps: Generator[Checkpoint, None, tuple[dict, dict]], drawn: tuple) -> dict:
+    """The report of the analysis ``steps`` paused at its checkpoint, run to its end here after other analyses ran:
+    numpy's global generator put back to ``drawn``, its state at the pause, so that it draws what it would have."""
+    np.random.set_state(drawn)
+    return _finished(steps)[0]
+
+
+def _on_moved_speeds(recordings: Sequence, sim: dict[str, dict[str, float]], offset: Any, seed: int,
+                     height_uncertainty: float) -> tuple[dict, dict, list[float]]:
+    """The analysis of ``recordings`` on their rotor speeds moved by the decisive ``offset``
+    (:class:`~uavturb.sysid.nominal.SpeedOffset`), moved further while the moved speeds still read one that counts
+    (:data:`MAX_OFFSET_MOVES` analyses at most): the last analysis's report and extras, and the offsets applied."""
+    delta, w_hover, readings = offset.delta, offset.w_hover, []
+    for _ in range(MAX_OFFSET_MOVES):
+        moved = [rotor_speeds_moved(r, delta, w_hover) for r in recordings]
+        again, extras = _analyse(moved, sim, seed=seed, height_uncertainty=height_uncertainty)
+        after = again["nominal"].get("rotor_speed_offset")
+        readings.append(delta)
+        if not after or not after["counts"] or len(readings) == MAX_OFFSET_MOVES:
+            break
+        delta = composed_offset(delta, w_hover, after["delta_rad_s"])
+    return again, extras, readings
 
 
 def composed_offset(delta: float, w_hover: float, again: float) -> float:
@@ -306,9 +342,52 @@ def _curve_readings(curve: dict | None) -> dict[str, dict[str, float]]:
     return fits
 
 
+@dataclass
+class Checkpoint:
+    """Where :func:`_analysis` pauses: the effects decided and the recorded speeds' offset read (``offset``: None
+    with measured rotor speeds or where none was read), on ``rows`` rows in ``folds`` held-out folds. What is left
+    (the surface curve, the honest errors, the report) needs nothing that runs after it."""
+
+    offset: Any
+    rows: int
+    folds: int
+
+    @property
+    def moves_speeds(self) -> bool:
+        """Whether the offset is decisive, so that the analysis runs again on the speeds it moves
+        (:func:`analyse`)."""
+        return self.offset is not None and bool(self.offset.decisive)
+
+
 def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0,
              height_uncertainty: float = HEIGHT_REFERENCE_M, progress: Callable[[str], None] = _silent
              ) -> tuple[dict, dict]:
+    """One analysis of ``recordings`` (:func:`_analysis` run through): the report and what the plots need."""
+    steps = _analysis(recordings, sim, seed=seed, height_uncertainty=height_uncertainty, progress=progress)
+    next(steps)
+    return _finished(steps)
+
+
+def _finished(steps: Generator[Checkpoint, None, tuple[dict, dict]]) -> tuple[dict, dict]:
+    """The report and extras of the analysis ``steps``, paused at its :class:`Checkpoint`, run to its end."""
+    try:
+        next(steps)
+    except StopIteration as done:
+        return done.value
+    raise RuntimeError("an analysis paused twice")  # _analysis yields once
+
+
+def _report_in_child(_: object) -> dict:
+    """In a child of :func:`analyse`: the report of the analysis paused at its checkpoint when the child was
+    forked, run to its end (its plots' data are not needed: the next pass's replace them)."""
+    return _finished(forked_state())[0]
+
+
+def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0,
+              height_uncertainty: float = HEIGHT_REFERENCE_M, progress: Callable[[str], None] = _silent
+              ) -> Generator[Checkpoint, None, tuple[dict, dict]]:
+    """The analysis of ``recordings``, paused once (it yields a :class:`Checkpoint`) where the effects are decided
+    and the offset of the recorded speeds is read; it returns the report and what the plots need."""
     if not (0.0 <= height_uncertainty <= 0.5):
         raise InputError("--height-uncertainty", f"must be between 0 and 0.5 m, got {height_uncertainty:.3g}")
     np.random.seed(seed)
@@ -401,8 +480,9 @@ def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: in
         entry["rms_beyond_tilt_N"] = float(np.sqrt(max(0.0,
                                                        np.mean(np.sum(rst**2, axis=1)) - np.sum(sigma**2) / draws)))
         unexplained |= {"drivers": locate.drivers(data, rst), "thrust_axis_tilt": entry}
-    progress("the surface curve")
     thrust_map = thrust_map_term(data, final, rf) if not measured_rotor_speeds(recordings) else None
+    yield Checkpoint(None if thrust_map is None else thrust_map[0], len(data), len(fm))
+    progress("the surface curve")
     stated, data_at, final_at = _at_stated_offset(data, final, thrust_map)  # where the thrust map is left open
     curve_report, curve, curve_fits = (finder_surface_curve(data_at, final_at) if heights_broken is None
                                        else (None, None, {}))

@@ -19,10 +19,10 @@ from __future__ import annotations
 import platform
 import signal
 import warnings
-from concurrent.futures import ProcessPoolExecutor, wait
+from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
-from typing import Any, Callable, Hashable, Iterable, TypeVar
+from typing import Any, Callable, Generic, Hashable, Iterable, TypeVar
 
 from uavturb.numerics.threads import usable_cores
 
@@ -36,6 +36,9 @@ _R = TypeVar("_R")
 #: what the children compute from: set by :class:`ForkedPool` before it forks (read in the child by
 #: :func:`forked_state`)
 _state: Any = None
+#: whether this process is a child that a :class:`ForkedPool` forked: it forks none of its own (a piece of work
+#: started aside, :meth:`ForkedPool.start`, runs beside the parent's own pools, which already take the cores)
+_in_child = False
 
 
 def forked_state() -> Any:
@@ -44,12 +47,21 @@ def forked_state() -> Any:
 
 
 def forking_possible() -> bool:
-    """Whether :class:`ForkedPool` forks at all here: Linux, two or more usable cores."""
-    return platform.system() == "Linux" and usable_cores() >= 2
+    """Whether :class:`ForkedPool` forks at all here: Linux, two or more usable cores, and not in a child that a
+    pool forked."""
+    return not _in_child and platform.system() == "Linux" and usable_cores() >= 2
+
+
+def in_forked_child() -> bool:
+    """Whether this process is a child that a :class:`ForkedPool` forked (what it shows of its progress, the parent
+    shows)."""
+    return _in_child
 
 
 def _quiet_child() -> None:
-    """A child's start: Ctrl-C is the parent's to handle."""
+    """A child's start: Ctrl-C is the parent's to handle, and it forks no pool of its own."""
+    global _in_child
+    _in_child = True
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -81,14 +93,46 @@ class ForkedPool:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
+    def terminate(self) -> None:
+        """Stop the children at once, their pieces not wanted, and shut the pool down without waiting."""
+        if self._pool is not None:
+            for process in list(getattr(self._pool, "_processes", {}).values()):
+                process.terminate()
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
     def map(self, func: Callable[[_K], _R], keys: Iterable[_K]) -> dict[_K, _R]:
         """``func(key)`` of each of ``keys``, computed in the children (``func`` a module-level function, which
         finds what it computes from in :func:`forked_state`); only the keys whose piece succeeded are in the
         result. Nothing is computed where fewer than two pieces or two processes would run (the caller's own
         loop is as fast)."""
         keys = list(dict.fromkeys(keys))
-        if self.workers < 2 or len(keys) < 2 or self._broken:
+        if self.workers < 2 or len(keys) < 2:
             return {}
+        futures = self._submitted(func, keys)
+        if futures is None:
+            return {}
+        try:
+            wait(futures.values())
+        except BrokenProcessPool:
+            return self._broke()
+        out = {k: f.result() for k, f in futures.items() if self._succeeded(f)}
+        if self._broken:
+            self.close()
+        return out
+
+    def start(self, func: Callable[[_K], _R], key: _K) -> "Started[_R]":
+        """``func(key)`` started in a child now, while the caller goes on with other work: :meth:`Started.result`
+        waits for it. Where no child can compute it (no fork here, a pool that cannot start or breaks, the piece
+        failing), :meth:`Started.result` computes it in the caller instead."""
+        futures = self._submitted(func, [key]) if self.workers >= 1 else None
+        return Started(self, None if futures is None else futures[key])
+
+    def _submitted(self, func: Callable[[_K], _R], keys: list[_K]) -> dict[_K, Future] | None:
+        """The futures of ``func(key)`` for ``keys``, the children forked at the first call; None where the pool
+        is broken or cannot start."""
+        if self._broken:
+            return None
         global _state
         try:
             # Python 3.12 and later warn on forking a process that has threads: the children here hold none of them
@@ -99,21 +143,49 @@ class ForkedPool:
                     _state = self.state
                     self._pool = ProcessPoolExecutor(self.workers, mp_context=get_context("fork"),
                                                      initializer=_quiet_child)
-                futures = {k: self._pool.submit(func, k) for k in keys}
-            wait(futures.values())
+                return {k: self._pool.submit(func, k) for k in keys}
         except (BrokenProcessPool, OSError, NotImplementedError, ImportError):
             # a pool that breaks or cannot fork; or no working semaphores, which the pool's queues need
             # (``NotImplementedError`` from ``ProcessPoolExecutor``'s check of the system, ``ImportError`` from
             # ``multiprocessing.synchronize``, ``OSError`` where ``/dev/shm`` is missing, as on some serverless hosts)
+            self._broke()
+            return None
+
+    def _succeeded(self, future: Future) -> bool:
+        """Whether the finished ``future``'s piece succeeded (a broken pool marked as such)."""
+        if future.cancelled():
+            return False
+        if isinstance(future.exception(), BrokenProcessPool):
             self._broken = True
-            self.close()
-            return {}
-        out = {}
-        for k, f in futures.items():
-            if f.exception() is None:
-                out[k] = f.result()
-            elif isinstance(f.exception(), BrokenProcessPool):
-                self._broken = True
-        if self._broken:
-            self.close()
-        return out
+        return future.exception() is None
+
+    def _broke(self) -> dict:
+        """Mark the pool broken and shut it down; nothing computed (an empty result)."""
+        self._broken = True
+        self.close()
+        return {}
+
+
+class Started(Generic[_R]):
+    """A piece of work :meth:`ForkedPool.start` started in a child."""
+
+    def __init__(self, pool: ForkedPool, future: Future | None):
+        self._pool, self._future = pool, future
+
+    def result(self, compute: Callable[[], _R]) -> _R:
+        """The child's result, waited for; ``compute()``, called here, where no child computed it. The pool is shut
+        down either way."""
+        try:
+            if self._future is not None:
+                wait([self._future])
+                if self._pool._succeeded(self._future):
+                    return self._future.result()
+        except BrokenProcessPool:
+            pass
+        finally:
+            self._pool.close()
+        return compute()
+
+    def cancel(self) -> None:
+        """Stop the child now, its result not wanted (the caller failed meanwhile): it is not waited for."""
+        self._pool.terminate()
