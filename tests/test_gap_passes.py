@@ -18,6 +18,8 @@ from uavturb.gap import finder
 from uavturb.gap.finder import MOVED_SPEEDS_STAGE, Checkpoint, analyse
 from uavturb.numerics import processes
 
+from processes_helpers import pid_written, process_gone
+
 pytestmark = pytest.mark.skipif(not processes.forking_possible(), reason="forks only on Linux with two cores")
 
 DECISIVE = SimpleNamespace(decisive=True, delta=12.0, w_hover=150.0)
@@ -89,25 +91,10 @@ def test_an_error_in_the_next_analysis_stops_the_first_ones_end(monkeypatch, tmp
     pid_file = tmp_path / "pid"
 
     def fails():
-        for _ in range(500):  # the child has started the first analysis's end
-            if pid_file.exists() and pid_file.read_text():
-                break
-            time.sleep(0.01)
+        pid_written(pid_file)  # the child has started the first analysis's end
         raise InputError("rec/mav0/rotors0/data.csv", "too few rows on the moved speeds")
 
     with pytest.raises(InputError, match="too few rows on the moved speeds"):
         _analysed(monkeypatch, _fake_analysis(end_sleeps_s=60.0, pid_file=pid_file), moved=fails)
-    pid = int(pid_file.read_text())
-    assert pid != os.getpid()
-
-    def gone() -> bool:
-        try:
-            return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] in ("Z", "X")
-        except FileNotFoundError:
-            return True
-
-    for _ in range(500):
-        if gone():
-            break
-        time.sleep(0.01)
-    assert gone()
+    pid = pid_written(pid_file)
+    assert pid != os.getpid() and process_gone(pid)

@@ -13,6 +13,8 @@ import pytest
 from uavturb.numerics import processes
 from uavturb.numerics.processes import ForkedPool, forked_state
 
+from processes_helpers import pid_written, process_gone
+
 pytestmark = pytest.mark.skipif(not processes.forking_possible(), reason="forks only on Linux with two cores")
 
 
@@ -146,22 +148,7 @@ def test_a_piece_started_aside_that_fails_or_cannot_start_is_computed_by_the_cal
 def test_a_piece_started_aside_and_cancelled_stops_at_once(tmp_path):
     where = tmp_path / "pid"
     started = ForkedPool(None, max_processes=1).start(_sleeps, str(where))
-    for _ in range(500):  # the child writes its pid as it starts
-        if where.exists() and where.read_text():
-            break
-        time.sleep(0.01)
-    pid = int(where.read_text())
+    pid = pid_written(where)
+    assert pid != os.getpid() and not process_gone(pid, timeout_s=0.1)
     started.cancel()
-
-    def gone() -> bool:
-        try:
-            with open(f"/proc/{pid}/stat") as f:
-                return f.read().split(")")[-1].split()[0] in ("Z", "X")  # exited, not yet reaped
-        except FileNotFoundError:
-            return True
-
-    for _ in range(500):
-        if gone():
-            break
-        time.sleep(0.01)
-    assert gone()
+    assert process_gone(pid)

@@ -25,14 +25,18 @@ from uavturb.gap.surface_curve import (
 from uavturb.gap.surface_laws import (
     HOVER_THRUST_RATE,
     LAW_FITS_CHI2_DOF,
+    first_height_offset,
     fit_law,
+    height_offset,
     law_band,
     law_in_bins,
     law_named_from_curve,
     law_on_curve,
+    law_fits,
     steady_thrust,
     surface_curve_report,
 )
+from uavturb.numerics.processes import ForkedPool, forking_possible
 from uavturb.physics import ground_effect as ge
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import EFFECTS, EffectInputs, EffectSpec, PhysicalRange, effect_force
@@ -761,3 +765,59 @@ def test_a_curve_of_one_height_bin_says_why_no_law_is_judged():
     assert report is None and fits == {} and len(curve.bins) == 1
     assert curve.notes[-1].startswith("1 height bin(s) from 800 hover-like samples in 8 time blocks under 1.00 m")
     assert "too few to judge a law's shape, which needs 2 bins or more" in curve.notes[-1]
+
+
+GROUND_LAWS = ["ground_effect", "ground_effect_multirotor", "ground_effect_exponential"]
+
+
+@pytest.mark.skipif(not forking_possible(), reason="forks only on Linux with two cores")
+def test_laws_fitted_side_by_side_are_the_plain_fits():
+    """The laws fitted to one curve in forked processes (each refitted on every recording alone and every one left
+    out) are the fits one after the other to the bit, their plotting functions too; every one comes back from its
+    child (none left to the caller to fit again)."""
+    curve = curve_of(hovers(multirotor(2.0), levels=(1.0, 0.97), seed=3))
+    with ForkedPool((curve, R, True, GEOMETRY)) as pool:
+        assert set(pool.map(surface_laws._law_fit_in_child, GROUND_LAWS)) == set(GROUND_LAWS)
+    fits = law_fits(curve, GROUND_LAWS, R, **GEOMETRY)
+    assert list(fits) == GROUND_LAWS
+    grid = np.linspace(0.03, 0.5, 40)
+    for law in GROUND_LAWS:
+        plain = fit_law(curve, law, R, **GEOMETRY)
+        for f in dataclasses.fields(plain):
+            if f.name != "evaluate":
+                np.testing.assert_array_equal(getattr(fits[law], f.name), getattr(plain, f.name), err_msg=f.name)
+        np.testing.assert_array_equal(fits[law].evaluate(grid), plain.evaluate(grid))
+    assert fits["ground_effect_multirotor"].law_fits and not fits["ground_effect"].law_fits
+    # a law the bins cannot fit is left out, as one after the other
+    few = curve_of(hovers(multirotor(2.0), heights=np.r_[NEAR[:2], FAR], seed=3))
+    assert set(law_fits(few, GROUND_LAWS, R, **GEOMETRY)) == {
+        law for law in GROUND_LAWS if _fits_alone(few, law)}
+
+
+def _fits_alone(curve, law) -> bool:
+    try:
+        fit_law(curve, law, R, **GEOMETRY)
+    except (InputError, ValueError, np.linalg.LinAlgError):
+        return False
+    return True
+
+
+@pytest.mark.skipif(not forking_possible(), reason="forks only on Linux with two cores")
+def test_height_offsets_scanned_side_by_side_are_the_first_one_after_the_other():
+    """Heights recorded 3 cm low under Cheeseman-Bennett (mu = 2), where two laws read an offset: the one the first
+    of them in the order asked reads, whether the laws' scans run side by side or one after the other, every scan
+    coming back from its child."""
+    curve = curve_of(hovers(cheeseman_bennett(2.0), levels=(1.0, 1.02), height_offsets=[0.03, 0.03], seed=5,
+                            noise=0.003))
+    fits = {law: fit_law(curve, law, R, resample=False, **GEOMETRY) for law in GROUND_LAWS}
+    may_read = [law for law in GROUND_LAWS if not fits[law].law_fits]
+    assert "ground_effect" in may_read
+    with ForkedPool((curve, fits, R, GEOMETRY)) as pool:
+        assert set(pool.map(surface_laws._height_offset_in_child, may_read)) == set(may_read)
+    for order, first in ((GROUND_LAWS, "ground_effect"), (GROUND_LAWS[::-1], "ground_effect_multirotor")):
+        plain = next((found for found in (height_offset(curve, fits[law], R, **GEOMETRY) for law in order)
+                      if found is not None), None)
+        found = first_height_offset(curve, fits, order, R, **GEOMETRY)
+        assert found == plain and found.law == first
+    found = first_height_offset(curve, fits, GROUND_LAWS, R, **GEOMETRY)
+    assert found.dz_m == pytest.approx(0.03, abs=0.0076) and found.params["mu"] == pytest.approx(2.0, rel=0.25)

@@ -74,7 +74,7 @@ from uavturb.gap.surface_curve import LIFT_RADII, lift_z
 from uavturb.gap.surface_laws import (
     HeightOffset,
     finder_surface_curve,
-    height_offset,
+    first_height_offset,
     law_band,
     law_named_from_curve,
     law_on_curve,
@@ -998,11 +998,8 @@ def _height_offset(curve: Any, curve_fits: dict, chosen: Sequence[str], data: Ga
     named = [n for n in chosen if EFFECTS[n].surface == "d_down" and n in curve_fits]
     if curve is None or not named or curve_fits[named[0]].law_fits:
         return None  # a chosen law that fits as measured reads no offset, whatever another law would
-    for law in named + [n for n in curve_fits if n not in named]:
-        found = height_offset(curve, curve_fits[law], data.rotor_radius, **data.geometry)
-        if found is not None:
-            return found
-    return None
+    return first_height_offset(curve, curve_fits, named + [n for n in curve_fits if n not in named],
+                               data.rotor_radius, **data.geometry)
 
 
 def height_reference(rotor_plane_z: float, uncertainty: float, surface_found: bool) -> dict[str, Any]:
