@@ -75,6 +75,11 @@ def test_the_first_analysis_ends_in_a_child_with_the_report_it_gives_alone(monke
     shown_alone, alone, *_ = _analysed(monkeypatch, _fake_analysis())
     assert alone["pid"] == os.getpid() and alone["draw"] == report["draw"]
     assert shown_alone == ["aligning the streams", "the surface curve", "honest errors", MOVED_SPEEDS_STAGE]
+    # where no child can be forked (one core), in turn as well: nothing is held back for a child that never comes
+    monkeypatch.undo()
+    monkeypatch.setattr(processes, "usable_cores", lambda: 1)
+    shown_one_core, one_core, *_ = _analysed(monkeypatch, _fake_analysis())
+    assert one_core == alone and shown_one_core == shown_alone
 
 
 def test_an_end_that_fails_in_the_child_is_computed_here_from_where_it_paused(monkeypatch):

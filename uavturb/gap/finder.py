@@ -98,7 +98,7 @@ from uavturb.gap.uncertainty import (
     with_curve_check,
     with_systematic,
 )
-from uavturb.numerics.processes import ForkedPool, forked_state, in_forked_child
+from uavturb.numerics.processes import ForkedPool, forked_state, forking_possible, in_forked_child
 from uavturb.numerics.stream_updates import rotor_quantum, rounding_share
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import (
@@ -216,7 +216,7 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
         # a decisive offset: the whole analysis again, on the moved speeds. The first one's end (the surface curve,
         # the honest errors: its report, which the last one's cites) runs in a child meanwhile, where it pays
         first, report = None, None
-        if forking_worth(paused.rows, paused.folds):
+        if forking_worth(paused.rows, paused.folds) and forking_possible():  # else in turn: less memory held
             aside[0] = True
             first = ForkedPool(steps, max_processes=1).start(_report_in_child, 0)
         else:
