@@ -196,6 +196,10 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
     """The analysis without any writing: returns the report dictionary and what the plots need;
     ``progress`` is called with the name of each of :data:`STAGES` it runs, as it starts.
 
+    Where the recorded (commanded) speeds read a decisive offset, the analysis runs again on the speeds it moves
+    (:func:`_on_moved_speeds`), and the first analysis's end, which only its report needs, runs in a forked child
+    meanwhile where that pays (:class:`Checkpoint`): the same report as one after the other.
+
     BLAS runs single-threaded: the fits are tall and thin (a few columns), where threaded
     BLAS only adds synchronisation (a threaded ``ddot`` over 50 000 rows took 15 ms instead of
     0.02 ms on a busy 2-core machine)."""
