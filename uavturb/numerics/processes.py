@@ -94,7 +94,9 @@ class ForkedPool:
             self._pool = None
 
     def terminate(self) -> None:
-        """Stop the children at once, their pieces not wanted, and shut the pool down without waiting."""
+        """Stop the children at once, their pieces not wanted, and shut the pool down without waiting. (The
+        executor's own ``shutdown`` lets running pieces finish, and it has no public way to stop its processes
+        before Python 3.14's ``terminate_workers``: its ``_processes`` are read where they exist.)"""
         if self._pool is not None:
             for process in list(getattr(self._pool, "_processes", {}).values()):
                 process.terminate()
@@ -112,10 +114,7 @@ class ForkedPool:
         futures = self._submitted(func, keys)
         if futures is None:
             return {}
-        try:
-            wait(futures.values())
-        except BrokenProcessPool:
-            return self._broke()
+        wait(futures.values())  # a broken pool finishes every future with BrokenProcessPool (_succeeded)
         out = {k: f.result() for k, f in futures.items() if self._succeeded(f)}
         if self._broken:
             self.close()
@@ -159,11 +158,10 @@ class ForkedPool:
             self._broken = True
         return future.exception() is None
 
-    def _broke(self) -> dict:
-        """Mark the pool broken and shut it down; nothing computed (an empty result)."""
+    def _broke(self) -> None:
+        """Mark the pool broken and shut it down."""
         self._broken = True
         self.close()
-        return {}
 
 
 class Started(Generic[_R]):
@@ -180,8 +178,6 @@ class Started(Generic[_R]):
                 wait([self._future])
                 if self._pool._succeeded(self._future):
                     return self._future.result()
-        except BrokenProcessPool:
-            pass
         finally:
             self._pool.close()
         return compute()
