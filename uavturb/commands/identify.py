@@ -19,6 +19,7 @@ from uavturb.sysid.accelerometer import flight_accel_bias
 from uavturb.sysid.flight_data import flight_data, rotor_repeats
 from uavturb.sysid.identification import Identification, identify
 from uavturb.sysid.residuals import Residuals, residual_forces, write_residuals
+from uavturb.sysid.rotor_order import OTHER as OTHER_ORDER
 from uavturb.sysid.streams import needed_rate_hz, slow_for, stream_updates
 
 
@@ -28,10 +29,22 @@ def identify_recordings(paths: Sequence[str | Path], *, model: str = "auto",
     recs = load_recordings(paths, vehicle)
     _say_read_notes("identify", recs)
     ident = identify(recs, recs[0].vehicle, model=model)
-    for note in (thrust_coefficient_disagreement(ident, recs[0].vehicle), commanded_speeds_caveat(ident, recs)):
+    for note in (thrust_coefficient_disagreement(ident, recs[0].vehicle), commanded_speeds_caveat(ident, recs),
+                 rotor_order_warning(ident)):
         if note:
             print(f"uavturb identify: {note}", file=sys.stderr)
     return ident
+
+
+def rotor_order_warning(ident: Identification) -> str | None:
+    """A sentence where the flights' roll and pitch accelerations follow the rotor columns in another order than
+    vehicle.yaml's angles (:mod:`uavturb.sysid.rotor_order`): every torque, and the inertia from them, is then
+    wrong, while the thrust, a sum over the rotors, is not. None otherwise."""
+    order = ident.rotor_order
+    if order is None or order.verdict != OTHER_ORDER:
+        return None
+    return (f"{order.sentence()}: give vehicle.yaml's rotor_angles_deg and rotor_directions in the order of the "
+            "columns of rotors0 (the torques and inertias here are read in vehicle.yaml's order)")
 
 
 def commanded_speeds_caveat(ident: Identification, recs: Sequence[Recording]) -> str | None:

@@ -29,6 +29,10 @@ the reason, the others are added to the explanation):
     ``1/s`` times it (the forward and reverse regressions of one column), so the bound is held to the
     same :data:`REL_SE_MAX` as a standard error. Real Crazyflie walks at a held heading gave
     ``theta_2`` 8 to 700 times under its nominal value at shares of 0.01-0.24.
+``rotor columns out of order``
+    the flight's roll and pitch accelerations follow the rotor torques of the columns in another order than
+    ``vehicle.yaml``'s angles (:mod:`uavturb.sysid.rotor_order`): every constant read from the torques (``k_M``, the
+    inertias, ``theta_1`` to ``theta_3``) is then wrong, whatever its fit says; the thrust, a sum, is not.
 ``physically impossible``
     a value no rigid multirotor has: ``k_T``, ``k_M`` or an inertia not positive; an inertia
     above ``m (l + r)^2`` (the whole mass at the propeller tips), or a ``theta_1`` that puts ``J_x``
@@ -48,6 +52,10 @@ from typing import Any, Sequence
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
+
+from uavturb.sysid.rotor_order import GIVEN as GIVEN_ORDER
+from uavturb.sysid.rotor_order import OTHER as OTHER_ORDER
+from uavturb.sysid.rotor_order import RotorOrder
 
 #: s, moving-average window before measuring excitation (removes noise, keeps manoeuvres < 5 Hz)
 LOWPASS_S = 0.2
@@ -77,7 +85,11 @@ ABSENT = "absent"
 NOT_EXCITED = "not excited"
 ILL_CONDITIONED = "ill-conditioned"
 IMPOSSIBLE = "physically impossible"
-PRECEDENCE = (ABSENT, NOT_EXCITED, ILL_CONDITIONED, IMPOSSIBLE)
+OUT_OF_ORDER = "rotor columns out of order"
+PRECEDENCE = (ABSENT, OUT_OF_ORDER, NOT_EXCITED, ILL_CONDITIONED, IMPOSSIBLE)
+#: the constants read from the rotor torques, which columns in another order than vehicle.yaml's angles make wrong
+#: (the thrust, a sum over the rotors, stays right)
+FROM_TORQUES = ("k_M", "J_x", "J_y", "J_z", "theta_1", "theta_2", "theta_3")
 
 AXES = ("roll", "pitch", "yaw")
 
@@ -141,7 +153,10 @@ class ParameterStatus:
         return PARAMETERS[self.name]["unit"]
 
     def advice(self) -> str:
-        """What would determine it: the manoeuvre, or the vehicle.yaml key that can stand in."""
+        """What would determine it: the manoeuvre, or the vehicle.yaml key that can stand in (the rotor angles in the
+        columns' order, for columns out of order)."""
+        if self.reason == OUT_OF_ORDER:
+            return "give vehicle.yaml's rotor_angles_deg and rotor_directions in the order of rotors0's columns"
         p = PARAMETERS[self.name]
         return f"{p['manoeuvre']} or give {p['key']} in vehicle.yaml" if p["key"] else p["manoeuvre"]
 
@@ -240,15 +255,31 @@ def _share(f: _Findings, ex: dict[str, AxisExcitation], axis: str) -> None:
                                f"could be up to {1 / max(s, 1e-3):.2g} times the estimate")
 
 
-def _why_too_large(times: float, ex: AxisExcitation) -> str:
-    """Why an inertia ``times`` its physical bound may have been read: the rotor-torque column's noise, where its
-    share of the variance allows that much (:func:`_share`: the slope under the estimate by up to ``1 / share``,
-    the inertia over it as much), else rotor columns in another order than the angles; both where the column
-    carries almost nothing (under :data:`SHARE_TELLS`), which columns in another order do too. A Neural-Swarm
-    walk's commanded speeds (share 15 %: up to 6.6 times) read 4.5 times the bound and had been asked about their
-    order; the same walk with its columns shifted by one reads 47 times it, its share under 1 %."""
+def _why_too_large(times: float, ex: AxisExcitation, order: RotorOrder | None = None) -> str:
+    """Why an inertia ``times`` its physical bound may have been read.
+
+    Where the flight tells the rotor columns' order (``order``, :func:`~uavturb.sysid.rotor_order.rotor_order`), what
+    it says: columns in another order, named; or vehicle.yaml's order, beside what noise in the rotor-torque column
+    allows (:func:`_share`: the slope under the estimate by up to ``1 / share``, the inertia over it as much). A
+    Neural-Swarm take-off read 2.9 times the bound, its share allowing 2.8 times, and had been asked whether its
+    columns were in another order: its order leads the best of the 23 others by 0.5 in correlation.
+
+    Where it does not tell: the column's noise where its share of the variance allows that much, else rotor columns
+    in another order than the angles; both where the column carries almost nothing (under :data:`SHARE_TELLS`),
+    which columns in another order do too. A Neural-Swarm walk's commanded speeds (share 15 %: up to 6.6 times) read
+    4.5 times the bound and had been asked about their order; the same walk with its columns shifted by one reads 47
+    times it, its share under 1 %."""
     s = ex.share
-    if not (np.isfinite(s) and s < SHARE_MIN and times <= 1.0 / max(s, 1e-3)):
+    noise_allows = bool(np.isfinite(s) and s < SHARE_MIN and times <= 1.0 / max(s, 1e-3))
+    if order is not None and order.verdict == OTHER_ORDER:  # the finding OUT_OF_ORDER says which order
+        return f"{times:.2g} times it: rotor columns out of order, read as {order.columns()}"
+    if order is not None and order.verdict == GIVEN_ORDER:
+        noise = (f"within what noise in the recorded rotor speeds does to the slope (up to {1 / s:.2g} times)"
+                 if noise_allows else
+                 "more than noise in the recorded rotor speeds does to the slope by their share of the variance alone"
+                 + (f" (up to {1 / s:.2g} times)" if np.isfinite(s) and s > 0 else ""))
+        return f"{times:.2g} times it: {noise}; {order.sentence()}"
+    if not noise_allows:
         return "rotor columns in another order than vehicle.yaml's angles?"
     if s < SHARE_TELLS:
         return (f"{times:.2g} times it: noise in the recorded rotor speeds, whose torque column carries "
@@ -272,7 +303,7 @@ def _inherit(f: _Findings, name: str, status: dict[str, ParameterStatus], deps: 
 
 def assess(est: dict[str, Any], se: dict[str, Any], excitation: dict[str, AxisExcitation], conds: dict[str, float],
            *, has_imu: bool, mass: float, arm_length: float, rotor_radius: float,
-           jx_equals_jy: bool) -> dict[str, ParameterStatus]:
+           jx_equals_jy: bool, rotor_order: RotorOrder | None = None) -> dict[str, ParameterStatus]:
     """The status of every constant of :data:`PARAMETERS`.
 
     Parameters
@@ -283,13 +314,15 @@ def assess(est: dict[str, Any], se: dict[str, Any], excitation: dict[str, AxisEx
     has_imu : whether an accelerometer was recorded
     mass : kg; arm_length, rotor_radius : m (the physical bounds)
     jx_equals_jy : the paper's ``J_x = J_y`` model was fitted (roll or pitch excites both)
+    rotor_order : what the flight says of the rotor columns' order (:func:`~uavturb.sysid.rotor_order.rotor_order`),
+        where read: an inertia above its physical bound says why from it
     """
     ex = dict(excitation)
     if jx_equals_jy:  # one joint fit: the better-excited of roll and pitch serves both
         best = max((ex["roll"], ex["pitch"]), key=lambda e: min(e.rate_std / RATE_MIN, e.acc_std / ACC_MIN))
         ex["roll"] = ex["pitch"] = best
     j_max = mass * (arm_length + rotor_radius) ** 2  # kg m^2, all the mass at the propeller tips
-    a = _Assessment(est, se, ex, conds, j_max, jx_equals_jy)
+    a = _Assessment(est, se, ex, conds, j_max, jx_equals_jy, rotor_order)
     a.thrust()
     a.roll_and_pitch()
     a.yaw(rotor_radius)
@@ -308,9 +341,13 @@ class _Assessment:
     conds: dict[str, float]
     j_max: float  # kg m^2, the physical bound on an inertia
     jx_equals_jy: bool
+    rotor_order: RotorOrder | None = None
     out: dict[str, ParameterStatus] = field(default_factory=dict)
 
     def _decide(self, name: str, f: _Findings) -> None:
+        order = self.rotor_order
+        if name in FROM_TORQUES and order is not None and order.verdict == OTHER_ORDER:
+            f.add(OUT_OF_ORDER, order.sentence())
         self.out[name] = f.status(name, self.est[name], self.se[name])
 
     def _positive(self, f: _Findings, name: str, what: str) -> None:
@@ -344,8 +381,9 @@ class _Assessment:
                 _share(f, ex, axis)
                 self._positive(f, theta, theta)
                 if np.isfinite(est[name]) and est[name] > self.j_max:  # what it says of the vehicle is impossible
+                    why = _why_too_large(est[name] / self.j_max, ex[axis], self.rotor_order)
                     f.add(IMPOSSIBLE, f"it puts {name} = l k_T / {theta} at {est[name]:.3g} kg m^2, above m (l + r)^2 "
-                                      f"= {self.j_max:.3g} kg m^2 ({_why_too_large(est[name] / self.j_max, ex[axis])})")
+                                      f"= {self.j_max:.3g} kg m^2 ({why})")
                 self._decide(theta, f)
             f = _Findings()
             _not_excited(f, ex, [(axis, "rate"), (axis, "acc")])

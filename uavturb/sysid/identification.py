@@ -64,6 +64,7 @@ from uavturb.sysid.identifiability import (
     column_share,
 )
 from uavturb.sysid.least_squares import lstsq
+from uavturb.sysid.rotor_order import RotorOrder, rotor_order
 from uavturb.sysid.nominal import (SpeedOffset, moved_speeds, offset_cells, speed_offset,
                                      stated_offset)
 
@@ -132,6 +133,9 @@ class Identification:
     #: the lag the constants were identified at (``applied_s``) and each constant's term for the lags it leaves open
     #: (``terms``, in the error); None for measured speeds or too few rows
     command_lag: dict[str, Any] | None = None
+    #: which order of the rotor columns the roll and pitch accelerations follow (:mod:`uavturb.sysid.rotor_order`);
+    #: None with too few rows
+    rotor_order: RotorOrder | None = None
 
     def rotor_speeds_read(self, rotor_speeds: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
         """Recorded rotor speeds ``rotor_speeds`` (K, N) [rad/s] at times ``t`` (K,) [s] as these constants were
@@ -236,6 +240,7 @@ class Identification:
             "thrust_coefficient_surface_term": self.surface_term,
             "rotor_speed_offset": self.rotor_speed_offset,
             "command_lag": self.command_lag,
+            "rotor_order": None if self.rotor_order is None else self.rotor_order.to_dict(),
             "accel_bias_per_recording": {n: {"value": [float(x) for x in b], "stderr": [float(x) for x in se]}
                                          for n, (b, se) in self.accel_bias_per_recording.items()},
             "sources": "imu+mocap" if self.accel_bias is not None else "mocap",
@@ -337,6 +342,7 @@ def _rows(fds: Sequence[FlightData], vehicle: Vehicle, masks: Sequence[np.ndarra
         # the causes of the angular acceleration filtered as its derivative filters them (against the value
         # smoother, a probe's inertia came out 0.7 % high at 17-20 stated errors, without noise)
         add("u", fd.matched(u)[m])
+        add("w2", fd.matched(fd.rotor_speeds**2)[m])  # the columns apart: which order the torques follow
         add("ww", fd.matched(np.stack([w[:, 1] * w[:, 2], w[:, 0] * w[:, 2], w[:, 0] * w[:, 1]], 1))[m])
         add("dw", fd.dw[m])
         add("group", np.full(m.sum(), g))
@@ -724,8 +730,9 @@ def _identified(vehicle: Vehicle, fds: Sequence[FlightData], names: list[str], u
     for k, term in (offset_terms or {}).items():  # the offsets the commanded speeds' reading leaves open
         errors[k] = float(np.hypot(errors[k], term)) if np.isfinite(term) else errors[k]
     theta_se = np.array([errors[f"theta_{i}"] for i in range(4)])
+    order = rotor_order(rows["w2"], rows["dw"], vehicle.mixer())
     status = assess(values, errors, ex, conds, has_imu=tr["has_imu"], mass=m, arm_length=l,
-                    rotor_radius=vehicle.rotor_radius, jx_equals_jy=chosen == "jx=jy")
+                    rotor_radius=vehicle.rotor_radius, jx_equals_jy=chosen == "jx=jy", rotor_order=order)
     return _Identified(Identification(
         mass=m, thrust_coefficient=values["k_T"], thrust_coefficient_se=errors["k_T"], moment_coefficient=kM_est,
         moment_coefficient_se=errors["k_M"], inertia=np.array(inertia),
@@ -738,7 +745,7 @@ def _identified(vehicle: Vehicle, fds: Sequence[FlightData], names: list[str], u
         accel_bias_per_recording=({names[g]: (a.b, a.stderr) for g, a in tr["bias_per_recording"].items()}
                                   if tr["has_imu"] and len(fds) > 1 else {}),
         near_surface_m=NEAR_SURFACE_RADII * vehicle.rotor_radius if usable.near else None,
-        surface_term=float(m * surface_term) if usable.other is not None else None), values)
+        surface_term=float(m * surface_term) if usable.other is not None else None, rotor_order=order), values)
 
 
 #: rows a recording needs for its own ``theta_0`` (the spread between recordings)
