@@ -75,7 +75,7 @@ def test_identify_names_the_columns_order_and_says_why_an_inertia_is_read_too_la
     wrong = identify([shuffled], QUADROTOR)
     assert wrong.rotor_order.verdict == OTHER and wrong.rotor_order.best_other == (3, 0, 1, 2)  # the inverse of q
     warning = rotor_order_warning(wrong)
-    assert "read as w_3, w_0, w_1, w_2" in warning and "rotor_angles_deg" in warning
+    assert "read as w_3, w_0, w_1, w_2" in warning and "rotor_angles_deg" in warning and "--motor-order" in warning
     assert wrong.to_dict()["rotor_order"]["best_other"] == [3, 0, 1, 2]
     from_torques = {n: s for n, s in wrong.status.items() if n in idf.FROM_TORQUES}
     assert all(s.reason == idf.OUT_OF_ORDER and not s.identifiable and "read as w_3, w_0, w_1, w_2" in s.why

@@ -44,7 +44,9 @@ def rotor_order_warning(ident: Identification) -> str | None:
     if order is None or order.verdict != OTHER_ORDER:
         return None
     return (f"{order.sentence()}: give vehicle.yaml's rotor_angles_deg and rotor_directions in the order of the "
-            "columns of rotors0 (the torques and inertias here are read in vehicle.yaml's order)")
+            "columns of rotors0, or import the log again with its rotors in vehicle.yaml's order (`uavturb import "
+            "ulog --motor-order`: each rotor the output its column above was read from); the torques and inertias "
+            "here are read in vehicle.yaml's order")
 
 
 def commanded_speeds_caveat(ident: Identification, recs: Sequence[Recording]) -> str | None:
