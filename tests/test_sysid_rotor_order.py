@@ -37,6 +37,7 @@ def test_the_order_the_torques_follow_is_found_among_all_of_a_quadrotor(order):
         assert "vehicle.yaml's order" in found.sentence()
     else:
         assert found.verdict == OTHER and found.best_other == order and min(found.best_other_correlations) > 0.6
+        assert found.alike == 0  # each rotor moved on its own: no other order comes near
         assert found.sentence().startswith("the rotor columns are in another order than vehicle.yaml's angles: read "
                                            f"as {', '.join(f'w_{c}' for c in order)}")
 
@@ -49,6 +50,17 @@ def test_a_hexarotor_compares_all_720_orders_and_an_octorotor_its_rotations_and_
     octo = candidate_orders(8)
     assert octo.shape == (16, 8) and tuple(octo[0]) == tuple(range(8))
     assert len({tuple(o) for o in octo}) == 16 and (7, 6, 5, 4, 3, 2, 1, 0) in {tuple(o) for o in octo}
+
+
+def test_rotors_moved_alike_leave_the_order_among_them_open():
+    """Two rotors whose speeds move together (a controller that splits a torque between them alike): the orders
+    that swap them follow equally well, and none is named as the order."""
+    w2, dw = _torques_followed(QUADROTOR, np.array([1, 2, 3, 0]), noise=1.0)
+    w2[:, 1] = w2[:, 2] + 1e-3 * np.random.default_rng(2).standard_normal(len(w2))  # columns 1 and 2 alike
+    found = rotor_order(w2, dw, QUADROTOR.mixer())
+    assert found.verdict == OTHER and found.alike >= 1
+    assert found.sentence().startswith("the rotor columns are in another order than vehicle.yaml's angles, which the "
+                                       f"flight does not tell: {found.alike + 1} orders'")
 
 
 def test_accelerations_that_follow_no_torque_decide_nothing():

@@ -43,10 +43,11 @@ def rotor_order_warning(ident: Identification) -> str | None:
     order = ident.rotor_order
     if order is None or order.verdict != OTHER_ORDER:
         return None
-    return (f"{order.sentence()}: give vehicle.yaml's rotor_angles_deg and rotor_directions in the order of the "
-            "columns of rotors0, or import the log again with its rotors in vehicle.yaml's order (`uavturb import "
-            "ulog --motor-order`: each rotor the output its column above was read from); the torques and inertias "
-            "here are read in vehicle.yaml's order")
+    fix = ("check which column holds which rotor (a flight with roll and pitch manoeuvres tells more orders apart)"
+           if order.alike else "give vehicle.yaml's rotor_angles_deg and rotor_directions in the order of the "
+           "columns of rotors0, or import the log again with its rotors in vehicle.yaml's order (`uavturb import ulog "
+           "--motor-order`: each rotor the output its column above was read from)")
+    return f"{order.sentence()}: {fix}; the torques and inertias here are read in vehicle.yaml's order"
 
 
 def commanded_speeds_caveat(ident: Identification, recs: Sequence[Recording]) -> str | None:
@@ -257,6 +258,9 @@ def residuals_to_file(path: str | Path, out: str | Path, *, source: str = "auto"
     ident = None
     if params == "identified":
         ident = identify([rec], rec.vehicle)
+        said = rotor_order_warning(ident)  # why the torques are left out, where it is the columns' order
+        if said:
+            print(f"uavturb residuals: {said}", file=sys.stderr)
         v = _identified_for_forces(ident, rec.vehicle)
     elif params == "nominal":
         v = rec.vehicle

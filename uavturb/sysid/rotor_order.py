@@ -47,6 +47,9 @@ class RotorOrder:
     orders : orders compared, the given one included
     verdict : :data:`GIVEN` (vehicle.yaml's order follows best, by :data:`ORDER_MARGIN` or more), :data:`OTHER`
         (``best_other`` does, by as much, and at least twice as well) or :data:`UNDECIDED`
+    alike : other orders than ``best_other`` and the given one whose weaker axis follows within
+        :data:`ORDER_MARGIN` of it: the flight does not tell them from ``best_other`` (rotors whose speeds the
+        controller moves alike; a simulated hexarotor's weave had two pairs so)
     """
 
     given: tuple[float, float]
@@ -54,6 +57,7 @@ class RotorOrder:
     best_other_correlations: tuple[float, float]
     orders: int
     verdict: str
+    alike: int = 0
 
     def columns(self) -> str:
         """``best_other`` as the columns to read, in vehicle.yaml's order of its rotors (``w_1, w_0, ...``)."""
@@ -67,6 +71,11 @@ class RotorOrder:
             return (f"the rotor columns are in vehicle.yaml's order (of {self.orders} orders, its roll and pitch "
                     f"torques follow the angular acceleration best: correlations {given}, the best other order "
                     f"{other})")
+        if self.verdict == OTHER and self.alike:
+            return (f"the rotor columns are in another order than vehicle.yaml's angles, which the flight does not "
+                    f"tell: {self.alike + 1} orders' roll and pitch torques follow the angular acceleration within "
+                    f"{ORDER_MARGIN:g} of the best (correlations {other}, read as {self.columns()}), as recorded at "
+                    f"{given}")
         if self.verdict == OTHER:
             return (f"the rotor columns are in another order than vehicle.yaml's angles: read as {self.columns()} "
                     f"(vehicle.yaml's rotors in its order), their roll and pitch torques follow the angular "
@@ -76,7 +85,8 @@ class RotorOrder:
 
     def to_dict(self) -> dict:
         return {"verdict": self.verdict, "given_correlations": list(self.given), "best_other": list(self.best_other),
-                "best_other_correlations": list(self.best_other_correlations), "orders": self.orders}
+                "best_other_correlations": list(self.best_other_correlations), "orders": self.orders,
+                "alike": self.alike}
 
 
 def candidate_orders(n: int) -> np.ndarray:
@@ -130,5 +140,6 @@ def rotor_order(w2: np.ndarray, dw: np.ndarray, mixer: np.ndarray) -> RotorOrder
         verdict = OTHER
     else:
         verdict = UNDECIDED
+    alike = int(np.sum(score[1:] > other - ORDER_MARGIN)) - 1  # the best other itself left out
     return RotorOrder(tuple(float(c) for c in corr[0]), tuple(int(c) for c in orders[best]),
-                      tuple(float(c) for c in corr[best]), len(orders), verdict)
+                      tuple(float(c) for c in corr[best]), len(orders), verdict, alike)
