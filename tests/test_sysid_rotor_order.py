@@ -118,3 +118,17 @@ def test_an_inertia_above_its_bound_says_what_the_flight_tells_of_the_order():
     assert st["theta_1"].why.startswith("the rotor columns are in another order than vehicle.yaml's angles: read as "
                                         "w_1, w_0, w_3, w_2")
     assert "(23 times it: rotor columns out of order, read as w_1, w_0, w_3, w_2)" in st["theta_1"].why
+
+
+def test_rotor_directions_given_the_other_way_round_are_named_from_the_yaw():
+    fd, _ = inverse_dynamics_flight(QUADROTOR, seed=4, rotor_quantum=0.01)
+    right = identify([fd], QUADROTOR)
+    assert right.identified("k_M") and "rotor_directions reversed" not in right.status["theta_2"].why
+    flipped = QUADROTOR.with_params()
+    flipped = dataclasses.replace(flipped, rotor_directions=tuple(-d for d in QUADROTOR.rotor_directions))
+    wrong = identify([fd], flipped)
+    for name in ("theta_2", "k_M"):
+        s = wrong.status[name]
+        assert not s.identifiable and "rotor_directions reversed; +1 is counter-clockwise seen from above" in s.why
+    assert wrong.rotor_order.verdict == GIVEN  # the roll and pitch torques do not see the directions
+    assert wrong.moment_coefficient == pytest.approx(-right.moment_coefficient, rel=1e-6)

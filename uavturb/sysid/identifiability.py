@@ -74,6 +74,9 @@ SHARE_MIN = 1.0 / (1.0 + REL_SE_MAX)
 #: a rotor-torque column's share of the variance under which it tells nothing of the rotors' order (an inertia
 #: read above its physical bound is then said to come from noise or from columns in another order alike)
 SHARE_TELLS = 0.05
+#: standard errors by which a yaw slope (``theta_2``, ``k_M``) must fall under zero to be read as rotor directions
+#: given the other way round (noise alone puts it there in one flight of 740 at most)
+REVERSED_Z = 3.0
 #: m/s^2, largest standard error of an identified accelerometer bias component
 BIAS_SE_MAX = 0.05
 #: how far J_k may exceed J_i + J_j: RotorS's Firefly inertia, used by the built-in hexarotor
@@ -352,7 +355,21 @@ class _Assessment:
 
     def _positive(self, f: _Findings, name: str, what: str) -> None:
         if np.isfinite(self.est[name]) and not self.est[name] > 0:
-            f.add(IMPOSSIBLE, f"{what} {self.est[name]:.3g} is not positive")
+            f.add(IMPOSSIBLE, f"{what} {self.est[name]:.3g} is not positive{self._directions_reversed(name)}")
+
+    def _directions_reversed(self, name: str) -> str:
+        """Where a yaw slope (``theta_2``, ``k_M``) is negative by :data:`REVERSED_Z` standard errors or more, why
+        (the yaw acceleration follows the rotors' drag torques turned the other way, as with ``rotor_directions`` in
+        the other sign convention, ``+1`` counter-clockwise seen from above), as a clause; else ''. Said only where
+        the yaw excites it (a held heading's slope is noise)."""
+        value, stderr = self.est[name], self.se[name]
+        excited = self.ex["yaw"].rate_std >= RATE_MIN and self.ex["yaw"].acc_std >= ACC_MIN
+        if name not in ("theta_2", "k_M") or not excited or not (np.isfinite(value) and np.isfinite(stderr)
+                                                                  and 0 < stderr < -value / REVERSED_Z):
+            return ""
+        return (f" ({-value / stderr:.0f} standard errors under zero: the yaw acceleration follows the rotors' drag "
+                "torques turned the other way, as with vehicle.yaml's rotor_directions reversed; +1 is "
+                "counter-clockwise seen from above)")
 
     def _inertia_bound(self, f: _Findings, name: str) -> None:
         if np.isfinite(self.est[name]) and self.est[name] > self.j_max:
