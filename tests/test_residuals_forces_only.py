@@ -31,14 +31,15 @@ def test_hover_without_inertia_gives_forces_and_nan_torques(tmp_path, capsys):
 
 
 def test_rotor_columns_out_of_order_are_said_where_their_torques_are_written(tmp_path, capsys):
-    weave = Reference(Sines((0.8,), (0.7,), (0.0,)), Sines((0.8,), (0.9,), (1.0,)), Constant(1.5), Constant(0.0), 10.0,
-                      "weave")  # rolls and pitches: torques the accelerations follow
+    weave = Reference(Sines((0.4,), (3.0,), (0.0,)), Sines((0.4,), (3.7,), (1.0,)), Constant(1.5), Constant(0.0), 10.0,
+                      "weave")  # rolls and pitches (accelerations to 5 m/s^2): torques the accelerations follow
     rec, _ = simulate_flight(HEXAROTOR, weave, seed=4)
     turned = dataclasses.replace(rec.rotors, speeds=rec.rotors.speeds[:, [1, 2, 3, 4, 5, 0]])
     write_recording(dataclasses.replace(rec, rotors=turned), tmp_path / "turned")
     residuals_to_file(tmp_path / "turned", tmp_path / "r.csv")
     err = capsys.readouterr().err
-    # the controller moves some rotors alike: the flight says the order is not vehicle.yaml's, not which it is
+    # a hexarotor's six rotor speeds move with four commands: the flight says the order is not vehicle.yaml's, and
+    # finds orders it cannot tell apart (mirror images of the frame) among the 720
     assert ("uavturb residuals: the rotor columns are in another order than vehicle.yaml's angles, which the flight "
             "does not tell:") in err and "check which column holds which rotor" in err
     write_recording(rec, tmp_path / "as_flown")

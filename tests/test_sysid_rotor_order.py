@@ -30,7 +30,7 @@ def _torques_followed(vehicle: Vehicle, order: np.ndarray, noise: float, seed: i
 @pytest.mark.parametrize("order", [(0, 1, 2, 3), (1, 2, 3, 0), (3, 2, 1, 0), (0, 2, 1, 3), (2, 0, 3, 1)])
 def test_the_order_the_torques_follow_is_found_among_all_of_a_quadrotor(order):
     w2, dw = _torques_followed(QUADROTOR, np.array(order), noise=1.0)
-    found = rotor_order(w2, dw, QUADROTOR.mixer())
+    found = rotor_order([w2], [dw], QUADROTOR.mixer())
     assert found.orders == 24
     if order == (0, 1, 2, 3):
         assert found.verdict == GIVEN and min(found.given) > 0.6 and max(found.best_other_correlations) < 0.75
@@ -45,7 +45,7 @@ def test_the_order_the_torques_follow_is_found_among_all_of_a_quadrotor(order):
 def test_a_hexarotor_compares_all_720_orders_and_an_octorotor_its_rotations_and_reflections():
     order = np.array([2, 3, 4, 5, 0, 1])
     w2, dw = _torques_followed(HEXAROTOR, order, noise=1.0)
-    found = rotor_order(w2, dw, HEXAROTOR.mixer())
+    found = rotor_order([w2], [dw], HEXAROTOR.mixer())
     assert found.orders == 720 and found.verdict == OTHER and found.best_other == tuple(order)
     octo = candidate_orders(8)
     assert octo.shape == (16, 8) and tuple(octo[0]) == tuple(range(8))
@@ -57,16 +57,37 @@ def test_rotors_moved_alike_leave_the_order_among_them_open():
     that swap them follow equally well, and none is named as the order."""
     w2, dw = _torques_followed(QUADROTOR, np.array([1, 2, 3, 0]), noise=1.0)
     w2[:, 1] = w2[:, 2] + 1e-3 * np.random.default_rng(2).standard_normal(len(w2))  # columns 1 and 2 alike
-    found = rotor_order(w2, dw, QUADROTOR.mixer())
+    found = rotor_order([w2], [dw], QUADROTOR.mixer())
     assert found.verdict == OTHER and found.alike >= 1
     assert found.sentence().startswith("the rotor columns are in another order than vehicle.yaml's angles, which the "
                                        f"flight does not tell: {found.alike + 1} orders'")
 
 
+def test_each_order_is_read_at_the_shift_where_its_torques_follow():
+    """Commands that lead the rotors by 30 ms (three rows at 100 Hz): the order is found 30 ms ahead, where as
+    stamped a noise-like torque follows nothing."""
+    w2, dw = _torques_followed(QUADROTOR, np.array([1, 2, 3, 0]), noise=0.5)
+    later = np.full_like(dw, np.nan)
+    later[3:] = dw[:-3]  # the acceleration three rows after its torque
+    usable = np.ones(len(w2), bool)
+    as_stamped = rotor_order([w2], [later], QUADROTOR.mixer())
+    assert as_stamped.verdict == UNDECIDED and max(as_stamped.best_other_correlations) < 0.2
+    found = rotor_order([w2], [later], QUADROTOR.mixer(), dt=[0.01], usable=[usable])
+    assert found.verdict == OTHER and found.best_other == (1, 2, 3, 0) and found.lead_s == pytest.approx(0.03)
+    assert found.sentence().endswith(", the recorded speeds taken 30 ms ahead")
+    # over two flights, one of them sampled at 50 Hz: the same shift in seconds
+    slow_w2, slow_dw = _torques_followed(QUADROTOR, np.array([1, 2, 3, 0]), noise=0.5, seed=1)
+    slow_later = np.full_like(slow_dw, np.nan)
+    slow_later[1:] = slow_dw[:-1]  # 20 ms at 50 Hz
+    both = rotor_order([w2, slow_w2], [later, slow_later], QUADROTOR.mixer(), dt=[0.01, 0.02],
+                       usable=[usable, np.ones(len(slow_w2), bool)])
+    assert both.verdict == OTHER and both.best_other == (1, 2, 3, 0)
+
+
 def test_accelerations_that_follow_no_torque_decide_nothing():
     w2, _ = _torques_followed(QUADROTOR, np.arange(4), noise=1.0)
     dw = np.random.default_rng(5).standard_normal((len(w2), 3))
-    found = rotor_order(w2, dw, QUADROTOR.mixer())
+    found = rotor_order([w2], [dw], QUADROTOR.mixer())
     assert found.verdict == UNDECIDED and max(map(abs, found.given)) < 0.1
     assert found.sentence().startswith("the flight does not tell the rotor columns' order")
 
@@ -74,8 +95,8 @@ def test_accelerations_that_follow_no_torque_decide_nothing():
 def test_too_few_finite_rows_or_one_rotor_read_nothing():
     w2, dw = _torques_followed(QUADROTOR, np.arange(4), noise=1.0, rows=400)
     dw[:250] = np.nan  # 150 finite rows left
-    assert rotor_order(w2, dw, QUADROTOR.mixer()) is None
-    assert rotor_order(w2[:, :1], dw, QUADROTOR.mixer()[:, :1]) is None
+    assert rotor_order([w2], [dw], QUADROTOR.mixer()) is None
+    assert rotor_order([w2[:, :1]], [dw], QUADROTOR.mixer()[:, :1]) is None
 
 
 def test_identify_names_the_columns_order_and_says_why_an_inertia_is_read_too_large():
@@ -105,14 +126,14 @@ def test_an_inertia_above_its_bound_says_what_the_flight_tells_of_the_order():
     excited = {a: idf.AxisExcitation(0.3, 1.0, 0.99) for a in idf.AXES}
     geometry = dict(mass=1.5, arm_length=0.215, rotor_radius=0.1, jx_equals_jy=False)
     w2, dw = _torques_followed(QUADROTOR, np.arange(4), noise=1.0)
-    given = rotor_order(w2, dw, QUADROTOR.mixer())
+    given = rotor_order([w2], [dw], QUADROTOR.mixer())
     st = idf.assess(est, se, excited, {}, has_imu=True, rotor_order=given, **geometry)
     why = st["theta_1"].why
     assert "another order than vehicle.yaml's angles?" not in why
     assert "(23 times it: more than noise in the recorded rotor speeds does to the slope" in why
     assert "the rotor columns are in vehicle.yaml's order (of 24 orders" in why
     w2, dw = _torques_followed(QUADROTOR, np.array([1, 0, 3, 2]), noise=1.0)
-    other = rotor_order(w2, dw, QUADROTOR.mixer())
+    other = rotor_order([w2], [dw], QUADROTOR.mixer())
     st = idf.assess(est, se, excited, {}, has_imu=True, rotor_order=other, **geometry)
     assert st["theta_1"].reason == idf.OUT_OF_ORDER
     assert st["theta_1"].why.startswith("the rotor columns are in another order than vehicle.yaml's angles: read as "

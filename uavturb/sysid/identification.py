@@ -342,7 +342,6 @@ def _rows(fds: Sequence[FlightData], vehicle: Vehicle, masks: Sequence[np.ndarra
         # the causes of the angular acceleration filtered as its derivative filters them (against the value
         # smoother, a probe's inertia came out 0.7 % high at 17-20 stated errors, without noise)
         add("u", fd.matched(u)[m])
-        add("w2", fd.matched(fd.rotor_speeds**2)[m])  # the columns apart: which order the torques follow
         add("ww", fd.matched(np.stack([w[:, 1] * w[:, 2], w[:, 0] * w[:, 2], w[:, 0] * w[:, 1]], 1))[m])
         add("dw", fd.dw[m])
         add("group", np.full(m.sum(), g))
@@ -730,7 +729,8 @@ def _identified(vehicle: Vehicle, fds: Sequence[FlightData], names: list[str], u
     for k, term in (offset_terms or {}).items():  # the offsets the commanded speeds' reading leaves open
         errors[k] = float(np.hypot(errors[k], term)) if np.isfinite(term) else errors[k]
     theta_se = np.array([errors[f"theta_{i}"] for i in range(4)])
-    order = rotor_order(rows["w2"], rows["dw"], vehicle.mixer())
+    order = rotor_order([fd.matched(fd.rotor_speeds**2) for fd in fds], [fd.dw for fd in fds], vehicle.mixer(),
+                        dt=[fd.dt for fd in fds], usable=masks)
     status = assess(values, errors, ex, conds, has_imu=tr["has_imu"], mass=m, arm_length=l,
                     rotor_radius=vehicle.rotor_radius, jx_equals_jy=chosen == "jx=jy", rotor_order=order)
     return _Identified(Identification(
