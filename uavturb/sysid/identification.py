@@ -580,7 +580,11 @@ def identify(recordings: Sequence[Recording] | Sequence[FlightData], vehicle: Ve
     terms = half_change([(e, tau) for e in ends]) if ends is not None else {}
     lag_terms = half_change([(at, e) for e in tau_ends]) if tau_ends is not None else {}
     both = {k: float(np.hypot(terms.get(k, 0.0), lag_terms.get(k, 0.0))) for k in set(terms) | set(lag_terms)}
-    out = _identified(vehicle, read_at(at, tau), names, usable, raw, model, lag_s, n_draws, seed, both)
+    final = read_at(at, tau)
+    # which order of the rotor columns the torques follow: read once, on the speeds the constants are identified on
+    order = rotor_order([fd.matched(fd.rotor_speeds**2) for fd in final], [fd.dw for fd in final], vehicle.mixer(),
+                        dt=[fd.dt for fd in final], usable=usable.masks)
+    out = _identified(vehicle, final, names, usable, raw, model, lag_s, n_draws, seed, both, order)
     out.identification.rotor_speed_offset = _offset_report(reading, at, ends, terms)
     out.identification.command_lag = None if lag is None else lag.to_dict() | {
         "applied_s": tau, "ends_s": None if tau_ends is None else list(tau_ends), "terms": lag_terms}
@@ -666,9 +670,10 @@ class _Identified:
 
 def _identified(vehicle: Vehicle, fds: Sequence[FlightData], names: list[str], usable: "_Rows",
                 raw: Sequence[np.ndarray], model: str, lag_s: float, n_draws: int, seed: int,
-                offset_terms: dict[str, float] | None = None) -> _Identified:
+                offset_terms: dict[str, float] | None = None, order: RotorOrder | None = None) -> _Identified:
     """:func:`identify` on flights ``fds`` as read (their rotor speeds moved or not), with ``offset_terms`` (name ->
-    the offset's term, in each constant's unit) added to the errors in quadrature."""
+    the offset's term, in each constant's unit) added to the errors in quadrature; ``order``: what the flights say
+    of the rotor columns' order (:func:`~uavturb.sysid.rotor_order.rotor_order`; None: not read)."""
     masks = usable.masks
     rows = _rows(fds, vehicle, masks, usable.near)
     lag = max(1, int(round(lag_s / fds[0].dt)))
@@ -729,8 +734,6 @@ def _identified(vehicle: Vehicle, fds: Sequence[FlightData], names: list[str], u
     for k, term in (offset_terms or {}).items():  # the offsets the commanded speeds' reading leaves open
         errors[k] = float(np.hypot(errors[k], term)) if np.isfinite(term) else errors[k]
     theta_se = np.array([errors[f"theta_{i}"] for i in range(4)])
-    order = rotor_order([fd.matched(fd.rotor_speeds**2) for fd in fds], [fd.dw for fd in fds], vehicle.mixer(),
-                        dt=[fd.dt for fd in fds], usable=masks)
     status = assess(values, errors, ex, conds, has_imu=tr["has_imu"], mass=m, arm_length=l,
                     rotor_radius=vehicle.rotor_radius, jx_equals_jy=chosen == "jx=jy", rotor_order=order)
     return _Identified(Identification(
