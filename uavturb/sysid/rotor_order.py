@@ -4,8 +4,8 @@
 columns come in another order (the motors numbered from another rotor, or the other way round, or PX4's quad-X
 numbering read as numbered round the frame) keeps the thrust right, a sum over the rotors, and makes the torques
 wrong: ``identify`` then reads an inertia many times its physical bound, and a question about the order was all it
-could say (a Neural-Swarm walk's commanded speeds, in vehicle.yaml's order, read 2.9 times the bound and were asked
-about their order). Here the question is answered from the flight: the roll and pitch torques of each order of the
+could say (a Neural-Swarm take-off's commanded speeds, in vehicle.yaml's order, read 2.9 times the bound and were
+asked about their order). Here the question is answered from the flight: the roll and pitch torques of each order of the
 columns (the paper's eq. 1, ``tau = l k_T M w^2``: :meth:`~uavturb.physics.vehicle.Vehicle.mixer`) are correlated
 with the measured angular acceleration about the same axis, and the order whose weaker axis follows best wins.
 
@@ -37,8 +37,9 @@ MIN_FOLLOW = 0.2
 #: rows a comparison needs
 MIN_ROWS = 200
 #: s, how far the recorded rotor speeds may lead (commands, ahead of the rotors by their lag) or trail (measured
-#: speeds logged late) the angular acceleration: each order is read at its best shift within this, in steps of
-#: SHIFT_STEP_S (a Crazyflie's commands follow best 20-30 ms ahead; ESC telemetry arrives 40-80 ms late)
+#: speeds logged late) the angular acceleration: the orders are compared at the shift within this, in steps of
+#: SHIFT_STEP_S, where some order follows best (a Crazyflie's commands follow best 0-30 ms ahead; ESC telemetry
+#: arrives 40-80 ms late)
 MAX_SHIFT_S, SHIFT_STEP_S = 0.15, 0.01
 
 GIVEN, OTHER, UNDECIDED = "vehicle.yaml's", "another", "undecided"
@@ -154,7 +155,8 @@ def rotor_order(w2: Sequence[np.ndarray], dw: Sequence[np.ndarray], mixer: np.nd
     if not read or n < 2:
         return None
     # one shift for all orders, where some order follows best: the streams' timing is the data's, not an order's (each
-    # order at its own best shift, a frame turned half round read 0.57 at a quarter of an oscillation's period)
+    # order at its own best shift, a 67 g take-off's frame turned half round, its torques negated, read 0.57 / 0.58
+    # where the oscillating acceleration had turned round too)
     lead, corr = max(read, key=lambda sc: float(sc[1].min(axis=1).max()))
     score = corr.min(axis=1)  # the weaker axis
     best = 1 + int(np.argmax(score[1:]))
