@@ -127,6 +127,19 @@ def test_the_simulated_commands_and_battery_follow_the_law(loaded_flights):
     assert rec.battery is not None and np.ptp(rec.battery.voltage) > 0.5  # manoeuvres and drain: volts of span
 
 
+def test_the_flight_rows_read_the_battery_stream_once_for_its_voltage_and_noise(loaded_flights, monkeypatch):
+    from uavturb.sysid import flight_data as fd_module
+
+    (rec,) = load_recordings(loaded_flights[:1])
+    reads = []
+    real = fd_module._battery_samples
+    monkeypatch.setattr(fd_module, "_battery_samples", lambda r: reads.append(r) or real(r))
+    fd = fd_module.flight_data(rec)
+    assert len(reads) == 1
+    assert np.array_equal(fd.voltage, battery_voltage(rec, fd.t_ns), equal_nan=True)
+    assert fd.voltage_noise_v2 == battery_voltage_noise(rec, fd.t_ns) > 0
+
+
 def test_the_design_column_is_the_voltage_times_the_thrust(loaded_flights):
     """``k_T*k_V``'s column is ``(V - V_mean) S R e_z`` on every axis of W."""
     report, extras = analyse(load_recordings(loaded_flights), {})

@@ -297,9 +297,9 @@ def flight_data(rec: Recording, *, window_s: float = 0.05, heights: bool = True,
     rows = [("mav0/state_groundtruth_estimate0/data.csv", rec.ground_truth.t_ns), ("mav0/rotors0/data.csv",
                                                                                  rec.rotors.t_ns)]
     covered, gaps = _covered(t_ns, rec.t0_ns, window, rows + streams[2:])
+    battery = _battery_samples(rec)  # read once: the voltage and its noise
     return FlightData(rec.name, t_ns, t, p, q, v, w, acc, rotor, dv, dw, d_down, d_up, window, fresh, covered, gaps,
-                      battery_voltage(rec, t_ns), scan_noise, floor_filled, floor_tilt,
-                      battery_voltage_noise(rec, t_ns))
+                      _voltage_at(battery, t_ns), scan_noise, floor_filled, floor_tilt, _voltage_noise(battery, t_ns))
 
 
 def _battery_samples(rec: Recording) -> tuple[np.ndarray, np.ndarray] | None:
@@ -320,7 +320,11 @@ def battery_voltage(rec: Recording, t_ns: np.ndarray) -> np.ndarray | None:
     """(K,) V, the battery's voltage at ``t_ns`` [ns]: interpolated linearly between the stream's updates where a
     logger repeats them (:func:`_updates`), between its rows otherwise; nan outside its span and where it holds
     no finite voltage. None without a ``battery0`` stream of two rows or more."""
-    samples = _battery_samples(rec)
+    return _voltage_at(_battery_samples(rec), t_ns)
+
+
+def _voltage_at(samples: tuple[np.ndarray, np.ndarray] | None, t_ns: np.ndarray) -> np.ndarray | None:
+    """:func:`battery_voltage` from the stream's samples (:func:`_battery_samples`)."""
     if samples is None:
         return None
     tb, vb = samples
@@ -340,7 +344,11 @@ def battery_voltage_noise(rec: Recording, t_ns: np.ndarray) -> float | None:
     ``(1 - f)^2 + f^2`` of ``s^2`` (linear interpolation: half at the middle). A voltage that changes by less than
     its resolution between samples has second differences of 0 mostly, and reads no noise: its rounding is then
     no error that varies from row to row."""
-    samples = _battery_samples(rec)
+    return _voltage_noise(_battery_samples(rec), t_ns)
+
+
+def _voltage_noise(samples: tuple[np.ndarray, np.ndarray] | None, t_ns: np.ndarray) -> float | None:
+    """:func:`battery_voltage_noise` from the stream's samples (:func:`_battery_samples`)."""
     if samples is None or len(samples[0]) < 4:
         return None
     tb, vb = (np.asarray(x, float) for x in samples)
