@@ -61,6 +61,14 @@ def test_rotors_moved_alike_leave_the_order_among_them_open():
     assert found.verdict == OTHER and found.alike >= 1
     assert found.sentence().startswith("the rotor columns are in another order than vehicle.yaml's angles, which the "
                                        f"flight does not tell: {found.alike + 1} orders'")
+    # an inertia read above its bound does not name an order either
+    est = {"k_T": 8.5e-6, "k_M": 1.4e-7, "J_x": 2.28, "J_y": 0.046, "J_z": 0.098, "theta_0": 5.7e-6,
+           "theta_1": 0.215 * 8.5e-6 / 2.28, "theta_2": 1.4e-6, "theta_3": 2.8, "accel_bias": np.zeros(3)}
+    se = {k: (np.full(3, 0.001) if k == "accel_bias" else 0.001 * abs(v)) for k, v in est.items()}
+    st = idf.assess(est, se, {a: idf.AxisExcitation(0.3, 1.0, 0.99) for a in idf.AXES}, {}, has_imu=True,
+                    rotor_order=found, mass=1.5, arm_length=0.215, rotor_radius=0.1, jx_equals_jy=False)
+    assert st["theta_1"].reason == idf.OUT_OF_ORDER
+    assert "times it: rotor columns out of order, which order the flight does not tell)" in st["theta_1"].why
 
 
 def test_each_order_is_read_at_the_shift_where_its_torques_follow():

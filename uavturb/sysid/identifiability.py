@@ -265,7 +265,7 @@ def _why_too_large(times: float, ex: AxisExcitation, order: RotorOrder | None = 
     it says: columns in another order, named; or vehicle.yaml's order, beside what noise in the rotor-torque column
     allows (:func:`_share`: the slope under the estimate by up to ``1 / share``, the inertia over it as much). A
     Neural-Swarm take-off read 2.9 times the bound, its share allowing 2.8 times, and had been asked whether its
-    columns were in another order: its order leads the best of the 23 others by 0.5 in correlation.
+    columns were in another order: its order leads the best of the 23 others by 0.7 in correlation.
 
     Where it does not tell: the column's noise where its share of the variance allows that much, else rotor columns
     in another order than the angles; both where the column carries almost nothing (under :data:`SHARE_TELLS`),
@@ -274,8 +274,9 @@ def _why_too_large(times: float, ex: AxisExcitation, order: RotorOrder | None = 
     times it, its share under 1 %."""
     s = ex.share
     noise_allows = bool(np.isfinite(s) and s < SHARE_MIN and times <= 1.0 / max(s, 1e-3))
-    if order is not None and order.verdict == OTHER_ORDER:  # the finding OUT_OF_ORDER says which order
-        return f"{times:.2g} times it: rotor columns out of order, read as {order.columns()}"
+    if order is not None and order.verdict == OTHER_ORDER:  # the finding OUT_OF_ORDER says what the flight tells
+        which = "which order the flight does not tell" if order.alike else f"read as {order.columns()}"
+        return f"{times:.2g} times it: rotor columns out of order, {which}"
     if order is not None and order.verdict == GIVEN_ORDER:
         noise = (f"within what noise in the recorded rotor speeds does to the slope (up to {1 / s:.2g} times)"
                  if noise_allows else
