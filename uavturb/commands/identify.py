@@ -20,6 +20,7 @@ from uavturb.sysid.flight_data import flight_data, rotor_repeats
 from uavturb.sysid.identification import Identification, identify
 from uavturb.sysid.residuals import Residuals, residual_forces, write_residuals
 from uavturb.sysid.rotor_order import OTHER as OTHER_ORDER
+from uavturb.sysid.rotor_order import REORDER
 from uavturb.sysid.streams import needed_rate_hz, slow_for, stream_updates
 
 
@@ -44,9 +45,8 @@ def rotor_order_warning(ident: Identification) -> str | None:
     if order is None or order.verdict != OTHER_ORDER:
         return None
     fix = ("check which column holds which rotor (a flight with roll and pitch manoeuvres tells more orders apart)"
-           if order.alike else "give vehicle.yaml's rotor_angles_deg and rotor_directions in the order of the "
-           "columns of rotors0, or import the log again with its rotors in vehicle.yaml's order (`uavturb import ulog "
-           "--motor-order`: each rotor the output its column above was read from)")
+           if order.alike else f"{REORDER}, or import the log again with its rotors in vehicle.yaml's order (`uavturb "
+           "import ulog --motor-order`: each rotor the output its column above was read from)")
     return f"{order.sentence()}: {fix}; the torques and inertias here are read in vehicle.yaml's order"
 
 

@@ -55,7 +55,7 @@ from scipy.ndimage import uniform_filter1d
 
 from uavturb.sysid.rotor_order import GIVEN as GIVEN_ORDER
 from uavturb.sysid.rotor_order import OTHER as OTHER_ORDER
-from uavturb.sysid.rotor_order import RotorOrder
+from uavturb.sysid.rotor_order import REORDER, RotorOrder
 
 #: s, moving-average window before measuring excitation (removes noise, keeps manoeuvres < 5 Hz)
 LOWPASS_S = 0.2
@@ -159,7 +159,7 @@ class ParameterStatus:
         """What would determine it: the manoeuvre, or the vehicle.yaml key that can stand in (the rotor angles in the
         columns' order, for columns out of order)."""
         if self.reason == OUT_OF_ORDER:
-            return "give vehicle.yaml's rotor_angles_deg and rotor_directions in the order of rotors0's columns"
+            return REORDER
         p = PARAMETERS[self.name]
         return f"{p['manoeuvre']} or give {p['key']} in vehicle.yaml" if p["key"] else p["manoeuvre"]
 

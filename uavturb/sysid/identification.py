@@ -64,9 +64,9 @@ from uavturb.sysid.identifiability import (
     column_share,
 )
 from uavturb.sysid.least_squares import lstsq
-from uavturb.sysid.rotor_order import RotorOrder, rotor_order
 from uavturb.sysid.nominal import (SpeedOffset, moved_speeds, offset_cells, speed_offset,
                                      stated_offset)
+from uavturb.sysid.rotor_order import RotorOrder, rotor_order
 
 
 @dataclass

@@ -43,6 +43,8 @@ MIN_ROWS = 200
 MAX_SHIFT_S, SHIFT_STEP_S = 0.15, 0.01
 
 GIVEN, OTHER, UNDECIDED = "vehicle.yaml's", "another", "undecided"
+#: what mends columns in another order (the constants' advice and the commands' warning say it alike)
+REORDER = "give vehicle.yaml's rotor_angles_deg and rotor_directions in the order of rotors0's columns"
 
 
 @dataclass(frozen=True)
