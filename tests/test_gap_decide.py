@@ -439,6 +439,9 @@ def test_effect_sets_fitted_side_by_side_in_forked_processes_give_the_same_selec
         (s.heldout_before, s.heldout_after) for s in plain.steps]
     every = {e for _, e in here}
     assert len(in_parent) < len(every) and len(in_parent) == len(set(in_parent))  # each set fitted once
+    # the children send residuals only: every set's held-out errors refer to the parent's one copy of the test rows
+    held = list(forked.known._heldout.values())
+    assert len(held) == len(every) and all(h.t is held[0].t and h.blocks is held[0].blocks for h in held)
 
 
 def test_a_candidate_held_back_at_one_step_comes_back_at_a_later_one():

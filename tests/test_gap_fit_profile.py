@@ -148,3 +148,12 @@ def test_folds_fitted_together_are_the_fits_on_each_folds_rows(recordings):
     apart = np.concatenate(apart)
     assert together.resid.shape == apart.shape == (sum(int(te.sum()) for _, te in masks), 3)
     assert np.allclose(together.resid, apart, rtol=1e-7, atol=1e-9 * np.abs(apart).max())
+    # the test rows' times, recordings and 1 s blocks, in fold order, held once for every effect set (memory)
+    test_t = np.concatenate([data.t[te] for _, te in masks])
+    test_g = np.concatenate([data.group[te] for _, te in masks])
+    assert np.array_equal(together.t, test_t) and np.array_equal(together.group, test_g)
+    assert np.array_equal(together.blocks, test_g * 100000 + np.floor(test_t).astype(int))
+    fits = FoldFits(data, masks)
+    one, other = fits.heldout(effects), fits.heldout(frozenset({"ground_effect"}))
+    assert other.t is one.t and other.group is one.group and other.blocks is one.blocks
+    assert np.array_equal(one.resid, together.resid) and not np.array_equal(other.resid, one.resid)

@@ -36,6 +36,27 @@ def test_read_csv_any_header_and_no_header(tmp_path):
         assert t.tolist() == [10, 20] and x[:, 0].tolist() == [1.0, 2.0]
 
 
+def test_a_file_read_in_many_blocks_is_the_file_read_in_one(tmp_path, monkeypatch):
+    """Blocks of whole lines (:data:`euroc_csv.BLOCK_BYTES`, 2 MB): with blocks of 100 bytes, rows cut at every
+    block's end, a header, comments and blank lines between rows give the same rows and line numbers as one
+    block, and a bad value in a later block is named at its line."""
+    rows = [f"{T0 + 10 * k}, {0.25 * k:.6f}, {-1.5 * k:.3e}" for k in range(400)]
+    rows[37:37] = ["# a comment in the middle", ""]
+    path = write(tmp_path, "#timestamp [ns], a, b\n" + "\n".join(rows) + "\n")
+    whole = euroc_csv.read_csv(path, 3, "test", return_lines=True)
+    monkeypatch.setattr(euroc_csv, "BLOCK_BYTES", 100)
+    cut = euroc_csv.read_csv(path, 3, "test", return_lines=True)
+    assert len(whole[0]) == 400 and whole[2][[0, 36, 37, 399]].tolist() == [2, 38, 41, 403]
+    for a, b in zip(whole, cut):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(cut[1][:, 0], 0.25 * np.arange(400))
+    bad = path.read_text().splitlines()
+    bad[300] = bad[300].replace(", ", ", x", 1)
+    path.write_text("\n".join(bad) + "\n")
+    with pytest.raises(InputError, match="line 301, column 2: expected a number"):
+        euroc_csv.read_csv(path, 3, "test")
+
+
 def test_read_csv_infers_column_count(tmp_path):
     t, x = euroc_csv.read_csv(write(tmp_path, "#h\n1,2,3,4\n2,5,6,7\n"), None)
     assert x.shape == (2, 3)

@@ -174,6 +174,54 @@ def test_gap_data_releasing_its_flights_builds_the_same_rows():
     np.testing.assert_array_equal(released.S_lag(0.03), kept.S_lag(0.03))
 
 
+def test_gap_data_lets_go_of_what_its_rows_no_longer_read_of_the_contiguous_flights():
+    """Once the rows are built, the contiguous flights keep what is read of them: the motor lag's times, recordings
+    and rotor speeds, and the simulator's own effects' attitudes, velocities and heights unless no effect is
+    simulated (``sim_forces=False``). The rows, and the lagged sums on moved speeds, are the same either way."""
+    rec, _ = _bobbing()
+    fds = [flight_data(rec, window_s=0.3), flight_data(rec, window_s=0.3)]
+    sim = gap_data(list(fds), HEXAROTOR.mass, HEXAROTOR.rotor_radius, k_T_guess=HEXAROTOR.thrust_coefficient)
+    bare = gap_data(fds, HEXAROTOR.mass, HEXAROTOR.rotor_radius, k_T_guess=HEXAROTOR.thrust_coefficient,
+                    sim_forces=False)
+    assert bare.block_of is not None and len(bare) == len(sim) > 100  # 200 Hz samples in 25 Hz block means
+    for name in ("group", "t", "p", "y", "R", "rotor_speeds", "v", "d_down", "d_up", "imu"):
+        np.testing.assert_array_equal(getattr(bare, name), getattr(sim, name))
+    for full in (sim.contiguous, bare.contiguous):
+        assert full.p is None and full.y is None and full.imu is None and full.voltage_dev is None
+        assert len(full) == 2 * len(fds[0]) and full.rotor_speeds.shape == (len(full), 6)
+    assert sim.contiguous.R.shape == (len(sim.contiguous), 3, 3) and sim.contiguous.d_down is not None
+    assert bare.contiguous.R is None and bare.contiguous.v is None and bare.contiguous.d_down is None
+    np.testing.assert_array_equal(bare.S_lag(0.03), sim.S_lag(0.03))
+    moved_bare, moved_sim = bare.with_speed_offset(40.0, 450.0), sim.with_speed_offset(40.0, 450.0)
+    np.testing.assert_array_equal(moved_bare.S_lag(0.03), moved_sim.S_lag(0.03))
+    assert not np.array_equal(moved_bare.S_lag(0.03), bare.S_lag(0.03))
+
+
+def test_block_means_known_answer():
+    """Rows as means of consecutive kept samples of one recording, rotor speeds as their root mean square: two
+    blocks of two in the first recording (a dropped sample starts a new one), one of one in the second."""
+    from uavturb.gap.design import GapData, block_means
+
+    n = 6
+    group = np.array([0, 0, 0, 0, 0, 1])
+    t = np.arange(n) * 0.01
+    R = np.stack([np.eye(3) * (k + 1) for k in range(n)])
+    w = np.array([[3.0, 1.0], [4.0, 1.0], [0.0, 2.0], [1.0, 2.0], [7.0, 7.0], [5.0, 6.0]])
+    full = GapData(group, t, np.arange(3 * n, dtype=float).reshape(n, 3), np.ones((n, 3)), R, w, np.zeros((n, 3)),
+                   np.array([0.1, 0.2, np.inf, 0.4, 0.5, 0.6]), np.full(n, np.inf), 1.0, 0.1, ["a", "b"], "mocap",
+                   imu=np.zeros(n, bool))
+    keep = np.array([True, True, False, True, True, True])
+    blocks = block_means(full, keep, 2)
+    np.testing.assert_array_equal(blocks.group, [0, 0, 1])
+    np.testing.assert_allclose(blocks.t, [0.005, 0.035, 0.05])
+    np.testing.assert_allclose(blocks.R, [np.eye(3) * 1.5, np.eye(3) * 4.5, np.eye(3) * 6.0])
+    np.testing.assert_allclose(blocks.rotor_speeds, [[np.sqrt(12.5), 1.0], [5.0, np.sqrt(26.5)], [5.0, 6.0]])
+    np.testing.assert_allclose(blocks.p[0], [1.5, 2.5, 3.5])
+    np.testing.assert_allclose(blocks.d_down, [0.15, 0.45, 0.6])
+    np.testing.assert_array_equal(blocks.rows, [0, 1, 3, 4, 5])
+    np.testing.assert_array_equal(blocks.block_of, [0, 0, 1, 1, 2])
+
+
 def test_a_quantised_steady_hover_is_read_as_recorded_not_between_its_changes():
     """Rotor speeds rounded to 1 rad/s: a 6 s hover at a true 147.7 rad/s reads 148 on every row, between changes
     one step at a time before it and one to 149 after. Across that gap, far longer than the stream's others, the

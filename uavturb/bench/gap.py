@@ -10,7 +10,7 @@ analysis grows. Without recordings, two flights of
 Figures per flight-hour come from two measurements on the same recordings: whole, and cut to their
 first half in time (every stream at the same instant, same held-out protocol). The line through the
 two, in rows analysed, is carried to an hour at 200 Hz (720,000 rows): what does not grow with the
-flight (start-up, the reader's blocks of at most 16 MB, fits over a few columns) stays out of the
+flight (start-up, the reader's blocks of at most 2 MB, fits over a few columns) stays out of the
 slope, where scaling one measurement in proportion had counted it once per five minutes. The same line
 is drawn through the child's CPU seconds (``time.process_time``): on a shared machine wall time varies
 by a third between runs of the same code, CPU time far less. Per-recording work runs on up to

@@ -336,7 +336,7 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
              min_thrust_ratio: float = 0.3, k_T_guess: float | None = None,
              height_window_s: float = 0.3, exclude: list[np.ndarray] | None = None,
              anchor_bias: bool = True, arm_length: float = float("nan"), rate_hz: float | None = RATE_HZ,
-             release: bool = False, masses: Sequence[float] | None = None) -> GapData:
+             release: bool = False, masses: Sequence[float] | None = None, sim_forces: bool = True) -> GapData:
     """Stack flights into :class:`GapData`, keeping samples in flight (not resting on a surface).
 
     ``mass`` [kg] is the vehicle's (ranges, the accelerometer bias's columns); ``masses`` [kg], one per flight where
@@ -362,6 +362,11 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     what the rows do not keep of it (attitudes, rates, derivatives, the IMU) is freed before the columns are
     joined: building a flight-hour in twelve recordings peaked 92 MB lower (the whole analysis 48 MB). The caller's
     list is left holding None.
+
+    The contiguous flights keep only what is read of them once the rows are built (:func:`_slimmed`): the motor
+    lag's times, recordings and rotor speeds, and with ``sim_forces`` (default) what the simulator's own effects are
+    computed on at full rate (attitudes, velocities, heights). ``sim_forces=False`` where the simulator models no
+    effect.
     """
     parts, anchored, names, voltage_means, voltage_noise = [], {}, [f.name for f in flights], {}, {}
     for g, fd in enumerate(flights):
@@ -413,11 +418,21 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     if not fresh.any():  # nothing in flight: the caller says so in one line
         return full.subset(fresh)
     dense = full.subset(keep) if n <= 1 else block_means(full, keep, n)
-    if np.array_equal(fresh, keep):
-        return dense
-    data = full.subset(fresh) if n <= 1 else block_means(full, fresh, n)
-    data.dense = dense
+    data = dense if np.array_equal(fresh, keep) else full.subset(fresh) if n <= 1 else block_means(full, fresh, n)
+    if data is not dense:
+        data.dense = dense
+    _slimmed(full, sim_forces)
     return data
+
+
+def _slimmed(full: GapData, sim_forces: bool) -> None:
+    """Let go of the columns of the contiguous flights ``full`` that nothing reads once the rows are built (their
+    own copies, block means or subsets, are made): the positions, forces, IMU flags and voltages always; the
+    attitudes, velocities and heights unless ``sim_forces`` (:func:`uavturb.gap.finder`'s simulator offset reads
+    them at full rate). The motor lag reads the times, recordings and rotor speeds (:meth:`GapData.S_lag`)."""
+    full.p = full.y = full.imu = full.voltage_dev = None
+    if not sim_forces:
+        full.R = full.v = full.d_down = full.d_up = None
 
 
 #: share of a recording's rows in flight that its battery stream must cover for the voltage to be read
@@ -464,16 +479,19 @@ def block_means(full: GapData, keep: np.ndarray, n: int) -> GapData:
     K = int(block_of.max()) + 1
     counts = np.bincount(block_of, minlength=K).astype(float)
 
-    def mean(x: np.ndarray) -> np.ndarray:
-        v = np.asarray(x, float)[idx].reshape(len(idx), -1)
-        out = np.stack([np.bincount(block_of, weights=v[:, j], minlength=K) for j in range(v.shape[1])], 1)
+    def mean(x: np.ndarray, power: int = 1) -> np.ndarray:
+        # one column at a time: the kept samples of a flight-hour's attitudes alone are 52 MB
+        v = np.asarray(x, float).reshape(len(x), -1)
+        out = np.empty((K, v.shape[1]))
+        for j in range(v.shape[1]):
+            out[:, j] = np.bincount(block_of, weights=v[idx, j] ** power if power != 1 else v[idx, j], minlength=K)
         return (out / counts[:, None]).reshape((K,) + np.shape(x)[1:])
 
     with np.errstate(invalid="ignore"):
         d_down, d_up = mean(full.d_down), mean(full.d_up)
     group = full.group[idx][np.unique(block_of, return_index=True)[1]]
     data = GapData(group, mean(full.t), mean(full.p), mean(full.y), mean(full.R),
-                   np.sqrt(mean(full.rotor_speeds**2)), mean(full.v), np.where(np.isnan(d_down), np.inf, d_down),
+                   np.sqrt(mean(full.rotor_speeds, power=2)), mean(full.v), np.where(np.isnan(d_down), np.inf, d_down),
                    np.where(np.isnan(d_up), np.inf, d_up), full.mass, full.rotor_radius, full.names, full.source,
                    None if full.imu is None else mean(full.imu) > 0.5, full.fits_bias, None, full, idx,
                    block_of, full.anchored, full.arm_length,

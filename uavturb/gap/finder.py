@@ -399,7 +399,7 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
     paths = [str(r.path) if r.path else r.name for r in recordings]
     progress("aligning the streams")
     recordings, fds, held = prepared(recordings, paths)
-    data, contact_report, landed = _flight_rows(fds, [r.vehicle for r in recordings], paths)
+    data, contact_report, landed = _flight_rows(fds, [r.vehicle for r in recordings], paths, sim_forces=bool(sim))
     # emptied as the rows were built; what they keep lives on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
     del fds
     if len(data) < MIN_ANALYSIS_ROWS and data.dense is not None:
@@ -612,14 +612,15 @@ def _check_thrust_scale(fd: Any, vehicle: Any, path: str) -> None:
                                 "coefficient or mass off")
 
 
-def _flight_rows(fds: list, vehicles: Sequence[Any], paths: Sequence[str]
+def _flight_rows(fds: list, vehicles: Sequence[Any], paths: Sequence[str], *, sim_forces: bool = True
                  ) -> tuple[GapData, list[dict[str, Any]], LandedHeights]:
     """The flights' rows in the air (ground contact found and left out), the report's ``ground_contact`` and the
     recordings' landed heights, each flight's heights moved so that they land at one
     (:func:`~uavturb.gap.preparation.landings_aligned`), and its forces with its own vehicle.yaml's mass
     (``vehicles``, one per flight: one vehicle, io.reader checks, whose batteries may weigh differently). Rotor
     speeds at odds with vehicle.yaml's thrust coefficient are refused (:func:`_check_thrust_scale`). ``fds`` is
-    emptied as the rows are built (its places set to None: :func:`~uavturb.gap.design.gap_data`'s ``release``)."""
+    emptied as the rows are built (its places set to None: :func:`~uavturb.gap.design.gap_data`'s ``release``);
+    ``sim_forces``: the simulator models effects, computed on the flights at full rate (``gap_data``'s)."""
     for fd, vehicle_of, path in zip(fds, vehicles, paths):
         if vehicle_of.thrust_coefficient:
             _check_thrust_scale(fd, vehicle_of, path)
@@ -629,7 +630,8 @@ def _flight_rows(fds: list, vehicles: Sequence[Any], paths: Sequence[str]
     masses = [v.mass for v in vehicles]
     torque = _torques_timed(fds, vehicle, contact)
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient, release=True,
-                    arm_length=vehicle.arm_length, exclude=contact, masses=None if len(set(masses)) == 1 else masses)
+                    arm_length=vehicle.arm_length, exclude=contact, masses=None if len(set(masses)) == 1 else masses,
+                    sim_forces=sim_forces)
     data.torque_lag = torque
     return data, contact_report, landed
 

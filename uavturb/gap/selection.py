@@ -149,20 +149,26 @@ class FoldFits:
         self.pieces = [np.flatnonzero(label == p) for p in range(len(patterns))]
         self.uses = [np.ascontiguousarray(patterns[:, f]) for f in range(train.shape[1])]
         self.tests = [data.subset(te) for _, te in fold_masks]
+        # the test rows' 1 s blocks, times and recordings, the same for every effect set: one copy that each
+        # :class:`HeldOut` refers to (a flight-hour in twelve recordings kept 40 MB of copies of them)
+        self._blocks = np.concatenate([te.group * 100000 + np.floor(te.t).astype(int) for te in self.tests])
+        self._t = np.concatenate([te.t for te in self.tests])
+        self._group = np.concatenate([te.group for te in self.tests])
         # the dependent columns' sums that the effect sets' profiles share (:class:`~uavturb.gap.fit.Profile`)
         self._shared: dict = {}
 
     def heldout(self, effects: frozenset[str], fixed: dict[str, float] | None = None) -> HeldOut:
         """Held-out residuals of the model with ``effects`` (nonlinear parameters in ``fixed`` held)."""
         prof = Profile(self.data, frozenset(effects), stack_target(self.data.y), self.pieces, self._shared)
-        errs, blocks, ts, gs = [], [], [], []
+        errs = []
         for use, te in zip(self.uses, self.tests):
             fit = prof.fit(search_nonlinear(prof, frozenset(effects), fixed, use), use)
             errs.append(fit.residual(te))
-            blocks.append(te.group * 100000 + np.floor(te.t).astype(int))
-            ts.append(te.t)
-            gs.append(te.group)
-        return HeldOut(np.concatenate(errs), np.concatenate(blocks), np.concatenate(ts), np.concatenate(gs))
+        return self.held_out(np.concatenate(errs))
+
+    def held_out(self, resid: np.ndarray) -> HeldOut:
+        """The :class:`HeldOut` of the residuals ``resid`` (K, 3) [N] on the folds' test rows (in fold order)."""
+        return HeldOut(resid, self._blocks, self._t, self._group)
 
 
 #: s, block lengths over which the spread of the held-out gain is estimated (the most
@@ -837,7 +843,9 @@ class _Known:
         if self._pool is None:
             self._fold_fits()  # the children inherit the folds' pieces
             self._pool = ForkedPool(self)
-        self._heldout.update(self._pool.map(_heldout_in_child, todo))
+        # the children send the residuals only; the test rows' blocks, times and recordings are this process's
+        folds = self._fold_fits()
+        self._heldout.update({k: folds.held_out(r) for k, r in self._pool.map(_heldout_in_child, todo).items()})
 
     def release(self) -> None:
         """Shut down the processes :meth:`prefetch` forked (a later prefetch forks new ones)."""
@@ -853,9 +861,10 @@ class _Known:
         return self._fit[key]
 
 
-def _heldout_in_child(effects: frozenset[str]) -> HeldOut:
-    """In a child of :meth:`_Known.prefetch`: the held-out errors of ``effects`` on the forking selection's data."""
-    return forked_state().heldout(effects)
+def _heldout_in_child(effects: frozenset[str]) -> np.ndarray:
+    """In a child of :meth:`_Known.prefetch`: the held-out residuals (K, 3) [N] of ``effects`` on the forking
+    selection's data."""
+    return forked_state().heldout(effects).resid
 
 
 def finish(data: GapData, base: frozenset[str], steps: list[Step], *, offset: np.ndarray | None = None,
