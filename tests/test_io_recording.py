@@ -223,6 +223,32 @@ def test_slerp_recovers_constant_rate_rotation():
     assert np.allclose(quat.to_rotation_matrix(out), quat.to_rotation_matrix(q_at(t_dst)), atol=1e-9)
 
 
+def test_slerp_in_chunks_is_slerp_whole(monkeypatch):
+    """:func:`quat.slerp` interpolates ``SLERP_CHUNK`` destination rows at a time (memory): each row is what it is
+    interpolated whole, to the bit, with chunks cutting anywhere (and times clamped at both ends)."""
+    rng = np.random.default_rng(4)
+    t_src, q_src = np.sort(rng.uniform(0.0, 10.0, 300)), rng.normal(size=(300, 4))
+    t_dst = np.sort(rng.uniform(-0.5, 10.5, 1001))
+    whole = quat.slerp(t_src, q_src, t_dst)
+    monkeypatch.setattr(quat, "SLERP_CHUNK", 7)
+    np.testing.assert_array_equal(quat.slerp(t_src, q_src, t_dst), whole)
+    np.testing.assert_allclose(np.linalg.norm(whole, axis=1), 1.0, rtol=1e-12)
+    np.testing.assert_array_equal(whole[0], quat.make_continuous(quat.normalize(q_src))[0])  # clamped: the first
+    assert quat.slerp(t_src, q_src, np.zeros(0)).shape == (0, 4)
+
+
+def test_rotation_matrices_any_leading_shape():
+    """``R(q)`` of one quaternion, of a series and of a grid of them: the same matrices, orthonormal, z_B of a
+    half turn about x pointing down."""
+    q = np.random.default_rng(5).normal(size=(5, 6, 4))
+    R = quat.to_rotation_matrix(q)
+    assert R.shape == (5, 6, 3, 3) and quat.to_rotation_matrix(q[2, 3]).shape == (3, 3)
+    np.testing.assert_array_equal(quat.to_rotation_matrix(q[2, 3]), R[2, 3])
+    np.testing.assert_array_equal(quat.to_rotation_matrix(q.reshape(-1, 4)).reshape(5, 6, 3, 3), R)
+    np.testing.assert_allclose(np.einsum("...ji,...jk->...ik", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+    np.testing.assert_allclose(quat.to_rotation_matrix([0.0, 1.0, 0.0, 0.0])[:, 2], [0.0, 0.0, -1.0], atol=1e-15)
+
+
 def test_overlap():
     a = np.array([0, 10, 20], dtype=np.int64)
     assert align.overlap(a, np.array([5, 30])) == (5, 20)

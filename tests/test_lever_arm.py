@@ -60,6 +60,20 @@ def test_a_lever_arm_left_out_of_t_bs_is_read_from_the_rotation(flights, tmp_pat
     assert found.stderr_m[2] < 0.005  # roll and pitch accelerations pin the vertical component to millimetres
 
 
+def test_the_lever_arm_built_in_chunks_is_the_one_built_whole(flights, monkeypatch):
+    """The regressors are built ``DESIGN_CHUNK`` rows at a time into the kept rows' arrays (memory): any chunk size
+    reads the same lever arm, errors and rows, to the bit."""
+    from uavturb.sysid import lever_arm as module
+
+    fd = flight_data(read_recording(flights[0]))
+    whole = lever_arm(fd)
+    monkeypatch.setattr(module, "DESIGN_CHUNK", 997)
+    cut = lever_arm(fd)
+    assert whole.rows == cut.rows > 10_000 and whole.accel_rms == cut.accel_rms and whole.decisive == cut.decisive
+    np.testing.assert_array_equal(whole.r_m, cut.r_m)
+    np.testing.assert_array_equal(whole.stderr_m, cut.stderr_m)
+
+
 def test_moving_the_origin_back_gives_the_recording_with_its_lever_arm(flights, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(flights[0], copy)

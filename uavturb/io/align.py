@@ -46,7 +46,9 @@ def interpolate(t_src_ns: np.ndarray, values: np.ndarray, t_dst_ns: np.ndarray) 
     if values.ndim == 1:
         return np.interp(t_dst, t_src, values)
     flat = values.reshape(len(values), -1)
-    out = np.stack([np.interp(t_dst, t_src, flat[:, j]) for j in range(flat.shape[1])], axis=1)
+    out = np.empty((len(t_dst), flat.shape[1]))
+    for j in range(flat.shape[1]):  # into one array (a list of columns stacked had held the output twice)
+        out[:, j] = np.interp(t_dst, t_src, flat[:, j])
     return out.reshape((len(t_dst),) + values.shape[1:])
 
 

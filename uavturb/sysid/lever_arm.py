@@ -109,24 +109,40 @@ def _per_metre(omega_B: np.ndarray, alpha_B: np.ndarray) -> np.ndarray:
     return np.stack(columns, axis=2)
 
 
-def _design(fd: FlightData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The rows' regressors (K, 2, 7) and specific force along x_B and y_B (K, 2) [m/s^2], and the rotation's
-    accelerations per metre of lever arm (K, 3, 3): unknowns ``r`` (3), a constant per axis (2) and rotor drag
-    along each (2)."""
-    R = quat.to_rotation_matrix(fd.q)  # B to W
-    if fd.acc is not None:
-        f = fd.acc
-    else:
-        f = np.einsum("kji,kj->ki", R, fd.dv + np.array([0.0, 0.0, GRAVITY]))
-    v_B = np.einsum("kji,kj->ki", R, fd.v)
-    w_sum = fd.rotor_speeds.sum(axis=1)
-    L = _per_metre(fd.w, fd.dw)  # alpha x r + omega x (omega x r) = L r
-    X = np.zeros((len(f), 2, 7))
-    X[:, :, 0:3] = L[:, 0:2]
-    X[:, 0, 3] = X[:, 1, 4] = 1.0
-    X[:, 0, 5] = w_sum * v_B[:, 0]
-    X[:, 1, 6] = w_sum * v_B[:, 1]
-    return X, f[:, 0:2], L
+#: rows whose regressors are built at once: a 10^6-row recording's, built whole and copied twice, peaked 426 MB above
+#: its flight data; a chunk's temporaries (attitudes, accelerations per metre) stay small, the kept rows' design grows
+DESIGN_CHUNK = 1 << 16
+
+
+def _design(fd: FlightData, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The regressors (K', 2, 7) and specific force along x_B and y_B (K', 2) [m/s^2] of the rows ``rows`` (K,) bool
+    where they are finite, the z_B column of the rotation's accelerations per metre of lever arm (K', 3) and those
+    rows' indices (K',): unknowns ``r`` (3), a constant per axis (2) and rotor drag along each (2). Built
+    :data:`DESIGN_CHUNK` rows at a time into arrays for the kept rows only (each row's values as built whole)."""
+    n = int(rows.sum())
+    X, f_xy, L_z, kept = np.empty((n, 2, 7)), np.empty((n, 2)), np.empty((n, 3)), np.empty(n, np.int64)
+    done = 0
+    for a in range(0, len(rows), DESIGN_CHUNK):
+        part = np.flatnonzero(rows[a:a + DESIGN_CHUNK]) + a
+        R = quat.to_rotation_matrix(fd.q[part])  # B to W
+        if fd.acc is not None:
+            f = fd.acc[part]
+        else:
+            f = np.einsum("kji,kj->ki", R, fd.dv[part] + np.array([0.0, 0.0, GRAVITY]))
+        v_B = np.einsum("kji,kj->ki", R, fd.v[part])
+        w_sum = fd.rotor_speeds[part].sum(axis=1)
+        L = _per_metre(fd.w[part], fd.dw[part])  # alpha x r + omega x (omega x r) = L r
+        x = np.zeros((len(part), 2, 7))
+        x[:, :, 0:3] = L[:, 0:2]
+        x[:, 0, 3] = x[:, 1, 4] = 1.0
+        x[:, 0, 5] = w_sum * v_B[:, 0]
+        x[:, 1, 6] = w_sum * v_B[:, 1]
+        finite = np.isfinite(x).all(axis=(1, 2)) & np.isfinite(f).all(axis=1) & np.isfinite(L).all(axis=(1, 2))
+        k = int(finite.sum())
+        X[done:done + k], f_xy[done:done + k], L_z[done:done + k] = x[finite], f[finite, 0:2], L[finite, :, 2]
+        kept[done:done + k] = part[finite]
+        done += k
+    return X[:done], f_xy[:done], L_z[:done], kept[:done]
 
 
 def _block_sums(X: np.ndarray, y: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -156,23 +172,22 @@ def lever_arm(fd: FlightData) -> LeverArm | None:
     rows = S >= FLIGHT_SHARE * np.percentile(S, 95)  # in the air: on the gear the floor pushes back
     if fd.covered is not None:
         rows &= fd.covered
-    X, f, L = _design(fd)
-    X, f, L, t = X[rows], f[rows], L[rows], fd.t[rows]
-    finite = np.isfinite(X).all(axis=(1, 2)) & np.isfinite(f).all(axis=1) & np.isfinite(L).all(axis=(1, 2))
-    X, f, L, t = X[finite], f[finite], L[finite], t[finite]
+    X, f, L_z, kept = _design(fd, rows)
+    t = fd.t[kept]
     labels = block_labels(t, BLOCK_S) if len(t) else np.zeros(0, np.int64)
     if len(np.unique(labels)) < MIN_BLOCKS:
         return None
-    scale = np.abs(X).reshape(-1, X.shape[-1]).max(axis=0)
+    # the largest magnitude of each regressor (without a copy of them all in absolute values)
+    scale = np.maximum(X.max(axis=(0, 1)), -X.min(axis=(0, 1)))
     scale[scale == 0] = 1.0
-    X = X / scale
+    X /= scale
     xtx, xty = _block_sums(X, f, labels)  # the whole fit and each delete-one fit from the blocks' sums
     A, b = xtx.sum(axis=0), xty.sum(axis=0)
     beta = np.linalg.lstsq(A, b, rcond=None)[0]
     left_out = np.stack([np.linalg.lstsq(A - xtx[k], b - xty[k], rcond=None)[0] for k in range(len(xtx))])
     beta, se = beta / scale, jackknife_se(left_out) / scale
     r, r_se = beta[:3], se[:3]
-    accel = L[:, :, 2] * r[2]  # the height's part, on all three axes
+    accel = L_z * r[2]  # the height's part, on all three axes
     rms = float(np.sqrt(np.mean(np.sum(accel**2, axis=1))))
     z = abs(r[2]) / r_se[2] if r_se[2] > 0 else 0.0
     return LeverArm(r, r_se, rms, int(len(t)),
