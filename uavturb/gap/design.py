@@ -103,7 +103,8 @@ class GapData:
         against motion capture, :mod:`uavturb.sysid.nominal`, or there is no IMU)
     level : (K,) -, thrust level of each row's recording (:func:`uavturb.sysid.nominal.thrust_levels`;
         None: all 1)
-    contiguous : the flights before rows were dropped (motor lag needs contiguous rows), and
+    contiguous : the flights before rows were dropped (motor lag needs contiguous rows), holding only the columns
+        read of them once the rows are built (the others None: :func:`_slimmed`), and
     rows : (K,) int, the indices of these rows in ``contiguous``; where rows are block means of
         consecutive samples (:func:`gap_data`'s ``rate_hz``), the indices of every member sample, and
     block_of : (M,) int, the row each member sample belongs to (None: one sample a row)
