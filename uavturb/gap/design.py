@@ -419,8 +419,9 @@ def gap_data(flights: list[FlightData], mass: float, rotor_radius: float, *, sou
     if not fresh.any():  # nothing in flight: the caller says so in one line
         return full.subset(fresh)
     dense = full.subset(keep) if n <= 1 else block_means(full, keep, n)
-    data = dense if np.array_equal(fresh, keep) else full.subset(fresh) if n <= 1 else block_means(full, fresh, n)
-    if data is not dense:
+    data = dense
+    if not np.array_equal(fresh, keep):
+        data = full.subset(fresh) if n <= 1 else block_means(full, fresh, n)
         data.dense = dense
     _slimmed(full, sim_forces)
     return data
@@ -480,19 +481,21 @@ def block_means(full: GapData, keep: np.ndarray, n: int) -> GapData:
     K = int(block_of.max()) + 1
     counts = np.bincount(block_of, minlength=K).astype(float)
 
-    def mean(x: np.ndarray, power: int = 1) -> np.ndarray:
+    def mean(x: np.ndarray, squared: bool = False) -> np.ndarray:
         # one column at a time: the kept samples of a flight-hour's attitudes alone are 52 MB
         v = np.asarray(x, float).reshape(len(x), -1)
         out = np.empty((K, v.shape[1]))
         for j in range(v.shape[1]):
-            out[:, j] = np.bincount(block_of, weights=v[idx, j] ** power if power != 1 else v[idx, j], minlength=K)
+            column = v[idx, j]
+            out[:, j] = np.bincount(block_of, weights=column**2 if squared else column, minlength=K)
         return (out / counts[:, None]).reshape((K,) + np.shape(x)[1:])
 
     with np.errstate(invalid="ignore"):
         d_down, d_up = mean(full.d_down), mean(full.d_up)
     group = full.group[idx][np.unique(block_of, return_index=True)[1]]
+    rms_speeds = np.sqrt(mean(full.rotor_speeds, squared=True))
     data = GapData(group, mean(full.t), mean(full.p), mean(full.y), mean(full.R),
-                   np.sqrt(mean(full.rotor_speeds, power=2)), mean(full.v), np.where(np.isnan(d_down), np.inf, d_down),
+                   rms_speeds, mean(full.v), np.where(np.isnan(d_down), np.inf, d_down),
                    np.where(np.isnan(d_up), np.inf, d_up), full.mass, full.rotor_radius, full.names, full.source,
                    None if full.imu is None else mean(full.imu) > 0.5, full.fits_bias, None, full, idx,
                    block_of, full.anchored, full.arm_length,
