@@ -10,7 +10,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, gc_paused, scatter_rows, stride_sample
-from uavturb.gap.plotting import hide_unused_cells, recording_grid  # the per-recording figures' layout
+from uavturb.gap.plotting import grid_layout, hide_unused_cells, recording_grid  # the per-recording figures' layout
+from uavturb.gap.plotting import shade_spans
 
 
 def test_envelope_keeps_each_columns_extremes_and_the_ends_in_time_order():
@@ -160,3 +161,98 @@ def test_cells_past_the_last_recording_are_switched_off():
     hide_unused_cells(axes, 5, 4, 3)
     on = np.array([[ax.axison for ax in row] for row in axes])
     assert on[:3].all() and on[3:, 0].all() and not on[3:, 1:].any()
+
+
+def _grid_figure(size=(13.0, 9.0), sharey=False):
+    """A grid like the report's: titles, axis labels, wide and negative tick labels, an offset text ("1e-6"), a
+    cell switched off and a figure title."""
+    fig = Figure(figsize=size, dpi=100)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3, 3, squeeze=False, sharey=sharey)
+    t = np.linspace(0.0, 60.0, 200)
+    scales = [1e-6, 2.5e4, -0.0125, 1.0, 3e-3, 120.0, -7.0, 0.5, 1e3]
+    for k, (ax, scale) in enumerate(zip(axes.flat, scales)):
+        ax.plot(t, scale * np.sin(t / 7.0) + (scale if k % 2 else 0.0))
+        ax.set_title(f"recording {k}")
+        ax.set_ylabel("|residual|, 0.25 s RMS [N]" if k % 3 == 0 else "F_z [N]")
+        ax.set_xlabel("t [s]" if k % 2 else "")
+    hide_unused_cells(axes, 8, 3, 1)
+    return fig, axes, fig.suptitle("a figure title")
+
+
+def _overlapping(fig, axes):
+    """Pairs of visible axes whose drawn decorations overlap, and those reaching outside the figure or into the
+    figure title, as matplotlib itself measures them after a draw."""
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    boxes = [ax.get_tightbbox(r) for ax in axes.flat if ax.axison]
+    title = fig._suptitle.get_window_extent(r)
+    width, height = fig.canvas.get_width_height()
+    bad = [i for i, b in enumerate(boxes) if b.x0 < 0 or b.y0 < 0 or b.x1 > width or b.y1 > height or b.overlaps(title)]
+    bad += [(i, j) for i, a in enumerate(boxes) for j, b in enumerate(boxes[i + 1:], i + 1) if a.overlaps(b)]
+    return bad
+
+
+@pytest.mark.parametrize("sharey", [False, True])
+def test_grid_layout_leaves_every_label_room_as_tight_layout_does(sharey):
+    fig, axes, title = _grid_figure(sharey=sharey)
+    grid_layout(fig, axes, title)
+    ours = fig.subplotpars
+    ours = np.array([ours.left, ours.right, ours.bottom, ours.top, ours.wspace, ours.hspace])
+    assert _overlapping(fig, axes) == []
+    fig.tight_layout()  # which keeps room for the figure title too
+    tight = fig.subplotpars
+    tight = np.array([tight.left, tight.right, tight.bottom, tight.top, tight.wspace, tight.hspace])
+    # the same room within a tenth of an inch at the edges (of 13 x 9 in), and the gaps between axes within 30 %;
+    # at the top, tight_layout's plus the figure title's place under the edge (2 % of the height), which
+    # tight_layout leaves out (on a 21-inch figure the title had met the top row's titles)
+    tight[3] -= 0.02
+    assert np.all(np.abs(ours[:4] - tight[:4]) * np.array([13, 13, 9, 9]) < 0.1), (ours, tight)
+    assert np.all(np.abs(ours[4:] - tight[4:]) <= 0.3 * tight[4:] + 0.02), (ours, tight)
+    if sharey:  # inner columns show no y tick labels: narrower gaps between columns
+        assert ours[4] < 0.5 * grid_layout_wspace_unshared()
+
+
+def grid_layout_wspace_unshared():
+    fig, axes, title = _grid_figure()
+    grid_layout(fig, axes, title)
+    return fig.subplotpars.wspace
+
+
+def test_grid_layout_gives_way_to_tight_layout_where_labels_leave_no_room():
+    fig, axes, title = _grid_figure(size=(2.0, 1.5))  # 27 labelled axes' worth of text in 2 x 1.5 inches
+    with pytest.warns(UserWarning, match="[Tt]ight layout"):  # no negative sizes, no error: tight_layout's try
+        grid_layout(fig, axes, title)
+    ours = fig.subplotpars
+    ours = (ours.left, ours.right, ours.bottom, ours.top, ours.wspace, ours.hspace)
+    with pytest.warns(UserWarning):  # what tight_layout says of such a figure
+        fig.tight_layout()
+    tight = fig.subplotpars
+    assert ours == (tight.left, tight.right, tight.bottom, tight.top, tight.wspace, tight.hspace)
+
+
+def _shaded_pixels(shade):
+    fig = Figure(figsize=(6, 2), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.plot([0.0, 60.0], [-1.0, 1.0], color="k", lw=0.5)
+    shade(ax, [(3.2, 7.9), (10.0, 10.4), (41.55, 59.0)])
+    ax.set_axis_off()
+    fig.canvas.draw()
+    return np.asarray(fig.canvas.buffer_rgba())[..., :3].astype(int), ax.get_xlim(), ax.get_ylim()
+
+
+def test_shaded_spans_draw_what_axvspan_draws():
+    def one_patch_each(ax, spans):
+        for a, b in spans:
+            ax.axvspan(a, b, color="tab:red", alpha=0.15, lw=0)
+
+    patches, xlim, ylim = _shaded_pixels(one_patch_each)
+    collection, xlim2, ylim2 = _shaded_pixels(lambda ax, spans: shade_spans(ax, spans, color="tab:red", alpha=0.15,
+                                                                             lw=0))
+    assert (xlim2, ylim2) == (xlim, ylim)
+    shaded = (patches != 255).any(axis=2)
+    assert shaded.sum() > 0.3 * shaded.size  # the spans cover 37 % of the width
+    assert np.abs(patches - collection).max() <= 1  # the same colours, at most a rounding apart
+    empty, _, _ = _shaded_pixels(lambda ax, spans: shade_spans(ax, [], color="tab:red"))
+    assert (empty != 255).any(axis=2).sum() < 0.05 * shaded.sum()  # nothing shaded: the line alone

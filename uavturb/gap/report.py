@@ -17,9 +17,11 @@ from uavturb.gap.plotting import (
     COLUMNS_PER_PIXEL,
     column_envelope,
     gc_paused,
+    grid_layout,
     hide_unused_cells,
     recording_grid,
     scatter_rows,
+    shade_spans,
 )
 from uavturb.gap.surface_curve import SurfaceCurve
 from uavturb.gap.surface_laws import LawFit
@@ -86,7 +88,8 @@ def _figure(figsize: tuple[float, float]):
 
 
 def _save(fig, path: Path) -> None:
-    """``path`` as PNG at :data:`PLOT_DPI`, the figure laid out already (``tight_layout``).
+    """``path`` as PNG at :data:`PLOT_DPI`, the figure laid out already (``tight_layout``, or
+    :func:`~uavturb.gap.plotting.grid_layout`).
 
     ``tight_layout`` leaves a placeholder layout engine behind, and for any engine ``savefig`` first runs
     a whole draw without rendering (ticks, text extents) before the real one: with the engine unset, one
@@ -95,12 +98,6 @@ def _save(fig, path: Path) -> None:
     """
     fig.set_layout_engine(None)
     fig.savefig(path, dpi=PLOT_DPI, pil_kwargs={"compress_level": 1})
-
-
-def _tight_under_title(fig) -> None:
-    """``tight_layout`` below the figure's title: half an inch kept for it (on a tall grid its default place
-    is among the top row's titles)."""
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.5 / fig.get_figheight()))
 
 
 def _plot_time(ax, t: np.ndarray, y: np.ndarray, pixels: int, **kw) -> None:
@@ -156,16 +153,15 @@ def plot_residual_time(folder: Path, data, baseline_r, baseline_rs, final_rs, se
             _plot_time(ax, data.t[m], baseline_r[m, j], px, lw=0.3, color="0.7", label="residual (nominal model)")
             _plot_time(ax, data.t[m], baseline_rs[m, j], px, lw=1.0, color="tab:blue", label="smoothed")
             _plot_time(ax, data.t[m], final_rs[m, j], px, lw=1.0, color="tab:green", label="after the named effects")
-            for s in segs:
-                if s.group == g and s.axis == AXES[j]:
-                    ax.axvspan(s.t_start, s.t_end, color="tab:red", alpha=0.15, lw=0)
+            shade_spans(ax, [(s.t_start, s.t_end) for s in segs if s.group == g and s.axis == AXES[j]],
+                        color="tab:red", alpha=0.15, lw=0)
             ax.set_ylabel(f"F_{AXES[j]} [N]")
         block[0].set_title(data.names[g])
         block[-1].set_xlabel("t [s]")
     hide_unused_cells(axes, len(groups), cols, 3)
     axes[0, 0].legend(loc="upper right", fontsize=7)
-    fig.suptitle("Residual force over time; located mismatch segments shaded")
-    _tight_under_title(fig)
+    title = fig.suptitle("Residual force over time; located mismatch segments shaded")
+    grid_layout(fig, axes, title)
     _save(fig, folder / "residual_time.png")
     return "residual_time.png"
 
@@ -224,9 +220,9 @@ def plot_heldout_fit(folder: Path, data, heldout_before, heldout_after) -> str:
     hide_unused_cells(axes, len(hgroups), cols, 1)
     for ax in axes[:, 0]:
         ax.set_ylabel("|residual|, 0.25 s RMS [N]")
-    fig.suptitle(f"Held-out fit before and after the named effects (RMSE {heldout_before.rmse:.3f} N → "
-                 f"{heldout_after.rmse:.3f} N)")
-    _tight_under_title(fig)
+    title = fig.suptitle(f"Held-out fit before and after the named effects (RMSE {heldout_before.rmse:.3f} N → "
+                         f"{heldout_after.rmse:.3f} N)")
+    grid_layout(fig, axes, title)
     _save(fig, folder / "heldout_fit.png")
     return "heldout_fit.png"
 
