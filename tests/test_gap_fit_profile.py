@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from uavturb.gap.design import GapData, lag_key, stack_target, thrust_columns
-from uavturb.gap.fit import Profile, fit_model
+from uavturb.gap.fit import HELDOUT_LATTICE_STEPS, LATTICE_STEPS, Profile, fit_model
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import lag_rotor_speeds
@@ -128,6 +128,67 @@ def test_lattice_values_span_the_search_range_with_the_coarse_grid_on_it():
     assert 0.002 < step < 0.01  # finer than the honest errors, coarse enough for searches to meet
 
 
+def test_the_held_out_lattice_is_every_fourth_point_of_the_fine_one_to_the_bit():
+    from uavturb.gap.design import NONLINEAR
+    from uavturb.gap.fit import GRID_POINTS, lattice_value
+
+    assert LATTICE_STEPS == 4 * HELDOUT_LATTICE_STEPS
+    for name in NONLINEAR:
+        coarse = [lattice_value(name, k, HELDOUT_LATTICE_STEPS) for k in range((GRID_POINTS - 1) * 32 + 1)]
+        assert coarse == [lattice_value(name, 4 * k) for k in range(len(coarse))]  # shared columns: equal floats
+        step = coarse[101] / coarse[100] - 1
+        assert 0.01 < step < 0.035  # 1.5-3 % apart: far under the spread of a parameter between folds
+
+
+@pytest.mark.parametrize("true_k", [0, 1, 83, 175, 256])
+def test_lattice_minimum_on_the_held_out_lattice(true_k):
+    from uavturb.gap.fit import GRID_POINTS, lattice_minimum
+
+    top = (GRID_POINTS - 1) * HELDOUT_LATTICE_STEPS
+    calls = []
+
+    def f(k):  # the same smooth, asymmetric minimum, 0.3 steps off a point of this lattice
+        calls.append(k)
+        x = (k - min(true_k + 0.3, top)) / top
+        return x**2 + 0.5 * x**3 + 1.0
+
+    assert lattice_minimum(f, HELDOUT_LATTICE_STEPS) == true_k
+    assert len(calls) == len(set(calls)) and len(calls) <= GRID_POINTS + 8 + 12
+    assert all(0 <= k <= top for k in calls)
+
+
+def test_held_out_folds_search_the_coarse_lattice_and_fits_on_all_data_the_fine_one():
+    from uavturb.gap.fit import lattice_value
+    from uavturb.gap.selection import FoldFits, folds
+
+    data, _ = _hover(K=3000)
+    data.group = np.repeat(np.arange(3), 1000)
+    data.names = ["rec0", "rec1", "rec2"]
+    effects = frozenset({"ground_effect", "motor_lag"})
+    fine = {e: {lattice_value(e, k) for k in range(8 * LATTICE_STEPS + 1)} for e in effects}
+    coarse = {e: {lattice_value(e, k, HELDOUT_LATTICE_STEPS) for k in range(8 * HELDOUT_LATTICE_STEPS + 1)}
+              for e in effects}
+    seen = []
+    original = Profile.fit
+
+    def recorded(self, nl, use=None):
+        seen.append(dict(nl))
+        return original(self, nl, use)
+
+    _, masks = folds(data)
+    Profile.fit = recorded
+    try:
+        FoldFits(data, masks).heldout(effects)
+    finally:
+        Profile.fit = original
+    assert len(seen) == 3 and all(nl[e] in coarse[e] for nl in seen for e in effects)
+    fit = fit_model(data, effects, with_stderr=False)  # on all data: the fine lattice, the known mu and lag
+    assert all(fit.nonlinear[e] in fine[e] for e in effects)
+    assert not all(fit.nonlinear[e] in coarse[e] for e in effects)
+    assert fit.nonlinear["ground_effect"] == pytest.approx(2.0, rel=0.05)
+    assert fit.nonlinear["motor_lag"] == pytest.approx(0.03, rel=0.05)
+
+
 @pytest.mark.parametrize("recordings", [1, 3])
 def test_folds_fitted_together_are_the_fits_on_each_folds_rows(recordings):
     """The held-out test's folds fitted from one profile cut in pieces give the residuals of fitting each fold on
@@ -142,8 +203,8 @@ def test_folds_fitted_together_are_the_fits_on_each_folds_rows(recordings):
     assert protocol == ("leave-one-recording-out" if recordings > 1 else "last-30%-of-each-recording")
     together = FoldFits(data, masks).heldout(effects)
     apart = []
-    for train, test in masks:
-        fit = fit_model(data.subset(train), effects, with_stderr=False)
+    for train, test in masks:  # on the held-out folds' lattice
+        fit = fit_model(data.subset(train), effects, with_stderr=False, lattice_steps=HELDOUT_LATTICE_STEPS)
         apart.append(fit.residual(data.subset(test)))
     apart = np.concatenate(apart)
     assert together.resid.shape == apart.shape == (sum(int(te.sum()) for _, te in masks), 3)
