@@ -80,7 +80,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from uavturb.gap.design import NONLINEAR, THRUST_AXIS, GapData, stack_target
-from uavturb.gap.fit import HELDOUT_LATTICE_STEPS, ModelFit, Profile, fit_model, forking_worth, search_nonlinear
+from uavturb.gap.fit import HELDOUT_RTOL, ModelFit, Profile, fit_model, forking_worth, search_nonlinear
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, heights_shifted
 from uavturb.numerics.processes import ForkedPool, forked_state
 from uavturb.physics.effects import EFFECTS
@@ -162,7 +162,7 @@ class FoldFits:
         prof = Profile(self.data, frozenset(effects), stack_target(self.data.y), self.pieces, self._shared)
         errs = []
         for use, te in zip(self.uses, self.tests):
-            fit = prof.fit(search_nonlinear(prof, frozenset(effects), fixed, use, HELDOUT_LATTICE_STEPS), use)
+            fit = prof.fit(search_nonlinear(prof, frozenset(effects), fixed, use, HELDOUT_RTOL), use)
             errs.append(fit.residual(te))
         return self.held_out(np.concatenate(errs))
 
