@@ -10,8 +10,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from uavturb.gap.plotting import COLUMNS_PER_PIXEL, column_envelope, gc_paused, scatter_rows, stride_sample
-from uavturb.gap.plotting import grid_layout, hide_unused_cells, recording_grid  # the per-recording figures' layout
-from uavturb.gap.plotting import shade_spans
+from uavturb.gap.plotting import grid_layout, hide_unused_cells, recording_grid, shade_spans  # the figures' layout
 
 
 def test_envelope_keeps_each_columns_extremes_and_the_ends_in_time_order():
@@ -180,13 +179,13 @@ def _grid_figure(size=(13.0, 9.0), sharey=False):
     return fig, axes, fig.suptitle("a figure title")
 
 
-def _overlapping(fig, axes):
+def _overlapping(fig, axes, title):
     """Pairs of visible axes whose drawn decorations overlap, and those reaching outside the figure or into the
-    figure title, as matplotlib itself measures them after a draw."""
+    figure ``title``, as matplotlib itself measures them after a draw."""
     fig.canvas.draw()
     r = fig.canvas.get_renderer()
     boxes = [ax.get_tightbbox(r) for ax in axes.flat if ax.axison]
-    title = fig._suptitle.get_window_extent(r)
+    title = title.get_window_extent(r)
     width, height = fig.canvas.get_width_height()
     bad = [i for i, b in enumerate(boxes) if b.x0 < 0 or b.y0 < 0 or b.x1 > width or b.y1 > height or b.overlaps(title)]
     bad += [(i, j) for i, a in enumerate(boxes) for j, b in enumerate(boxes[i + 1:], i + 1) if a.overlaps(b)]
@@ -199,7 +198,7 @@ def test_grid_layout_leaves_every_label_room_as_tight_layout_does(sharey):
     grid_layout(fig, axes, title)
     ours = fig.subplotpars
     ours = np.array([ours.left, ours.right, ours.bottom, ours.top, ours.wspace, ours.hspace])
-    assert _overlapping(fig, axes) == []
+    assert _overlapping(fig, axes, title) == []
     fig.tight_layout()  # which keeps room for the figure title too
     tight = fig.subplotpars
     tight = np.array([tight.left, tight.right, tight.bottom, tight.top, tight.wspace, tight.hspace])
@@ -210,10 +209,11 @@ def test_grid_layout_leaves_every_label_room_as_tight_layout_does(sharey):
     assert np.all(np.abs(ours[:4] - tight[:4]) * np.array([13, 13, 9, 9]) < 0.1), (ours, tight)
     assert np.all(np.abs(ours[4:] - tight[4:]) <= 0.3 * tight[4:] + 0.02), (ours, tight)
     if sharey:  # inner columns show no y tick labels: narrower gaps between columns
-        assert ours[4] < 0.5 * grid_layout_wspace_unshared()
+        assert ours[4] < 0.5 * _unshared_wspace()
 
 
-def grid_layout_wspace_unshared():
+def _unshared_wspace():
+    """The gap between columns that :func:`grid_layout` gives the grid when every column shows its y labels."""
     fig, axes, title = _grid_figure()
     grid_layout(fig, axes, title)
     return fig.subplotpars.wspace

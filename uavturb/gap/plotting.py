@@ -183,9 +183,9 @@ def grid_layout(fig, axes: np.ndarray, title=None) -> None:
     labels, title or offset text overlap another's, the figure's ``title`` (the text ``fig.suptitle`` returned) or
     the figure's edge: ``tight_layout``'s result, measured from the label texts alone.
 
-    ``tight_layout`` lays every tick of every axis out to measure it, and the figure's draw does it again: on a
-    dozen recordings' residual figure (36 axes) the layout took 0.9 s of 2.3. Here each axis's tick labels are
-    formatted (its locator and formatter, as the draw will) and only the texts are measured, at the figure's
+    ``tight_layout`` lays every tick of every axis out to measure it, and the figure's draw does it again: a
+    dozen recordings' residual figure (36 axes) took 2.50 s with it and 2.16 s with this. Here each axis's tick
+    labels are formatted (its locator and formatter, as the draw will) and only the texts are measured, at the figure's
     font sizes (``rcParams``: the report's figures keep matplotlib's defaults). Switched-off axes (cells past the
     last recording) take no room; where the decorations would leave the axes none, ``tight_layout`` decides.
     """
