@@ -9,7 +9,11 @@ export MPLBACKEND ?= Agg
 
 .PHONY: setup demo test test-all ui clean
 
+# the package's own modules compiled (pip compiles what it installs, not an editable checkout; quick when nothing
+# changed): where Python writes no bytecode (PYTHONDONTWRITEBYTECODE, a read-only checkout), every command compiled
+# them again, 0.15-0.3 s of each (`uavturb gap`'s imports: 0.97-1.13 s without, 0.83 s with)
 setup: $(STAMP)
+	@$(BIN)/python -m compileall -q uavturb
 
 $(STAMP): pyproject.toml scripts/setup.sh
 	PYTHON=$(PYTHON) VENV=$(VENV) bash scripts/setup.sh

@@ -3,6 +3,7 @@
 import io
 import json
 import shutil
+from pathlib import Path
 
 import mlflow
 import numpy as np
@@ -216,3 +217,50 @@ def test_the_figures_drawn_side_by_side_are_the_plain_loops_pixels(tmp_path, fli
     monkeypatch.setattr(gap_report, "plot_heldout_fit", broken)
     with pytest.raises(RuntimeError, match="cannot be drawn"):
         gap_report.write_plots(tmp_path / "forked", *args, surface=surface)
+
+
+def test_the_figures_drawn_at_the_checkpoint_are_those_drawn_at_the_end(tmp_path, flights, monkeypatch):
+    """``analyse`` hands ``at_checkpoint`` the very objects its extras hold, once; the figures a child draws from
+    them meanwhile (``FiguresAhead``) are the files ``write_plots`` draws alone, to the byte. Figures started from
+    other objects, or a child that fails, leave them to ``write_plots``, and the child's folder is removed."""
+    recs = load_recordings([str(flights["ground"])])
+    seen = []
+    with gap_report.FiguresAhead() as ahead:
+        def at_checkpoint(plots):
+            seen.append(plots)
+            ahead.start(plots)
+
+        report, ex = analyse(recs, parse_sim_effects("none"), at_checkpoint=at_checkpoint)
+        assert len(seen) == 1 and all(seen[0][k] is ex[k] for k in seen[0])
+        args = (ex["data"], ex["r0"], ex["rs0"], ex["rf"], ex["rsf"], ex["segs"], "d_down", ex["base_ho"],
+                ex["final_ho"])
+        surface = (ex["curve"], ex["curve_fits"], ex.get("curve_named"))
+        child_folder = ahead._folder.name
+        (tmp_path / "ahead").mkdir()
+        names = gap_report.write_plots(tmp_path / "ahead", *args, surface=surface, ahead=ahead)
+    assert not Path(child_folder).exists()
+    (tmp_path / "plain").mkdir()
+    assert gap_report.write_plots(tmp_path / "plain", *args, surface=surface) == names
+    assert sorted(p.name for p in (tmp_path / "ahead").iterdir()) == sorted(names)
+    for name in names:
+        assert (tmp_path / "ahead" / name).read_bytes() == (tmp_path / "plain" / name).read_bytes()
+
+    # started from other objects (a guess that missed): not taken, drawn from these
+    with gap_report.FiguresAhead() as other:
+        other.start(seen[0] | {"rsf": ex["rsf"] * 0.0})
+        assert other.drawing(dict(seen[0])) == () and other._folder is None
+        (tmp_path / "other").mkdir()
+        gap_report.write_plots(tmp_path / "other", *args, surface=surface, ahead=other)
+    assert (tmp_path / "other" / "residual_time.png").read_bytes() == (tmp_path / "plain" /
+                                                                       "residual_time.png").read_bytes()
+
+    # a child that fails: its figures drawn here
+    def broken(*a, **k):
+        raise RuntimeError("this figure cannot be drawn in the child")
+
+    monkeypatch.setattr(gap_report, "plot_residual_time", broken)
+    with gap_report.FiguresAhead() as failing:
+        failing.start(seen[0])
+        assert failing.drawing(dict(seen[0])) == gap_report.FiguresAhead.NAMES
+        assert failing.taken(tmp_path) == {}
+    monkeypatch.undo()

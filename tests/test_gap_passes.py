@@ -49,7 +49,7 @@ def _fake_analysis(end_fails_in_child: bool = False, end_sleeps_s: float = 0.0, 
 def _analysed(monkeypatch, analysis, moved=None):
     """``analyse`` with ``analysis`` for the real one; the next analysis draws from the same generator (as a real
     one seeds and draws); what it was shown, and the report and moves it returns."""
-    def on_moved_speeds(recordings, sim, offset, seed, height_uncertainty):
+    def on_moved_speeds(recordings, sim, offset, seed, height_uncertainty, at_checkpoint):
         np.random.seed(seed + 1)
         np.random.random(5)
         if moved is not None:
@@ -103,3 +103,25 @@ def test_an_error_in_the_next_analysis_stops_the_first_ones_end(monkeypatch, tmp
         _analysed(monkeypatch, _fake_analysis(end_sleeps_s=60.0, pid_file=pid_file), moved=fails)
     pid = pid_written(pid_file)
     assert pid != os.getpid() and process_gone(pid)
+
+
+@pytest.mark.parametrize("counts, called_at", [([True, False], [1]), ([True, True, True], [2]), ([False], [0])])
+def test_at_checkpoint_is_called_at_the_analysis_on_moved_speeds_that_gives_the_report(monkeypatch, counts,
+                                                                                        called_at):
+    """The analyses on moved speeds go on while their offset counts (three at most): ``at_checkpoint`` is called once,
+    at the checkpoint of the last one, with what that analysis's extras hold."""
+    passes = iter(range(len(counts)))
+
+    def analysis(recordings, sim, *, seed, height_uncertainty, progress=None):
+        k = next(passes)
+        offset = SimpleNamespace(counts=counts[k])
+        yield Checkpoint(offset, 20_000, 6, {"data": f"pass {k}"})
+        return ({"nominal": {"rotor_speed_offset": {"counts": counts[k], "delta_rad_s": 1.0}}},
+                {"data": f"pass {k}"})
+
+    monkeypatch.setattr(finder, "_analysis", analysis)
+    monkeypatch.setattr(finder, "rotor_speeds_moved", lambda r, delta, w_hover: r)
+    seen = []
+    report, extras, readings = finder._on_moved_speeds([], {}, DECISIVE, 0, 0.0, seen.append)
+    assert seen == [{"data": f"pass {k}"} for k in called_at] and extras == seen[0]
+    assert len(readings) == len(counts) == called_at[0] + 1

@@ -12,7 +12,7 @@ from typing import Sequence
 
 from uavturb.errors import InputError
 from uavturb.gap.finder import STAGES, analyse, parse_sim_effects
-from uavturb.gap.report import write_json, write_markdown, write_plots
+from uavturb.gap.report import FiguresAhead, write_json, write_markdown, write_plots
 from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M
 from uavturb.io.physics_config import load_physics_config, write_physics_config
 from uavturb.io.publish import check_apart, check_output_file, check_output_folder, publish_folder
@@ -52,26 +52,30 @@ def gap(recordings: Sequence[str | Path], out: str | Path, *, sim_effects: str |
     with Stages("uavturb gap", STAGES if log_mlflow else STAGES[:-1]) as stage:
         stage("reading the recordings")
         recs = load_recordings(recordings, vehicle)
-        # MLflow's imports (~4.5 s) run in a second process while the analysis runs (uavturb.runs.store_process)
-        with StoreProcess() if log_mlflow else contextlib.nullcontext() as store:
-            report, ex = analyse(recs, sim, seed=seed, height_uncertainty=height_uncertainty, progress=stage)
+        # MLflow's imports (~4.5 s) run in a second process while the analysis runs (uavturb.runs.store_process);
+        # the figures drawn from what the analysis knows at its checkpoint are drawn while it runs to its end
+        with StoreProcess() if log_mlflow else contextlib.nullcontext() as store, FiguresAhead() as ahead:
+            report, ex = analyse(recs, sim, seed=seed, height_uncertainty=height_uncertainty, progress=stage,
+                                 at_checkpoint=ahead.start)
             report["seconds_analysis"] = time.perf_counter() - t0
             stage("writing the report")
-            _publish(out, report, ex, apply=apply, overwrite=overwrite)
+            _publish(out, report, ex, ahead, apply=apply, overwrite=overwrite)
             if store is not None:
                 stage("logging the run")
                 _log(store, report, seed, out)
     return report
 
 
-def _publish(out: Path, report: dict, ex: dict, *, apply: str | Path | None, overwrite: bool) -> None:
-    """Write the report folder (plots, ``report.md``, ``report.json``) and the ``--apply`` physics config."""
+def _publish(out: Path, report: dict, ex: dict, ahead: FiguresAhead, *, apply: str | Path | None,
+             overwrite: bool) -> None:
+    """Write the report folder (plots, ``report.md``, ``report.json``; ``ahead``: the figures started at the
+    analysis's checkpoint) and the ``--apply`` physics config."""
     with publish_folder(out, overwrite=overwrite, command="uavturb gap") as tmp:
         top = ex["drivers"][0]["feature"] if ex["drivers"] else None
         surface = (ex["curve"], ex["curve_fits"], ex.get("curve_named")) if report["surface_curve"] is not None \
             else None
         plots = write_plots(tmp, ex["data"], ex["r0"], ex["rs0"], ex["rf"], ex["rsf"], ex["segs"], top,
-                            ex["base_ho"], ex["final_ho"], surface=surface)
+                            ex["base_ho"], ex["final_ho"], surface=surface, ahead=ahead)
         if apply is not None:
             # the simulator's forces only: a law of what logged commands mean (battery_voltage) is not one
             fitted = {e["name"]: e["params"] for e in report["effects"] if EFFECTS[e["name"]].simulated}

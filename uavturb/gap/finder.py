@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Generator, Sequence
 
 import numpy as np
@@ -190,11 +190,22 @@ def _silent(stage: str) -> None:
     """No progress shown."""
 
 
+def _nothing_started(plots: dict) -> None:
+    """Nothing started at the last analysis's checkpoint."""
+
+
 def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0,
-            height_uncertainty: float = HEIGHT_REFERENCE_M, progress: Callable[[str], None] = _silent
-            ) -> tuple[dict, dict]:
+            height_uncertainty: float = HEIGHT_REFERENCE_M, progress: Callable[[str], None] = _silent,
+            at_checkpoint: Callable[[dict], None] = _nothing_started) -> tuple[dict, dict]:
     """The analysis without any writing: returns the report dictionary and what the plots need;
     ``progress`` is called with the name of each of :data:`STAGES` it runs, as it starts.
+
+    ``at_checkpoint`` is called once with what the plots need that the report's analysis knows at its
+    :class:`Checkpoint` (:attr:`Checkpoint.plots`, the very objects the extras returned hold), before that analysis
+    runs to its end, so that the figures drawn from them alone are drawn meanwhile
+    (:class:`~uavturb.gap.report.FiguresAhead`). Where the speeds are moved (below), it is called at the checkpoint
+    of the analysis on moved speeds that reads no offset that counts there, or of the last one allowed: the report's
+    (a guess that missed calls it with objects the extras do not hold).
 
     Where the recorded (commanded) speeds read a decisive offset, the analysis runs again on the speeds it moves
     (:func:`_on_moved_speeds`), and the first analysis's end, which only its report needs, runs in a forked child
@@ -215,6 +226,7 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
         steps = _analysis(recordings, sim, seed=seed, height_uncertainty=height_uncertainty, progress=shown)
         paused = next(steps)
         if not paused.moves_speeds:
+            at_checkpoint(paused.plots)
             return _finished(steps)
         drawn = np.random.get_state()
         # a decisive offset: the whole analysis again, on the moved speeds. The first one's end (the surface curve,
@@ -227,7 +239,8 @@ def analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int
             report = _finished(steps)[0]
         progress(MOVED_SPEEDS_STAGE)
         try:
-            again, extras, readings = _on_moved_speeds(recordings, sim, paused.offset, seed, height_uncertainty)
+            again, extras, readings = _on_moved_speeds(recordings, sim, paused.offset, seed, height_uncertainty,
+                                                       at_checkpoint)
         except BaseException:
             if first is not None:
                 first.cancel()  # the error is this analysis's answer: not delayed by the first one's end
@@ -245,14 +258,21 @@ def _resumed(steps: Generator[Checkpoint, None, tuple[dict, dict]], drawn: tuple
 
 
 def _on_moved_speeds(recordings: Sequence, sim: dict[str, dict[str, float]], offset: Any, seed: int,
-                     height_uncertainty: float) -> tuple[dict, dict, list[float]]:
+                     height_uncertainty: float, at_checkpoint: Callable[[dict], None] = _nothing_started
+                     ) -> tuple[dict, dict, list[float]]:
     """The analysis of ``recordings`` on their rotor speeds moved by the decisive ``offset``
     (:class:`~uavturb.sysid.nominal.SpeedOffset`), moved further while the moved speeds still read one that counts
-    (:data:`MAX_OFFSET_MOVES` analyses at most): the last analysis's report and extras, and the offsets applied."""
+    (:data:`MAX_OFFSET_MOVES` analyses at most): the last analysis's report and extras, and the offsets applied.
+    ``at_checkpoint`` (:func:`analyse`'s) is called at the checkpoint of the analysis that looks like the last one
+    there (the offset its moved speeds read does not count, or no move is left)."""
     delta, w_hover, readings = offset.delta, offset.w_hover, []
-    for _ in range(MAX_OFFSET_MOVES):
+    for move in range(MAX_OFFSET_MOVES):
         moved = [rotor_speeds_moved(r, delta, w_hover) for r in recordings]
-        again, extras = _analyse(moved, sim, seed=seed, height_uncertainty=height_uncertainty)
+        steps = _analysis(moved, sim, seed=seed, height_uncertainty=height_uncertainty)
+        paused = next(steps)
+        if paused.offset is None or not paused.offset.counts or move == MAX_OFFSET_MOVES - 1:
+            at_checkpoint(paused.plots)
+        again, extras = _finished(steps)
         after = again["nominal"].get("rotor_speed_offset")
         readings.append(delta)
         if not after or not after["counts"] or len(readings) == MAX_OFFSET_MOVES:
@@ -355,21 +375,15 @@ class Checkpoint:
     offset: Any
     rows: int
     folds: int
+    #: what the plots need that is known here (data, r0, rs0, rf, rsf, segs, drivers, base_ho, final_ho): the
+    #: figures drawn from it alone may be drawn while the analysis runs to its end (``analyse``'s ``at_checkpoint``)
+    plots: dict = field(default_factory=dict)
 
     @property
     def moves_speeds(self) -> bool:
         """Whether the offset is decisive, so that the analysis runs again on the speeds it moves
         (:func:`analyse`)."""
         return self.offset is not None and bool(self.offset.decisive)
-
-
-def _analyse(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: int = 0,
-             height_uncertainty: float = HEIGHT_REFERENCE_M, progress: Callable[[str], None] = _silent
-             ) -> tuple[dict, dict]:
-    """One analysis of ``recordings`` (:func:`_analysis` run through): the report and what the plots need."""
-    steps = _analysis(recordings, sim, seed=seed, height_uncertainty=height_uncertainty, progress=progress)
-    next(steps)
-    return _finished(steps)
 
 
 def _finished(steps: Generator[Checkpoint, None, tuple[dict, dict]]) -> tuple[dict, dict]:
@@ -485,7 +499,9 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
                                                        np.mean(np.sum(rst**2, axis=1)) - np.sum(sigma**2) / draws)))
         unexplained |= {"drivers": locate.drivers(data, rst), "thrust_axis_tilt": entry}
     thrust_map = thrust_map_term(data, final, rf) if not measured_rotor_speeds(recordings) else None
-    yield Checkpoint(None if thrust_map is None else thrust_map[0], len(data), len(fm))
+    plots = dict(data=data, r0=base.r0, rs0=rs0, rf=rf, rsf=rsf, segs=segs, drivers=drv, base_ho=base_ho,
+                 final_ho=sel.final_heldout)
+    yield Checkpoint(None if thrust_map is None else thrust_map[0], len(data), len(fm), plots)
     progress("the surface curve")
     stated, data_at, final_at = _at_stated_offset(data, final, thrust_map)  # where the thrust map is left open
     curve_report, curve, curve_fits = (finder_surface_curve(data_at, final_at) if heights_broken is None
@@ -578,9 +594,8 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
                       "after_m": _open_loop(data, final.predict(data))},
         "candidates_tried": sel.tried,
     }
-    extras = dict(data=data, r0=base.r0, rs0=rs0, rf=rf, rsf=rsf, segs=segs, drivers=drv, base_ho=base_ho,
-                  final_ho=sel.final_heldout, final=final, curve=curve, curve_fits=curve_fits,
-                  curve_named=_named_on_curve(curve_report, curve, data))
+    extras = plots | dict(final=final, curve=curve, curve_fits=curve_fits,
+                          curve_named=_named_on_curve(curve_report, curve, data))
     return report, extras
 
 

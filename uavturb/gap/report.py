@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import re
-
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -29,7 +30,7 @@ from uavturb.gap.uncertainty import BUDGET_TERMS, ONE_STRETCH_SHARE, TIME_BLOCKS
 from uavturb.io.reader import recording_labels
 from uavturb.physics.effects import EFFECTS
 from uavturb.io.strict_json import dumps_strict
-from uavturb.numerics.processes import ForkedPool, forked_state
+from uavturb.numerics.processes import ForkedPool, Started, forked_state, forking_possible
 
 #: units of the candidate drivers of :func:`uavturb.gap.locate.features` (plot axes)
 FEATURE_UNITS = {"d_down": "m", "d_up": "m", "v_x": "m/s", "v_y": "m/s", "v_z": "m/s", "v_Bx": "m/s", "v_By": "m/s",
@@ -107,13 +108,16 @@ def _plot_time(ax, t: np.ndarray, y: np.ndarray, pixels: int, **kw) -> None:
 
 
 def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, segs, top_driver: str | None,
-                heldout_before, heldout_after, surface: tuple | None = None) -> list[str]:
+                heldout_before, heldout_after, surface: tuple | None = None, ahead: "FiguresAhead | None" = None
+                ) -> list[str]:
     """The figures a person needs to believe the report, drawn side by side in processes forked from this one
     (:class:`~uavturb.numerics.processes.ForkedPool`: each figure is Python-bound; a dozen recordings' took 4.5 s
     one after the other, the residual over time 3 s of it); returns their file names, in the report's order.
 
     ``surface``: ``(curve, fits, named)`` of :func:`plot_surface_curve`, whose figure is drawn with them (none where
-    None). A figure a child could not draw is drawn here (its error raised here)."""
+    None). ``ahead``: the figures a child started drawing at the analysis's checkpoint (:class:`FiguresAhead`),
+    taken where they were drawn from these very objects. A figure a child could not draw is drawn here (its error
+    raised here)."""
     import matplotlib.backends.backend_agg  # noqa: F401 - imported once, before the children fork, not in each
 
     figures: dict[str, Callable[[], str]] = {
@@ -124,14 +128,93 @@ def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, 
     figures["heldout_fit"] = lambda: plot_heldout_fit(folder, data, heldout_before, heldout_after)
     if surface is not None:
         figures["surface_curve"] = lambda: plot_surface_curve(folder, *surface)
-    with ForkedPool(figures) as pool:
-        drawn = pool.map(_draw_in_child, figures)
+    same = dict(data=data, r0=baseline_r, rs0=baseline_rs, rsf=final_rs, segs=segs, base_ho=heldout_before,
+                final_ho=heldout_after)
+    coming = ahead.drawing(same) if ahead is not None else ()
+    rest = {k: draw for k, draw in figures.items() if k not in coming}
+    with ForkedPool(rest) as pool:
+        drawn = pool.map(_draw_in_child, rest)
+    drawn |= ahead.taken(folder) if coming else {}
     return [drawn[k] if k in drawn else draw() for k, draw in figures.items()]
 
 
 def _draw_in_child(name: str) -> str:
     """In a child of :func:`write_plots`: the figure ``name`` drawn."""
     return forked_state()[name]()
+
+
+class FiguresAhead:
+    """The figures drawn from what the analysis knows at its checkpoint alone (the residual over time and the held-out
+    fit: :attr:`~uavturb.gap.finder.Checkpoint.plots`), drawn in a process forked there while the analysis runs to
+    its end: the surface curve and the honest errors keep about one core of two busy (1.7 s on a dozen one-minute
+    recordings), and the residual over time is the longest figure (1.6 s there). :func:`write_plots` takes them and
+    draws the rest.
+
+    :meth:`start` is ``analyse``'s ``at_checkpoint``. A context manager: on leaving it, a child still drawing is
+    stopped and its folder (a temporary one, not the report's) removed. Nothing is drawn ahead where no process can
+    be forked; a child that fails leaves its figures to :func:`write_plots`."""
+
+    #: the figures drawn ahead, in the order the child draws them (the longest first)
+    NAMES = ("residual_time", "heldout_fit")
+
+    def __init__(self) -> None:
+        self._plots: dict | None = None
+        self._folder: tempfile.TemporaryDirectory | None = None
+        self._started: Started | None = None
+
+    def __enter__(self) -> "FiguresAhead":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def start(self, plots: dict) -> None:
+        """Start drawing :data:`NAMES` from ``plots`` (a checkpoint's) in a forked child (one started before is
+        stopped first)."""
+        self.close()
+        if not forking_possible():
+            return
+        self._plots = plots
+        self._folder = tempfile.TemporaryDirectory(prefix="uavturb-figures-")
+        pool = ForkedPool((Path(self._folder.name), plots), max_processes=1)
+        self._started = pool.start(_draw_ahead_in_child, 0)
+
+    def drawing(self, plots: dict) -> tuple[str, ...]:
+        """The figures being drawn ahead from ``plots``: :data:`NAMES` where the child started from these very
+        objects (the same figures), none otherwise (the child is stopped)."""
+        if self._started is None or any(plots[k] is not self._plots.get(k) for k in plots):
+            self.close()
+            return ()
+        return self.NAMES
+
+    def taken(self, folder: Path) -> dict[str, str]:
+        """The child waited for, and what it drew moved into ``folder``: ``{name: file name}``; empty where it
+        failed (:func:`write_plots` draws those)."""
+        files = self._started.result(lambda: []) if self._started is not None else []
+        self._started = None
+        drawn = {}
+        for name, file in zip(self.NAMES, files):
+            shutil.move(Path(self._folder.name) / file, Path(folder) / file)
+            drawn[name] = file
+        self.close()
+        return drawn
+
+    def close(self) -> None:
+        """Stop a child still drawing and remove its folder."""
+        if self._started is not None:
+            self._started.cancel()
+            self._started = None
+        if self._folder is not None:
+            self._folder.cleanup()
+            self._folder = None
+        self._plots = None
+
+
+def _draw_ahead_in_child(_: object) -> list[str]:
+    """In a child of :meth:`FiguresAhead.start`: the figures :data:`FiguresAhead.NAMES` drawn into its folder."""
+    folder, p = forked_state()
+    return [plot_residual_time(folder, p["data"], p["r0"], p["rs0"], p["rsf"], p["segs"]),
+            plot_heldout_fit(folder, p["data"], p["base_ho"], p["final_ho"])]
 
 
 @gc_paused
