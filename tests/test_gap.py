@@ -3,6 +3,7 @@
 import io
 import json
 import shutil
+import tempfile
 from pathlib import Path
 
 import mlflow
@@ -235,10 +236,10 @@ def test_the_figures_drawn_at_the_checkpoint_are_those_drawn_at_the_end(tmp_path
         args = (ex["data"], ex["r0"], ex["rs0"], ex["rf"], ex["rsf"], ex["segs"], "d_down", ex["base_ho"],
                 ex["final_ho"])
         surface = (ex["curve"], ex["curve_fits"], ex.get("curve_named"))
-        child_folder = ahead._folder.name
+        child_folder = ahead.folder
         (tmp_path / "ahead").mkdir()
         names = gap_report.write_plots(tmp_path / "ahead", *args, surface=surface, ahead=ahead)
-    assert not Path(child_folder).exists()
+    assert child_folder.parent == Path(tempfile.gettempdir()) and not child_folder.exists()
     (tmp_path / "plain").mkdir()
     assert gap_report.write_plots(tmp_path / "plain", *args, surface=surface) == names
     assert sorted(p.name for p in (tmp_path / "ahead").iterdir()) == sorted(names)
@@ -248,7 +249,7 @@ def test_the_figures_drawn_at_the_checkpoint_are_those_drawn_at_the_end(tmp_path
     # started from other objects (a guess that missed): not taken, drawn from these
     with gap_report.FiguresAhead() as other:
         other.start(seen[0] | {"rsf": ex["rsf"] * 0.0})
-        assert other.drawing(dict(seen[0])) == () and other._folder is None
+        assert other.drawing(dict(seen[0])) == () and other.folder is None
         (tmp_path / "other").mkdir()
         gap_report.write_plots(tmp_path / "other", *args, surface=surface, ahead=other)
     assert (tmp_path / "other" / "residual_time.png").read_bytes() == (tmp_path / "plain" /
@@ -264,3 +265,26 @@ def test_the_figures_drawn_at_the_checkpoint_are_those_drawn_at_the_end(tmp_path
         assert failing.drawing(dict(seen[0])) == gap_report.FiguresAhead.NAMES
         assert failing.taken(tmp_path) == {}
     monkeypatch.undo()
+
+
+def test_an_analysis_that_fails_after_its_checkpoint_leaves_no_figure_behind(tmp_path, flights, monkeypatch):
+    """The figures started at the checkpoint are the command's own: where the analysis then fails, the child is
+    stopped and its folder removed, and the report folder is not written."""
+    from uavturb.gap import finder
+
+    folders = []
+    start = gap_report.FiguresAhead.start
+
+    def started(self, plots):
+        start(self, plots)
+        folders.append(self.folder)
+
+    def fails(steps):
+        raise InputError("rec/mav0/rotors0/data.csv", "fails after the checkpoint")
+
+    monkeypatch.setattr(gap_report.FiguresAhead, "start", started)
+    monkeypatch.setattr(finder, "_finished", fails)
+    with pytest.raises(InputError, match="fails after the checkpoint"):
+        gap([str(flights["ground"])], tmp_path / "report", log_mlflow=False, sim_effects="none")
+    assert len(folders) == 1 and folders[0] is not None and not folders[0].exists()
+    assert not (tmp_path / "report").exists()

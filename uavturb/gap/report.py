@@ -175,8 +175,9 @@ class FiguresAhead:
         if not forking_possible():
             return
         self._plots = plots
-        self._folder = tempfile.TemporaryDirectory(prefix="uavturb-figures-")
-        pool = ForkedPool((Path(self._folder.name), plots), max_processes=1)
+        # a child stopped while it writes may leave a file behind the removal: nothing to report then
+        self._folder = tempfile.TemporaryDirectory(prefix="uavturb-figures-", ignore_cleanup_errors=True)
+        pool = ForkedPool((self.folder, plots), max_processes=1)
         self._started = pool.start(_draw_ahead_in_child, 0)
 
     def drawing(self, plots: dict) -> tuple[str, ...]:
@@ -194,10 +195,16 @@ class FiguresAhead:
         self._started = None
         drawn = {}
         for name, file in zip(self.NAMES, files):
-            shutil.move(Path(self._folder.name) / file, Path(folder) / file)
-            drawn[name] = file
+            if (self.folder / file).is_file():
+                shutil.move(self.folder / file, Path(folder) / file)
+                drawn[name] = file
         self.close()
         return drawn
+
+    @property
+    def folder(self) -> Path | None:
+        """Where the child draws (a temporary folder); None where nothing is being drawn ahead."""
+        return None if self._folder is None else Path(self._folder.name)
 
     def close(self) -> None:
         """Stop a child still drawing and remove its folder."""
