@@ -267,6 +267,33 @@ def test_the_figures_drawn_at_the_checkpoint_are_those_drawn_at_the_end(tmp_path
     monkeypatch.undo()
 
 
+def test_rotor_columns_in_another_order_are_said_and_change_no_force(tmp_path):
+    """A log whose rotors0 columns come in another order than vehicle.yaml's angles (two columns swapped): the report
+    says which order the torques follow and the fix, reads no torque timing on them, and names the same effects with
+    the same values (the thrust is a sum over the rotors); the flight as written reads vehicle.yaml's order. (A
+    quadrotor: the simulated hexarotor's controller moves its rotors in pairs alike, which the flight does not tell
+    apart.)"""
+    written = tmp_path / "quad"
+    generate_flight(vehicle="quad", effects="ground_effect:mu=2.0", duration=30.0, kind="mixed", seed=13, out=written)
+    swapped = tmp_path / "swapped"
+    shutil.copytree(written, swapped)
+    csv = swapped / "mav0" / "rotors0" / "data.csv"
+    header, *rows = csv.read_text().splitlines()
+    cells = [r.split(",") for r in rows]
+    csv.write_text("\n".join([header] + [",".join([c[0], c[2], c[1], *c[3:]]) for c in cells]) + "\n")
+    as_written = run(tmp_path / "written", [written], sim_effects="none")
+    report = run(tmp_path / "swapped_report", [swapped], sim_effects="none")
+    assert as_written["facts"]["rotor_order"]["verdict"] == "vehicle.yaml's"
+    order = report["facts"]["rotor_order"]
+    assert order["verdict"] == "another" and order["best_other"][:2] == [1, 0]
+    assert "torque_lag" not in report["facts"]
+    said = [line for line in report["streams"]["streams"] if "rotors0: the rotor columns are in another order" in line]
+    assert len(said) == 1 and "rotor_angles_deg and rotor_directions in the order of rotors0's columns" in said[0]
+    assert said[0] in (tmp_path / "swapped_report" / "report" / "report.md").read_text()
+    assert [(e["name"], e["params"]) for e in report["effects"]] == [(e["name"], e["params"])
+                                                                     for e in as_written["effects"]]
+
+
 def test_an_analysis_that_fails_after_its_checkpoint_leaves_no_figure_behind(tmp_path, flights, monkeypatch):
     """The figures started at the checkpoint are the command's own: where the analysis then fails, the child is
     stopped and its folder removed, and the report folder is not written."""

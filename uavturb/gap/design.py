@@ -38,6 +38,7 @@ from uavturb.physics.effects import EFFECTS, EffectInputs, lag_rotor_speeds, lag
 from uavturb.sysid.accelerometer import anchored_bias
 from uavturb.sysid.command_lag import CommandLag
 from uavturb.sysid.flight_data import FlightData
+from uavturb.sysid.rotor_order import RotorOrder
 
 #: rows in flight a recording needs to be fitted alone for the spread between recordings
 #: (:func:`uavturb.gap.uncertainty.error_budget`; a minute of 3 Hz rotor telemetry over two flights has ~150): with
@@ -159,6 +160,9 @@ class GapData:
     #: the roll and pitch torques' lag behind commanded rotor speeds
     #: read on the contiguous flights (None: measured or held speeds; subsets do not carry it)
     torque_lag: CommandLag | None = field(default=None, repr=False)
+    #: which order of the rotor columns the roll and pitch accelerations follow, read on the contiguous flights
+    #: (:mod:`uavturb.sysid.rotor_order`; None: not read, or too few rows; subsets do not carry it)
+    rotor_order: RotorOrder | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.t)

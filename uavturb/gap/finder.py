@@ -110,6 +110,8 @@ from uavturb.physics.effects import (
 )
 from uavturb.sysid.command_lag import CommandLag, command_lag
 from uavturb.sysid.flight_data import flight_data, rotor_hold_s
+from uavturb.sysid.rotor_order import OTHER as OTHER_ORDER
+from uavturb.sysid.rotor_order import REORDER, RotorOrder, rotor_order
 
 SCHEMA = "uavturb.gap/1"
 #: the stages of ``uavturb gap``, for its progress bar (:class:`uavturb.progress.Stages`); :func:`analyse`
@@ -413,7 +415,9 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
     paths = [str(r.path) if r.path else r.name for r in recordings]
     progress("aligning the streams")
     recordings, fds, held = prepared(recordings, paths)
-    data, contact_report, landed = _flight_rows(fds, [r.vehicle for r in recordings], paths, sim_forces=bool(sim))
+    data, contact_report, landed = _flight_rows(fds, [r.vehicle for r in recordings], paths, sim_forces=bool(sim),
+                                                read_order=True)
+    held["streams"] += _rotor_order_lines(data.rotor_order, recordings)
     # emptied as the rows were built; what they keep lives on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
     del fds
     if len(data) < MIN_ANALYSIS_ROWS and data.dense is not None:
@@ -587,7 +591,8 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
                   "speed_p90_m_s": facts.speed_p90,
                   "d_down_min_m": facts.d_down_min, "d_up_min_m": facts.d_up_min, "has_imu": facts.has_imu,
                   "duration_s": facts.duration_s}
-        | ({"torque_lag": data.torque_lag.to_dict()} if data.torque_lag is not None else {}),
+        | ({"torque_lag": data.torque_lag.to_dict()} if data.torque_lag is not None else {})
+        | ({"rotor_order": data.rotor_order.to_dict()} if data.rotor_order is not None else {}),
         "final": {"heldout_rmse_N": sel.final_heldout.rmse, "rmse_N": float(np.sqrt(np.mean(np.sum(rf**2, 1))))},
         "unexplained": unexplained,
         "open_loop": {"horizon_s": 0.5, "before_m": _open_loop(data, base.force),
@@ -627,15 +632,17 @@ def _check_thrust_scale(fd: Any, vehicle: Any, path: str) -> None:
                                 "coefficient or mass off")
 
 
-def _flight_rows(fds: list, vehicles: Sequence[Any], paths: Sequence[str], *, sim_forces: bool = True
-                 ) -> tuple[GapData, list[dict[str, Any]], LandedHeights]:
+def _flight_rows(fds: list, vehicles: Sequence[Any], paths: Sequence[str], *, sim_forces: bool = True,
+                 read_order: bool = False) -> tuple[GapData, list[dict[str, Any]], LandedHeights]:
     """The flights' rows in the air (ground contact found and left out), the report's ``ground_contact`` and the
     recordings' landed heights, each flight's heights moved so that they land at one
     (:func:`~uavturb.gap.preparation.landings_aligned`), and its forces with its own vehicle.yaml's mass
     (``vehicles``, one per flight: one vehicle, io.reader checks, whose batteries may weigh differently). Rotor
     speeds at odds with vehicle.yaml's thrust coefficient are refused (:func:`_check_thrust_scale`). ``fds`` is
     emptied as the rows are built (its places set to None: :func:`~uavturb.gap.design.gap_data`'s ``release``);
-    ``sim_forces``: the simulator models effects, computed on the flights at full rate (``gap_data``'s)."""
+    ``sim_forces``: the simulator models effects, computed on the flights at full rate (``gap_data``'s);
+    ``read_order``: read which order of the rotor columns the torques follow (:func:`_rotor_columns_order`, the
+    rows' :attr:`~uavturb.gap.design.GapData.rotor_order`; once, on the recordings as read)."""
     for fd, vehicle_of, path in zip(fds, vehicles, paths):
         if vehicle_of.thrust_coefficient:
             _check_thrust_scale(fd, vehicle_of, path)
@@ -643,12 +650,42 @@ def _flight_rows(fds: list, vehicles: Sequence[Any], paths: Sequence[str], *, si
     fds[:], landed = landings_aligned(fds, vehicle)
     contact, contact_report = contact_masks(fds, vehicle, paths)
     masses = [v.mass for v in vehicles]
-    torque = _torques_timed(fds, vehicle, contact)
+    order = _rotor_columns_order(fds, vehicle, contact) if read_order else None
+    torque = _torques_timed(fds, vehicle, contact) if order is None or order.verdict != OTHER_ORDER else None
     data = gap_data(fds, vehicle.mass, vehicle.rotor_radius, k_T_guess=vehicle.thrust_coefficient, release=True,
                     arm_length=vehicle.arm_length, exclude=contact, masses=None if len(set(masses)) == 1 else masses,
                     sim_forces=sim_forces)
     data.torque_lag = torque
+    data.rotor_order = order
     return data, contact_report, landed
+
+
+#: rows in the air at most that the rotor columns' order is read on (every k-th row beyond): a correlation over 10,000
+#: rows has a standard error near 0.01-0.02 (fewer where the rows, thinned, are still correlated over about 50 ms),
+#: well under the orders' margin of 0.1 (``rotor_order.ORDER_MARGIN``)
+ORDER_ROWS = 10_000
+
+
+def _rotor_columns_order(fds: list, vehicle: Any, contact: list[np.ndarray]) -> RotorOrder | None:
+    """Which order of the rotor columns the roll and pitch accelerations follow in the air
+    (:func:`uavturb.sysid.rotor_order.rotor_order`, as ``identify`` reads it). The forces do not depend on it (the
+    thrust is a sum over the rotors); the torques, and the torques' timing of commanded speeds, do."""
+    usable = [~c & np.isfinite(fd.dw).all(axis=1) for fd, c in zip(fds, contact)]
+    stride = -(-sum(int(u.sum()) for u in usable) // ORDER_ROWS)
+    if stride > 1:  # every stride-th row in the air: the time stays bounded (twelve one-minute walks: 0.44 -> 0.07 s)
+        usable = [u & (np.cumsum(u) % stride == 0) for u in usable]
+    return rotor_order([fd.matched(fd.rotor_speeds**2) for fd in fds], [fd.dw for fd in fds], vehicle.mixer(),
+                       dt=[fd.dt for fd in fds], usable=usable)
+
+
+def _rotor_order_lines(order: RotorOrder | None, recordings: Sequence) -> list[str]:
+    """The streams' line where the rotor columns follow another order than vehicle.yaml's angles: what it changes
+    (the torques' timing, not the forces) and the fix; nothing otherwise (the order is in ``facts.rotor_order``)."""
+    if order is None or order.verdict != OTHER_ORDER:
+        return []
+    names = ", ".join(dict.fromkeys(r.name for r in recordings))
+    return [f"{names}/mav0/rotors0: {order.sentence()}. The forces read here do not depend on it (the thrust is a sum "
+            f"over the rotors); the torques do, so the commands' timing is not read on them: {REORDER}"]
 
 
 def _torques_timed(fds: list, vehicle: Any, contact: list[np.ndarray]) -> CommandLag | None:
