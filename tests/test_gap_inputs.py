@@ -810,6 +810,22 @@ def test_a_reader_that_stops_reading_ends_the_command_quietly(tmp_path, good):
     assert (out / "report.json").exists() and (out / "report.md").exists()
 
 
+def test_the_program_ends_at_once_after_gap_with_its_output_and_status(tmp_path, good):
+    """``uavturb gap`` as a program (``cli.console``) ends without the interpreter's teardown (``cli.QUICK_EXIT``):
+    its summary is printed whole (flushed first), its status kept, on success and on a bad input alike."""
+    out = tmp_path / "report"
+    done = subprocess.run([sys.executable, "-m", "uavturb.cli", "gap", str(good), "--out", str(out), "--sim-effects",
+                           "none", "--no-mlflow"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith("effects named:") and lines[-1].endswith(f"report in {out}")
+    assert json.loads((out / "report.json").read_text())["recordings"] == [str(good)]
+    bad = subprocess.run([sys.executable, "-m", "uavturb.cli", "gap", str(tmp_path / "missing"), "--out",
+                          str(tmp_path / "bad")], capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 2 and bad.stdout == "" and len(bad.stderr.splitlines()) == 1
+    assert "missing" in bad.stderr and not (tmp_path / "bad").exists()
+
+
 def test_an_imu_logged_over_part_of_the_flight_is_said_and_cuts_only_what_reads_it(tmp_path, capsys, good):
     """imu0 over the middle half of the flight had cut ``identify``'s and ``residuals``' rows by half without a word,
     ``residuals --source mocap`` included, which does not read the IMU."""

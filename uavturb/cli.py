@@ -696,5 +696,28 @@ def _run(args: argparse.Namespace) -> int:
     return HANDLERS[command](args)
 
 
+#: commands that leave nothing for the interpreter's exit to do (each process they start is waited for, each file
+#: they write closed, no logging handler or background writer left): the program ends without its teardown, which
+#: after ``uavturb gap`` spent 0.2-0.3 s freeing the modules of numpy, scipy, pandas and matplotlib (six walks: the
+#: whole command 9.06 s on average against 8.85 s, three runs each in turn)
+QUICK_EXIT = frozenset({"gap"})
+
+
+def console() -> None:
+    """The ``uavturb`` program (pyproject's script, ``python -m uavturb.cli``): :func:`main` on the command line, then
+    the process ends with its exit status; after the commands of :data:`QUICK_EXIT` (named first on the command line)
+    at once, its output flushed, as ``runs.store_process`` ends. Tests call :func:`main`, which returns."""
+    argv = sys.argv[1:]
+    code = main(argv)
+    if not argv or argv[0] not in QUICK_EXIT:
+        sys.exit(code)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a reader gone (main has already said what it had to), a stream closed
+            pass
+    os._exit(code & 0xFF)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console()
