@@ -683,9 +683,10 @@ def _rotor_order_lines(order: RotorOrder | None, recordings: Sequence) -> list[s
     (the torques' timing, not the forces) and the fix; nothing otherwise (the order is in ``facts.rotor_order``)."""
     if order is None or order.verdict != OTHER_ORDER:
         return []
-    names = ", ".join(dict.fromkeys(r.name for r in recordings))
-    return [f"{names}/mav0/rotors0: {order.sentence()}. The forces read here do not depend on it (the thrust is a sum "
-            f"over the rotors); the torques do, so the commands' timing is not read on them: {REORDER}"]
+    names = list(dict.fromkeys(r.name for r in recordings))
+    where = f"{names[0]}/mav0/rotors0" if len(names) == 1 else f"mav0/rotors0 of {', '.join(names)} (read together)"
+    return [f"{where}: {order.sentence()}. The forces read here do not depend on it (the thrust is a sum over the "
+            f"rotors); the torques do, so the commands' timing is not read on them: {REORDER}"]
 
 
 def _torques_timed(fds: list, vehicle: Any, contact: list[np.ndarray]) -> CommandLag | None:

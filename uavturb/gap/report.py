@@ -108,7 +108,7 @@ def _plot_time(ax, t: np.ndarray, y: np.ndarray, pixels: int, **kw) -> None:
 
 
 def write_plots(folder: Path, data, baseline_r, baseline_rs, final_r, final_rs, segs, top_driver: str | None,
-                heldout_before, heldout_after, surface: tuple | None = None, ahead: "FiguresAhead | None" = None
+                heldout_before, heldout_after, surface: tuple | None = None, ahead: FiguresAhead | None = None
                 ) -> list[str]:
     """The figures a person needs to believe the report, drawn side by side in processes forked from this one
     (:class:`~uavturb.numerics.processes.ForkedPool`: each figure is Python-bound; a dozen recordings' took 4.5 s
