@@ -12,6 +12,7 @@ import pytest
 
 from uavturb.errors import InputError
 from uavturb.commands.gap import gap
+from uavturb.gap import finder
 from uavturb.gap import report as gap_report
 from uavturb.gap.finder import analyse, parse_sim_effects
 from uavturb.io.reader import load_recordings
@@ -297,8 +298,6 @@ def test_rotor_columns_in_another_order_are_said_and_change_no_force(tmp_path):
 def test_an_analysis_that_fails_after_its_checkpoint_leaves_no_figure_behind(tmp_path, flights, monkeypatch):
     """The figures started at the checkpoint are the command's own: where the analysis then fails, the child is
     stopped and its folder removed, and the report folder is not written."""
-    from uavturb.gap import finder
-
     folders = []
     start = gap_report.FiguresAhead.start
 
