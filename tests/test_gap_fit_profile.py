@@ -196,3 +196,77 @@ def test_folds_fitted_together_are_the_fits_on_each_folds_rows(recordings):
     one, other = fits.heldout(effects), fits.heldout(frozenset({"ground_effect"}))
     assert other.t is one.t and other.group is one.group and other.blocks is one.blocks
     assert np.array_equal(one.resid, together.resid) and not np.array_equal(other.resid, one.resid)
+
+
+def test_thrust_columns_written_into_a_wider_array_by_columns_are_the_same_to_the_bit():
+    """The profile writes the columns into one column-major array beside y and the fixed columns
+    (``out``): the same numbers as a new array, in that very array; a mismatched ``out`` is refused."""
+    data, _ = _hover()
+    effects = {"ground_effect", "battery_sag"}
+    S, surf = data.S * 1.01, np.linspace(0.0, 0.2, len(data))
+    wide = np.full((3 * len(data), 4), np.nan, order="F")
+    D, names = thrust_columns(data, effects, S, surf, out=wide[:, :2])
+    assert np.shares_memory(D, wide) and np.array_equal(wide[:, :2], thrust_columns(data, effects, S, surf)[0])
+    assert np.isnan(wide[:, 2:]).all()  # the columns beside are left alone
+    with pytest.raises(ValueError, match="shape"):
+        thrust_columns(data, effects, S, surf, out=wide[:, :3])
+
+
+def _three_recordings(effects: frozenset[str], shared: dict | None = None, still: bool = False
+                      ) -> tuple[GapData, Profile, list[np.ndarray], list[np.ndarray]]:
+    """The hover cut in three recordings (``still``: no velocity), a profile of ``effects`` cut in the held-out
+    folds' pieces (as ``FoldFits`` cuts it), the pieces and the folds' flags."""
+    from uavturb.gap.selection import FoldFits, folds
+
+    data, _ = _hover(K=3000)
+    if still:
+        data.v = np.zeros_like(data.v)
+    data.group = np.repeat(np.arange(3), 1000)
+    data.names = ["a", "b", "c"]
+    fits = FoldFits(data, folds(data)[1])
+    prof = Profile(data, effects, stack_target(data.y), fits.pieces, {} if shared is None else shared,
+                   folds=fits.uses)
+    return data, prof, fits.pieces, fits.uses
+
+
+@pytest.mark.parametrize("effects", [frozenset({"ground_effect", "motor_lag"}),
+                                     frozenset({"ground_effect", "wind"}),  # fixed columns beside
+                                     frozenset({"ground_effect", "body_drag"})])  # a column of zeros: rank-deficient
+def test_the_folds_errors_solved_together_are_each_folds_own(effects):
+    """Every fold's least-squares error at a value, solved side by side (a pseudo-inverse cut as lstsq cuts it),
+    is the error of that fold's own solve; asked for one fold, the profile holds them all."""
+    from uavturb.gap.fit import _nl_values
+
+    data, prof, _, uses = _three_recordings(effects, still="body_drag" in effects)
+    if "body_drag" in effects:  # its column is zero where nothing moves
+        assert prof.nf == 1 and not np.any(prof._DyF[:, -1]) and np.linalg.matrix_rank(prof.FF.sum(axis=0)) == 0
+    values = {k: v for k, v in {"ground_effect": 2.5, "motor_lag": 0.04}.items() if k in effects}
+    assert len(uses) == 3 and all(u.sum() == 2 for u in uses)
+    first = prof.sse(values, uses[1])
+    assert len(prof._sse) == 3  # the other folds' errors at that value came with it
+    for use in uses:
+        own = prof._solved(_nl_values(values), use)[1]
+        assert own > 0 and prof.sse(values, use) == pytest.approx(own, rel=1e-10)
+    assert first == prof.sse(values, uses[1])
+    prof.sse(values, np.array([True, False, False]))  # a union of pieces that is no fold: solved on its own
+    assert len(prof._sse) == 4
+
+
+def test_shared_sums_are_one_products_numbers_whoever_computed_them_first():
+    """Profiles without fixed columns share their sums (a selection step's searches return to the same values);
+    a profile with fixed columns computes its own, so the shared numbers never depend on which came first."""
+    from uavturb.gap.fit import _nl_values
+
+    shared: dict = {}
+    at = _nl_values({"ground_effect": 2.0})
+    data, windy, pieces, uses = _three_recordings(frozenset({"ground_effect", "wind"}), shared)
+    windy.sse({"ground_effect": 2.0}, uses[0])
+    assert shared == {}  # computed beside its fixed columns: not shared
+    bare = Profile(data, frozenset({"ground_effect"}), stack_target(data.y), pieces, shared, folds=uses)
+    bare.sse({"ground_effect": 2.0}, uses[0])
+    assert len(shared) == 1
+    again = Profile(data, frozenset({"ground_effect"}), stack_target(data.y), pieces, shared, folds=uses)
+    assert again._sums_at(at)[0] is bare._sums_at(at)[0]
+    # the windy profile's own product gives the same sums, to rounding
+    assert np.allclose(windy._sums_at(at)[0], bare._sums_at(at)[0], rtol=1e-12)
+    assert np.allclose(windy._sums_at(at)[2], bare._sums_at(at)[2], rtol=1e-12)

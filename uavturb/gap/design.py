@@ -651,7 +651,7 @@ def thrust_factor_names(effects: set[str] | frozenset[str]) -> list[str]:
 
 
 def thrust_columns(data: GapData, effects: set[str], S: np.ndarray, surf: np.ndarray,
-                   shapes: list[np.ndarray] = ()) -> tuple[np.ndarray, list[str]]:
+                   shapes: list[np.ndarray] = (), out: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
     """:func:`dependent_columns` from the effective ``S`` (K,), the surface laws' ``surf`` (K,) and the shapes
     of the laws with an amplitude (:func:`amplitude_shapes`).
 
@@ -659,14 +659,17 @@ def thrust_columns(data: GapData, effects: set[str], S: np.ndarray, surf: np.nda
     thrust coefficient adds ``x S R e_z`` with its factor ``x`` (``EffectSpec.thrust_factor``: the battery's
     ``-t``, ``k_T*s``; its voltage's ``V - V_mean``, ``k_T*k_V``); each amplitude's ``S shape`` along ``z`` of W
     (``k_T*A``); written straight into the ``(3K, P)`` array, each axis of W from the body z axis's contiguous row
-    (:attr:`GapData.z_body_rows`): the columns are the fits' innermost work."""
+    (:attr:`GapData.z_body_rows`): the columns are the fits' innermost work. ``out``: a ``(3K, P)`` array (a view
+    of a wider one allowed) that the columns are written into and returned as, in place of a new one."""
     factors = [name for name in sorted(effects) if name in THRUST_FACTOR]
     amplitudes = amplitude_names(effects)
     if len(shapes) != len(amplitudes):
         raise ValueError(f"{len(shapes)} shapes given for the amplitudes {amplitudes}")
     names = ["k_T"] + thrust_factor_names(effects) + amplitudes
     K, zb = len(S), data.z_body_rows
-    D = np.empty((3 * K, len(names)))
+    if out is not None and out.shape != (3 * K, len(names)):
+        raise ValueError(f"out has shape {out.shape}, the columns {(3 * K, len(names))}")
+    D = np.empty((3 * K, len(names))) if out is None else out
     for j in range(3):
         np.multiply(S, zb[j], out=D[j * K:(j + 1) * K, 0])
     D[2 * K:, 0] += S * surf

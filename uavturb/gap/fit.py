@@ -212,13 +212,20 @@ class Profile:
     (each recording a piece, or the first 70 % and last 30 % of one): they share every evaluation, each a
     pass over the rows, instead of repeating it on their own rows.
 
+    Each evaluation writes the dependent columns ``D`` into one array beside ``y`` and the fixed columns ``F``, and
+    takes ``D^T [D | y | F]`` in one product a piece (three had cost twice as much: with a dozen recordings the
+    calls, not the arithmetic, take the time).
+
     ``shared`` (a dict, kept by the caller): where profiles of other effect sets on the same ``data``, ``y`` and
-    ``pieces`` pass the same dict, the sums of the dependent columns with themselves and with ``y`` are kept there
-    for them all: effect sets that differ in linear effects only (the candidates of one selection step) have the
-    same dependent columns, and recompute only their products with the fixed columns (none without any)."""
+    ``pieces`` pass the same dict, a profile without fixed columns keeps its sums there, and finds those another
+    such profile with the same dependent columns computed (the bias-free candidates of a selection step and the
+    steps' searches return to the same values); a profile with fixed columns computes its own, since its product
+    with them costs what a new one of the dependent columns does. (The sums of one set of dependent columns come
+    from a product of one width, the same numbers whichever profile computed them first.)"""
 
     def __init__(self, data: GapData, effects: frozenset[str], y: np.ndarray,
-                 pieces: list[np.ndarray] | None = None, shared: dict | None = None):
+                 pieces: list[np.ndarray] | None = None, shared: dict | None = None,
+                 folds: list[np.ndarray] | None = None):
         self.data, self.effects, self.y = data, set(effects), y
         K = len(data)
         pieces = [np.arange(K)] if pieces is None else pieces
@@ -227,7 +234,6 @@ class Profile:
                       if len(p) and p[-1] - p[0] + 1 == len(p) else [p + j * K for j in range(3)] for p in pieces]
         self.n = np.array([len(p) for p in pieces])
         F, self.fixed_names = fixed_columns(data, self.effects)
-        self.F = F
         self.FF = np.stack([sum(F[r].T @ F[r] for r in rows) for rows in self._rows])
         self.Fy = np.stack([sum(F[r].T @ y[r] for r in rows) for rows in self._rows])
         self.yy = np.array([sum(float(y[r] @ y[r]) for r in rows) for rows in self._rows])
@@ -246,6 +252,16 @@ class Profile:
         self.dependent_names = ["k_T"] + thrust_factor_names(self.effects) + amplitude_names(self.effects)
         self._dependent = frozenset(e for e in self.effects if e in NONLINEAR or e in THRUST_FACTOR)
         self._shared = {} if shared is None else shared
+        # (3K, nd + 1 + nf): the dependent columns, written at each evaluation, then y and the fixed columns; by
+        # columns (Fortran order), so that each column is written and read as one run of memory
+        nd = len(self.dependent_names)
+        self._DyF = np.empty((len(y), nd + 1 + F.shape[1]), order="F")
+        self._DyF[:, nd] = y
+        self._DyF[:, nd + 1:] = F
+        self.nf = F.shape[1]
+        # the folds' unions of pieces (one flag a piece each), whose errors at a value are solved together
+        self._folds = None if not folds else np.array(folds, dtype=float)
+        self._fold_flags = [np.asarray(f, bool).tobytes() for f in folds or ()]
 
     def _columns(self, values: dict[str, float]) -> np.ndarray:
         tau = round(values["tau"], 12) if "motor_lag" in self.effects else 0.0
@@ -255,34 +271,32 @@ class Profile:
         if key not in self._surf:
             self._surf = {key: (surface_extra(self.data, self.effects, values),
                                 amplitude_shapes(self.data, self.effects, values))}
-        return thrust_columns(self.data, self.effects, self._S[tau], *self._surf[key])[0]
+        return thrust_columns(self.data, self.effects, self._S[tau], *self._surf[key],
+                              out=self._DyF[:, :len(self.dependent_names)])[0]
 
     def _key(self, values: dict[str, float]) -> tuple:
         return ((lag_key(values["tau"]) if "motor_lag" in self.effects else 0.0,)
                 + tuple(values[p] for p in self._surface))
 
     def _sums_at(self, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per piece: ``D^T D``, ``D^T F``, ``D^T y`` of the dependent columns ``D`` at ``values`` (the first and
-        the last from ``shared`` where a profile with the same dependent columns computed them)."""
+        """Per piece: ``D^T D``, ``D^T F``, ``D^T y`` of the dependent columns ``D`` at ``values`` (from ``shared``
+        where a profile without fixed columns and with the same dependent columns computed them)."""
         key = self._key(values)
         if key not in self._sums:
-            D = None
-            own = self._shared.get((self._dependent, key))
-            if own is None:
-                D = self._columns(values)
-                own = self._shared[(self._dependent, key)] = (self._piece_sums(D, D), self._piece_sums(D, self.y))
-            if self.F.shape[1] == 0:
-                DF = np.zeros((len(self._rows), len(self.dependent_names), 0))
-            else:
-                DF = self._piece_sums(self._columns(values) if D is None else D, self.F)
-            self._sums[key] = own[0], DF, own[1]
+            nd = len(self.dependent_names)
+            found = self._shared.get((self._dependent, key)) if self.nf == 0 else None
+            if found is None:
+                sums = self._piece_sums(self._columns(values), self._DyF)
+                found = sums[:, :, :nd], sums[:, :, nd + 1:], sums[:, :, nd]
+                if self.nf == 0:
+                    self._shared[(self._dependent, key)] = found
+            self._sums[key] = found
         return self._sums[key]
 
     def _piece_sums(self, D: np.ndarray, X: np.ndarray) -> np.ndarray:
-        """Per piece: ``D^T X`` (``X``: the columns ``D`` itself, the fixed columns ``F``, or the target ``y``,
-        whose products are a vector a piece). A piece of consecutive samples is three slices of the stacked (x, y,
-        z) rows, taken together as one batch of three products (a third of the calls: with a dozen recordings the
-        calls, not the arithmetic, had taken most of the time)."""
+        """Per piece: ``D^T X`` (``X``: ``[D | y | F]``). A piece of consecutive samples is three slices of the
+        stacked (x, y, z) rows, taken together as one batch of three products (a third of the calls: with a dozen
+        recordings the calls, not the arithmetic, had taken most of the time)."""
         K = len(self.data)
         if not all(isinstance(r[0], slice) for r in self._rows):
             return np.stack([sum(D[r].T @ X[r] for r in rows) for rows in self._rows])
@@ -309,12 +323,43 @@ class Profile:
         c = np.linalg.lstsq(G / np.outer(d, d), b / d, rcond=1e-13)[0]
         return c / d, max(float(self.yy[u].sum()) - float(c @ (b / d)), 0.0)
 
+    def _folds_sse(self, values: dict[str, float]) -> np.ndarray:
+        """(folds,) N^2, the least-squares error at ``values`` of the fit on each fold's pieces, solved side by side:
+        ``y'y - b' G^+ b`` of each fold's scaled normal equations, the pseudo-inverse cut where :func:`_solved`'s
+        ``lstsq`` cuts (eigenvalues of the symmetric ``G`` under 1e-13 of its largest); the same errors to the last
+        digits or so. One solve a fold had cost more than the sums the folds share (a fold's search at a value
+        is its solve only)."""
+        DD, DF, Dy = self._sums_at(values)
+        P, nd = DD.shape[:2]
+        p = nd + self.nf
+        Gp = np.empty((P, p, p))
+        Gp[:, :nd, :nd] = DD
+        Gp[:, :nd, nd:] = DF
+        Gp[:, nd:, :nd] = DF.transpose(0, 2, 1)
+        Gp[:, nd:, nd:] = self.FF
+        U = self._folds
+        G = (U @ Gp.reshape(P, -1)).reshape(-1, p, p)
+        b = U @ np.concatenate([Dy, self.Fy], axis=1)
+        d = np.sqrt(np.einsum("fii->fi", G))
+        d[d == 0] = 1.0
+        w, V = np.linalg.eigh(G / (d[:, :, None] * d[:, None, :]))
+        q = np.einsum("fji,fj->fi", V, b / d)  # the scaled b in the eigenvectors' basis
+        kept = np.abs(w) > 1e-13 * np.abs(w).max(axis=1, keepdims=True)
+        explained = np.sum(np.where(kept, q * q / np.where(kept, w, 1.0), 0.0), axis=1)
+        return np.maximum(U @ self.yy - explained, 0.0)
+
     def sse(self, nl: dict[str, float], use: np.ndarray | None = None) -> float:
-        """Least-squares error [N^2] with the nonlinear parameters ``nl`` on the pieces ``use`` (None: all)."""
+        """Least-squares error [N^2] with the nonlinear parameters ``nl`` on the pieces ``use`` (None: all). Where
+        ``use`` is one of the profile's ``folds``, every fold's error at ``nl`` is computed at once
+        (:meth:`_folds_sse`): the folds' searches try the same values."""
         values = _nl_values(nl)
-        key = (self._key(values), None if use is None else use.tobytes())
+        flags = None if use is None else use.tobytes()
+        key = (self._key(values), flags)
         if key not in self._sse:
-            self._sse[key] = self._solved(values, use)[1]
+            if flags in self._fold_flags:
+                self._sse.update({(key[0], f): float(e) for f, e in zip(self._fold_flags, self._folds_sse(values))})
+            else:
+                self._sse[key] = self._solved(values, use)[1]
         return self._sse[key]
 
     def fit(self, nl: dict[str, float], use: np.ndarray | None = None) -> ModelFit:

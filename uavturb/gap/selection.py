@@ -159,7 +159,8 @@ class FoldFits:
 
     def heldout(self, effects: frozenset[str], fixed: dict[str, float] | None = None) -> HeldOut:
         """Held-out residuals of the model with ``effects`` (nonlinear parameters in ``fixed`` held)."""
-        prof = Profile(self.data, frozenset(effects), stack_target(self.data.y), self.pieces, self._shared)
+        prof = Profile(self.data, frozenset(effects), stack_target(self.data.y), self.pieces, self._shared,
+                       folds=self.uses)
         errs = []
         for use, te in zip(self.uses, self.tests):
             fit = prof.fit(search_nonlinear(prof, frozenset(effects), fixed, use, HELDOUT_RTOL), use)
