@@ -107,6 +107,7 @@ def command_lag(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle:
         fd, m = _window(fd, m, per)
         idx = np.flatnonzero(m)
         parts.append((fd, idx, fd.dw[idx, :2], contiguous_blocks(fd.t[idx], LAG_BLOCKS), lag_stretches(fd.t)))
+    # each part's rows as one-hot block columns (rows, LAG_BLOCKS): a block's sums are products with them
     rows = sum(len(p[1]) for p in parts)
     if rows < 50:
         return None
@@ -114,21 +115,27 @@ def command_lag(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle:
     taus = np.arange(0.0, COMMAND_LAG_MAX_S + TAU_STEP_S / 2, TAU_STEP_S)
     at_zero = int(np.argmin(np.abs(shifts)))
 
+    onehot = [(block[:, None] == np.arange(LAG_BLOCKS)).astype(float) for _, _, _, block, _ in parts]
+    # the times each part's torques are read at, every shift's in one array (shifts * rows,)
+    query = [(fd.t[idx][None, :] - shifts[:, None]).ravel() for fd, idx, _, _, _ in parts]
+
     def block_sums(tau: float) -> np.ndarray:
         """(LAG_BLOCKS, 2 axes, 5, shifts): per block, the sums of x, y, xy, xx, yy of the torques' rotor columns
-        shifted (x) and the angular acceleration (y)."""
+        shifted (x) and the angular acceleration (y): each a product with the blocks' one-hot columns, and one
+        interpolation for every shift (a loop over blocks and shifts had made the calls cost more than the
+        arithmetic: twelve one-minute walks' reading took 0.30 s, now 0.21 s)."""
         out = np.zeros((LAG_BLOCKS, 2, 5, len(shifts)))
-        for fd, idx, dw, block, stretches in parts:
+        for (fd, idx, dw, _, stretches), B, at in zip(parts, onehot, query):
             speeds = fd.rotor_speeds if tau <= 0 else lag_rotor_speeds(fd.t, fd.rotor_speeds, tau, stretches)
             u = fd.matched((speeds**2) @ M[1:3].T)  # the roll and pitch torques' rotor columns
             for a in (0, 1):
-                x = np.stack([np.interp(fd.t[idx] - sh, fd.t, u[:, a]) for sh in shifts])  # (shifts, rows)
+                x = np.interp(at, fd.t, u[:, a]).reshape(len(shifts), len(idx))  # (shifts, rows)
                 y = dw[:, a]
-                for b in range(LAG_BLOCKS):
-                    k = block == b
-                    xb, yb = x[:, k], y[k]
-                    out[b, a] += [xb.sum(axis=1), np.full(len(shifts), yb.sum()), xb @ yb, (xb * xb).sum(axis=1),
-                                  np.full(len(shifts), yb @ yb)]
+                out[:, a, 0] += (x @ B).T
+                out[:, a, 1] += (y @ B)[:, None]
+                out[:, a, 2] += ((x * y) @ B).T
+                out[:, a, 3] += ((x * x) @ B).T
+                out[:, a, 4] += ((y * y) @ B)[:, None]
         return out
 
     def correlation(sums: np.ndarray, n: float) -> np.ndarray:
