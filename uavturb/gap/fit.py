@@ -221,7 +221,10 @@ class Profile:
     such profile with the same dependent columns computed (the bias-free candidates of a selection step and the
     steps' searches return to the same values); a profile with fixed columns computes its own, since its product
     with them costs what a new one of the dependent columns does. (The sums of one set of dependent columns come
-    from a product of one width, the same numbers whichever profile computed them first.)"""
+    from a product of one width, the same numbers whichever profile computed them first.)
+
+    ``folds`` (one flag a piece each: the held-out folds' unions of pieces): an error asked for on one of them is
+    solved on all of them at once (:meth:`_folds_sse`), as the folds' searches try the same values."""
 
     def __init__(self, data: GapData, effects: frozenset[str], y: np.ndarray,
                  pieces: list[np.ndarray] | None = None, shared: dict | None = None,
