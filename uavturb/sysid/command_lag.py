@@ -107,7 +107,6 @@ def command_lag(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle:
         fd, m = _window(fd, m, per)
         idx = np.flatnonzero(m)
         parts.append((fd, idx, fd.dw[idx, :2], contiguous_blocks(fd.t[idx], LAG_BLOCKS), lag_stretches(fd.t)))
-    # each part's rows as one-hot block columns (rows, LAG_BLOCKS): a block's sums are products with them
     rows = sum(len(p[1]) for p in parts)
     if rows < 50:
         return None
@@ -115,6 +114,7 @@ def command_lag(fds: Sequence[FlightData], masks: Sequence[np.ndarray], vehicle:
     taus = np.arange(0.0, COMMAND_LAG_MAX_S + TAU_STEP_S / 2, TAU_STEP_S)
     at_zero = int(np.argmin(np.abs(shifts)))
 
+    # each part's rows as one-hot block columns (rows, LAG_BLOCKS): a block's sums are products with them
     onehot = [(block[:, None] == np.arange(LAG_BLOCKS)).astype(float) for _, _, _, block, _ in parts]
     # the times each part's torques are read at, every shift's in one array (shifts * rows,)
     query = [(fd.t[idx][None, :] - shifts[:, None]).ravel() for fd, idx, _, _, _ in parts]
