@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from uavturb.gap.design import GapData, lag_key, stack_target, thrust_columns
-from uavturb.gap.fit import HELDOUT_RTOL, Profile, fit_model
+from uavturb.gap.fit import HELDOUT_RTOL, Profile, _nl_values, fit_model
+from uavturb.gap.selection import FoldFits, folds
 from uavturb.physics import quaternion as quat
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.physics.effects import lag_rotor_speeds
@@ -171,8 +172,6 @@ def test_lattice_values_span_the_search_range_with_the_coarse_grid_on_it():
 def test_folds_fitted_together_are_the_fits_on_each_folds_rows(recordings):
     """The held-out test's folds fitted from one profile cut in pieces give the residuals of fitting each fold on
     its own training rows (same nonlinear values, coefficients to rounding), both protocols."""
-    from uavturb.gap.selection import FoldFits, folds
-
     data, _ = _hover(K=3000)
     data.group = np.repeat(np.arange(recordings), -(-len(data) // recordings))[: len(data)]
     data.names = [f"rec{g}" for g in range(recordings)]
@@ -216,8 +215,6 @@ def _three_recordings(effects: frozenset[str], shared: dict | None = None, still
                       ) -> tuple[GapData, Profile, list[np.ndarray], list[np.ndarray]]:
     """The hover cut in three recordings (``still``: no velocity), a profile of ``effects`` cut in the held-out
     folds' pieces (as ``FoldFits`` cuts it), the pieces and the folds' flags."""
-    from uavturb.gap.selection import FoldFits, folds
-
     data, _ = _hover(K=3000)
     if still:
         data.v = np.zeros_like(data.v)
@@ -235,8 +232,6 @@ def _three_recordings(effects: frozenset[str], shared: dict | None = None, still
 def test_the_folds_errors_solved_together_are_each_folds_own(effects):
     """Every fold's least-squares error at a value, solved side by side (a pseudo-inverse cut as lstsq cuts it),
     is the error of that fold's own solve; asked for one fold, the profile holds them all."""
-    from uavturb.gap.fit import _nl_values
-
     data, prof, _, uses = _three_recordings(effects, still="body_drag" in effects)
     if "body_drag" in effects:  # its column is zero where nothing moves
         assert prof.nf == 1 and not np.any(prof._DyF[:, -1]) and np.linalg.matrix_rank(prof.FF.sum(axis=0)) == 0
@@ -255,8 +250,6 @@ def test_the_folds_errors_solved_together_are_each_folds_own(effects):
 def test_shared_sums_are_one_products_numbers_whoever_computed_them_first():
     """Profiles without fixed columns share their sums (a selection step's searches return to the same values);
     a profile with fixed columns computes its own, so the shared numbers never depend on which came first."""
-    from uavturb.gap.fit import _nl_values
-
     shared: dict = {}
     at = _nl_values({"ground_effect": 2.0})
     data, windy, pieces, uses = _three_recordings(frozenset({"ground_effect", "wind"}), shared)

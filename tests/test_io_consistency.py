@@ -6,7 +6,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from uavturb.io.consistency import POSITION_WINDOW_S, _masked_correlation, _window_edges, clock_offset, in_flight
+from uavturb.io.consistency import (POSITION_WINDOW_S, _column_correlations, _masked_correlation, _window_edges,
+                                    clock_offset, in_flight)
 from uavturb.io.recording import Rotors
 from uavturb.numerics.stream_updates import hold_period_s
 
@@ -76,6 +77,23 @@ def test_masked_correlation_is_pearsons_r_on_each_rows_samples():
         assert r[j] == pytest.approx(np.corrcoef(x[j, ok[j]], y[j, ok[j]])[0, 1], abs=1e-12)
     assert r[1] > 0.99 and np.isnan(r[3])
     assert np.isnan(_masked_correlation(np.ones((1, 100)), y[:1, :100], np.ones((1, 100), bool))[0])
+
+
+def test_column_correlations_are_corrcoefs_of_each_column():
+    """Every column's Pearson's r with one series at once: np.corrcoef's, column by column; nan for a constant
+    column; a column equal to the series, or to its negative times two, at exactly +-1."""
+    rng = np.random.default_rng(3)
+    y = rng.normal(size=800)
+    X = rng.normal(size=(800, 6)) + np.linspace(-1.0, 1.0, 6) * y[:, None]
+    X[:, 2] = 4.0
+    X[:, 3] = y
+    X[:, 4] = -2.0 * y + 7.0
+    r = _column_correlations(y, X)
+    for j in (0, 1, 5):
+        assert r[j] == pytest.approx(np.corrcoef(y, X[:, j])[0, 1], abs=1e-14)
+    assert r[0] < -0.5 < 0.5 < r[5] and np.isnan(r[2])
+    assert r[3] == pytest.approx(1.0, abs=1e-15) and r[4] == pytest.approx(-1.0, abs=1e-15)
+    assert np.all(np.abs(r[[3, 4]]) <= 1.0)  # clipped
 
 
 @pytest.mark.parametrize("late_s", [0.0, 0.15, -0.4, 2.5])
