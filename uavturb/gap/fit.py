@@ -229,7 +229,7 @@ class Profile:
     def __init__(self, data: GapData, effects: frozenset[str], y: np.ndarray,
                  pieces: list[np.ndarray] | None = None, shared: dict | None = None,
                  folds: list[np.ndarray] | None = None):
-        self.data, self.effects, self.y = data, set(effects), y
+        self.data, self.effects = data, set(effects)
         K = len(data)
         pieces = [np.arange(K)] if pieces is None else pieces
         # each piece's rows of the stacked (x, y, z) design: three slices where its samples are consecutive
