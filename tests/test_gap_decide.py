@@ -532,7 +532,7 @@ def test_an_unpinned_alternative_law_is_no_candidate():
     where it names a ground law; the law rejected stays in ``rejected``, saying what was named instead."""
     from types import SimpleNamespace
 
-    from uavturb.gap.finder import _without_unpinned_laws
+    from uavturb.gap.discovery import without_unpinned_laws
 
     candidates = ["ground_effect", "ground_effect_exponential", "battery_voltage", "rotor_drag"]
     unpinned = {"name": "ground_effect_exponential", "params": {"A": 0.38, "lam": 0.98}, "reason": "not_pinned",
@@ -549,7 +549,7 @@ def test_an_unpinned_alternative_law_is_no_candidate():
     def decide(sel, among):
         return sel, [], [{"name": "rotor_drag", "reason": "too_small", "why": "too small"}]
 
-    sel, ambiguous, rejected = _without_unpinned_laws(first, candidates, selected_naming(
+    sel, ambiguous, rejected = without_unpinned_laws(first, candidates, selected_naming(
         ["ground_effect", "battery_voltage"]), decide)
     assert asked == [["ground_effect", "battery_voltage", "rotor_drag"]]  # the unpinned law is no candidate
     assert sel.chosen == ["ground_effect", "battery_voltage"] and ambiguous == []
@@ -557,32 +557,32 @@ def test_an_unpinned_alternative_law_is_no_candidate():
     assert rejected[1]["why"].endswith("the selection made again without it names `ground_effect`")
     assert sel.tried["ground_effect_exponential"] == {"step1_z": 3.2, "not_pinned_selected_again": 1.0}
     # made again, it names no ground law: what was decided first stands
-    assert _without_unpinned_laws(first, candidates, selected_naming(["battery_voltage"]), decide) is first
+    assert without_unpinned_laws(first, candidates, selected_naming(["battery_voltage"]), decide) is first
     # a law rejected for its range, or one not pinned beside a ground law named: nothing made again
     asked.clear()
     outside = (first[0], [], [unpinned | {"reason": "outside_range"}])
-    assert _without_unpinned_laws(outside, candidates, selected_naming(["ground_effect"]), decide) is outside
+    assert without_unpinned_laws(outside, candidates, selected_naming(["ground_effect"]), decide) is outside
     named = (SimpleNamespace(chosen=["ground_effect"], tried={}), [], [unpinned])
-    assert _without_unpinned_laws(named, candidates, selected_naming(["ground_effect"]), decide) is named
+    assert without_unpinned_laws(named, candidates, selected_naming(["ground_effect"]), decide) is named
     assert asked == []
     # Cheeseman-Bennett, the standard law, is no alternative: rejected as not pinned, nothing is made again
     standard = (first[0], [], [unpinned | {"name": "ground_effect"}])
-    assert _without_unpinned_laws(standard, candidates, selected_naming(["ground_effect"]), decide) is standard
+    assert without_unpinned_laws(standard, candidates, selected_naming(["ground_effect"]), decide) is standard
 
 
 def test_a_lift_the_curve_shows_is_said_beside_an_unpinned_ground_law():
     """A ground law rejected as not pinned while the curve stands well above 1 and no ground law is named: its line
     says the lift is there; not where a ground law is named, the curve shows too little, or another check failed."""
-    from uavturb.gap.finder import _lift_beside_unpinned
+    from uavturb.gap.discovery import lift_beside_unpinned
 
     unpinned = {"name": "ground_effect_exponential", "reason": "not_pinned", "why": "within 2 standard errors of zero"}
     other = {"name": "battery_voltage", "reason": "not_pinned", "why": "within 2 standard errors of zero"}
     ranged = {"name": "ground_effect", "reason": "outside_range", "why": "mu outside its range"}
-    out = _lift_beside_unpinned([unpinned, other, ranged], ["rotor_drag"], 48.8)
+    out = lift_beside_unpinned([unpinned, other, ranged], ["rotor_drag"], 48.8)
     assert "the measured surface curve stands 49 standard errors above 1" in out[0]["why"]
     assert out[1] == other and out[2] == ranged
     for chosen, lift in ((["ground_effect"], 48.8), (["rotor_drag"], 3.9)):
-        assert _lift_beside_unpinned([unpinned], chosen, lift) == [unpinned]
+        assert lift_beside_unpinned([unpinned], chosen, lift) == [unpinned]
 
 
 def test_a_law_resting_on_one_sample_is_not_pinned(monkeypatch):
@@ -591,7 +591,7 @@ def test_a_law_resting_on_one_sample_is_not_pinned(monkeypatch):
     thrust coefficient), so mu is no discovery however far from zero it stands, and the reason names the sample.
     Thirty samples there, spread through the flight, share it: mu is pinned, and fitted right."""
     from uavturb.gap import uncertainty
-    from uavturb.gap.finder import not_pinned
+    from uavturb.gap.discovery import not_pinned
     from uavturb.gap.uncertainty import one_sample
 
     def hover(low_rows: int) -> GapData:

@@ -13,16 +13,8 @@ import pytest
 from uavturb.cli import main
 from uavturb.gap.decide import can_test_alone
 from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels
-from uavturb.gap.finder import (
-    _at_stated_offset,
-    _cross_checked,
-    _curves_at_open_offsets,
-    _nominal,
-    analyse,
-    composed_offset,
-    curve_named_thrust_map,
-    read_on_moved_speeds,
-)
+from uavturb.gap.finder import _nominal, analyse, composed_offset, read_on_moved_speeds
+from uavturb.gap.named_errors import at_stated_offset, cross_checked, curve_named_thrust_map, curves_at_open_offsets
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.sysid.nominal import (UNREAD_OFFSET_SPAN, ThrustLevels, matched_height_levels, SpeedOffset,
                                  offset_cells, speed_offset, stated_offset, thrust_levels)
@@ -249,7 +241,7 @@ def test_a_law_named_from_the_curve_carries_the_thrust_map_term_too():
     entry = {"name": "ground_effect", "params": {"mu": mu}, "named_from": "surface_curve",
              "error_budget": {"mu": {"sample": 0.01, "stderr": 0.01, "limited_by": "sample"}}, "stderr": {"mu": 0.01}}
     found, ends, _ = thrust_map_term(data, final)
-    at_ends = _curves_at_open_offsets(data, final, {"open_interval_rad_s": list(ends)})
+    at_ends = curves_at_open_offsets(data, final, {"open_interval_rad_s": list(ends)})
     out = curve_named_thrust_map([copy.deepcopy(entry)], None, at_ends)[0][0]
     moved = data.with_speed_offset(found.delta)
     _, _, moved_fits = finder_surface_curve(moved, fit_model(moved, {"ground_effect"}), resample=False)
@@ -258,7 +250,7 @@ def test_a_law_named_from_the_curve_carries_the_thrust_map_term_too():
             == pytest.approx(abs(moved_fits["ground_effect"].params["mu"] - mu) / 2))
     assert out["error_budget"]["mu"]["limited_by"] == "thrust_map" and abs(mu - 2.0) <= 2.1 * out["stderr"]["mu"]
     assert curve_named_thrust_map([copy.deepcopy(entry)], None, []) == ([entry], None)
-    assert _curves_at_open_offsets(data, final, {"open_interval_rad_s": [0.0, 0.0]}) == []
+    assert curves_at_open_offsets(data, final, {"open_interval_rad_s": [0.0, 0.0]}) == []
 
 
 def test_named_values_are_stated_at_the_centre_of_the_offsets_left_open():
@@ -293,14 +285,14 @@ def test_a_value_stated_at_the_centre_of_an_offset_that_counts_is_nearer_the_tru
     thrust_map = thrust_map_term(data, final)
     found, ends, terms = thrust_map
     assert found.counts and not found.decisive and ends == (0.0, found.delta)
-    stated, moved, at = _at_stated_offset(data, final, thrust_map)
+    stated, moved, at = at_stated_offset(data, final, thrust_map)
     assert stated == pytest.approx(found.delta / 2) and at.effects == final.effects
     hover = np.median(np.mean(data.rotor_speeds, axis=1))
     assert np.median(np.mean(moved.rotor_speeds, axis=1)) == pytest.approx(hover, rel=0.01)
     mu0, mu = final.nonlinear["ground_effect"], at.nonlinear["ground_effect"]
     assert abs(mu0 - 2.0) > 0.5 and abs(mu - 2.0) < 0.5 * abs(mu0 - 2.0)
     assert abs(mu - 2.0) <= terms["ground_effect"]["mu"]
-    assert _at_stated_offset(data, final, None) == (0.0, data, final)
+    assert at_stated_offset(data, final, None) == (0.0, data, final)
 
 
 def test_speeds_moved_keeping_the_hover_speed_keep_stopped_rotors_stopped():
@@ -530,12 +522,12 @@ def test_a_law_whose_shape_misses_the_curve_still_carries_the_curve_term():
     budget = {"mu": {"sample": 0.3, "height_reference": 0.5, "stderr": 0.58, "limited_by": "sample", "fits": 1}}
     effects = [{"name": "ground_effect", "params": {"mu": 5.0}, "stderr": {"mu": 0.58}, "error_budget": budget}]
     misfit = SimpleNamespace(law_fits=False, value=7.0, param="mu")
-    out = _cross_checked(copy.deepcopy(effects), {"ground_effect": misfit})[0]
+    out = cross_checked(copy.deepcopy(effects), {"ground_effect": misfit})[0]
     assert out["error_budget"]["mu"]["surface_curve"] == pytest.approx(1.0)
     assert out["stderr"]["mu"] == pytest.approx(np.hypot(0.58, 1.0))
     assert out["error_budget"]["mu"]["limited_by"] == "surface_curve"
     none = SimpleNamespace(law_fits=False, value=float("nan"), param="mu")
-    assert _cross_checked(copy.deepcopy(effects), {"ground_effect": none})[0] == effects[0]
+    assert cross_checked(copy.deepcopy(effects), {"ground_effect": none})[0] == effects[0]
 
 
 def test_command_sampling_term_is_a_quarter_of_the_slowest_hold_period():

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from uavturb.errors import InputError
-from uavturb.gap.finder import _rate_checked, _timing_checked, analyse
+from uavturb.gap.finder import analyse
+from uavturb.gap.named_errors import rate_checked, timing_checked
 from uavturb.gap.preparation import state_thinned
 from uavturb.gap.report import write_markdown
 from uavturb.gap.uncertainty import mass_term, scales_with_mass
@@ -99,17 +100,17 @@ def test_held_and_late_measured_rotors(tmp_path):
     for name, interval in (("none", [0.0, 0.0]), ("wide", [0.0, 0.3])):
         effects = copy.deepcopy(report["effects"])
         wide = [d | {"uncertain_s": interval} for d in delays]
-        _timing_checked(effects, extras["final"], recordings, [str(p) for p in paths], wide)
+        timing_checked(effects, extras["final"], recordings, [str(p) for p in paths], wide)
         finals[name] = effects[0]["error_budget"]["mu"]["rotor_timing"]
     assert finals["none"] == 0.0 and finals["wide"] > 0.01
     # the stream rate term is the named model refitted on the ground truth at half its rate, where it is too slow
     effects = [{k: v for k, v in e.items() if k != "error_budget"} | {"error_budget": {
         p: {t: x for t, x in b.items() if t != "stream_rate"} for p, b in e["error_budget"].items()}}
         for e in copy.deepcopy(report["effects"])]
-    assert _rate_checked(copy.deepcopy(effects), extras["final"], recordings, [str(p) for p in paths], []) == effects
+    assert rate_checked(copy.deepcopy(effects), extras["final"], recordings, [str(p) for p in paths], []) == effects
     halved = [state_thinned(r) for r in recordings]
-    slower = _rate_checked(copy.deepcopy(effects), extras["final"], halved, [str(p) for p in paths],
-                           [str(p) for p in paths])
+    slower = rate_checked(copy.deepcopy(effects), extras["final"], halved, [str(p) for p in paths],
+                          [str(p) for p in paths])
     assert slower[0]["error_budget"]["mu"]["stream_rate"] > 0.0  # 2.25 Hz against 4.5 Hz: mu moves
 
 
@@ -584,12 +585,12 @@ def test_a_floor_and_a_ceiling_a_metre_apart_are_named_together(tmp_path, monkey
     # a pair passes together: where a later decision drops one (here the ceiling law, made to read outside its
     # range), the other, which gained nothing alone, leaves with it (the sixth blind probe's two no-effect sessions
     # 6 % apart in thrust level had kept the ground law named, mu = 1.7 +- 1.0, after the ceiling law was rejected)
-    import uavturb.gap.finder as finder
+    import uavturb.gap.discovery as discovery
 
     def ceiling_out(data, fit, name, facts=None):  # at the decisions (which pass the flights' facts), not before
         return "made to read outside its range" if name == "ceiling_effect" and facts is not None else None
 
-    monkeypatch.setattr(finder, "outside_range", ceiling_out)
+    monkeypatch.setattr(discovery, "outside_range", ceiling_out)
     alone, _ = analyse(load_recordings([path]), {})
     assert alone["effects"] == [] and [r["name"] for r in alone["rejected"]] == ["ceiling_effect"]
     assert alone["candidates_tried"]["ground_effect"]["dropped_with_ceiling_effect"] == 1.0

@@ -36,7 +36,7 @@ from uavturb.numerics.processes import ForkedPool, Started, forked_state, forkin
 FEATURE_UNITS = {"d_down": "m", "d_up": "m", "v_x": "m/s", "v_y": "m/s", "v_z": "m/s", "v_Bx": "m/s", "v_By": "m/s",
                  "v_Bz": "m/s", "speed": "m/s", "rotor_speed_sum": "rad/s", "rotor_speed_rate": "rad/s^2",
                  "thrust_sum_omega2": "rad^2/s^2", "t": "s"}
-#: report.md's words for each ``reason`` of a ``rejected`` entry (:func:`uavturb.gap.finder._no_discovery`)
+#: report.md's words for each ``reason`` of a ``rejected`` entry (:func:`uavturb.gap.discovery.no_discovery`)
 REJECTION_REASONS = {"outside_range": "outside its physical range", "too_small": "too small to matter",
                      "not_pinned": "not pinned by these flights"}
 #: resolution of the report's PNG figures [dots per inch]
