@@ -402,24 +402,7 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
     held["streams"] += rotor_order_lines(data.rotor_order, recordings)
     # emptied as the rows were built; what they keep lives on in ``data`` (memory: a flight-hour at 200 Hz is 720k rows)
     del fds
-    if len(data) < MIN_ANALYSIS_ROWS and data.dense is not None:
-        where = f"{recordings[0].path or recordings[0].name}/mav0/rotors0/data.csv"
-        raise InputError(where, f"only {len(data)} rotor-speed updates in flight (the stream updates at "
-                                f"{held['slowest_update_hz']:.2g} Hz or slower, and the thrust is known only at its "
-                                f"updates); too few to analyse: longer or more flights, or faster rotor telemetry")
-    if len(data) < MIN_ANALYSIS_ROWS:
-        frozen = [p for r, p in zip(recordings, paths)
-                  if r.rotors is not None and not np.ptp(r.rotors.speeds, axis=0).any()]
-        if frozen:
-            raise InputError(f"{frozen[0]}/mav0/rotors0/data.csv",
-                             "holds the same rotor speeds in every row: a stream that never changes is read as one "
-                             "update its logger held (recordings.md: what a stream holds is its updates), which "
-                             "tells the thrust at no time in flight; rotor speeds as they vary (commands or "
-                             "telemetry) are needed")
-        where = paths[0] if len(paths) == 1 else ", ".join(paths)
-        raise InputError(where, f"only {len(data)} samples in flight (rotors carrying over 30 % of the weight, "
-                                f"off the ground, away from stream dropouts) in {len(paths)} recording(s); too "
-                                "few to analyse")
+    _check_enough_rows(data, recordings, paths, held["slowest_update_hz"])
     progress("the nominal model")
     levels = apply_thrust_levels(data)
 
@@ -471,19 +454,7 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
                                         set(sel.chosen) | {r["name"] for r in rejected}
                                         | {c for a in ambiguous for c in a["candidates"]},
                                         lambda fit, name: outside_range(data, fit, name), protocol)
-    look_alike = next((a for a in ambiguous if "thrust_axis_tilt" in a["candidates"]), None)
-    if look_alike is not None:  # the push left undecided: each recording's tilt, with its error, for the reader
-        per, _ = tilt_per_recording(data, final, rf)
-        look_alike["per_recording"] = [e | {"recording": paths[e["recording"]]} for e in per]
-    tilt = None if look_alike is not None else residual_thrust_tilt(data, final, rf, facts)
-    if tilt is not None:  # what is left beyond the tilt drives the drivers (a tilt had read as d_up on x)
-        entry, force = tilt
-        for e in entry["per_recording"]:
-            e["recording"] = paths[e["recording"]]
-        _, rst, _ = locate.segments(data, rf - force, update_step_s=step)
-        entry["rms_beyond_tilt_N"] = float(np.sqrt(max(0.0,
-                                                       np.mean(np.sum(rst**2, axis=1)) - np.sum(sigma**2) / draws)))
-        unexplained |= {"drivers": locate.drivers(data, rst), "thrust_axis_tilt": entry}
+    unexplained = _thrust_axis_tilts(unexplained, ambiguous, data, final, rf, facts, paths, sigma, step)
     thrust_map = thrust_map_term(data, final, rf) if not measured_rotor_speeds(recordings) else None
     plots = dict(data=data, r0=base.r0, rs0=rs0, rf=rf, rsf=rsf, segs=segs, drivers=drv, base_ho=base_ho,
                  final_ho=sel.final_heldout)
@@ -514,15 +485,7 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
     named, curve_report = curve_named_thrust_map(named, curve_report, curves_at_open_offsets(data, final, speed_map))
     named = [mass_checked(e, final.coef["k_T"], vehicle.thrust_coefficient) for e in named]
     if curve_report is None:  # no measured curve judged the law's shape: said, with the margin of a better one
-        for e in named:
-            if EFFECTS[e["name"]].surface == "d_down":
-                found = better_law_not_named(e["name"], sel.tried)
-                # the bar selection asked of it: Z_DISTINCT where no curve judged the two shapes
-                needed = Z_IMPROVE if found and evidence.judges(found[0], e["name"]) else Z_DISTINCT
-                unpinned = bool(found) and any(k.endswith("_not_pinned_by_heights") for k in sel.tried[found[0]])
-                e["law_shape_open"] = {"law": found[0] if found else None,
-                                       "heldout_z_over": found[1] if found else None, "needed": needed,
-                                       "not_pinned_by_heights": unpinned}
+        named = _law_shapes_open(named, sel.tried, evidence)
     named = untaken_checked(named, data, final, sel.tried, {e["name"] for e in rejected + not_testable}
                             | {c for a in ambiguous for c in a["candidates"]})
     if curve_report is not None:
@@ -584,6 +547,74 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
     extras = plots | dict(final=final, curve=curve, curve_fits=curve_fits,
                           curve_named=_named_on_curve(curve_report, curve, data))
     return report, extras
+
+
+def _thrust_axis_tilts(unexplained: dict[str, Any], ambiguous: list[dict], data: GapData, final: ModelFit,
+                       rf: np.ndarray, facts: Any, paths: Sequence[str], sigma: np.ndarray, step: float
+                       ) -> dict[str, Any]:
+    """The report's ``unexplained`` with what a thrust axis tilted from the recorded attitude reads in the final
+    residual ``rf`` [N] (:func:`~uavturb.gap.decide.residual_thrust_tilt`: each recording's tilt, and the drivers
+    of what is left beyond it: a tilt had read as d_up on x); where the push is already left undecided between
+    wind and a tilt (an ``ambiguous`` entry with ``thrust_axis_tilt``), that entry gets each recording's tilt with
+    its error instead (modified in place). ``sigma`` [N] the noise per axis, ``step`` [s] the slowest stream's
+    update step (:func:`~uavturb.gap.locate.segments`)."""
+    look_alike = next((a for a in ambiguous if "thrust_axis_tilt" in a["candidates"]), None)
+    if look_alike is not None:  # the push left undecided: each recording's tilt, with its error, for the reader
+        per, _ = tilt_per_recording(data, final, rf)
+        look_alike["per_recording"] = [e | {"recording": paths[e["recording"]]} for e in per]
+        return unexplained
+    tilt = residual_thrust_tilt(data, final, rf, facts)
+    if tilt is None:
+        return unexplained
+    entry, force = tilt
+    for e in entry["per_recording"]:
+        e["recording"] = paths[e["recording"]]
+    _, rst, _ = locate.segments(data, rf - force, update_step_s=step)
+    _, draws = locate.window_rows(data, 0.5, step)
+    entry["rms_beyond_tilt_N"] = float(np.sqrt(max(0.0, np.mean(np.sum(rst**2, axis=1)) - np.sum(sigma**2) / draws)))
+    return unexplained | {"drivers": locate.drivers(data, rst), "thrust_axis_tilt": entry}
+
+
+def _law_shapes_open(named: list[dict[str, Any]], tried: dict[str, dict[str, float]], evidence: CurveEvidence
+                     ) -> list[dict[str, Any]]:
+    """``named`` with ``law_shape_open`` on each ground law, where no measured curve judged the law's shape: the
+    better law not named (:func:`~uavturb.gap.selection.better_law_not_named`), by how much it fitted the held-out
+    rows better, the bar the selection asked of it (:data:`~uavturb.gap.selection.Z_DISTINCT` where no curve judged
+    the two shapes) and whether the heights pinned it (modified in place)."""
+    for e in named:
+        if EFFECTS[e["name"]].surface == "d_down":
+            found = better_law_not_named(e["name"], tried)
+            needed = Z_IMPROVE if found and evidence.judges(found[0], e["name"]) else Z_DISTINCT
+            unpinned = bool(found) and any(k.endswith("_not_pinned_by_heights") for k in tried[found[0]])
+            e["law_shape_open"] = {"law": found[0] if found else None,
+                                   "heldout_z_over": found[1] if found else None, "needed": needed,
+                                   "not_pinned_by_heights": unpinned}
+    return named
+
+
+def _check_enough_rows(data: GapData, recordings: Sequence, paths: Sequence[str], slowest_update_hz: float
+                       ) -> None:
+    """Refused in one line where ``data`` holds fewer than :data:`~uavturb.gap.design.MIN_ANALYSIS_ROWS` rows in
+    flight: rotor speeds that update too slowly (``slowest_update_hz``, the slowest stream's updates), that never
+    change, or too little flight."""
+    if len(data) < MIN_ANALYSIS_ROWS and data.dense is not None:
+        where = f"{recordings[0].path or recordings[0].name}/mav0/rotors0/data.csv"
+        raise InputError(where, f"only {len(data)} rotor-speed updates in flight (the stream updates at "
+                                f"{slowest_update_hz:.2g} Hz or slower, and the thrust is known only at its "
+                                f"updates); too few to analyse: longer or more flights, or faster rotor telemetry")
+    if len(data) < MIN_ANALYSIS_ROWS:
+        frozen = [p for r, p in zip(recordings, paths)
+                  if r.rotors is not None and not np.ptp(r.rotors.speeds, axis=0).any()]
+        if frozen:
+            raise InputError(f"{frozen[0]}/mav0/rotors0/data.csv",
+                             "holds the same rotor speeds in every row: a stream that never changes is read as one "
+                             "update its logger held (recordings.md: what a stream holds is its updates), which "
+                             "tells the thrust at no time in flight; rotor speeds as they vary (commands or "
+                             "telemetry) are needed")
+        where = paths[0] if len(paths) == 1 else ", ".join(paths)
+        raise InputError(where, f"only {len(data)} samples in flight (rotors carrying over 30 % of the weight, "
+                                f"off the ground, away from stream dropouts) in {len(paths)} recording(s); too "
+                                "few to analyse")
 
 
 def _timing_robust(data: GapData, sel: Selection, ambiguous: list[dict], recordings: Sequence, paths: Sequence[str],
