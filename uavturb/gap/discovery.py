@@ -3,7 +3,6 @@ discovery"): each effect the selection chose is kept, rejected (outside its phys
 pinned by the data) or left ``ambiguous`` with what it trades against, and the selection refitted without what
 leaves."""
 
-
 from __future__ import annotations
 
 from typing import Any, Callable, Sequence
@@ -21,16 +20,9 @@ from uavturb.gap.decide import (
     thrust_tilt_alike,
     too_small,
 )
-from uavturb.gap.design import (
-    GapData,
-)
+from uavturb.gap.design import GapData
 from uavturb.gap.fit import ModelFit
-from uavturb.gap.selection import (
-    LIFT_Z,
-    Selection,
-    finish,
-    look_alike_entry,
-)
+from uavturb.gap.selection import LIFT_Z, Selection, finish, look_alike_entry
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     HONEST_Z,
@@ -40,9 +32,7 @@ from uavturb.gap.uncertainty import (
     presence_z,
     statistical_errors,
 )
-from uavturb.physics.effects import (
-    EFFECTS,
-)
+from uavturb.physics.effects import EFFECTS
 
 
 def outside_range(data: GapData, fit: ModelFit, name: str, facts: Any = None) -> str | None:

@@ -21,12 +21,7 @@ from uavturb.gap.decide import (
     surface_reach,
     tilt_per_recording,
 )
-from uavturb.gap.design import (
-    MIN_ANALYSIS_ROWS,
-    GapData,
-    apply_thrust_levels,
-    rounding_floor,
-)
+from uavturb.gap.design import MIN_ANALYSIS_ROWS, GapData, apply_thrust_levels, rounding_floor
 from uavturb.gap.discovery import lift_beside_unpinned, only_decided, outside_range, without_unpinned_laws
 from uavturb.gap.fit import ModelFit, fit_model, forking_worth, robust_nominal
 from uavturb.gap.flight_rows import flight_rows, rotor_order_lines
@@ -44,11 +39,7 @@ from uavturb.gap.named_errors import (
     with_law_band,
     with_term,
 )
-from uavturb.gap.preparation import (
-    prepared,
-    rotor_shifted,
-    rotor_speeds_moved,
-)
+from uavturb.gap.preparation import prepared, rotor_shifted, rotor_speeds_moved
 from uavturb.gap.selection import (
     Z_DISTINCT,
     Z_IMPROVE,
@@ -73,12 +64,7 @@ from uavturb.gap.surface_laws import (
     law_named_from_curve,
     law_on_curve,
 )
-from uavturb.gap.uncertainty import (
-    HEIGHT_REFERENCE_M,
-    Refits,
-    command_sampling_term,
-    thrust_map_term,
-)
+from uavturb.gap.uncertainty import HEIGHT_REFERENCE_M, Refits, command_sampling_term, thrust_map_term
 from uavturb.numerics.processes import ForkedPool, forked_state, forking_possible, in_forked_child
 from uavturb.numerics.stream_updates import rotor_quantum, rounding_share
 from uavturb.physics.dynamics import GRAVITY
@@ -90,10 +76,7 @@ from uavturb.physics.effects import (
     total_force,
 )
 from uavturb.sysid.flight_data import flight_data, rotor_hold_s
-from uavturb.sysid.nominal import (
-    OFFSET_DECISIVE_Z,
-    ThrustLevels,
-)
+from uavturb.sysid.nominal import OFFSET_DECISIVE_Z, ThrustLevels
 
 SCHEMA = "uavturb.gap/1"
 #: the stages of ``uavturb gap``, for its progress bar (:class:`uavturb.progress.Stages`); :func:`analyse`

@@ -2,7 +2,6 @@
 coefficient, landings aligned, ground contact left out, and what the torques read of the rotor columns' order and of
 the commands' timing."""
 
-
 from __future__ import annotations
 
 from typing import Any, Sequence
@@ -10,15 +9,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.gap.design import (
-    GapData,
-    gap_data,
-)
+from uavturb.gap.design import GapData, gap_data
 from uavturb.gap.landed_heights import LandedHeights
-from uavturb.gap.preparation import (
-    contact_masks,
-    landings_aligned,
-)
+from uavturb.gap.preparation import contact_masks, landings_aligned
 from uavturb.physics.dynamics import GRAVITY
 from uavturb.sysid.command_lag import CommandLag, command_lag
 from uavturb.sysid.rotor_order import OTHER as OTHER_ORDER

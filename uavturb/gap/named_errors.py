@@ -2,7 +2,6 @@
 with its error budget, and the systematic terms added to it (the rotor streams' timing, a slow stream's rate, the
 thrust map's open offset, candidates not taken, the mass, the measured surface curve's own fit)."""
 
-
 from __future__ import annotations
 
 from typing import Any, Sequence
@@ -10,26 +9,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from uavturb.errors import InputError
-from uavturb.gap.design import (
-    GapData,
-    apply_thrust_levels,
-)
+from uavturb.gap.design import GapData, apply_thrust_levels
 from uavturb.gap.discovery import effect_budget, outside_range
 from uavturb.gap.explain import explanation
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.gap.flight_rows import flight_rows
-from uavturb.gap.preparation import (
-    rotor_shifted,
-    state_thinned,
-)
-from uavturb.gap.selection import (
-    Selection,
-    last_step,
-)
-from uavturb.gap.surface_laws import (
-    finder_surface_curve,
-    law_band,
-)
+from uavturb.gap.preparation import rotor_shifted, state_thinned
+from uavturb.gap.selection import Selection, last_step
+from uavturb.gap.surface_laws import finder_surface_curve, law_band
 from uavturb.gap.uncertainty import (
     HEIGHT_REFERENCE_M,
     UNTAKEN_Z,
@@ -42,9 +29,7 @@ from uavturb.gap.uncertainty import (
     with_curve_check,
     with_systematic,
 )
-from uavturb.physics.effects import (
-    EFFECTS,
-)
+from uavturb.physics.effects import EFFECTS
 from uavturb.sysid.flight_data import flight_data
 from uavturb.sysid.nominal import (
     OFFSET_PRACTICAL,
