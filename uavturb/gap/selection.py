@@ -542,27 +542,9 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         rivals: dict[str, str] = {}
         remaining = [c for c in candidates if c not in current]
         while remaining and len(steps) < max_effects:
-            best = None  # the best held-out fit among the candidates that pass the guards
-            passed: dict[str, tuple] = {}
-            known.prefetch(current | {c} for c in remaining if c not in held_back)
-            for c in remaining:
-                if c in held_back:
-                    continue
-                ho = known.heldout(current | {c})
-                t = improvement_z(cur_ho, ho)
-                tried.setdefault(c, {})[f"step{len(steps) + 1}_z"] = t
-                tried[c][f"step{len(steps) + 1}_heldout_rmse_N"] = ho.rmse
-                tried[c][f"step{len(steps) + 1}_heldout_rmse_before_N"] = cur_ho.rmse
-                if t < z_improve and not curve.supports(c, t):
-                    continue
-                if t < z_improve:
-                    tried[c][f"step{len(steps) + 1}_curve_lift_z"] = curve.lift_z
-                if c in THRUST_AXIS and np.mean(cur_ho.err2) - np.mean(ho.err2) <= thrust_floor:
-                    tried[c][f"step{len(steps) + 1}_below_rounding_floor"] = 1.0
-                    continue
-                if best is None or ho.rmse < best[1].rmse:
-                    best = (c, ho, t)
-                passed[c] = (c, ho, t)
+            passed = _passing_candidates(known, current, cur_ho, [c for c in remaining if c not in held_back],
+                                         z_improve, thrust_floor, curve, tried, len(steps) + 1)
+            best = min(passed.values(), key=lambda entry: entry[1].rmse, default=None)
             if best is None:
                 pair = _thrust_laws_together(known, current, cur_ho, remaining, held_back, z_improve, thrust_floor,
                                              tried, len(steps) + 1, curve)
@@ -610,20 +592,7 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
             rejected.pop(c, None)
             held_back.clear()
 
-        # backward check: drop an effect whose removal does not hurt significantly
-        changed = True
-        while changed and len(steps) > 1:
-            changed = False
-            known.prefetch(current - {s.name} for s in steps)
-            for s in list(steps):
-                without = current - {s.name}
-                ho = known.heldout(without)
-                z_keep = improvement_z(ho, cur_ho)
-                if z_keep < z_improve and not curve.supports(s.name, z_keep):
-                    steps.remove(s)
-                    tried.setdefault(s.name, {})["dropped_z"] = float(z_keep)  # said in report.md's "Tried, not named"
-                    current, cur_ho, changed = without, ho, True
-                    break
+        steps = _backward_checked(known, steps, current, cur_ho, z_improve, curve, tried)
         sel = finish(data, frozenset(base), steps, offset=offset, lag=lag, tried=tried, known=known)
         sel.rejected = list(rejected.values())
         sel.look_alikes = look_alikes
@@ -631,6 +600,56 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         return sel
     finally:
         known.release()  # the processes it forked (a selection made again forks its own)
+
+
+def _passing_candidates(known: "_Known", current: frozenset[str], cur_ho: HeldOut, candidates: list[str],
+                        z_improve: float, thrust_floor: float, curve: CurveEvidence, tried: dict[str, dict[str, float]],
+                        step: int) -> dict[str, tuple[str, HeldOut, float]]:
+    """``{name: (name, held-out error, z)}`` of the ``candidates`` that pass a forward step's guards, each added to
+    ``current`` (held-out error ``cur_ho`` without it), in the candidates' order: a held-out gain of ``z_improve``
+    standard errors, or less where the measured surface curve supports it (``curve``); an effect along the thrust
+    axis also gaining more than ``thrust_floor`` [N^2] of mean squared error (what rounded rotor speeds can fake).
+    Each candidate's figures at step ``step`` go into ``tried`` (modified in place)."""
+    passed: dict[str, tuple[str, HeldOut, float]] = {}
+    known.prefetch(current | {c} for c in candidates)
+    for c in candidates:
+        ho = known.heldout(current | {c})
+        t = improvement_z(cur_ho, ho)
+        tried.setdefault(c, {})[f"step{step}_z"] = t
+        tried[c][f"step{step}_heldout_rmse_N"] = ho.rmse
+        tried[c][f"step{step}_heldout_rmse_before_N"] = cur_ho.rmse
+        if t < z_improve and not curve.supports(c, t):
+            continue
+        if t < z_improve:
+            tried[c][f"step{step}_curve_lift_z"] = curve.lift_z
+        if c in THRUST_AXIS and np.mean(cur_ho.err2) - np.mean(ho.err2) <= thrust_floor:
+            tried[c][f"step{step}_below_rounding_floor"] = 1.0
+            continue
+        passed[c] = (c, ho, t)
+    return passed
+
+
+def _backward_checked(known: "_Known", steps: list[Step], current: frozenset[str], cur_ho: HeldOut, z_improve: float,
+                      curve: CurveEvidence, tried: dict[str, dict[str, float]]) -> list[Step]:
+    """``steps`` without each effect whose removal from ``current`` (held-out error ``cur_ho``) does not hurt the
+    held-out fit by ``z_improve`` standard errors (nor by less where the measured surface curve supports it), one at
+    a time, in the order taken, until none goes; the ``dropped_z`` of each in ``tried`` (said in report.md's "Tried,
+    not named")."""
+    steps = list(steps)
+    changed = True
+    while changed and len(steps) > 1:
+        changed = False
+        known.prefetch(current - {s.name} for s in steps)
+        for s in list(steps):
+            without = current - {s.name}
+            ho = known.heldout(without)
+            z_keep = improvement_z(ho, cur_ho)
+            if z_keep < z_improve and not curve.supports(s.name, z_keep):
+                steps.remove(s)
+                tried.setdefault(s.name, {})["dropped_z"] = float(z_keep)
+                current, cur_ho, changed = without, ho, True
+                break
+    return steps
 
 
 def last_step(tried: dict[str, float]) -> tuple[int, float] | None:
