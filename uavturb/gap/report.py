@@ -337,19 +337,46 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                  f"rotor_speed_scale), the rotor stream's units and rate (What the streams hold) and the rests on the "
                  f"ground (the rows shown in Where the mismatch is).")
     L.append("")
-    L.append("## Named effects")
-    if not report["effects"]:
-        L.append("None: what these flights cannot decide is listed under Undecided." if report.get("ambiguous") else
+    L += _named_effect_lines(report["effects"], bool(report.get("ambiguous")))
+    L += _undecided_lines(report, names)
+    L += _surface_curve_lines(report.get("surface_curve"), report.get("height_reference"),
+                              report.get("surface_curve_missing"))
+    L += _recording_lines(report, names)
+    if report["sim_effect_params"]:
+        L.append("")
+        L.append("## The simulator's own effects, refitted")
+        for n, p in report["sim_effect_params"].items():
+            L.append(f"- `{n}`: simulator {format_params(p['sim'])}, fitted {format_params(p['fitted'])}")
+    L.append("")
+    L += _mismatch_lines(report, names)
+    if "open_loop" in report:
+        ol = report["open_loop"]
+        L.append("")
+        L.append(f"## Closing the loop\nOpen-loop position error over {ol['horizon_s']} s horizons: "
+                 f"{ol['before_m']:.4f} m → {ol['after_m']:.4f} m with the fitted effects.")
+    L.append("")
+    for p in plots:
+        L.append(f"![{p}]({p})")
+    (folder / "report.md").write_text("\n".join(L) + "\n")
+
+
+def _named_effect_lines(effects: list[dict], undecided: bool) -> list[str]:
+    """report.md's "Named effects": a table of the named ``effects`` with their held-out gain, then each one's
+    explanation, what limits each parameter's error, and what is left open of its law; ``undecided``: whether
+    anything was left ambiguous (said where nothing was named)."""
+    L = ["## Named effects"]
+    if not effects:
+        L.append("None: what these flights cannot decide is listed under Undecided." if undecided else
                  "None: no effect of the vocabulary improves the held-out fit beyond what noise explains.")
     else:
         L.append("| effect | parameters (± std. error) | held-out RMSE before → after [N] | z |")
         L.append("|---|---|---|---|")
-        for e in report["effects"]:
+        for e in effects:
             ps = format_params(e["params"], e["stderr"])
             L.append(f"| `{e['name']}` | {ps} | {e['heldout_rmse_before_N']:.4f} → {e['heldout_rmse_after_N']:.4f} | "
                      f"{e['z_heldout']:.1f} |")
         L.append("")
-        for e in report["effects"]:
+        for e in effects:
             L.append(f"- **{e['name']}**: {e['explanation']}")
             for k, b in (e.get("error_budget") or {}).items():
                 terms = ", ".join(f"{t.replace('_', ' ')} {v:.3g}" for t, v in b.items()
@@ -394,17 +421,14 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
                 td = e["time_domain"]
                 L.append(f"  - named from the measured surface curve; found in time as `{td['name']}` "
                          f"({format_params(td['params'], td.get('stderr'))})")
-    L += _undecided_lines(report, names)
-    L += _surface_curve_lines(report.get("surface_curve"), report.get("height_reference"),
-                              report.get("surface_curve_missing"))
-    L += _recording_lines(report, names)
-    if report["sim_effect_params"]:
-        L.append("")
-        L.append("## The simulator's own effects, refitted")
-        for n, p in report["sim_effect_params"].items():
-            L.append(f"- `{n}`: simulator {format_params(p['sim'])}, fitted {format_params(p['fitted'])}")
-    L.append("")
-    L.append("## Where the mismatch is")
+    return L
+
+
+def _mismatch_lines(report: dict, names: dict[str, str]) -> list[str]:
+    """report.md's "Where the mismatch is" (the located segments, largest first, and their drivers) and
+    "Unexplained" (what the named effects leave beyond noise, and a thrust-axis tilt read in it); ``names``: the
+    recordings' short names."""
+    L = ["## Where the mismatch is"]
     segs = report["mismatch"]["segments"]
     L.append(f"{len(segs)} segment(s) where the nominal model's residual stands out of the noise"
              + (" (largest first):" if segs else "."))
@@ -430,15 +454,7 @@ def write_markdown(folder: Path, report: dict, plots: list[str]) -> None:
         L.append(f"Thrust-axis tilt: {_tilts_text(tilt['per_recording'], names)}. It explains "
                  f"{100 * tilt['explains_share']:.0f} % of the horizontal "
                  f"residual (RMS beyond noise left: {tilt['rms_beyond_tilt_N']:.4f} N): {tilt['why']}.")
-    if "open_loop" in report:
-        ol = report["open_loop"]
-        L.append("")
-        L.append(f"## Closing the loop\nOpen-loop position error over {ol['horizon_s']} s horizons: "
-                 f"{ol['before_m']:.4f} m → {ol['after_m']:.4f} m with the fitted effects.")
-    L.append("")
-    for p in plots:
-        L.append(f"![{p}]({p})")
-    (folder / "report.md").write_text("\n".join(L) + "\n")
+    return L
 
 
 class _RecordingNames(dict):
