@@ -161,46 +161,15 @@ def only_decided(data: GapData, sel: Selection, candidates: list[str], refits: R
     undecided: list[str] = []  # effects dropped to ``ambiguous`` so far, and the fit that still held them
     with_undecided: ModelFit | None = None
     while True:
-        final = sel.final
-        facts = flight_facts(data, final.coef["k_T"])
-        drop = None
-        for s in steps:
-            params, _ = final.effect_params(s.name)
-            bad, reason = no_discovery(data, final, s.name, facts, refits)
-            if bad is not None and with_undecided is not None and _held_beside(data, with_undecided, s.name):
-                # it held beside an effect left undecided, and fails without it: its value hangs on that one
-                ambiguous.append(_hangs_on(with_undecided, s.name, undecided, bad))
-                drop = s
-                break
-            if bad is not None:
-                rejected.append({"name": s.name, "params": params, "reason": reason, "why": bad})
-                drop = s
-                break
-            amb = ambiguity(data, final, s.name, facts)
-            if amb is not None:
-                ambiguous.append(amb | {"params_if_named": params})
-                drop = s
-                break
-            amb = level_alike(data, final, s.name, levels_read)  # levels_read: the recordings' levels measured apart
-            if amb is not None:
-                ambiguous.append(amb)
-                drop = s
-                break
-        if drop is None and "wind" in {s.name for s in steps}:
-            amb = thrust_tilt_alike(data, final, facts)
-            if amb is not None:
-                ambiguous.append(amb)
-                drop = next(s for s in steps if s.name == "wind")
-        if drop is None and "rotor_drag" in {s.name for s in steps}:
-            amb = airspeed_drag(data, final, facts)
-            if amb is not None:
-                ambiguous.append(amb)
-                drop = next(s for s in steps if s.name == "rotor_drag")
+        drop, as_ambiguous, as_rejected = _first_undecided(data, sel.final, steps, refits, levels_read,
+                                                           with_undecided, undecided)
         if drop is None:
             break
+        ambiguous += as_ambiguous
+        rejected += as_rejected
         if any(drop.name in a["candidates"] for a in ambiguous) and drop.name not in undecided:
             if with_undecided is None:
-                with_undecided = final
+                with_undecided = sel.final  # the fit that still held it
             undecided.append(drop.name)
         steps.remove(drop)
         for s in [s for s in steps if s.named_with == drop.name]:  # it passed only together with the one dropped
@@ -210,21 +179,61 @@ def only_decided(data: GapData, sel: Selection, candidates: list[str], refits: R
         sel = finish(data, sel.base, steps, tried=sel.tried, known=sel.known)
     sel.known = None  # its folds' rows and fits are not needed past the decisions (memory)
     sel.rivals = rivals  # finish() starts a Selection afresh
-    final = sel.final
-    facts = flight_facts(data, final.coef["k_T"])
     named = {a for entry in ambiguous for a in entry["candidates"]}
+    return sel, ambiguous + _bias_look_alikes(data, sel.final, [c for c in candidates if c not in named]), rejected
+
+
+def _first_undecided(data: GapData, final: ModelFit, steps: list[Any], refits: Refits | None, levels_read: bool,
+                     with_undecided: ModelFit | None, undecided: list[str]) -> tuple[Any, list[dict], list[dict]]:
+    """``(step, ambiguous entries, rejected entries)`` of the first chosen effect (``steps``, as fitted in ``final``)
+    that the data do not decide, with what the report says of it; ``(None, [], [])`` where they decide them all.
+
+    In the order checked, per effect: no discovery (:func:`no_discovery`; where it held beside an effect left
+    undecided before, in ``with_undecided``, and fails without it, its value hangs on that one: ``ambiguous``, else
+    ``rejected``), traded against the nominal model's unknowns (``decide.ambiguity``), or against the recordings'
+    thrust levels (``decide.level_alike``; ``levels_read``: the levels were measured apart); then, over all of
+    them, a push that a thrust-axis tilt also gives (``wind``) and a drag on the airspeed (``rotor_drag``)."""
+    facts = flight_facts(data, final.coef["k_T"])
+    for s in steps:
+        params, _ = final.effect_params(s.name)
+        bad, reason = no_discovery(data, final, s.name, facts, refits)
+        if bad is not None and with_undecided is not None and _held_beside(data, with_undecided, s.name):
+            # it held beside an effect left undecided, and fails without it: its value hangs on that one
+            return s, [_hangs_on(with_undecided, s.name, undecided, bad)], []
+        if bad is not None:
+            return s, [], [{"name": s.name, "params": params, "reason": reason, "why": bad}]
+        amb = ambiguity(data, final, s.name, facts)
+        if amb is not None:
+            return s, [amb | {"params_if_named": params}], []
+        amb = level_alike(data, final, s.name, levels_read)
+        if amb is not None:
+            return s, [amb], []
+    for name, alike in (("wind", thrust_tilt_alike), ("rotor_drag", airspeed_drag)):
+        if name in {s.name for s in steps}:
+            amb = alike(data, final, facts)
+            if amb is not None:
+                return next(s for s in steps if s.name == name), [amb], []
+    return None, [], []
+
+
+def _bias_look_alikes(data: GapData, final: ModelFit, candidates: list[str]) -> list[dict]:
+    """``ambiguous`` entries for the ``candidates`` not named whose force is an accelerometer bias on these flights
+    (``decide.bias_alike``), where ``final``'s fitted horizontal bias stands over 4 standard errors from zero: a
+    steady push may hide in the bias."""
+    facts = flight_facts(data, final.coef["k_T"])
+    out = []
     for c in candidates:
-        if c in final.effects or c in named or bias_alike(data, c) < R2_AMBIGUOUS:
+        if c in final.effects or bias_alike(data, c) < R2_AMBIGUOUS:
             continue
         b = np.array([final.coef[f"b_{a}"] for a in "xy"])
         se = np.array([final.stderr.get(f"b_{a}", np.inf) for a in "xy"])
         if np.max(np.abs(b) / se) > 4.0:
             push = data.mass * float(np.hypot(*b))
-            ambiguous.append({
+            out.append({
                 "candidates": [c, "accelerometer_bias"],
                 "why": (f"the heading changed by only {facts.heading_span_deg:.0f} deg: the fitted accelerometer bias "
                         f"({b[0]:.3g}, {b[1]:.3g}) m/s^2 (body x, y) could as well be a steady push of about "
                         f"{push:.3g} N fixed in the world"),
                 "to_separate": "fly the same pattern at two or more headings (90 deg apart), or rely on motion "
                                "capture alone"})
-    return sel, ambiguous, rejected
+    return out
