@@ -16,8 +16,8 @@ from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels
 from uavturb.gap.finder import _nominal, analyse, composed_offset, read_on_moved_speeds
 from uavturb.gap.named_errors import at_stated_offset, cross_checked, curve_named_thrust_map, curves_at_open_offsets
 from uavturb.gap.fit import ModelFit, fit_model
-from uavturb.sysid.nominal import (UNREAD_OFFSET_SPAN, ThrustLevels, matched_height_levels, SpeedOffset,
-                                 offset_cells, speed_offset, stated_offset, thrust_levels)
+from uavturb.sysid.nominal import (UNREAD_OFFSET_SPAN, ThrustLevels, level_voltage_slope, matched_height_levels,
+                                   SpeedOffset, offset_cells, speed_offset, stated_offset, thrust_levels)
 from uavturb.gap.preparation import MIN_DELAY_S, TELEMETRY_DELAY_MAX_S, rotor_speeds_moved, timing_interval
 from uavturb.gap.surface_laws import finder_surface_curve
 from uavturb.gap.uncertainty import (
@@ -328,6 +328,51 @@ def test_thrust_levels_at_matched_heights_where_no_recording_flies_far():
     assert fit_model(data, {"ground_effect"}).nonlinear["ground_effect"] == pytest.approx(2.0, rel=0.05)
     same = apply_thrust_levels(_ground_flights(levels=(1.0, 1.0), tops=(0.5, 0.3)))
     assert same.basis == "matched heights" and not same.differ and np.all(same.level == 1.0)
+
+
+def _sweeps_on_a_sagging_battery(k_V: float, seed: int = 7):
+    """Two 60 s recordings of one vehicle, no level between them, sweeping the rotor plane over 0.12-0.62 m, one in
+    its first half (then hovering at the top), the other in its second: commanded speeds whose thrust follows the
+    battery's voltage by ``k_V`` [1/V]. The voltage falls 1.2 V over each flight and stands higher where the ground
+    effect unloads the rotors (a sag under load); a Cheeseman-Bennett lift of mu = 2. Rows:
+    ``(group, t, y_thrust, S, height, voltage_dev)``."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    for g in range(2):
+        K = 6000
+        t = np.arange(K) * 0.01
+        phase = np.clip((t - 30.0 * g) / 30.0, 0.0, 1.0)  # 0 -> 1 over the half it sweeps in
+        d = 0.62 - 0.5 * np.sin(np.pi * phase) ** 2 * (np.abs(np.sin(2 * np.pi * 3 * phase)) + 0.2) / 1.2
+        S = np.full(K, MASS * GRAVITY / K_T) * (1 + 0.03 * np.sin(1.7 * t)) + rng.normal(0, 1e3, K)
+        lift = force_ratio(d, 2.0, R_ROTOR)
+        volts = 16.0 - 0.02 * t + 2.0 * lift + rng.normal(0, 0.005, K)
+        dv = volts - volts.mean()
+        y = K_T * S * (1 + k_V * dv) * (1 + lift) + rng.normal(0, 0.05, K)
+        parts.append((np.full(K, g), t, y, S, d, dv))
+    return tuple(np.concatenate(x) for x in zip(*parts))
+
+
+def test_thrust_levels_follow_the_voltage_within_recordings_not_between():
+    """Matched heights flown at different battery states (the low bins early in one flight, late in the other) read
+    a level between two flights that have none; measured with the thrust taken back to each recording's mean
+    voltage, they agree, and the slope is the truth's within 10 % though the voltage is higher near the floor."""
+    group, t, y, S, d, dv = _sweeps_on_a_sagging_battery(k_V=0.13)
+    none = np.zeros(len(t), bool)
+    kappa, kappa_se = level_voltage_slope(group, t, y, S, dv, d, np.ones(len(t), bool))
+    assert kappa == pytest.approx(0.13, rel=0.1) and kappa > 10 * kappa_se
+    blind = thrust_levels(group, t, y, S, none, ["a", "b"], height=d, matched=~none)
+    assert blind.basis == "matched heights" and blind.differ  # 4.6 % apart, read off the voltage
+    with_volts = thrust_levels(group, t, y, S, none, ["a", "b"], height=d, matched=~none, voltage_dev=dv)
+    assert not with_volts.differ and with_volts.spread_percent < 0.5
+    assert "taken back to each recording's mean voltage" in with_volts.why and "per volt" in with_volts.why
+    # where the thrust does not follow the voltage, the levels are measured as they were
+    group, t, y, S, d, dv = _sweeps_on_a_sagging_battery(k_V=0.0)
+    kappa, kappa_se = level_voltage_slope(group, t, y, S, dv, d, np.ones(len(t), bool))
+    assert abs(kappa) < 3 * kappa_se
+    plain = thrust_levels(group, t, y, S, none, ["a", "b"], height=d, matched=~none)
+    same = thrust_levels(group, t, y, S, none, ["a", "b"], height=d, matched=~none, voltage_dev=dv)
+    np.testing.assert_array_equal(same.k_T, plain.k_T)
+    assert same.why == plain.why and same.differ == plain.differ
 
 
 def test_matched_height_levels_need_shared_heights():

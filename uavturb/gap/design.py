@@ -525,7 +525,7 @@ def apply_thrust_levels(data: GapData) -> ThrustLevels:
     y_thrust = np.einsum("ki,ki->k", rows.y, rows.R[:, :, 2])
     # matched heights: binned by the height over the floor, out of the ceiling's reach
     levels = thrust_levels(rows.group, rows.t, y_thrust, rows.S, far, rows.names,
-                           height=rows.d_down, matched=rows.d_up > reach)
+                           height=rows.d_down, matched=rows.d_up > reach, voltage_dev=rows.voltage_dev)
     if levels.differ:
         data.level = levels.level[data.group]
         if data.contiguous is not None:
