@@ -296,8 +296,11 @@ def _at_the_bins_heights(cells: list[tuple], group: np.ndarray, t: np.ndarray, y
     for b in sorted({c[1] for c in cells}):
         mine = [i for i, c in enumerate(cells) if c[1] == b]
         z, x, cell_h = [], [], {}
+        masks = {i: ok & (group == cells[i][0]) & (cell_bin == b) for i in mine}
+        if any(m.sum() < MATCHED_MIN_ROWS for m in masks.values()):
+            continue  # rows at no positive height: the bin is left as it is
         for i in mine:
-            m = ok & (group == cells[i][0]) & (cell_bin == b)
+            m = masks[i]
             lh = np.log(height[m])
             cell_h[i] = float(np.sum(S[m] * lh) / np.sum(S[m]))
             _, blk = np.unique(block_labels(t[m], BLOCK_S), return_inverse=True)
