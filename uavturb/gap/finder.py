@@ -54,6 +54,7 @@ from uavturb.gap.selection import (
     look_alike_entry,
     near_misses,
     select,
+    swapped_surface_law,
     untested_on_heldout,
 )
 from uavturb.gap.surface_curve import LIFT_RADII, lift_z
@@ -411,7 +412,8 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
                       unphysical=lambda fit, name: outside_range(data, fit, name),
                       known=None if after is None else after.known)
 
-    sel = selected(candidates)
+    sel, candidates = _with_surface_law_swapped(selected(candidates), candidates, selected,
+                                                float(np.sqrt(np.sum(sigma**2))))
     progress("deciding what the data support")
     refits = Refits()  # the error budgets' refits of data's parts, shared by the decisions and the named effects
 
@@ -573,6 +575,27 @@ def _law_shapes_open(named: list[dict[str, Any]], tried: dict[str, dict[str, flo
                                    "heldout_z_over": found[1] if found else None, "needed": needed,
                                    "not_pinned_by_heights": unpinned}
     return named
+
+
+def _with_surface_law_swapped(sel: Selection, candidates: list[str],
+                              selected: Callable[[list[str], Selection | None], Selection], noise_rms: float
+                              ) -> tuple[Selection, list[str]]:
+    """``(sel, candidates)``, or the selection made again without a chosen surface law, and the candidates without it,
+    where one of its alternatives with a thrust-scaling law beside it fits the held-out data better
+    (:func:`~uavturb.gap.selection.swapped_surface_law`) and the selection made again ends better than ``sel`` by
+    :data:`~uavturb.gap.selection.Z_IMPROVE` standard errors; the law left out says so in ``candidates_tried``
+    (``swapped_out_z``). ``noise_rms`` [N]: the noise floor's RMS (where the final model leaves little beyond it,
+    nothing is looked for)."""
+    swap = swapped_surface_law(sel, candidates, noise_rms)
+    if swap is None:
+        return sel, candidates
+    law, z = swap
+    among = [c for c in candidates if c != law]
+    again = selected(among, sel)
+    if improvement_z(sel.final_heldout, again.final_heldout) < Z_IMPROVE:
+        return sel, candidates
+    again.tried[law] = sel.tried.get(law, {}) | {"swapped_out_z": z}
+    return again, among
 
 
 def _check_enough_rows(data: GapData, recordings: Sequence, paths: Sequence[str], slowest_update_hz: float

@@ -661,6 +661,11 @@ def _not_named_lines(report: dict) -> list[str]:
                      f"one rounded value while the law's lift moves): `{standard}` is named, as effects.md's standard "
                      f"law; the measured surface curve compares their shapes.")
             continue
+        if name not in said and "swapped_out_z" in tried:
+            L.append(f"- `{name}`: taken first for what it gained alone, but another law of its surface with a "
+                     f"thrust-scaling law beside it fitted the held-out rows better by {tried['swapped_out_z']:.2g} "
+                     "errors: the selection was made again without it.")
+            continue
         if name in said or name not in EFFECTS or last is None or EFFECTS[name].surface in surfaces:
             continue  # a surface law beside one said of its surface: the measured surface curve compares them
         text = f"- `{name}`: held-out gain {last[1]:.2g} errors at step {last[0]} ({Z_IMPROVE:g} needed)"
