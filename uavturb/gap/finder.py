@@ -429,7 +429,8 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
     rf = final.residual(data)
     _, rsf, _ = locate.segments(data, rf, update_step_s=step)
     _, draws = locate.window_rows(data, 0.5, step)
-    beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - np.sum(sigma**2) / draws)))
+    noise2 = float(np.sum(sigma**2) / draws)  # N^2, the noise left in a 0.5 s window's smoothed residual
+    beyond = float(np.sqrt(max(0.0, np.mean(np.sum(rsf**2, axis=1)) - noise2)))
     unexplained = {"rms_N": beyond, "drivers": locate.drivers(data, rsf)}
     height_driver = max((d["score"] for d in unexplained["drivers"] if d["feature"] == "d_down"), default=0.0)
     ambiguous += near_misses(sel.tried, set(sel.chosen) | {r["name"] for r in rejected}
@@ -439,7 +440,7 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
                                         set(sel.chosen) | {r["name"] for r in rejected}
                                         | {c for a in ambiguous for c in a["candidates"]},
                                         lambda fit, name: outside_range(data, fit, name), protocol)
-    unexplained = _thrust_axis_tilts(unexplained, ambiguous, data, final, rf, facts, paths, sigma, step)
+    unexplained = _thrust_axis_tilts(unexplained, ambiguous, data, final, rf, facts, paths, noise2, step)
     thrust_map = thrust_map_term(data, final, rf) if not measured_rotor_speeds(recordings) else None
     plots = dict(data=data, r0=base.r0, rs0=rs0, rf=rf, rsf=rsf, segs=segs, drivers=drv, base_ho=base_ho,
                  final_ho=sel.final_heldout)
@@ -535,14 +536,14 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
 
 
 def _thrust_axis_tilts(unexplained: dict[str, Any], ambiguous: list[dict], data: GapData, final: ModelFit,
-                       rf: np.ndarray, facts: Any, paths: Sequence[str], sigma: np.ndarray, step: float
+                       rf: np.ndarray, facts: Any, paths: Sequence[str], noise2: float, step: float
                        ) -> dict[str, Any]:
     """The report's ``unexplained`` with what a thrust axis tilted from the recorded attitude reads in the final
     residual ``rf`` [N] (:func:`~uavturb.gap.decide.residual_thrust_tilt`: each recording's tilt, and the drivers
     of what is left beyond it: a tilt had read as d_up on x); where the push is already left undecided between
     wind and a tilt (an ``ambiguous`` entry with ``thrust_axis_tilt``), that entry gets each recording's tilt with
-    its error instead (modified in place). ``sigma`` [N] the noise per axis, ``step`` [s] the slowest stream's
-    update step (:func:`~uavturb.gap.locate.segments`)."""
+    its error instead (modified in place). ``noise2`` [N^2]: the noise left in a smoothed residual's window,
+    ``step`` [s] the slowest stream's update step (:func:`~uavturb.gap.locate.segments`)."""
     look_alike = next((a for a in ambiguous if "thrust_axis_tilt" in a["candidates"]), None)
     if look_alike is not None:  # the push left undecided: each recording's tilt, with its error, for the reader
         per, _ = tilt_per_recording(data, final, rf)
@@ -555,8 +556,7 @@ def _thrust_axis_tilts(unexplained: dict[str, Any], ambiguous: list[dict], data:
     for e in entry["per_recording"]:
         e["recording"] = paths[e["recording"]]
     _, rst, _ = locate.segments(data, rf - force, update_step_s=step)
-    _, draws = locate.window_rows(data, 0.5, step)
-    entry["rms_beyond_tilt_N"] = float(np.sqrt(max(0.0, np.mean(np.sum(rst**2, axis=1)) - np.sum(sigma**2) / draws)))
+    entry["rms_beyond_tilt_N"] = float(np.sqrt(max(0.0, np.mean(np.sum(rst**2, axis=1)) - noise2)))
     return unexplained | {"drivers": locate.drivers(data, rst), "thrust_axis_tilt": entry}
 
 

@@ -227,6 +227,30 @@ def matched_height_levels(group: np.ndarray, t: np.ndarray, y_thrust: np.ndarray
     return k, se, len(shared)
 
 
+def _within_cell_blocks(cell: np.ndarray, t: np.ndarray, y_thrust: np.ndarray, S: np.ndarray,
+                        *covariates: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    """``(c, z, x_1, ...)`` on the 1 s blocks (:data:`BLOCK_S`, at least :data:`LEVEL_VOLTAGE_BLOCK_ROWS` rows) of
+    each cell of rows (``cell`` (K,) int): each block's cell index ``c``, its ``log(sum y / sum S)`` and its mean of
+    each of ``covariates`` (K,), each less its cell's mean over the cell's blocks, so that what a cell shares (a
+    recording's level, a bin's lift) leaves them; None where fewer than 10 blocks."""
+    _, blk = np.unique(np.stack([cell, block_labels(t, BLOCK_S)]), axis=1, return_inverse=True)
+    blk = blk.ravel()
+    n = np.bincount(blk)
+    cell_of = np.zeros(len(n), np.int64)
+    cell_of[blk] = cell
+    keep = n >= LEVEL_VOLTAGE_BLOCK_ROWS
+    if keep.sum() < 10:
+        return None
+    _, c = np.unique(cell_of[keep], return_inverse=True)
+    counts = np.bincount(c)
+
+    def within(a: np.ndarray) -> np.ndarray:  # less its cell's mean
+        return a - (np.bincount(c, weights=a) / counts)[c]
+
+    z = np.log(np.bincount(blk, weights=y_thrust)[keep] / np.bincount(blk, weights=S)[keep])
+    return (c, within(z), *(within((np.bincount(blk, weights=x) / n)[keep]) for x in covariates))
+
+
 def level_voltage_slope(group: np.ndarray, t: np.ndarray, y_thrust: np.ndarray, S: np.ndarray,
                         voltage_dev: np.ndarray, height: np.ndarray | None, use: np.ndarray) -> tuple[float, float]:
     """``(kappa [1/V], stderr)``: how thrust per rotor speed squared follows the battery's voltage within the
@@ -255,23 +279,12 @@ def level_voltage_slope(group: np.ndarray, t: np.ndarray, y_thrust: np.ndarray, 
         hbin[finite] = np.clip(np.searchsorted(edges, height[finite], side="right") - 1, 0, max(len(edges) - 2, 0))
         log_h[finite] = np.log(height[finite])
     idx = np.flatnonzero(ok)
-    cell = group[idx] * (LEVEL_VOLTAGE_BINS + 1) + hbin[idx]
-    _, blk = np.unique(np.stack([cell, block_labels(t, BLOCK_S)[idx]]), axis=1, return_inverse=True)
-    blk = blk.ravel()
-    n = np.bincount(blk)
-    y_b, s_b, v_b, h_b = (np.bincount(blk, weights=x[idx]) for x in (y_thrust, S, voltage_dev, log_h))
-    cell_of = np.zeros(len(n), np.int64)
-    cell_of[blk] = cell
-    keep = n >= LEVEL_VOLTAGE_BLOCK_ROWS
-    if keep.sum() < 10:
+    found = _within_cell_blocks(group[idx] * (LEVEL_VOLTAGE_BINS + 1) + hbin[idx], t[idx], y_thrust[idx], S[idx],
+                                voltage_dev[idx], log_h[idx])
+    if found is None:
         return float("nan"), float("nan")
-    _, c = np.unique(cell_of[keep], return_inverse=True)
+    c, z, x, h = found
     counts = np.bincount(c)
-
-    def within(a: np.ndarray) -> np.ndarray:  # less its cell's mean
-        return a - (np.bincount(c, weights=a) / counts)[c]
-
-    z, x, h = within(np.log(y_b[keep] / s_b[keep])), within(v_b[keep] / n[keep]), within(h_b[keep] / n[keep])
     shh = np.bincount(c, weights=h * h)
     for a in (z, x):  # less what the height explains within each cell
         a -= np.divide(np.bincount(c, weights=h * a), shh, out=np.zeros_like(shh), where=shh > 0)[c] * h
@@ -295,24 +308,17 @@ def _at_the_bins_heights(cells: list[tuple], group: np.ndarray, t: np.ndarray, y
     out = list(cells)
     for b in sorted({c[1] for c in cells}):
         mine = [i for i, c in enumerate(cells) if c[1] == b]
-        z, x, cell_h = [], [], {}
         masks = {i: ok & (group == cells[i][0]) & (cell_bin == b) for i in mine}
         if any(m.sum() < MATCHED_MIN_ROWS for m in masks.values()):
             continue  # rows at no positive height: the bin is left as it is
-        for i in mine:
-            m = masks[i]
-            lh = np.log(height[m])
-            cell_h[i] = float(np.sum(S[m] * lh) / np.sum(S[m]))
-            _, blk = np.unique(block_labels(t[m], BLOCK_S), return_inverse=True)
-            n = np.bincount(blk)
-            use = n >= LEVEL_VOLTAGE_BLOCK_ROWS
-            zb = np.log(np.bincount(blk, weights=y_thrust[m]) / np.bincount(blk, weights=S[m]))[use]
-            xb = (np.bincount(blk, weights=lh) / n)[use]
-            z.append(zb - zb.mean() if len(zb) else zb)
-            x.append(xb - xb.mean() if len(xb) else xb)
-        zz, xx = np.concatenate(z), np.concatenate(x)
+        cell_h = {i: float(np.sum(S[m] * np.log(height[m])) / np.sum(S[m])) for i, m in masks.items()}
+        rows = np.logical_or.reduce(list(masks.values()))
+        found = _within_cell_blocks(group[rows], t[rows], y_thrust[rows], S[rows], np.log(height[rows]))
+        if found is None:
+            continue
+        c, zz, xx = found
         sxx = float(np.sum(xx * xx))
-        dof = len(zz) - len(mine) - 1
+        dof = len(zz) - len(np.unique(c)) - 1
         if sxx <= 0.0 or dof < 3:
             continue
         beta = float(np.sum(xx * zz) / sxx)
