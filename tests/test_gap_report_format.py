@@ -448,3 +448,26 @@ def test_an_alternative_law_better_by_less_than_the_rounding_is_said_beside_the_
     assert (f"- `ground_effect_exponential`: fitted the held-out rows better than `ground_effect` by {z:.2g} errors at "
             "step 2, but by less than the rotor speeds' rounding can fake along the thrust") in text
     assert text.count("`ground_effect_exponential`") == 1
+
+
+def test_a_standard_law_named_for_its_alternative_says_so_with_both_held_out_errors():
+    """A standard law named where only an alternative of it passed (selection's ``Step.named_for``): the report's
+    entry names that law, the gain with which it passed and both held-out errors at that step, and the explanation
+    says why the standard law is named. A law standing for itself gets neither."""
+    from types import SimpleNamespace
+
+    from uavturb.gap.named_errors import _for_its_physics, _named_for
+
+    tried = {"ground_effect": {"step1_z": 3.36, "step1_heldout_rmse_N": 0.3699,
+                               "step1_named_for_ground_effect_multirotor": 4.47},
+             "ground_effect_multirotor": {"step1_z": 4.47, "step1_heldout_rmse_N": 0.3739}}
+    step = SimpleNamespace(name="ground_effect", named_for="ground_effect_multirotor", z=3.36)
+    assert _named_for(step, tried) == {"law": "ground_effect_multirotor", "z_heldout": 4.47,
+                                       "heldout_rmse_N": 0.3739, "own_heldout_rmse_N": 0.3699}
+    text = _for_its_physics(step, SimpleNamespace(tried=tried))
+    assert text == (" Named for its physics: alone this law improved the held-out fit by z = 3.4, while "
+                    "ground_effect_multirotor, another law of the same effect, passed with z = 4.5 but fitted the "
+                    "held-out rows no better (0.3739 against 0.3699 N): another law is named instead only where it "
+                    "fits better.")
+    assert _for_its_physics(SimpleNamespace(name="ground_effect", named_for=None, z=6.0),
+                            SimpleNamespace(tried=tried)) == ""

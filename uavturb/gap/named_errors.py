@@ -55,11 +55,33 @@ def effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
         budget = effect_budget(data, final, s.name, height_uncertainty, refits)
         effects_out.append({
             "name": s.name, "params": params, "stderr": honest_stderr(budget),
-            "explanation": explanation(s.name, params, facts) + _together(s, sel.chosen),
+            "explanation": explanation(s.name, params, facts) + _together(s, sel.chosen) + _for_its_physics(s, sel),
             "heldout_rmse_before_N": s.heldout_before, "heldout_rmse_after_N": s.heldout_after,
             "z_heldout": s.z, "error_budget": budget,
-        } | ({"named_with": s.named_with} if s.named_with in sel.chosen else {}))
+        } | ({"named_with": s.named_with} if s.named_with in sel.chosen else {})
+          | ({"named_for": _named_for(s, sel.tried)} if s.named_for is not None else {}))
     return effects_out
+
+
+def _named_for(step: Any, tried: dict[str, dict[str, float]]) -> dict[str, Any]:
+    """``{"law", "z_heldout", "heldout_rmse_N", "own_heldout_rmse_N"}``: the alternative law a standard law was
+    named for (:attr:`~uavturb.gap.selection.Step.named_for`), the held-out gain with which it passed, and the
+    held-out errors of both at the step the standard law was taken (``candidates_tried``)."""
+    k = max(int(key[4:key.index("_")]) for key in tried[step.name] if key.endswith(f"_named_for_{step.named_for}"))
+    return {"law": step.named_for, "z_heldout": tried[step.name][f"step{k}_named_for_{step.named_for}"],
+            "heldout_rmse_N": tried[step.named_for][f"step{k}_heldout_rmse_N"],
+            "own_heldout_rmse_N": tried[step.name][f"step{k}_heldout_rmse_N"]}
+
+
+def _for_its_physics(step: Any, sel: Selection) -> str:
+    """The sentence a standard law named for an alternative of it gets (:func:`_named_for`), or ''."""
+    if step.named_for is None:
+        return ""
+    f = _named_for(step, sel.tried)
+    return (f" Named for its physics: alone this law improved the held-out fit by z = {step.z:.1f}, while "
+            f"{f['law']}, another law of the same effect, passed with z = {f['z_heldout']:.1f} but fitted the "
+            f"held-out rows no better ({f['heldout_rmse_N']:.4g} against {f['own_heldout_rmse_N']:.4g} N): "
+            "another law is named instead only where it fits better.")
 
 
 def _together(step: Any, chosen: Sequence[str]) -> str:
