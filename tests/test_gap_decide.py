@@ -719,6 +719,11 @@ def test_a_standard_law_that_failed_its_step_is_named_for_an_alternative_that_pa
     assert sel.tried["ground_effect_exponential"]["step1_z_over_ground_effect"] == pytest.approx(
         selection.improvement_z(cb, ex))
     assert selection.better_law_not_named("ground_effect", sel.tried) is None  # neither fitted better
+    # the standard law's fit outside its range: held back, it is not weighed again, and the alternative is named
+    sel = selection.select(data, laws, known=_StubKnown(data, errors, params),
+                           unphysical=lambda fit, name: "out of range" if name == "ground_effect" else None)
+    assert [(s.name, s.named_for) for s in sel.steps] == [("ground_effect_multirotor", None)]
+    assert [r["name"] for r in sel.rejected] == ["ground_effect"]
     # an alternative better by more than two errors (no curve to judge the shapes) is named, standing for itself
     errors[frozenset({"ground_effect_multirotor"})] = held(0.1 * base)
     sel = selection.select(data, laws, known=_StubKnown(data, errors, params))

@@ -385,7 +385,7 @@ def _same_physics(a: str, b: str) -> bool:
 
 def _standard_law(best: tuple, passed: dict[str, tuple], z_improve: float, tried: dict, step: int,
                   curve: CurveEvidence, known: "_Known | None" = None, current: frozenset[str] = frozenset(),
-                  thrust_floor: float = 0.0) -> tuple:
+                  thrust_floor: float = 0.0, failed: dict[str, float] | None = None) -> tuple:
     """``best``, unless it is an alternative law (``alternative_to``) that does not beat the standard law
     of its physics on the held-out data beyond noise (``z > z_improve``) or whose shape fits the measured
     curve worse: then the standard law, which ``effects.md`` names (a better law "may be named instead"
@@ -393,17 +393,19 @@ def _standard_law(best: tuple, passed: dict[str, tuple], z_improve: float, tried
     one must also exceed ``thrust_floor`` [N^2] (``design.rounding_floor``), as every thrust law's gain must: on
     commands rounded to 1 rad/s a hover holds one rounded value while its height moves the law's lift by a step,
     and two flights of the 50 g quadrotor under Cheeseman-Bennett (mu = 2) had the exponential law better by 4.4
-    errors, 0.0012 against 0.0013 N held out, a sixth of what the rounding can fake. Where the standard law was
-    evaluated at this ``step`` but did not pass, it is weighed as if it had (:func:`_standard_for_its_physics`,
-    ``known`` needed): the alternative's pass shows the physics, not its law."""
+    errors, 0.0012 against 0.0013 N held out, a sixth of what the rounding can fake. ``failed``: the held-out ``z``
+    of the candidates evaluated at this ``step`` (beside ``current``) that did not pass; a standard law among them
+    is weighed as if it had passed (:func:`_standard_for_its_physics`, ``known`` needed): the alternative's pass
+    shows the physics, not its law."""
     c, ho, _ = best
     standard = EFFECTS[c].alternative_to
     if standard is None:
         return best
     if standard not in passed:
-        if known is None or f"step{step}_heldout_rmse_N" not in tried.get(standard, {}):
+        if known is None or standard not in (failed or {}):
             return best
-        passed = passed | {standard: _standard_for_its_physics(known, current, standard, c, tried, step)}
+        passed = passed | {standard: _standard_for_its_physics(known, current, (standard, failed[standard]), c,
+                                                               failed, tried, step)}
     z = improvement_z(passed[standard][1], ho)
     tried[c][f"step{step}_z_over_{standard}"] = z
     gain = np.mean(passed[standard][1].err2) - np.mean(ho.err2)  # N^2
@@ -428,19 +430,21 @@ def _standard_law(best: tuple, passed: dict[str, tuple], z_improve: float, tried
     return best
 
 
-def _standard_for_its_physics(known: "_Known", current: frozenset[str], standard: str, alternative: str,
-                              tried: dict, step: int) -> tuple[str, HeldOut, float]:
-    """The entry ``(standard, held-out error, its own z)`` of a standard law that did not pass at ``step`` while
-    its ``alternative`` did, for :func:`_standard_law` to weigh the two as if both had passed: the physics passed,
-    and which law names it is the rule "a better law must fit better" (module docstring). Each other alternative of
-    ``standard`` evaluated at this step gets its ``z_over_<standard>`` in ``tried`` too (modified in place), so that
-    the report can say which law fitted the held-out rows better (:func:`better_law_not_named`)."""
-    ho = known.heldout(current | {standard})
-    for law, entry in tried.items():
-        if law not in (standard, alternative) and EFFECTS[law].alternative_to == standard \
-                and f"step{step}_heldout_rmse_N" in entry:
-            entry[f"step{step}_z_over_{standard}"] = improvement_z(ho, known.heldout(current | {law}))
-    return standard, ho, tried[standard][f"step{step}_z"]
+def _standard_for_its_physics(known: "_Known", current: frozenset[str], standard: tuple[str, float],
+                              alternative: str, failed: dict[str, float], tried: dict, step: int
+                              ) -> tuple[str, HeldOut, float]:
+    """The entry ``(name, held-out error, its own z)`` of a ``standard`` law ``(name, z)`` that did not pass at
+    ``step`` beside ``current`` while its ``alternative`` did, for :func:`_standard_law` to weigh the two as if both
+    had passed: the physics passed, and which law names it is the rule "a better law must fit better" (module
+    docstring). Each other alternative of it that failed at this step (``failed``: name -> z) gets its
+    ``z_over_<name>`` in ``tried`` too (modified in place), so that the report can say which law fitted the
+    held-out rows better (:func:`better_law_not_named`)."""
+    name, z = standard
+    ho = known.heldout(current | {name})
+    for law in failed:
+        if law != alternative and EFFECTS[law].alternative_to == name:
+            tried[law][f"step{step}_z_over_{name}"] = improvement_z(ho, known.heldout(current | {law}))
+    return name, ho, z
 
 
 def _pinned_by_heights(known: "_Known", effects: frozenset[str], name: str) -> bool:
@@ -573,8 +577,9 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
         rivals: dict[str, str] = {}
         remaining = [c for c in candidates if c not in current]
         while remaining and len(steps) < max_effects:
-            passed = _passing_candidates(known, current, cur_ho, [c for c in remaining if c not in held_back],
-                                         z_improve, thrust_floor, curve, tried, len(steps) + 1)
+            evaluated = [c for c in remaining if c not in held_back]
+            passed = _passing_candidates(known, current, cur_ho, evaluated, z_improve, thrust_floor, curve, tried,
+                                         len(steps) + 1)
             best = min(passed.values(), key=lambda entry: entry[1].rmse, default=None)
             if best is None:
                 pair = _thrust_laws_together(known, current, cur_ho, remaining, held_back, z_improve, thrust_floor,
@@ -591,8 +596,9 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
                 remaining = [r for r in remaining if not any(r == n or _same_physics(r, n) for n in names)]
                 held_back.clear()
                 continue
+            failed = {c: tried[c][f"step{len(steps) + 1}_z"] for c in evaluated if c not in passed}
             c, ho, t = _standard_law(best, passed, z_improve, tried, len(steps) + 1, curve, known, current,
-                                     thrust_floor)
+                                     thrust_floor, failed)
             # the standard law taken for an alternative of it that passed alone: the alternative's gain is the physics'
             named_for = best[0] if c not in passed else None
             if named_for is not None:
