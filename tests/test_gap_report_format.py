@@ -450,7 +450,7 @@ def test_an_alternative_law_better_by_less_than_the_rounding_is_said_beside_the_
     assert text.count("`ground_effect_exponential`") == 1
 
 
-def test_a_standard_law_named_for_its_alternative_says_so_with_both_held_out_errors():
+def test_a_standard_law_named_for_its_alternative_says_so_with_both_held_out_errors(tmp_path):
     """A standard law named where only an alternative of it passed (selection's ``Step.named_for``): the report's
     entry names that law, the gain with which it passed and both held-out errors at that step, and the explanation
     says why the standard law is named. A law standing for itself gets neither."""
@@ -471,3 +471,11 @@ def test_a_standard_law_named_for_its_alternative_says_so_with_both_held_out_err
                     "fits better.")
     assert _for_its_physics(SimpleNamespace(name="ground_effect", named_for=None, z=6.0),
                             SimpleNamespace(tried=tried)) == ""
+    # report.md's table gives both gains: the law's own, and the one it was named for
+    report = _one_effect_report({"name": "ground_effect", "params": {"mu": 4.29}, "stderr": {"mu": 0.58},
+                                 "explanation": "lift." + text, "heldout_rmse_before_N": 0.5323,
+                                 "heldout_rmse_after_N": 0.3699, "z_heldout": 3.36,
+                                 "named_for": _named_for(step, tried)})
+    write_markdown(tmp_path, report, [])
+    md = (tmp_path / "report.md").read_text()
+    assert "| `ground_effect` | mu = 4.29 ± 0.58 | 0.5323 → 0.3699 | 3.4 (4.5 for `ground_effect_multirotor`) |" in md

@@ -373,8 +373,10 @@ def _named_effect_lines(effects: list[dict], undecided: bool) -> list[str]:
         L.append("|---|---|---|---|")
         for e in effects:
             ps = format_params(e["params"], e["stderr"])
+            via = (f" ({e['named_for']['z_heldout']:.1f} for `{e['named_for']['law']}`)" if e.get("named_for")
+                   else "")
             L.append(f"| `{e['name']}` | {ps} | {e['heldout_rmse_before_N']:.4f} → {e['heldout_rmse_after_N']:.4f} | "
-                     f"{e['z_heldout']:.1f} |")
+                     f"{e['z_heldout']:.1f}{via} |")
         L.append("")
         for e in effects:
             L.append(f"- **{e['name']}**: {e['explanation']}")
