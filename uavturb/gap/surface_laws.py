@@ -674,7 +674,7 @@ def law_named_from_curve(effects: list[dict[str, Any]], curve_report: dict | Non
             "explanation": f"{explanation(fit.law, fit.params, facts)} {why}",
             "heldout_rmse_before_N": e["heldout_rmse_before_N"], "heldout_rmse_after_N": e["heldout_rmse_after_N"],
             "z_heldout": e.get("z_heldout"), "error_budget": budget, "named_from": "surface_curve",
-            "time_domain": {k: e[k] for k in ("name", "params", "stderr", "error_budget") if k in e},
+            "time_domain": {k: e[k] for k in ("name", "params", "stderr", "error_budget", "named_for") if k in e},
         })
         curve_report = _curve_report_naming(curve, curve_fits, fit, own, e["params"])
     return out, curve_report
