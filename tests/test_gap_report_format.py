@@ -464,13 +464,12 @@ def test_a_standard_law_named_for_its_alternative_says_so_with_both_held_out_err
     step = SimpleNamespace(name="ground_effect", named_for="ground_effect_multirotor", z=3.36)
     assert _named_for(step, tried) == {"law": "ground_effect_multirotor", "z_heldout": 4.47,
                                        "heldout_rmse_N": 0.3739, "own_heldout_rmse_N": 0.3699}
-    text = _for_its_physics(step, SimpleNamespace(tried=tried))
+    text = _for_its_physics(step.z, _named_for(step, tried))
     assert text == (" Named for its physics: alone this law improved the held-out fit by z = 3.4, while "
                     "ground_effect_multirotor, another law of the same effect, passed with z = 4.5 but fitted the "
                     "held-out rows no better (0.3739 against 0.3699 N): another law is named instead only where it "
                     "fits better.")
-    assert _for_its_physics(SimpleNamespace(name="ground_effect", named_for=None, z=6.0),
-                            SimpleNamespace(tried=tried)) == ""
+    assert _for_its_physics(6.0, None) == ""
     # report.md's table gives both gains: the law's own, and the one it was named for
     report = _one_effect_report({"name": "ground_effect", "params": {"mu": 4.29}, "stderr": {"mu": 0.58},
                                  "explanation": "lift." + text, "heldout_rmse_before_N": 0.5323,

@@ -53,13 +53,15 @@ def effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
     for s in sel.steps:
         params, _ = (final if values is None else values).effect_params(s.name)
         budget = effect_budget(data, final, s.name, height_uncertainty, refits)
+        named_for = _named_for(s, sel.tried) if s.named_for is not None else None
         effects_out.append({
             "name": s.name, "params": params, "stderr": honest_stderr(budget),
-            "explanation": explanation(s.name, params, facts) + _together(s, sel.chosen) + _for_its_physics(s, sel),
+            "explanation": explanation(s.name, params, facts) + _together(s, sel.chosen)
+            + _for_its_physics(s.z, named_for),
             "heldout_rmse_before_N": s.heldout_before, "heldout_rmse_after_N": s.heldout_after,
             "z_heldout": s.z, "error_budget": budget,
         } | ({"named_with": s.named_with} if s.named_with in sel.chosen else {})
-          | ({"named_for": _named_for(s, sel.tried)} if s.named_for is not None else {}))
+          | ({"named_for": named_for} if named_for is not None else {}))
     return effects_out
 
 
@@ -73,12 +75,12 @@ def _named_for(step: Any, tried: dict[str, dict[str, float]]) -> dict[str, Any]:
             "own_heldout_rmse_N": tried[step.name][f"step{k}_heldout_rmse_N"]}
 
 
-def _for_its_physics(step: Any, sel: Selection) -> str:
-    """The sentence a standard law named for an alternative of it gets (:func:`_named_for`), or ''."""
-    if step.named_for is None:
+def _for_its_physics(z: float, f: dict[str, Any] | None) -> str:
+    """The sentence a standard law with held-out gain ``z`` named for an alternative of it (``f``,
+    :func:`_named_for`) gets, or '' where ``f`` is None."""
+    if f is None:
         return ""
-    f = _named_for(step, sel.tried)
-    return (f" Named for its physics: alone this law improved the held-out fit by z = {step.z:.1f}, while "
+    return (f" Named for its physics: alone this law improved the held-out fit by z = {z:.1f}, while "
             f"{f['law']}, another law of the same effect, passed with z = {f['z_heldout']:.1f} but fitted the "
             f"held-out rows no better ({f['heldout_rmse_N']:.4g} against {f['own_heldout_rmse_N']:.4g} N): "
             "another law is named instead only where it fits better.")

@@ -611,7 +611,8 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
                 held_back.add(c)
                 continue
             # with the curve's evidence beside it, a parameter needs the same two standard errors as its held-out gain
-            if not _signed_ok(fit, c, Z_WITH_CURVE if (t if named_for is None else best[2]) < z_improve else z_min):
+            physics_z = t if named_for is None else best[2]  # the held-out gain that passed the step
+            if not _signed_ok(fit, c, Z_WITH_CURVE if physics_z < z_improve else z_min):
                 tried[c]["rejected"] = 1.0
                 remaining.remove(c)
                 continue
