@@ -731,6 +731,43 @@ def test_a_standard_law_that_failed_its_step_is_named_for_an_alternative_that_pa
     assert sel.tried["ground_effect_multirotor"]["step1_z_over_ground_effect"] > selection.Z_DISTINCT
 
 
+def test_a_standard_law_whose_pair_failed_is_named_for_an_alternative_whose_pair_passed_and_fitted_no_better():
+    """Nothing passes alone; beside the battery's sag the multirotor law passes (z 4.2) and Cheeseman-Bennett does
+    not (z 2.8), though Cheeseman-Bennett's pair fits the held-out rows better. As at a single step, the standard
+    law is named for its physics, together with the sag; with Cheeseman-Bennett outside its range the multirotor
+    law's pair is named, standing for itself."""
+    held, base, slow = _stub_heldouts()
+    before = held(base)
+    cb, mr = held(0.25 * slow), held(0.6 * base)
+    z = {k: selection.improvement_z(before, h) for k, h in (("cb", cb), ("mr", mr))}
+    assert z["cb"] < 4.0 < z["mr"] and cb.rmse < mr.rmse  # the case, as set up
+    data = _data(np.zeros(3000))
+    laws = ["ground_effect", "ground_effect_multirotor", "battery_sag"]
+    errors = {frozenset(): before, frozenset({"ground_effect", "battery_sag"}): cb,
+              frozenset({"ground_effect_multirotor", "battery_sag"}): mr}
+    errors |= {frozenset({law}): held(base + slow) for law in laws}  # each alone worse than nothing
+    params = {"ground_effect": ({"mu": 4.3}, {"mu": 0.5}), "ground_effect_multirotor": ({"K_b": 2.5}, {"K_b": 0.6}),
+              "battery_sag": ({"s": 1e-3}, {"s": 1e-4})}
+    sel = selection.select(data, laws, known=_StubKnown(data, errors, params))
+    assert [(s.name, s.named_with, s.named_for) for s in sel.steps] == [
+        ("ground_effect", "battery_sag", "ground_effect_multirotor"), ("battery_sag", "ground_effect", None)]
+    assert all(s.z == pytest.approx(z["cb"]) for s in sel.steps)
+    tried = sel.tried
+    assert tried["ground_effect"]["step1_named_for_ground_effect_multirotor"] == pytest.approx(z["mr"])
+    assert tried["ground_effect"]["step1_heldout_rmse_with_battery_sag_N"] == pytest.approx(cb.rmse)
+    assert tried["ground_effect_multirotor"]["step1_heldout_rmse_with_battery_sag_N"] == pytest.approx(mr.rmse)
+    # Cheeseman-Bennett outside its range: held back, the multirotor law's pair is named as it passed
+    sel = selection.select(data, laws, known=_StubKnown(data, errors, params),
+                           unphysical=lambda fit, name: "out of range" if name == "ground_effect" else None)
+    assert [(s.name, s.named_with, s.named_for) for s in sel.steps] == [
+        ("ground_effect_multirotor", "battery_sag", None), ("battery_sag", "ground_effect_multirotor", None)]
+    assert all(s.z == pytest.approx(z["mr"]) for s in sel.steps)
+    # the multirotor law's pair better by more than two errors (no curve): named, standing for itself
+    errors[frozenset({"ground_effect_multirotor", "battery_sag"})] = held(0.1 * base)
+    sel = selection.select(data, laws, known=_StubKnown(data, errors, params))
+    assert [(s.name, s.named_for) for s in sel.steps] == [("ground_effect_multirotor", None), ("battery_sag", None)]
+
+
 def test_a_standard_law_named_for_its_alternative_stays_where_that_alternative_would():
     """The backward check: removing Cheeseman-Bennett, named for the multirotor law, costs 1.6 errors alone, but the
     multirotor law in its place would gain 4.7: the physics stays. A law standing for itself is dropped there."""

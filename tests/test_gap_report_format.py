@@ -461,7 +461,7 @@ def test_a_standard_law_named_for_its_alternative_says_so_with_both_held_out_err
     tried = {"ground_effect": {"step1_z": 3.36, "step1_heldout_rmse_N": 0.3699,
                                "step1_named_for_ground_effect_multirotor": 4.47},
              "ground_effect_multirotor": {"step1_z": 4.47, "step1_heldout_rmse_N": 0.3739}}
-    step = SimpleNamespace(name="ground_effect", named_for="ground_effect_multirotor", z=3.36)
+    step = SimpleNamespace(name="ground_effect", named_for="ground_effect_multirotor", z=3.36, named_with=None)
     assert _named_for(step, tried) == {"law": "ground_effect_multirotor", "z_heldout": 4.47,
                                        "heldout_rmse_N": 0.3739, "own_heldout_rmse_N": 0.3699}
     text = _for_its_physics(step.z, _named_for(step, tried))
@@ -478,3 +478,36 @@ def test_a_standard_law_named_for_its_alternative_says_so_with_both_held_out_err
     write_markdown(tmp_path, report, [])
     md = (tmp_path / "report.md").read_text()
     assert "| `ground_effect` | mu = 4.29 ± 0.58 | 0.5323 → 0.3699 | 3.4 (4.5 for `ground_effect_multirotor`) |" in md
+
+
+def test_a_standard_law_named_for_its_alternative_beside_a_partner_says_both():
+    """The same for two laws named together (a surface law and the battery's sag): the held-out errors are the
+    pairs', the sentences say the gain was with the partner, and the partner's sentence does not claim that its pair
+    passed by itself."""
+    from types import SimpleNamespace
+
+    from uavturb.gap.named_errors import _for_its_physics, _named_for, _together
+
+    tried = {"ground_effect": {"step1_z": -2.0, "step1_heldout_rmse_N": 0.61, "step1_z_with_battery_sag": 2.8,
+                               "step1_heldout_rmse_with_battery_sag_N": 0.152,
+                               "step1_named_for_ground_effect_multirotor": 4.6},
+             "ground_effect_multirotor": {"step1_z": -1.0, "step1_heldout_rmse_N": 0.60,
+                                          "step1_z_with_battery_sag": 4.6,
+                                          "step1_heldout_rmse_with_battery_sag_N": 0.301}}
+    law = SimpleNamespace(name="ground_effect", named_for="ground_effect_multirotor", z=2.8, named_with="battery_sag")
+    sag = SimpleNamespace(name="battery_sag", named_for=None, z=2.8, named_with="ground_effect")
+    f = _named_for(law, tried)
+    assert f == {"law": "ground_effect_multirotor", "z_heldout": 4.6, "heldout_rmse_N": 0.301,
+                 "own_heldout_rmse_N": 0.152, "with": "battery_sag"}
+    assert _for_its_physics(law.z, f) == (
+        " Named for its physics: beside battery_sag this law improved the held-out fit by z = 2.8, while "
+        "ground_effect_multirotor, another law of the same effect, passed beside battery_sag with z = 4.6 but fitted "
+        "the held-out rows no better (0.301 against 0.152 N): another law is named instead only where it fits better.")
+    for step, other in ((law, sag), (sag, law)):
+        text = _together(step, [law, sag])
+        assert "together they do" not in text and "together they gain z = 2.8" in text, text
+        assert "ground_effect_multirotor in the place of ground_effect passed with the other" in text
+    plain = SimpleNamespace(name="battery_sag", named_for=None, z=6.1, named_with="ground_effect")
+    partner = SimpleNamespace(name="ground_effect", named_for=None, z=6.1, named_with="battery_sag")
+    assert _together(plain, [partner, plain]).endswith("together they do (z = 6.1).")
+    assert _together(plain, [plain]) == ""  # its partner no longer named

@@ -56,7 +56,7 @@ def effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
         named_for = _named_for(s, sel.tried) if s.named_for is not None else None
         effects_out.append({
             "name": s.name, "params": params, "stderr": honest_stderr(budget),
-            "explanation": explanation(s.name, params, facts) + _together(s, sel.chosen)
+            "explanation": explanation(s.name, params, facts) + _together(s, sel.steps)
             + _for_its_physics(s.z, named_for),
             "heldout_rmse_before_N": s.heldout_before, "heldout_rmse_after_N": s.heldout_after,
             "z_heldout": s.z, "error_budget": budget,
@@ -66,13 +66,15 @@ def effects_named(data: GapData, sel: Selection, final: ModelFit, facts: Any,
 
 
 def _named_for(step: Any, tried: dict[str, dict[str, float]]) -> dict[str, Any]:
-    """``{"law", "z_heldout", "heldout_rmse_N", "own_heldout_rmse_N"}``: the alternative law a standard law was
-    named for (:attr:`~uavturb.gap.selection.Step.named_for`), the held-out gain with which it passed, and the
-    held-out errors of both at the step the standard law was taken (``candidates_tried``)."""
+    """``{"law", "z_heldout", "heldout_rmse_N", "own_heldout_rmse_N"}`` (and ``"with"``, the partner, for a law
+    named together with another): the alternative law a standard law was named for
+    (:attr:`~uavturb.gap.selection.Step.named_for`), the held-out gain with which it passed (with the partner
+    beside it), and the held-out errors of both at the step the standard law was taken (``candidates_tried``)."""
     k = max(int(key[4:key.index("_")]) for key in tried[step.name] if key.endswith(f"_named_for_{step.named_for}"))
+    rmse = f"step{k}_heldout_rmse_N" if step.named_with is None else f"step{k}_heldout_rmse_with_{step.named_with}_N"
     return {"law": step.named_for, "z_heldout": tried[step.name][f"step{k}_named_for_{step.named_for}"],
-            "heldout_rmse_N": tried[step.named_for][f"step{k}_heldout_rmse_N"],
-            "own_heldout_rmse_N": tried[step.name][f"step{k}_heldout_rmse_N"]}
+            "heldout_rmse_N": tried[step.named_for][rmse], "own_heldout_rmse_N": tried[step.name][rmse]
+            } | ({"with": step.named_with} if step.named_with is not None else {})
 
 
 def _for_its_physics(z: float, f: dict[str, Any] | None) -> str:
@@ -80,23 +82,31 @@ def _for_its_physics(z: float, f: dict[str, Any] | None) -> str:
     :func:`_named_for`) gets, or '' where ``f`` is None."""
     if f is None:
         return ""
-    return (f" Named for its physics: alone this law improved the held-out fit by z = {z:.1f}, while "
-            f"{f['law']}, another law of the same effect, passed with z = {f['z_heldout']:.1f} but fitted the "
+    beside = "" if "with" not in f else f" beside {f['with']}"
+    return (f" Named for its physics: {beside[1:] or 'alone'} this law improved the held-out fit by z = {z:.1f}, while "
+            f"{f['law']}, another law of the same effect, passed{beside} with z = {f['z_heldout']:.1f} but fitted the "
             f"held-out rows no better ({f['heldout_rmse_N']:.4g} against {f['own_heldout_rmse_N']:.4g} N): "
             "another law is named instead only where it fits better.")
 
 
-def _together(step: Any, chosen: Sequence[str]) -> str:
-    """The sentence an effect named together with another still ``chosen`` gets
-    (:func:`~uavturb.gap.selection._thrust_laws_together`), or ''."""
-    if step.named_with not in chosen:
+def _together(step: Any, steps: Sequence[Any]) -> str:
+    """The sentence an effect named together with another still among ``steps`` gets
+    (:func:`~uavturb.gap.selection._thrust_laws_together`), or ''. Where one of the two was named for an
+    alternative law of its physics, the pair's gain is that alternative's (the sentence of
+    :func:`_for_its_physics` says why)."""
+    partner = next((s for s in steps if s.name == step.named_with), None)
+    if partner is None:
         return ""
     both = {EFFECTS[step.name].surface, EFFECTS[step.named_with].surface}
     how = ("with surfaces both below and above, both lifts raise the thrust per rotor speed squared" if both == {
         "d_down", "d_up"} else "the battery lowers the thrust per rotor speed squared as it sags, while the surface "
            "raises it where the flights came near, so each law alone takes part of the other")
+    standard = step if step.named_for is not None else partner if partner.named_for is not None else None
+    gain = (f"together they do (z = {step.z:.1f})" if standard is None else
+            f"together they gain z = {step.z:.1f}, and {standard.named_for} in the place of {standard.name} passed "
+            "with the other")
     return (f" Named together with {step.named_with}: {how}, and neither law alone improved the held-out fit beyond "
-            f"noise; together they do (z = {step.z:.1f}).")
+            f"noise; {gain}.")
 
 
 def cross_checked(effects: list[dict[str, Any]], curve_fits: dict) -> list[dict[str, Any]]:

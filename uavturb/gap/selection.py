@@ -480,14 +480,29 @@ def better_law_not_named(name: str, tried: dict[str, dict[str, float]]) -> tuple
     return best
 
 
+@dataclass
+class Pair:
+    """Two laws named together (:func:`_thrust_laws_together`): ``laws`` ``(law, partner)``, the pair's held-out
+    fit ``ho`` and gain ``z``; ``named_for``: the alternative law whose pair with ``partner`` passed where ``law``'s
+    did not and fitted no better (:func:`_standard_law`), and ``named_for_z``, the gain that pair passed with."""
+
+    laws: tuple[str, str]
+    ho: HeldOut
+    z: float
+    named_for: str | None = None
+    named_for_z: float | None = None
+
+
 def _thrust_laws_together(known: "_Known", current: frozenset[str], cur_ho: HeldOut, remaining: list[str],
                           held_back: set[str], z_improve: float, thrust_floor: float, tried: dict, step: int,
-                          curve: CurveEvidence) -> tuple[tuple[str, str], HeldOut, float] | None:
-    """Two laws that scale the thrust tried together where no candidate passed alone: ``((law, partner),
-    held-out fit, z)`` of the pair that improves the held-out fit most, beyond ``z_improve`` and the thrust floor,
-    its surface law the standard one unless another beats it as :func:`_standard_law` asks; or None. The partners
+                          curve: CurveEvidence) -> Pair | None:
+    """Two laws that scale the thrust tried together where no candidate passed alone: the :class:`Pair` that
+    improves the held-out fit most, beyond ``z_improve`` and the thrust floor, its surface law the standard one
+    unless another beats it as :func:`_standard_law` asks (a standard law whose pair failed where an alternative's
+    passed is weighed as if it had passed, as at a single step); or None. The partners
     of a law of the surface below are a law of the surface above and a law scaling the thrust coefficient
-    (``EffectSpec.thrust_factor``), which partners the laws of either surface.
+    (``EffectSpec.thrust_factor``), which partners the laws of either surface. Each law's held-out error beside
+    each partner goes into ``tried`` (``step<k>_heldout_rmse_with_<partner>_N``).
 
     Between a floor and a ceiling both lifts raise the thrust per rotor speed squared, the least of it midway, and
     a thrust coefficient fitted with either law alone is pulled up by the other's lift: one law alone fits none of
@@ -504,27 +519,33 @@ def _thrust_laws_together(known: "_Known", current: frozenset[str], cur_ho: Held
     best = None
     for a, laws in [(a, below) for a in above] + [(c, below + above) for c in scaling]:
         passed: dict[str, tuple] = {}  # law -> (law, held-out fit, z) with ``a`` beside it
+        failed: dict[str, float] = {}  # law -> z with ``a`` beside it
         for b in laws:
             ho = known.heldout(current | {b, a})
             t = improvement_z(cur_ho, ho)
             tried.setdefault(b, {})[f"step{step}_z_with_{a}"] = t
             tried.setdefault(a, {})[f"step{step}_z_with_{b}"] = t
+            tried[b][f"step{step}_heldout_rmse_with_{a}_N"] = ho.rmse
             if t >= z_improve and np.mean(cur_ho.err2) - np.mean(ho.err2) > thrust_floor:
                 passed[b] = (b, ho, t)
+            else:
+                failed[b] = t
         if not passed:
             continue
-        b, ho, t = _standard_law(min(passed.values(), key=lambda x: x[1].rmse), passed, z_improve, tried, step, curve,
-                                 known, current | {a}, thrust_floor)
-        if best is None or ho.rmse < best[1].rmse:
-            best = ((b, a), ho, t)
+        alternative = min(passed.values(), key=lambda x: x[1].rmse)
+        b, ho, t = _standard_law(alternative, passed, z_improve, tried, step, curve, known, current | {a},
+                                 thrust_floor, failed)
+        if best is None or ho.rmse < best.ho.rmse:
+            for_law = alternative[0] if b not in passed else None
+            best = Pair((b, a), ho, t, for_law, alternative[2] if for_law is not None else None)
     return best
 
 
-def _pair_taken(known: "_Known", current: frozenset[str], pair: tuple, unphysical: Callable | None, z_min: float,
+def _pair_taken(known: "_Known", current: frozenset[str], pair: Pair, unphysical: Callable | None, z_min: float,
                 tried: dict, rejected: dict, step: int) -> ModelFit | None:
     """The fit of ``current`` with both effects of ``pair`` (:func:`_thrust_laws_together`), where each lies in its
     physical range (else it is listed in ``rejected``) and is significant and signed (rules 3 and 4); else None."""
-    names = pair[0]
+    names = pair.laws
     fit = known.fit(current | set(names))
     for c in names:
         why = unphysical(fit, c) if unphysical is not None else None
@@ -587,12 +608,18 @@ def select(data: GapData, candidates: list[str], base: frozenset[str] = frozense
                 if pair is None or len(steps) + 2 > max_effects:
                     break
                 taken = _pair_taken(known, current, pair, unphysical, z_min, tried, rejected, len(steps) + 1)
+                if taken is None and pair.named_for is not None:  # the step again without the standard law, as
+                    held_back.add(pair.laws[0])                  # at a single step: the alternative's pair stands
+                    continue
                 if taken is None:
                     break
-                names, ho, t = pair
-                steps += [Step(name, cur_ho.rmse, ho.rmse, t, taken, named_with=other)
-                          for name, other in (names, names[::-1])]
-                current, cur_ho = current | set(names), ho
+                names = pair.laws
+                if pair.named_for is not None:
+                    tried[names[0]][f"step{len(steps) + 1}_named_for_{pair.named_for}"] = pair.named_for_z
+                steps += [Step(names[0], cur_ho.rmse, pair.ho.rmse, pair.z, taken, named_with=names[1],
+                               named_for=pair.named_for),
+                          Step(names[1], cur_ho.rmse, pair.ho.rmse, pair.z, taken, named_with=names[0])]
+                current, cur_ho = current | set(names), pair.ho
                 remaining = [r for r in remaining if not any(r == n or _same_physics(r, n) for n in names)]
                 held_back.clear()
                 continue
