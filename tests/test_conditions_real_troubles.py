@@ -23,7 +23,7 @@ from uavturb.physics.effects import EFFECTS, defaults
 from uavturb.physics.vehicle import HEXAROTOR
 from uavturb.sim.flights import conditions as C
 from uavturb.sim.flights.condition_schema import Conditions
-from uavturb.sim.flights.ground_contact import contact_speeds, level
+from uavturb.sim.flights.ground_contact import MAX_LANDED_OFFSET, contact_speeds, level, not_settled
 from uavturb.sim.flights.sensors import SensorNoise
 from uavturb.sim.flights.simulate import low_heights, make_reference, simulate_flight
 from uavturb.sim.core.signals import hover
@@ -108,6 +108,34 @@ def test_ground_contact_needs_a_flight_that_ends_on_its_gear(landing_flight):
     with pytest.raises(InputError, match=r"this one ends \+1.7 cm from it \(give a longer --duration\)"):
         C.condition(rec, dataclasses.replace(truth, d_down=d_down), Conditions(ground_contact_s=1.0),
                     true_vehicle=HEXAROTOR, effects=GE)
+
+
+def test_a_flight_whose_last_descent_has_not_settled_is_flown_longer_before_its_contact():
+    """gap-proof's ground-contact condition at 30 s, seed 101 (its second flight): the descent ended 1.8 cm over the
+    landed height at 30 s and the whole suite stopped on "give a longer --duration". The flight is now flown
+    ``LANDING_SETTLE_S`` longer, its reference resting on the gear, and ends within the landed tolerance; the
+    other flight of the row, settled in time, keeps its duration."""
+    cond = Conditions(ground_contact_s=3.0)
+    durations, heights = [], []
+    for seed in (1801, 1802):
+        out = C.generate_conditioned_flight("hex", {"ground_effect": {"mu": 2.0}}, duration=30.0, kind="low_passes",
+                                            seed=seed, conditions=cond)
+        durations.append(out.truth["duration_s"])
+        heights.append(out.truth["conditions"]["ground_contact"]["rotor_plane_height_m"])
+    assert durations == [30.0, 30.0 + C.LANDING_SETTLE_S]
+    assert all(abs(end - start) < MAX_LANDED_OFFSET for start, end in heights), heights
+
+
+def test_not_settled_says_why_a_flight_has_not_landed(landing_flight):
+    """Known answers: a settled flight gives None; one still moving, or resting 1.7 cm high, says so."""
+    rec, truth = landing_flight
+    assert not_settled(truth) is None
+    d_down = truth.d_down.copy()
+    d_down[-1] = d_down[0] + 0.017
+    assert "ends +1.7 cm from it" in not_settled(dataclasses.replace(truth, d_down=d_down))
+    x = truth.x.copy()
+    x[-1, 7] = 0.25  # m/s along x at the end
+    assert "still moves at 0.25 m/s" in not_settled(dataclasses.replace(truth, x=x))
 
 
 @pytest.mark.parametrize("law", [n for n, s in EFFECTS.items() if s.surface == "d_down"])

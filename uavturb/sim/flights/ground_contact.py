@@ -173,6 +173,20 @@ def concatenate_recordings(base: Recording, parts: list[Recording], dt_ns: int) 
     return replace(base, ground_truth=gt, imu=imu, rotors=rotors)
 
 
+def not_settled(truth: Truth) -> str | None:
+    """Why the simulated flight ``truth`` has not come to rest on its landing gear at its end, at the speed
+    (:data:`MAX_LANDING_SPEED`) and rotor-plane height (:data:`MAX_LANDED_OFFSET`) it started from, or None where
+    it has: a flight whose last descent has not settled would "rest" in the air or still moving."""
+    speed = np.linalg.norm(truth.x[[0, -1], 7:10], axis=1)  # m/s
+    if speed.max() > MAX_LANDING_SPEED:
+        return f"needs a flight that ends landed; this one still moves at {speed[1]:.2f} m/s at its end"
+    offset = float(truth.d_down[-1] - truth.d_down[0])  # m
+    if abs(offset) > MAX_LANDED_OFFSET:
+        return (f"needs a flight that ends on its landing gear, at the rotor-plane height it started from "
+                f"({truth.d_down[0]:.3f} m over the surface below); this one ends {100 * offset:+.1f} cm from it")
+    return None
+
+
 def with_ground_contact(rec: Recording, truth: Truth, seconds: float, *, vehicle: Vehicle,
                         effects: dict[str, dict[str, float]], noise: SensorNoise, seed: int,
                         wind: np.ndarray | None = None) -> tuple[Recording, Truth, dict[str, Any]]:
@@ -193,16 +207,9 @@ def with_ground_contact(rec: Recording, truth: Truth, seconds: float, *, vehicle
         raise InputError("--ground-contact-s", f"needs a flight that takes off from and lands on the floor (kinds "
                                                f"low_passes, mixed, euroc_room); this one starts "
                                                f"{truth.d_down[0]:.2f} m and ends {truth.d_down[-1]:.2f} m over it")
-    speed = np.linalg.norm(truth.x[[0, -1], 7:10], axis=1)  # m/s
-    if speed.max() > MAX_LANDING_SPEED:
-        raise InputError("--ground-contact-s", f"needs a flight that ends landed; this one still moves at "
-                                               f"{speed[1]:.2f} m/s at its end (give a longer --duration)")
-    offset = float(truth.d_down[-1] - truth.d_down[0])
-    if abs(offset) > MAX_LANDED_OFFSET:
-        raise InputError("--ground-contact-s", f"needs a flight that ends on its landing gear, at the rotor-plane "
-                                               f"height it started from ({truth.d_down[0]:.3f} m over the surface "
-                                               f"below); this one ends {100 * offset:+.1f} cm from it (give a longer "
-                                               f"--duration)")
+    unsettled = not_settled(truth)
+    if unsettled is not None:
+        raise InputError("--ground-contact-s", f"{unsettled} (give a longer --duration)")
     dt = float(truth.t[1] - truth.t[0])
     n = max(1, int(round(seconds / dt)))
     ramp = np.linspace(LIFT_FRACTION[0], LIFT_FRACTION[1], n)
