@@ -13,7 +13,7 @@ import pytest
 from uavturb.cli import main
 from uavturb.gap.decide import can_test_alone
 from uavturb.gap.design import MIN_ROWS, GapData, apply_thrust_levels
-from uavturb.gap.finder import _nominal, analyse, composed_offset, read_on_moved_speeds
+from uavturb.gap.finder import _nominal, _thrust_laws_left_open, analyse, composed_offset, read_on_moved_speeds
 from uavturb.gap.named_errors import at_stated_offset, cross_checked, curve_named_thrust_map, curves_at_open_offsets
 from uavturb.gap.fit import ModelFit, fit_model
 from uavturb.sysid.nominal import (UNREAD_OFFSET_SPAN, ThrustLevels, level_voltage_slope, matched_height_levels,
@@ -802,3 +802,22 @@ def test_a_thrust_coefficient_beside_an_undecided_thrust_law_states_what_the_law
         "undecided_thrust_law"]
     assert "undecided_thrust_law" not in _nominal(data, final, apply_thrust_levels(data))[
         "thrust_coefficient_stderr_terms"]
+
+
+def test_laws_a_shape_left_open_widen_the_thrust_coefficient_as_an_undecided_one_does():
+    """The thrust coefficient's error covers what it moves by with each law ``ambiguous`` leaves out of the model:
+    the law undecided beside the thrust coefficient, and both laws of a surface effect whose shape is left open
+    (the lift is there, only its law is not named); a push left between wind and a tilt does not scale the
+    thrust."""
+    ambiguous = [{"candidates": ["battery_sag", "thrust_coefficient"]},
+                 {"candidates": ["ground_effect", "ground_effect_exponential"], "lift_at_lowest_heights": {}},
+                 {"candidates": ["wind", "thrust_tilt"]}]
+    assert _thrust_laws_left_open(ambiguous) == ["battery_sag", "ground_effect", "ground_effect_exponential"]
+    assert _thrust_laws_left_open([]) == []
+    data = _ground_flights(tops=(0.05, 0.05))
+    final = fit_model(data, set())
+    open_shape = _nominal(data, final, apply_thrust_levels(data), _thrust_laws_left_open(ambiguous[1:2]))
+    moves = [abs(fit_model(data, {law}, with_stderr=False).coef["k_T"] - final.coef["k_T"])
+             for law in ("ground_effect", "ground_effect_exponential")]
+    assert open_shape["thrust_coefficient_stderr_terms"]["undecided_thrust_law"] == pytest.approx(max(moves))
+    assert abs(open_shape["thrust_coefficient"] - K_T) < 2 * open_shape["thrust_coefficient_stderr"]

@@ -505,8 +505,7 @@ def _analysis(recordings: Sequence, sim: dict[str, dict[str, float]], *, seed: i
             "chi2_dof_as_measured": offset.chi2_dof_as_measured, "params": offset.params, "why": offset.sentence()}},
         "sim_effect_params": {name: {"sim": p, "fitted": final_at.effect_params(name)[0] if name in final.effects
                                      else {}} for name, p in sim.items()},
-        "nominal": _nominal(data, final, levels, [a["candidates"][0] for a in ambiguous
-                                                  if a["candidates"][1:] == ["thrust_coefficient"]])
+        "nominal": _nominal(data, final, levels, _thrust_laws_left_open(ambiguous))
         | {"thrust_coefficient_vehicle_yaml": vehicle.thrust_coefficient}
         | {"rotor_speed_offset": speed_map},
         "ambiguous": ambiguous,
@@ -800,6 +799,20 @@ def _per_recording_stderr(k_T: float, sample: float, levels: ThrustLevels, names
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.asarray(levels.stderr, float) / np.asarray(levels.k_T, float)
     return {n: float(k_T * float(lv) * np.hypot(sample / k_T, r)) for n, lv, r in zip(names, levels.level, rel)}
+
+
+def _thrust_laws_left_open(ambiguous: Sequence[dict]) -> list[str]:
+    """The laws scaling the thrust that ``ambiguous`` leaves out of the final model: a law undecided beside the
+    thrust coefficient (:func:`~uavturb.gap.selection.near_misses`), and both laws of a surface effect whose shape
+    the data leave open (:func:`~uavturb.gap.selection.shape_open_entry`: the lift is there, so the thrust
+    coefficient fitted without it moves as much as with either law)."""
+    laws: list[str] = []
+    for entry in ambiguous:
+        if entry["candidates"][1:] == ["thrust_coefficient"]:
+            laws.append(entry["candidates"][0])
+        elif "lift_at_lowest_heights" in entry:
+            laws.extend(entry["candidates"])
+    return laws
 
 
 def _nominal(data: GapData, final: ModelFit, levels: ThrustLevels, undecided: Sequence[str] = ()
