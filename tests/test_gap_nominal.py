@@ -811,7 +811,7 @@ def test_laws_a_shape_left_open_widen_the_thrust_coefficient_as_an_undecided_one
     thrust."""
     ambiguous = [{"candidates": ["battery_sag", "thrust_coefficient"]},
                  {"candidates": ["ground_effect", "ground_effect_exponential"], "lift_at_lowest_heights": {}},
-                 {"candidates": ["wind", "thrust_tilt"]}]
+                 {"candidates": ["wind", "thrust_axis_tilt"]}]
     assert _thrust_laws_left_open(ambiguous) == ["battery_sag", "ground_effect", "ground_effect_exponential"]
     assert _thrust_laws_left_open([]) == []
     data = _ground_flights(tops=(0.05, 0.05))
